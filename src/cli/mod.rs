@@ -1,0 +1,45 @@
+//! Command-line front end: one file per subcommand turns arguments into a library call and
+//! prints the result. Nothing below this module prints.
+
+mod demo;
+mod model;
+mod predict;
+mod synth;
+
+use clap::{Parser, Subcommand};
+
+/// Model a soft pneumatic micro-hand from a pressure → tip dataset (MSVR, the method of
+/// Kawamura & Deng 2020), and generate such data from a virtual micro-hand.
+#[derive(Parser)]
+#[command(name = "handcap", version, about, long_about = None)]
+pub struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Virtual micro-hand → training grid and test sweeps with ground truth
+    Synth(synth::Args),
+    /// Fit MSVR to a CSV dataset, report held-out errors, write the model file
+    Model(model::Args),
+    /// Predict outputs of a fitted model for the inputs in a CSV file
+    Predict(predict::Args),
+    /// The whole pipeline on the built-in virtual micro-hand, with a report
+    Demo(demo::Args),
+}
+
+/// Runs the chosen subcommand.
+pub fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Command::Synth(a) => synth::run(a),
+        Command::Model(a) => model::run(a),
+        Command::Predict(a) => predict::run(a),
+        Command::Demo(a) => demo::run(a),
+    }
+}
+
+/// The command line as typed, for provenance.
+fn command_line() -> Vec<String> {
+    std::env::args().collect()
+}

@@ -1,0 +1,375 @@
+//! Datasets with named columns, read from and written to CSV.
+//!
+//! A CSV file has one header row and one row per sample. Columns are chosen by name
+//! (`--inputs`/`--outputs`); other columns are ignored. Every value must parse as a finite
+//! number. Errors name the file, the line (the header is line 1) and the column, and say what to do.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use crate::fsio;
+
+/// Input columns of the micro-hand datasets.
+pub const HAND_INPUTS: [&str; 3] = ["P1_kpa", "P2_kpa", "P3_kpa"];
+/// Output columns of the micro-hand datasets (tip position in the hand frame).
+pub const HAND_OUTPUTS: [&str; 3] = ["x_mm", "y_mm", "z_mm"];
+
+/// Errors of reading or validating a dataset.
+#[derive(Debug, thiserror::Error)]
+pub enum DataError {
+    #[error("cannot read {path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error(
+        "{path}: file is empty; expected a header row naming the columns, then one row per sample"
+    )]
+    Empty { path: PathBuf },
+    #[error("{path}: line 1: column `{name}` appears twice (columns {first} and {second}); rename one of them")]
+    DuplicateHeader {
+        path: PathBuf,
+        name: String,
+        first: usize,
+        second: usize,
+    },
+    #[error("{path}: no column `{name}` (the header has: {available}); choose columns with --inputs/--outputs")]
+    MissingColumn {
+        path: PathBuf,
+        name: String,
+        available: String,
+    },
+    #[error("{path}: line {line}, column `{column}`: `{value}` is not a number")]
+    NotNumeric {
+        path: PathBuf,
+        line: u64,
+        column: String,
+        value: String,
+    },
+    #[error(
+        "{path}: line {line}, column `{column}`: `{value}` is not finite; remove or repair the row"
+    )]
+    NotFinite {
+        path: PathBuf,
+        line: u64,
+        column: String,
+        value: String,
+    },
+    #[error("{path}: line {line}: {message}")]
+    Malformed {
+        path: PathBuf,
+        line: u64,
+        message: String,
+    },
+    #[error("{path}: {found} data rows, but at least {needed} are needed")]
+    TooFewRows {
+        path: PathBuf,
+        found: usize,
+        needed: usize,
+    },
+    #[error("{path}: input column `{column}` is constant ({value}) over all rows; it carries no information, leave it out of --inputs")]
+    ConstantInput {
+        path: PathBuf,
+        column: String,
+        value: f64,
+    },
+    #[error("column `{name}` is chosen twice; each column may appear once in --inputs and --outputs together")]
+    RepeatedSelection { name: String },
+    #[error("writing {path}: {source}")]
+    Write {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+}
+
+/// A block of named numeric columns, stored row-major (`rows × names.len()`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Columns {
+    pub names: Vec<String>,
+    pub values: Vec<f64>,
+}
+
+impl Columns {
+    /// Builds a block from row-major values.
+    ///
+    /// # Panics
+    /// If `values.len()` is not a multiple of `names.len()`.
+    pub fn new(names: Vec<String>, values: Vec<f64>) -> Self {
+        assert!(
+            !names.is_empty() && values.len() % names.len() == 0,
+            "{} values do not fill rows of {} columns",
+            values.len(),
+            names.len()
+        );
+        Columns { names, values }
+    }
+
+    pub fn width(&self) -> usize {
+        self.names.len()
+    }
+
+    pub fn rows(&self) -> usize {
+        self.values.len() / self.width()
+    }
+
+    pub fn row(&self, i: usize) -> &[f64] {
+        let w = self.width();
+        &self.values[i * w..(i + 1) * w]
+    }
+
+    pub fn iter_rows(&self) -> impl Iterator<Item = &[f64]> {
+        self.values.chunks_exact(self.width())
+    }
+
+    /// The values of column `j`, top to bottom.
+    pub fn column(&self, j: usize) -> impl Iterator<Item = f64> + '_ {
+        self.iter_rows().map(move |r| r[j])
+    }
+
+    /// The names joined by commas, as on a command line.
+    pub fn names_list(&self) -> String {
+        self.names.join(",")
+    }
+}
+
+/// Inputs and outputs of one file, row-aligned.
+#[derive(Clone, Debug)]
+pub struct Dataset {
+    pub source: PathBuf,
+    pub inputs: Columns,
+    pub outputs: Columns,
+}
+
+impl Dataset {
+    pub fn rows(&self) -> usize {
+        self.inputs.rows()
+    }
+
+    /// Checks what a fit needs beyond well-formed numbers: enough rows and no constant input.
+    ///
+    /// # Errors
+    /// [`DataError::TooFewRows`], [`DataError::ConstantInput`].
+    pub fn check_fittable(&self, min_rows: usize) -> Result<(), DataError> {
+        if self.rows() < min_rows {
+            return Err(DataError::TooFewRows {
+                path: self.source.clone(),
+                found: self.rows(),
+                needed: min_rows,
+            });
+        }
+        for (j, name) in self.inputs.names.iter().enumerate() {
+            let first = self.inputs.row(0)[j];
+            if self.inputs.column(j).all(|v| v == first) {
+                return Err(DataError::ConstantInput {
+                    path: self.source.clone(),
+                    column: name.clone(),
+                    value: first,
+                });
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Reads the named columns of a CSV file, in the order given.
+///
+/// # Errors
+/// Every [`DataError`] but the fit checks: unreadable or empty file, a chosen column missing or
+/// duplicated in the header, a row of the wrong length, a cell that is not a finite number.
+pub fn read_columns(path: &Path, names: &[String]) -> Result<Columns, DataError> {
+    let mut values = Vec::new();
+    read_selected(path, names, |row| values.extend_from_slice(row))?;
+    Ok(Columns::new(names.to_vec(), values))
+}
+
+/// Reads a dataset: `inputs` and `outputs` columns of one CSV file.
+///
+/// # Errors
+/// As [`read_columns`], and [`DataError::RepeatedSelection`] when a name is chosen twice.
+pub fn read_dataset(
+    path: &Path,
+    inputs: &[String],
+    outputs: &[String],
+) -> Result<Dataset, DataError> {
+    let all: Vec<String> = inputs.iter().chain(outputs).cloned().collect();
+    for (i, name) in all.iter().enumerate() {
+        if all[..i].contains(name) {
+            return Err(DataError::RepeatedSelection { name: name.clone() });
+        }
+    }
+    let (mut x, mut y) = (Vec::new(), Vec::new());
+    read_selected(path, &all, |row| {
+        x.extend_from_slice(&row[..inputs.len()]);
+        y.extend_from_slice(&row[inputs.len()..]);
+    })?;
+    Ok(Dataset {
+        source: path.to_path_buf(),
+        inputs: Columns::new(inputs.to_vec(), x),
+        outputs: Columns::new(outputs.to_vec(), y),
+    })
+}
+
+/// Streams the chosen columns of every data row to `sink`, validated.
+fn read_selected(
+    path: &Path,
+    names: &[String],
+    mut sink: impl FnMut(&[f64]),
+) -> Result<(), DataError> {
+    let io_err = |source| DataError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let file = std::fs::File::open(path).map_err(io_err)?;
+    let mut reader = csv::ReaderBuilder::new()
+        .has_headers(false)
+        .trim(csv::Trim::All)
+        .from_reader(std::io::BufReader::new(file));
+    let mut records = reader.records();
+    let header = match records.next() {
+        None => return Err(DataError::Empty { path: path.into() }),
+        Some(r) => r.map_err(|e| csv_error(path, e))?,
+    };
+    if header.iter().all(str::is_empty) {
+        return Err(DataError::Empty { path: path.into() });
+    }
+    let index = column_index(path, &header, names)?;
+    let mut row = vec![0.0; names.len()];
+    for record in records {
+        let record = record.map_err(|e| csv_error(path, e))?;
+        let line = record.position().map_or(0, |p| p.line());
+        if record.len() != header.len() {
+            return Err(DataError::Malformed {
+                path: path.into(),
+                line,
+                message: format!(
+                    "{} fields, but the header has {}; every row needs one value per column",
+                    record.len(),
+                    header.len()
+                ),
+            });
+        }
+        for (slot, (&col, name)) in row.iter_mut().zip(index.iter().zip(names)) {
+            *slot = parse_cell(path, line, name, &record[col])?;
+        }
+        sink(&row);
+    }
+    Ok(())
+}
+
+/// Finds each chosen name in the header; a chosen name that appears twice is ambiguous.
+fn column_index(
+    path: &Path,
+    header: &csv::StringRecord,
+    names: &[String],
+) -> Result<Vec<usize>, DataError> {
+    let mut positions: HashMap<&str, usize> = HashMap::new();
+    let mut duplicates: HashMap<&str, (usize, usize)> = HashMap::new();
+    for (i, name) in header.iter().enumerate() {
+        if let Some(&first) = positions.get(name) {
+            duplicates.entry(name).or_insert((first, i));
+        } else {
+            positions.insert(name, i);
+        }
+    }
+    names
+        .iter()
+        .map(|name| {
+            if let Some(&(first, second)) = duplicates.get(name.as_str()) {
+                return Err(DataError::DuplicateHeader {
+                    path: path.into(),
+                    name: name.clone(),
+                    first: first + 1,
+                    second: second + 1,
+                });
+            }
+            positions
+                .get(name.as_str())
+                .copied()
+                .ok_or_else(|| DataError::MissingColumn {
+                    path: path.into(),
+                    name: name.clone(),
+                    available: header.iter().collect::<Vec<_>>().join(","),
+                })
+        })
+        .collect()
+}
+
+fn parse_cell(path: &Path, line: u64, column: &str, cell: &str) -> Result<f64, DataError> {
+    let value: f64 = cell.parse().map_err(|_| DataError::NotNumeric {
+        path: path.into(),
+        line,
+        column: column.into(),
+        value: cell.into(),
+    })?;
+    if !value.is_finite() {
+        return Err(DataError::NotFinite {
+            path: path.into(),
+            line,
+            column: column.into(),
+            value: cell.into(),
+        });
+    }
+    Ok(value)
+}
+
+fn csv_error(path: &Path, e: csv::Error) -> DataError {
+    let line = e.position().map_or(0, |p| p.line());
+    match e.into_kind() {
+        csv::ErrorKind::Io(source) => DataError::Io {
+            path: path.into(),
+            source,
+        },
+        kind => DataError::Malformed {
+            path: path.into(),
+            line,
+            message: format!("{kind:?}"),
+        },
+    }
+}
+
+/// Writes blocks of columns side by side as one CSV file, atomically.
+///
+/// Numbers are written in the shortest form that reads back to the same `f64`.
+///
+/// # Errors
+/// [`DataError::Write`] when the file cannot be written.
+///
+/// # Panics
+/// If the blocks have different row counts.
+pub fn write_csv(path: &Path, blocks: &[&Columns]) -> Result<(), DataError> {
+    let rows = blocks.first().map_or(0, |b| b.rows());
+    assert!(
+        blocks.iter().all(|b| b.rows() == rows),
+        "blocks differ in rows"
+    );
+    fsio::write_atomic(path, |w| {
+        let mut out = csv::Writer::from_writer(w);
+        let header: Vec<&str> = blocks
+            .iter()
+            .flat_map(|b| b.names.iter().map(String::as_str))
+            .collect();
+        out.write_record(&header)?;
+        for i in 0..rows {
+            let fields = blocks
+                .iter()
+                .flat_map(|b| b.row(i).iter().map(|&v| format_number(v)));
+            out.write_record(fields)?;
+        }
+        out.flush()?;
+        Ok(())
+    })
+    .map_err(|source| DataError::Write {
+        path: path.into(),
+        source,
+    })
+}
+
+/// Formats a number in the shortest form that reads back to the same `f64` (Rust's `Display`),
+/// with negative zero written as `0`.
+pub fn format_number(v: f64) -> String {
+    if v == 0.0 {
+        "0".to_string()
+    } else {
+        v.to_string()
+    }
+}

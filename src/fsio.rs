@@ -1,0 +1,50 @@
+//! File output that never leaves a half-written file and never replaces an input.
+
+use std::io::{self, BufWriter, Write};
+use std::path::Path;
+
+/// Writes a file through `fill` into a temporary file beside `path`, then renames it over `path`.
+///
+/// If `fill` or the rename fails, `path` is untouched and the temporary file is removed.
+///
+/// # Errors
+/// Any I/O error of creating, writing, syncing or renaming the file.
+pub fn write_atomic(
+    path: &Path,
+    fill: impl FnOnce(&mut dyn Write) -> io::Result<()>,
+) -> io::Result<()> {
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    let mut tmp = tempfile::Builder::new()
+        .prefix(".handcap-")
+        .suffix(".tmp")
+        .tempfile_in(dir)?;
+    {
+        let mut w = BufWriter::new(tmp.as_file_mut());
+        fill(&mut w)?;
+        w.flush()?;
+    }
+    tmp.as_file().sync_all()?;
+    tmp.persist(path).map_err(|e| e.error)?;
+    Ok(())
+}
+
+/// Writes `bytes` to `path` atomically (see [`write_atomic`]).
+///
+/// # Errors
+/// As [`write_atomic`].
+pub fn write_bytes(path: &Path, bytes: &[u8]) -> io::Result<()> {
+    write_atomic(path, |w| w.write_all(bytes))
+}
+
+/// Whether `output` names the same file as any of `inputs` (after resolving links).
+pub fn is_same_file_as_any(output: &Path, inputs: &[&Path]) -> bool {
+    let Ok(out) = output.canonicalize() else {
+        return false; // an output that does not exist yet is not an input
+    };
+    inputs
+        .iter()
+        .any(|p| p.canonicalize().is_ok_and(|p| p == out))
+}

@@ -1,0 +1,25 @@
+//! handcap: a validated model of a soft pneumatic actuator from two webcams and a pressure log.
+//!
+//! The first target is the 3-DOF micro-hand of Kawamura & Deng (Micromachines 2020, 11, 792):
+//! a 50 mm finger of three McKibben muscles driven by pressures P1, P2, P3 (0-250 kPa).
+//! The pipeline is `synth → calibrate → triangulate → model`; each stage reads and writes files
+//! a user can open. This build has the virtual plant ([`synth`]), the data layer ([`data`]) and
+//! the multi-output SVR ([`model::msvr`]).
+//!
+//! # Conventions
+//!
+//! - Units are in names: `_mm`, `_kpa`, `_px`, `_rad`, `_s`. Lengths are millimetres, pressures
+//!   kPa, angles radians (degrees only in reports).
+//! - Hand frame (every dataset): origin at the tip at zero pressure; z along the finger axis from
+//!   the tip towards the base (contraction is +z); x from muscle 1 towards muscle 3; y completes a
+//!   right-handed frame (towards muscle 2).
+//! - Matrices of samples are row-major, one row per sample: inputs `n × d`, outputs `n × q`.
+//! - Every random choice takes an explicit seed, and the same command writes the same bytes.
+//! - Files are written atomically (temporary file, then rename) and never over an input.
+
+pub mod data;
+pub mod fsio;
+pub mod model;
+pub mod provenance;
+pub mod report;
+pub mod synth;

@@ -1,0 +1,121 @@
+//! The model file: versioned JSON with the model, its fit diagnostics and its provenance.
+//!
+//! ```json
+//! { "format": "handcap-model", "version": 1, "kind": "msvr",
+//!   "model": { "inputs": [...], "outputs": [...], "params": {...}, "scaler": {...},
+//!              "support_vectors": [[...]], "coefficients": [[...]], "bias": [...], "fit": {...} },
+//!   "provenance": { "handcap_version": "...", "command": [...], "seed": null, "inputs": [...] } }
+//! ```
+//! Numbers are written so they read back to the same `f64`: a saved and reloaded model
+//! predicts bit for bit what the fitted one did.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::fsio;
+use crate::model::msvr::Msvr;
+use crate::provenance::Provenance;
+
+/// The `format` field of every model file.
+pub const FORMAT: &str = "handcap-model";
+/// The version this build writes and reads.
+pub const VERSION: u32 = 1;
+
+/// Errors of reading or writing a model file.
+#[derive(Debug, thiserror::Error)]
+pub enum ModelFileError {
+    #[error("cannot read {path}: {source}")]
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error(
+        "{path}: not a handcap model file ({reason}); give a file written by `handcap model --out`"
+    )]
+    Invalid { path: PathBuf, reason: String },
+    #[error("{path}: model file version {found}, this handcap reads version {VERSION}; refit with this version")]
+    Version { path: PathBuf, found: u32 },
+    #[error("writing {path}: {source}")]
+    Write {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+}
+
+/// The kinds of model a file can hold.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", content = "model", rename_all = "snake_case")]
+pub enum StoredModel {
+    Msvr(Msvr),
+}
+
+/// A model with what made it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ModelFile {
+    pub format: String,
+    pub version: u32,
+    #[serde(flatten)]
+    pub model: StoredModel,
+    pub provenance: Provenance,
+}
+
+impl ModelFile {
+    pub fn new(model: StoredModel, provenance: Provenance) -> Self {
+        ModelFile {
+            format: FORMAT.to_string(),
+            version: VERSION,
+            model,
+            provenance,
+        }
+    }
+
+    /// Writes the file atomically.
+    ///
+    /// # Errors
+    /// [`ModelFileError::Write`].
+    pub fn save(&self, path: &Path) -> Result<(), ModelFileError> {
+        let json = serde_json::to_vec_pretty(self).expect("model serialises");
+        fsio::write_bytes(path, &json).map_err(|source| ModelFileError::Write {
+            path: path.into(),
+            source,
+        })
+    }
+
+    /// Reads and checks a model file.
+    ///
+    /// # Errors
+    /// [`ModelFileError::Read`], [`ModelFileError::Version`], or [`ModelFileError::Invalid`] with
+    /// what is wrong.
+    pub fn load(path: &Path) -> Result<Self, ModelFileError> {
+        let bytes = std::fs::read(path).map_err(|source| ModelFileError::Read {
+            path: path.into(),
+            source,
+        })?;
+        let invalid = |reason: String| ModelFileError::Invalid {
+            path: path.into(),
+            reason,
+        };
+        #[derive(Deserialize)]
+        struct Header {
+            format: Option<String>,
+            version: Option<u32>,
+        }
+        let header: Header =
+            serde_json::from_slice(&bytes).map_err(|e| invalid(format!("not JSON: {e}")))?;
+        if header.format.as_deref() != Some(FORMAT) {
+            return Err(invalid(format!("`format` is not \"{FORMAT}\"")));
+        }
+        match header.version {
+            Some(VERSION) => {}
+            Some(found) => {
+                return Err(ModelFileError::Version {
+                    path: path.into(),
+                    found,
+                })
+            }
+            None => return Err(invalid("no `version`".into())),
+        }
+        serde_json::from_slice(&bytes).map_err(|e| invalid(e.to_string()))
+    }
+}

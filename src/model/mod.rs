@@ -1,0 +1,131 @@
+//! Models of an actuator's input → output map, the contract they share, and error metrics.
+//!
+//! [`msvr`] is the multi-output support vector regression of the paper. Every model implements
+//! [`Predict`], so evaluation, reports and the command line treat them alike.
+
+pub mod file;
+pub mod msvr;
+
+use rayon::prelude::*;
+
+use crate::data::{Columns, Dataset};
+
+/// Errors of using a fitted model.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum ModelError {
+    #[error("inputs are ({found}) but the model was fitted on ({expected}); give the same columns in the same order")]
+    InputMismatch { expected: String, found: String },
+    #[error("outputs are ({found}) but the model predicts ({expected})")]
+    OutputMismatch { expected: String, found: String },
+}
+
+/// A fitted model: named inputs in, named outputs out.
+pub trait Predict: Sync {
+    /// Input column names, in the order `predict_row` expects them.
+    fn inputs(&self) -> &[String];
+    /// Output column names, in the order `predict_row` writes them.
+    fn outputs(&self) -> &[String];
+    /// Predicts one sample: `x.len() == inputs().len()`, `out.len() == outputs().len()`.
+    fn predict_row(&self, x: &[f64], out: &mut [f64]);
+
+    /// Predicts every row of `x`, in parallel.
+    ///
+    /// # Errors
+    /// [`ModelError::InputMismatch`] when `x` does not have the model's input columns in order.
+    fn predict(&self, x: &Columns) -> Result<Columns, ModelError> {
+        if x.names != self.inputs() {
+            return Err(ModelError::InputMismatch {
+                expected: self.inputs().join(","),
+                found: x.names_list(),
+            });
+        }
+        let q = self.outputs().len();
+        let mut values = vec![0.0; x.rows() * q];
+        values
+            .par_chunks_mut(q)
+            .zip(x.values.par_chunks(x.width()))
+            .with_min_len(64)
+            .for_each(|(out, row)| self.predict_row(row, out));
+        Ok(Columns::new(self.outputs().to_vec(), values))
+    }
+}
+
+/// Prediction errors on one dataset, in the outputs' units (mm for the micro-hand).
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct Errors {
+    pub rows: usize,
+    /// Mean over samples and outputs of |y − ŷ| (the paper's MAE).
+    pub mae: f64,
+    /// Mean over samples of ‖y − ŷ‖₂ (the tip's Euclidean error).
+    pub euclid: f64,
+    /// Largest ‖y − ŷ‖₂ over samples.
+    pub max_euclid: f64,
+    /// MAE of each output column.
+    pub per_output_mae: Vec<f64>,
+}
+
+/// Errors of `predicted` against `truth` (same shape).
+///
+/// # Panics
+/// If the shapes differ or there are no rows.
+pub fn errors(truth: &Columns, predicted: &Columns) -> Errors {
+    assert_eq!(truth.width(), predicted.width(), "output widths differ");
+    assert_eq!(truth.rows(), predicted.rows(), "row counts differ");
+    let (n, q) = (truth.rows(), truth.width());
+    assert!(n > 0, "no rows to compare");
+    let mut per_output = vec![0.0; q];
+    let (mut euclid, mut max_euclid) = (0.0, 0.0f64);
+    for (t, p) in truth.iter_rows().zip(predicted.iter_rows()) {
+        let mut sq = 0.0;
+        for j in 0..q {
+            let d = t[j] - p[j];
+            per_output[j] += d.abs();
+            sq += d * d;
+        }
+        euclid += sq.sqrt();
+        max_euclid = max_euclid.max(sq.sqrt());
+    }
+    let per_output_mae: Vec<f64> = per_output.iter().map(|s| s / n as f64).collect();
+    Errors {
+        rows: n,
+        mae: per_output_mae.iter().sum::<f64>() / q as f64,
+        euclid: euclid / n as f64,
+        max_euclid,
+        per_output_mae,
+    }
+}
+
+/// Predicts a dataset's inputs and scores them against its outputs.
+///
+/// # Errors
+/// [`ModelError`] when the dataset's columns are not the model's.
+pub fn evaluate(model: &dyn Predict, data: &Dataset) -> Result<Errors, ModelError> {
+    if data.outputs.names != model.outputs() {
+        return Err(ModelError::OutputMismatch {
+            expected: model.outputs().join(","),
+            found: data.outputs.names_list(),
+        });
+    }
+    let predicted = model.predict(&data.inputs)?;
+    Ok(errors(&data.outputs, &predicted))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cols(values: &[f64]) -> Columns {
+        Columns::new(vec!["a".into(), "b".into()], values.to_vec())
+    }
+
+    #[test]
+    fn errors_by_hand() {
+        let truth = cols(&[0.0, 0.0, 1.0, 1.0]);
+        let pred = cols(&[3.0, 4.0, 1.0, 0.0]);
+        let e = errors(&truth, &pred);
+        assert_eq!(e.per_output_mae, vec![1.5, 2.5]);
+        assert_eq!(e.mae, 2.0);
+        assert_eq!(e.euclid, 3.0); // (5 + 1) / 2
+        assert_eq!(e.max_euclid, 5.0);
+    }
+}

@@ -1,0 +1,428 @@
+//! Multi-output support vector regression (MSVR), the paper's model (eqs. 8-12).
+//!
+//! f(x) = Σᵢ K(x, xᵢ) βᵢ + b with the RBF kernel K(x, x') = exp(−‖x − x'‖² / (2σ²)) on inputs
+//! min-max scaled to [0, 1] per column (training min and max, stored in the model), outputs used
+//! as they are, so ε is in output units (mm for the micro-hand). Trained by [`irwls`].
+//!
+//! ```
+//! use handcap::data::{Columns, Dataset};
+//! use handcap::model::{msvr::MsvrParams, Predict};
+//!
+//! let x: Vec<f64> = (0..20).map(|i| i as f64).collect();
+//! let y: Vec<f64> = x.iter().map(|v| (v / 4.0).sin()).collect();
+//! let data = Dataset {
+//!     source: "inline".into(),
+//!     inputs: Columns::new(vec!["p".into()], x),
+//!     outputs: Columns::new(vec!["z".into()], y),
+//! };
+//! let model = MsvrParams::new(100.0, 0.001, 0.2).check()?.fit(&data)?;
+//! assert!(model.fit.converged);
+//! let mut out = [0.0];
+//! model.predict_row(&[8.0], &mut out);
+//! assert!((out[0] - 2f64.sin()).abs() < 0.01);
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+
+pub mod irwls;
+pub mod kernel;
+
+use faer::{Mat, Par};
+use serde::{Deserialize, Serialize};
+
+use crate::data::{Columns, DataError, Dataset};
+use crate::model::Predict;
+use irwls::{NotPositiveDefinite, Problem, SolverOptions, StopReason};
+
+/// Default relative tolerance on the objective's decrease.
+pub const DEFAULT_TOL: f64 = 1e-8;
+/// Default iteration cap (fits take 10-40 iterations).
+pub const DEFAULT_MAX_ITER: usize = 500;
+/// Fewest rows a fit accepts.
+pub const MIN_FIT_ROWS: usize = 3;
+
+/// Errors of checking parameters and fitting.
+#[derive(Debug, thiserror::Error)]
+pub enum MsvrError {
+    #[error("{name} = {value}: {requirement}")]
+    InvalidParam {
+        name: &'static str,
+        value: f64,
+        requirement: &'static str,
+    },
+    #[error(transparent)]
+    Data(#[from] DataError),
+    #[error(transparent)]
+    Solver(#[from] NotPositiveDefinite),
+}
+
+/// MSVR hyper-parameters and solver controls, not yet checked.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MsvrParams {
+    /// Penalty C > 0.
+    pub c: f64,
+    /// Tube radius ε ≥ 0, in output units.
+    pub epsilon: f64,
+    /// RBF width σ > 0, in scaled input units.
+    pub sigma: f64,
+    /// Relative tolerance on the objective's decrease (default [`DEFAULT_TOL`]).
+    pub tol: f64,
+    /// Iteration cap (default [`DEFAULT_MAX_ITER`]).
+    pub max_iter: usize,
+}
+
+impl MsvrParams {
+    /// C, ε and σ with the default solver controls.
+    pub fn new(c: f64, epsilon: f64, sigma: f64) -> Self {
+        MsvrParams {
+            c,
+            epsilon,
+            sigma,
+            tol: DEFAULT_TOL,
+            max_iter: DEFAULT_MAX_ITER,
+        }
+    }
+
+    /// Sets the relative tolerance (default [`DEFAULT_TOL`]).
+    pub fn tol(self, tol: f64) -> Self {
+        MsvrParams { tol, ..self }
+    }
+
+    /// Sets the iteration cap (default [`DEFAULT_MAX_ITER`]).
+    pub fn max_iter(self, max_iter: usize) -> Self {
+        MsvrParams { max_iter, ..self }
+    }
+
+    /// Checks every value.
+    ///
+    /// # Errors
+    /// [`MsvrError::InvalidParam`] naming the first bad value.
+    pub fn check(self) -> Result<ValidMsvrParams, MsvrError> {
+        let bad = |name, value, requirement| {
+            Err(MsvrError::InvalidParam {
+                name,
+                value,
+                requirement,
+            })
+        };
+        if !(self.c > 0.0 && self.c.is_finite()) {
+            return bad("C", self.c, "must be finite and > 0");
+        }
+        if !(self.epsilon >= 0.0 && self.epsilon.is_finite()) {
+            return bad("epsilon", self.epsilon, "must be finite and ≥ 0");
+        }
+        if !(self.sigma > 0.0 && self.sigma.is_finite()) {
+            return bad("sigma", self.sigma, "must be finite and > 0");
+        }
+        if !(self.tol > 0.0 && self.tol < 1.0) {
+            return bad("tol", self.tol, "must be in (0, 1)");
+        }
+        if self.max_iter == 0 {
+            return bad("max_iter", 0.0, "must be at least 1");
+        }
+        Ok(ValidMsvrParams(self))
+    }
+}
+
+/// Checked parameters: the only way to fit.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ValidMsvrParams(MsvrParams);
+
+impl ValidMsvrParams {
+    pub fn params(&self) -> &MsvrParams {
+        &self.0
+    }
+
+    /// Fits the model, using every core for the linear algebra.
+    ///
+    /// # Errors
+    /// [`MsvrError::Data`] for too few rows or a constant input; [`MsvrError::Solver`] when the
+    /// linear algebra fails.
+    pub fn fit(&self, data: &Dataset) -> Result<Msvr, MsvrError> {
+        self.fit_with(data, Par::rayon(0))
+    }
+
+    /// Fits the model with the given parallelism (`Par::Seq` when fits run side by side).
+    ///
+    /// # Errors
+    /// As [`ValidMsvrParams::fit`].
+    pub fn fit_with(&self, data: &Dataset, par: Par) -> Result<Msvr, MsvrError> {
+        data.check_fittable(MIN_FIT_ROWS)?;
+        let p = &self.0;
+        let scaler = MinMaxScaler::fit(&data.inputs);
+        let scaled = scaler.transform(&data.inputs);
+        let k = kernel::rbf(&scaled, &scaled, p.sigma);
+        let y = to_mat(&data.outputs);
+        let problem = Problem {
+            kernel: k.as_ref(),
+            targets: y.as_ref(),
+            c: p.c,
+            epsilon: p.epsilon,
+        };
+        let options = SolverOptions {
+            tol: p.tol,
+            max_iter: p.max_iter,
+            par,
+        };
+        let solution = irwls::solve(&problem, &options, None)?;
+        let beta = &solution.beta;
+        let sv_rows: Vec<usize> = (0..beta.nrows())
+            .filter(|&i| (0..beta.ncols()).any(|j| beta[(i, j)] != 0.0))
+            .collect();
+        let fit = FitDiagnostics {
+            rows: data.rows(),
+            iterations: solution.iterations,
+            objective: solution.objective,
+            support_vectors: sv_rows.len(),
+            converged: solution.stop.converged(),
+            stop: solution.stop,
+        };
+        Ok(Msvr::new(
+            data.inputs.names.clone(),
+            data.outputs.names.clone(),
+            *p,
+            scaler,
+            sv_rows.iter().map(|&i| scaled.row(i).to_vec()).collect(),
+            sv_rows
+                .iter()
+                .map(|&i| (0..beta.ncols()).map(|j| beta[(i, j)]).collect())
+                .collect(),
+            solution.bias,
+            fit,
+        ))
+    }
+}
+
+/// How the fit went.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FitDiagnostics {
+    pub rows: usize,
+    pub iterations: usize,
+    /// F at the returned point.
+    pub objective: f64,
+    pub support_vectors: usize,
+    pub converged: bool,
+    pub stop: StopReason,
+}
+
+/// Per-column min-max scaling to [0, 1], with the training minimum and maximum.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MinMaxScaler {
+    pub min: Vec<f64>,
+    pub max: Vec<f64>,
+}
+
+impl MinMaxScaler {
+    /// The scaler of the given columns (each must not be constant).
+    pub fn fit(x: &Columns) -> Self {
+        let (mut min, mut max) = (
+            vec![f64::INFINITY; x.width()],
+            vec![f64::NEG_INFINITY; x.width()],
+        );
+        for row in x.iter_rows() {
+            for (j, &v) in row.iter().enumerate() {
+                min[j] = min[j].min(v);
+                max[j] = max[j].max(v);
+            }
+        }
+        MinMaxScaler { min, max }
+    }
+
+    pub fn scale(&self, j: usize, v: f64) -> f64 {
+        (v - self.min[j]) / (self.max[j] - self.min[j])
+    }
+
+    pub fn transform(&self, x: &Columns) -> Columns {
+        let w = x.width();
+        let values = x
+            .values
+            .iter()
+            .enumerate()
+            .map(|(k, &v)| self.scale(k % w, v))
+            .collect();
+        Columns::new(x.names.clone(), values)
+    }
+}
+
+/// A fitted MSVR.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "MsvrRepr", into = "MsvrRepr")]
+pub struct Msvr {
+    pub inputs: Vec<String>,
+    pub outputs: Vec<String>,
+    pub params: MsvrParams,
+    pub scaler: MinMaxScaler,
+    /// Support vectors in scaled input units, one row each (`n_sv × d`, row-major).
+    support_vectors: Vec<f64>,
+    /// Coefficients β of the support vectors (`n_sv × q`, row-major).
+    coefficients: Vec<f64>,
+    pub bias: Vec<f64>,
+    pub fit: FitDiagnostics,
+}
+
+impl Msvr {
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        inputs: Vec<String>,
+        outputs: Vec<String>,
+        params: MsvrParams,
+        scaler: MinMaxScaler,
+        support_vectors: Vec<Vec<f64>>,
+        coefficients: Vec<Vec<f64>>,
+        bias: Vec<f64>,
+        fit: FitDiagnostics,
+    ) -> Self {
+        Msvr {
+            inputs,
+            outputs,
+            params,
+            scaler,
+            support_vectors: support_vectors.concat(),
+            coefficients: coefficients.concat(),
+            bias,
+            fit,
+        }
+    }
+
+    pub fn support_vector_count(&self) -> usize {
+        self.coefficients.len() / self.outputs.len()
+    }
+}
+
+impl Predict for Msvr {
+    fn inputs(&self) -> &[String] {
+        &self.inputs
+    }
+
+    fn outputs(&self) -> &[String] {
+        &self.outputs
+    }
+
+    fn predict_row(&self, x: &[f64], out: &mut [f64]) {
+        let (d, q) = (self.inputs.len(), self.outputs.len());
+        let gamma = 1.0 / (2.0 * self.params.sigma * self.params.sigma);
+        out.copy_from_slice(&self.bias);
+        for (sv, beta) in self
+            .support_vectors
+            .chunks_exact(d)
+            .zip(self.coefficients.chunks_exact(q))
+        {
+            let d2: f64 = (0..d)
+                .map(|j| {
+                    let diff = self.scaler.scale(j, x[j]) - sv[j];
+                    diff * diff
+                })
+                .sum();
+            let k = (-gamma * d2).exp();
+            for (o, b) in out.iter_mut().zip(beta) {
+                *o += k * b;
+            }
+        }
+    }
+}
+
+/// The model file's form of [`Msvr`]: support vectors and coefficients as nested rows, checked
+/// for consistency when read.
+#[derive(Serialize, Deserialize)]
+struct MsvrRepr {
+    inputs: Vec<String>,
+    outputs: Vec<String>,
+    params: MsvrParams,
+    scaler: MinMaxScaler,
+    support_vectors: Vec<Vec<f64>>,
+    coefficients: Vec<Vec<f64>>,
+    bias: Vec<f64>,
+    fit: FitDiagnostics,
+}
+
+impl From<Msvr> for MsvrRepr {
+    fn from(m: Msvr) -> Self {
+        let (d, q) = (m.inputs.len(), m.outputs.len());
+        MsvrRepr {
+            support_vectors: m
+                .support_vectors
+                .chunks_exact(d)
+                .map(<[f64]>::to_vec)
+                .collect(),
+            coefficients: m
+                .coefficients
+                .chunks_exact(q)
+                .map(<[f64]>::to_vec)
+                .collect(),
+            inputs: m.inputs,
+            outputs: m.outputs,
+            params: m.params,
+            scaler: m.scaler,
+            bias: m.bias,
+            fit: m.fit,
+        }
+    }
+}
+
+impl TryFrom<MsvrRepr> for Msvr {
+    type Error = String;
+
+    fn try_from(r: MsvrRepr) -> Result<Self, String> {
+        let (d, q) = (r.inputs.len(), r.outputs.len());
+        if d == 0 || q == 0 {
+            return Err("the model needs at least one input and one output".into());
+        }
+        r.params.check().map_err(|e| format!("params: {e}"))?;
+        let widths = [
+            ("scaler.min", r.scaler.min.len(), d),
+            ("scaler.max", r.scaler.max.len(), d),
+            ("bias", r.bias.len(), q),
+        ];
+        for (name, found, expected) in widths {
+            if found != expected {
+                return Err(format!("{name} has {found} values, expected {expected}"));
+            }
+        }
+        if r.support_vectors.len() != r.coefficients.len() {
+            return Err(format!(
+                "{} support vectors but {} coefficient rows",
+                r.support_vectors.len(),
+                r.coefficients.len()
+            ));
+        }
+        for (i, (sv, beta)) in r.support_vectors.iter().zip(&r.coefficients).enumerate() {
+            if sv.len() != d || beta.len() != q {
+                return Err(format!(
+                    "support vector {i} has {} values and {} coefficients, expected {d} and {q}",
+                    sv.len(),
+                    beta.len()
+                ));
+            }
+        }
+        let all = r.scaler.min.iter().chain(&r.scaler.max).chain(&r.bias);
+        if !all
+            .chain(r.support_vectors.iter().flatten())
+            .chain(r.coefficients.iter().flatten())
+            .all(|v| v.is_finite())
+        {
+            return Err("a number is not finite".into());
+        }
+        if r.scaler
+            .min
+            .iter()
+            .zip(&r.scaler.max)
+            .any(|(lo, hi)| lo >= hi)
+        {
+            return Err("scaler.min must be below scaler.max in every column".into());
+        }
+        Ok(Msvr::new(
+            r.inputs,
+            r.outputs,
+            r.params,
+            r.scaler,
+            r.support_vectors,
+            r.coefficients,
+            r.bias,
+            r.fit,
+        ))
+    }
+}
+
+/// A faer matrix of a block of columns.
+pub fn to_mat(c: &Columns) -> Mat<f64> {
+    Mat::from_fn(c.rows(), c.width(), |i, j| c.row(i)[j])
+}

@@ -1,0 +1,249 @@
+//! The virtual micro-hand and its measurement protocol: ground-truth datasets with no hardware.
+//!
+//! [`plant`] maps pressures to the tip; this module drives it through the paper's protocol —
+//! a training grid on all three muscles and the two test sweeps of Figures 9-14 — and adds
+//! seeded measurement noise.
+//!
+//! Output of `handcap synth --out DIR --no-images` (all CSV with columns
+//! `P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm`, hand frame):
+//! - `train.csv`: every combination of 0-250 kPa in 50 kPa steps (216 steps),
+//! - `sweep_a.csv`: P1 = P2 = 0, P3 = 0-250 kPa in 10 kPa steps,
+//! - `sweep_b.csv`: P1 = 0, P2 = P3 = 0-250 kPa in 10 kPa steps,
+//! - `manifest.json`: the plant's constants, the noise, the seed and the provenance.
+
+pub mod plant;
+
+use std::path::{Path, PathBuf};
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use serde::Serialize;
+
+use crate::data::{self, Columns, DataError, HAND_INPUTS, HAND_OUTPUTS};
+use crate::provenance::Provenance;
+use plant::{Plant, PlantError, PlantParams, Pressures};
+
+/// The seed used when none is given.
+pub const DEFAULT_SEED: u64 = 2020;
+/// Default tip measurement noise (mm, standard deviation per coordinate): what two 720p webcams
+/// at 150-200 mm achieve on a sub-pixel centroid (see `notes/stereo.md`).
+pub const DEFAULT_NOISE_MM: f64 = 0.02;
+/// Highest pressure of the protocol (kPa), as in the paper.
+pub const PROTOCOL_MAX_KPA: f64 = 250.0;
+
+/// Errors of generating a synthetic capture.
+#[derive(Debug, thiserror::Error)]
+pub enum SynthError {
+    #[error(transparent)]
+    Plant(#[from] PlantError),
+    #[error(transparent)]
+    Data(#[from] DataError),
+    #[error("measurement noise must be finite and ≥ 0 mm, got {0}")]
+    BadNoise(f64),
+    #[error("grid step must divide 0-{PROTOCOL_MAX_KPA} kPa into whole steps, got {0} kPa")]
+    BadStep(f64),
+    #[error("writing {path}: {source}")]
+    Write {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+}
+
+/// How to generate a synthetic capture.
+#[derive(Clone, Debug, Serialize)]
+pub struct SynthConfig {
+    pub seed: u64,
+    /// Standard deviation of the tip measurement noise per coordinate (mm).
+    pub noise_mm: f64,
+    /// Pressure step of the training grid (kPa).
+    pub grid_step_kpa: f64,
+    /// Pressure step of the two test sweeps (kPa).
+    pub sweep_step_kpa: f64,
+    pub plant: PlantParams,
+}
+
+impl Default for SynthConfig {
+    fn default() -> Self {
+        SynthConfig {
+            seed: DEFAULT_SEED,
+            noise_mm: DEFAULT_NOISE_MM,
+            grid_step_kpa: 50.0,
+            sweep_step_kpa: 10.0,
+            plant: PlantParams::default(),
+        }
+    }
+}
+
+/// A named sequence of pressure steps and the measured tip at each.
+#[derive(Clone, Debug)]
+pub struct Recording {
+    /// File stem: `train`, `sweep_a`, `sweep_b`.
+    pub name: &'static str,
+    pub pressures: Columns,
+    /// Measured tip (truth plus noise), hand frame.
+    pub tips: Columns,
+    /// Exact tip, hand frame.
+    pub truth: Columns,
+}
+
+/// The protocol's pressure sequences, in the order they are applied.
+pub fn protocol(config: &SynthConfig) -> Result<Vec<(&'static str, Vec<Pressures>)>, SynthError> {
+    let grid = levels(config.grid_step_kpa)?;
+    let sweep = levels(config.sweep_step_kpa)?;
+    let mut train = Vec::with_capacity(grid.len().pow(3));
+    for &p1 in &grid {
+        for &p2 in &grid {
+            for &p3 in &grid {
+                train.push([p1, p2, p3]);
+            }
+        }
+    }
+    Ok(vec![
+        ("train", train),
+        ("sweep_a", sweep.iter().map(|&p| [0.0, 0.0, p]).collect()),
+        ("sweep_b", sweep.iter().map(|&p| [0.0, p, p]).collect()),
+    ])
+}
+
+/// 0, step, 2·step, …, 250 kPa.
+fn levels(step_kpa: f64) -> Result<Vec<f64>, SynthError> {
+    let count = PROTOCOL_MAX_KPA / step_kpa;
+    if !(step_kpa > 0.0 && count.is_finite() && (count - count.round()).abs() < 1e-9) {
+        return Err(SynthError::BadStep(step_kpa));
+    }
+    Ok((0..=count.round() as usize)
+        .map(|k| k as f64 * step_kpa)
+        .collect())
+}
+
+/// Runs the protocol on the plant and adds seeded noise. Each recording starts from rest.
+///
+/// # Errors
+/// [`SynthError::BadNoise`], [`SynthError::BadStep`], or a plant error.
+pub fn record(config: &SynthConfig) -> Result<Vec<Recording>, SynthError> {
+    if !(config.noise_mm >= 0.0 && config.noise_mm.is_finite()) {
+        return Err(SynthError::BadNoise(config.noise_mm));
+    }
+    let plant = Plant::new(config.plant.clone());
+    let noise =
+        Normal::new(0.0, config.noise_mm).map_err(|_| SynthError::BadNoise(config.noise_mm))?;
+    let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
+    let names = |cols: [&str; 3]| cols.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+    protocol(config)?
+        .into_iter()
+        .map(|(name, steps)| {
+            let truth = plant.run(&steps)?;
+            let measured: Vec<f64> = truth
+                .iter()
+                .flatten()
+                .map(|&v| v + noise.sample(&mut rng))
+                .collect();
+            Ok(Recording {
+                name,
+                pressures: Columns::new(names(HAND_INPUTS), steps.concat()),
+                tips: Columns::new(names(HAND_OUTPUTS), measured),
+                truth: Columns::new(names(HAND_OUTPUTS), truth.concat()),
+            })
+        })
+        .collect()
+}
+
+/// What `manifest.json` records about a synthetic capture.
+#[derive(Serialize)]
+struct Manifest<'a> {
+    format: &'static str,
+    config: &'a SynthConfig,
+    files: Vec<String>,
+    provenance: &'a Provenance,
+}
+
+/// Records the protocol and writes `<name>.csv` per recording plus `manifest.json` into `dir`.
+/// Returns the paths of the CSV files.
+///
+/// # Errors
+/// As [`record`], and when a file cannot be written.
+pub fn write_datasets(
+    dir: &Path,
+    config: &SynthConfig,
+    provenance: &Provenance,
+) -> Result<Vec<PathBuf>, SynthError> {
+    let write_err = |path: &Path| {
+        let path = path.to_path_buf();
+        move |source| SynthError::Write { path, source }
+    };
+    std::fs::create_dir_all(dir).map_err(write_err(dir))?;
+    let mut paths = Vec::new();
+    for rec in record(config)? {
+        let path = dir.join(format!("{}.csv", rec.name));
+        data::write_csv(&path, &[&rec.pressures, &rec.tips])?;
+        paths.push(path);
+    }
+    let manifest = Manifest {
+        format: "handcap-synth/1",
+        config,
+        files: paths
+            .iter()
+            .filter_map(|p| p.file_name())
+            .map(|f| f.to_string_lossy().into_owned())
+            .collect(),
+        provenance,
+    };
+    let path = dir.join("manifest.json");
+    let json = serde_json::to_vec_pretty(&manifest).expect("manifest serialises");
+    crate::fsio::write_bytes(&path, &json).map_err(write_err(&path))?;
+    Ok(paths)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn protocol_matches_the_paper() {
+        let p = protocol(&SynthConfig::default()).unwrap();
+        assert_eq!(p[0].1.len(), 216);
+        assert_eq!(p[1].1.len(), 26);
+        assert!(p[1].1.iter().all(|s| s[0] == 0.0 && s[1] == 0.0));
+        assert!(p[2].1.iter().all(|s| s[0] == 0.0 && s[1] == s[2]));
+        assert_eq!(p[2].1.last().unwrap(), &[0.0, 250.0, 250.0]);
+    }
+
+    #[test]
+    fn noise_is_seeded_and_of_the_stated_size() {
+        let config = SynthConfig::default();
+        let a = record(&config).unwrap();
+        let b = record(&config).unwrap();
+        assert_eq!(a[0].tips, b[0].tips);
+        let residuals: Vec<f64> = a[0]
+            .tips
+            .values
+            .iter()
+            .zip(&a[0].truth.values)
+            .map(|(m, t)| m - t)
+            .collect();
+        let sd = (residuals.iter().map(|r| r * r).sum::<f64>() / residuals.len() as f64).sqrt();
+        assert!((sd - 0.02).abs() < 0.003, "noise sd {sd} mm, expected 0.02");
+        let other = record(&SynthConfig { seed: 7, ..config }).unwrap();
+        assert_ne!(a[0].tips, other[0].tips);
+    }
+
+    #[test]
+    fn bad_steps_and_noise_are_rejected() {
+        for step in [0.0, -10.0, 30.0, f64::NAN] {
+            let config = SynthConfig {
+                grid_step_kpa: step,
+                ..SynthConfig::default()
+            };
+            assert!(
+                matches!(record(&config), Err(SynthError::BadStep(_))),
+                "{step}"
+            );
+        }
+        let config = SynthConfig {
+            noise_mm: -0.1,
+            ..SynthConfig::default()
+        };
+        assert!(matches!(record(&config), Err(SynthError::BadNoise(_))));
+    }
+}
