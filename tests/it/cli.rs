@@ -1,0 +1,147 @@
+//! The `handcap` command as a user runs it.
+
+use std::path::Path;
+
+use crate::common::{handcap, handcap_err, handcap_ok, tempdir, write};
+
+fn synth(dir: &Path, out: &str, seed: &str) {
+    handcap_ok(dir, &["synth", "--out", out, "--no-images", "--seed", seed]);
+}
+
+#[test]
+fn help_lists_only_built_subcommands() {
+    let dir = tempdir();
+    let help = handcap_ok(dir.path(), &["--help"]);
+    for cmd in ["synth", "model", "predict", "demo"] {
+        assert!(help.contains(cmd), "{cmd} missing from --help");
+    }
+    for absent in ["calibrate", "triangulate", "inverse"] {
+        assert!(!help.contains(absent), "--help lists {absent}, which is not built");
+    }
+}
+
+#[test]
+fn synth_writes_the_protocol_deterministically() {
+    let dir = tempdir();
+    synth(dir.path(), "a", "5");
+    synth(dir.path(), "b", "5");
+    synth(dir.path(), "c", "6");
+    for (name, rows) in [("train.csv", 216), ("sweep_a.csv", 26), ("sweep_b.csv", 26)] {
+        let a = std::fs::read_to_string(dir.path().join("a").join(name)).unwrap();
+        assert_eq!(a.lines().next().unwrap(), "P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm");
+        assert_eq!(a.lines().count(), rows + 1, "{name}");
+        let b = std::fs::read_to_string(dir.path().join("b").join(name)).unwrap();
+        assert_eq!(a, b, "{name}: same seed, different bytes");
+        let c = std::fs::read_to_string(dir.path().join("c").join(name)).unwrap();
+        assert_ne!(a, c, "{name}: the seed changes nothing");
+    }
+    let manifest = std::fs::read_to_string(dir.path().join("a/manifest.json")).unwrap();
+    assert!(manifest.contains("\"seed\": 5"), "{manifest}");
+}
+
+#[test]
+fn synth_without_images_flag_says_what_to_do() {
+    let dir = tempdir();
+    let msg = handcap_err(dir.path(), &["synth", "--out", "x"]);
+    assert!(msg.contains("--no-images"), "{msg}");
+    let msg = handcap_err(dir.path(), &["synth", "--out", "x", "--no-images", "--noise-mm=-1"]);
+    assert!(msg.contains("noise"), "{msg}");
+}
+
+#[test]
+fn model_then_predict_round_trip() {
+    let dir = tempdir();
+    let d = dir.path();
+    synth(d, "data", "1");
+    let out = handcap_ok(
+        d,
+        &[
+            "model", "data/train.csv", "--inputs", "P1_kpa,P2_kpa,P3_kpa", "--outputs", "x_mm,y_mm,z_mm",
+            "--search", "none", "--c", "326.7", "--epsilon", "0.0169", "--sigma", "0.259",
+            "--out", "model.json", "--test", "data/sweep_a.csv", "--test", "data/sweep_b.csv",
+            "--report", "rep",
+        ],
+    );
+    assert!(out.contains("converged") && out.contains("sweep_b.csv"), "{out}");
+
+    let metrics = std::fs::read_to_string(d.join("rep/metrics.csv")).unwrap();
+    let lines: Vec<&str> = metrics.lines().collect();
+    assert_eq!(lines[0], "model,test,mae_mm,euclid_mm");
+    assert_eq!(lines.len(), 3);
+    for line in &lines[1..] {
+        let f: Vec<&str> = line.split(',').collect();
+        assert_eq!(f[0], "msvr");
+        let mae: f64 = f[2].parse().unwrap();
+        assert!(mae > 0.0 && mae < 0.2, "{line}");
+    }
+    assert!(d.join("rep/report.md").exists() && d.join("rep/fit.json").exists());
+    let model = std::fs::read_to_string(d.join("model.json")).unwrap();
+    for key in ["\"format\": \"handcap-model\"", "\"version\": 1", "\"kind\": \"msvr\"", "\"support_vectors\"", "\"sha256\"", "\"converged\": true"] {
+        assert!(model.contains(key), "model.json lacks {key}");
+    }
+
+    write(d, "new.csv", "P3_kpa,P1_kpa,P2_kpa,comment\n100,0,0,a\n0,0,0,b\n");
+    handcap_ok(d, &["predict", "model.json", "new.csv", "--out", "pred.csv"]);
+    let pred = std::fs::read_to_string(d.join("pred.csv")).unwrap();
+    let mut lines = pred.lines();
+    assert_eq!(lines.next().unwrap(), "P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm");
+    let first: Vec<f64> = lines.next().unwrap().split(',').map(|v| v.parse().unwrap()).collect();
+    assert_eq!(&first[..3], &[0.0, 0.0, 100.0]);
+    let truth = handcap::synth::plant::Plant::default().tip([0.0, 0.0, 100.0]).unwrap();
+    for j in 0..3 {
+        assert!((first[3 + j] - truth[j]).abs() < 0.3, "predicted {first:?} vs plant {truth:?}");
+    }
+    let zero: Vec<f64> = lines.next().unwrap().split(',').map(|v| v.parse().unwrap()).collect();
+    assert!(zero[3..].iter().all(|v| v.abs() < 0.05), "tip at zero pressure: {zero:?}");
+}
+
+#[test]
+fn bad_input_is_one_line_naming_file_line_and_column() {
+    let dir = tempdir();
+    let d = dir.path();
+    write(d, "bad.csv", "P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm\n0,0,0,0,0,0\n50,0,0,1,x,0\n");
+    let msg = handcap_err(d, &["model", "bad.csv"]);
+    assert!(msg.contains("bad.csv") && msg.contains("line 3") && msg.contains("y_mm"), "{msg}");
+    assert!(!d.join("model.json").exists(), "a model was written from bad input");
+
+    let msg = handcap_err(d, &["model", "missing.csv"]);
+    assert!(msg.contains("missing.csv"), "{msg}");
+
+    let msg = handcap_err(d, &["model", "bad.csv", "--c=-1"]);
+    assert!(msg.contains("C = -1"), "{msg}");
+
+    write(d, "notmodel.json", "{\"format\": \"other\"}");
+    write(d, "in.csv", "P1_kpa,P2_kpa,P3_kpa\n1,2,3\n");
+    let msg = handcap_err(d, &["predict", "notmodel.json", "in.csv", "--out", "p.csv"]);
+    assert!(msg.contains("notmodel.json") && msg.contains("not a handcap model"), "{msg}");
+}
+
+#[test]
+fn outputs_never_overwrite_inputs() {
+    let dir = tempdir();
+    let d = dir.path();
+    synth(d, "data", "1");
+    let before = std::fs::read(d.join("data/train.csv")).unwrap();
+    let msg = handcap_err(d, &["model", "data/train.csv", "--out", "data/train.csv"]);
+    assert!(msg.contains("one of the input files"), "{msg}");
+    assert_eq!(std::fs::read(d.join("data/train.csv")).unwrap(), before);
+}
+
+#[test]
+fn usage_errors_exit_with_2() {
+    let dir = tempdir();
+    let out = handcap(dir.path(), &["model"]);
+    assert_eq!(out.status.code(), Some(2));
+    let out = handcap(dir.path(), &["model", "x.csv", "--search", "magic"]);
+    assert_eq!(out.status.code(), Some(2));
+}
+
+#[test]
+fn demo_runs_end_to_end_and_reports_held_out_errors() {
+    let dir = tempdir();
+    let out = handcap_ok(dir.path(), &["demo", "--out", "demo"]);
+    assert!(out.contains("sweep_a.csv") && out.contains("sweep_b.csv"), "{out}");
+    let metrics = std::fs::read_to_string(dir.path().join("demo/report/metrics.csv")).unwrap();
+    assert_eq!(metrics.lines().count(), 3, "{metrics}");
+    assert!(dir.path().join("demo/model.json").exists());
+}

@@ -1,0 +1,6 @@
+//! Integration tests: one binary, a module per area.
+
+mod cli;
+mod common;
+mod data;
+mod msvr;
