@@ -96,7 +96,7 @@ impl Columns {
     /// If `values.len()` is not a multiple of `names.len()`.
     pub fn new(names: Vec<String>, values: Vec<f64>) -> Self {
         assert!(
-            !names.is_empty() && values.len() % names.len() == 0,
+            !names.is_empty() && values.len().is_multiple_of(names.len()),
             "{} values do not fill rows of {} columns",
             values.len(),
             names.len()

@@ -16,7 +16,10 @@ fn help_lists_only_built_subcommands() {
         assert!(help.contains(cmd), "{cmd} missing from --help");
     }
     for absent in ["calibrate", "triangulate", "inverse"] {
-        assert!(!help.contains(absent), "--help lists {absent}, which is not built");
+        assert!(
+            !help.contains(absent),
+            "--help lists {absent}, which is not built"
+        );
     }
 }
 
@@ -28,7 +31,10 @@ fn synth_writes_the_protocol_deterministically() {
     synth(dir.path(), "c", "6");
     for (name, rows) in [("train.csv", 216), ("sweep_a.csv", 26), ("sweep_b.csv", 26)] {
         let a = std::fs::read_to_string(dir.path().join("a").join(name)).unwrap();
-        assert_eq!(a.lines().next().unwrap(), "P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm");
+        assert_eq!(
+            a.lines().next().unwrap(),
+            "P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm"
+        );
         assert_eq!(a.lines().count(), rows + 1, "{name}");
         let b = std::fs::read_to_string(dir.path().join("b").join(name)).unwrap();
         assert_eq!(a, b, "{name}: same seed, different bytes");
@@ -44,7 +50,10 @@ fn synth_without_images_flag_says_what_to_do() {
     let dir = tempdir();
     let msg = handcap_err(dir.path(), &["synth", "--out", "x"]);
     assert!(msg.contains("--no-images"), "{msg}");
-    let msg = handcap_err(dir.path(), &["synth", "--out", "x", "--no-images", "--noise-mm=-1"]);
+    let msg = handcap_err(
+        dir.path(),
+        &["synth", "--out", "x", "--no-images", "--noise-mm=-1"],
+    );
     assert!(msg.contains("noise"), "{msg}");
 }
 
@@ -56,13 +65,34 @@ fn model_then_predict_round_trip() {
     let out = handcap_ok(
         d,
         &[
-            "model", "data/train.csv", "--inputs", "P1_kpa,P2_kpa,P3_kpa", "--outputs", "x_mm,y_mm,z_mm",
-            "--search", "none", "--c", "326.7", "--epsilon", "0.0169", "--sigma", "0.259",
-            "--out", "model.json", "--test", "data/sweep_a.csv", "--test", "data/sweep_b.csv",
-            "--report", "rep",
+            "model",
+            "data/train.csv",
+            "--inputs",
+            "P1_kpa,P2_kpa,P3_kpa",
+            "--outputs",
+            "x_mm,y_mm,z_mm",
+            "--search",
+            "none",
+            "--c",
+            "326.7",
+            "--epsilon",
+            "0.0169",
+            "--sigma",
+            "0.259",
+            "--out",
+            "model.json",
+            "--test",
+            "data/sweep_a.csv",
+            "--test",
+            "data/sweep_b.csv",
+            "--report",
+            "rep",
         ],
     );
-    assert!(out.contains("converged") && out.contains("sweep_b.csv"), "{out}");
+    assert!(
+        out.contains("converged") && out.contains("sweep_b.csv"),
+        "{out}"
+    );
 
     let metrics = std::fs::read_to_string(d.join("rep/metrics.csv")).unwrap();
     let lines: Vec<&str> = metrics.lines().collect();
@@ -76,33 +106,75 @@ fn model_then_predict_round_trip() {
     }
     assert!(d.join("rep/report.md").exists() && d.join("rep/fit.json").exists());
     let model = std::fs::read_to_string(d.join("model.json")).unwrap();
-    for key in ["\"format\": \"handcap-model\"", "\"version\": 1", "\"kind\": \"msvr\"", "\"support_vectors\"", "\"sha256\"", "\"converged\": true"] {
+    for key in [
+        "\"format\": \"handcap-model\"",
+        "\"version\": 1",
+        "\"kind\": \"msvr\"",
+        "\"support_vectors\"",
+        "\"sha256\"",
+        "\"converged\": true",
+    ] {
         assert!(model.contains(key), "model.json lacks {key}");
     }
 
-    write(d, "new.csv", "P3_kpa,P1_kpa,P2_kpa,comment\n100,0,0,a\n0,0,0,b\n");
-    handcap_ok(d, &["predict", "model.json", "new.csv", "--out", "pred.csv"]);
+    write(
+        d,
+        "new.csv",
+        "P3_kpa,P1_kpa,P2_kpa,comment\n100,0,0,a\n0,0,0,b\n",
+    );
+    handcap_ok(
+        d,
+        &["predict", "model.json", "new.csv", "--out", "pred.csv"],
+    );
     let pred = std::fs::read_to_string(d.join("pred.csv")).unwrap();
     let mut lines = pred.lines();
     assert_eq!(lines.next().unwrap(), "P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm");
-    let first: Vec<f64> = lines.next().unwrap().split(',').map(|v| v.parse().unwrap()).collect();
+    let first: Vec<f64> = lines
+        .next()
+        .unwrap()
+        .split(',')
+        .map(|v| v.parse().unwrap())
+        .collect();
     assert_eq!(&first[..3], &[0.0, 0.0, 100.0]);
-    let truth = handcap::synth::plant::Plant::default().tip([0.0, 0.0, 100.0]).unwrap();
+    let truth = handcap::synth::plant::Plant::default()
+        .tip([0.0, 0.0, 100.0])
+        .unwrap();
     for j in 0..3 {
-        assert!((first[3 + j] - truth[j]).abs() < 0.3, "predicted {first:?} vs plant {truth:?}");
+        assert!(
+            (first[3 + j] - truth[j]).abs() < 0.3,
+            "predicted {first:?} vs plant {truth:?}"
+        );
     }
-    let zero: Vec<f64> = lines.next().unwrap().split(',').map(|v| v.parse().unwrap()).collect();
-    assert!(zero[3..].iter().all(|v| v.abs() < 0.05), "tip at zero pressure: {zero:?}");
+    let zero: Vec<f64> = lines
+        .next()
+        .unwrap()
+        .split(',')
+        .map(|v| v.parse().unwrap())
+        .collect();
+    assert!(
+        zero[3..].iter().all(|v| v.abs() < 0.05),
+        "tip at zero pressure: {zero:?}"
+    );
 }
 
 #[test]
 fn bad_input_is_one_line_naming_file_line_and_column() {
     let dir = tempdir();
     let d = dir.path();
-    write(d, "bad.csv", "P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm\n0,0,0,0,0,0\n50,0,0,1,x,0\n");
+    write(
+        d,
+        "bad.csv",
+        "P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm\n0,0,0,0,0,0\n50,0,0,1,x,0\n",
+    );
     let msg = handcap_err(d, &["model", "bad.csv"]);
-    assert!(msg.contains("bad.csv") && msg.contains("line 3") && msg.contains("y_mm"), "{msg}");
-    assert!(!d.join("model.json").exists(), "a model was written from bad input");
+    assert!(
+        msg.contains("bad.csv") && msg.contains("line 3") && msg.contains("y_mm"),
+        "{msg}"
+    );
+    assert!(
+        !d.join("model.json").exists(),
+        "a model was written from bad input"
+    );
 
     let msg = handcap_err(d, &["model", "missing.csv"]);
     assert!(msg.contains("missing.csv"), "{msg}");
@@ -113,7 +185,10 @@ fn bad_input_is_one_line_naming_file_line_and_column() {
     write(d, "notmodel.json", "{\"format\": \"other\"}");
     write(d, "in.csv", "P1_kpa,P2_kpa,P3_kpa\n1,2,3\n");
     let msg = handcap_err(d, &["predict", "notmodel.json", "in.csv", "--out", "p.csv"]);
-    assert!(msg.contains("notmodel.json") && msg.contains("not a handcap model"), "{msg}");
+    assert!(
+        msg.contains("notmodel.json") && msg.contains("not a handcap model"),
+        "{msg}"
+    );
 }
 
 #[test]
@@ -140,7 +215,10 @@ fn usage_errors_exit_with_2() {
 fn demo_runs_end_to_end_and_reports_held_out_errors() {
     let dir = tempdir();
     let out = handcap_ok(dir.path(), &["demo", "--out", "demo"]);
-    assert!(out.contains("sweep_a.csv") && out.contains("sweep_b.csv"), "{out}");
+    assert!(
+        out.contains("sweep_a.csv") && out.contains("sweep_b.csv"),
+        "{out}"
+    );
     let metrics = std::fs::read_to_string(dir.path().join("demo/report/metrics.csv")).unwrap();
     assert_eq!(metrics.lines().count(), 3, "{metrics}");
     assert!(dir.path().join("demo/model.json").exists());

@@ -40,7 +40,11 @@ pub fn handcap_ok(dir: &Path, args: &[&str]) -> String {
 /// Runs `handcap`, asserts exit code 1 and a one-line error; returns that line.
 pub fn handcap_err(dir: &Path, args: &[&str]) -> String {
     let out = handcap(dir, args);
-    assert_eq!(out.status.code(), Some(1), "handcap {args:?} should fail with 1");
+    assert_eq!(
+        out.status.code(),
+        Some(1),
+        "handcap {args:?} should fail with 1"
+    );
     let stderr = String::from_utf8(out.stderr).expect("utf-8 stderr");
     assert_eq!(stderr.lines().count(), 1, "error is not one line: {stderr}");
     assert!(stderr.starts_with("handcap: "), "{stderr}");

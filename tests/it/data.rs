@@ -17,7 +17,11 @@ fn read(path: &Path) -> Result<handcap::data::Dataset, DataError> {
 #[test]
 fn reads_chosen_columns_in_order_and_ignores_the_rest() {
     let dir = tempdir();
-    let path = write(dir.path(), "d.csv", "x_mm,note,P2_kpa,P1_kpa\n1.5,a,20,10\n-2,b,40, 30 \n");
+    let path = write(
+        dir.path(),
+        "d.csv",
+        "x_mm,note,P2_kpa,P1_kpa\n1.5,a,20,10\n-2,b,40, 30 \n",
+    );
     let d = read(&path).unwrap();
     assert_eq!(d.inputs.names, ["P1_kpa", "P2_kpa"]);
     assert_eq!(d.inputs.values, [10.0, 20.0, 30.0, 40.0]);
@@ -28,7 +32,9 @@ fn reads_chosen_columns_in_order_and_ignores_the_rest() {
 fn error_of(text: &str) -> (DataError, String) {
     let dir = tempdir();
     let path = write(dir.path(), "bad.csv", text);
-    let err = read(&path).and_then(|d| d.check_fittable(3).map(|_| d)).unwrap_err();
+    let err = read(&path)
+        .and_then(|d| d.check_fittable(3).map(|_| d))
+        .unwrap_err();
     let msg = err.to_string();
     assert!(msg.contains("bad.csv"), "no file name in: {msg}");
     assert_eq!(msg.lines().count(), 1, "not one line: {msg}");
@@ -54,14 +60,23 @@ fn empty_file() {
 fn missing_column_lists_what_there_is() {
     let (err, msg) = error_of("P1_kpa,x_mm\n1,2\n");
     assert!(matches!(err, DataError::MissingColumn { ref name, .. } if name == "P2_kpa"));
-    assert!(msg.contains("P1_kpa,x_mm") && msg.contains("--inputs"), "{msg}");
+    assert!(
+        msg.contains("P1_kpa,x_mm") && msg.contains("--inputs"),
+        "{msg}"
+    );
 }
 
 #[test]
 fn non_numeric_cell_names_line_and_column() {
     let (err, msg) = error_of("P1_kpa,P2_kpa,x_mm\n1,2,3\n4,five,6\n");
-    assert!(matches!(err, DataError::NotNumeric { line: 3, .. }), "{msg}");
-    assert!(msg.contains("line 3") && msg.contains("P2_kpa") && msg.contains("five"), "{msg}");
+    assert!(
+        matches!(err, DataError::NotNumeric { line: 3, .. }),
+        "{msg}"
+    );
+    assert!(
+        msg.contains("line 3") && msg.contains("P2_kpa") && msg.contains("five"),
+        "{msg}"
+    );
 }
 
 #[test]
@@ -76,13 +91,33 @@ fn nan_and_infinity_are_rejected() {
 #[test]
 fn duplicate_header_of_a_chosen_column() {
     let (err, msg) = error_of("P1_kpa,P2_kpa,P1_kpa,x_mm\n1,2,3,4\n");
-    assert!(matches!(err, DataError::DuplicateHeader { first: 1, second: 3, .. }), "{msg}");
+    assert!(
+        matches!(
+            err,
+            DataError::DuplicateHeader {
+                first: 1,
+                second: 3,
+                ..
+            }
+        ),
+        "{msg}"
+    );
 }
 
 #[test]
 fn too_few_rows_for_a_fit() {
     let (err, msg) = error_of("P1_kpa,P2_kpa,x_mm\n1,2,3\n2,3,4\n");
-    assert!(matches!(err, DataError::TooFewRows { found: 2, needed: 3, .. }), "{msg}");
+    assert!(
+        matches!(
+            err,
+            DataError::TooFewRows {
+                found: 2,
+                needed: 3,
+                ..
+            }
+        ),
+        "{msg}"
+    );
     let (err, _) = error_of("P1_kpa,P2_kpa,x_mm\n");
     assert!(matches!(err, DataError::TooFewRows { found: 0, .. }));
 }
@@ -90,7 +125,10 @@ fn too_few_rows_for_a_fit() {
 #[test]
 fn constant_input_column() {
     let (err, msg) = error_of("P1_kpa,P2_kpa,x_mm\n0,1,3\n0,2,4\n0,3,5\n");
-    assert!(matches!(err, DataError::ConstantInput { ref column, .. } if column == "P1_kpa"), "{msg}");
+    assert!(
+        matches!(err, DataError::ConstantInput { ref column, .. } if column == "P1_kpa"),
+        "{msg}"
+    );
 }
 
 #[test]
@@ -105,5 +143,8 @@ fn a_column_chosen_twice() {
     let path = write(dir.path(), "d.csv", "a,b\n1,2\n");
     let err = read_dataset(&path, &names("a"), &names("a")).unwrap_err();
     assert!(matches!(err, DataError::RepeatedSelection { .. }));
-    assert_eq!(read_columns(&path, &names("b,a")).unwrap().values, [2.0, 1.0]);
+    assert_eq!(
+        read_columns(&path, &names("b,a")).unwrap().values,
+        [2.0, 1.0]
+    );
 }

@@ -1,6 +1,9 @@
 //! MSVR against oracles that follow from its equations (`notes/msvr.md`) and an independent
 //! solver written here.
 
+// Index loops read like the matrix equations they check.
+#![allow(clippy::needless_range_loop)]
+
 use faer::{Mat, MatRef, Par};
 
 use handcap::data::{Columns, Dataset};
@@ -25,7 +28,8 @@ fn random_problem(seed: u64, n: usize, d: usize, q: usize) -> (Columns, Mat<f64>
     let x = Columns::new((0..d).map(|j| format!("x{j}")).collect(), rng.vec(n * d));
     let y = Mat::from_fn(n, q, |i, j| {
         let r = x.row(i);
-        (3.0 * r[0] + j as f64).sin() + r[d - 1] * r[d - 1] * (j as f64 + 1.0)
+        (3.0 * r[0] + j as f64).sin()
+            + r[d - 1] * r[d - 1] * (j as f64 + 1.0)
             + 0.05 * (rng.next() - 0.5)
     });
     (x, y)
@@ -85,26 +89,49 @@ fn epsilon_zero_is_kernel_ridge_regression() {
         })
         .collect();
     let rhs: Vec<Vec<f64>> = (0..=n)
-        .map(|i| (0..q).map(|j| if i < n { y[(i, j)] } else { 0.0 }).collect())
+        .map(|i| {
+            (0..q)
+                .map(|j| if i < n { y[(i, j)] } else { 0.0 })
+                .collect()
+        })
         .collect();
     let z = gauss_solve(a, rhs);
     for j in 0..q {
-        assert!((sol.bias[j] - z[n][j]).abs() < 1e-8, "bias {j}: {} vs {}", sol.bias[j], z[n][j]);
+        assert!(
+            (sol.bias[j] - z[n][j]).abs() < 1e-8,
+            "bias {j}: {} vs {}",
+            sol.bias[j],
+            z[n][j]
+        );
         for i in 0..n {
             let diff = (sol.beta[(i, j)] - z[i][j]).abs();
-            assert!(diff < 1e-7 * (1.0 + z[i][j].abs()), "β[{i},{j}] off by {diff}");
+            assert!(
+                diff < 1e-7 * (1.0 + z[i][j].abs()),
+                "β[{i},{j}] off by {diff}"
+            );
         }
     }
-    assert!(sol.iterations <= 2, "ε = 0 takes one step, took {}", sol.iterations);
+    assert!(
+        sol.iterations <= 2,
+        "ε = 0 takes one step, took {}",
+        sol.iterations
+    );
 }
 
 #[test]
 fn a_tube_wider_than_every_residual_gives_beta_zero() {
     let (n, q) = (30, 2);
     let (x, y) = random_problem(2, n, 2, q);
-    let mean: Vec<f64> = (0..q).map(|j| y.col(j).iter().sum::<f64>() / n as f64).collect();
+    let mean: Vec<f64> = (0..q)
+        .map(|j| y.col(j).iter().sum::<f64>() / n as f64)
+        .collect();
     let widest = (0..n)
-        .map(|i| (0..q).map(|j| (y[(i, j)] - mean[j]).powi(2)).sum::<f64>().sqrt())
+        .map(|i| {
+            (0..q)
+                .map(|j| (y[(i, j)] - mean[j]).powi(2))
+                .sum::<f64>()
+                .sqrt()
+        })
         .fold(0.0, f64::max);
     let k = kernel::rbf(&x, &x, 0.3);
     let problem = Problem {
@@ -118,11 +145,18 @@ fn a_tube_wider_than_every_residual_gives_beta_zero() {
     let far = Mat::from_fn(n, q, |i, j| 0.01 * ((i + j) as f64).sin());
     for start in [None, Some((far.as_ref(), mean.as_slice()))] {
         let sol = irwls::solve(&problem, &OPTIONS, start).unwrap();
-        let biggest = sol.beta.col_iter().flat_map(|c| c.iter().copied()).fold(0.0f64, |m, v| m.max(v.abs()));
+        let biggest = sol
+            .beta
+            .col_iter()
+            .flat_map(|c| c.iter().copied())
+            .fold(0.0f64, |m, v| m.max(v.abs()));
         assert!(biggest < 1e-6, "β not zero: max |β| = {biggest}");
         assert!(sol.objective < 1e-10, "objective {}", sol.objective);
         for i in 0..n {
-            let u = (0..q).map(|j| (y[(i, j)] - sol.bias[j]).powi(2)).sum::<f64>().sqrt();
+            let u = (0..q)
+                .map(|j| (y[(i, j)] - sol.bias[j]).powi(2))
+                .sum::<f64>()
+                .sqrt();
             assert!(u <= problem.epsilon, "sample {i} outside the tube: {u}");
         }
     }
@@ -134,7 +168,11 @@ fn primal(phi: MatRef<f64>, y: MatRef<f64>, c: f64, eps: f64, z: &[f64]) -> (f64
     let q = y.ncols();
     let (w, b) = z.split_at(m * q);
     let mut f = 0.5 * w.iter().map(|v| v * v).sum::<f64>();
-    let mut grad: Vec<f64> = w.iter().copied().chain(std::iter::repeat_n(0.0, q)).collect();
+    let mut grad: Vec<f64> = w
+        .iter()
+        .copied()
+        .chain(std::iter::repeat_n(0.0, q))
+        .collect();
     for i in 0..n {
         let e: Vec<f64> = (0..q)
             .map(|j| y[(i, j)] - b[j] - (0..m).map(|k| w[k * q + j] * phi[(i, k)]).sum::<f64>())
@@ -177,7 +215,9 @@ fn lbfgs(f: impl Fn(&[f64]) -> (f64, Vec<f64>), mut z: Vec<f64>, gtol: f64) -> f
         }
         for ((s, yv), a) in history.iter().zip(alphas.iter().rev()) {
             let beta = dot(yv, &d) / dot(yv, s);
-            d.iter_mut().zip(s).for_each(|(di, si)| *di += (a - beta) * si);
+            d.iter_mut()
+                .zip(s)
+                .for_each(|(di, si)| *di += (a - beta) * si);
         }
         let slope = dot(&g, &d);
         let mut t = 1.0;
@@ -207,12 +247,18 @@ fn objective_matches_an_independent_lbfgs_solver() {
     // K = ΦΦᵀ with an explicit feature map, so the problem has a small, well-conditioned primal
     // in (W, b) that L-BFGS solves to high accuracy. Q = 1 is the single-output L2-loss SVR.
     let mut rng = Lcg(3);
-    for (case, (n, m, q, c, eps)) in [(25, 5, 3, 10.0, 0.1), (40, 6, 2, 200.0, 0.05), (30, 4, 1, 1.0, 0.02)]
-        .into_iter()
-        .enumerate()
+    for (case, (n, m, q, c, eps)) in [
+        (25, 5, 3, 10.0, 0.1),
+        (40, 6, 2, 200.0, 0.05),
+        (30, 4, 1, 1.0, 0.02),
+    ]
+    .into_iter()
+    .enumerate()
     {
         let phi = Mat::from_fn(n, m, |_, _| rng.next() - 0.5);
-        let y = Mat::from_fn(n, q, |i, j| (phi[(i, 0)] * 4.0 + j as f64).sin() + 0.3 * rng.next());
+        let y = Mat::from_fn(n, q, |i, j| {
+            (phi[(i, 0)] * 4.0 + j as f64).sin() + 0.3 * rng.next()
+        });
         let k = &phi * phi.transpose();
         let problem = Problem {
             kernel: k.as_ref(),
@@ -222,9 +268,17 @@ fn objective_matches_an_independent_lbfgs_solver() {
         };
         let sol = irwls::solve(&problem, &OPTIONS, None).unwrap();
         assert!(sol.stop.converged(), "case {case}: {:?}", sol.stop);
-        let f_ref = lbfgs(|z| primal(phi.as_ref(), y.as_ref(), c, eps, z), vec![0.0; (m + 1) * q], 1e-10);
+        let f_ref = lbfgs(
+            |z| primal(phi.as_ref(), y.as_ref(), c, eps, z),
+            vec![0.0; (m + 1) * q],
+            1e-10,
+        );
         let rel = (sol.objective - f_ref).abs() / f_ref;
-        assert!(rel < 1e-6, "case {case}: IRWLS {} vs L-BFGS {f_ref} (relative {rel:e})", sol.objective);
+        assert!(
+            rel < 1e-6,
+            "case {case}: IRWLS {} vs L-BFGS {f_ref} (relative {rel:e})",
+            sol.objective
+        );
         // The reported objective is the true F at the returned point.
         let k_beta = k.as_ref() * sol.beta.as_ref();
         let recomputed = problem.objective(sol.beta.as_ref(), k_beta.as_ref(), &sol.bias);
@@ -239,9 +293,13 @@ fn objective_matches_lbfgs_on_a_well_conditioned_rbf_kernel() {
     let (n, q, c, eps) = (16, 2, 30.0, 0.05);
     let x = Columns::new(
         vec!["u".into(), "v".into()],
-        (0..n).flat_map(|i| [(i % 4) as f64 / 3.0, (i / 4) as f64 / 3.0]).collect(),
+        (0..n)
+            .flat_map(|i| [(i % 4) as f64 / 3.0, (i / 4) as f64 / 3.0])
+            .collect(),
     );
-    let y = Mat::from_fn(n, q, |i, j| (x.row(i)[0] * 3.0 + j as f64).cos() * x.row(i)[1]);
+    let y = Mat::from_fn(n, q, |i, j| {
+        (x.row(i)[0] * 3.0 + j as f64).cos() * x.row(i)[1]
+    });
     let k = kernel::rbf(&x, &x, 0.2);
     let problem = Problem {
         kernel: k.as_ref(),
@@ -277,7 +335,11 @@ fn objective_matches_lbfgs_on_a_well_conditioned_rbf_kernel() {
     };
     let f_ref = lbfgs(dual, vec![0.0; (n + 1) * q], 1e-11);
     let rel = (sol.objective - f_ref).abs() / f_ref;
-    assert!(rel < 1e-6, "IRWLS {} vs L-BFGS {f_ref} (relative {rel:e})", sol.objective);
+    assert!(
+        rel < 1e-6,
+        "IRWLS {} vs L-BFGS {f_ref} (relative {rel:e})",
+        sol.objective
+    );
 }
 
 fn hand_data(name: &str) -> Dataset {
@@ -291,13 +353,18 @@ fn hand_data(name: &str) -> Dataset {
 }
 
 fn permute_rows(c: &Columns, order: &[usize]) -> Columns {
-    Columns::new(c.names.clone(), order.iter().flat_map(|&i| c.row(i).to_vec()).collect())
+    Columns::new(
+        c.names.clone(),
+        order.iter().flat_map(|&i| c.row(i).to_vec()).collect(),
+    )
 }
 
 fn permute_cols(c: &Columns, order: &[usize]) -> Columns {
     Columns::new(
         order.iter().map(|&j| c.names[j].clone()).collect(),
-        c.iter_rows().flat_map(|r| order.iter().map(|&j| r[j]).collect::<Vec<_>>()).collect(),
+        c.iter_rows()
+            .flat_map(|r| order.iter().map(|&j| r[j]).collect::<Vec<_>>())
+            .collect(),
     )
 }
 
@@ -305,7 +372,10 @@ fn permute_cols(c: &Columns, order: &[usize]) -> Columns {
 fn permuting_rows_or_outputs_permutes_the_solution() {
     let train = hand_data("train");
     let test = hand_data("sweep_b");
-    let params = MsvrParams::new(300.0, 0.02, 0.3).tol(1e-12).check().unwrap();
+    let params = MsvrParams::new(300.0, 0.02, 0.3)
+        .tol(1e-12)
+        .check()
+        .unwrap();
     let base = params.fit(&train).unwrap();
     let base_pred = base.predict(&test.inputs).unwrap();
 
@@ -320,7 +390,12 @@ fn permuting_rows_or_outputs_permutes_the_solution() {
     let rel = (rows.fit.objective - base.fit.objective).abs() / base.fit.objective;
     assert!(rel < 1e-9, "row order changed the objective by {rel:e}");
     let pred = rows.predict(&test.inputs).unwrap();
-    let worst = pred.values.iter().zip(&base_pred.values).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+    let worst = pred
+        .values
+        .iter()
+        .zip(&base_pred.values)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
     assert!(worst < 1e-6, "row order changed predictions by {worst} mm");
 
     let out_order = [2, 0, 1];
@@ -332,28 +407,50 @@ fn permuting_rows_or_outputs_permutes_the_solution() {
     assert_eq!(cols.outputs(), ["z_mm", "x_mm", "y_mm"]);
     let pred = cols.predict(&test.inputs).unwrap();
     let expected = permute_cols(&base_pred, &out_order);
-    let worst = pred.values.iter().zip(&expected.values).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
-    assert!(worst < 1e-6, "output order changed predictions by {worst} mm");
+    let worst = pred
+        .values
+        .iter()
+        .zip(&expected.values)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    assert!(
+        worst < 1e-6,
+        "output order changed predictions by {worst} mm"
+    );
 }
 
 #[test]
 fn save_load_predicts_identically() {
     let train = hand_data("train");
     let test = hand_data("sweep_a");
-    let model = MsvrParams::new(326.7, 0.0169, 0.259).check().unwrap().fit(&train).unwrap();
+    let model = MsvrParams::new(326.7, 0.0169, 0.259)
+        .check()
+        .unwrap()
+        .fit(&train)
+        .unwrap();
     let dir = tempdir();
     let path = dir.path().join("model.json");
-    let file = ModelFile::new(StoredModel::Msvr(model.clone()), Provenance::new(vec!["test".into()], None));
+    let file = ModelFile::new(
+        StoredModel::Msvr(model.clone()),
+        Provenance::new(vec!["test".into()], None),
+    );
     file.save(&path).unwrap();
     let loaded = ModelFile::load(&path).unwrap();
     assert_eq!(loaded, file);
     let StoredModel::Msvr(back) = loaded.model;
-    assert_eq!(back.predict(&test.inputs).unwrap(), model.predict(&test.inputs).unwrap());
+    assert_eq!(
+        back.predict(&test.inputs).unwrap(),
+        model.predict(&test.inputs).unwrap()
+    );
 }
 
 #[test]
 fn fits_the_virtual_hand_and_generalises_to_the_sweeps() {
-    let model = MsvrParams::new(326.7, 0.0169, 0.259).check().unwrap().fit(&hand_data("train")).unwrap();
+    let model = MsvrParams::new(326.7, 0.0169, 0.259)
+        .check()
+        .unwrap()
+        .fit(&hand_data("train"))
+        .unwrap();
     assert!(model.fit.converged);
     for sweep in ["sweep_a", "sweep_b"] {
         let e = handcap::model::evaluate(&model, &hand_data(sweep)).unwrap();
@@ -386,13 +483,28 @@ fn monotone_objective_and_few_iterations_on_a_larger_problem() {
     };
     let mut last = f64::INFINITY;
     for iters in 1..=8 {
-        let opts = SolverOptions { max_iter: iters, ..OPTIONS };
+        let opts = SolverOptions {
+            max_iter: iters,
+            ..OPTIONS
+        };
         let sol = irwls::solve(&problem, &opts, None).unwrap();
         assert!(sol.objective <= last, "objective rose at iteration {iters}");
         last = sol.objective;
     }
-    let full = irwls::solve(&problem, &SolverOptions { tol: 1e-8, ..OPTIONS }, None).unwrap();
-    assert!(full.stop.converged() && full.iterations < 60, "{} iterations", full.iterations);
+    let full = irwls::solve(
+        &problem,
+        &SolverOptions {
+            tol: 1e-8,
+            ..OPTIONS
+        },
+        None,
+    )
+    .unwrap();
+    assert!(
+        full.stop.converged() && full.iterations < 60,
+        "{} iterations",
+        full.iterations
+    );
 }
 
 #[test]
@@ -407,5 +519,47 @@ fn invalid_parameters_are_named() {
         let err = params.check().unwrap_err().to_string();
         assert!(err.starts_with(name), "{err}");
     }
-    assert!(MsvrParams::new(1.0, 0.0, 1.0).check().unwrap().fit(&data).is_ok());
+    assert!(MsvrParams::new(1.0, 0.0, 1.0)
+        .check()
+        .unwrap()
+        .fit(&data)
+        .is_ok());
+}
+
+#[test]
+fn support_vectors_are_exactly_the_samples_outside_the_tube() {
+    // At the optimum βᵢ = 0 exactly when uᵢ ≤ ε (the strict support set), so the model keeps
+    // only the samples outside the tube.
+    let train = hand_data("train");
+    let eps = 0.05;
+    let model = MsvrParams::new(300.0, eps, 0.3)
+        .check()
+        .unwrap()
+        .fit(&train)
+        .unwrap();
+    let pred = model.predict(&train.inputs).unwrap();
+    let outside = train
+        .outputs
+        .iter_rows()
+        .zip(pred.iter_rows())
+        .filter(|(y, p)| {
+            y.iter()
+                .zip(p.iter())
+                .map(|(a, b)| (a - b) * (a - b))
+                .sum::<f64>()
+                .sqrt()
+                > eps
+        })
+        .count();
+    let svs = model.fit.support_vectors;
+    assert!(
+        svs < train.rows(),
+        "no sparsity: {svs} of {} rows",
+        train.rows()
+    );
+    assert!(
+        outside.abs_diff(svs) <= 1,
+        "{outside} samples outside the tube, {svs} support vectors"
+    );
+    assert_eq!(model.support_vector_count(), svs);
 }

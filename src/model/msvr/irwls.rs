@@ -1,24 +1,40 @@
-//! The MSVR training problem on a given kernel matrix, solved by IRWLS with an exact segment
-//! line search.
+//! The MSVR training problem on a given kernel matrix, solved by iteratively reweighted least
+//! squares (IRWLS) with an exact line search on the true objective.
 //!
 //! Minimises F(β, b) = ½ tr(βᵀKβ) + C Σᵢ L(uᵢ), uᵢ = ‖yᵢ − (Kβ)ᵢ − b‖₂,
 //! L(u) = 0 for u ≤ ε and (u − ε)² above (Sánchez-Fernández et al. 2004, eqs. 11-12 of the paper).
 //!
 //! Each iteration:
-//! 1. the strict support set S = {i : uᵢ > ε} and weights aᵢ = 2C(uᵢ − ε)/uᵢ on S (never
-//!    evaluated at uᵢ ≤ ε, so no 0/0 and no infinite 1/a);
-//! 2. the weighted least-squares step, whose model of F has F's gradient at the iterate:
-//!    A = K_SS + diag(1/a_S) (SPD), one Cholesky, A ξ = 1 and A η = Y_S,
-//!    b* = 1ᵀη / 1ᵀξ, β*_S = η − ξ b*ᵀ, β* = 0 off S (with S empty the step is towards β = 0);
-//! 3. a line search on the segment (β, b) → (β*, b*): Kβ(t) is linear and tr(βᵀKβ)(t) quadratic
-//!    in t, so each trial costs O(nq); the first t in 1, ½, ¼, … that does not increase F is
-//!    taken — the iterate never gets worse and a step can always shrink back towards it;
+//! 1. the strict support set S = {i : uᵢ > ε} (a sample on the tube's edge is not in S, so
+//!    nothing divides by u − ε or by u = 0);
+//! 2. a weighted least-squares step whose quadratic model of F has F's gradient at the iterate:
+//!    A = K_SS + I/(2C) (SPD), A ξ = 1 and A η = Y'_S with the targets pulled in to the tube's
+//!    edge, y'ᵢ = yᵢ − ε eᵢ/uᵢ; then b* = 1ᵀη / 1ᵀξ, β*_S = η − ξ b*ᵀ, β* = 0 off S (with S
+//!    empty the step is towards β = 0, b unchanged);
+//! 3. a line search along (β, b) → (β*, b*): Kβ(t) is linear and tr(βᵀKβ)(t) quadratic in t,
+//!    so F(t) and F'(t) cost O(nq) each; F is convex in t, so its minimiser on [0, 4] is found
+//!    from F' by regula falsi, and halved back towards t = 0 should rounding make it worse than
+//!    the current point — the objective never rises;
 //! 4. stop when F falls by less than `tol` relative, when no step along the (descent) direction
-//!    lowers F (the iterate is optimal to rounding), or at `max_iter`.
+//!    lowers F (the iterate is optimal to rounding), or at `max_iter`;
+//! 5. once converged, return the last step target instead of the iterate when F there is within
+//!    `tol` of it: steps shorter or longer than 1 leave rows that left S slightly non-zero, and
+//!    the target is exactly zero off S, so the model keeps only its support vectors.
 //!
-//! This avoids every defect listed in `notes/msvr.md`: one objective for weights, line search and
-//! stopping; backtracking on the true segment; no collapse to β = 0 when S is empty; the bias is
-//! solved for; an iteration cap with a convergence flag; Cholesky, no explicit inverse.
+//! The weights differ from the textbook IRWLS, which uses aᵢ = 2C(uᵢ − ε)/uᵢ with targets yᵢ.
+//! Both models have F's gradient at the iterate, so both have F's optimum as their fixed point.
+//! The textbook weight is the loss's curvature across the residual; along the residual it is
+//! 2C, so the textbook step overshoots (the best step along it measured ≈ 0.25 on the micro-hand
+//! data). Weight 2C with shifted targets is exact along the residual, and makes A depend on S
+//! alone: its Cholesky factor is kept while S does not change, which after the first few
+//! iterations it rarely does. On the micro-hand data at n = 1000 this halves the fit time for
+//! the same number of iterations and the same optimum. With ε = 0 both are the same step.
+//!
+//! None of the defects listed in `notes/msvr.md`: the step, the line search and the stopping rule
+//! all use the one objective F; the line search stays on the line through the current iterate, so
+//! a short step lands near it; an iterate with every sample inside the tube steps towards β = 0
+//! instead of returning it; the bias is solved for; an iteration cap with a convergence flag;
+//! Cholesky, no explicit inverse.
 //!
 //! References: F. Pérez-Cruz et al., "An IRWLS procedure for SVR", EUSIPCO 2000;
 //! M. Sánchez-Fernández et al., IEEE Trans. Signal Process. 52 (2004) 2298;
@@ -27,11 +43,14 @@
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::llt;
 use faer::linalg::matmul::matmul;
+use faer::reborrow::{IntoConst, ReborrowMut};
 use faer::{Accum, Mat, MatRef, Par};
 use serde::{Deserialize, Serialize};
 
 /// Smallest line-search step tried before concluding that no step lowers F.
 const MIN_STEP: f64 = 1.0 / (1u64 << 40) as f64;
+/// Longest step along the line, in units of the IRWLS step.
+const MAX_STEP: f64 = 4.0;
 
 /// Why the solver stopped.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -61,7 +80,8 @@ pub struct SolverOptions {
     pub par: Par,
 }
 
-/// A training problem: kernel matrix K (n × n, symmetric PSD), targets Y (n × q), C > 0, ε ≥ 0.
+/// A training problem: kernel matrix K (n × n, symmetric PSD, contiguous columns, as any
+/// column-major matrix or square sub-block of one), targets Y (n × q), C > 0, ε ≥ 0.
 #[derive(Clone, Copy, Debug)]
 pub struct Problem<'a> {
     pub kernel: MatRef<'a, f64>,
@@ -100,6 +120,65 @@ struct Iterate {
     objective: f64,
 }
 
+/// Buffers of the step system, allocated once per solve (a fresh n × n matrix per iteration
+/// costs more in page faults than the copy into it), and the support set whose Cholesky factor
+/// the block holds.
+struct Workspace {
+    block: Mat<f64>,
+    rhs: Mat<f64>,
+    stack: MemBuffer,
+    factored: Vec<usize>,
+}
+
+impl Workspace {
+    fn new(n: usize, q: usize, par: Par) -> Self {
+        let scratch = llt::factor::cholesky_in_place_scratch::<f64>(n, par, Default::default())
+            .or(llt::solve::solve_in_place_scratch::<f64>(n, q + 1, par));
+        Workspace {
+            block: Mat::zeros(n, n),
+            rhs: Mat::zeros(n, q + 1),
+            stack: MemBuffer::new(scratch),
+            factored: Vec::new(),
+        }
+    }
+
+    /// Factors A = K_SS + diag(1/w) into the block's leading s × s corner. Only the lower
+    /// triangle is copied: it is all the Cholesky reads.
+    fn factor(
+        &mut self,
+        kernel: MatRef<f64>,
+        support: &[usize],
+        inv_weight: f64,
+        par: Par,
+    ) -> Result<(), NotPositiveDefinite> {
+        let s = support.len();
+        self.factored.clear();
+        let mut a = self.block.as_mut().submatrix_mut(0, 0, s, s);
+        for (c, &col) in support.iter().enumerate() {
+            let src = column(kernel, col);
+            let dst = a
+                .rb_mut()
+                .col_mut(c)
+                .try_as_col_major_mut()
+                .expect("column-major");
+            for (d, &row) in dst.as_slice_mut()[c..].iter_mut().zip(&support[c..]) {
+                *d = src[row];
+            }
+            a[(c, c)] += inv_weight;
+        }
+        let stack = MemStack::new(&mut self.stack);
+        llt::factor::cholesky_in_place(a, Default::default(), par, stack, Default::default())
+            .map_err(|e| match e {
+                llt::factor::LltError::NonPositivePivot { index } => NotPositiveDefinite {
+                    pivot: index,
+                    size: s,
+                },
+            })?;
+        self.factored.extend_from_slice(support);
+        Ok(())
+    }
+}
+
 /// Solves the problem from β = 0, b = mean(Y), or from `start` (β, b) when given.
 ///
 /// # Errors
@@ -111,6 +190,11 @@ pub fn solve(
 ) -> Result<Solution, NotPositiveDefinite> {
     let (n, q) = problem.targets.shape();
     assert_eq!(problem.kernel.shape(), (n, n), "kernel must be n × n");
+    assert_eq!(
+        problem.kernel.row_stride(),
+        1,
+        "kernel columns must be contiguous"
+    );
     let mut it = match start {
         Some((beta, bias)) => {
             assert_eq!(beta.shape(), (n, q), "start β must be n × q");
@@ -123,13 +207,14 @@ pub fn solve(
             problem.iterate(Mat::zeros(n, q), mean, options.par)
         }
     };
+    let mut work = Workspace::new(n, q, options.par);
     let mut iterations = 0;
     let stop = loop {
         if iterations == options.max_iter {
             break StopReason::IterationCap;
         }
         iterations += 1;
-        let (beta_star, bias_star) = problem.step_target(&it, options.par)?;
+        let (beta_star, bias_star) = problem.step_target(&it, &mut work, options.par)?;
         let previous = it.objective;
         match problem.line_search(&mut it, beta_star, bias_star, options.par) {
             None => break StopReason::NoDescent,
@@ -139,6 +224,15 @@ pub fn solve(
             Some(()) => {}
         }
     };
+    if stop.converged() {
+        // The step target is exactly zero off the support set; at convergence it is the
+        // iterate up to the tolerance, so take it when F agrees: the model is then sparse.
+        let (beta_star, bias_star) = problem.step_target(&it, &mut work, options.par)?;
+        let sparse = problem.iterate(beta_star, bias_star, options.par);
+        if sparse.objective <= it.objective * (1.0 + options.tol) {
+            it = sparse;
+        }
+    }
     Ok(Solution {
         beta: it.beta,
         bias: it.bias,
@@ -203,50 +297,33 @@ impl Problem<'_> {
     fn step_target(
         &self,
         it: &Iterate,
+        work: &mut Workspace,
         par: Par,
     ) -> Result<(Mat<f64>, Vec<f64>), NotPositiveDefinite> {
         let (n, q) = self.targets.shape();
-        let (support, inv_weight): (Vec<usize>, Vec<f64>) = (0..n)
-            .filter_map(|i| {
-                let u = row_norm(it.resid.as_ref(), i);
-                (u > self.epsilon).then(|| (i, u / (2.0 * self.c * (u - self.epsilon))))
-            })
-            .unzip();
+        let support: Vec<usize> = (0..n)
+            .filter(|&i| row_norm(it.resid.as_ref(), i) > self.epsilon)
+            .collect();
         let s = support.len();
         let mut beta_star = Mat::zeros(n, q);
         if s == 0 {
             return Ok((beta_star, it.bias.clone()));
         }
-        let k = self.kernel;
-        let mut a = Mat::from_fn(s, s, |r, c| k[(support[r], support[c])]);
-        for (r, w) in inv_weight.iter().enumerate() {
-            a[(r, r)] += w;
+        if work.factored != support {
+            work.factor(self.kernel, &support, 1.0 / (2.0 * self.c), par)?;
         }
-        let mut rhs = Mat::from_fn(s, q + 1, |r, c| {
-            if c == 0 {
-                1.0
-            } else {
-                self.targets[(support[r], c - 1)]
+        // Targets pulled in to the tube's edge: yᵢ − ε eᵢ/uᵢ.
+        let mut rhs = work.rhs.as_mut().submatrix_mut(0, 0, s, q + 1);
+        for (r, &i) in support.iter().enumerate() {
+            let shrink = self.epsilon / row_norm(it.resid.as_ref(), i);
+            rhs[(r, 0)] = 1.0;
+            for j in 0..q {
+                rhs[(r, j + 1)] = self.targets[(i, j)] - shrink * it.resid[(i, j)];
             }
-        });
-        let scratch = llt::factor::cholesky_in_place_scratch::<f64>(s, par, Default::default())
-            .or(llt::solve::solve_in_place_scratch::<f64>(s, q + 1, par));
-        let mut buffer = MemBuffer::new(scratch);
-        let stack = MemStack::new(&mut buffer);
-        llt::factor::cholesky_in_place(
-            a.as_mut(),
-            Default::default(),
-            par,
-            stack,
-            Default::default(),
-        )
-        .map_err(|e| match e {
-            llt::factor::LltError::NonPositivePivot { index } => NotPositiveDefinite {
-                pivot: index,
-                size: s,
-            },
-        })?;
-        llt::solve::solve_in_place(a.as_ref(), rhs.as_mut(), par, stack);
+        }
+        let factor = work.block.as_ref().submatrix(0, 0, s, s);
+        llt::solve::solve_in_place(factor, rhs.rb_mut(), par, MemStack::new(&mut work.stack));
+        let rhs = rhs.into_const();
         let sum_xi: f64 = rhs.col(0).iter().sum();
         let bias_star: Vec<f64> = (1..=q)
             .map(|j| rhs.col(j).iter().sum::<f64>() / sum_xi)
@@ -287,28 +364,29 @@ impl Problem<'_> {
         let q1 = frobenius_dot(delta.as_ref(), it.k_beta.as_ref());
         let q2 = frobenius_dot(delta.as_ref(), k_delta.as_ref());
         let g = Mat::from_fn(n, q, |i, j| k_delta[(i, j)] + bias_delta[j]);
-        let objective_at = |t: f64| {
-            let loss: f64 = (0..n)
-                .map(|i| {
-                    let u2: f64 = (0..q)
-                        .map(|j| {
-                            let e = it.resid[(i, j)] - t * g[(i, j)];
-                            e * e
-                        })
-                        .sum();
-                    self.loss(u2.sqrt())
-                })
-                .sum();
-            0.5 * (q0 + t * (2.0 * q1 + t * q2)) + self.c * loss
+        // F(t) and F'(t) along the line; F is convex in t.
+        let along = |t: f64| {
+            let (mut loss, mut slope) = (0.0, q1 + t * q2);
+            for i in 0..n {
+                let e = |j: usize| it.resid[(i, j)] - t * g[(i, j)];
+                let u = (0..q).map(|j| e(j) * e(j)).sum::<f64>().sqrt();
+                if u > self.epsilon {
+                    loss += (u - self.epsilon) * (u - self.epsilon);
+                    let w = 2.0 * (u - self.epsilon) / u;
+                    slope -= self.c * w * (0..q).map(|j| e(j) * g[(i, j)]).sum::<f64>();
+                }
+            }
+            (0.5 * (q0 + t * (2.0 * q1 + t * q2)) + self.c * loss, slope)
         };
-        let mut t = 1.0;
+        let mut t = minimise_convex(|t| along(t).1, MAX_STEP);
         let objective = loop {
-            let f = objective_at(t);
+            let f = along(t).0;
             if f <= it.objective {
                 break f;
             }
+            // Only rounding can make the minimiser worse than t = 0: back off towards it.
             t *= 0.5;
-            if t < MIN_STEP {
+            if t.is_nan() || t < MIN_STEP {
                 return None;
             }
         };
@@ -329,6 +407,59 @@ impl Problem<'_> {
     }
 }
 
+/// The minimiser on [0, hi] of a convex function given its non-decreasing derivative `slope`:
+/// 0 if the function does not fall at 0, hi if it still falls at hi, else the root of the slope
+/// by regula falsi with the Illinois modification (bisection when a secant leaves the bracket),
+/// to a relative width of 1e-6.
+fn minimise_convex(slope: impl Fn(f64) -> f64, hi: f64) -> f64 {
+    let (mut a, mut b) = (0.0, hi);
+    let (mut fa, mut fb) = (slope(a), slope(b));
+    if fa.is_nan() || fa >= 0.0 {
+        return 0.0;
+    }
+    if fb <= 0.0 {
+        return b;
+    }
+    let mut moved_b_last = None;
+    for _ in 0..200 {
+        if b - a <= 1e-6 * b {
+            break;
+        }
+        let secant = (a * fb - b * fa) / (fb - fa);
+        let t = if secant > a && secant < b {
+            secant
+        } else {
+            0.5 * (a + b)
+        };
+        let ft = slope(t);
+        if ft == 0.0 {
+            return t;
+        }
+        let moved_b = ft > 0.0;
+        if moved_b {
+            (b, fb) = (t, ft);
+        } else {
+            (a, fa) = (t, ft);
+        }
+        // Illinois: an end kept twice in a row has its slope halved, so it moves next time.
+        match (moved_b_last, moved_b) {
+            (Some(true), true) => fa *= 0.5,
+            (Some(false), false) => fb *= 0.5,
+            _ => {}
+        }
+        moved_b_last = Some(moved_b);
+    }
+    0.5 * (a + b)
+}
+
+/// Column `j` of a matrix with contiguous columns, as a slice.
+fn column(m: MatRef<'_, f64>, j: usize) -> &[f64] {
+    m.col(j)
+        .try_as_col_major()
+        .expect("contiguous columns")
+        .as_slice()
+}
+
 fn row_norm(m: MatRef<f64>, i: usize) -> f64 {
     (0..m.ncols())
         .map(|j| m[(i, j)] * m[(i, j)])
@@ -347,4 +478,24 @@ fn frobenius_dot(a: MatRef<f64>, b: MatRef<f64>) -> f64 {
                 .sum::<f64>()
         })
         .sum()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn minimise_convex_finds_the_minimum_and_the_ends() {
+        // F = (t − 1.3)²: slope 2(t − 1.3).
+        let t = minimise_convex(|t| 2.0 * (t - 1.3), 4.0);
+        assert!((t - 1.3).abs() < 1e-5, "{t}");
+        assert_eq!(minimise_convex(|t| t - 9.0, 4.0), 4.0);
+        assert_eq!(minimise_convex(|t| t + 1.0, 4.0), 0.0);
+        // A slope that is exactly zero at the secant point (a linear slope) ends there at once:
+        // regression for a stall that kept the bracket's far end and returned its midpoint.
+        assert_eq!(minimise_convex(|t| t - 1.0, 4.0), 1.0);
+        // A kinked convex function: slope jumps from −1 to +3 at 0.7.
+        let t = minimise_convex(|t| if t < 0.7 { -1.0 } else { 3.0 }, 4.0);
+        assert!((t - 0.7).abs() < 1e-5, "{t}");
+    }
 }

@@ -2,10 +2,26 @@
 //!
 //! The distance is squared once (some public MSVR ports square it twice, which is not this kernel).
 
-use faer::Mat;
+use faer::{Mat, MatRef};
 use rayon::prelude::*;
 
 use crate::data::Columns;
+
+/// Fills `out[i, j] = f(i, j)` column by column, columns in parallel.
+fn fill_by_column(rows: usize, cols: usize, f: impl Fn(usize, &mut [f64]) + Sync) -> Mat<f64> {
+    let mut out = Mat::zeros(rows, cols);
+    out.par_col_iter_mut().enumerate().for_each(|(j, col)| {
+        let col = col
+            .try_as_col_major_mut()
+            .expect("a fresh matrix is column-major");
+        f(j, col.as_slice_mut());
+    });
+    out
+}
+
+fn squared_distance(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum()
+}
 
 /// Squared distances ‖aᵢ − bⱼ‖² (`a.rows() × b.rows()`), computed in parallel.
 ///
@@ -13,31 +29,37 @@ use crate::data::Columns;
 /// If `a` and `b` differ in width.
 pub fn squared_distances(a: &Columns, b: &Columns) -> Mat<f64> {
     assert_eq!(a.width(), b.width(), "points of different dimension");
-    let mut out = Mat::zeros(a.rows(), b.rows());
-    out.par_col_iter_mut().enumerate().for_each(|(j, col)| {
+    fill_by_column(a.rows(), b.rows(), |j, col| {
         let bj = b.row(j);
         for (o, ai) in col.iter_mut().zip(a.iter_rows()) {
-            *o = ai.iter().zip(bj).map(|(x, y)| (x - y) * (x - y)).sum();
+            *o = squared_distance(ai, bj);
         }
-    });
-    out
+    })
 }
 
 /// The kernel from squared distances: exp(−d² / (2σ²)) elementwise.
-pub fn rbf_from_squared(d2: &Mat<f64>, sigma: f64) -> Mat<f64> {
+pub fn rbf_from_squared(d2: MatRef<f64>, sigma: f64) -> Mat<f64> {
     let gamma = 1.0 / (2.0 * sigma * sigma);
-    let mut out = Mat::zeros(d2.nrows(), d2.ncols());
-    out.par_col_iter_mut().enumerate().for_each(|(j, col)| {
+    fill_by_column(d2.nrows(), d2.ncols(), |j, col| {
         for (o, d) in col.iter_mut().zip(d2.col(j).iter()) {
             *o = (-gamma * d).exp();
         }
-    });
-    out
+    })
 }
 
 /// The kernel matrix between the rows of `a` and of `b`.
+///
+/// # Panics
+/// If `a` and `b` differ in width.
 pub fn rbf(a: &Columns, b: &Columns, sigma: f64) -> Mat<f64> {
-    rbf_from_squared(&squared_distances(a, b), sigma)
+    assert_eq!(a.width(), b.width(), "points of different dimension");
+    let gamma = 1.0 / (2.0 * sigma * sigma);
+    fill_by_column(a.rows(), b.rows(), |j, col| {
+        let bj = b.row(j);
+        for (o, ai) in col.iter_mut().zip(a.iter_rows()) {
+            *o = (-gamma * squared_distance(ai, bj)).exp();
+        }
+    })
 }
 
 #[cfg(test)]
@@ -51,5 +73,7 @@ mod tests {
         assert_eq!(k[(0, 0)], 1.0);
         let expected = (-25.0f64 / 8.0).exp();
         assert!((k[(0, 1)] - expected).abs() < 1e-15 && k[(1, 0)] == k[(0, 1)]);
+        let via_squared = rbf_from_squared(squared_distances(&a, &a).as_ref(), 2.0);
+        assert_eq!(via_squared, k);
     }
 }
