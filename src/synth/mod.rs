@@ -41,6 +41,8 @@ pub enum SynthError {
     Data(#[from] DataError),
     #[error("measurement noise must be finite and ≥ 0 mm, got {0}")]
     BadNoise(f64),
+    #[error("hysteresis width must be finite and ≥ 0 kPa, got {0}")]
+    BadHysteresis(f64),
     #[error("grid step must divide 0-{PROTOCOL_MAX_KPA} kPa into whole steps, got {0} kPa")]
     BadStep(f64),
     #[error("writing {path}: {source}")]
@@ -120,10 +122,15 @@ fn levels(step_kpa: f64) -> Result<Vec<f64>, SynthError> {
 /// Runs the protocol on the plant and adds seeded noise. Each recording starts from rest.
 ///
 /// # Errors
-/// [`SynthError::BadNoise`], [`SynthError::BadStep`], or a plant error.
+/// [`SynthError::BadNoise`], [`SynthError::BadHysteresis`], [`SynthError::BadStep`], or a plant
+/// error.
 pub fn record(config: &SynthConfig) -> Result<Vec<Recording>, SynthError> {
     if !(config.noise_mm >= 0.0 && config.noise_mm.is_finite()) {
         return Err(SynthError::BadNoise(config.noise_mm));
+    }
+    let hysteresis = config.plant.hysteresis_kpa;
+    if !(hysteresis >= 0.0 && hysteresis.is_finite()) {
+        return Err(SynthError::BadHysteresis(hysteresis));
     }
     let plant = Plant::new(config.plant.clone());
     let noise =
@@ -245,5 +252,8 @@ mod tests {
             ..SynthConfig::default()
         };
         assert!(matches!(record(&config), Err(SynthError::BadNoise(_))));
+        let mut config = SynthConfig::default();
+        config.plant.hysteresis_kpa = -5.0;
+        assert!(matches!(record(&config), Err(SynthError::BadHysteresis(_))));
     }
 }

@@ -2,5 +2,6 @@
 
 mod cli;
 mod common;
+mod contract;
 mod data;
 mod msvr;
