@@ -22,4 +22,5 @@ pub mod fsio;
 pub mod model;
 pub mod provenance;
 pub mod report;
+pub mod search;
 pub mod synth;

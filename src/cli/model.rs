@@ -1,8 +1,12 @@
-//! `handcap model`: fit MSVR to a dataset, score it on held-out files, write model and report.
+//! `handcap model`: choose (C, ε, σ), fit MSVR, score it on held-out files, write model and report.
 
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Instant;
 
 use anyhow::{bail, Context};
+use indicatif::{ProgressBar, ProgressStyle};
 
 use handcap::data::{self, HAND_INPUTS, HAND_OUTPUTS};
 use handcap::fsio;
@@ -11,6 +15,12 @@ use handcap::model::msvr::{MsvrParams, DEFAULT_MAX_ITER, DEFAULT_TOL};
 use handcap::model::{self, Predict};
 use handcap::provenance::Provenance;
 use handcap::report::{self, ModelReport, TestResult};
+use handcap::search::aco_paper::AcoPaper;
+use handcap::search::aco_r::AcoR;
+use handcap::search::fitness::{Counters, FitnessKind};
+use handcap::search::grid::Grid;
+use handcap::search::{self, IterationRecord, Method, Observer, SearchStop, SearchSummary};
+use handcap::synth::DEFAULT_SEED;
 
 /// The paper's Table 2: the parameters its ACO selected for the micro-hand.
 pub const PAPER_C: f64 = 326.7;
@@ -18,10 +28,25 @@ pub const PAPER_EPSILON: f64 = 0.0169;
 pub const PAPER_SIGMA: f64 = 0.259;
 
 /// How the hyper-parameters are chosen.
-#[derive(Clone, Copy, Debug, clap::ValueEnum)]
-pub enum Search {
+#[derive(Clone, Copy, Debug, PartialEq, clap::ValueEnum)]
+pub enum SearchKind {
+    /// The paper's digit-encoded ant colony (--ants, --rho, --tau0, --max-iter)
+    AcoPaper,
+    /// Continuous ACO_R on log C, log ε, log σ (--budget)
+    AcoR,
+    /// Log-spaced grid (--budget)
+    Grid,
     /// Use --c, --epsilon and --sigma as given
     None,
+}
+
+/// How candidates are scored.
+#[derive(Clone, Copy, Debug, PartialEq, clap::ValueEnum)]
+pub enum FitnessArg {
+    /// k-fold cross-validated MAE (--folds)
+    Cv,
+    /// MAE on the training data (the paper's choice; rewards over-fitting)
+    Train,
 }
 
 #[derive(clap::Args)]
@@ -35,32 +60,66 @@ pub struct Args {
     #[arg(long, value_delimiter = ',', default_values = HAND_OUTPUTS)]
     outputs: Vec<String>,
     /// How to choose C, ε and σ
-    #[arg(long, value_enum, default_value = "none")]
-    search: Search,
-    /// Penalty C (default: the paper's Table 2)
+    #[arg(long, value_enum, default_value = "aco-paper")]
+    search: SearchKind,
+    /// How a search scores candidates
+    #[arg(long, value_enum, default_value = "cv")]
+    fitness: FitnessArg,
+    /// Folds of the cross-validated fitness
+    #[arg(long, default_value_t = 5)]
+    folds: usize,
+    /// Seed of the search and of the folds' shuffle
+    #[arg(long, default_value_t = DEFAULT_SEED)]
+    seed: u64,
+    /// aco-paper: ants per iteration
+    #[arg(long, default_value_t = AcoPaper::default().ants)]
+    ants: usize,
+    /// aco-paper: pheromone evaporation ρ
+    #[arg(long, default_value_t = AcoPaper::default().rho)]
+    rho: f64,
+    /// aco-paper: initial pheromone τ0
+    #[arg(long, default_value_t = AcoPaper::default().tau0)]
+    tau0: f64,
+    /// aco-paper: iteration cap N_max
+    #[arg(long, default_value_t = AcoPaper::default().max_iter)]
+    max_iter: usize,
+    /// aco-r, grid: candidates evaluated at most
+    #[arg(long, default_value_t = AcoR::default().budget)]
+    budget: usize,
+    /// Penalty C, with --search none (default: the paper's Table 2)
     #[arg(long = "c", default_value_t = PAPER_C)]
     c: f64,
-    /// Tube radius ε, in output units (default: the paper's Table 2)
+    /// Tube radius ε in output units, with --search none (default: the paper's Table 2)
     #[arg(long, default_value_t = PAPER_EPSILON)]
     epsilon: f64,
-    /// RBF width σ, in inputs scaled to [0, 1] (default: the paper's Table 2)
+    /// RBF width σ in inputs scaled to [0, 1], with --search none (default: the paper's Table 2)
     #[arg(long, default_value_t = PAPER_SIGMA)]
     sigma: f64,
-    /// Relative tolerance on the objective's decrease
+    /// MSVR solver: relative tolerance on the objective's decrease
     #[arg(long, default_value_t = DEFAULT_TOL)]
-    tol: f64,
-    /// Iteration cap of the solver
+    solver_tol: f64,
+    /// MSVR solver: iteration cap
     #[arg(long, default_value_t = DEFAULT_MAX_ITER)]
-    max_iter: usize,
+    solver_max_iter: usize,
     /// Held-out test data with the same columns (repeatable)
     #[arg(long = "test")]
     tests: Vec<PathBuf>,
     /// Model file to write
     #[arg(long, default_value = "model.json")]
     out: PathBuf,
-    /// Directory for metrics.csv, fit.json and report.md
+    /// Directory for metrics.csv, history.csv, fit.json and report.md
     #[arg(long)]
     report: Option<PathBuf>,
+}
+
+/// How the job chooses its hyper-parameters.
+pub enum Selection {
+    Fixed,
+    Search {
+        method: Method,
+        fitness: FitnessKind,
+        seed: u64,
+    },
 }
 
 /// One model run, as the `model` and `demo` commands describe it.
@@ -68,36 +127,109 @@ pub struct Job {
     pub data: PathBuf,
     pub inputs: Vec<String>,
     pub outputs: Vec<String>,
+    /// The fixed parameters (`Selection::Fixed`) and the solver controls (always).
     pub params: MsvrParams,
+    pub selection: Selection,
     pub tests: Vec<PathBuf>,
     pub out: PathBuf,
     pub report: Option<PathBuf>,
 }
 
+/// What a run produced, for printing.
+pub struct Outcome {
+    pub report: ModelReport,
+    pub search: Option<(SearchSummary, Counters, f64)>,
+}
+
 pub fn run(a: Args) -> anyhow::Result<()> {
-    let Search::None = a.search;
+    let fitness = match a.fitness {
+        FitnessArg::Cv => FitnessKind::Cv { folds: a.folds },
+        FitnessArg::Train => FitnessKind::Train,
+    };
+    let method = match a.search {
+        SearchKind::None => None,
+        SearchKind::AcoPaper => Some(Method::AcoPaper(AcoPaper {
+            ants: a.ants,
+            rho: a.rho,
+            tau0: a.tau0,
+            max_iter: a.max_iter,
+            seed: a.seed,
+        })),
+        SearchKind::AcoR => Some(Method::AcoR(AcoR {
+            budget: a.budget,
+            seed: a.seed,
+            ..AcoR::default()
+        })),
+        SearchKind::Grid => Some(Method::Grid(Grid {
+            budget: a.budget,
+            ..Grid::default()
+        })),
+    };
     let job = Job {
         data: a.data,
         inputs: a.inputs,
         outputs: a.outputs,
         params: MsvrParams::new(a.c, a.epsilon, a.sigma)
-            .tol(a.tol)
-            .max_iter(a.max_iter),
+            .tol(a.solver_tol)
+            .max_iter(a.solver_max_iter),
+        selection: match method {
+            None => Selection::Fixed,
+            Some(method) => Selection::Search {
+                method,
+                fitness,
+                seed: a.seed,
+            },
+        },
         tests: a.tests,
         out: a.out,
         report: a.report,
     };
-    let report = execute(&job)?;
-    print_summary(&report);
+    let outcome = execute(&job)?;
+    print_summary(&outcome);
     println!("wrote {}", job.out.display());
     if let Some(dir) = &job.report {
-        println!("wrote {}/{{metrics.csv,fit.json,report.md}}", dir.display());
+        println!("wrote {}/", dir.display());
     }
     Ok(())
 }
 
-/// Fits, scores and writes; returns what the report shows.
-pub fn execute(job: &Job) -> anyhow::Result<ModelReport> {
+/// A progress bar over a search's iterations.
+struct Progress(ProgressBar);
+
+impl Observer for Progress {
+    fn iteration(&mut self, r: &IterationRecord) {
+        self.0.set_position(r.iteration as u64);
+        self.0.set_message(format!(
+            "best {:.5} (C {:.4}, ε {:.4}, σ {:.4})",
+            r.best_fitness, r.best.c, r.best.epsilon, r.best.sigma
+        ));
+    }
+}
+
+/// Iterations a method runs at most, for the progress bar's length.
+fn iteration_cap(method: &Method) -> u64 {
+    match method {
+        Method::AcoPaper(m) => m.max_iter as u64,
+        Method::AcoR(m) => (m.budget.saturating_sub(m.archive)).div_ceil(m.ants.max(1)) as u64 + 1,
+        Method::Grid(m) => (m.per_axis().pow(3)).div_ceil(m.batch.max(1)) as u64,
+    }
+}
+
+/// Ctrl-C sets this; a running search then stops after its iteration and keeps its best.
+fn interrupt_flag() -> Arc<AtomicBool> {
+    static FLAG: std::sync::OnceLock<Arc<AtomicBool>> = std::sync::OnceLock::new();
+    FLAG.get_or_init(|| {
+        let flag = Arc::new(AtomicBool::new(false));
+        let handler_flag = Arc::clone(&flag);
+        // Without a handler (another one is installed) Ctrl-C just ends the process.
+        let _ = ctrlc::set_handler(move || handler_flag.store(true, Ordering::SeqCst));
+        flag
+    })
+    .clone()
+}
+
+/// Chooses the parameters, fits, scores and writes; returns what was done.
+pub fn execute(job: &Job) -> anyhow::Result<Outcome> {
     let inputs: Vec<&Path> = std::iter::once(job.data.as_path())
         .chain(job.tests.iter().map(PathBuf::as_path))
         .collect();
@@ -107,11 +239,51 @@ pub fn execute(job: &Job) -> anyhow::Result<ModelReport> {
             job.out.display()
         );
     }
-    let params = job.params.check().context("model parameters")?;
+    job.params.check().context("model parameters")?;
     let train = data::read_dataset(&job.data, &job.inputs, &job.outputs)?;
-    let msvr = params.fit(&train)?;
-    let train_errors = model::evaluate(&msvr, &train)?;
+    train.check_fittable(handcap::model::msvr::MIN_FIT_ROWS)?;
 
+    let (params, search, history) = match &job.selection {
+        Selection::Fixed => (job.params, None, None),
+        Selection::Search {
+            method,
+            fitness,
+            seed,
+        } => {
+            let started = Instant::now();
+            let bar = ProgressBar::new(iteration_cap(method)).with_style(
+                ProgressStyle::with_template("search {bar:30} {pos}/{len} iterations  {msg}")
+                    .expect("valid template"),
+            );
+            let mut progress = Progress(bar);
+            let (summary, result, counters) = search::run(
+                method,
+                &train,
+                *fitness,
+                *seed,
+                &job.params,
+                &mut progress,
+                &interrupt_flag(),
+            )?;
+            progress.0.finish_and_clear();
+            let best = summary.best;
+            let params = MsvrParams {
+                c: best.c,
+                epsilon: best.epsilon,
+                sigma: best.sigma,
+                ..job.params
+            };
+            let seconds = started.elapsed().as_secs_f64();
+            (
+                params,
+                Some((summary, counters, seconds)),
+                Some(result.history),
+            )
+        }
+    };
+
+    let msvr = params.check()?.fit(&train)?;
+    let train_errors = model::evaluate(&msvr, &train)?;
     let mut tests = Vec::new();
     for path in &job.tests {
         let test = data::read_dataset(path, &job.inputs, &job.outputs)?;
@@ -122,7 +294,11 @@ pub fn execute(job: &Job) -> anyhow::Result<ModelReport> {
         });
     }
 
-    let mut provenance = Provenance::new(super::command_line(), None);
+    let seed = match job.selection {
+        Selection::Fixed => None,
+        Selection::Search { seed, .. } => Some(seed),
+    };
+    let mut provenance = Provenance::new(super::command_line(), seed);
     for path in &inputs {
         provenance = provenance
             .with_input(path)
@@ -134,18 +310,42 @@ pub fn execute(job: &Job) -> anyhow::Result<ModelReport> {
         outputs: msvr.outputs().to_vec(),
         params: msvr.params,
         fit: msvr.fit.clone(),
+        search: search.as_ref().map(|(s, _, _)| s.clone()),
         train_errors,
         tests,
         provenance: provenance.clone(),
     };
-    ModelFile::new(StoredModel::Msvr(msvr), provenance).save(&job.out)?;
+    // The report first: an interrupted search still leaves its history, and the model last.
     if let Some(dir) = &job.report {
-        report::write_model_report(dir, &report)?;
+        report::write_model_report(dir, &report, history.as_deref())?;
     }
-    Ok(report)
+    ModelFile::new(StoredModel::Msvr(msvr), report.search.clone(), provenance).save(&job.out)?;
+    Ok(Outcome { report, search })
 }
 
-pub fn print_summary(r: &ModelReport) {
+pub fn print_summary(outcome: &Outcome) {
+    let r = &outcome.report;
+    if let Some((s, counters, seconds)) = &outcome.search {
+        let fitness = match s.fitness {
+            FitnessKind::Cv { folds } => format!("{folds}-fold cross-validated MAE"),
+            FitnessKind::Train => "training MAE".to_string(),
+        };
+        println!(
+            "search {}: {} iterations ({:?}), best {} {:.5}",
+            method_name(&s.method),
+            s.iterations,
+            s.stop,
+            fitness,
+            s.best_fitness
+        );
+        println!(
+            "  {} candidates scored, {} fits, {} memo hits, {} kernel cache hits, {:.1} s",
+            counters.evaluations, counters.fits, counters.memo_hits, counters.kernel_hits, seconds
+        );
+        if s.stop == SearchStop::Interrupted {
+            println!("  interrupted: the model uses the best parameters found so far");
+        }
+    }
     let (p, f) = (&r.params, &r.fit);
     println!(
         "MSVR on {}: {} rows, C = {}, ε = {}, σ = {}",
@@ -159,7 +359,7 @@ pub fn print_summary(r: &ModelReport) {
         if f.converged {
             "converged"
         } else {
-            "NOT converged: raise --max-iter"
+            "NOT converged: raise --solver-max-iter"
         },
         f.stop
     );
@@ -170,6 +370,14 @@ pub fn print_summary(r: &ModelReport) {
     if !r.tests.is_empty() {
         println!("held-out errors (output units):");
         print!("{}", report::errors_table(&r.tests, &r.outputs));
+    }
+}
+
+pub fn method_name(m: &Method) -> &'static str {
+    match m {
+        Method::AcoPaper(_) => "aco-paper",
+        Method::AcoR(_) => "aco-r",
+        Method::Grid(_) => "grid",
     }
 }
 

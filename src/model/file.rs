@@ -16,6 +16,7 @@ use serde::{Deserialize, Serialize};
 use crate::fsio;
 use crate::model::msvr::Msvr;
 use crate::provenance::Provenance;
+use crate::search::SearchSummary;
 
 /// The `format` field of every model file.
 pub const FORMAT: &str = "handcap-model";
@@ -57,15 +58,19 @@ pub struct ModelFile {
     pub version: u32,
     #[serde(flatten)]
     pub model: StoredModel,
+    /// The search that chose the hyper-parameters; absent when they were given.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub search: Option<SearchSummary>,
     pub provenance: Provenance,
 }
 
 impl ModelFile {
-    pub fn new(model: StoredModel, provenance: Provenance) -> Self {
+    pub fn new(model: StoredModel, search: Option<SearchSummary>, provenance: Provenance) -> Self {
         ModelFile {
             format: FORMAT.to_string(),
             version: VERSION,
             model,
+            search,
             provenance,
         }
     }

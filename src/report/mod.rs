@@ -14,6 +14,7 @@ use crate::fsio;
 use crate::model::msvr::{FitDiagnostics, MsvrParams};
 use crate::model::Errors;
 use crate::provenance::Provenance;
+use crate::search::{IterationRecord, SearchSummary};
 
 /// Errors of writing a report.
 #[derive(Debug, thiserror::Error)]
@@ -40,17 +41,24 @@ pub struct ModelReport {
     pub outputs: Vec<String>,
     pub params: MsvrParams,
     pub fit: FitDiagnostics,
+    /// The search that chose the parameters, if any.
+    pub search: Option<SearchSummary>,
     /// Errors on the training data itself (not a measure of generalisation).
     pub train_errors: Errors,
     pub tests: Vec<TestResult>,
     pub provenance: Provenance,
 }
 
-/// Writes `metrics.csv`, `fit.json` and `report.md` into `dir` (created if needed).
+/// Writes `metrics.csv`, `fit.json`, `report.md` and, after a search, `history.csv` into `dir`
+/// (created if needed).
 ///
 /// # Errors
 /// [`ReportError`] naming the file that could not be written.
-pub fn write_model_report(dir: &Path, report: &ModelReport) -> Result<(), ReportError> {
+pub fn write_model_report(
+    dir: &Path,
+    report: &ModelReport,
+    history: Option<&[IterationRecord]>,
+) -> Result<(), ReportError> {
     let err = |path: &Path| {
         let path = path.to_path_buf();
         move |source| ReportError { path, source }
@@ -61,6 +69,10 @@ pub fn write_model_report(dir: &Path, report: &ModelReport) -> Result<(), Report
     let fit = dir.join("fit.json");
     let json = serde_json::to_vec_pretty(report).expect("report serialises");
     fsio::write_bytes(&fit, &json).map_err(err(&fit))?;
+    if let Some(history) = history {
+        let path = dir.join("history.csv");
+        fsio::write_bytes(&path, history_csv(history).as_bytes()).map_err(err(&path))?;
+    }
     let md = dir.join("report.md");
     fsio::write_bytes(&md, markdown(report).as_bytes()).map_err(err(&md))?;
     Ok(())
@@ -77,6 +89,30 @@ pub fn metrics_csv(tests: &[TestResult]) -> String {
             t.test,
             format_number(t.errors.mae),
             format_number(t.errors.euclid)
+        );
+    }
+    out
+}
+
+/// The `history.csv` text: per iteration the minimum, mean and maximum fitness over its valid
+/// candidates, and the best so far.
+pub fn history_csv(history: &[IterationRecord]) -> String {
+    let mut out = String::from(
+        "iteration,min_mae,mean_mae,max_mae,valid,best_c,best_epsilon,best_sigma,best_mae\n",
+    );
+    for r in history {
+        let _ = writeln!(
+            out,
+            "{},{},{},{},{},{},{},{},{}",
+            r.iteration,
+            format_number(r.min),
+            format_number(r.mean),
+            format_number(r.max),
+            r.valid,
+            format_number(r.best.c),
+            format_number(r.best.epsilon),
+            format_number(r.best.sigma),
+            format_number(r.best_fitness)
         );
     }
     out
@@ -127,6 +163,24 @@ fn markdown(r: &ModelReport) -> String {
         r.inputs.join(", "),
         r.outputs.join(", ")
     );
+    if let Some(search) = &r.search {
+        let _ = writeln!(s, "## Hyper-parameter search\n");
+        let _ = writeln!(
+            s,
+            "{} with fitness {:?}: {} iterations, stopped by {:?}; {} candidates scored ({} fits, {} memo hits). Best fitness {:.5} at C = {}, ε = {}, σ = {}. Per-iteration history: `history.csv`.\n",
+            serde_json::to_string(&search.method).unwrap_or_default(),
+            search.fitness,
+            search.iterations,
+            search.stop,
+            search.evaluations,
+            search.fits,
+            search.memo_hits,
+            search.best_fitness,
+            search.best.c,
+            search.best.epsilon,
+            search.best.sigma
+        );
+    }
     let _ = writeln!(s, "## Fit\n");
     let _ = writeln!(
         s,

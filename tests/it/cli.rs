@@ -179,7 +179,7 @@ fn bad_input_is_one_line_naming_file_line_and_column() {
     let msg = handcap_err(d, &["model", "missing.csv"]);
     assert!(msg.contains("missing.csv"), "{msg}");
 
-    let msg = handcap_err(d, &["model", "bad.csv", "--c=-1"]);
+    let msg = handcap_err(d, &["model", "bad.csv", "--search", "none", "--c=-1"]);
     assert!(msg.contains("C = -1"), "{msg}");
 
     write(d, "notmodel.json", "{\"format\": \"other\"}");
@@ -263,4 +263,55 @@ fn model_works_on_any_columns() {
         mae < 0.005 && euclid < 0.008,
         "MAE {mae} m, Euclidean {euclid} m"
     );
+}
+
+#[test]
+fn searches_write_history_and_are_deterministic() {
+    let dir = tempdir();
+    let d = dir.path();
+    synth(d, "data", "1");
+    for (i, method) in ["aco-r", "grid", "aco-paper"].iter().enumerate() {
+        let extra: &[&str] = match *method {
+            "aco-paper" => &["--max-iter", "3", "--ants", "6"],
+            _ => &["--budget", "27"],
+        };
+        let mut args = vec![
+            "model",
+            "data/train.csv",
+            "--search",
+            method,
+            "--folds",
+            "3",
+            "--seed",
+            "11",
+        ];
+        args.extend_from_slice(extra);
+        let out_a = format!("a{i}.json");
+        let out_b = format!("b{i}.json");
+        let rep = format!("rep{i}");
+        let mut first = args.clone();
+        first.extend_from_slice(&["--out", &out_a, "--report", &rep]);
+        let stdout = handcap_ok(d, &first);
+        assert!(stdout.contains(&format!("search {method}")), "{stdout}");
+        let mut second = args.clone();
+        second.extend_from_slice(&["--out", &out_b]);
+        handcap_ok(d, &second);
+        let (a, b) = (
+            std::fs::read_to_string(d.join(&out_a)).unwrap(),
+            std::fs::read_to_string(d.join(&out_b)).unwrap(),
+        );
+        // The command line differs (--report), so compare everything but the provenance.
+        let strip = |s: &str| s[..s.find("\"provenance\"").unwrap()].to_string();
+        assert_eq!(strip(&a), strip(&b), "{method}: same seed, different model");
+        assert!(
+            a.contains(&format!("\"method\": \"{method}\"")) && a.contains("\"best_fitness\""),
+            "{method}"
+        );
+        let history = std::fs::read_to_string(d.join(&rep).join("history.csv")).unwrap();
+        assert!(
+            history.starts_with("iteration,min_mae,mean_mae,max_mae,valid,best_c"),
+            "{history}"
+        );
+        assert!(history.lines().count() >= 3, "{method}: {history}");
+    }
 }

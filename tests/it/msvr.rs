@@ -432,6 +432,7 @@ fn save_load_predicts_identically() {
     let path = dir.path().join("model.json");
     let file = ModelFile::new(
         StoredModel::Msvr(model.clone()),
+        None,
         Provenance::new(vec!["test".into()], None),
     );
     file.save(&path).unwrap();

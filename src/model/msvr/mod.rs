@@ -176,19 +176,19 @@ impl ValidMsvrParams {
             converged: solution.stop.converged(),
             stop: solution.stop,
         };
-        Ok(Msvr::new(
-            data.inputs.names.clone(),
-            data.outputs.names.clone(),
-            *p,
+        Ok(Msvr::from_repr(MsvrRepr {
+            inputs: data.inputs.names.clone(),
+            outputs: data.outputs.names.clone(),
+            params: *p,
             scaler,
-            sv_rows.iter().map(|&i| scaled.row(i).to_vec()).collect(),
-            sv_rows
+            support_vectors: sv_rows.iter().map(|&i| scaled.row(i).to_vec()).collect(),
+            coefficients: sv_rows
                 .iter()
                 .map(|&i| (0..beta.ncols()).map(|j| beta[(i, j)]).collect())
                 .collect(),
-            solution.bias,
+            bias: solution.bias,
             fit,
-        ))
+        }))
     }
 }
 
@@ -260,26 +260,17 @@ pub struct Msvr {
 }
 
 impl Msvr {
-    #[allow(clippy::too_many_arguments)]
-    fn new(
-        inputs: Vec<String>,
-        outputs: Vec<String>,
-        params: MsvrParams,
-        scaler: MinMaxScaler,
-        support_vectors: Vec<Vec<f64>>,
-        coefficients: Vec<Vec<f64>>,
-        bias: Vec<f64>,
-        fit: FitDiagnostics,
-    ) -> Self {
+    /// Builds the model from its file form, without checks (see `TryFrom` for those).
+    fn from_repr(r: MsvrRepr) -> Self {
         Msvr {
-            inputs,
-            outputs,
-            params,
-            scaler,
-            support_vectors: support_vectors.concat(),
-            coefficients: coefficients.concat(),
-            bias,
-            fit,
+            inputs: r.inputs,
+            outputs: r.outputs,
+            params: r.params,
+            scaler: r.scaler,
+            support_vectors: r.support_vectors.concat(),
+            coefficients: r.coefficients.concat(),
+            bias: r.bias,
+            fit: r.fit,
         }
     }
 
@@ -409,16 +400,7 @@ impl TryFrom<MsvrRepr> for Msvr {
         {
             return Err("scaler.min must be below scaler.max in every column".into());
         }
-        Ok(Msvr::new(
-            r.inputs,
-            r.outputs,
-            r.params,
-            r.scaler,
-            r.support_vectors,
-            r.coefficients,
-            r.bias,
-            r.fit,
-        ))
+        Ok(Msvr::from_repr(r))
     }
 }
 

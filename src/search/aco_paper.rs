@@ -1,0 +1,184 @@
+//! The paper's ant colony (§2.3.2, eqs. 13-15, Table 1), digit by digit.
+//!
+//! A path crosses 12 layers of 10 digit nodes, d0 … d11, read as C = d0d1d2.d3 (0-999.9),
+//! ε = 0.d4d5d6d7 (0-0.9999) and σ = d8.d9d10d11 (0-9.999) (eq. 15). The pheromone lives on the
+//! edges: from the nest to each node of layer 0, and from each node of layer l to each node of
+//! layer l + 1. An ant at node i moves to node j with probability τᵢⱼ / Σₛ τᵢₛ (eq. 13 with
+//! η = 1). After all m ants have walked and been scored, every edge evaporates,
+//! τ ← (1 − ρ) τ, and each ant k deposits 1/L_k on the edges of its path, L_k its fitness
+//! (eq. 14). A path with a zero parameter is invalid: it is not fitted and deposits nothing. The
+//! colony stops when every ant took the same path, or after N_max iterations.
+//!
+//! Defaults are the paper's: m = 20 ants, ρ = 0.04, τ0 = 0.5, N_max = 80.
+
+use std::sync::atomic::AtomicBool;
+
+use rand::Rng;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use super::{Hyper, Observer, SearchError, SearchResult, SearchStop, Tracker};
+
+const LAYERS: usize = 12;
+const DIGITS: usize = 10;
+
+/// The colony's settings.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AcoPaper {
+    pub ants: usize,
+    /// Evaporation coefficient ρ.
+    pub rho: f64,
+    /// Initial pheromone τ0.
+    pub tau0: f64,
+    /// Iteration cap N_max.
+    pub max_iter: usize,
+    pub seed: u64,
+}
+
+impl Default for AcoPaper {
+    fn default() -> Self {
+        AcoPaper {
+            ants: 20,
+            rho: 0.04,
+            tau0: 0.5,
+            max_iter: 80,
+            seed: crate::synth::DEFAULT_SEED,
+        }
+    }
+}
+
+/// The 12 digits of a path.
+pub type Path = [u8; LAYERS];
+
+/// Reads a path as (C, ε, σ) by eq. 15.
+pub fn decode(path: &Path) -> Hyper {
+    let number = |digits: &[u8], first_power: i32| {
+        digits
+            .iter()
+            .enumerate()
+            .map(|(i, &d)| f64::from(d) * 10f64.powi(first_power - i as i32))
+            .sum::<f64>()
+    };
+    // Rounded to the digits' precision so a path always gives the same bits.
+    let round = |v: f64, decimals: i32| (v * 10f64.powi(decimals)).round() / 10f64.powi(decimals);
+    Hyper {
+        c: round(number(&path[0..4], 2), 1),
+        epsilon: round(number(&path[4..8], -1), 4),
+        sigma: round(number(&path[8..12], 0), 3),
+    }
+}
+
+impl AcoPaper {
+    fn check(&self) -> Result<(), SearchError> {
+        let bad = |name, value, requirement| {
+            Err(SearchError::InvalidSetting {
+                name,
+                value,
+                requirement,
+            })
+        };
+        if self.ants == 0 {
+            return bad("ants", 0.0, "must be at least 1");
+        }
+        if !(self.rho > 0.0 && self.rho < 1.0) {
+            return bad("rho", self.rho, "must be in (0, 1)");
+        }
+        if !(self.tau0 > 0.0 && self.tau0.is_finite()) {
+            return bad("tau0", self.tau0, "must be finite and > 0");
+        }
+        if self.max_iter == 0 {
+            return bad("max_iter", 0.0, "must be at least 1");
+        }
+        Ok(())
+    }
+
+    /// Runs the colony on `objective` (batch of candidates → fitness, +∞ for invalid).
+    ///
+    /// # Errors
+    /// [`SearchError::InvalidSetting`] for a bad setting; [`SearchError::NothingValid`] if no
+    /// ant found a finite fitness before the search ended.
+    pub fn run(
+        &self,
+        objective: &(dyn Fn(&[Hyper]) -> Vec<f64> + Sync),
+        observer: &mut dyn Observer,
+        interrupt: &AtomicBool,
+    ) -> Result<SearchResult, SearchError> {
+        self.check()?;
+        let mut rng = ChaCha8Rng::seed_from_u64(self.seed);
+        // nest[j]: nest → layer 0 node j; edges[l][i][j]: layer l node i → layer l+1 node j.
+        let mut nest = [self.tau0; DIGITS];
+        let mut edges = [[[self.tau0; DIGITS]; DIGITS]; LAYERS - 1];
+        let mut tracker = Tracker::new(observer, interrupt);
+        for _ in 0..self.max_iter {
+            if tracker.interrupted() {
+                return tracker.finish(SearchStop::Interrupted);
+            }
+            let paths: Vec<Path> = (0..self.ants)
+                .map(|_| {
+                    let mut path = [0u8; LAYERS];
+                    path[0] = pick(&mut rng, &nest);
+                    for l in 1..LAYERS {
+                        path[l] = pick(&mut rng, &edges[l - 1][usize::from(path[l - 1])]);
+                    }
+                    path
+                })
+                .collect();
+            let candidates: Vec<Hyper> = paths.iter().map(decode).collect();
+            let scores = objective(&candidates);
+            tracker.record(&candidates, &scores);
+
+            let keep = 1.0 - self.rho;
+            nest.iter_mut().for_each(|t| *t *= keep);
+            edges
+                .iter_mut()
+                .flatten()
+                .flatten()
+                .for_each(|t| *t *= keep);
+            for (path, &score) in paths.iter().zip(&scores) {
+                if !(score.is_finite() && score > 0.0) {
+                    continue; // invalid path: no deposit (a perfect fit, L = 0, has no finite 1/L)
+                }
+                nest[usize::from(path[0])] += 1.0 / score;
+                for l in 1..LAYERS {
+                    edges[l - 1][usize::from(path[l - 1])][usize::from(path[l])] += 1.0 / score;
+                }
+            }
+            if paths.iter().all(|p| p == &paths[0]) {
+                return tracker.finish(SearchStop::SamePath);
+            }
+        }
+        tracker.finish(SearchStop::MaxIterations)
+    }
+}
+
+/// A node drawn with probability proportional to its edge's pheromone (eq. 13, η = 1).
+fn pick(rng: &mut ChaCha8Rng, tau: &[f64; DIGITS]) -> u8 {
+    let total: f64 = tau.iter().sum();
+    let mut x = rng.random::<f64>() * total;
+    for (j, &t) in tau.iter().enumerate() {
+        if x < t {
+            return j as u8;
+        }
+        x -= t;
+    }
+    (DIGITS - 1) as u8
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn decodes_the_papers_example() {
+        // Figure 4: 631288322151 → C = 631.2, ε = 0.8832, σ = 2.151.
+        let h = decode(&[6, 3, 1, 2, 8, 8, 3, 2, 2, 1, 5, 1]);
+        assert_eq!((h.c, h.epsilon, h.sigma), (631.2, 0.8832, 2.151));
+        let table2 = decode(&[3, 2, 6, 7, 0, 1, 6, 9, 0, 2, 5, 9]);
+        assert_eq!(
+            (table2.c, table2.epsilon, table2.sigma),
+            (326.7, 0.0169, 0.259)
+        );
+        assert!(!decode(&[0, 0, 0, 0, 1, 1, 1, 1, 1, 1, 1, 1]).is_valid());
+    }
+}

@@ -1,0 +1,281 @@
+//! The fitness of a hyper-parameter tuple: MAE of MSVR in output units, cross-validated or on
+//! the training data.
+//!
+//! - `cv` (default): k-fold cross-validation. Rows are shuffled once with the seed and cut into
+//!   k folds of near-equal size; each fold is predicted by a model fitted on the others, and the
+//!   fitness is the MAE over every held-out prediction.
+//! - `train` (the paper's choice, for reproduction): fitted and scored on all rows. It rewards
+//!   over-fitting — it falls towards 0 as σ → 0, C → ∞, ε → 0.
+//!
+//! Inputs are min-max scaled with the whole training set's range (the range of the experiment's
+//! design, not information about the outputs), so every fold's kernel is a block of one kernel.
+//!
+//! Speed: the squared distances of every fold are computed once; the fold kernels of a σ are
+//! cached (a converging colony keeps revisiting the same σ); every evaluated tuple is memoised,
+//! so a repeated path costs nothing; candidates run in parallel (rayon), each fit single-threaded.
+//! Fits are not warm-started from neighbouring tuples: with parallel evaluation the neighbour
+//! found would depend on thread timing, and a seeded search must give the same result every run.
+
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+
+use faer::{Mat, Par};
+use rand::seq::SliceRandom;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::data::{Columns, Dataset};
+use crate::model::msvr::irwls::{self, Problem, SolverOptions};
+use crate::model::msvr::kernel::rbf_from_squared;
+use crate::model::msvr::{MinMaxScaler, MsvrParams};
+use crate::search::Hyper;
+
+/// How candidates are scored.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FitnessKind {
+    /// k-fold cross-validated MAE.
+    Cv { folds: usize },
+    /// MAE on the training data itself.
+    Train,
+}
+
+/// Errors of setting up the fitness.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum FitnessError {
+    #[error("--folds {folds}: cross-validation needs 2 or more folds, and at least 2 rows per fold ({rows} rows)")]
+    BadFolds { folds: usize, rows: usize },
+}
+
+/// One fold: squared distances among its training rows and from its held-out rows to them.
+struct Fold {
+    train: Vec<usize>,
+    held_out: Vec<usize>,
+    d2_train: Mat<f64>,
+    d2_held_out: Mat<f64>,
+}
+
+/// Per fold: the kernel among its training rows and from its held-out rows to them.
+type FoldKernels = Arc<Vec<(Mat<f64>, Mat<f64>)>>;
+
+/// Counters of the work done, for the search report.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct Counters {
+    /// Distinct tuples evaluated (each one MSVR fit per fold).
+    pub evaluations: usize,
+    /// MSVR fits run.
+    pub fits: usize,
+    /// Requests answered from the memo of evaluated tuples.
+    pub memo_hits: usize,
+    /// Fold kernels taken from the per-σ cache.
+    pub kernel_hits: usize,
+}
+
+/// Scores (C, ε, σ) tuples on one dataset.
+pub struct Fitness {
+    kind: FitnessKind,
+    targets: Mat<f64>,
+    folds: Vec<Fold>,
+    solver: (f64, usize),
+    memo: Mutex<HashMap<[u64; 3], f64>>,
+    kernels: Mutex<HashMap<u64, FoldKernels>>,
+    kernel_cache_entries: usize,
+    evaluations: AtomicUsize,
+    fits: AtomicUsize,
+    memo_hits: AtomicUsize,
+    kernel_hits: AtomicUsize,
+}
+
+/// Memory allowed for cached fold kernels (bytes).
+const KERNEL_CACHE_BYTES: usize = 1 << 30;
+
+impl Fitness {
+    /// Prepares the folds of `data` (shuffled with `seed` for `cv`).
+    ///
+    /// # Errors
+    /// [`FitnessError::BadFolds`] when the folds are fewer than 2 or smaller than 2 rows.
+    pub fn new(
+        data: &Dataset,
+        kind: FitnessKind,
+        seed: u64,
+        solver: &MsvrParams,
+    ) -> Result<Self, FitnessError> {
+        let n = data.rows();
+        let scaled = MinMaxScaler::fit(&data.inputs).transform(&data.inputs);
+        let splits: Vec<(Vec<usize>, Vec<usize>)> = match kind {
+            FitnessKind::Train => vec![((0..n).collect(), (0..n).collect())],
+            FitnessKind::Cv { folds } => {
+                if folds < 2 || n < 2 * folds {
+                    return Err(FitnessError::BadFolds { folds, rows: n });
+                }
+                let mut order: Vec<usize> = (0..n).collect();
+                order.shuffle(&mut ChaCha8Rng::seed_from_u64(seed));
+                (0..folds)
+                    .map(|f| {
+                        let (lo, hi) = (f * n / folds, (f + 1) * n / folds);
+                        let mut held_out = order[lo..hi].to_vec();
+                        let mut train: Vec<usize> =
+                            order[..lo].iter().chain(&order[hi..]).copied().collect();
+                        held_out.sort_unstable();
+                        train.sort_unstable();
+                        (train, held_out)
+                    })
+                    .collect()
+            }
+        };
+        let folds: Vec<Fold> = splits
+            .into_par_iter()
+            .map(|(train, held_out)| {
+                let pick = |rows: &[usize]| {
+                    Columns::new(
+                        scaled.names.clone(),
+                        rows.iter().flat_map(|&i| scaled.row(i).to_vec()).collect(),
+                    )
+                };
+                let (tr, ho) = (pick(&train), pick(&held_out));
+                Fold {
+                    d2_train: crate::model::msvr::kernel::squared_distances(&tr, &tr),
+                    d2_held_out: crate::model::msvr::kernel::squared_distances(&ho, &tr),
+                    train,
+                    held_out,
+                }
+            })
+            .collect();
+        let per_sigma: usize = folds
+            .iter()
+            .map(|f| {
+                8 * (f.d2_train.nrows() * f.d2_train.ncols()
+                    + f.d2_held_out.nrows() * f.d2_held_out.ncols())
+            })
+            .sum();
+        Ok(Fitness {
+            kind,
+            targets: crate::model::msvr::to_mat(&data.outputs),
+            folds,
+            solver: (solver.tol, solver.max_iter),
+            memo: Mutex::new(HashMap::new()),
+            kernels: Mutex::new(HashMap::new()),
+            kernel_cache_entries: (KERNEL_CACHE_BYTES / per_sigma.max(1)).max(1),
+            evaluations: AtomicUsize::new(0),
+            fits: AtomicUsize::new(0),
+            memo_hits: AtomicUsize::new(0),
+            kernel_hits: AtomicUsize::new(0),
+        })
+    }
+
+    pub fn kind(&self) -> FitnessKind {
+        self.kind
+    }
+
+    pub fn counters(&self) -> Counters {
+        Counters {
+            evaluations: self.evaluations.load(Ordering::Relaxed),
+            fits: self.fits.load(Ordering::Relaxed),
+            memo_hits: self.memo_hits.load(Ordering::Relaxed),
+            kernel_hits: self.kernel_hits.load(Ordering::Relaxed),
+        }
+    }
+
+    /// Fitness of every candidate, in order, evaluating new ones in parallel. A candidate with a
+    /// zero or non-finite parameter scores +∞.
+    pub fn evaluate(&self, batch: &[Hyper]) -> Vec<f64> {
+        let key = |h: &Hyper| [h.c.to_bits(), h.epsilon.to_bits(), h.sigma.to_bits()];
+        let mut fresh: Vec<Hyper> = Vec::new();
+        {
+            let memo = self.memo.lock().expect("memo lock");
+            for h in batch {
+                if h.is_valid()
+                    && !memo.contains_key(&key(h))
+                    && !fresh.iter().any(|f| key(f) == key(h))
+                {
+                    fresh.push(*h);
+                }
+            }
+        }
+        let scores: Vec<f64> = fresh.par_iter().map(|h| self.score(h)).collect();
+        let mut memo = self.memo.lock().expect("memo lock");
+        for (h, s) in fresh.iter().zip(&scores) {
+            memo.insert(key(h), *s);
+        }
+        self.evaluations.fetch_add(fresh.len(), Ordering::Relaxed);
+        let valid = batch.iter().filter(|h| h.is_valid()).count();
+        self.memo_hits
+            .fetch_add(valid - fresh.len(), Ordering::Relaxed);
+        batch
+            .iter()
+            .map(|h| {
+                if h.is_valid() {
+                    memo[&key(h)]
+                } else {
+                    f64::INFINITY
+                }
+            })
+            .collect()
+    }
+
+    /// MAE over every held-out prediction for one tuple.
+    fn score(&self, h: &Hyper) -> f64 {
+        let kernels = self.fold_kernels(h.sigma);
+        let q = self.targets.ncols();
+        let (mut abs_sum, mut count) = (0.0, 0usize);
+        for (fold, (k_train, k_held_out)) in self.folds.iter().zip(kernels.iter()) {
+            let y = Mat::from_fn(fold.train.len(), q, |i, j| self.targets[(fold.train[i], j)]);
+            let problem = Problem {
+                kernel: k_train.as_ref(),
+                targets: y.as_ref(),
+                c: h.c,
+                epsilon: h.epsilon,
+            };
+            let options = SolverOptions {
+                tol: self.solver.0,
+                max_iter: self.solver.1,
+                par: Par::Seq,
+            };
+            self.fits.fetch_add(1, Ordering::Relaxed);
+            let Ok(sol) = irwls::solve(&problem, &options, None) else {
+                return f64::INFINITY;
+            };
+            let pred = k_held_out * &sol.beta;
+            for (r, &i) in fold.held_out.iter().enumerate() {
+                for j in 0..q {
+                    abs_sum += (self.targets[(i, j)] - pred[(r, j)] - sol.bias[j]).abs();
+                }
+            }
+            count += fold.held_out.len() * q;
+        }
+        abs_sum / count as f64
+    }
+
+    /// The kernels of every fold for σ, from the cache or computed (and cached).
+    fn fold_kernels(&self, sigma: f64) -> FoldKernels {
+        if let Some(k) = self
+            .kernels
+            .lock()
+            .expect("kernel lock")
+            .get(&sigma.to_bits())
+        {
+            self.kernel_hits.fetch_add(1, Ordering::Relaxed);
+            return Arc::clone(k);
+        }
+        let computed: FoldKernels = Arc::new(
+            self.folds
+                .iter()
+                .map(|f| {
+                    (
+                        rbf_from_squared(f.d2_train.as_ref(), sigma),
+                        rbf_from_squared(f.d2_held_out.as_ref(), sigma),
+                    )
+                })
+                .collect(),
+        );
+        let mut cache = self.kernels.lock().expect("kernel lock");
+        if cache.len() >= self.kernel_cache_entries {
+            cache.clear();
+        }
+        cache.insert(sigma.to_bits(), Arc::clone(&computed));
+        computed
+    }
+}
