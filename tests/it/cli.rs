@@ -240,6 +240,8 @@ fn model_works_on_any_columns() {
             "q1_rad,q2_rad",
             "--outputs",
             "x_m,y_m",
+            "--search",
+            "none",
             "--c",
             "500",
             "--epsilon",
