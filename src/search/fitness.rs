@@ -28,7 +28,6 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::data::{Columns, Dataset};
-use crate::model::msvr::irwls::{self, Problem, SolverOptions};
 use crate::model::msvr::kernel::rbf_from_squared;
 use crate::model::msvr::{MinMaxScaler, MsvrParams};
 use crate::search::Hyper;
@@ -79,7 +78,8 @@ pub struct Fitness {
     kind: FitnessKind,
     targets: Mat<f64>,
     folds: Vec<Fold>,
-    solver: (f64, usize),
+    /// Solver controls (tol, max_iter) of every fit.
+    solver: MsvrParams,
     memo: Mutex<HashMap<[u64; 3], f64>>,
     kernels: Mutex<HashMap<u64, FoldKernels>>,
     kernel_cache_entries: usize,
@@ -155,7 +155,7 @@ impl Fitness {
             kind,
             targets: crate::model::msvr::to_mat(&data.outputs),
             folds,
-            solver: (solver.tol, solver.max_iter),
+            solver: *solver,
             memo: Mutex::new(HashMap::new()),
             kernels: Mutex::new(HashMap::new()),
             kernel_cache_entries: (KERNEL_CACHE_BYTES / per_sigma.max(1)).max(1),
@@ -223,19 +223,14 @@ impl Fitness {
         let (mut abs_sum, mut count) = (0.0, 0usize);
         for (fold, (k_train, k_held_out)) in self.folds.iter().zip(kernels.iter()) {
             let y = Mat::from_fn(fold.train.len(), q, |i, j| self.targets[(fold.train[i], j)]);
-            let problem = Problem {
-                kernel: k_train.as_ref(),
-                targets: y.as_ref(),
+            let params = MsvrParams {
                 c: h.c,
                 epsilon: h.epsilon,
-            };
-            let options = SolverOptions {
-                tol: self.solver.0,
-                max_iter: self.solver.1,
-                par: Par::Seq,
+                sigma: h.sigma,
+                ..self.solver
             };
             self.fits.fetch_add(1, Ordering::Relaxed);
-            let Ok(sol) = irwls::solve(&problem, &options, None) else {
+            let Ok(sol) = params.solve(k_train.as_ref(), y.as_ref(), Par::Seq) else {
                 return f64::INFINITY;
             };
             let pred = k_held_out * &sol.beta;

@@ -26,7 +26,7 @@
 pub mod irwls;
 pub mod kernel;
 
-use faer::{Mat, Par};
+use faer::{Mat, MatRef, Par};
 use serde::{Deserialize, Serialize};
 
 use crate::data::{Columns, DataError, Dataset};
@@ -123,6 +123,33 @@ impl MsvrParams {
     }
 }
 
+impl MsvrParams {
+    /// Solves the training problem on a kernel matrix and targets with these parameters (the
+    /// caller has checked them).
+    ///
+    /// # Errors
+    /// [`NotPositiveDefinite`] when the linear algebra fails.
+    pub fn solve(
+        &self,
+        kernel: MatRef<f64>,
+        targets: MatRef<f64>,
+        par: Par,
+    ) -> Result<irwls::Solution, NotPositiveDefinite> {
+        let problem = Problem {
+            kernel,
+            targets,
+            c: self.c,
+            epsilon: self.epsilon,
+        };
+        let options = SolverOptions {
+            tol: self.tol,
+            max_iter: self.max_iter,
+            par,
+        };
+        irwls::solve(&problem, &options, None)
+    }
+}
+
 /// Checked parameters: the only way to fit.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ValidMsvrParams(MsvrParams);
@@ -152,18 +179,7 @@ impl ValidMsvrParams {
         let scaled = scaler.transform(&data.inputs);
         let k = kernel::rbf(&scaled, &scaled, p.sigma);
         let y = to_mat(&data.outputs);
-        let problem = Problem {
-            kernel: k.as_ref(),
-            targets: y.as_ref(),
-            c: p.c,
-            epsilon: p.epsilon,
-        };
-        let options = SolverOptions {
-            tol: p.tol,
-            max_iter: p.max_iter,
-            par,
-        };
-        let solution = irwls::solve(&problem, &options, None)?;
+        let solution = p.solve(k.as_ref(), y.as_ref(), par)?;
         let beta = &solution.beta;
         let sv_rows: Vec<usize> = (0..beta.nrows())
             .filter(|&i| (0..beta.ncols()).any(|j| beta[(i, j)] != 0.0))
