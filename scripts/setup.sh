@@ -3,8 +3,9 @@
 # Safe to run twice: it installs only what is missing. Needs root or sudo for apt.
 set -euo pipefail
 
-# OpenCV 4.6 (calibration, triangulation) and what the `opencv` crate needs to generate its bindings.
-APT_PACKAGES=(libopencv-dev clang libclang-dev pkg-config)
+# OpenCV 4.6 (calibration, triangulation), what the `opencv` crate needs to generate its
+# bindings, and the font the figures are labelled with.
+APT_PACKAGES=(libopencv-dev clang libclang-dev pkg-config fonts-dejavu-core)
 
 missing=()
 for pkg in "${APT_PACKAGES[@]}"; do

@@ -58,6 +58,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 ..AcoPaper::default()
             }),
             fitness: FitnessKind::Cv { folds: 5 },
+            group_by: None,
             seed: a.seed,
         },
         tests: vec![data_dir.join("sweep_a.csv"), data_dir.join("sweep_b.csv")],

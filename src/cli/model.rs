@@ -68,6 +68,10 @@ pub struct Args {
     /// Folds of the cross-validated fitness
     #[arg(long, default_value_t = 5)]
     folds: usize,
+    /// Column whose values group rows that must be held out together (e.g. a ramp or trial id
+    /// when consecutive rows are nearly the same); with --fitness cv
+    #[arg(long)]
+    group_by: Option<String>,
     /// Seed of the search and of the folds' shuffle
     #[arg(long, default_value_t = DEFAULT_SEED)]
     seed: u64,
@@ -118,6 +122,7 @@ pub enum Selection {
     Search {
         method: Method,
         fitness: FitnessKind,
+        group_by: Option<String>,
         seed: u64,
     },
 }
@@ -146,6 +151,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         FitnessArg::Cv => FitnessKind::Cv { folds: a.folds },
         FitnessArg::Train => FitnessKind::Train,
     };
+    if a.group_by.is_some() && (a.fitness != FitnessArg::Cv || a.search == SearchKind::None) {
+        bail!("--group-by groups the folds of a cross-validated search: use it with --fitness cv and a --search");
+    }
     let method = match a.search {
         SearchKind::None => None,
         SearchKind::AcoPaper => Some(Method::AcoPaper(AcoPaper {
@@ -177,6 +185,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             Some(method) => Selection::Search {
                 method,
                 fitness,
+                group_by: a.group_by,
                 seed: a.seed,
             },
         },
@@ -248,8 +257,16 @@ pub fn execute(job: &Job) -> anyhow::Result<Outcome> {
         Selection::Search {
             method,
             fitness,
+            group_by,
             seed,
         } => {
+            let groups = match group_by {
+                None => None,
+                Some(column) => Some(search::Groups {
+                    column: column.clone(),
+                    labels: data::read_columns(&job.data, std::slice::from_ref(column))?.values,
+                }),
+            };
             let started = Instant::now();
             let bar = ProgressBar::new(iteration_cap(method)).with_style(
                 ProgressStyle::with_template("search {bar:30} {pos}/{len} iterations  {msg}")
@@ -261,6 +278,7 @@ pub fn execute(job: &Job) -> anyhow::Result<Outcome> {
                 &train,
                 *fitness,
                 *seed,
+                groups.as_ref(),
                 &job.params,
                 &mut progress,
                 &interrupt_flag(),

@@ -16,12 +16,18 @@ use crate::model::Errors;
 use crate::provenance::Provenance;
 use crate::search::{IterationRecord, SearchSummary};
 
+pub mod figures;
+
 /// Errors of writing a report.
 #[derive(Debug, thiserror::Error)]
-#[error("writing {path}: {source}")]
-pub struct ReportError {
-    pub path: PathBuf,
-    pub source: std::io::Error,
+pub enum ReportError {
+    #[error("writing {path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error(transparent)]
+    Figure(#[from] figures::FigureError),
 }
 
 /// One model's errors on one test file.
@@ -49,8 +55,9 @@ pub struct ModelReport {
     pub provenance: Provenance,
 }
 
-/// Writes `metrics.csv`, `fit.json`, `report.md` and, after a search, `history.csv` into `dir`
-/// (created if needed).
+/// Writes `metrics.csv`, `fit.json`, `report.md` and, after a search, `history.csv` and the
+/// paper's Figures 7-8 (`fig7_min_mae`, `fig8_mean_mae`, PNG and SVG) into `dir` (created if
+/// needed).
 ///
 /// # Errors
 /// [`ReportError`] naming the file that could not be written.
@@ -61,7 +68,7 @@ pub fn write_model_report(
 ) -> Result<(), ReportError> {
     let err = |path: &Path| {
         let path = path.to_path_buf();
-        move |source| ReportError { path, source }
+        move |source| ReportError::Io { path, source }
     };
     std::fs::create_dir_all(dir).map_err(err(dir))?;
     let metrics = dir.join("metrics.csv");
@@ -72,6 +79,7 @@ pub fn write_model_report(
     if let Some(history) = history {
         let path = dir.join("history.csv");
         fsio::write_bytes(&path, history_csv(history).as_bytes()).map_err(err(&path))?;
+        convergence_figures(dir, history)?;
     }
     let md = dir.join("report.md");
     fsio::write_bytes(&md, markdown(report).as_bytes()).map_err(err(&md))?;
@@ -116,6 +124,39 @@ pub fn history_csv(history: &[IterationRecord]) -> String {
         );
     }
     out
+}
+
+/// The paper's Figures 7 and 8: minimum and mean fitness per iteration.
+fn convergence_figures(dir: &Path, history: &[IterationRecord]) -> Result<(), ReportError> {
+    let figure = |name: &str, title: &str, label: &str, value: fn(&IterationRecord) -> f64| {
+        let plot = figures::LinePlot {
+            title: title.to_string(),
+            x_label: "iteration".into(),
+            y_label: "MAE".into(),
+            series: vec![figures::Series {
+                label: label.into(),
+                points: history
+                    .iter()
+                    .map(|r| (r.iteration as f64, value(r)))
+                    .collect(),
+                mark: figures::Mark::Line,
+            }],
+        };
+        figures::write_line_plot(&dir.join(name), &plot)
+    };
+    figure(
+        "fig7_min_mae",
+        "Minimum MAE per iteration (paper Fig. 7)",
+        "minimum",
+        |r| r.min,
+    )?;
+    figure(
+        "fig8_mean_mae",
+        "Mean MAE per iteration (paper Fig. 8)",
+        "mean",
+        |r| r.mean,
+    )?;
+    Ok(())
 }
 
 /// The table of held-out errors, as printed and as in `report.md`.
@@ -167,7 +208,7 @@ fn markdown(r: &ModelReport) -> String {
         let _ = writeln!(s, "## Hyper-parameter search\n");
         let _ = writeln!(
             s,
-            "{} with fitness {:?}: {} iterations, stopped by {:?}; {} candidates scored ({} fits, {} memo hits). Best fitness {:.5} at C = {}, ε = {}, σ = {}. Per-iteration history: `history.csv`.\n",
+            "{} with fitness {:?}: {} iterations, stopped by {:?}; {} candidates scored ({} fits, {} memo hits). Best fitness {:.5} at C = {}, ε = {}, σ = {}. Per-iteration history: `history.csv`; Figures 7-8: `fig7_min_mae.png`, `fig8_mean_mae.png` (and `.svg`).\n",
             serde_json::to_string(&search.method).unwrap_or_default(),
             search.fitness,
             search.iterations,

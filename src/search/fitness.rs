@@ -45,8 +45,12 @@ pub enum FitnessKind {
 /// Errors of setting up the fitness.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum FitnessError {
-    #[error("--folds {folds}: cross-validation needs 2 or more folds, and at least 2 rows per fold ({rows} rows)")]
-    BadFolds { folds: usize, rows: usize },
+    #[error("--folds {folds}: cross-validation needs 2 or more folds, each of at least 2 rows, from {rows} rows in {groups} groups")]
+    BadFolds {
+        folds: usize,
+        rows: usize,
+        groups: usize,
+    },
 }
 
 /// One fold: squared distances among its training rows and from its held-out rows to them.
@@ -55,6 +59,50 @@ struct Fold {
     held_out: Vec<usize>,
     d2_train: Mat<f64>,
     d2_held_out: Mat<f64>,
+}
+
+/// The fold of every row. Groups (every row its own group when `groups` is `None`) are shuffled
+/// with `seed` and dealt out one by one to the fold with the fewest rows so far, so folds are
+/// balanced and a group is never split between training and held-out rows.
+fn assign_folds(
+    n: usize,
+    folds: usize,
+    seed: u64,
+    groups: Option<&[f64]>,
+) -> Result<Vec<usize>, FitnessError> {
+    let mut members: Vec<Vec<usize>> = match groups {
+        None => (0..n).map(|i| vec![i]).collect(),
+        Some(labels) => {
+            let mut sorted: Vec<usize> = (0..n).collect();
+            sorted.sort_by(|&a, &b| labels[a].total_cmp(&labels[b]));
+            sorted
+                .chunk_by(|&a, &b| labels[a] == labels[b])
+                .map(<[usize]>::to_vec)
+                .collect()
+        }
+    };
+    let bad = FitnessError::BadFolds {
+        folds,
+        rows: n,
+        groups: members.len(),
+    };
+    if folds < 2 || members.len() < folds {
+        return Err(bad);
+    }
+    members.shuffle(&mut ChaCha8Rng::seed_from_u64(seed));
+    let mut sizes = vec![0usize; folds];
+    let mut fold_of = vec![0; n];
+    for group in &members {
+        let f = (0..folds).min_by_key(|&f| sizes[f]).expect("folds ≥ 2");
+        sizes[f] += group.len();
+        for &i in group {
+            fold_of[i] = f;
+        }
+    }
+    if sizes.iter().any(|&s| s < 2 || n - s < 2) {
+        return Err(bad);
+    }
+    Ok(fold_of)
 }
 
 /// Per fold: the kernel among its training rows and from its held-out rows to them.
@@ -93,14 +141,17 @@ pub struct Fitness {
 const KERNEL_CACHE_BYTES: usize = 1 << 30;
 
 impl Fitness {
-    /// Prepares the folds of `data` (shuffled with `seed` for `cv`).
+    /// Prepares the folds of `data` for `cv`: rows, or whole groups of rows when `groups` gives
+    /// each row's group label, shuffled with `seed`.
     ///
     /// # Errors
-    /// [`FitnessError::BadFolds`] when the folds are fewer than 2 or smaller than 2 rows.
+    /// [`FitnessError::BadFolds`] when there are fewer than 2 folds, fewer groups than folds, or
+    /// a fold would hold fewer than 2 rows.
     pub fn new(
         data: &Dataset,
         kind: FitnessKind,
         seed: u64,
+        groups: Option<&[f64]>,
         solver: &MsvrParams,
     ) -> Result<Self, FitnessError> {
         let n = data.rows();
@@ -108,21 +159,9 @@ impl Fitness {
         let splits: Vec<(Vec<usize>, Vec<usize>)> = match kind {
             FitnessKind::Train => vec![((0..n).collect(), (0..n).collect())],
             FitnessKind::Cv { folds } => {
-                if folds < 2 || n < 2 * folds {
-                    return Err(FitnessError::BadFolds { folds, rows: n });
-                }
-                let mut order: Vec<usize> = (0..n).collect();
-                order.shuffle(&mut ChaCha8Rng::seed_from_u64(seed));
+                let fold_of = assign_folds(n, folds, seed, groups)?;
                 (0..folds)
-                    .map(|f| {
-                        let (lo, hi) = (f * n / folds, (f + 1) * n / folds);
-                        let mut held_out = order[lo..hi].to_vec();
-                        let mut train: Vec<usize> =
-                            order[..lo].iter().chain(&order[hi..]).copied().collect();
-                        held_out.sort_unstable();
-                        train.sort_unstable();
-                        (train, held_out)
-                    })
+                    .map(|f| (0..n).partition(|&i| fold_of[i] != f))
                     .collect()
             }
         };

@@ -89,6 +89,8 @@ pub struct SearchResult {
 pub enum SearchError {
     #[error("the search found no candidate with a finite fitness (interrupted too early, or every fit failed)")]
     NothingValid,
+    #[error(transparent)]
+    Folds(#[from] fitness::FitnessError),
     #[error("{name} = {value}: {requirement}")]
     InvalidSetting {
         name: &'static str,
@@ -237,12 +239,23 @@ pub enum Method {
     Grid(grid::Grid),
 }
 
+/// Group labels of the training rows (one per row) and the column they came from: rows of a
+/// group are held out together, as when consecutive rows of one ramp are nearly the same.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Groups {
+    pub column: String,
+    pub labels: Vec<f64>,
+}
+
 /// What the model file records of the search that chose its parameters.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SearchSummary {
     #[serde(flatten)]
     pub method: Method,
     pub fitness: fitness::FitnessKind,
+    /// The column whose values group rows into whole folds, if any.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub group_by: Option<String>,
     /// Seed of the folds' shuffle (the method's own seed is in its settings).
     pub seed: u64,
     pub space: Option<SearchSpace>,
@@ -263,22 +276,19 @@ pub struct SearchSummary {
 /// # Errors
 /// [`SearchError`] from the method, or a fitness set-up error as
 /// [`SearchError::InvalidSetting`].
+#[allow(clippy::too_many_arguments)]
 pub fn run(
     method: &Method,
     data: &crate::data::Dataset,
     fitness: fitness::FitnessKind,
     seed: u64,
+    groups: Option<&Groups>,
     solver: &crate::model::msvr::MsvrParams,
     observer: &mut dyn Observer,
     interrupt: &AtomicBool,
 ) -> Result<(SearchSummary, SearchResult, fitness::Counters), SearchError> {
-    let scorer = fitness::Fitness::new(data, fitness, seed, solver).map_err(|e| match e {
-        fitness::FitnessError::BadFolds { folds, .. } => SearchError::InvalidSetting {
-            name: "folds",
-            value: folds as f64,
-            requirement: "must be at least 2, with at least 2 rows in each fold",
-        },
-    })?;
+    let labels = groups.map(|g| g.labels.as_slice());
+    let scorer = fitness::Fitness::new(data, fitness, seed, labels, solver)?;
     let objective = |batch: &[Hyper]| scorer.evaluate(batch);
     let (result, space) = match method {
         Method::AcoPaper(m) => (m.run(&objective, observer, interrupt)?, None),
@@ -295,6 +305,7 @@ pub fn run(
     let summary = SearchSummary {
         method: *method,
         fitness,
+        group_by: groups.map(|g| g.column.clone()),
         seed,
         space,
         best: result.best,

@@ -315,5 +315,14 @@ fn searches_write_history_and_are_deterministic() {
             "{history}"
         );
         assert!(history.lines().count() >= 3, "{method}: {history}");
+        for fig in ["fig7_min_mae", "fig8_mean_mae"] {
+            let png = std::fs::read(d.join(&rep).join(format!("{fig}.png"))).unwrap();
+            assert_eq!(&png[1..4], b"PNG", "{fig}.png is not a PNG");
+            let svg = std::fs::read_to_string(d.join(&rep).join(format!("{fig}.svg"))).unwrap();
+            assert!(
+                svg.contains("<svg") && svg.contains("iteration"),
+                "{fig}.svg"
+            );
+        }
     }
 }

@@ -225,8 +225,8 @@ fn hand_train() -> Dataset {
 fn cv_fitness_is_honest_and_memoised() {
     let data = hand_train();
     let solver = MsvrParams::new(1.0, 0.01, 1.0);
-    let cv = Fitness::new(&data, FitnessKind::Cv { folds: 5 }, 3, &solver).unwrap();
-    let train = Fitness::new(&data, FitnessKind::Train, 3, &solver).unwrap();
+    let cv = Fitness::new(&data, FitnessKind::Cv { folds: 5 }, 3, None, &solver).unwrap();
+    let train = Fitness::new(&data, FitnessKind::Train, 3, None, &solver).unwrap();
     // A narrow kernel with a large C interpolates the training data, noise included: its
     // training MAE is far below the noise, its cross-validated MAE is not.
     let overfit = Hyper {
@@ -272,6 +272,45 @@ fn cv_fitness_is_honest_and_memoised() {
 fn cv_needs_enough_rows_per_fold() {
     let data = hand_train();
     let solver = MsvrParams::new(1.0, 0.01, 1.0);
-    assert!(Fitness::new(&data, FitnessKind::Cv { folds: 1 }, 0, &solver).is_err());
-    assert!(Fitness::new(&data, FitnessKind::Cv { folds: 200 }, 0, &solver).is_err());
+    assert!(Fitness::new(&data, FitnessKind::Cv { folds: 1 }, 0, None, &solver).is_err());
+    assert!(Fitness::new(&data, FitnessKind::Cv { folds: 200 }, 0, None, &solver).is_err());
+}
+
+#[test]
+fn grouped_folds_hold_out_whole_groups() {
+    // Label rows by P1 (6 levels of 36 rows): with 3 grouped folds, each fold's score is a
+    // prediction of two unseen P1 levels, so it differs from row-wise CV, and 7 folds cannot be
+    // made from 6 groups.
+    let data = hand_train();
+    let labels: Vec<f64> = data.inputs.column(0).collect();
+    let solver = MsvrParams::new(1.0, 0.01, 1.0);
+    let grouped = Fitness::new(
+        &data,
+        FitnessKind::Cv { folds: 3 },
+        1,
+        Some(&labels),
+        &solver,
+    )
+    .unwrap();
+    let rows = Fitness::new(&data, FitnessKind::Cv { folds: 3 }, 1, None, &solver).unwrap();
+    let h = [Hyper {
+        c: 300.0,
+        epsilon: 0.02,
+        sigma: 0.3,
+    }];
+    let (g, r) = (grouped.evaluate(&h)[0], rows.evaluate(&h)[0]);
+    assert!(
+        g > 2.0 * r,
+        "grouped CV {g} should be far harsher than row-wise {r}: whole P1 levels are unseen"
+    );
+    let err = Fitness::new(
+        &data,
+        FitnessKind::Cv { folds: 7 },
+        1,
+        Some(&labels),
+        &solver,
+    )
+    .err()
+    .unwrap();
+    assert!(err.to_string().contains("6 groups"), "{err}");
 }

@@ -1,0 +1,174 @@
+//! Line plots written as PNG and SVG (plotters).
+//!
+//! Labels use DejaVu Sans read from the system (`fonts-dejavu-core`, which `scripts/setup.sh`
+//! installs). The PNG is drawn into a temporary file and renamed into place; the SVG is built in
+//! memory and written atomically.
+
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+use plotters::prelude::*;
+
+use crate::fsio;
+
+/// Where the labels' font is read from.
+pub const FONT_PATH: &str = "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf";
+const SIZE: (u32, u32) = (800, 500);
+
+/// Errors of drawing a figure.
+#[derive(Debug, thiserror::Error)]
+pub enum FigureError {
+    #[error("cannot load the figure font {FONT_PATH}: {0}; install fonts-dejavu-core (scripts/setup.sh does)")]
+    Font(String),
+    #[error("drawing {path}: {message}")]
+    Draw { path: PathBuf, message: String },
+}
+
+/// How a series is drawn.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Mark {
+    Line,
+    Points,
+}
+
+/// One named series of (x, y) points.
+#[derive(Clone, Debug)]
+pub struct Series {
+    pub label: String,
+    pub points: Vec<(f64, f64)>,
+    pub mark: Mark,
+}
+
+/// A plot of series against one x axis.
+#[derive(Clone, Debug)]
+pub struct LinePlot {
+    pub title: String,
+    pub x_label: String,
+    pub y_label: String,
+    pub series: Vec<Series>,
+}
+
+fn register_font() -> Result<(), FigureError> {
+    static FONT: OnceLock<Result<(), String>> = OnceLock::new();
+    FONT.get_or_init(|| {
+        let bytes = std::fs::read(FONT_PATH).map_err(|e| e.to_string())?;
+        let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
+        plotters::style::register_font("sans-serif", FontStyle::Normal, bytes)
+            .map_err(|_| "not a font file".to_string())
+    })
+    .clone()
+    .map_err(FigureError::Font)
+}
+
+/// Writes `stem.png` and `stem.svg`.
+///
+/// # Errors
+/// [`FigureError`] when the font is missing or a file cannot be drawn or written.
+pub fn write_line_plot(stem: &Path, plot: &LinePlot) -> Result<(), FigureError> {
+    register_font()?;
+    let png = stem.with_extension("png");
+    let draw_err = |path: &Path| {
+        let path = path.to_path_buf();
+        move |e: String| FigureError::Draw { path, message: e }
+    };
+    let tmp = fsio::temp_beside(&png, ".png").map_err(|e| draw_err(&png)(e.to_string()))?;
+    draw(
+        BitMapBackend::new(tmp.path(), SIZE).into_drawing_area(),
+        plot,
+    )
+    .map_err(draw_err(&png))?;
+    tmp.persist(&png)
+        .map_err(|e| draw_err(&png)(e.error.to_string()))?;
+
+    let svg_path = stem.with_extension("svg");
+    let mut svg = String::new();
+    draw(
+        SVGBackend::with_string(&mut svg, SIZE).into_drawing_area(),
+        plot,
+    )
+    .map_err(draw_err(&svg_path))?;
+    fsio::write_bytes(&svg_path, svg.as_bytes()).map_err(|e| draw_err(&svg_path)(e.to_string()))
+}
+
+const COLOURS: [RGBColor; 6] = [
+    RGBColor(31, 119, 180),
+    RGBColor(214, 39, 40),
+    RGBColor(44, 160, 44),
+    RGBColor(255, 127, 14),
+    RGBColor(148, 103, 189),
+    RGBColor(0, 0, 0),
+];
+
+fn draw<DB: DrawingBackend>(
+    area: DrawingArea<DB, plotters::coord::Shift>,
+    plot: &LinePlot,
+) -> Result<(), String>
+where
+    DB::ErrorType: 'static,
+{
+    let e = |err: DrawingAreaErrorKind<DB::ErrorType>| err.to_string();
+    area.fill(&WHITE).map_err(e)?;
+    let all = plot.series.iter().flat_map(|s| s.points.iter());
+    let finite: Vec<(f64, f64)> = all
+        .copied()
+        .filter(|(x, y)| x.is_finite() && y.is_finite())
+        .collect();
+    let (x0, x1) = padded(finite.iter().map(|p| p.0));
+    let (y0, y1) = padded(finite.iter().map(|p| p.1));
+    let mut chart = ChartBuilder::on(&area)
+        .caption(&plot.title, ("sans-serif", 22))
+        .margin(12)
+        .x_label_area_size(45)
+        .y_label_area_size(70)
+        .build_cartesian_2d(x0..x1, y0..y1)
+        .map_err(e)?;
+    chart
+        .configure_mesh()
+        .x_desc(&plot.x_label)
+        .y_desc(&plot.y_label)
+        .label_style(("sans-serif", 14))
+        .draw()
+        .map_err(e)?;
+    for (i, s) in plot.series.iter().enumerate() {
+        let colour = COLOURS[i % COLOURS.len()];
+        let points = s
+            .points
+            .iter()
+            .copied()
+            .filter(|(x, y)| x.is_finite() && y.is_finite());
+        let drawn = match s.mark {
+            Mark::Line => chart.draw_series(LineSeries::new(points, colour.stroke_width(2))),
+            Mark::Points => chart.draw_series(points.map(|p| Circle::new(p, 3, colour.filled()))),
+        }
+        .map_err(e)?;
+        drawn
+            .label(&s.label)
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], colour.stroke_width(2)));
+    }
+    if plot.series.len() > 1 {
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .label_font(("sans-serif", 14))
+            .draw()
+            .map_err(e)?;
+    }
+    area.present().map_err(e)
+}
+
+/// The range of the values with 5 % margins (a unit range around a single value).
+fn padded(values: impl Iterator<Item = f64>) -> (f64, f64) {
+    let (lo, hi) = values.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+        (lo.min(v), hi.max(v))
+    });
+    if !lo.is_finite() {
+        return (0.0, 1.0);
+    }
+    let pad = if hi > lo {
+        0.05 * (hi - lo)
+    } else {
+        0.5 * lo.abs().max(1e-9)
+    };
+    (lo - pad, hi + pad)
+}
