@@ -326,3 +326,48 @@ fn searches_write_history_and_are_deterministic() {
         }
     }
 }
+
+#[test]
+fn ctrl_c_ends_the_search_and_keeps_the_best_model() {
+    let dir = tempdir();
+    let d = dir.path();
+    synth(d, "data", "1");
+    let child = std::process::Command::new(env!("CARGO_BIN_EXE_handcap"))
+        .args([
+            "model",
+            "data/train.csv",
+            "--max-iter",
+            "10000",
+            "--out",
+            "m.json",
+            "--report",
+            "rep",
+        ])
+        .current_dir(d)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(2500));
+    let sent = std::process::Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(sent.success());
+    let out = child.wait_with_output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.contains("interrupted"), "{stdout}");
+    let model = std::fs::read_to_string(d.join("m.json")).unwrap();
+    assert!(
+        model.contains("\"stop\": \"interrupted\""),
+        "model not marked interrupted"
+    );
+    let history = std::fs::read_to_string(d.join("rep/history.csv")).unwrap();
+    let iterations = history.lines().count() - 1;
+    assert!((1..10000).contains(&iterations), "{iterations} iterations");
+}
