@@ -13,6 +13,10 @@
 //! Speed: the squared distances of every fold are computed once; the fold kernels of a σ are
 //! cached (a converging colony keeps revisiting the same σ); every evaluated tuple is memoised,
 //! so a repeated path costs nothing; candidates run in parallel (rayon), each fit single-threaded.
+//! Fits inside the search stop at a relative decrease of the objective of [`SEARCH_TOL`] (or the
+//! looser solver tolerance given): a fitness needs a few significant digits, not eight, and at
+//! large C the solver's last digits cost the most iterations. The chosen model is then fitted to
+//! the full tolerance.
 //! Fits are not warm-started from neighbouring tuples: with parallel evaluation the neighbour
 //! found would depend on thread timing, and a seeded search must give the same result every run.
 
@@ -137,6 +141,9 @@ pub struct Fitness {
     kernel_hits: AtomicUsize,
 }
 
+/// Relative objective tolerance of the fits that score candidates.
+pub const SEARCH_TOL: f64 = 1e-6;
+
 /// Memory allowed for cached fold kernels (bytes).
 const KERNEL_CACHE_BYTES: usize = 1 << 30;
 
@@ -194,7 +201,10 @@ impl Fitness {
             kind,
             targets: crate::model::msvr::to_mat(&data.outputs),
             folds,
-            solver: *solver,
+            solver: MsvrParams {
+                tol: solver.tol.max(SEARCH_TOL),
+                ..*solver
+            },
             memo: Mutex::new(HashMap::new()),
             kernels: Mutex::new(HashMap::new()),
             kernel_cache_entries: (KERNEL_CACHE_BYTES / per_sigma.max(1)).max(1),
