@@ -18,7 +18,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use super::{Hyper, Observer, SearchError, SearchResult, SearchStop, Tracker};
+use super::{invalid, Hyper, Objective, Observer, SearchError, SearchResult, SearchStop, Tracker};
 
 const LAYERS: usize = 12;
 const DIGITS: usize = 10;
@@ -71,24 +71,17 @@ pub fn decode(path: &Path) -> Hyper {
 
 impl AcoPaper {
     fn check(&self) -> Result<(), SearchError> {
-        let bad = |name, value, requirement| {
-            Err(SearchError::InvalidSetting {
-                name,
-                value,
-                requirement,
-            })
-        };
         if self.ants == 0 {
-            return bad("ants", 0.0, "must be at least 1");
+            return invalid("ants", 0.0, "must be at least 1");
         }
         if !(self.rho > 0.0 && self.rho < 1.0) {
-            return bad("rho", self.rho, "must be in (0, 1)");
+            return invalid("rho", self.rho, "must be in (0, 1)");
         }
         if !(self.tau0 > 0.0 && self.tau0.is_finite()) {
-            return bad("tau0", self.tau0, "must be finite and > 0");
+            return invalid("tau0", self.tau0, "must be finite and > 0");
         }
         if self.max_iter == 0 {
-            return bad("max_iter", 0.0, "must be at least 1");
+            return invalid("max_iter", 0.0, "must be at least 1");
         }
         Ok(())
     }
@@ -100,7 +93,7 @@ impl AcoPaper {
     /// ant found a finite fitness before the search ended.
     pub fn run(
         &self,
-        objective: &(dyn Fn(&[Hyper]) -> Vec<f64> + Sync),
+        objective: &Objective,
         observer: &mut dyn Observer,
         interrupt: &AtomicBool,
     ) -> Result<SearchResult, SearchError> {

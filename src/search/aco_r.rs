@@ -16,7 +16,10 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 
-use super::{Hyper, Observer, SearchError, SearchResult, SearchSpace, SearchStop, Tracker};
+use super::{
+    invalid, Hyper, Objective, Observer, SearchError, SearchResult, SearchSpace, SearchStop,
+    Tracker,
+};
 
 /// ACO_R settings.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -56,29 +59,22 @@ impl AcoR {
     pub fn run(
         &self,
         space: &SearchSpace,
-        objective: &(dyn Fn(&[Hyper]) -> Vec<f64> + Sync),
+        objective: &Objective,
         observer: &mut dyn Observer,
         interrupt: &AtomicBool,
     ) -> Result<SearchResult, SearchError> {
-        let bad = |name, value, requirement| {
-            Err(SearchError::InvalidSetting {
-                name,
-                value,
-                requirement,
-            })
-        };
         if self.archive < 2 {
-            return bad("archive", self.archive as f64, "must be at least 2");
+            return invalid("archive", self.archive as f64, "must be at least 2");
         }
         if self.ants == 0 || self.budget < self.archive {
-            return bad(
+            return invalid(
                 "budget",
                 self.budget as f64,
                 "must hold the archive's first fill",
             );
         }
         if !(self.q > 0.0 && self.xi > 0.0) {
-            return bad("q, xi", self.q.min(self.xi), "must be > 0");
+            return invalid("q, xi", self.q.min(self.xi), "must be > 0");
         }
         let bounds = space.log_bounds();
         let mut rng = ChaCha8Rng::seed_from_u64(self.seed);
@@ -136,7 +132,7 @@ impl AcoR {
     fn score(
         &self,
         points: &[[f64; 3]],
-        objective: &(dyn Fn(&[Hyper]) -> Vec<f64> + Sync),
+        objective: &Objective,
         tracker: &mut Tracker,
     ) -> Vec<([f64; 3], f64)> {
         let candidates: Vec<Hyper> = points.iter().map(|&x| SearchSpace::from_log(x)).collect();

@@ -6,7 +6,10 @@ use std::sync::atomic::AtomicBool;
 
 use serde::{Deserialize, Serialize};
 
-use super::{Hyper, Observer, SearchError, SearchResult, SearchSpace, SearchStop, Tracker};
+use super::{
+    invalid, Hyper, Objective, Observer, SearchError, SearchResult, SearchSpace, SearchStop,
+    Tracker,
+};
 
 /// Grid settings.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -40,16 +43,16 @@ impl Grid {
     pub fn run(
         &self,
         space: &SearchSpace,
-        objective: &(dyn Fn(&[Hyper]) -> Vec<f64> + Sync),
+        objective: &Objective,
         observer: &mut dyn Observer,
         interrupt: &AtomicBool,
     ) -> Result<SearchResult, SearchError> {
         if self.budget < 8 || self.batch == 0 {
-            return Err(SearchError::InvalidSetting {
-                name: "budget",
-                value: self.budget as f64,
-                requirement: "must be at least 8 (2 values per axis)",
-            });
+            return invalid(
+                "budget",
+                self.budget as f64,
+                "must be at least 8 (2 values per axis)",
+            );
         }
         let k = self.per_axis();
         let axis = |(lo, hi): (f64, f64)| -> Vec<f64> {

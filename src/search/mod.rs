@@ -99,6 +99,19 @@ pub enum SearchError {
     },
 }
 
+/// The error for a setting outside its range.
+fn invalid<T>(name: &'static str, value: f64, requirement: &'static str) -> Result<T, SearchError> {
+    Err(SearchError::InvalidSetting {
+        name,
+        value,
+        requirement,
+    })
+}
+
+/// What a search optimises: scores a batch of candidates, lower is better, +∞ for an invalid
+/// candidate or a failed fit.
+pub type Objective<'a> = dyn Fn(&[Hyper]) -> Vec<f64> + Sync + 'a;
+
 /// Keeps the best candidate and the history, and builds each iteration's record.
 struct Tracker<'a> {
     best: Option<(Hyper, f64)>,
