@@ -344,16 +344,12 @@ pub fn execute(job: &Job) -> anyhow::Result<Outcome> {
 pub fn print_summary(outcome: &Outcome) {
     let r = &outcome.report;
     if let Some((s, counters, seconds)) = &outcome.search {
-        let fitness = match s.fitness {
-            FitnessKind::Cv { folds } => format!("{folds}-fold cross-validated MAE"),
-            FitnessKind::Train => "training MAE".to_string(),
-        };
         println!(
             "search {}: {} iterations ({:?}), best {} {:.5}",
-            method_name(&s.method),
+            s.method.name(),
             s.iterations,
             s.stop,
-            fitness,
+            s.fitness,
             s.best_fitness
         );
         println!(
@@ -388,14 +384,6 @@ pub fn print_summary(outcome: &Outcome) {
     if !r.tests.is_empty() {
         println!("held-out errors (output units):");
         print!("{}", report::errors_table(&r.tests, &r.outputs));
-    }
-}
-
-pub fn method_name(m: &Method) -> &'static str {
-    match m {
-        Method::AcoPaper(_) => "aco-paper",
-        Method::AcoR(_) => "aco-r",
-        Method::Grid(_) => "grid",
     }
 }
 

@@ -208,9 +208,14 @@ fn markdown(r: &ModelReport) -> String {
         let _ = writeln!(s, "## Hyper-parameter search\n");
         let _ = writeln!(
             s,
-            "{} with fitness {:?}: {} iterations, stopped by {:?}; {} candidates scored ({} fits, {} memo hits). Best fitness {:.5} at C = {}, ε = {}, σ = {}. Per-iteration history: `history.csv`; Figures 7-8: `fig7_min_mae.png`, `fig8_mean_mae.png` (and `.svg`).\n",
-            serde_json::to_string(&search.method).unwrap_or_default(),
+            "{} scored by {}{}: {} iterations, stopped by {:?}; {} candidates scored ({} fits, {} memo hits). Best fitness {:.5} at C = {}, ε = {}, σ = {}. Per-iteration history: `history.csv`; Figures 7-8: `fig7_min_mae.png`, `fig8_mean_mae.png` (and `.svg`).\n",
+            search.method,
             search.fitness,
+            search
+                .group_by
+                .as_ref()
+                .map(|c| format!(" with rows grouped by `{c}`"))
+                .unwrap_or_default(),
             search.iterations,
             search.stop,
             search.evaluations,

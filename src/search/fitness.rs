@@ -46,6 +46,15 @@ pub enum FitnessKind {
     Train,
 }
 
+impl std::fmt::Display for FitnessKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            FitnessKind::Cv { folds } => write!(f, "{folds}-fold cross-validated MAE"),
+            FitnessKind::Train => write!(f, "training MAE"),
+        }
+    }
+}
+
 /// Errors of setting up the fitness.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum FitnessError {

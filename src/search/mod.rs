@@ -261,6 +261,35 @@ pub struct Groups {
     pub labels: Vec<f64>,
 }
 
+impl Method {
+    /// The `--search` name.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Method::AcoPaper(_) => "aco-paper",
+            Method::AcoR(_) => "aco-r",
+            Method::Grid(_) => "grid",
+        }
+    }
+}
+
+impl std::fmt::Display for Method {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Method::AcoPaper(m) => write!(
+                f,
+                "the paper's ant colony ({} ants, ρ {}, τ0 {}, at most {} iterations, seed {})",
+                m.ants, m.rho, m.tau0, m.max_iter, m.seed
+            ),
+            Method::AcoR(m) => write!(
+                f,
+                "ACO_R (archive {}, {} ants, q {}, ξ {}, budget {}, seed {})",
+                m.archive, m.ants, m.q, m.xi, m.budget, m.seed
+            ),
+            Method::Grid(m) => write!(f, "a log-spaced grid ({} values per axis)", m.per_axis()),
+        }
+    }
+}
+
 /// What the model file records of the search that chose its parameters.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SearchSummary {
