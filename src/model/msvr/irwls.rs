@@ -254,8 +254,12 @@ impl Problem<'_> {
 
     /// F at β, b given Kβ.
     pub fn objective(&self, beta: MatRef<f64>, k_beta: MatRef<f64>, bias: &[f64]) -> f64 {
-        let resid = self.residuals(k_beta, bias);
-        0.5 * frobenius_dot(beta, k_beta) + self.c * self.loss_sum(resid.as_ref())
+        self.objective_with(beta, k_beta, self.residuals(k_beta, bias).as_ref())
+    }
+
+    /// F from β, Kβ and the residuals they leave.
+    fn objective_with(&self, beta: MatRef<f64>, k_beta: MatRef<f64>, resid: MatRef<f64>) -> f64 {
+        0.5 * frobenius_dot(beta, k_beta) + self.c * self.loss_sum(resid)
     }
 
     fn residuals(&self, k_beta: MatRef<f64>, bias: &[f64]) -> Mat<f64> {
@@ -282,8 +286,7 @@ impl Problem<'_> {
             par,
         );
         let resid = self.residuals(k_beta.as_ref(), &bias);
-        let objective = 0.5 * frobenius_dot(beta.as_ref(), k_beta.as_ref())
-            + self.c * self.loss_sum(resid.as_ref());
+        let objective = self.objective_with(beta.as_ref(), k_beta.as_ref(), resid.as_ref());
         Iterate {
             beta,
             k_beta,
@@ -370,8 +373,8 @@ impl Problem<'_> {
             for i in 0..n {
                 let e = |j: usize| it.resid[(i, j)] - t * g[(i, j)];
                 let u = (0..q).map(|j| e(j) * e(j)).sum::<f64>().sqrt();
+                loss += self.loss(u);
                 if u > self.epsilon {
-                    loss += (u - self.epsilon) * (u - self.epsilon);
                     let w = 2.0 * (u - self.epsilon) / u;
                     slope -= self.c * w * (0..q).map(|j| e(j) * g[(i, j)]).sum::<f64>();
                 }
