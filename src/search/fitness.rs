@@ -66,10 +66,11 @@ pub enum FitnessError {
     },
 }
 
-/// One fold: squared distances among its training rows and from its held-out rows to them.
+/// One fold: the targets of its training and held-out rows, and the squared distances among
+/// its training rows and from its held-out rows to them.
 struct Fold {
-    train: Vec<usize>,
-    held_out: Vec<usize>,
+    y_train: Mat<f64>,
+    y_held_out: Mat<f64>,
     d2_train: Mat<f64>,
     d2_held_out: Mat<f64>,
 }
@@ -137,7 +138,6 @@ pub struct Counters {
 /// Scores (C, ε, σ) tuples on one dataset.
 pub struct Fitness {
     kind: FitnessKind,
-    targets: Mat<f64>,
     folds: Vec<Fold>,
     /// Solver controls (tol, max_iter) of every fit.
     solver: MsvrParams,
@@ -190,12 +190,17 @@ impl Fitness {
                         rows.iter().flat_map(|&i| scaled.row(i).to_vec()).collect(),
                     )
                 };
+                let targets = |rows: &[usize]| {
+                    Mat::from_fn(rows.len(), data.outputs.width(), |r, j| {
+                        data.outputs.row(rows[r])[j]
+                    })
+                };
                 let (tr, ho) = (pick(&train), pick(&held_out));
                 Fold {
+                    y_train: targets(&train),
+                    y_held_out: targets(&held_out),
                     d2_train: crate::model::msvr::kernel::squared_distances(&tr, &tr),
                     d2_held_out: crate::model::msvr::kernel::squared_distances(&ho, &tr),
-                    train,
-                    held_out,
                 }
             })
             .collect();
@@ -208,7 +213,6 @@ impl Fitness {
             .sum();
         Ok(Fitness {
             kind,
-            targets: crate::model::msvr::to_mat(&data.outputs),
             folds,
             solver: MsvrParams {
                 tol: solver.tol.max(SEARCH_TOL),
@@ -277,27 +281,26 @@ impl Fitness {
     /// MAE over every held-out prediction for one tuple.
     fn score(&self, h: &Hyper) -> f64 {
         let kernels = self.fold_kernels(h.sigma);
-        let q = self.targets.ncols();
+        let params = MsvrParams {
+            c: h.c,
+            epsilon: h.epsilon,
+            sigma: h.sigma,
+            ..self.solver
+        };
         let (mut abs_sum, mut count) = (0.0, 0usize);
         for (fold, (k_train, k_held_out)) in self.folds.iter().zip(kernels.iter()) {
-            let y = Mat::from_fn(fold.train.len(), q, |i, j| self.targets[(fold.train[i], j)]);
-            let params = MsvrParams {
-                c: h.c,
-                epsilon: h.epsilon,
-                sigma: h.sigma,
-                ..self.solver
-            };
             self.fits.fetch_add(1, Ordering::Relaxed);
-            let Ok(sol) = params.solve(k_train.as_ref(), y.as_ref(), Par::Seq) else {
+            let Ok(sol) = params.solve(k_train.as_ref(), fold.y_train.as_ref(), Par::Seq) else {
                 return f64::INFINITY;
             };
             let pred = k_held_out * &sol.beta;
-            for (r, &i) in fold.held_out.iter().enumerate() {
-                for j in 0..q {
-                    abs_sum += (self.targets[(i, j)] - pred[(r, j)] - sol.bias[j]).abs();
+            let y = &fold.y_held_out;
+            for r in 0..y.nrows() {
+                for j in 0..y.ncols() {
+                    abs_sum += (y[(r, j)] - pred[(r, j)] - sol.bias[j]).abs();
                 }
             }
-            count += fold.held_out.len() * q;
+            count += y.nrows() * y.ncols();
         }
         abs_sum / count as f64
     }
