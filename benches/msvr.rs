@@ -11,7 +11,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 
-use handcap::data::{Columns, Dataset, HAND_INPUTS, HAND_OUTPUTS};
+use handcap::data::{names, Columns, Dataset, HAND_INPUTS, HAND_OUTPUTS};
 use handcap::model::msvr::MsvrParams;
 use handcap::model::Predict;
 use handcap::synth::plant::Plant;
@@ -28,11 +28,10 @@ fn random_hand_data(n: usize, seed: u64) -> Dataset {
         x.extend(p);
         y.extend(tip.map(|v| v + noise.sample(&mut rng)));
     }
-    let names = |c: [&str; 3]| c.iter().map(|s| s.to_string()).collect();
     Dataset {
         source: "bench".into(),
-        inputs: Columns::new(names(HAND_INPUTS), x),
-        outputs: Columns::new(names(HAND_OUTPUTS), y),
+        inputs: Columns::new(names(&HAND_INPUTS), x),
+        outputs: Columns::new(names(&HAND_OUTPUTS), y),
     }
 }
 

@@ -14,6 +14,11 @@ pub const HAND_INPUTS: [&str; 3] = ["P1_kpa", "P2_kpa", "P3_kpa"];
 /// Output columns of the micro-hand datasets (tip position in the hand frame).
 pub const HAND_OUTPUTS: [&str; 3] = ["x_mm", "y_mm", "z_mm"];
 
+/// Owned column names, e.g. `names(&HAND_INPUTS)`.
+pub fn names(columns: &[&str]) -> Vec<String> {
+    columns.iter().map(|c| c.to_string()).collect()
+}
+
 /// Errors of reading or validating a dataset.
 #[derive(Debug, thiserror::Error)]
 pub enum DataError {

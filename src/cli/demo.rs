@@ -9,7 +9,7 @@ use std::time::Instant;
 
 use anyhow::Context;
 
-use handcap::data::{HAND_INPUTS, HAND_OUTPUTS};
+use handcap::data::{names, HAND_INPUTS, HAND_OUTPUTS};
 use handcap::model::msvr::MsvrParams;
 use handcap::provenance::Provenance;
 use handcap::search::aco_paper::AcoPaper;
@@ -46,11 +46,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     println!(
         "[2/2] model: MSVR, (C, ε, σ) by the paper's ant colony on 5-fold CV, tested on the sweeps"
     );
-    let names = |cols: [&str; 3]| cols.iter().map(|s| s.to_string()).collect();
     let job = Job {
         data: data_dir.join("train.csv"),
-        inputs: names(HAND_INPUTS),
-        outputs: names(HAND_OUTPUTS),
+        inputs: names(&HAND_INPUTS),
+        outputs: names(&HAND_OUTPUTS),
         params: MsvrParams::new(PAPER_C, PAPER_EPSILON, PAPER_SIGMA),
         selection: Selection::Search {
             method: Method::AcoPaper(AcoPaper {

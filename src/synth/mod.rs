@@ -20,7 +20,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use serde::Serialize;
 
-use crate::data::{self, Columns, DataError, HAND_INPUTS, HAND_OUTPUTS};
+use crate::data::{self, names, Columns, DataError, HAND_INPUTS, HAND_OUTPUTS};
 use crate::provenance::Provenance;
 use plant::{Plant, PlantError, PlantParams, Pressures};
 
@@ -136,7 +136,6 @@ pub fn record(config: &SynthConfig) -> Result<Vec<Recording>, SynthError> {
     let noise =
         Normal::new(0.0, config.noise_mm).map_err(|_| SynthError::BadNoise(config.noise_mm))?;
     let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
-    let names = |cols: [&str; 3]| cols.iter().map(|s| s.to_string()).collect::<Vec<_>>();
     protocol(config)?
         .into_iter()
         .map(|(name, steps)| {
@@ -148,9 +147,9 @@ pub fn record(config: &SynthConfig) -> Result<Vec<Recording>, SynthError> {
                 .collect();
             Ok(Recording {
                 name,
-                pressures: Columns::new(names(HAND_INPUTS), steps.concat()),
-                tips: Columns::new(names(HAND_OUTPUTS), measured),
-                truth: Columns::new(names(HAND_OUTPUTS), truth.concat()),
+                pressures: Columns::new(names(&HAND_INPUTS), steps.concat()),
+                tips: Columns::new(names(&HAND_OUTPUTS), measured),
+                truth: Columns::new(names(&HAND_OUTPUTS), truth.concat()),
             })
         })
         .collect()
