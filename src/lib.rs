@@ -19,6 +19,7 @@
 
 pub mod data;
 pub mod fsio;
+pub mod hand;
 pub mod model;
 pub mod provenance;
 pub mod report;

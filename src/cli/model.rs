@@ -12,9 +12,10 @@ use handcap::data::{self, HAND_INPUTS, HAND_OUTPUTS};
 use handcap::fsio;
 use handcap::model::file::{ModelFile, StoredModel};
 use handcap::model::msvr::{MsvrParams, DEFAULT_MAX_ITER, DEFAULT_TOL};
+use handcap::model::previous::{self, PreviousModel};
 use handcap::model::{self, Predict};
 use handcap::provenance::Provenance;
-use handcap::report::{self, ModelReport, TestResult};
+use handcap::report::{self, Comparison, ModelReport, NamedModel, PreviousSummary, TestResult};
 use handcap::search::aco_paper::AcoPaper;
 use handcap::search::aco_r::AcoR;
 use handcap::search::fitness::{Counters, FitnessKind};
@@ -302,14 +303,47 @@ pub fn execute(job: &Job) -> anyhow::Result<Outcome> {
 
     let msvr = params.check()?.fit(&train)?;
     let train_errors = model::evaluate(&msvr, &train)?;
+
+    // The previous physics model describes the micro-hand only.
+    let is_hand = train.inputs.names == HAND_INPUTS && train.outputs.names == HAND_OUTPUTS;
+    let previous = if is_hand {
+        let default = PreviousModel::with_defaults();
+        let (calibrated, calibration) = previous::calibrate(&train, &default.params)?;
+        Some((default, calibrated, calibration))
+    } else {
+        None
+    };
+    let mut models = vec![NamedModel {
+        name: "msvr",
+        model: &msvr,
+    }];
+    if let Some((default, calibrated, _)) = &previous {
+        for m in [default, calibrated] {
+            models.push(NamedModel {
+                name: m.name(),
+                model: m,
+            });
+        }
+    }
+    let test_data = job
+        .tests
+        .iter()
+        .map(|path| {
+            Ok((
+                file_name(path),
+                data::read_dataset(path, &job.inputs, &job.outputs)?,
+            ))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
     let mut tests = Vec::new();
-    for path in &job.tests {
-        let test = data::read_dataset(path, &job.inputs, &job.outputs)?;
-        tests.push(TestResult {
-            model: "msvr".into(),
-            test: file_name(path),
-            errors: model::evaluate(&msvr, &test)?,
-        });
+    for (name, test) in &test_data {
+        for m in &models {
+            tests.push(TestResult {
+                model: m.name.into(),
+                test: name.clone(),
+                errors: model::evaluate(m.model, test)?,
+            });
+        }
     }
 
     let seed = match job.selection {
@@ -330,12 +364,21 @@ pub fn execute(job: &Job) -> anyhow::Result<Outcome> {
         fit: msvr.fit.clone(),
         search: search.as_ref().map(|(s, _, _)| s.clone()),
         train_errors,
+        previous: previous.as_ref().map(|(d, c, cal)| PreviousSummary {
+            default: d.params.clone(),
+            calibrated: c.params.clone(),
+            calibration: cal.clone(),
+        }),
         tests,
         provenance: provenance.clone(),
     };
     // The report first: an interrupted search still leaves its history, and the model last.
     if let Some(dir) = &job.report {
-        report::write_model_report(dir, &report, history.as_deref())?;
+        let comparison = Comparison {
+            models: &models,
+            tests: &test_data,
+        };
+        report::write_model_report(dir, &report, history.as_deref(), &comparison)?;
     }
     ModelFile::new(StoredModel::Msvr(msvr), report.search.clone(), provenance).save(&job.out)?;
     Ok(Outcome { report, search })
@@ -381,6 +424,20 @@ pub fn print_summary(outcome: &Outcome) {
         "  training error (not a test): MAE {:.4}, mean Euclidean {:.4}",
         r.train_errors.mae, r.train_errors.euclid
     );
+    if let Some(p) = &r.previous {
+        let (c, cal) = (&p.calibrated, &p.calibration);
+        println!(
+            "previous model calibrated on {} rows: α₀ {:.2}°, K {:.2} N, P_th {:.1} kPa, arms {:.3} × {:.3}; RMS {:.4} ({})",
+            cal.rows,
+            c.braid_angle_deg,
+            c.load_n,
+            c.threshold_kpa,
+            c.arm_x,
+            c.arm_y,
+            cal.rms_mm,
+            if cal.converged { "converged" } else { "NOT converged" }
+        );
+    }
     if !r.tests.is_empty() {
         println!("held-out errors (output units):");
         print!("{}", report::errors_table(&r.tests, &r.outputs));

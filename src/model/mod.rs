@@ -1,10 +1,12 @@
 //! Models of an actuator's input → output map, the contract they share, and error metrics.
 //!
-//! [`msvr`] is the multi-output support vector regression of the paper. Every model implements
+//! [`msvr`] is the multi-output support vector regression of the paper; [`previous`] is the
+//! physics-based model it is compared with. Every model implements
 //! [`Predict`], so evaluation, reports and the command line treat them alike.
 
 pub mod file;
 pub mod msvr;
+pub mod previous;
 
 use rayon::prelude::*;
 

@@ -7,6 +7,8 @@
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
+use plotters::coord::ranged1d::{Ranged, ValueFormatter};
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 
 use crate::fsio;
@@ -37,7 +39,13 @@ pub struct Series {
     pub label: String,
     pub points: Vec<(f64, f64)>,
     pub mark: Mark,
+    /// Index into the palette ([`BLACK_INDEX`] is black), so a model keeps its colour across
+    /// figures.
+    pub colour: usize,
 }
+
+/// The palette index of black, for measured data.
+pub const BLACK_INDEX: usize = 5;
 
 /// A plot of series against one x axis.
 #[derive(Clone, Debug)]
@@ -46,6 +54,8 @@ pub struct LinePlot {
     pub x_label: String,
     pub y_label: String,
     pub series: Vec<Series>,
+    /// A logarithmic y axis (points with y ≤ 0 are left out).
+    pub log_y: bool,
 }
 
 fn register_font() -> Result<(), FigureError> {
@@ -106,22 +116,55 @@ fn draw<DB: DrawingBackend>(
 where
     DB::ErrorType: 'static,
 {
-    let e = |err: DrawingAreaErrorKind<DB::ErrorType>| err.to_string();
-    area.fill(&WHITE).map_err(e)?;
-    let all = plot.series.iter().flat_map(|s| s.points.iter());
-    let finite: Vec<(f64, f64)> = all
-        .copied()
-        .filter(|(x, y)| x.is_finite() && y.is_finite())
+    area.fill(&WHITE).map_err(|e| e.to_string())?;
+    let shown: Vec<(f64, f64)> = plot
+        .series
+        .iter()
+        .flat_map(|s| s.points.iter().copied())
+        .filter(|&p| plot.shows(p))
         .collect();
-    let (x0, x1) = padded(finite.iter().map(|p| p.0));
-    let (y0, y1) = padded(finite.iter().map(|p| p.1));
-    let mut chart = ChartBuilder::on(&area)
+    let (x0, x1) = padded(shown.iter().map(|p| p.0));
+    let mut builder = ChartBuilder::on(&area);
+    builder
         .caption(&plot.title, ("sans-serif", 22))
         .margin(12)
         .x_label_area_size(45)
-        .y_label_area_size(70)
-        .build_cartesian_2d(x0..x1, y0..y1)
-        .map_err(e)?;
+        .y_label_area_size(70);
+    if plot.log_y {
+        let (lo, hi) = padded(shown.iter().map(|p| p.1.log10()));
+        let y = (10f64.powf(lo)..10f64.powf(hi)).log_scale();
+        let chart = builder
+            .build_cartesian_2d(x0..x1, y)
+            .map_err(|e| e.to_string())?;
+        fill(chart, plot)?;
+    } else {
+        let (y0, y1) = padded(shown.iter().map(|p| p.1));
+        let chart = builder
+            .build_cartesian_2d(x0..x1, y0..y1)
+            .map_err(|e| e.to_string())?;
+        fill(chart, plot)?;
+    }
+    area.present().map_err(|e| e.to_string())
+}
+
+impl LinePlot {
+    /// Whether a point can be drawn on this plot's axes.
+    fn shows(&self, (x, y): (f64, f64)) -> bool {
+        x.is_finite() && y.is_finite() && (!self.log_y || y > 0.0)
+    }
+}
+
+/// Draws the mesh, the series and the legend into a built chart.
+fn fill<'a, DB, Y>(
+    mut chart: ChartContext<'a, DB, Cartesian2d<RangedCoordf64, Y>>,
+    plot: &LinePlot,
+) -> Result<(), String>
+where
+    DB: DrawingBackend + 'a,
+    DB::ErrorType: 'static,
+    Y: Ranged<ValueType = f64> + ValueFormatter<f64>,
+{
+    let e = |err: DrawingAreaErrorKind<DB::ErrorType>| err.to_string();
     chart
         .configure_mesh()
         .x_desc(&plot.x_label)
@@ -129,13 +172,9 @@ where
         .label_style(("sans-serif", 14))
         .draw()
         .map_err(e)?;
-    for (i, s) in plot.series.iter().enumerate() {
-        let colour = COLOURS[i % COLOURS.len()];
-        let points = s
-            .points
-            .iter()
-            .copied()
-            .filter(|(x, y)| x.is_finite() && y.is_finite());
+    for s in &plot.series {
+        let colour = COLOURS[s.colour % COLOURS.len()];
+        let points = s.points.iter().copied().filter(|&p| plot.shows(p));
         let drawn = match s.mark {
             Mark::Line => chart.draw_series(LineSeries::new(points, colour.stroke_width(2))),
             Mark::Points => chart.draw_series(points.map(|p| Circle::new(p, 3, colour.filled()))),
@@ -154,7 +193,7 @@ where
             .draw()
             .map_err(e)?;
     }
-    area.present().map_err(e)
+    Ok(())
 }
 
 /// The range of the values with 5 % margins (a unit range around a single value).

@@ -2,17 +2,20 @@
 //!
 //! `DIR/metrics.csv` (columns `model,test,mae_mm,euclid_mm`, one row per model and test file)
 //! is for scripts; `DIR/fit.json` holds the fit diagnostics and parameters; `DIR/report.md` ties
-//! them together for a reader.
+//! them together for a reader. Test files that sweep one pressure (the paper's sweeps) get the
+//! paper's Figures 9-14: each output against the swept pressure, with the measured points and
+//! every model's curve, and a residual plot of every model's tip error along the sweep.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::data::format_number;
+use crate::data::{format_number, Columns, Dataset};
 use crate::fsio;
 use crate::model::msvr::{FitDiagnostics, MsvrParams};
-use crate::model::Errors;
+use crate::model::previous::{Calibration, PreviousParams};
+use crate::model::{Errors, Predict};
 use crate::provenance::Provenance;
 use crate::search::{IterationRecord, SearchSummary};
 
@@ -51,13 +54,38 @@ pub struct ModelReport {
     pub search: Option<SearchSummary>,
     /// Errors on the training data itself (not a measure of generalisation).
     pub train_errors: Errors,
+    /// The previous physics model, when the data are the micro-hand's.
+    pub previous: Option<PreviousSummary>,
     pub tests: Vec<TestResult>,
     pub provenance: Provenance,
 }
 
-/// Writes `metrics.csv`, `fit.json`, `report.md` and, after a search, `history.csv` and the
-/// paper's Figures 7-8 (`fig7_min_mae`, `fig8_mean_mae`, PNG and SVG) into `dir` (created if
-/// needed).
+/// The previous model's two variants as the report shows them.
+#[derive(Clone, Debug, Serialize)]
+pub struct PreviousSummary {
+    pub default: PreviousParams,
+    pub calibrated: PreviousParams,
+    pub calibration: Calibration,
+}
+
+/// A model the figures draw, under the name the tables use.
+#[derive(Clone, Copy)]
+pub struct NamedModel<'a> {
+    pub name: &'a str,
+    pub model: &'a dyn Predict,
+}
+
+/// What the comparison figures draw: the models and the test files (name, data).
+#[derive(Clone, Copy)]
+pub struct Comparison<'a> {
+    pub models: &'a [NamedModel<'a>],
+    pub tests: &'a [(String, Dataset)],
+}
+
+/// Writes `metrics.csv`, `fit.json`, `report.md`; after a search, `history.csv` and the paper's
+/// Figures 7-8 (`fig7_min_mae`, `fig8_mean_mae`); for every test file that is a one-pressure
+/// sweep, `<test>_<output>` (Figures 9-14) and `<test>_residuals`; figures as PNG and SVG, all
+/// into `dir` (created if needed).
 ///
 /// # Errors
 /// [`ReportError`] naming the file that could not be written.
@@ -65,6 +93,7 @@ pub fn write_model_report(
     dir: &Path,
     report: &ModelReport,
     history: Option<&[IterationRecord]>,
+    comparison: &Comparison,
 ) -> Result<(), ReportError> {
     let err = |path: &Path| {
         let path = path.to_path_buf();
@@ -81,9 +110,190 @@ pub fn write_model_report(
         fsio::write_bytes(&path, history_csv(history).as_bytes()).map_err(err(&path))?;
         convergence_figures(dir, history)?;
     }
+    let sweeps = sweep_figures(dir, comparison)?;
     let md = dir.join("report.md");
-    fsio::write_bytes(&md, markdown(report).as_bytes()).map_err(err(&md))?;
+    fsio::write_bytes(&md, markdown(report, &sweeps).as_bytes()).map_err(err(&md))?;
     Ok(())
+}
+
+/// A test file whose inputs move along one line: some columns rise together (equal on every
+/// row), the others stay fixed.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Sweep {
+    /// Indices of the swept input columns.
+    pub swept: Vec<usize>,
+    /// Fixed input columns and their value.
+    pub fixed: Vec<(usize, f64)>,
+    pub from: f64,
+    pub to: f64,
+}
+
+impl Sweep {
+    /// Recognises a sweep in `inputs`; `None` when no column moves or the moving ones differ.
+    pub fn detect(inputs: &Columns) -> Option<Sweep> {
+        let first = inputs.iter_rows().next()?;
+        let moves = |j: usize| inputs.column(j).any(|v| v != first[j]);
+        let (swept, fixed): (Vec<usize>, Vec<usize>) = (0..inputs.width()).partition(|&j| moves(j));
+        let lead = *swept.first()?;
+        if inputs
+            .iter_rows()
+            .any(|row| swept.iter().any(|&j| row[j] != row[lead]))
+        {
+            return None;
+        }
+        let (from, to) = inputs
+            .column(lead)
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+                (lo.min(v), hi.max(v))
+            });
+        Some(Sweep {
+            fixed: fixed.into_iter().map(|j| (j, first[j])).collect(),
+            swept,
+            from,
+            to,
+        })
+    }
+
+    /// `points` evenly spaced inputs from `from` to `to`, in the columns of `names`.
+    pub fn inputs(&self, names: &[String], points: usize) -> Columns {
+        let mut values = vec![0.0; names.len() * points];
+        for (k, row) in values.chunks_mut(names.len()).enumerate() {
+            let t = self.from + (self.to - self.from) * k as f64 / (points - 1) as f64;
+            for &j in &self.swept {
+                row[j] = t;
+            }
+            for &(j, v) in &self.fixed {
+                row[j] = v;
+            }
+        }
+        Columns::new(names.to_vec(), values)
+    }
+
+    /// The swept columns' label, e.g. `P2_kpa = P3_kpa`.
+    fn label(&self, names: &[String]) -> String {
+        self.swept
+            .iter()
+            .map(|&j| names[j].as_str())
+            .collect::<Vec<_>>()
+            .join(" = ")
+    }
+
+    /// The fixed columns, e.g. `P1_kpa = 0`.
+    fn held(&self, names: &[String]) -> String {
+        self.fixed
+            .iter()
+            .map(|&(j, v)| format!("{} = {}", names[j], format_number(v)))
+            .collect::<Vec<_>>()
+            .join(", ")
+    }
+}
+
+/// Points on each model's curve along a sweep.
+const CURVE_POINTS: usize = 126;
+
+/// The figures written for one sweep test file.
+struct SweepFigures {
+    test: String,
+    sweep_label: String,
+    held: String,
+    stems: Vec<String>,
+}
+
+/// Figures 9-14 and the residual plot for every sweep among the test files.
+fn sweep_figures(dir: &Path, c: &Comparison) -> Result<Vec<SweepFigures>, ReportError> {
+    let mut written = Vec::new();
+    for (test, data) in c.tests {
+        let Some(sweep) = Sweep::detect(&data.inputs) else {
+            continue;
+        };
+        let names = &data.inputs.names;
+        let lead = sweep.swept[0];
+        let measured_t: Vec<f64> = data.inputs.column(lead).collect();
+        let dense = sweep.inputs(names, CURVE_POINTS);
+        let dense_t: Vec<f64> = dense.column(lead).collect();
+        let mut curves = Vec::new();
+        let mut at_data = Vec::new();
+        for m in c.models {
+            let (Ok(curve), Ok(fitted)) = (m.model.predict(&dense), m.model.predict(&data.inputs))
+            else {
+                continue;
+            };
+            curves.push((m.name, curve));
+            at_data.push((m.name, fitted));
+        }
+        let stem = Path::new(test)
+            .file_stem()
+            .map_or_else(|| test.clone(), |s| s.to_string_lossy().into_owned());
+        let label = sweep.label(names);
+        let held = sweep.held(names);
+        let mut stems = Vec::new();
+        for (j, output) in data.outputs.names.iter().enumerate() {
+            let mut series = vec![figures::Series {
+                label: "measured".into(),
+                points: measured_t
+                    .iter()
+                    .copied()
+                    .zip(data.outputs.column(j))
+                    .collect(),
+                mark: figures::Mark::Points,
+                colour: figures::BLACK_INDEX,
+            }];
+            for (k, (name, curve)) in curves.iter().enumerate() {
+                series.push(figures::Series {
+                    label: (*name).to_string(),
+                    points: dense_t.iter().copied().zip(curve.column(j)).collect(),
+                    mark: figures::Mark::Line,
+                    colour: k,
+                });
+            }
+            let name = format!("{stem}_{output}");
+            let plot = figures::LinePlot {
+                title: format!("{output} along {test} ({held})"),
+                x_label: format!("{label} (swept)"),
+                y_label: output.clone(),
+                series,
+                log_y: false,
+            };
+            figures::write_line_plot(&dir.join(&name), &plot)?;
+            stems.push(name);
+        }
+        let residual_series = at_data
+            .iter()
+            .enumerate()
+            .map(|(k, (name, fitted))| figures::Series {
+                label: (*name).to_string(),
+                points: data
+                    .outputs
+                    .iter_rows()
+                    .zip(fitted.iter_rows())
+                    .zip(&measured_t)
+                    .map(|((y, f), &t)| {
+                        let sq: f64 = y.iter().zip(f).map(|(a, b)| (a - b).powi(2)).sum();
+                        (t, sq.sqrt())
+                    })
+                    .collect(),
+                mark: figures::Mark::Line,
+                colour: k,
+            })
+            .collect();
+        let name = format!("{stem}_residuals");
+        let plot = figures::LinePlot {
+            title: format!("Euclidean error along {test} ({held})"),
+            x_label: format!("{label} (swept)"),
+            y_label: "‖measured − model‖ (log scale)".into(),
+            series: residual_series,
+            log_y: true,
+        };
+        figures::write_line_plot(&dir.join(&name), &plot)?;
+        stems.push(name);
+        written.push(SweepFigures {
+            test: test.clone(),
+            sweep_label: label,
+            held,
+            stems,
+        });
+    }
+    Ok(written)
 }
 
 /// The `metrics.csv` text.
@@ -140,7 +350,9 @@ fn convergence_figures(dir: &Path, history: &[IterationRecord]) -> Result<(), Re
                     .map(|r| (r.iteration as f64, value(r)))
                     .collect(),
                 mark: figures::Mark::Line,
+                colour: 0,
             }],
+            log_y: false,
         };
         figures::write_line_plot(&dir.join(name), &plot)
     };
@@ -157,6 +369,47 @@ fn convergence_figures(dir: &Path, history: &[IterationRecord]) -> Result<(), Re
         |r| r.mean,
     )?;
     Ok(())
+}
+
+/// The previous model's constants, default and calibrated, and how the calibration went.
+fn previous_section(p: &PreviousSummary) -> String {
+    let (d, c) = (&p.default, &p.calibrated);
+    let mut s = String::from("## Previous physics model\n\n");
+    s += "The constant-curvature model of the paper's §2.2 (eqs. 1-7): McKibben muscle lengths, the plane through three cylinder tops, one arc. `previous-default` uses the documented physical constants; `previous-calibrated` fits five of them to the training data by Levenberg-Marquardt.\n\n";
+    s += "| constant | default | calibrated |\n|---|---|---|\n";
+    let rows = [
+        (
+            "rest braid angle α₀ (°)",
+            d.braid_angle_deg,
+            c.braid_angle_deg,
+        ),
+        ("load stiffness K (N)", d.load_n, c.load_n),
+        (
+            "threshold pressure P_th (kPa)",
+            d.threshold_kpa,
+            c.threshold_kpa,
+        ),
+        ("lever-arm scale s_x", d.arm_x, c.arm_x),
+        ("lever-arm scale s_y", d.arm_y, c.arm_y),
+    ];
+    for (name, a, b) in rows {
+        let _ = writeln!(s, "| {name} | {a:.4} | {b:.4} |");
+    }
+    let cal = &p.calibration;
+    let _ = writeln!(
+        s,
+        "\nFixed: L₀ = {} mm, muscle bore D₀ = {} mm, n = {} pieces. Calibration on {} rows: residual RMS {:.4} mm per coordinate, {} evaluations, {} ({}), best of starts at α₀ = {:?}°.\n",
+        d.length_mm,
+        d.bore_mm,
+        d.pieces,
+        cal.rows,
+        cal.rms_mm,
+        cal.evaluations,
+        if cal.converged { "converged" } else { "NOT converged" },
+        cal.termination,
+        cal.start_braid_angles_deg
+    );
+    s
 }
 
 /// The table of held-out errors, as printed and as in `report.md`.
@@ -194,7 +447,7 @@ pub fn errors_table(tests: &[TestResult], outputs: &[String]) -> String {
     out
 }
 
-fn markdown(r: &ModelReport) -> String {
+fn markdown(r: &ModelReport, sweeps: &[SweepFigures]) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "# handcap model report\n");
     let _ = writeln!(
@@ -251,10 +504,31 @@ fn markdown(r: &ModelReport) -> String {
         "Training error (the data the model was fitted on, not a test): MAE {:.4}, mean Euclidean {:.4}.\n",
         r.train_errors.mae, r.train_errors.euclid
     );
+    if let Some(p) = &r.previous {
+        s += &previous_section(p);
+    }
     if !r.tests.is_empty() {
         let _ = writeln!(s, "## Held-out errors\n");
+        let _ = writeln!(
+            s,
+            "Errors on test files the models were not fitted on (`metrics.csv` has the same numbers).\n"
+        );
         s += &errors_table(&r.tests, &r.outputs);
         s.push('\n');
+    }
+    if !sweeps.is_empty() {
+        let _ = writeln!(s, "## Sweeps (the paper's Figures 9-14)\n");
+        let _ = writeln!(
+            s,
+            "Each output against the swept pressure: measured points and every model's curve; then every model's Euclidean tip error at the measured points (log scale). The paper's Figures 9-11 are its sweep A (P1 = P2 = 0, P3 rising), Figures 12-14 its sweep B (P1 = 0, P2 = P3 rising).\n"
+        );
+        for f in sweeps {
+            let _ = writeln!(s, "### {} — {} swept, {}\n", f.test, f.sweep_label, f.held);
+            for stem in &f.stems {
+                let _ = writeln!(s, "![{stem}]({stem}.png)");
+            }
+            s.push('\n');
+        }
     }
     let _ = writeln!(s, "## Provenance\n");
     let _ = writeln!(s, "- handcap {}", r.provenance.handcap_version);
@@ -266,4 +540,55 @@ fn markdown(r: &ModelReport) -> String {
         let _ = writeln!(s, "- input `{}` sha256 `{}`", input.path, input.sha256);
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::data::{names, HAND_INPUTS};
+
+    fn inputs(rows: &[[f64; 3]]) -> Columns {
+        Columns::new(names(&HAND_INPUTS), rows.concat())
+    }
+
+    #[test]
+    fn sweeps_are_recognised_and_other_files_are_not() {
+        let a = Sweep::detect(&inputs(&[
+            [0.0, 0.0, 0.0],
+            [0.0, 0.0, 10.0],
+            [0.0, 0.0, 20.0],
+        ]));
+        assert_eq!(
+            a,
+            Some(Sweep {
+                swept: vec![2],
+                fixed: vec![(0, 0.0), (1, 0.0)],
+                from: 0.0,
+                to: 20.0
+            })
+        );
+        let b = Sweep::detect(&inputs(&[
+            [5.0, 10.0, 10.0],
+            [5.0, 0.0, 0.0],
+            [5.0, 30.0, 30.0],
+        ]))
+        .unwrap();
+        assert_eq!((b.swept.as_slice(), b.from, b.to), (&[1, 2][..], 0.0, 30.0));
+        assert_eq!(b.label(&names(&HAND_INPUTS)), "P2_kpa = P3_kpa");
+        assert_eq!(b.held(&names(&HAND_INPUTS)), "P1_kpa = 5");
+        let curve = b.inputs(&names(&HAND_INPUTS), 4);
+        assert_eq!(
+            curve.values,
+            [5.0, 0.0, 0.0, 5.0, 10.0, 10.0, 5.0, 20.0, 20.0, 5.0, 30.0, 30.0]
+        );
+        // Two columns moving differently (a grid), or nothing moving: not a sweep.
+        assert_eq!(
+            Sweep::detect(&inputs(&[[0.0, 0.0, 0.0], [0.0, 10.0, 20.0]])),
+            None
+        );
+        assert_eq!(
+            Sweep::detect(&inputs(&[[1.0, 2.0, 3.0], [1.0, 2.0, 3.0]])),
+            None
+        );
+    }
 }

@@ -10,10 +10,11 @@
 //! # Geometry
 //!
 //! The finger is `length_mm` = 50 mm long; the last `cap_mm` = 3 mm are the muscles' rigid end
-//! cap carrying the marker. Muscle centres in the cross-section (hand frame x, y, mm):
-//! muscle 1 at (−1.25, −0.4), muscle 3 at (+1.25, −0.4), muscle 2 at (0, +0.8): muscles 1 and 3
-//! lie side by side, muscle 2 sits across the gap. Their centroid is the origin of the section,
-//! which is also its elastic centre (the silicone is moulded symmetrically around them).
+//! cap carrying the marker. Muscle centres in the cross-section are the design's
+//! ([`crate::hand::MUSCLE_XY_MM`], hand frame x, y, mm): muscle 1 at (−1.25, −0.4), muscle 3 at
+//! (+1.25, −0.4), muscle 2 at (0, +0.8): muscles 1 and 3 lie side by side, muscle 2 sits across
+//! the gap. Their centroid is the origin of the section, which is also its elastic centre (the
+//! silicone is moulded symmetrically around them).
 //!
 //! # Equations
 //!
@@ -48,8 +49,7 @@
 use nalgebra::{Rotation3, Vector3};
 use serde::Serialize;
 
-/// The safety regulator's cap: no pressure above this is ever applied (kPa).
-pub const MAX_PRESSURE_KPA: f64 = 300.0;
+use crate::hand::{self, MAX_PRESSURE_KPA};
 
 /// Errors of driving the plant.
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -86,9 +86,9 @@ pub struct PlantParams {
 impl Default for PlantParams {
     fn default() -> Self {
         PlantParams {
-            length_mm: 50.0,
+            length_mm: hand::LENGTH_MM,
             cap_mm: 3.0,
-            muscle_xy_mm: [[-1.25, -0.4], [0.0, 0.8], [1.25, -0.4]],
+            muscle_xy_mm: hand::MUSCLE_XY_MM,
             max_force_n: 1.2,
             dead_band_kpa: 20.0,
             onset_kpa: 30.0,

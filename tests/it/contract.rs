@@ -3,6 +3,7 @@
 
 use handcap::data::{Columns, Dataset};
 use handcap::model::msvr::MsvrParams;
+use handcap::model::previous::{self, PreviousModel};
 use handcap::model::{ModelError, Predict};
 use handcap::synth::{self, SynthConfig};
 
@@ -57,14 +58,27 @@ pub fn check_regressor(model: &dyn Predict, train: &Dataset) {
     ));
 }
 
-#[test]
-fn msvr_passes_the_contract() {
+fn training_data() -> Dataset {
     let rec = synth::record(&SynthConfig::default()).unwrap().remove(0);
-    let train = Dataset {
+    Dataset {
         source: "train.csv".into(),
         inputs: rec.pressures,
         outputs: rec.tips,
-    };
+    }
+}
+
+#[test]
+fn previous_model_passes_the_contract_in_both_variants() {
+    let train = training_data();
+    let default = PreviousModel::with_defaults();
+    check_regressor(&default, &train);
+    let (calibrated, _) = previous::calibrate(&train, &default.params).unwrap();
+    check_regressor(&calibrated, &train);
+}
+
+#[test]
+fn msvr_passes_the_contract() {
+    let train = training_data();
     let model = MsvrParams::new(326.7, 0.0169, 0.259)
         .check()
         .unwrap()
