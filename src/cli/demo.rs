@@ -1,8 +1,9 @@
 //! `handcap demo`: the pipeline end to end on the built-in virtual micro-hand.
 //!
 //! This build runs: virtual plant → datasets (`DIR/data/`) → MSVR with (C, ε, σ) chosen by the
-//! default search (the paper's colony, cross-validated fitness) → held-out errors on the two
-//! sweeps → `DIR/model.json` and `DIR/report/`.
+//! default search (the paper's colony, cross-validated fitness), and the previous physics model
+//! (default and calibrated) → held-out errors and Figures 7-14 on the two sweeps →
+//! `DIR/model.json` and `DIR/report/`.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -44,7 +45,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     println!("      done in {synth_s:.2} s");
 
     println!(
-        "[2/2] model: MSVR, (C, ε, σ) by the paper's ant colony on 5-fold CV, tested on the sweeps"
+        "[2/2] model: MSVR, (C, ε, σ) by the paper's ant colony on 5-fold CV, and the previous model; tested on the sweeps"
     );
     let job = Job {
         data: data_dir.join("train.csv"),

@@ -1,4 +1,5 @@
-//! `handcap model`: choose (C, ε, σ), fit MSVR, score it on held-out files, write model and report.
+//! `handcap model`: choose (C, ε, σ), fit MSVR and the previous model, score them on held-out
+//! files, write model and report.
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -112,7 +113,7 @@ pub struct Args {
     /// Model file to write
     #[arg(long, default_value = "model.json")]
     out: PathBuf,
-    /// Directory for metrics.csv, history.csv, fit.json and report.md
+    /// Directory for metrics.csv, history.csv, fit.json, report.md and the figures
     #[arg(long)]
     report: Option<PathBuf>,
 }
