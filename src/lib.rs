@@ -22,6 +22,7 @@ pub mod data;
 pub mod fsio;
 pub mod hand;
 pub mod model;
+pub mod opencv_yaml;
 pub mod provenance;
 pub mod report;
 pub mod search;

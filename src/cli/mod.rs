@@ -6,6 +6,9 @@ mod model;
 mod predict;
 mod synth;
 
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
 use clap::{Parser, Subcommand};
 
 /// Model a soft pneumatic micro-hand from a pressure → tip dataset (MSVR, the method of
@@ -19,7 +22,7 @@ pub struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Virtual micro-hand → training grid and test sweeps with ground truth
+    /// Virtual micro-hand and stereo rig → images, pressure log, datasets, ground truth
     Synth(synth::Args),
     /// Fit MSVR to a CSV dataset, report held-out errors, write the model file
     Model(model::Args),
@@ -37,6 +40,20 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Predict(a) => predict::run(a),
         Command::Demo(a) => demo::run(a),
     }
+}
+
+/// Ctrl-C sets this; long work (a search, rendering) stops at its next checkpoint and keeps
+/// what it finished.
+fn interrupt_flag() -> Arc<AtomicBool> {
+    static FLAG: std::sync::OnceLock<Arc<AtomicBool>> = std::sync::OnceLock::new();
+    FLAG.get_or_init(|| {
+        let flag = Arc::new(AtomicBool::new(false));
+        let handler_flag = Arc::clone(&flag);
+        // Without a handler (another one is installed) Ctrl-C just ends the process.
+        let _ = ctrlc::set_handler(move || handler_flag.store(true, Ordering::SeqCst));
+        flag
+    })
+    .clone()
 }
 
 /// The command line as typed, for provenance.

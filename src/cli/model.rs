@@ -2,8 +2,6 @@
 //! files, write model and report.
 
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{bail, Context};
@@ -226,19 +224,6 @@ fn iteration_cap(method: &Method) -> u64 {
     }
 }
 
-/// Ctrl-C sets this; a running search then stops after its iteration and keeps its best.
-fn interrupt_flag() -> Arc<AtomicBool> {
-    static FLAG: std::sync::OnceLock<Arc<AtomicBool>> = std::sync::OnceLock::new();
-    FLAG.get_or_init(|| {
-        let flag = Arc::new(AtomicBool::new(false));
-        let handler_flag = Arc::clone(&flag);
-        // Without a handler (another one is installed) Ctrl-C just ends the process.
-        let _ = ctrlc::set_handler(move || handler_flag.store(true, Ordering::SeqCst));
-        flag
-    })
-    .clone()
-}
-
 /// Chooses the parameters, fits, scores and writes; returns what was done.
 pub fn execute(job: &Job) -> anyhow::Result<Outcome> {
     let inputs: Vec<&Path> = std::iter::once(job.data.as_path())
@@ -283,7 +268,7 @@ pub fn execute(job: &Job) -> anyhow::Result<Outcome> {
                 groups.as_ref(),
                 &job.params,
                 &mut progress,
-                &interrupt_flag(),
+                &super::interrupt_flag(),
             )?;
             progress.0.finish_and_clear();
             let best = summary.best;

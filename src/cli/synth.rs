@@ -1,10 +1,17 @@
-//! `handcap synth`: the virtual micro-hand's datasets.
+//! `handcap synth`: the virtual micro-hand seen by a virtual stereo rig — calibration images,
+//! finger frames, the regulator's log, datasets and ground truth (layout:
+//! `handcap::synth::capture`).
 
 use std::path::PathBuf;
+use std::sync::atomic::Ordering;
+use std::time::Instant;
 
 use anyhow::{bail, Context};
+use indicatif::{ProgressBar, ProgressStyle};
 
 use handcap::provenance::Provenance;
+use handcap::synth::camera::RigConfig;
+use handcap::synth::capture::{self, CaptureConfig};
 use handcap::synth::{self, plant::PlantParams, SynthConfig};
 
 #[derive(clap::Args)]
@@ -15,13 +22,13 @@ pub struct Args {
     /// Write only the pressure → tip datasets, no camera images
     #[arg(long)]
     no_images: bool,
-    /// Seed of every random choice (measurement noise)
+    /// Seed of every random choice (noise, rig variation, board poses, clocks)
     #[arg(long, default_value_t = synth::DEFAULT_SEED)]
     seed: u64,
-    /// Tip measurement noise, standard deviation per coordinate (mm)
+    /// Tip measurement noise of the datasets, standard deviation per coordinate (mm)
     #[arg(long, default_value_t = synth::DEFAULT_NOISE_MM)]
     noise_mm: f64,
-    /// Width of the muscles' pressure hysteresis (kPa); 0 turns it off
+    /// Width of the muscles' pressure hysteresis (kPa); 0 turns it off (datasets only)
     #[arg(long, default_value_t = 0.0)]
     hysteresis_kpa: f64,
     /// Pressure step of the training grid (kPa)
@@ -30,11 +37,45 @@ pub struct Args {
     /// Pressure step of the two test sweeps (kPa)
     #[arg(long, default_value_t = 10.0)]
     sweep_step_kpa: f64,
+    /// Chessboard pairs to render for calibration
+    #[arg(long, default_value_t = CaptureConfig::default().views)]
+    views: usize,
+    /// Chessboard inner corners, COLSxROWS
+    #[arg(long, default_value = "9x6", value_parser = parse_board)]
+    board: (usize, usize),
+    /// Chessboard square size (mm)
+    #[arg(long, default_value_t = CaptureConfig::default().square_mm)]
+    square_mm: f64,
+    /// Distance between the two cameras (mm)
+    #[arg(long, default_value_t = RigConfig::default().baseline_mm)]
+    baseline_mm: f64,
+    /// Distance from the cameras to the finger's tip region (mm)
+    #[arg(long, default_value_t = RigConfig::default().distance_mm)]
+    distance_mm: f64,
+    /// Relative amplitude of a slow exposure drift (0: exposure locked)
+    #[arg(long, default_value_t = 0.0)]
+    exposure_drift: f64,
+}
+
+/// `9x6` → (9, 6).
+pub fn parse_board(s: &str) -> Result<(usize, usize), String> {
+    let (c, r) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("expected COLSxROWS inner corners such as 9x6, got {s:?}"))?;
+    let n = |v: &str| {
+        v.trim()
+            .parse::<usize>()
+            .map_err(|_| format!("expected COLSxROWS inner corners such as 9x6, got {s:?}"))
+    };
+    Ok((n(c)?, n(r)?))
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
-    if !a.no_images {
-        bail!("rendering camera images is not part of this build yet; pass --no-images to write the datasets only");
+    if !a.no_images && a.hysteresis_kpa != 0.0 {
+        bail!("--hysteresis-kpa applies to the datasets only; add --no-images, or drop it to render images");
+    }
+    if !(a.baseline_mm > 0.0 && a.distance_mm >= 80.0 && a.distance_mm <= 400.0) {
+        bail!("--baseline-mm must be positive and --distance-mm lie in 80-400 mm");
     }
     let config = SynthConfig {
         seed: a.seed,
@@ -47,10 +88,65 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         },
     };
     let provenance = Provenance::new(super::command_line(), Some(a.seed));
+    let started = Instant::now();
     let paths = synth::write_datasets(&a.out, &config, &provenance)
         .with_context(|| format!("synth into {}", a.out.display()))?;
     for p in &paths {
         println!("wrote {}", p.display());
+    }
+    if a.no_images {
+        return Ok(());
+    }
+    let capture_config = CaptureConfig {
+        rig: RigConfig {
+            baseline_mm: a.baseline_mm,
+            distance_mm: a.distance_mm,
+            ..RigConfig::default()
+        },
+        views: a.views,
+        board_cols: a.board.0,
+        board_rows: a.board.1,
+        square_mm: a.square_mm,
+        exposure_drift: a.exposure_drift,
+        ..CaptureConfig::default()
+    };
+    let bar = ProgressBar::new(0).with_style(
+        ProgressStyle::with_template("render {bar:30} {pos}/{len} images  {elapsed}")
+            .expect("valid template"),
+    );
+    let interrupt = super::interrupt_flag();
+    let summary = capture::write_capture(
+        &a.out,
+        &config,
+        &capture_config,
+        &provenance,
+        &|done, total| {
+            bar.set_length(total as u64);
+            bar.set_position(done as u64);
+        },
+        &interrupt,
+    )
+    .with_context(|| format!("synth into {}", a.out.display()))?;
+    bar.finish_and_clear();
+    synth::write_manifest(
+        &a.out,
+        &config,
+        &paths,
+        Some((&capture_config, &summary)),
+        &provenance,
+    )?;
+    println!(
+        "wrote {}/calib/ ({} board pairs + the reference pair), {}/frames/ ({} left, {} right frames over {} pressure steps), pressures.csv, truth/ in {:.1} s",
+        a.out.display(),
+        summary.board_pairs,
+        a.out.display(),
+        summary.left_frames,
+        summary.right_frames,
+        summary.steps,
+        started.elapsed().as_secs_f64()
+    );
+    if summary.interrupted || interrupt.load(Ordering::SeqCst) {
+        bail!("interrupted: the images written so far are complete, the rest are missing; run again to finish");
     }
     Ok(())
 }

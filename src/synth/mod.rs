@@ -11,7 +11,10 @@
 //! - `sweep_b.csv`: P1 = 0, P2 = P3 = 0-250 kPa in 10 kPa steps,
 //! - `manifest.json`: the plant's constants, the noise, the seed and the provenance.
 
+pub mod camera;
+pub mod capture;
 pub mod plant;
+pub mod render;
 
 use std::path::{Path, PathBuf};
 
@@ -43,6 +46,8 @@ pub enum SynthError {
     BadNoise(f64),
     #[error("hysteresis width must be finite and ≥ 0 kPa, got {0}")]
     BadHysteresis(f64),
+    #[error("capture settings: {0}")]
+    BadCapture(String),
     #[error("grid step must divide 0-{PROTOCOL_MAX_KPA} kPa into whole steps, got {0} kPa")]
     BadStep(f64),
     #[error("writing {path}: {source}")]
@@ -161,6 +166,8 @@ struct Manifest<'a> {
     format: &'static str,
     config: &'a SynthConfig,
     files: Vec<String>,
+    /// The rendered camera session, when images were written.
+    capture: Option<(&'a capture::CaptureConfig, &'a capture::CaptureSummary)>,
     provenance: &'a Provenance,
 }
 
@@ -174,31 +181,46 @@ pub fn write_datasets(
     config: &SynthConfig,
     provenance: &Provenance,
 ) -> Result<Vec<PathBuf>, SynthError> {
-    let write_err = |path: &Path| {
-        let path = path.to_path_buf();
-        move |source| SynthError::Write { path, source }
-    };
-    std::fs::create_dir_all(dir).map_err(write_err(dir))?;
+    std::fs::create_dir_all(dir).map_err(|source| SynthError::Write {
+        path: dir.to_path_buf(),
+        source,
+    })?;
     let mut paths = Vec::new();
     for rec in record(config)? {
         let path = dir.join(format!("{}.csv", rec.name));
         data::write_csv(&path, &[&rec.pressures, &rec.tips])?;
         paths.push(path);
     }
+    write_manifest(dir, config, &paths, None, provenance)?;
+    Ok(paths)
+}
+
+/// Writes `dir/manifest.json`: the configuration, the dataset files, the capture if any, and
+/// the provenance.
+///
+/// # Errors
+/// [`SynthError::Write`].
+pub fn write_manifest(
+    dir: &Path,
+    config: &SynthConfig,
+    datasets: &[PathBuf],
+    capture: Option<(&capture::CaptureConfig, &capture::CaptureSummary)>,
+    provenance: &Provenance,
+) -> Result<(), SynthError> {
     let manifest = Manifest {
         format: "handcap-synth/1",
         config,
-        files: paths
+        files: datasets
             .iter()
             .filter_map(|p| p.file_name())
             .map(|f| f.to_string_lossy().into_owned())
             .collect(),
+        capture,
         provenance,
     };
     let path = dir.join("manifest.json");
     let json = serde_json::to_vec_pretty(&manifest).expect("manifest serialises");
-    crate::fsio::write_bytes(&path, &json).map_err(write_err(&path))?;
-    Ok(paths)
+    crate::fsio::write_bytes(&path, &json).map_err(|source| SynthError::Write { path, source })
 }
 
 #[cfg(test)]

@@ -46,14 +46,66 @@ fn synth_writes_the_protocol_deterministically() {
 }
 
 #[test]
-fn synth_without_images_flag_says_what_to_do() {
+fn synth_writes_the_capture_layout_and_refuses_bad_settings() {
     let dir = tempdir();
-    let msg = handcap_err(dir.path(), &["synth", "--out", "x"]);
+    let d = dir.path();
+    let small = [
+        "--views",
+        "3",
+        "--grid-step-kpa",
+        "250",
+        "--sweep-step-kpa",
+        "250",
+    ];
+    let out = handcap_ok(d, &[&["synth", "--out", "cap"], &small[..]].concat());
+    assert!(out.contains("3 board pairs"), "{out}");
+    for file in [
+        "train.csv",
+        "sweep_a.csv",
+        "manifest.json",
+        "pressures.csv",
+        "calib/board.yml",
+        "calib/left_00.png",
+        "calib/right_02.png",
+        "calib/left_ref.png",
+        "calib/right_ref.png",
+        "frames/frames.csv",
+        "frames/left_00000.png",
+        "frames/right_00000.png",
+        "truth/rig.yml",
+        "truth/boards.csv",
+        "truth/tips.csv",
+        "truth/frames.csv",
+    ] {
+        assert!(d.join("cap").join(file).is_file(), "{file} missing");
+    }
+    // Every frame listed exists, and every step has frames from both cameras.
+    let frames = std::fs::read_to_string(d.join("cap/frames/frames.csv")).unwrap();
+    assert_eq!(frames.lines().next(), Some("frame,camera,time_s"));
+    for line in frames.lines().skip(1) {
+        let f: Vec<&str> = line.split(',').collect();
+        let index: usize = f[0].parse().unwrap();
+        assert!(d
+            .join(format!("cap/frames/{}_{index:05}.png", f[1]))
+            .is_file());
+    }
+    let pressures = std::fs::read_to_string(d.join("cap/pressures.csv")).unwrap();
+    assert_eq!(pressures.lines().count(), 1 + 8 + 2 + 2);
+    assert!(pressures.starts_with(
+        "time_s,P1_kpa,P2_kpa,P3_kpa,step,phase
+"
+    ));
+
+    let msg = handcap_err(d, &["synth", "--out", "x", "--hysteresis-kpa", "5"]);
     assert!(msg.contains("--no-images"), "{msg}");
     let msg = handcap_err(
-        dir.path(),
-        &["synth", "--out", "x", "--no-images", "--noise-mm=-1"],
+        d,
+        &[&["synth", "--out", "x", "--board", "6x6"], &small[..]].concat(),
     );
+    assert!(msg.contains("different counts"), "{msg}");
+    let out = handcap(d, &["synth", "--out", "x", "--board", "nine"]);
+    assert_eq!(out.status.code(), Some(2));
+    let msg = handcap_err(d, &["synth", "--out", "x", "--no-images", "--noise-mm=-1"]);
     assert!(msg.contains("noise"), "{msg}");
 }
 

@@ -4,5 +4,6 @@ mod cli;
 mod common;
 mod contract;
 mod data;
+mod images;
 mod msvr;
 mod search;

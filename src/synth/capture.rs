@@ -1,0 +1,611 @@
+//! The synthetic capture session: chessboard pairs for calibration, then the finger driven
+//! through the protocol and filmed by two free-running webcams, with the regulator's log and the
+//! ground truth of everything.
+//!
+//! # Layout of `handcap synth --out DIR`
+//!
+//! - `calib/left_NN.png`, `calib/right_NN.png`: the chessboard pairs (NN from 00), and
+//!   `calib/left_ref.png`, `calib/right_ref.png`: the reference pair, the board fixed at the
+//!   finger's base (see below). `calib/board.yml`: `inner_corners_cols`, `inner_corners_rows`,
+//!   `square_mm`.
+//! - `frames/left_NNNNN.png`, `frames/right_NNNNN.png` (each camera numbers its own frames) and
+//!   `frames/frames.csv`: `frame,camera,time_s`, the capture computer's timestamp of each frame.
+//! - `pressures.csv`: the regulator log, `time_s,P1_kpa,P2_kpa,P3_kpa,step,phase` — one row per
+//!   commanded step (phase `train`, `sweep_a` or `sweep_b`).
+//! - `truth/rig.yml` (OpenCV YAML, the keys `calibrate` writes: `image_size`, `K1`, `D1`, `K2`,
+//!   `D2`, `R`, `T` (left → right, mm), `E`, `F`, and `R_hand`, `t_hand`: p_hand = R_hand ·
+//!   p_left + t_hand); `truth/boards.csv`: each board pose in the left camera
+//!   (`view,rx,ry,rz,tx_mm,ty_mm,tz_mm`, Rodrigues vector, board frame as OpenCV's object
+//!   points); `truth/tips.csv`: per step `step,phase,P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm` (hand
+//!   frame, settled) and `left_x_mm,left_y_mm,left_z_mm` (left camera frame);
+//!   `truth/frames.csv`: per frame `frame,camera,exposure_s,step,x_mm,y_mm,z_mm,u_px,v_px`, the
+//!   tip at the moment of exposure (still settling early in a step) and its projection.
+//! - `manifest.json`: configuration, counts, provenance.
+//!
+//! # Timing
+//!
+//! The regulator commands step k at t_k = k · 0.3 s; each muscle's pressure follows
+//! first-order, p(t) = p_k + (p_{k−1} − p_k) e^{−(t − t_k)/τ}, τ = 20 ms, and the finger follows
+//! its pressures quasi-statically. Each camera exposes at its own 30 fps (±50 ppm) from its own
+//! phase; the capture computer stamps a frame at exposure + the camera's offset (±5 ms) + jitter
+//! (±2 ms), and keeps the frames stamped 100-200 ms into a step: three per camera and step, the
+//! first of them possibly not settled (e^{−5} of the step remains at 100 ms).
+//!
+//! # The reference pair and the hand frame
+//!
+//! The reference board stands in the hand's x-z plane just behind the finger's axis (y = 5 mm),
+//! its corner rows along hand +x and its columns running from the base down (board y = hand −z,
+//! board z = hand +y, away from the cameras). From it, `calibrate` recovers the hand frame's
+//! axes in the left camera; the origin (the tip at zero pressure) comes from the frames.
+
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use nalgebra::{Matrix3, Point3, Rotation3, Unit, Vector3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+use serde::Serialize;
+
+use super::camera::{Camera, Rig, RigConfig};
+use super::plant::{Plant, Pressures};
+use super::render::{self, Board, Finger, Lighting, View};
+use super::{protocol, SynthConfig, SynthError};
+use crate::fsio;
+use crate::opencv_yaml::FileStorage;
+
+/// How the virtual capture session runs (see the module docs).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct CaptureConfig {
+    pub rig: RigConfig,
+    /// Chessboard pairs for calibration (besides the reference pair).
+    pub views: usize,
+    /// Inner corners along a row and down a column.
+    pub board_cols: usize,
+    pub board_rows: usize,
+    pub square_mm: f64,
+    pub step_s: f64,
+    /// Frames are kept when stamped in [start, end) seconds after their step's command.
+    pub window_s: [f64; 2],
+    pub fps: f64,
+    pub settle_tau_s: f64,
+    /// Relative amplitude of a slow exposure drift (0 = locked exposure).
+    pub exposure_drift: f64,
+}
+
+impl Default for CaptureConfig {
+    fn default() -> Self {
+        CaptureConfig {
+            rig: RigConfig::default(),
+            views: 20,
+            board_cols: 9,
+            board_rows: 6,
+            square_mm: 10.0,
+            step_s: 0.3,
+            window_s: [0.10, 0.20],
+            fps: 30.0,
+            settle_tau_s: 0.02,
+            exposure_drift: 0.0,
+        }
+    }
+}
+
+/// What a capture wrote.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct CaptureSummary {
+    pub board_pairs: usize,
+    pub steps: usize,
+    pub left_frames: usize,
+    pub right_frames: usize,
+    /// Whether Ctrl-C stopped the rendering before the end (files written so far are complete).
+    pub interrupted: bool,
+}
+
+/// One image to render and write.
+enum Shot {
+    Board {
+        camera: Side,
+        name: String,
+        board: usize,
+    },
+    Frame {
+        camera: Side,
+        index: usize,
+        exposure_s: f64,
+        pressures: Pressures,
+    },
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Side {
+    Left,
+    Right,
+}
+
+impl Side {
+    fn name(self) -> &'static str {
+        match self {
+            Side::Left => "left",
+            Side::Right => "right",
+        }
+    }
+}
+
+/// One camera frame kept by the capture computer.
+struct FrameRecord {
+    camera: Side,
+    index: usize,
+    exposure_s: f64,
+    stamp_s: f64,
+    step: usize,
+}
+
+/// A camera's free-running clock.
+struct Clock {
+    phase_s: f64,
+    period_s: f64,
+    offset_s: f64,
+}
+
+/// Writes the whole capture into `dir`; `progress(done, total)` is called as images are
+/// written, and `interrupt` stops the rendering between images.
+///
+/// # Errors
+/// [`SynthError`] for bad settings, a plant error, or a file that cannot be written.
+pub fn write_capture(
+    dir: &Path,
+    synth: &SynthConfig,
+    config: &CaptureConfig,
+    provenance: &crate::provenance::Provenance,
+    progress: &(dyn Fn(usize, usize) + Sync),
+    interrupt: &AtomicBool,
+) -> Result<CaptureSummary, SynthError> {
+    check(config)?;
+    let rig = config.rig.build(synth.seed);
+    let plant = Plant::new(synth.plant.clone());
+    // Separate streams, so that the board count does not change the clocks.
+    let mut rng = ChaCha8Rng::seed_from_u64(synth.seed ^ 0x4341_5054);
+    let boards = board_poses(config, &rig, &mut rng)?;
+    let mut rng = ChaCha8Rng::seed_from_u64(synth.seed ^ 0x434c_4f43);
+    let reference = reference_board(config);
+
+    // The protocol as one session: steps in order, each commanded at k · step_s.
+    let steps: Vec<(&'static str, Pressures)> = protocol(synth)?
+        .into_iter()
+        .flat_map(|(phase, ps)| ps.into_iter().map(move |p| (phase, p)))
+        .collect();
+    let frames = camera_frames(config, steps.len(), &mut rng);
+
+    for sub in ["calib", "frames", "truth"] {
+        let path = dir.join(sub);
+        std::fs::create_dir_all(&path).map_err(io_err(&path))?;
+    }
+    write_text(&dir.join("calib/board.yml"), &board_yaml(config))?;
+    write_text(&dir.join("truth/rig.yml"), &rig_yaml(&rig, provenance))?;
+    write_text(
+        &dir.join("truth/boards.csv"),
+        &boards_csv(&rig, &boards, &reference),
+    )?;
+    write_text(&dir.join("pressures.csv"), &pressures_csv(config, &steps))?;
+    let tips = steps
+        .iter()
+        .map(|(_, p)| plant.tip(*p))
+        .collect::<Result<Vec<_>, _>>()?;
+    write_text(&dir.join("truth/tips.csv"), &tips_csv(&rig, &steps, &tips))?;
+    write_text(&dir.join("frames/frames.csv"), &frames_csv(&frames))?;
+
+    // Every image, in a fixed order; each is rendered, encoded and written on its own.
+    let mut shots = Vec::new();
+    for (k, _) in boards
+        .iter()
+        .enumerate()
+        .chain(std::iter::once((boards.len(), &reference)))
+    {
+        let name = if k == boards.len() {
+            "ref".to_string()
+        } else {
+            format!("{k:02}")
+        };
+        for camera in [Side::Left, Side::Right] {
+            shots.push(Shot::Board {
+                camera,
+                name: name.clone(),
+                board: k,
+            });
+        }
+    }
+    for f in &frames {
+        shots.push(Shot::Frame {
+            camera: f.camera,
+            index: f.index,
+            exposure_s: f.exposure_s,
+            pressures: pressure_at(config, &steps, f.exposure_s),
+        });
+    }
+    let all_boards: Vec<&Board> = boards.iter().chain(std::iter::once(&reference)).collect();
+    let views = [
+        View::new(rig.left.clone(), Lighting::from_seed(synth.seed)),
+        View::new(rig.right.clone(), Lighting::from_seed(synth.seed ^ 1)),
+    ];
+    let truth_rows = truth_frames(&rig, &plant, config, &steps, &frames)?;
+    write_text(&dir.join("truth/frames.csv"), &truth_rows)?;
+
+    let total = shots.len();
+    let done = std::sync::atomic::AtomicUsize::new(0);
+    let written: Vec<Result<bool, SynthError>> = shots
+        .par_iter()
+        .enumerate()
+        .map(|(id, shot)| {
+            if interrupt.load(Ordering::SeqCst) {
+                return Ok(false);
+            }
+            let (side, path, canvas, time) = match shot {
+                Shot::Board {
+                    camera,
+                    name,
+                    board,
+                } => {
+                    let view = &views[*camera as usize];
+                    let path = dir.join(format!("calib/{}_{name}.png", camera.name()));
+                    (*camera, path, view.board(all_boards[*board]), 0.0)
+                }
+                Shot::Frame {
+                    camera,
+                    index,
+                    exposure_s,
+                    pressures,
+                } => {
+                    let view = &views[*camera as usize];
+                    let line = plant.centre_line(*pressures)?;
+                    let finger = Finger::from_centre_line(&line, 4);
+                    let path = dir.join(format!("frames/{}_{index:05}.png", camera.name()));
+                    (*camera, path, view.finger(&finger), *exposure_s)
+                }
+            };
+            let gain = 1.0
+                + config.exposure_drift
+                    * (2.0 * std::f64::consts::PI * time / 20.0 + side as u8 as f64).sin();
+            let (w, h) = (canvas.width as u32, canvas.height as u32);
+            let rgb = canvas.develop(gain, synth.seed, id as u64);
+            let png = render::encode_png(w, h, &rgb);
+            fsio::write_bytes(&path, &png).map_err(io_err(&path))?;
+            let n = done.fetch_add(1, Ordering::SeqCst) + 1;
+            progress(n, total);
+            Ok(true)
+        })
+        .collect();
+    let mut complete = true;
+    for w in written {
+        complete &= w?;
+    }
+    Ok(CaptureSummary {
+        board_pairs: boards.len(),
+        steps: steps.len(),
+        left_frames: frames.iter().filter(|f| f.camera == Side::Left).count(),
+        right_frames: frames.iter().filter(|f| f.camera == Side::Right).count(),
+        interrupted: !complete,
+    })
+}
+
+fn check(c: &CaptureConfig) -> Result<(), SynthError> {
+    let bad = |what: &str| Err(SynthError::BadCapture(what.to_string()));
+    if c.views < 3 {
+        return bad("at least 3 board views are needed");
+    }
+    if c.board_cols < 3 || c.board_rows < 3 || c.board_cols == c.board_rows {
+        return bad("the board needs at least 3 × 3 inner corners, and different counts along its sides (so its orientation is unambiguous)");
+    }
+    if !(c.square_mm > 1.0 && c.square_mm < 40.0) {
+        return bad("square size must lie between 1 and 40 mm");
+    }
+    if !(c.fps > 1.0 && c.step_s > 0.0 && c.window_s[0] >= 0.0 && c.window_s[1] > c.window_s[0])
+        || c.window_s[1] > c.step_s
+    {
+        return bad("the capture window must lie inside a step and the frame rate be positive");
+    }
+    if !(c.exposure_drift >= 0.0 && c.exposure_drift < 0.5) {
+        return bad("exposure drift must lie in [0, 0.5)");
+    }
+    Ok(())
+}
+
+fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> SynthError {
+    let path = path.to_path_buf();
+    move |source| SynthError::Write { path, source }
+}
+
+fn write_text(path: &Path, text: &str) -> Result<(), SynthError> {
+    fsio::write_bytes(path, text.as_bytes()).map_err(io_err(path))
+}
+
+/// The board at the finger's base that fixes the hand frame's axes (module docs).
+fn reference_board(c: &CaptureConfig) -> Board {
+    let s = c.square_mm;
+    let (wide, tall) = ((c.board_cols - 1) as f64 * s, (c.board_rows - 1) as f64 * s);
+    // Columns x, y, z of board → hand: x = hand x, y = hand −z, z = hand +y.
+    let rotation = Rotation3::from_matrix_unchecked(Matrix3::new(
+        1.0, 0.0, 0.0, //
+        0.0, 0.0, 1.0, //
+        0.0, -1.0, 0.0,
+    ));
+    Board {
+        cols: c.board_cols,
+        rows: c.board_rows,
+        square_mm: s,
+        origin: Point3::new(-wide / 2.0, 5.0, 25.0 + tall / 2.0),
+        rotation,
+    }
+}
+
+/// Random board poses that both cameras see whole: 110-230 mm from the rig, tilted up to 40°,
+/// turned in-plane up to 20°, spread over the images.
+fn board_poses(
+    c: &CaptureConfig,
+    rig: &Rig,
+    rng: &mut ChaCha8Rng,
+) -> Result<Vec<Board>, SynthError> {
+    let s = c.square_mm;
+    let half = Vector3::new(
+        (c.board_cols - 1) as f64 * s / 2.0,
+        (c.board_rows - 1) as f64 * s / 2.0,
+        0.0,
+    );
+    let eye = Point3::from((rig.left.pose.centre().coords + rig.right.pose.centre().coords) / 2.0);
+    let aim = Point3::from(c.rig.aim_mm);
+    let axis = (aim - eye).normalize();
+    let mut boards = Vec::new();
+    for _ in 0..20_000 {
+        if boards.len() == c.views {
+            break;
+        }
+        let distance = rng.random_range(110.0..230.0);
+        let spread = distance * 0.35;
+        let side = Vector3::x();
+        let up = axis.cross(&side).normalize();
+        let centre = eye
+            + axis * distance
+            + side * rng.random_range(-spread..spread)
+            + up * rng.random_range(-spread * 0.6..spread * 0.6);
+        // Facing the rig: board z away from the cameras, board x along hand x.
+        let z = (centre - eye).normalize();
+        let x = (side - z * side.dot(&z)).normalize();
+        let y = z.cross(&x);
+        let facing = Rotation3::from_matrix_unchecked(Matrix3::from_columns(&[x, y, z]));
+        let tilt_axis =
+            Unit::new_normalize(x * rng.random_range(-1.0..1.0) + y * rng.random_range(-1.0..1.0));
+        let tilt =
+            Rotation3::from_axis_angle(&tilt_axis, rng.random_range(0.0..40f64.to_radians()));
+        let spin = Rotation3::from_axis_angle(
+            &Unit::new_normalize(z),
+            rng.random_range(-20f64..20.0).to_radians(),
+        );
+        let rotation = tilt * spin * facing;
+        let board = Board {
+            cols: c.board_cols,
+            rows: c.board_rows,
+            square_mm: s,
+            origin: centre - rotation * half,
+            rotation,
+        };
+        if fully_visible(&board, rig) {
+            boards.push(board);
+        }
+    }
+    if boards.len() < c.views {
+        return Err(SynthError::BadCapture(format!(
+            "could place only {} of {} board views inside both images; use a smaller --square-mm",
+            boards.len(),
+            c.views
+        )));
+    }
+    Ok(boards)
+}
+
+/// The whole paper inside both images (15 px margin), seen from its front at under 70°.
+fn fully_visible(board: &Board, rig: &Rig) -> bool {
+    let normal = board.rotation * Vector3::z();
+    [&rig.left, &rig.right].iter().all(|cam| {
+        let view = (board.origin - cam.pose.centre()).normalize();
+        if view.dot(&normal) < 70f64.to_radians().cos() {
+            return false;
+        }
+        board.paper_corners().iter().all(|p| inside(cam, p, 15.0))
+    })
+}
+
+fn inside(cam: &Camera, p: &Point3<f64>, margin: f64) -> bool {
+    cam.project(p).is_some_and(|[u, v]| {
+        u >= margin
+            && v >= margin
+            && u <= f64::from(cam.width) - 1.0 - margin
+            && v <= f64::from(cam.height) - 1.0 - margin
+    })
+}
+
+/// The frames each camera keeps: those stamped inside a step's window.
+fn camera_frames(c: &CaptureConfig, steps: usize, rng: &mut ChaCha8Rng) -> Vec<FrameRecord> {
+    let clocks: Vec<Clock> = (0..2)
+        .map(|_| Clock {
+            phase_s: rng.random_range(0.0..1.0 / c.fps),
+            period_s: 1.0 / (c.fps * (1.0 + rng.random_range(-50e-6..50e-6))),
+            offset_s: rng.random_range(-0.005..0.005),
+        })
+        .collect();
+    let end = steps as f64 * c.step_s;
+    let mut out = Vec::new();
+    for (side, clock) in [Side::Left, Side::Right].into_iter().zip(&clocks) {
+        let mut index = 0;
+        let mut n = 0u64;
+        loop {
+            let exposure_s = clock.phase_s + n as f64 * clock.period_s;
+            n += 1;
+            if exposure_s >= end {
+                break;
+            }
+            let stamp_s = exposure_s + clock.offset_s + rng.random_range(-0.002..0.002);
+            let step = (stamp_s / c.step_s).floor();
+            if step < 0.0 || step as usize >= steps {
+                continue;
+            }
+            let into = stamp_s - step * c.step_s;
+            if into >= c.window_s[0] && into < c.window_s[1] {
+                out.push(FrameRecord {
+                    camera: side,
+                    index,
+                    exposure_s,
+                    stamp_s,
+                    step: step as usize,
+                });
+                index += 1;
+            }
+        }
+    }
+    out
+}
+
+/// The muscles' pressures at time `t` (first-order response to each command).
+fn pressure_at(c: &CaptureConfig, steps: &[(&str, Pressures)], t: f64) -> Pressures {
+    let k = ((t / c.step_s).floor().max(0.0) as usize).min(steps.len() - 1);
+    let target = steps[k].1;
+    let before = if k == 0 { [0.0; 3] } else { steps[k - 1].1 };
+    let decay = (-(t - k as f64 * c.step_s).max(0.0) / c.settle_tau_s).exp();
+    std::array::from_fn(|i| target[i] + (before[i] - target[i]) * decay)
+}
+
+fn board_yaml(c: &CaptureConfig) -> String {
+    let mut fs = FileStorage::new();
+    fs.int("inner_corners_cols", c.board_cols as i64)
+        .int("inner_corners_rows", c.board_rows as i64)
+        .real("square_mm", c.square_mm);
+    fs.text().to_string()
+}
+
+fn mat3(m: &Matrix3<f64>) -> Vec<f64> {
+    (0..3)
+        .flat_map(|r| (0..3).map(move |c| m[(r, c)]))
+        .collect()
+}
+
+fn rig_yaml(rig: &Rig, provenance: &crate::provenance::Provenance) -> String {
+    let rl = rig.right_from_left();
+    let r = *rl.rotation.matrix();
+    let t = rl.translation;
+    let tx = Matrix3::new(0.0, -t.z, t.y, t.z, 0.0, -t.x, -t.y, t.x, 0.0);
+    let e = tx * r;
+    let k = |c: &Camera| Matrix3::from_row_slice(&c.k());
+    let f = k(&rig.right)
+        .try_inverse()
+        .expect("K invertible")
+        .transpose()
+        * e
+        * k(&rig.left).try_inverse().expect("K invertible");
+    let f = f / f[(2, 2)];
+    let hand_r = rig.left.pose.rotation.inverse();
+    let hand_t = rig.left.pose.centre().coords;
+    let mut fs = FileStorage::new();
+    fs.ints(
+        "image_size",
+        &[i64::from(rig.left.width), i64::from(rig.left.height)],
+    )
+    .matrix("K1", 3, 3, &rig.left.k())
+    .matrix("D1", 1, 5, &rig.left.dist)
+    .matrix("K2", 3, 3, &rig.right.k())
+    .matrix("D2", 1, 5, &rig.right.dist)
+    .matrix("R", 3, 3, &mat3(&r))
+    .matrix("T", 3, 1, t.as_slice())
+    .matrix("E", 3, 3, &mat3(&e))
+    .matrix("F", 3, 3, &mat3(&f))
+    .matrix("R_hand", 3, 3, &mat3(hand_r.matrix()))
+    .matrix("t_hand", 3, 1, hand_t.as_slice())
+    .string("handcap_version", &provenance.handcap_version)
+    .string("command", &provenance.command.join(" "));
+    if let Some(seed) = provenance.seed {
+        fs.int("seed", seed as i64);
+    }
+    fs.text().to_string()
+}
+
+fn boards_csv(rig: &Rig, boards: &[Board], reference: &Board) -> String {
+    let mut out = String::from("view,rx,ry,rz,tx_mm,ty_mm,tz_mm\n");
+    let named = boards
+        .iter()
+        .enumerate()
+        .map(|(k, b)| (format!("{k:02}"), b))
+        .chain(std::iter::once(("ref".to_string(), reference)));
+    for (name, b) in named {
+        let rotation = rig.left.pose.rotation * b.rotation;
+        let t = rig.left.pose.apply(&b.origin);
+        let r = rotation.scaled_axis();
+        out += &format!("{name},{},{},{},{},{},{}\n", r.x, r.y, r.z, t.x, t.y, t.z);
+    }
+    out
+}
+
+fn pressures_csv(c: &CaptureConfig, steps: &[(&str, Pressures)]) -> String {
+    let mut out = String::from("time_s,P1_kpa,P2_kpa,P3_kpa,step,phase\n");
+    for (k, (phase, p)) in steps.iter().enumerate() {
+        out += &format!(
+            "{:.3},{},{},{},{k},{phase}\n",
+            k as f64 * c.step_s,
+            p[0],
+            p[1],
+            p[2]
+        );
+    }
+    out
+}
+
+fn tips_csv(rig: &Rig, steps: &[(&str, Pressures)], tips: &[[f64; 3]]) -> String {
+    let mut out = String::from(
+        "step,phase,P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm,left_x_mm,left_y_mm,left_z_mm\n",
+    );
+    for (k, ((phase, p), tip)) in steps.iter().zip(tips).enumerate() {
+        let left = rig.left.pose.apply(&Point3::from(*tip));
+        out += &format!(
+            "{k},{phase},{},{},{},{},{},{},{},{},{}\n",
+            p[0], p[1], p[2], tip[0], tip[1], tip[2], left.x, left.y, left.z
+        );
+    }
+    out
+}
+
+fn frames_csv(frames: &[FrameRecord]) -> String {
+    let mut out = String::from("frame,camera,time_s\n");
+    for f in frames {
+        out += &format!("{},{},{:.6}\n", f.index, f.camera.name(), f.stamp_s);
+    }
+    out
+}
+
+fn truth_frames(
+    rig: &Rig,
+    plant: &Plant,
+    c: &CaptureConfig,
+    steps: &[(&str, Pressures)],
+    frames: &[FrameRecord],
+) -> Result<String, SynthError> {
+    let mut out = String::from("frame,camera,exposure_s,step,x_mm,y_mm,z_mm,u_px,v_px\n");
+    for f in frames {
+        let tip = plant.tip(pressure_at(c, steps, f.exposure_s))?;
+        let cam = match f.camera {
+            Side::Left => &rig.left,
+            Side::Right => &rig.right,
+        };
+        let [u, v] = cam
+            .project(&Point3::from(tip))
+            .unwrap_or([f64::NAN, f64::NAN]);
+        out += &format!(
+            "{},{},{:.6},{},{},{},{},{},{}\n",
+            f.index,
+            f.camera.name(),
+            f.exposure_s,
+            f.step,
+            tip[0],
+            tip[1],
+            tip[2],
+            u,
+            v
+        );
+    }
+    Ok(out)
+}

@@ -1,0 +1,660 @@
+//! Renders what a webcam of the virtual rig sees: a printed chessboard, or the finger with its
+//! red tip bead, over an unevenly lit background.
+//!
+//! Every pixel is the mean of S × S samples (S = 4) inside it: anti-aliasing by supersampling.
+//! Each sample's ray comes from inverting the lens distortion exactly (Newton, see
+//! [`Camera::undistort`]) at the pixel corners and interpolating bilinearly inside the pixel —
+//! the distortion is so smooth that this differs from inverting at every sample by under
+//! 10⁻⁶ px (a test checks it). Then, in order: mild defocus (a Gaussian of σ = 0.7 px), the
+//! exposure gain, sensor noise (read noise 0.4 DN plus shot noise, σ² = 0.4² + 0.004·I, drawn
+//! from a counter-based hash of the seed, the image and the pixel, so parallel rendering is
+//! deterministic), and rounding to 8 bits.
+//!
+//! Scene: the finger is a tube of radius 1.6 mm (the 5.0 × 2.6 mm section's mean half-size)
+//! along the plant's centre line, pale silicone, with a rounded end; a matte red bead of radius
+//! 0.6 mm sits on that end with its centre at the plant's tip, which is the point the pipeline
+//! tracks. Shading is Lambertian under a light at the camera (a ring light), so the bead's image
+//! is symmetric about its centre's projection. The chessboard is printed black on white paper
+//! with a one-square white margin. Paper, finger and background share one illumination field
+//! (a horizontal gradient, a soft hot spot and vignetting, drawn from the seed).
+
+use nalgebra::{Point3, Vector3};
+use rayon::prelude::*;
+
+use super::camera::Camera;
+
+/// Samples per pixel side.
+pub const SUPERSAMPLING: usize = 4;
+/// Radius of the finger's tube (mm).
+pub const FINGER_RADIUS_MM: f64 = 1.6;
+/// Radius of the red tip bead (mm).
+pub const BEAD_RADIUS_MM: f64 = 0.6;
+const BLUR_SIGMA_PX: f64 = 0.7;
+const READ_NOISE_DN: f32 = 0.4;
+const SHOT_NOISE_DN: f32 = 0.004;
+
+const SILICONE: [f64; 3] = [0.93, 0.89, 0.82];
+const BEAD: [f64; 3] = [0.80, 0.10, 0.09];
+const PAPER: [f64; 3] = [0.92, 0.92, 0.90];
+const INK: [f64; 3] = [0.08, 0.08, 0.09];
+const BACKDROP: [f64; 3] = [0.47, 0.48, 0.50];
+/// Ambient share of the lighting.
+const AMBIENT: f64 = 0.35;
+
+/// A pixel rectangle, corners inclusive: (x0, y0, x1, y1).
+pub type Rect = (usize, usize, usize, usize);
+
+/// An RGB image of floating-point intensities (0-255) while rendering.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Canvas {
+    pub width: usize,
+    pub height: usize,
+    pub rgb: Vec<f32>,
+    /// Where anything but the smooth backdrop was drawn (what the defocus blur must touch).
+    pub detail: Option<Rect>,
+}
+
+impl Canvas {
+    /// Blurs where detail was drawn, applies `gain`, adds noise keyed by (`seed`, `image`) and
+    /// rounds to 8-bit RGB.
+    ///
+    /// Blurring only the detail is exact where the rest is the smooth backdrop (a 5-pixel
+    /// Gaussian changes it by under 0.01 DN).
+    pub fn develop(mut self, gain: f64, seed: u64, image: u64) -> Vec<u8> {
+        let w = self.width;
+        if let Some(rect) = self.detail {
+            self.blur(rect);
+        }
+        let key = splitmix(seed ^ splitmix(image));
+        let gain = gain as f32;
+        let mut out = vec![0u8; self.rgb.len()];
+        out.par_chunks_mut(3 * w)
+            .zip(self.rgb.par_chunks(3 * w))
+            .enumerate()
+            .for_each(|(row, (out, values))| {
+                let base = (row * 3 * w) as u64;
+                for (i, (o, &v)) in out.iter_mut().zip(values).enumerate() {
+                    let signal = v * gain;
+                    let sd =
+                        (READ_NOISE_DN * READ_NOISE_DN + SHOT_NOISE_DN * signal.max(0.0)).sqrt();
+                    let noisy = signal + sd * gaussian(key, base + i as u64);
+                    *o = (noisy.clamp(0.0, 255.0) + 0.5) as u8;
+                }
+            });
+        out
+    }
+
+    /// Separable Gaussian blur (σ = 0.7 px, radius 2) of a rectangle, reading up to two pixels
+    /// beyond it (clamped at the image's edges).
+    fn blur(&mut self, (x0, y0, x1, y1): Rect) {
+        let weights: [f32; 5] = {
+            let w = [-2.0f64, -1.0, 0.0, 1.0, 2.0]
+                .map(|d| (-(d * d) / (2.0 * BLUR_SIGMA_PX * BLUR_SIGMA_PX)).exp());
+            let sum: f64 = w.iter().sum();
+            w.map(|v| (v / sum) as f32)
+        };
+        let (w, h) = (self.width, self.height);
+        let (ya, yb) = (y0.saturating_sub(2), (y1 + 2).min(h - 1));
+        let at = |x: usize, d: usize, max: usize| (x + d).saturating_sub(2).min(max - 1);
+        // Horizontal pass over the rows the vertical pass will read.
+        let src = &self.rgb;
+        let horizontal: Vec<f32> = (ya..=yb)
+            .into_par_iter()
+            .flat_map_iter(|y| {
+                (x0..=x1).flat_map(move |x| {
+                    (0..3).map(move |c| {
+                        (0..5)
+                            .map(|k| weights[k] * src[3 * (y * w + at(x, k, w)) + c])
+                            .sum::<f32>()
+                    })
+                })
+            })
+            .collect();
+        let span = 3 * (x1 - x0 + 1);
+        self.rgb[3 * w * y0..3 * w * (y1 + 1)]
+            .par_chunks_mut(3 * w)
+            .enumerate()
+            .for_each(|(dy, row)| {
+                let y = y0 + dy;
+                for k in 0..span {
+                    row[3 * x0 + k] = (0..5)
+                        .map(|t| {
+                            let yy = at(y, t, h).clamp(ya, yb);
+                            weights[t] * horizontal[(yy - ya) * span + k]
+                        })
+                        .sum();
+                }
+            });
+    }
+}
+
+/// A camera prepared for rendering: its rays at every pixel corner and its illumination field.
+pub struct View {
+    pub camera: Camera,
+    /// Normalised undistorted (x, y) at pixel corners, (width + 1) × (height + 1), row-major.
+    corners: Vec<[f64; 2]>,
+    /// Illumination (0-255 for a white surface) at pixel centres.
+    light: Vec<f32>,
+    /// The background alone, RGB.
+    backdrop: Vec<f32>,
+    eye: Point3<f64>,
+}
+
+/// Parameters of the illumination field (drawn from the seed).
+#[derive(Clone, Copy, Debug)]
+pub struct Lighting {
+    pub level: f64,
+    pub gradient: f64,
+    pub spot: [f64; 2],
+    pub spot_gain: f64,
+    pub vignetting: f64,
+}
+
+impl Lighting {
+    pub fn from_seed(seed: u64) -> Self {
+        let u = |k: u64| uniform(splitmix(seed ^ 0x4c49_4748), k);
+        Lighting {
+            level: 215.0 + 20.0 * u(0),
+            gradient: 0.12 * (2.0 * u(1) - 1.0),
+            spot: [0.2 + 0.6 * u(2), 0.2 + 0.6 * u(3)],
+            spot_gain: 0.10 + 0.08 * u(4),
+            vignetting: 0.22 + 0.08 * u(5),
+        }
+    }
+
+    /// Illumination at normalised image position (s, t) ∈ [0, 1]².
+    fn at(&self, s: f64, t: f64) -> f64 {
+        let r2 = (s - 0.5).powi(2) + (t - 0.5).powi(2);
+        let d2 = (s - self.spot[0]).powi(2) + (t - self.spot[1]).powi(2);
+        self.level
+            * (1.0 + self.gradient * (s - 0.5))
+            * (1.0 + self.spot_gain * (-d2 / 0.08).exp())
+            * (1.0 - self.vignetting * r2 * 2.0)
+    }
+}
+
+impl View {
+    pub fn new(camera: Camera, lighting: Lighting) -> Self {
+        let (w, h) = (camera.width as usize, camera.height as usize);
+        let corners: Vec<[f64; 2]> = (0..(w + 1) * (h + 1))
+            .into_par_iter()
+            .map(|k| {
+                let (i, j) = (k % (w + 1), k / (w + 1));
+                let (x, y) = camera.undistort(i as f64 - 0.5, j as f64 - 0.5);
+                [x, y]
+            })
+            .collect();
+        let light: Vec<f32> = (0..w * h)
+            .map(|k| {
+                let (i, j) = (k % w, k / w);
+                lighting.at((i as f64 + 0.5) / w as f64, (j as f64 + 0.5) / h as f64) as f32
+            })
+            .collect();
+        let backdrop = light
+            .iter()
+            .flat_map(|&l| BACKDROP.map(|c| (c * f64::from(l)) as f32))
+            .collect();
+        let eye = camera.pose.centre();
+        View {
+            camera,
+            corners,
+            light,
+            backdrop,
+            eye,
+        }
+    }
+
+    fn width(&self) -> usize {
+        self.camera.width as usize
+    }
+
+    fn height(&self) -> usize {
+        self.camera.height as usize
+    }
+
+    /// Normalised undistorted coordinates of a point inside pixel (i, j) at fractions (a, b).
+    fn sample(&self, i: usize, j: usize, a: f64, b: f64) -> [f64; 2] {
+        let w = self.width() + 1;
+        let c = |di: usize, dj: usize| self.corners[(j + dj) * w + i + di];
+        let (p00, p10, p01, p11) = (c(0, 0), c(1, 0), c(0, 1), c(1, 1));
+        std::array::from_fn(|k| {
+            (1.0 - b) * ((1.0 - a) * p00[k] + a * p10[k]) + b * ((1.0 - a) * p01[k] + a * p11[k])
+        })
+    }
+
+    fn ray(&self, i: usize, j: usize, a: f64, b: f64) -> Vector3<f64> {
+        let [x, y] = self.sample(i, j, a, b);
+        self.camera.ray_direction(x, y).into_inner()
+    }
+
+    /// The background alone.
+    pub fn backdrop(&self) -> Canvas {
+        Canvas {
+            width: self.width(),
+            height: self.height(),
+            rgb: self.backdrop.clone(),
+            detail: None,
+        }
+    }
+
+    /// A chessboard over the background.
+    pub fn board(&self, board: &Board) -> Canvas {
+        let mut canvas = self.backdrop();
+        let w = self.width();
+        canvas.detail = Some((0, 0, w - 1, self.height() - 1));
+        let normal = board.rotation * Vector3::z();
+        let origin = board.origin;
+        canvas
+            .rgb
+            .par_chunks_mut(3 * w)
+            .enumerate()
+            .for_each(|(j, row)| {
+                for i in 0..w {
+                    let mut sum = [0.0; 3];
+                    let mut hits = 0;
+                    for_samples(|a, b| {
+                        let d = self.ray(i, j, a, b);
+                        let denom = normal.dot(&d);
+                        if denom.abs() < 1e-12 {
+                            return;
+                        }
+                        let t = normal.dot(&(origin - self.eye)) / denom;
+                        if t <= 0.0 {
+                            return;
+                        }
+                        let local = board.rotation.inverse() * (self.eye + d * t - origin);
+                        if let Some(albedo) = board.albedo(local.x, local.y) {
+                            for k in 0..3 {
+                                sum[k] += albedo[k];
+                            }
+                            hits += 1;
+                        }
+                    });
+                    if hits == 0 {
+                        continue;
+                    }
+                    let light = f64::from(self.light[j * w + i]);
+                    let share = hits as f64 / (SUPERSAMPLING * SUPERSAMPLING) as f64;
+                    for k in 0..3 {
+                        let paper = sum[k] / hits as f64 * light;
+                        let px = &mut row[3 * i + k];
+                        *px = (share * paper + (1.0 - share) * f64::from(*px)) as f32;
+                    }
+                }
+            });
+        canvas
+    }
+
+    /// The finger (tube along its axis, bead at its tip) over the background.
+    pub fn finger(&self, finger: &Finger) -> Canvas {
+        let mut canvas = self.backdrop();
+        // Pixel boxes of every piece (capsules, then the bead): a sample tests only the pieces
+        // whose box holds its pixel.
+        let mut boxes: Vec<Option<[f64; 4]>> = finger
+            .axis
+            .windows(2)
+            .map(|s| self.pixel_box(s, FINGER_RADIUS_MM))
+            .collect();
+        boxes.push(self.pixel_box(&[finger.tip], BEAD_RADIUS_MM));
+        let Some(bounds) = boxes.iter().flatten().copied().reduce(|a, b| {
+            [
+                a[0].min(b[0]),
+                a[1].min(b[1]),
+                a[2].max(b[2]),
+                a[3].max(b[3]),
+            ]
+        }) else {
+            return canvas;
+        };
+        let (w, h) = (self.width(), self.height());
+        let clip = |v: f64, max: usize| v.clamp(0.0, max as f64 - 1.0) as usize;
+        if bounds[2] < 0.0 || bounds[3] < 0.0 || bounds[0] >= w as f64 || bounds[1] >= h as f64 {
+            return canvas;
+        }
+        let (x0, y0, x1, y1) = (
+            clip(bounds[0], w),
+            clip(bounds[1], h),
+            clip(bounds[2], w),
+            clip(bounds[3], h),
+        );
+        let bead = boxes.len() - 1;
+        canvas.detail = Some((x0, y0, x1, y1));
+        canvas.rgb[3 * w * y0..3 * w * (y1 + 1)]
+            .par_chunks_mut(3 * w)
+            .enumerate()
+            .for_each(|(dj, row)| {
+                let j = y0 + dj;
+                let (top, bottom) = (j as f64 - 0.5, j as f64 + 0.5);
+                let in_row: Vec<(usize, [f64; 4])> = boxes
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(k, b)| b.map(|b| (k, b)))
+                    .filter(|(_, b)| b[1] <= bottom && b[3] >= top)
+                    .collect();
+                let mut pieces = Vec::with_capacity(in_row.len());
+                for i in x0..=x1 {
+                    let (left, right) = (i as f64 - 0.5, i as f64 + 0.5);
+                    pieces.clear();
+                    pieces.extend(
+                        in_row
+                            .iter()
+                            .filter(|(_, b)| b[0] <= right && b[2] >= left)
+                            .map(|&(k, _)| k),
+                    );
+                    if pieces.is_empty() {
+                        continue;
+                    }
+                    let mut sum = [0.0; 3];
+                    let mut hits = 0;
+                    for_samples(|a, b| {
+                        let d = self.ray(i, j, a, b);
+                        if let Some((normal, albedo)) = finger.hit(&self.eye, &d, &pieces, bead) {
+                            let shade = AMBIENT + (1.0 - AMBIENT) * (-normal.dot(&d)).max(0.0);
+                            for k in 0..3 {
+                                sum[k] += albedo[k] * shade;
+                            }
+                            hits += 1;
+                        }
+                    });
+                    if hits == 0 {
+                        continue;
+                    }
+                    let light = f64::from(self.light[j * w + i]);
+                    let share = hits as f64 / (SUPERSAMPLING * SUPERSAMPLING) as f64;
+                    for k in 0..3 {
+                        let surface = sum[k] / hits as f64 * light;
+                        let px = &mut row[3 * i + k];
+                        *px = (share * surface + (1.0 - share) * f64::from(*px)) as f32;
+                    }
+                }
+            });
+        canvas
+    }
+
+    /// A pixel box [u0, v0, u1, v1] holding the image of the points swollen by `radius`; `None`
+    /// when a point is behind the camera. The margin is generous (the radius projected at the
+    /// nearest depth, × 1.5, + 2 px) so distortion and perspective cannot push a hit outside.
+    fn pixel_box(&self, points: &[Point3<f64>], radius: f64) -> Option<[f64; 4]> {
+        let mut b = [
+            f64::INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NEG_INFINITY,
+        ];
+        for p in points {
+            let [u, v] = self.camera.project(p)?;
+            let depth = self.camera.pose.apply(p).z - radius;
+            if depth <= 0.0 {
+                return None;
+            }
+            let r = radius * self.camera.fx / depth * 1.5 + 2.0;
+            b = [
+                b[0].min(u - r),
+                b[1].min(v - r),
+                b[2].max(u + r),
+                b[3].max(v + r),
+            ];
+        }
+        Some(b)
+    }
+}
+
+/// PNG bytes of an 8-bit RGB image (fast deflate, Paeth filter: noisy images gain little from
+/// harder compression).
+pub fn encode_png(width: u32, height: u32, rgb: &[u8]) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut encoder = png::Encoder::new(&mut out, width, height);
+    encoder.set_color(png::ColorType::Rgb);
+    encoder.set_depth(png::BitDepth::Eight);
+    encoder.set_compression(png::Compression::Fast);
+    encoder.set_filter(png::FilterType::Paeth);
+    let mut writer = encoder.write_header().expect("in-memory PNG header");
+    writer
+        .write_image_data(rgb)
+        .expect("in-memory PNG data of the stated size");
+    writer.finish().expect("in-memory PNG end");
+    out
+}
+
+/// Calls `f(a, b)` for the S × S sample positions inside a pixel (fractions of its width).
+fn for_samples(mut f: impl FnMut(f64, f64)) {
+    for sb in 0..SUPERSAMPLING {
+        for sa in 0..SUPERSAMPLING {
+            f(
+                (sa as f64 + 0.5) / SUPERSAMPLING as f64,
+                (sb as f64 + 0.5) / SUPERSAMPLING as f64,
+            );
+        }
+    }
+}
+
+/// A printed chessboard placed in the world.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Board {
+    /// Inner corners along the board's x and y.
+    pub cols: usize,
+    pub rows: usize,
+    pub square_mm: f64,
+    /// World position of the first inner corner (the board frame's origin).
+    pub origin: Point3<f64>,
+    /// Board frame → world: x along a row of corners, y down the columns, z into the board.
+    pub rotation: nalgebra::Rotation3<f64>,
+}
+
+impl Board {
+    /// Albedo at board coordinates (mm); `None` off the paper.
+    fn albedo(&self, x: f64, y: f64) -> Option<[f64; 3]> {
+        let s = self.square_mm;
+        let (fx, fy) = ((x / s).floor(), (y / s).floor());
+        let inside = |f: f64, n: usize| f >= -2.0 && f < n as f64 + 1.0;
+        if !inside(fx, self.cols) || !inside(fy, self.rows) {
+            return None;
+        }
+        let on_squares = |f: f64, n: usize| f >= -1.0 && f < n as f64;
+        if on_squares(fx, self.cols) && on_squares(fy, self.rows) && (fx + fy) as i64 % 2 == 0 {
+            Some(INK)
+        } else {
+            Some(PAPER)
+        }
+    }
+
+    /// World positions of the inner corners, row by row (OpenCV's object point order).
+    pub fn corners(&self) -> Vec<Point3<f64>> {
+        (0..self.rows)
+            .flat_map(|j| (0..self.cols).map(move |i| (i, j)))
+            .map(|(i, j)| {
+                self.origin
+                    + self.rotation
+                        * Vector3::new(i as f64 * self.square_mm, j as f64 * self.square_mm, 0.0)
+            })
+            .collect()
+    }
+
+    /// World positions of the paper's four outer corners.
+    pub fn paper_corners(&self) -> [Point3<f64>; 4] {
+        let s = self.square_mm;
+        let (x0, y0) = (-2.0 * s, -2.0 * s);
+        let (x1, y1) = ((self.cols + 1) as f64 * s, (self.rows + 1) as f64 * s);
+        [(x0, y0), (x1, y0), (x1, y1), (x0, y1)]
+            .map(|(x, y)| self.origin + self.rotation * Vector3::new(x, y, 0.0))
+    }
+}
+
+/// The finger's geometry in the world: its axis polyline and the bead's centre.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Finger {
+    /// The tube's axis, from the base to where its rounded end starts.
+    pub axis: Vec<Point3<f64>>,
+    pub tip: Point3<f64>,
+}
+
+impl Finger {
+    /// From the plant's centre line (base → tip): the bead sits on the tip, and the tube's axis
+    /// stops one tube radius plus one bead diameter short of the tip so that its rounded end
+    /// touches the bead. Every `stride`-th point is kept.
+    pub fn from_centre_line(line: &[[f64; 3]], stride: usize) -> Self {
+        let pts: Vec<Point3<f64>> = line.iter().map(|&p| Point3::from(p)).collect();
+        let tip = *pts.last().expect("centre line has points");
+        let cut = FINGER_RADIUS_MM + BEAD_RADIUS_MM;
+        // Walk back from the tip until `cut` of arc length is behind us.
+        let mut remaining = cut;
+        let mut end = pts.len() - 1;
+        let mut last = tip;
+        while end > 0 {
+            let seg = (pts[end] - pts[end - 1]).norm();
+            if seg >= remaining {
+                last = pts[end] + (pts[end - 1] - pts[end]) * (remaining / seg);
+                break;
+            }
+            remaining -= seg;
+            end -= 1;
+        }
+        let mut axis: Vec<Point3<f64>> =
+            pts[..end].iter().step_by(stride.max(1)).copied().collect();
+        axis.push(last);
+        Finger { axis, tip }
+    }
+
+    /// Nearest surface hit along the ray from `eye` in direction `d` among `pieces` (indices of
+    /// axis segments, or `bead` for the bead): outward normal and albedo.
+    fn hit(
+        &self,
+        eye: &Point3<f64>,
+        d: &Vector3<f64>,
+        pieces: &[usize],
+        bead: usize,
+    ) -> Option<(Vector3<f64>, [f64; 3])> {
+        let mut best: Option<(f64, Vector3<f64>, [f64; 3])> = None;
+        for &k in pieces {
+            let found = if k == bead {
+                sphere(eye, d, &self.tip, BEAD_RADIUS_MM)
+                    .map(|t| (t, (eye + d * t - self.tip).normalize(), BEAD))
+            } else {
+                capsule(eye, d, &self.axis[k], &self.axis[k + 1], FINGER_RADIUS_MM)
+                    .map(|(t, n)| (t, n, SILICONE))
+            };
+            if let Some(f) = found {
+                if best.as_ref().is_none_or(|b| f.0 < b.0) {
+                    best = Some(f);
+                }
+            }
+        }
+        best.map(|(_, n, albedo)| (n, albedo))
+    }
+}
+
+/// Nearest positive hit of a ray (unit `d`) with a sphere.
+fn sphere(o: &Point3<f64>, d: &Vector3<f64>, c: &Point3<f64>, r: f64) -> Option<f64> {
+    let oc = o - c;
+    let b = oc.dot(d);
+    let disc = b * b - (oc.norm_squared() - r * r);
+    if disc < 0.0 {
+        return None;
+    }
+    let t = -b - disc.sqrt();
+    (t > 0.0).then_some(t)
+}
+
+/// Nearest positive hit of a ray (unit `d`) with the capsule around segment a-b, and the normal.
+fn capsule(
+    o: &Point3<f64>,
+    d: &Vector3<f64>,
+    a: &Point3<f64>,
+    b: &Point3<f64>,
+    r: f64,
+) -> Option<(f64, Vector3<f64>)> {
+    let ba = b - a;
+    let oa = o - a;
+    let baba = ba.norm_squared();
+    let bard = ba.dot(d);
+    let baoa = ba.dot(&oa);
+    let rdoa = d.dot(&oa);
+    let oaoa = oa.norm_squared();
+    let qa = baba - bard * bard;
+    let qb = baba * rdoa - baoa * bard;
+    let qc = baba * oaoa - baoa * baoa - r * r * baba;
+    let h = qb * qb - qa * qc;
+    if h < 0.0 {
+        return None;
+    }
+    let t = (-qb - h.sqrt()) / qa;
+    let y = baoa + t * bard;
+    // The cylinder's side.
+    if qa > 1e-12 && y > 0.0 && y < baba && t > 0.0 {
+        let p = o + d * t;
+        let along = (p - a).dot(&ba) / baba;
+        return Some((t, (p - (a + ba * along)).normalize()));
+    }
+    // One of the caps.
+    let c = if y <= 0.0 { *a } else { *b };
+    sphere(o, d, &c, r).map(|t| (t, (o + d * t - c).normalize()))
+}
+
+fn splitmix(mut z: u64) -> u64 {
+    z = z.wrapping_add(0x9e37_79b9_7f4a_7c15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
+/// A uniform number in [0, 1) from a key and a counter.
+fn uniform(key: u64, k: u64) -> f64 {
+    (splitmix(key ^ splitmix(k)) >> 11) as f64 / (1u64 << 53) as f64
+}
+
+/// An approximately standard normal number from a key and a counter: the sum of four uniforms
+/// of 16 bits each from one SplitMix64 output, centred and scaled (Irwin-Hall; tails cut at
+/// ±3.5σ).
+fn gaussian(key: u64, k: u64) -> f32 {
+    let bits = splitmix(key.wrapping_add(k.wrapping_mul(0x9e37_79b9_7f4a_7c15)));
+    let sum = (0..4)
+        .map(|i| ((bits >> (16 * i)) & 0xffff) as u32)
+        .sum::<u32>();
+    (sum as f32 / 65536.0 - 2.0) * 3f32.sqrt()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synth::camera::RigConfig;
+
+    #[test]
+    fn interpolated_rays_match_exact_undistortion() {
+        let rig = RigConfig::default().build(3);
+        let view = View::new(rig.left.clone(), Lighting::from_seed(3));
+        let mut worst = 0.0f64;
+        for &(i, j) in &[(0, 0), (1279, 719), (640, 360), (30, 700), (1200, 15)] {
+            for &(a, b) in &[(0.125, 0.125), (0.625, 0.875), (0.375, 0.5)] {
+                let [x, y] = view.sample(i, j, a, b);
+                let (ex, ey) = rig.left.undistort(i as f64 - 0.5 + a, j as f64 - 0.5 + b);
+                worst = worst.max((x - ex).abs().max((y - ey).abs()) * rig.left.fx);
+            }
+        }
+        assert!(worst < 1e-6, "interpolation error {worst} px");
+    }
+
+    #[test]
+    fn noise_has_the_stated_spread_and_is_keyed() {
+        let n: Vec<f64> = (0..20000).map(|k| f64::from(gaussian(42, k))).collect();
+        let mean = n.iter().sum::<f64>() / n.len() as f64;
+        let sd = (n.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n.len() as f64).sqrt();
+        assert!(mean.abs() < 0.03 && (sd - 1.0).abs() < 0.03, "{mean} {sd}");
+        assert_eq!(gaussian(42, 7), gaussian(42, 7));
+        assert_ne!(gaussian(42, 7), gaussian(43, 7));
+    }
+
+    #[test]
+    fn capsule_hits_side_and_caps() {
+        let a = Point3::new(0.0, 0.0, 0.0);
+        let b = Point3::new(0.0, 0.0, 10.0);
+        let o = Point3::new(0.0, -20.0, 5.0);
+        let (t, n) = capsule(&o, &Vector3::y(), &a, &b, 1.0).unwrap();
+        assert!((t - 19.0).abs() < 1e-12 && (n - (-Vector3::y())).norm() < 1e-12);
+        // Above the segment: the rounded end.
+        let o = Point3::new(0.0, -20.0, 10.5);
+        let (t, _) = capsule(&o, &Vector3::y(), &a, &b, 1.0).unwrap();
+        assert!((t - (20.0 - (0.75f64).sqrt())).abs() < 1e-12);
+        let o = Point3::new(0.0, -20.0, 11.5);
+        assert!(capsule(&o, &Vector3::y(), &a, &b, 1.0).is_none());
+    }
+}
