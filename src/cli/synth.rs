@@ -12,6 +12,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use handcap::provenance::Provenance;
 use handcap::synth::camera::RigConfig;
 use handcap::synth::capture::{self, CaptureConfig};
+use handcap::synth::render::ImageFormat;
 use handcap::synth::{self, plant::PlantParams, SynthConfig};
 
 #[derive(clap::Args)]
@@ -55,6 +56,18 @@ pub struct Args {
     /// Relative amplitude of a slow exposure drift (0: exposure locked)
     #[arg(long, default_value_t = 0.0)]
     exposure_drift: f64,
+    /// Image files: png (lossless) or jpeg (as webcams stream MJPEG; about 8× smaller)
+    #[arg(long, value_enum, default_value = "png")]
+    format: FormatArg,
+    /// JPEG quality, with --format jpeg
+    #[arg(long, default_value_t = 95, value_parser = clap::value_parser!(u8).range(1..=100))]
+    jpeg_quality: u8,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, clap::ValueEnum)]
+enum FormatArg {
+    Png,
+    Jpeg,
 }
 
 /// `9x6` → (9, 6).
@@ -108,6 +121,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         board_rows: a.board.1,
         square_mm: a.square_mm,
         exposure_drift: a.exposure_drift,
+        format: match a.format {
+            FormatArg::Png => ImageFormat::Png,
+            FormatArg::Jpeg => ImageFormat::Jpeg {
+                quality: a.jpeg_quality,
+            },
+        },
         ..CaptureConfig::default()
     };
     let bar = ProgressBar::new(0).with_style(

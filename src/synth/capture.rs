@@ -5,7 +5,8 @@
 //! # Layout of `handcap synth --out DIR`
 //!
 //! - `calib/left_NN.png`, `calib/right_NN.png`: the chessboard pairs (NN from 00), and
-//!   `calib/left_ref.png`, `calib/right_ref.png`: the reference pair, the board fixed at the
+//!   `calib/left_ref.png`, `calib/right_ref.png`: the reference pair (`.jpg` instead of `.png`
+//!   everywhere with the JPEG format), the board fixed at the
 //!   finger's base (see below). `calib/board.yml`: `inner_corners_cols`, `inner_corners_rows`,
 //!   `square_mm`.
 //! - `frames/left_NNNNN.png`, `frames/right_NNNNN.png` (each camera numbers its own frames) and
@@ -49,7 +50,7 @@ use serde::Serialize;
 
 use super::camera::{Camera, Rig, RigConfig};
 use super::plant::{Plant, Pressures};
-use super::render::{self, Board, Finger, Lighting, View};
+use super::render::{Board, Finger, ImageFormat, Lighting, View};
 use super::{protocol, SynthConfig, SynthError};
 use crate::fsio;
 use crate::opencv_yaml::FileStorage;
@@ -71,6 +72,7 @@ pub struct CaptureConfig {
     pub settle_tau_s: f64,
     /// Relative amplitude of a slow exposure drift (0 = locked exposure).
     pub exposure_drift: f64,
+    pub format: ImageFormat,
 }
 
 impl Default for CaptureConfig {
@@ -86,6 +88,7 @@ impl Default for CaptureConfig {
             fps: 30.0,
             settle_tau_s: 0.02,
             exposure_drift: 0.0,
+            format: ImageFormat::Png,
         }
     }
 }
@@ -230,6 +233,7 @@ pub fn write_capture(
     let truth_rows = truth_frames(&rig, &plant, config, &steps, &frames)?;
     write_text(&dir.join("truth/frames.csv"), &truth_rows)?;
 
+    let ext = config.format.extension();
     let total = shots.len();
     let done = std::sync::atomic::AtomicUsize::new(0);
     let written: Vec<Result<bool, SynthError>> = shots
@@ -246,7 +250,7 @@ pub fn write_capture(
                     board,
                 } => {
                     let view = &views[*camera as usize];
-                    let path = dir.join(format!("calib/{}_{name}.png", camera.name()));
+                    let path = dir.join(format!("calib/{}_{name}.{ext}", camera.name()));
                     (*camera, path, view.board(all_boards[*board]), 0.0)
                 }
                 Shot::Frame {
@@ -258,7 +262,7 @@ pub fn write_capture(
                     let view = &views[*camera as usize];
                     let line = plant.centre_line(*pressures)?;
                     let finger = Finger::from_centre_line(&line, 4);
-                    let path = dir.join(format!("frames/{}_{index:05}.png", camera.name()));
+                    let path = dir.join(format!("frames/{}_{index:05}.{ext}", camera.name()));
                     (*camera, path, view.finger(&finger), *exposure_s)
                 }
             };
@@ -267,8 +271,8 @@ pub fn write_capture(
                     * (2.0 * std::f64::consts::PI * time / 20.0 + side as u8 as f64).sin();
             let (w, h) = (canvas.width as u32, canvas.height as u32);
             let rgb = canvas.develop(gain, synth.seed, id as u64);
-            let png = render::encode_png(w, h, &rgb);
-            fsio::write_bytes(&path, &png).map_err(io_err(&path))?;
+            let bytes = config.format.encode(w, h, &rgb);
+            fsio::write_bytes(&path, &bytes).map_err(io_err(&path))?;
             let n = done.fetch_add(1, Ordering::SeqCst) + 1;
             progress(n, total);
             Ok(true)

@@ -1,8 +1,9 @@
-//! The virtual micro-hand and its measurement protocol: ground-truth datasets with no hardware.
+//! The virtual micro-hand and its measurement protocol: ground-truth data with no hardware.
 //!
 //! [`plant`] maps pressures to the tip; this module drives it through the paper's protocol —
 //! a training grid on all three muscles and the two test sweeps of Figures 9-14 — and adds
-//! seeded measurement noise.
+//! seeded measurement noise. [`capture`] films the same protocol with the virtual stereo rig of
+//! [`camera`], rendered by [`render`].
 //!
 //! Output of `handcap synth --out DIR --no-images` (all CSV with columns
 //! `P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm`, hand frame):

@@ -5,7 +5,7 @@
 //! Each sample's ray comes from inverting the lens distortion exactly (Newton, see
 //! [`Camera::undistort`]) at the pixel corners and interpolating bilinearly inside the pixel —
 //! the distortion is so smooth that this differs from inverting at every sample by under
-//! 10⁻⁶ px (a test checks it). Then, in order: mild defocus (a Gaussian of σ = 0.7 px), the
+//! 2·10⁻⁴ px (a test checks it). Then, in order: mild defocus (a Gaussian of σ = 0.7 px), the
 //! exposure gain, sensor noise (read noise 0.4 DN plus shot noise, σ² = 0.4² + 0.004·I, drawn
 //! from a counter-based hash of the seed, the image and the pixel, so parallel rendering is
 //! deterministic), and rounding to 8 bits.
@@ -67,18 +67,28 @@ impl Canvas {
         }
         let key = splitmix(seed ^ splitmix(image));
         let gain = gain as f32;
+        // Noise standard deviation by intensity level.
+        let sd: Vec<f32> = (0..256)
+            .map(|level| (READ_NOISE_DN * READ_NOISE_DN + SHOT_NOISE_DN * level as f32).sqrt())
+            .collect();
         let mut out = vec![0u8; self.rgb.len()];
         out.par_chunks_mut(3 * w)
             .zip(self.rgb.par_chunks(3 * w))
             .enumerate()
             .for_each(|(row, (out, values))| {
-                let base = (row * 3 * w) as u64;
-                for (i, (o, &v)) in out.iter_mut().zip(values).enumerate() {
-                    let signal = v * gain;
-                    let sd =
-                        (READ_NOISE_DN * READ_NOISE_DN + SHOT_NOISE_DN * signal.max(0.0)).sqrt();
-                    let noisy = signal + sd * gaussian(key, base + i as u64);
-                    *o = (noisy.clamp(0.0, 255.0) + 0.5) as u8;
+                let first = (row * w) as u64;
+                for (x, (o, v)) in out
+                    .chunks_exact_mut(3)
+                    .zip(values.chunks_exact(3))
+                    .enumerate()
+                {
+                    let noise = pixel_noise(key, first + x as u64);
+                    for c in 0..3 {
+                        let signal = v[c] * gain;
+                        let level = signal.clamp(0.0, 255.0) as usize;
+                        let noisy = signal + sd[level] * noise[c];
+                        o[c] = (noisy.clamp(0.0, 255.0) + 0.5) as u8;
+                    }
                 }
             });
         out
@@ -240,45 +250,65 @@ impl View {
     /// A chessboard over the background.
     pub fn board(&self, board: &Board) -> Canvas {
         let mut canvas = self.backdrop();
-        let w = self.width();
-        canvas.detail = Some((0, 0, w - 1, self.height() - 1));
-        let normal = board.rotation * Vector3::z();
-        let origin = board.origin;
+        let (w, h) = (self.width(), self.height());
+        canvas.detail = Some((0, 0, w - 1, h - 1));
+        // The board in camera coordinates: a ray (x, y, 1) meets its plane at t = n·o / n·ray.
+        let to_cam = self.camera.pose.rotation * board.rotation;
+        let origin = self.camera.pose.apply(&board.origin).coords;
+        let normal = to_cam * Vector3::z();
+        let reach = normal.dot(&origin);
+        let cell_of = |[x, y]: [f64; 2]| -> Option<(i64, i64)> {
+            let ray = Vector3::new(x, y, 1.0);
+            let t = reach / normal.dot(&ray);
+            if !(t > 0.0 && t.is_finite()) {
+                return None;
+            }
+            let local = to_cam.inverse() * (ray * t - origin);
+            Some(board.cell(local.x, local.y))
+        };
+        // The cell under every pixel corner. A pixel whose four corners share a cell lies
+        // inside it (cells are convex), so only pixels on an edge need their samples.
+        let corners: Vec<Option<(i64, i64)>> =
+            self.corners.par_iter().map(|&c| cell_of(c)).collect();
         canvas
             .rgb
             .par_chunks_mut(3 * w)
             .enumerate()
             .for_each(|(j, row)| {
+                let at = |i: usize, dj: usize| corners[(j + dj) * (w + 1) + i];
                 for i in 0..w {
-                    let mut sum = [0.0; 3];
-                    let mut hits = 0;
-                    for_samples(|a, b| {
-                        let d = self.ray(i, j, a, b);
-                        let denom = normal.dot(&d);
-                        if denom.abs() < 1e-12 {
-                            return;
+                    let cell = at(i, 0);
+                    let uniform = cell == at(i + 1, 0) && cell == at(i, 1) && cell == at(i + 1, 1);
+                    let (albedo, share) = if uniform {
+                        match cell.and_then(|c| board.albedo(c)) {
+                            Some(albedo) => (albedo, 1.0),
+                            None => continue,
                         }
-                        let t = normal.dot(&(origin - self.eye)) / denom;
-                        if t <= 0.0 {
-                            return;
-                        }
-                        let local = board.rotation.inverse() * (self.eye + d * t - origin);
-                        if let Some(albedo) = board.albedo(local.x, local.y) {
-                            for k in 0..3 {
-                                sum[k] += albedo[k];
+                    } else {
+                        let mut sum = [0.0; 3];
+                        let mut hits = 0;
+                        for_samples(|a, b| {
+                            if let Some(albedo) =
+                                cell_of(self.sample(i, j, a, b)).and_then(|c| board.albedo(c))
+                            {
+                                for k in 0..3 {
+                                    sum[k] += albedo[k];
+                                }
+                                hits += 1;
                             }
-                            hits += 1;
+                        });
+                        if hits == 0 {
+                            continue;
                         }
-                    });
-                    if hits == 0 {
-                        continue;
-                    }
+                        (
+                            sum.map(|v| v / hits as f64),
+                            hits as f64 / (SUPERSAMPLING * SUPERSAMPLING) as f64,
+                        )
+                    };
                     let light = f64::from(self.light[j * w + i]);
-                    let share = hits as f64 / (SUPERSAMPLING * SUPERSAMPLING) as f64;
                     for k in 0..3 {
-                        let paper = sum[k] / hits as f64 * light;
                         let px = &mut row[3 * i + k];
-                        *px = (share * paper + (1.0 - share) * f64::from(*px)) as f32;
+                        *px = (share * albedo[k] * light + (1.0 - share) * f64::from(*px)) as f32;
                     }
                 }
             });
@@ -334,12 +364,25 @@ impl View {
                 let mut pieces = Vec::with_capacity(in_row.len());
                 for i in x0..=x1 {
                     let (left, right) = (i as f64 - 0.5, i as f64 + 0.5);
+                    // A piece can be hit inside this pixel only if the pixel's centre ray
+                    // passes within its radius plus the pixel's half-diagonal at that depth.
+                    let centre = self.ray(i, j, 0.5, 0.5);
+                    let near = |k: usize| {
+                        let (a, b, r) = if k == bead {
+                            (finger.tip, finger.tip, BEAD_RADIUS_MM)
+                        } else {
+                            (finger.axis[k], finger.axis[k + 1], FINGER_RADIUS_MM)
+                        };
+                        let (gap, depth) = ray_segment_gap(&self.eye, &centre, &a, &b);
+                        gap <= r + 1.2 * depth.max(0.0) / self.camera.fx
+                    };
                     pieces.clear();
                     pieces.extend(
                         in_row
                             .iter()
                             .filter(|(_, b)| b[0] <= right && b[2] >= left)
-                            .map(|&(k, _)| k),
+                            .map(|&(k, _)| k)
+                            .filter(|&k| near(k)),
                     );
                     if pieces.is_empty() {
                         continue;
@@ -399,6 +442,40 @@ impl View {
     }
 }
 
+/// How images are stored.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ImageFormat {
+    /// Lossless (the default).
+    Png,
+    /// Baseline JPEG at a quality of 1-100, as webcams stream MJPEG.
+    Jpeg { quality: u8 },
+}
+
+impl ImageFormat {
+    /// File extension, without the dot.
+    pub fn extension(self) -> &'static str {
+        match self {
+            ImageFormat::Png => "png",
+            ImageFormat::Jpeg { .. } => "jpg",
+        }
+    }
+
+    /// Encodes an 8-bit RGB image.
+    pub fn encode(self, width: u32, height: u32, rgb: &[u8]) -> Vec<u8> {
+        match self {
+            ImageFormat::Png => encode_png(width, height, rgb),
+            ImageFormat::Jpeg { quality } => {
+                let mut out = Vec::new();
+                image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, quality.clamp(1, 100))
+                    .encode(rgb, width, height, image::ColorType::Rgb8)
+                    .expect("in-memory JPEG of the stated size");
+                out
+            }
+        }
+    }
+}
+
 /// PNG bytes of an 8-bit RGB image (fast deflate, Paeth filter: noisy images gain little from
 /// harder compression).
 pub fn encode_png(width: u32, height: u32, rgb: &[u8]) -> Vec<u8> {
@@ -442,20 +519,26 @@ pub struct Board {
 }
 
 impl Board {
-    /// Albedo at board coordinates (mm); `None` off the paper.
-    fn albedo(&self, x: f64, y: f64) -> Option<[f64; 3]> {
+    /// The square-sized cell holding board coordinates (mm): cell (0, 0) has the first inner
+    /// corner at its top-left. Squares, margin and paper edge all follow cell boundaries.
+    fn cell(&self, x: f64, y: f64) -> (i64, i64) {
         let s = self.square_mm;
-        let (fx, fy) = ((x / s).floor(), (y / s).floor());
-        let inside = |f: f64, n: usize| f >= -2.0 && f < n as f64 + 1.0;
-        if !inside(fx, self.cols) || !inside(fy, self.rows) {
+        ((x / s).floor() as i64, (y / s).floor() as i64)
+    }
+
+    /// Albedo of a cell; `None` off the paper. The squares span cells −1 … n − 1 (n inner
+    /// corners), the one-square white margin around them is paper too.
+    fn albedo(&self, (cx, cy): (i64, i64)) -> Option<[f64; 3]> {
+        let (cols, rows) = (self.cols as i64, self.rows as i64);
+        if !(-2..=cols).contains(&cx) || !(-2..=rows).contains(&cy) {
             return None;
         }
-        let on_squares = |f: f64, n: usize| f >= -1.0 && f < n as f64;
-        if on_squares(fx, self.cols) && on_squares(fy, self.rows) && (fx + fy) as i64 % 2 == 0 {
-            Some(INK)
+        let on_squares = (-1..cols).contains(&cx) && (-1..rows).contains(&cy);
+        Some(if on_squares && (cx + cy).rem_euclid(2) == 0 {
+            INK
         } else {
-            Some(PAPER)
-        }
+            PAPER
+        })
     }
 
     /// World positions of the inner corners, row by row (OpenCV's object point order).
@@ -543,6 +626,30 @@ impl Finger {
     }
 }
 
+/// Distance between the ray from `o` along unit `d` and the segment a-b, and how far along the
+/// ray the closest approach lies.
+fn ray_segment_gap(
+    o: &Point3<f64>,
+    d: &Vector3<f64>,
+    a: &Point3<f64>,
+    b: &Point3<f64>,
+) -> (f64, f64) {
+    let u = b - a;
+    let w = a - o;
+    let uu = u.norm_squared();
+    let ud = u.dot(d);
+    let denom = uu - ud * ud;
+    // Parameter along the segment of the closest approach to the ray's line, clamped.
+    let s = if uu < 1e-18 || denom.abs() < 1e-12 {
+        0.0
+    } else {
+        ((ud * w.dot(d) - w.dot(&u)) / denom).clamp(0.0, 1.0)
+    };
+    let p = a + u * s;
+    let t = (p - o).dot(d);
+    ((o + d * t - p).norm(), t)
+}
+
 /// Nearest positive hit of a ray (unit `d`) with a sphere.
 fn sphere(o: &Point3<f64>, d: &Vector3<f64>, c: &Point3<f64>, r: f64) -> Option<f64> {
     let oc = o - c;
@@ -602,15 +709,16 @@ fn uniform(key: u64, k: u64) -> f64 {
     (splitmix(key ^ splitmix(k)) >> 11) as f64 / (1u64 << 53) as f64
 }
 
-/// An approximately standard normal number from a key and a counter: the sum of four uniforms
-/// of 16 bits each from one SplitMix64 output, centred and scaled (Irwin-Hall; tails cut at
-/// ±3.5σ).
-fn gaussian(key: u64, k: u64) -> f32 {
+/// Three approximately standard normal numbers (one per colour channel) for pixel `k`: from
+/// one SplitMix64 output, each the sum of four 5-bit uniforms, centred and scaled (Irwin-Hall;
+/// 125 levels, tails cut at ±3.4σ — finer than the 8-bit output it perturbs).
+fn pixel_noise(key: u64, k: u64) -> [f32; 3] {
     let bits = splitmix(key.wrapping_add(k.wrapping_mul(0x9e37_79b9_7f4a_7c15)));
-    let sum = (0..4)
-        .map(|i| ((bits >> (16 * i)) & 0xffff) as u32)
-        .sum::<u32>();
-    (sum as f32 / 65536.0 - 2.0) * 3f32.sqrt()
+    // Sum of four uniforms on 0..=31: mean 62, variance 4 · (32² − 1)/12 = 341.
+    std::array::from_fn(|c| {
+        let sum: u64 = (0..4).map(|m| (bits >> (20 * c + 5 * m)) & 31).sum();
+        (sum as f32 - 62.0) / 341f32.sqrt()
+    })
 }
 
 #[cfg(test)]
@@ -630,17 +738,51 @@ mod tests {
                 worst = worst.max((x - ex).abs().max((y - ey).abs()) * rig.left.fx);
             }
         }
-        assert!(worst < 1e-6, "interpolation error {worst} px");
+        assert!(worst < 2e-4, "interpolation error {worst} px");
     }
 
     #[test]
     fn noise_has_the_stated_spread_and_is_keyed() {
-        let n: Vec<f64> = (0..20000).map(|k| f64::from(gaussian(42, k))).collect();
-        let mean = n.iter().sum::<f64>() / n.len() as f64;
-        let sd = (n.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n.len() as f64).sqrt();
-        assert!(mean.abs() < 0.03 && (sd - 1.0).abs() < 0.03, "{mean} {sd}");
-        assert_eq!(gaussian(42, 7), gaussian(42, 7));
-        assert_ne!(gaussian(42, 7), gaussian(43, 7));
+        for c in 0..3 {
+            let n: Vec<f64> = (0..20000)
+                .map(|k| f64::from(pixel_noise(42, k)[c]))
+                .collect();
+            let mean = n.iter().sum::<f64>() / n.len() as f64;
+            let sd = (n.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n.len() as f64).sqrt();
+            assert!(mean.abs() < 0.03 && (sd - 1.0).abs() < 0.03, "{mean} {sd}");
+        }
+        // Channels are independent of each other.
+        let corr: f64 = (0..20000)
+            .map(|k| {
+                let n = pixel_noise(9, k);
+                f64::from(n[0]) * f64::from(n[1])
+            })
+            .sum::<f64>()
+            / 20000.0;
+        assert!(corr.abs() < 0.03, "{corr}");
+        assert_eq!(pixel_noise(42, 7), pixel_noise(42, 7));
+        assert_ne!(pixel_noise(42, 7), pixel_noise(43, 7));
+    }
+
+    #[test]
+    fn ray_segment_gap_is_the_closest_distance() {
+        let o = Point3::origin();
+        let d = Vector3::z();
+        let (gap, t) = ray_segment_gap(
+            &o,
+            &d,
+            &Point3::new(2.0, -1.0, 5.0),
+            &Point3::new(2.0, 1.0, 5.0),
+        );
+        assert!((gap - 2.0).abs() < 1e-12 && (t - 5.0).abs() < 1e-12);
+        // The closest segment point is an end.
+        let (gap, _) = ray_segment_gap(
+            &o,
+            &d,
+            &Point3::new(1.0, 1.0, 3.0),
+            &Point3::new(4.0, 4.0, 3.0),
+        );
+        assert!((gap - 2f64.sqrt()).abs() < 1e-12);
     }
 
     #[test]
