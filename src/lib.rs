@@ -18,6 +18,7 @@
 //! - Every random choice takes an explicit seed, and the same command writes the same bytes.
 //! - Files are written atomically (temporary file, then rename) and never over an input.
 
+pub mod calib;
 pub mod data;
 pub mod fsio;
 pub mod hand;

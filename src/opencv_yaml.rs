@@ -30,6 +30,11 @@ pub fn real(v: f64) -> String {
     }
 }
 
+/// A double-quoted YAML string.
+fn quote(v: &str) -> String {
+    format!("\"{}\"", v.replace('\\', "\\\\").replace('"', "\\\""))
+}
+
 impl FileStorage {
     pub fn new() -> Self {
         FileStorage::default()
@@ -46,14 +51,20 @@ impl FileStorage {
     }
 
     pub fn string(&mut self, key: &str, v: &str) -> &mut Self {
-        let escaped = v.replace('\\', "\\\\").replace('"', "\\\"");
-        let _ = writeln!(self.text, "{key}: \"{escaped}\"");
+        let _ = writeln!(self.text, "{key}: {}", quote(v));
         self
     }
 
     /// A flow sequence of integers, e.g. `image_size: [ 1280, 720 ]`.
     pub fn ints(&mut self, key: &str, v: &[i64]) -> &mut Self {
         let items: Vec<String> = v.iter().map(i64::to_string).collect();
+        let _ = writeln!(self.text, "{key}: [ {} ]", items.join(", "));
+        self
+    }
+
+    /// A flow sequence of strings.
+    pub fn strings(&mut self, key: &str, v: &[String]) -> &mut Self {
+        let items: Vec<String> = v.iter().map(|x| quote(x)).collect();
         let _ = writeln!(self.text, "{key}: [ {} ]", items.join(", "));
         self
     }

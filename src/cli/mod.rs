@@ -1,6 +1,7 @@
 //! Command-line front end: one file per subcommand turns arguments into a library call and
 //! prints the result. Nothing below this module prints.
 
+mod calibrate;
 mod demo;
 mod model;
 mod predict;
@@ -24,6 +25,8 @@ pub struct Cli {
 enum Command {
     /// Virtual micro-hand and stereo rig → images, pressure log, datasets, ground truth
     Synth(synth::Args),
+    /// Stereo calibration from chessboard image pairs → OpenCV YAML
+    Calibrate(calibrate::Args),
     /// Fit MSVR to a CSV dataset, report held-out errors, write the model file
     Model(model::Args),
     /// Predict outputs of a fitted model for the inputs in a CSV file
@@ -36,6 +39,7 @@ enum Command {
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Synth(a) => synth::run(a),
+        Command::Calibrate(a) => calibrate::run(a),
         Command::Model(a) => model::run(a),
         Command::Predict(a) => predict::run(a),
         Command::Demo(a) => demo::run(a),

@@ -1,0 +1,881 @@
+//! Stereo calibration of two webcams from chessboard pairs, with the quality checks good tools
+//! give. OpenCV does the work (detection, per-camera and stereo calibration, rectification);
+//! this module chooses, checks and reports.
+//!
+//! # Steps
+//!
+//! 1. Pairs: `left*`/`right*` files with the same suffix ([`pairs`]); `*_ref` is the reference
+//!    pair (the board at the finger's base).
+//! 2. Corners in every image, in parallel ([`detect`]): the sector-based detector; if it finds
+//!    fewer usable pairs than needed, the classic one for every image instead (never mixed).
+//! 3. Left/right corner order: a board seen by both cameras must run the same way in both
+//!    images (first → last corner, and along the first row); a right image whose corners run
+//!    the other way (the 180° ambiguity of the detector) has them reversed, and the pair says
+//!    so; a pair that still disagrees is rejected.
+//! 4. Each camera alone (`calibrate_camera`, 5 distortion coefficients), then both together
+//!    (`stereo_calibrate_extended`, starting from those intrinsics, per-pair errors).
+//! 5. Outliers: while the worst pair's error exceeds both `reject_factor` × the median and
+//!    `reject_floor_px`, it is dropped and the rig recalibrated, keeping at least `min_pairs`.
+//! 6. Quality: RMS, mean epipolar distance of the corners (undistorted, both directions),
+//!    coverage of the image by corners (share of an 8 × 6 grid of cells), the boards
+//!    triangulated back (neighbouring-corner distance in squares, out-of-plane RMS), and
+//!    rectification (`stereo_rectify`, zero disparity, α = 0).
+//! 7. The hand frame's axes from the reference pair, when there is one: the board's pose in the
+//!    left camera (`solve_pnp`), read with the board's x along hand x, its y along hand −z (down
+//!    the finger) and its z along hand +y. The corners are taken in the order that makes the
+//!    board's x axis point to the image's right. `R_hand` maps left-camera coordinates to the
+//!    hand frame's axes; the origin (the tip at zero pressure) is found later, by
+//!    `triangulate`.
+
+pub mod detect;
+pub mod pairs;
+
+use std::path::{Path, PathBuf};
+
+use nalgebra::{Matrix3, Vector3};
+use opencv::calib3d;
+use opencv::core::{self, Mat, Point2f, Point3f, Size, TermCriteria, Vector};
+use opencv::prelude::*;
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::opencv_yaml::FileStorage;
+use crate::provenance::Provenance;
+use detect::Detector;
+use pairs::ImagePair;
+
+/// Errors of calibrating.
+#[derive(Debug, thiserror::Error)]
+pub enum CalibError {
+    #[error("cannot list {path}: {source}")]
+    List {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error(
+        "no left*/right* image pairs (PNG or JPEG) in {0}; name them left_00.png, right_00.png, …"
+    )]
+    NoPairs(PathBuf),
+    #[error("{0} is not an image OpenCV can read; remove it or replace it")]
+    NotAnImage(PathBuf),
+    #[error(
+        "{left} is {lw}×{lh} but {right} is {rw}×{rh}; both cameras must capture at the same size"
+    )]
+    SizeMismatch {
+        left: PathBuf,
+        right: PathBuf,
+        lw: i32,
+        lh: i32,
+        rw: i32,
+        rh: i32,
+    },
+    #[error("{0} is {1}×{2} but the other images are {3}×{4}; capture every pair at one size")]
+    SizeChange(PathBuf, i32, i32, i32, i32),
+    #[error("no {cols}x{rows} board (inner corners) found in any image of {dir}{hint}")]
+    BoardNotFound {
+        dir: PathBuf,
+        cols: usize,
+        rows: usize,
+        hint: String,
+    },
+    #[error("only {found} usable pairs, {needed} needed: {reasons}")]
+    TooFewPairs {
+        found: usize,
+        needed: usize,
+        reasons: String,
+    },
+    #[error("board: {0}")]
+    BadBoard(String),
+    #[error("OpenCV: {0}")]
+    OpenCv(#[from] opencv::Error),
+}
+
+/// The printed board: inner corners along a row and down a column, square size.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct BoardSpec {
+    pub cols: usize,
+    pub rows: usize,
+    pub square_mm: f64,
+}
+
+impl BoardSpec {
+    /// # Errors
+    /// [`CalibError::BadBoard`] for fewer than 3 corners a side, equal sides (ambiguous
+    /// orientation) or a square size that is not a positive number.
+    pub fn check(&self) -> Result<(), CalibError> {
+        if self.cols < 3 || self.rows < 3 {
+            return Err(CalibError::BadBoard(format!(
+                "{}x{} inner corners: at least 3 along each side",
+                self.cols, self.rows
+            )));
+        }
+        if self.cols == self.rows {
+            return Err(CalibError::BadBoard(format!(
+                "{}x{}: a square board has no orientation; use one with different counts",
+                self.cols, self.rows
+            )));
+        }
+        if !(self.square_mm.is_finite() && self.square_mm > 0.0) {
+            return Err(CalibError::BadBoard(format!(
+                "square size {} mm: give the printed square's side in mm",
+                self.square_mm
+            )));
+        }
+        Ok(())
+    }
+
+    /// Object points of the inner corners (mm), row by row.
+    fn object_points(&self) -> Vector<Point3f> {
+        let s = self.square_mm as f32;
+        (0..self.rows)
+            .flat_map(|j| {
+                (0..self.cols).map(move |i| Point3f::new(i as f32 * s, j as f32 * s, 0.0))
+            })
+            .collect()
+    }
+}
+
+/// How pairs are kept or rejected.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct CalibOptions {
+    /// Fewest pairs the calibration may keep.
+    pub min_pairs: usize,
+    /// A pair is an outlier when its error exceeds this × the median …
+    pub reject_factor: f64,
+    /// … and this many pixels.
+    pub reject_floor_px: f64,
+}
+
+impl Default for CalibOptions {
+    fn default() -> Self {
+        CalibOptions {
+            min_pairs: 6,
+            reject_factor: 3.0,
+            reject_floor_px: 0.25,
+        }
+    }
+}
+
+/// What happened to one pair.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct PairReport {
+    pub name: String,
+    /// Reprojection RMS in the final calibration (left, right), for used pairs.
+    pub rms_px: Option<[f64; 2]>,
+    /// Why it is not used, if it is not.
+    pub rejected: Option<String>,
+    /// Anything done to it (e.g. corners reversed).
+    pub note: Option<String>,
+}
+
+/// Triangulated boards against the printed square.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct BoardCheck {
+    /// Mean distance of neighbouring corners, in squares (1 is perfect).
+    pub neighbour_mean_squares: f64,
+    pub neighbour_sd_squares: f64,
+    /// RMS distance of the corners from each board's best plane (mm).
+    pub planarity_rms_mm: f64,
+}
+
+/// A stereo calibration and its quality.
+#[derive(Clone, Debug, Serialize)]
+pub struct StereoCalibration {
+    pub image_size: [i32; 2],
+    pub board: BoardSpec,
+    pub detector: Detector,
+    pub k1: [f64; 9],
+    pub d1: Vec<f64>,
+    pub k2: [f64; 9],
+    pub d2: Vec<f64>,
+    /// Left → right: p_right = R p_left + T (mm).
+    pub r: [f64; 9],
+    pub t: [f64; 3],
+    pub e: [f64; 9],
+    pub f: [f64; 9],
+    pub r1: [f64; 9],
+    pub r2: [f64; 9],
+    pub p1: [f64; 12],
+    pub p2: [f64; 12],
+    pub q: [f64; 16],
+    pub rms_px: f64,
+    pub epipolar_px: f64,
+    /// Share of an 8 × 6 grid of image cells holding corners (left, right).
+    pub coverage: [f64; 2],
+    pub board_check: BoardCheck,
+    pub pairs: Vec<PairReport>,
+    /// Left-camera → hand-frame rotation from the reference pair.
+    pub hand_axes: Option<[f64; 9]>,
+    pub hand_axes_note: String,
+}
+
+impl StereoCalibration {
+    pub fn used(&self) -> impl Iterator<Item = &PairReport> {
+        self.pairs.iter().filter(|p| p.rejected.is_none())
+    }
+
+    pub fn rejected(&self) -> impl Iterator<Item = &PairReport> {
+        self.pairs.iter().filter(|p| p.rejected.is_some())
+    }
+
+    /// The calibration as OpenCV FileStorage YAML (keys in the module docs of `cli::calibrate`).
+    pub fn to_yaml(&self, provenance: &Provenance) -> String {
+        let mut fs = FileStorage::new();
+        fs.ints(
+            "image_size",
+            &[self.image_size[0].into(), self.image_size[1].into()],
+        )
+        .matrix("K1", 3, 3, &self.k1)
+        .matrix("D1", 1, self.d1.len(), &self.d1)
+        .matrix("K2", 3, 3, &self.k2)
+        .matrix("D2", 1, self.d2.len(), &self.d2)
+        .matrix("R", 3, 3, &self.r)
+        .matrix("T", 3, 1, &self.t)
+        .matrix("E", 3, 3, &self.e)
+        .matrix("F", 3, 3, &self.f)
+        .matrix("R1", 3, 3, &self.r1)
+        .matrix("R2", 3, 3, &self.r2)
+        .matrix("P1", 3, 4, &self.p1)
+        .matrix("P2", 3, 4, &self.p2)
+        .matrix("Q", 4, 4, &self.q)
+        .real("rms_px", self.rms_px)
+        .real("epipolar_px", self.epipolar_px);
+        let used: Vec<&PairReport> = self.used().collect();
+        let per_view: Vec<f64> = used
+            .iter()
+            .flat_map(|p| p.rms_px.unwrap_or([f64::NAN; 2]))
+            .collect();
+        fs.matrix("per_view_rms_px", used.len(), 2, &per_view)
+            .strings(
+                "views_used",
+                &used.iter().map(|p| p.name.clone()).collect::<Vec<_>>(),
+            )
+            .strings(
+                "views_rejected",
+                &self.rejected().map(|p| p.name.clone()).collect::<Vec<_>>(),
+            )
+            .int("board_cols", self.board.cols as i64)
+            .int("board_rows", self.board.rows as i64)
+            .real("square_mm", self.board.square_mm)
+            .string("detector", self.detector.name())
+            .reals("coverage", &self.coverage)
+            .real(
+                "board_neighbour_squares",
+                self.board_check.neighbour_mean_squares,
+            )
+            .real("board_planarity_rms_mm", self.board_check.planarity_rms_mm);
+        if let Some(axes) = &self.hand_axes {
+            fs.matrix("R_hand", 3, 3, axes);
+        }
+        fs.string("hand_axes", &self.hand_axes_note)
+            .string("handcap_version", &provenance.handcap_version)
+            .string("command", &provenance.command.join(" "));
+        fs.text().to_string()
+    }
+}
+
+/// Corners of one image: its size and the corners if the board was found.
+type Found = ([i32; 2], Option<Vec<[f32; 2]>>);
+
+/// A pair in the calibration: its index among the reports, left and right corners.
+struct Usable {
+    report: usize,
+    left: Vec<[f32; 2]>,
+    right: Vec<[f32; 2]>,
+}
+
+/// Calibrates the rig from the pairs in `dir`; `progress(done, total)` counts images examined.
+///
+/// # Errors
+/// [`CalibError`] for every problem a user can fix, each naming the file.
+pub fn calibrate(
+    dir: &Path,
+    board: &BoardSpec,
+    options: &CalibOptions,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<StereoCalibration, CalibError> {
+    board.check()?;
+    let listing = pairs::list_pairs(dir).map_err(|source| CalibError::List {
+        path: dir.to_path_buf(),
+        source,
+    })?;
+    if listing.pairs.is_empty() {
+        return Err(CalibError::NoPairs(dir.to_path_buf()));
+    }
+    let all: Vec<&ImagePair> = listing
+        .pairs
+        .iter()
+        .chain(listing.reference.iter())
+        .collect();
+    let images: Vec<&Path> = all
+        .iter()
+        .flat_map(|p| [p.left.as_path(), p.right.as_path()])
+        .collect();
+    let grays = read_all(&images)?;
+
+    let done = std::sync::atomic::AtomicUsize::new(0);
+    let detect_all = |detector: Detector| -> Result<Vec<Found>, CalibError> {
+        grays
+            .par_iter()
+            .map(|gray| {
+                let size = gray.size()?;
+                let corners =
+                    detect::find_corners(gray, board.cols as i32, board.rows as i32, detector)?;
+                let n = done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1;
+                progress(n, grays.len());
+                Ok(([size.width, size.height], corners))
+            })
+            .collect()
+    };
+    let complete = |found: &[Found]| {
+        found[..2 * listing.pairs.len()]
+            .chunks(2)
+            .filter(|p| p[0].1.is_some() && p[1].1.is_some())
+            .count()
+    };
+    let mut detector = Detector::SectorBased;
+    let mut found = detect_all(detector)?;
+    if complete(&found) < options.min_pairs {
+        let classic = detect_all(Detector::Classic)?;
+        if complete(&classic) > complete(&found) {
+            detector = Detector::Classic;
+            found = classic;
+        }
+    }
+    if found.iter().all(|f| f.1.is_none()) {
+        return Err(CalibError::BoardNotFound {
+            dir: dir.to_path_buf(),
+            cols: board.cols,
+            rows: board.rows,
+            hint: suggest_board(&grays, board),
+        });
+    }
+    let size = check_sizes(&all, &found)?;
+
+    // Pairs with the board in both images, in a consistent corner order.
+    let mut reports = Vec::new();
+    let mut usable: Vec<Usable> = Vec::new();
+    for (k, pair) in listing.pairs.iter().enumerate() {
+        let mut report = PairReport {
+            name: pair.name.clone(),
+            rms_px: None,
+            rejected: None,
+            note: None,
+        };
+        match (&found[2 * k].1, &found[2 * k + 1].1) {
+            (Some(l), Some(r)) => match order_right_like_left(board, l, r) {
+                Some((right, reversed)) => {
+                    if reversed {
+                        report.note = Some("right corners reversed to match the left".into());
+                    }
+                    usable.push(Usable {
+                        report: reports.len(),
+                        left: l.clone(),
+                        right,
+                    });
+                }
+                None => {
+                    report.rejected = Some(
+                        "corners run differently in the left and right images (mirrored?)".into(),
+                    )
+                }
+            },
+            (None, None) => report.rejected = Some("board not found in either image".into()),
+            (None, _) => report.rejected = Some("board not found in the left image".into()),
+            (_, None) => report.rejected = Some("board not found in the right image".into()),
+        }
+        reports.push(report);
+    }
+    let needed = options.min_pairs.max(3);
+    if usable.len() < needed {
+        return Err(too_few(&reports, usable.len(), needed));
+    }
+
+    // Calibrate, dropping the worst outlier while there is one.
+    let mut rig;
+    loop {
+        rig = stereo(board, size, &usable)?;
+        let errors: Vec<f64> = rig.per_view.iter().map(|e| e[0].max(e[1])).collect();
+        let mut sorted = errors.clone();
+        sorted.sort_by(f64::total_cmp);
+        let median = sorted[sorted.len() / 2];
+        let (worst, &err) = errors
+            .iter()
+            .enumerate()
+            .max_by(|a, b| a.1.total_cmp(b.1))
+            .expect("pairs");
+        let limit = (options.reject_factor * median).max(options.reject_floor_px);
+        if err <= limit || usable.len() <= needed {
+            break;
+        }
+        let dropped = usable.remove(worst);
+        reports[dropped.report].rejected = Some(format!(
+            "outlier: error {err:.3} px > {:.1} × median {median:.3} px",
+            options.reject_factor
+        ));
+    }
+    for (u, e) in usable.iter().zip(&rig.per_view) {
+        reports[u.report].rms_px = Some(*e);
+    }
+
+    let left: Vec<&[[f32; 2]]> = usable.iter().map(|u| u.left.as_slice()).collect();
+    let right: Vec<&[[f32; 2]]> = usable.iter().map(|u| u.right.as_slice()).collect();
+    let epipolar_px = epipolar_error(&rig, &left, &right)?;
+    let board_check = board_check(board, &rig, &left, &right)?;
+    let coverage = [coverage(size, &left), coverage(size, &right)];
+    let (r1, r2, p1, p2, q) = rectify(&rig, size)?;
+
+    let (hand_axes, hand_axes_note) = match (&listing.reference, found.len() > 2 * listing.pairs.len()) {
+        (Some(reference), true) => match &found[2 * listing.pairs.len()].1 {
+            Some(corners) => (
+                Some(hand_axes(board, &rig, corners)?),
+                format!(
+                    "from the reference pair {}: board x = hand x, board y = hand -z, board z = hand +y",
+                    reference.left.display()
+                ),
+            ),
+            None => (
+                None,
+                format!("the board was not found in {}", reference.left.display()),
+            ),
+        },
+        _ => (None, "no reference pair (left_ref/right_ref)".into()),
+    };
+
+    Ok(StereoCalibration {
+        image_size: size,
+        board: *board,
+        detector,
+        k1: rig.k1,
+        d1: rig.d1,
+        k2: rig.k2,
+        d2: rig.d2,
+        r: rig.r,
+        t: rig.t,
+        e: rig.e,
+        f: rig.f,
+        r1,
+        r2,
+        p1,
+        p2,
+        q,
+        rms_px: rig.rms,
+        epipolar_px,
+        coverage,
+        board_check,
+        pairs: reports,
+        hand_axes,
+        hand_axes_note,
+    })
+}
+
+fn too_few(reports: &[PairReport], found: usize, needed: usize) -> CalibError {
+    let reasons: Vec<String> = reports
+        .iter()
+        .filter_map(|r| r.rejected.as_ref().map(|why| format!("{}: {why}", r.name)))
+        .collect();
+    CalibError::TooFewPairs {
+        found,
+        needed,
+        reasons: if reasons.is_empty() {
+            "capture more pairs".into()
+        } else {
+            format!("{}; capture more pairs", reasons.join("; "))
+        },
+    }
+}
+
+fn read_all(images: &[&Path]) -> Result<Vec<Mat>, CalibError> {
+    images.par_iter().map(|p| detect::read_gray(p)).collect()
+}
+
+/// One size for all images, and the same in each pair.
+fn check_sizes(all: &[&ImagePair], found: &[Found]) -> Result<[i32; 2], CalibError> {
+    let size = found[0].0;
+    for (k, pair) in all.iter().enumerate() {
+        let (l, r) = (found[2 * k].0, found[2 * k + 1].0);
+        if l != r {
+            return Err(CalibError::SizeMismatch {
+                left: pair.left.clone(),
+                right: pair.right.clone(),
+                lw: l[0],
+                lh: l[1],
+                rw: r[0],
+                rh: r[1],
+            });
+        }
+        if l != size {
+            return Err(CalibError::SizeChange(
+                pair.left.clone(),
+                l[0],
+                l[1],
+                size[0],
+                size[1],
+            ));
+        }
+    }
+    Ok(size)
+}
+
+/// Other board sizes that are found in the first few images, as a hint.
+fn suggest_board(grays: &[Mat], board: &BoardSpec) -> String {
+    let (c, r) = (board.cols as i32, board.rows as i32);
+    let candidates = [
+        (r, c),
+        (c - 1, r - 1),
+        (c + 1, r + 1),
+        (c - 1, r),
+        (c + 1, r),
+        (c, r - 1),
+        (c, r + 1),
+    ];
+    for (cols, rows) in candidates {
+        if cols < 3 || rows < 3 || cols == rows {
+            continue;
+        }
+        let works = grays.iter().take(4).any(|g| {
+            matches!(
+                detect::find_corners(g, cols, rows, Detector::SectorBased),
+                Ok(Some(_))
+            )
+        });
+        if works {
+            let why = if (cols, rows) == (r, c) {
+                "columns and rows swapped"
+            } else if (cols, rows) == (c - 1, r - 1) {
+                "squares counted instead of inner corners"
+            } else {
+                "a different count"
+            };
+            return format!("; a {cols}x{rows} board is found ({why}): pass --board {cols}x{rows}");
+        }
+    }
+    "; no nearby size (transposed, ±1) is found either: check the images show the whole board with a white border".into()
+}
+
+/// The right image's corners in the left image's order: as detected, or reversed when they
+/// run the other way (first → last corner and along the first row). `None` when neither order
+/// agrees.
+fn order_right_like_left(
+    board: &BoardSpec,
+    left: &[[f32; 2]],
+    right: &[[f32; 2]],
+) -> Option<(Vec<[f32; 2]>, bool)> {
+    let n = left.len();
+    let dir = |c: &[[f32; 2]], a: usize, b: usize| [c[b][0] - c[a][0], c[b][1] - c[a][1]];
+    let dot = |u: [f32; 2], v: [f32; 2]| u[0] * v[0] + u[1] * v[1];
+    let agrees = |r: &[[f32; 2]]| {
+        dot(dir(left, 0, n - 1), dir(r, 0, n - 1)) > 0.0
+            && dot(dir(left, 0, board.cols - 1), dir(r, 0, board.cols - 1)) > 0.0
+    };
+    if agrees(right) {
+        return Some((right.to_vec(), false));
+    }
+    let reversed: Vec<[f32; 2]> = right.iter().rev().copied().collect();
+    agrees(&reversed).then_some((reversed, true))
+}
+
+/// The OpenCV results of one stereo calibration.
+struct Rig {
+    k1: [f64; 9],
+    d1: Vec<f64>,
+    k2: [f64; 9],
+    d2: Vec<f64>,
+    r: [f64; 9],
+    t: [f64; 3],
+    e: [f64; 9],
+    f: [f64; 9],
+    rms: f64,
+    per_view: Vec<[f64; 2]>,
+}
+
+fn points(c: &[[f32; 2]]) -> Vector<Point2f> {
+    c.iter().map(|p| Point2f::new(p[0], p[1])).collect()
+}
+
+fn values(m: &Mat) -> Result<Vec<f64>, CalibError> {
+    let mut m64 = Mat::default();
+    m.convert_to(&mut m64, core::CV_64F, 1.0, 0.0)?;
+    // One channel, continuous, so the values read row-major (channels interleaved).
+    let flat = m64.try_clone()?.reshape(1, 0)?.try_clone()?;
+    Ok(flat.data_typed::<f64>()?.to_vec())
+}
+
+fn fixed<const N: usize>(m: &Mat) -> Result<[f64; N], CalibError> {
+    let v = values(m)?;
+    v.try_into().map_err(|v: Vec<f64>| {
+        CalibError::OpenCv(opencv::Error::new(
+            core::StsBadSize,
+            format!("expected {N} values, got {}", v.len()),
+        ))
+    })
+}
+
+fn mat(rows: i32, values: &[f64]) -> Result<Mat, CalibError> {
+    Ok(Mat::from_slice(values)?.reshape(1, rows)?.try_clone()?)
+}
+
+fn criteria() -> Result<TermCriteria, CalibError> {
+    Ok(TermCriteria::new(
+        core::TermCriteria_COUNT + core::TermCriteria_EPS,
+        100,
+        1e-9,
+    )?)
+}
+
+fn stereo(board: &BoardSpec, size: [i32; 2], usable: &[Usable]) -> Result<Rig, CalibError> {
+    let image_size = Size::new(size[0], size[1]);
+    let object: Vector<Vector<Point3f>> = usable.iter().map(|_| board.object_points()).collect();
+    let left: Vector<Vector<Point2f>> = usable.iter().map(|u| points(&u.left)).collect();
+    let right: Vector<Vector<Point2f>> = usable.iter().map(|u| points(&u.right)).collect();
+    let single = |image: &Vector<Vector<Point2f>>| -> Result<(Mat, Mat), CalibError> {
+        let (mut k, mut d) = (Mat::default(), Mat::default());
+        let (mut rv, mut tv) = (Vector::<Mat>::new(), Vector::<Mat>::new());
+        calib3d::calibrate_camera(
+            &object,
+            image,
+            image_size,
+            &mut k,
+            &mut d,
+            &mut rv,
+            &mut tv,
+            0,
+            criteria()?,
+        )?;
+        Ok((k, d))
+    };
+    let (mut k1, mut d1) = single(&left)?;
+    let (mut k2, mut d2) = single(&right)?;
+    let (mut r, mut t, mut e, mut f, mut per_view) = (
+        Mat::default(),
+        Mat::default(),
+        Mat::default(),
+        Mat::default(),
+        Mat::default(),
+    );
+    let rms = calib3d::stereo_calibrate_extended(
+        &object,
+        &left,
+        &right,
+        &mut k1,
+        &mut d1,
+        &mut k2,
+        &mut d2,
+        image_size,
+        &mut r,
+        &mut t,
+        &mut e,
+        &mut f,
+        &mut per_view,
+        calib3d::CALIB_USE_INTRINSIC_GUESS,
+        criteria()?,
+    )?;
+    let errors = values(&per_view)?;
+    Ok(Rig {
+        k1: fixed(&k1)?,
+        d1: values(&d1)?,
+        k2: fixed(&k2)?,
+        d2: values(&d2)?,
+        r: fixed(&r)?,
+        t: fixed(&t)?,
+        e: fixed(&e)?,
+        f: fixed(&f)?,
+        rms,
+        per_view: errors.chunks(2).map(|c| [c[0], c[1]]).collect(),
+    })
+}
+
+/// Corners undistorted to pixel coordinates of the same camera.
+fn undistorted(
+    c: &[[f32; 2]],
+    k: &[f64; 9],
+    d: &[f64],
+    to: Option<&[f64; 9]>,
+) -> Result<Vec<[f64; 2]>, CalibError> {
+    let k = mat(3, k)?;
+    let d = mat(1, d)?;
+    let mut out = Mat::default();
+    match to {
+        Some(p) => {
+            calib3d::undistort_points(&points(c), &mut out, &k, &d, &core::no_array(), &mat(3, p)?)?
+        }
+        None => calib3d::undistort_points(
+            &points(c),
+            &mut out,
+            &k,
+            &d,
+            &core::no_array(),
+            &core::no_array(),
+        )?,
+    }
+    let v = values(&out)?;
+    Ok(v.chunks(2).map(|p| [p[0], p[1]]).collect())
+}
+
+/// Mean distance (px) of each undistorted corner from the epipolar line of its partner, both
+/// ways.
+fn epipolar_error(
+    rig: &Rig,
+    left: &[&[[f32; 2]]],
+    right: &[&[[f32; 2]]],
+) -> Result<f64, CalibError> {
+    let f = Matrix3::from_row_slice(&rig.f);
+    let (mut sum, mut n) = (0.0, 0usize);
+    for (l, r) in left.iter().zip(right) {
+        let ul = undistorted(l, &rig.k1, &rig.d1, Some(&rig.k1))?;
+        let ur = undistorted(r, &rig.k2, &rig.d2, Some(&rig.k2))?;
+        for (a, b) in ul.iter().zip(&ur) {
+            let (pa, pb) = (Vector3::new(a[0], a[1], 1.0), Vector3::new(b[0], b[1], 1.0));
+            let line_r = f * pa;
+            let line_l = f.transpose() * pb;
+            sum += line_r.dot(&pb).abs() / line_r.x.hypot(line_r.y);
+            sum += line_l.dot(&pa).abs() / line_l.x.hypot(line_l.y);
+            n += 2;
+        }
+    }
+    Ok(sum / n as f64)
+}
+
+/// Share of an 8 × 6 grid of image cells that hold at least one corner.
+fn coverage(size: [i32; 2], views: &[&[[f32; 2]]]) -> f64 {
+    let mut cells = [[false; 8]; 6];
+    for c in views.iter().flat_map(|v| v.iter()) {
+        let i = ((c[0] / size[0] as f32) * 8.0).clamp(0.0, 7.0) as usize;
+        let j = ((c[1] / size[1] as f32) * 6.0).clamp(0.0, 5.0) as usize;
+        cells[j][i] = true;
+    }
+    cells.iter().flatten().filter(|&&c| c).count() as f64 / 48.0
+}
+
+/// Triangulates every used board and compares it with the printed one.
+fn board_check(
+    board: &BoardSpec,
+    rig: &Rig,
+    left: &[&[[f32; 2]]],
+    right: &[&[[f32; 2]]],
+) -> Result<BoardCheck, CalibError> {
+    let p1 = mat(
+        3,
+        &[1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0],
+    )?;
+    let r = &rig.r;
+    let t = &rig.t;
+    let p2 = mat(
+        3,
+        &[
+            r[0], r[1], r[2], t[0], r[3], r[4], r[5], t[1], r[6], r[7], r[8], t[2],
+        ],
+    )?;
+    let (mut steps, mut plane_sq, mut plane_n) = (Vec::new(), 0.0, 0usize);
+    for (l, rr) in left.iter().zip(right) {
+        let to_mat = |p: Vec<[f64; 2]>| -> Result<Mat, CalibError> {
+            let flat: Vec<f64> = p.iter().flat_map(|q| [q[0], q[1]]).collect();
+            let m = Mat::from_slice(&flat)?
+                .reshape(1, p.len() as i32)?
+                .t()?
+                .to_mat()?;
+            Ok(m)
+        };
+        let nl = to_mat(undistorted(l, &rig.k1, &rig.d1, None)?)?;
+        let nr = to_mat(undistorted(rr, &rig.k2, &rig.d2, None)?)?;
+        let mut x4 = Mat::default();
+        calib3d::triangulate_points(&p1, &p2, &nl, &nr, &mut x4)?;
+        let v = values(&x4)?;
+        let n = l.len();
+        let pts: Vec<Vector3<f64>> = (0..n)
+            .map(|k| Vector3::new(v[k], v[n + k], v[2 * n + k]) / v[3 * n + k])
+            .collect();
+        for j in 0..board.rows {
+            for i in 0..board.cols {
+                let k = j * board.cols + i;
+                if i + 1 < board.cols {
+                    steps.push((pts[k + 1] - pts[k]).norm() / board.square_mm);
+                }
+                if j + 1 < board.rows {
+                    steps.push((pts[k + board.cols] - pts[k]).norm() / board.square_mm);
+                }
+            }
+        }
+        let centre = pts.iter().sum::<Vector3<f64>>() / n as f64;
+        let mut cov = Matrix3::zeros();
+        for p in &pts {
+            let d = p - centre;
+            cov += d * d.transpose();
+        }
+        let eig = cov.symmetric_eigen();
+        plane_sq += eig.eigenvalues.min();
+        plane_n += n;
+    }
+    let mean = steps.iter().sum::<f64>() / steps.len() as f64;
+    let sd = (steps.iter().map(|s| (s - mean).powi(2)).sum::<f64>() / steps.len() as f64).sqrt();
+    Ok(BoardCheck {
+        neighbour_mean_squares: mean,
+        neighbour_sd_squares: sd,
+        planarity_rms_mm: (plane_sq.max(0.0) / plane_n as f64).sqrt(),
+    })
+}
+
+type Rectification = ([f64; 9], [f64; 9], [f64; 12], [f64; 12], [f64; 16]);
+
+fn rectify(rig: &Rig, size: [i32; 2]) -> Result<Rectification, CalibError> {
+    let (mut r1, mut r2, mut p1, mut p2, mut q) = (
+        Mat::default(),
+        Mat::default(),
+        Mat::default(),
+        Mat::default(),
+        Mat::default(),
+    );
+    calib3d::stereo_rectify(
+        &mat(3, &rig.k1)?,
+        &mat(1, &rig.d1)?,
+        &mat(3, &rig.k2)?,
+        &mat(1, &rig.d2)?,
+        Size::new(size[0], size[1]),
+        &mat(3, &rig.r)?,
+        &mat(3, &rig.t)?,
+        &mut r1,
+        &mut r2,
+        &mut p1,
+        &mut p2,
+        &mut q,
+        calib3d::CALIB_ZERO_DISPARITY,
+        0.0,
+        Size::new(size[0], size[1]),
+        None,
+        None,
+    )?;
+    Ok((
+        fixed(&r1)?,
+        fixed(&r2)?,
+        fixed(&p1)?,
+        fixed(&p2)?,
+        fixed(&q)?,
+    ))
+}
+
+/// Left-camera → hand-frame rotation from the reference board's corners in the left image.
+fn hand_axes(board: &BoardSpec, rig: &Rig, corners: &[[f32; 2]]) -> Result<[f64; 9], CalibError> {
+    // Corners in the order that makes the board's x axis point to the image's right.
+    let mut ordered = corners.to_vec();
+    if corners[board.cols - 1][0] < corners[0][0] {
+        ordered.reverse();
+    }
+    let (mut rvec, mut tvec) = (Mat::default(), Mat::default());
+    calib3d::solve_pnp(
+        &board.object_points(),
+        &points(&ordered),
+        &mat(3, &rig.k1)?,
+        &mat(1, &rig.d1)?,
+        &mut rvec,
+        &mut tvec,
+        false,
+        calib3d::SOLVEPNP_ITERATIVE,
+    )?;
+    let mut rot = Mat::default();
+    calib3d::rodrigues(&rvec, &mut rot, &mut core::no_array())?;
+    let left_from_board = Matrix3::from_row_slice(&fixed::<9>(&rot)?);
+    // Board axes in the hand frame: x → x, y → −z, z → +y.
+    let hand_from_board = Matrix3::new(1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, -1.0, 0.0);
+    let hand_from_left = hand_from_board * left_from_board.transpose();
+    Ok(std::array::from_fn(|k| hand_from_left[(k / 3, k % 3)]))
+}
