@@ -88,6 +88,10 @@ pub enum CalibError {
     BadBoard(String),
     #[error("OpenCV: {0}")]
     OpenCv(#[from] opencv::Error),
+    #[error(transparent)]
+    Figure(#[from] crate::report::figures::FigureError),
+    #[error("writing {path}: {message}")]
+    Write { path: PathBuf, message: String },
 }
 
 /// The printed board: inner corners along a row and down a column, square size.
@@ -160,6 +164,8 @@ impl Default for CalibOptions {
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct PairReport {
     pub name: String,
+    pub left: PathBuf,
+    pub right: PathBuf,
     /// Reprojection RMS in the final calibration (left, right), for used pairs.
     pub rms_px: Option<[f64; 2]>,
     /// Why it is not used, if it is not.
@@ -204,6 +210,8 @@ pub struct StereoCalibration {
     pub coverage: [f64; 2],
     pub board_check: BoardCheck,
     pub pairs: Vec<PairReport>,
+    /// Images without a partner, skipped.
+    pub unpaired: Vec<PathBuf>,
     /// Left-camera → hand-frame rotation from the reference pair.
     pub hand_axes: Option<[f64; 9]>,
     pub hand_axes_note: String,
@@ -272,6 +280,122 @@ impl StereoCalibration {
             .string("command", &provenance.command.join(" "));
         fs.text().to_string()
     }
+}
+
+impl StereoCalibration {
+    /// Writes `<stem>_pairs.png/.svg` (each used pair's left and right error, as bars) and
+    /// `<stem>_rectified.png` (the first used pair rectified side by side, with horizontal
+    /// lines: a point must lie on the same line in both halves). Returns the files written.
+    ///
+    /// # Errors
+    /// [`CalibError`] when an image cannot be read or a figure written.
+    pub fn write_figures(&self, stem: &Path) -> Result<Vec<PathBuf>, CalibError> {
+        use crate::report::figures::{self, LinePlot, Mark, Series};
+        let used: Vec<&PairReport> = self.used().collect();
+        let bars = |side: usize, label: &str, offset: f64| Series {
+            label: label.into(),
+            points: used
+                .iter()
+                .enumerate()
+                .map(|(k, p)| (k as f64, p.rms_px.map_or(f64::NAN, |e| e[side])))
+                .collect(),
+            mark: Mark::Bars {
+                offset,
+                width: 0.38,
+            },
+            colour: side,
+        };
+        let names: Vec<&str> = used.iter().map(|p| p.name.as_str()).collect();
+        let plot = LinePlot {
+            title: format!("Reprojection error per pair (RMS {:.3} px)", self.rms_px),
+            x_label: format!("pair: {}", names.join(" ")),
+            y_label: "RMS error (px)".into(),
+            series: vec![bars(0, "left", -0.2), bars(1, "right", 0.2)],
+            log_y: false,
+        };
+        let pairs_stem = stem.with_file_name(format!("{}_pairs", file_stem(stem)));
+        figures::write_line_plot(&pairs_stem, &plot)?;
+        let mut written = vec![
+            pairs_stem.with_extension("png"),
+            pairs_stem.with_extension("svg"),
+        ];
+        if let Some(first) = used.first() {
+            let path = stem.with_file_name(format!("{}_rectified.png", file_stem(stem)));
+            self.write_rectified(first, &path)?;
+            written.push(path);
+        }
+        Ok(written)
+    }
+
+    fn write_rectified(&self, pair: &PairReport, path: &Path) -> Result<(), CalibError> {
+        use opencv::{imgcodecs, imgproc};
+        let size = Size::new(self.image_size[0], self.image_size[1]);
+        let rectified = |image: &Path, k: &[f64; 9], d: &[f64], r: &[f64; 9], p: &[f64; 12]| {
+            let src = imgcodecs::imread(
+                image
+                    .to_str()
+                    .ok_or_else(|| CalibError::NotAnImage(image.to_path_buf()))?,
+                imgcodecs::IMREAD_COLOR,
+            )?;
+            let (mut m1, mut m2, mut out) = (Mat::default(), Mat::default(), Mat::default());
+            calib3d::init_undistort_rectify_map(
+                &mat(3, k)?,
+                &mat(1, d)?,
+                &mat(3, r)?,
+                &mat(3, p)?,
+                size,
+                core::CV_32FC1,
+                &mut m1,
+                &mut m2,
+            )?;
+            imgproc::remap(
+                &src,
+                &mut out,
+                &m1,
+                &m2,
+                imgproc::INTER_LINEAR,
+                core::BORDER_CONSTANT,
+                core::Scalar::default(),
+            )?;
+            Ok::<Mat, CalibError>(out)
+        };
+        let l = rectified(&pair.left, &self.k1, &self.d1, &self.r1, &self.p1)?;
+        let r = rectified(&pair.right, &self.k2, &self.d2, &self.r2, &self.p2)?;
+        let mut both = Mat::default();
+        let halves: Vector<Mat> = [l, r].into_iter().collect();
+        core::hconcat(&halves, &mut both)?;
+        for y in (20..size.height).step_by(40) {
+            imgproc::line(
+                &mut both,
+                core::Point::new(0, y),
+                core::Point::new(2 * size.width - 1, y),
+                core::Scalar::new(0.0, 200.0, 0.0, 0.0),
+                1,
+                imgproc::LINE_8,
+                0,
+            )?;
+        }
+        let write_err = |message: String| CalibError::Write {
+            path: path.to_path_buf(),
+            message,
+        };
+        let tmp = crate::fsio::temp_beside(path, ".png").map_err(|e| write_err(e.to_string()))?;
+        let tmp_name = tmp
+            .path()
+            .to_str()
+            .ok_or_else(|| write_err("path is not UTF-8".into()))?;
+        if !imgcodecs::imwrite(tmp_name, &both, &Vector::new())? {
+            return Err(write_err("OpenCV could not encode the PNG".into()));
+        }
+        tmp.persist(path)
+            .map_err(|e| write_err(e.error.to_string()))?;
+        Ok(())
+    }
+}
+
+fn file_stem(path: &Path) -> String {
+    path.file_stem()
+        .map_or_else(|| "calib".into(), |s| s.to_string_lossy().into_owned())
 }
 
 /// Corners of one image: its size and the corners if the board was found.
@@ -358,6 +482,8 @@ pub fn calibrate(
     for (k, pair) in listing.pairs.iter().enumerate() {
         let mut report = PairReport {
             name: pair.name.clone(),
+            left: pair.left.clone(),
+            right: pair.right.clone(),
             rms_px: None,
             rejected: None,
             note: None,
@@ -391,7 +517,13 @@ pub fn calibrate(
         return Err(too_few(&reports, usable.len(), needed));
     }
 
-    // Calibrate, dropping the worst outlier while there is one.
+    // Pairs that contradict the rig's geometry, then the worst outlier while there is one.
+    for (k, why) in inconsistent_pairs(board, size, &usable)?.into_iter().rev() {
+        if usable.len() > needed {
+            let dropped = usable.remove(k);
+            reports[dropped.report].rejected = Some(why);
+        }
+    }
     let mut rig;
     loop {
         rig = stereo(board, size, &usable)?;
@@ -464,6 +596,7 @@ pub fn calibrate(
         coverage,
         board_check,
         pairs: reports,
+        unpaired: listing.unpaired.clone(),
         hand_axes,
         hand_axes_note,
     })
@@ -623,29 +756,102 @@ fn criteria() -> Result<TermCriteria, CalibError> {
     )?)
 }
 
+/// A board pose: camera from board, rotation and translation (mm).
+type Pose = (Matrix3<f64>, Vector3<f64>);
+
+/// One camera calibrated alone: K, distortion, and each view's board pose.
+fn single_camera(
+    board: &BoardSpec,
+    size: [i32; 2],
+    image: &Vector<Vector<Point2f>>,
+) -> Result<(Mat, Mat, Vec<Pose>), CalibError> {
+    let object: Vector<Vector<Point3f>> = image.iter().map(|_| board.object_points()).collect();
+    let (mut k, mut d) = (Mat::default(), Mat::default());
+    let (mut rv, mut tv) = (Vector::<Mat>::new(), Vector::<Mat>::new());
+    calib3d::calibrate_camera(
+        &object,
+        image,
+        Size::new(size[0], size[1]),
+        &mut k,
+        &mut d,
+        &mut rv,
+        &mut tv,
+        0,
+        criteria()?,
+    )?;
+    let poses = rv
+        .iter()
+        .zip(tv.iter())
+        .map(|(r, t)| {
+            let mut m = Mat::default();
+            calib3d::rodrigues(&r, &mut m, &mut core::no_array())?;
+            Ok((
+                Matrix3::from_row_slice(&fixed::<9>(&m)?),
+                Vector3::from_row_slice(&fixed::<3>(&t)?),
+            ))
+        })
+        .collect::<Result<Vec<_>, CalibError>>()?;
+    Ok((k, d, poses))
+}
+
+/// Pairs whose own left → right pose disagrees with the others' (median): more than 2° of
+/// rotation or 10 % of the baseline away. Such a pair (a wrong partner image, a camera that
+/// moved) would pull the joint calibration everywhere, so it goes first.
+fn inconsistent_pairs(
+    board: &BoardSpec,
+    size: [i32; 2],
+    usable: &[Usable],
+) -> Result<Vec<(usize, String)>, CalibError> {
+    let left: Vector<Vector<Point2f>> = usable.iter().map(|u| points(&u.left)).collect();
+    let right: Vector<Vector<Point2f>> = usable.iter().map(|u| points(&u.right)).collect();
+    let (_, _, pl) = single_camera(board, size, &left)?;
+    let (_, _, pr) = single_camera(board, size, &right)?;
+    let relative: Vec<Pose> = pl
+        .iter()
+        .zip(&pr)
+        .map(|((rl, tl), (rr, tr))| {
+            let r = rr * rl.transpose();
+            (r, tr - r * tl)
+        })
+        .collect();
+    let median = |k: usize| {
+        let mut v: Vec<f64> = relative.iter().map(|(_, t)| t[k]).collect();
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let t_med = Vector3::new(median(0), median(1), median(2));
+    // The reference rotation: the pair whose translation is nearest the median.
+    let reference = relative
+        .iter()
+        .min_by(|a, b| (a.1 - t_med).norm().total_cmp(&(b.1 - t_med).norm()))
+        .map(|(r, _)| *r)
+        .expect("pairs");
+    let mut out = Vec::new();
+    for (k, (r, t)) in relative.iter().enumerate() {
+        let angle = nalgebra::Rotation3::from_matrix_unchecked(r * reference.transpose())
+            .angle()
+            .to_degrees();
+        let off = (t - t_med).norm() / t_med.norm();
+        if angle > 2.0 || off > 0.10 {
+            out.push((
+                k,
+                format!(
+                    "left and right disagree with the other pairs: relative pose {angle:.1}° and {:.0} % of the baseline off (wrong partner image, or a camera moved?)",
+                    100.0 * off
+                ),
+            ));
+        }
+    }
+    Ok(out)
+}
+
 fn stereo(board: &BoardSpec, size: [i32; 2], usable: &[Usable]) -> Result<Rig, CalibError> {
     let image_size = Size::new(size[0], size[1]);
     let object: Vector<Vector<Point3f>> = usable.iter().map(|_| board.object_points()).collect();
     let left: Vector<Vector<Point2f>> = usable.iter().map(|u| points(&u.left)).collect();
     let right: Vector<Vector<Point2f>> = usable.iter().map(|u| points(&u.right)).collect();
-    let single = |image: &Vector<Vector<Point2f>>| -> Result<(Mat, Mat), CalibError> {
-        let (mut k, mut d) = (Mat::default(), Mat::default());
-        let (mut rv, mut tv) = (Vector::<Mat>::new(), Vector::<Mat>::new());
-        calib3d::calibrate_camera(
-            &object,
-            image,
-            image_size,
-            &mut k,
-            &mut d,
-            &mut rv,
-            &mut tv,
-            0,
-            criteria()?,
-        )?;
-        Ok((k, d))
-    };
-    let (mut k1, mut d1) = single(&left)?;
-    let (mut k2, mut d2) = single(&right)?;
+    let (mut k1, mut d1, _) = single_camera(board, size, &left)?;
+    let (mut k2, mut d2, _) = single_camera(board, size, &right)?;
     let (mut r, mut t, mut e, mut f, mut per_view) = (
         Mat::default(),
         Mat::default(),

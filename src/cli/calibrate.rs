@@ -100,10 +100,16 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     fsio::write_bytes(&a.out, cal.to_yaml(&provenance).as_bytes())
         .with_context(|| format!("writing {}", a.out.display()))?;
     println!("wrote {}", a.out.display());
+    for f in cal.write_figures(&a.out)? {
+        println!("wrote {}", f.display());
+    }
     Ok(())
 }
 
 fn print_summary(c: &StereoCalibration) {
+    for f in &c.unpaired {
+        println!("skipped {}: no partner image", f.display());
+    }
     println!(
         "{} pairs used, {} rejected; detector: {}",
         c.used().count(),

@@ -31,6 +31,11 @@ pub enum FigureError {
 pub enum Mark {
     Line,
     Points,
+    /// Bars from 0, `width` wide (x units), shifted by `offset` (to put series side by side).
+    Bars {
+        offset: f64,
+        width: f64,
+    },
 }
 
 /// One named series of (x, y) points.
@@ -117,12 +122,22 @@ where
     DB::ErrorType: 'static,
 {
     area.fill(&WHITE).map_err(|e| e.to_string())?;
-    let shown: Vec<(f64, f64)> = plot
+    let mut shown: Vec<(f64, f64)> = plot
         .series
         .iter()
         .flat_map(|s| s.points.iter().copied())
         .filter(|&p| plot.shows(p))
         .collect();
+    // Bars stand on zero, which must be in view.
+    if let Some(&(x, _)) = shown.first() {
+        if plot
+            .series
+            .iter()
+            .any(|s| matches!(s.mark, Mark::Bars { .. }))
+        {
+            shown.push((x, 0.0));
+        }
+    }
     let (x0, x1) = padded(shown.iter().map(|p| p.0));
     let mut builder = ChartBuilder::on(&area);
     builder
@@ -178,6 +193,13 @@ where
         let drawn = match s.mark {
             Mark::Line => chart.draw_series(LineSeries::new(points, colour.stroke_width(2))),
             Mark::Points => chart.draw_series(points.map(|p| Circle::new(p, 3, colour.filled()))),
+            Mark::Bars { offset, width } => chart.draw_series(points.map(|(x, y)| {
+                let x = x + offset;
+                Rectangle::new(
+                    [(x - width / 2.0, 0.0), (x + width / 2.0, y)],
+                    colour.filled(),
+                )
+            })),
         }
         .map_err(e)?;
         drawn

@@ -76,3 +76,76 @@ impl Lcg {
         (0..n).map(|_| self.next()).collect()
     }
 }
+
+/// A small rendered capture in `dir`: `views` board pairs + the reference, 12 pressure steps.
+pub fn small_capture(dir: &Path, seed: u64, views: usize) {
+    let synth = handcap::synth::SynthConfig {
+        seed,
+        grid_step_kpa: 250.0,
+        sweep_step_kpa: 125.0,
+        ..handcap::synth::SynthConfig::default()
+    };
+    let config = handcap::synth::capture::CaptureConfig {
+        views,
+        ..handcap::synth::capture::CaptureConfig::default()
+    };
+    let provenance = handcap::provenance::Provenance::new(vec!["test".into()], Some(seed));
+    let summary = handcap::synth::capture::write_capture(
+        dir,
+        &synth,
+        &config,
+        &provenance,
+        &|_, _| {},
+        &std::sync::atomic::AtomicBool::new(false),
+    )
+    .expect("capture");
+    assert_eq!(summary.board_pairs, views);
+    assert!(!summary.interrupted);
+}
+
+/// A stereo rig read back from OpenCV YAML by OpenCV's own FileStorage.
+pub struct YamlRig {
+    pub k1: opencv::core::Mat,
+    pub d1: opencv::core::Mat,
+    pub k2: opencv::core::Mat,
+    pub d2: opencv::core::Mat,
+    /// Left → right.
+    pub r: nalgebra::Rotation3<f64>,
+    pub t: nalgebra::Vector3<f64>,
+    pub r_hand: Option<nalgebra::Rotation3<f64>>,
+}
+
+pub fn read_rig(path: &Path) -> YamlRig {
+    use opencv::prelude::*;
+    let fs = opencv::core::FileStorage::new(
+        path.to_str().unwrap(),
+        opencv::core::FileStorage_Mode::READ as i32,
+        "",
+    )
+    .unwrap();
+    assert!(
+        fs.is_opened().unwrap(),
+        "OpenCV cannot open {}",
+        path.display()
+    );
+    let get = |key: &str| fs.get(key).unwrap().mat().unwrap();
+    let values = |m: &opencv::core::Mat| -> Vec<f64> {
+        (0..m.rows())
+            .flat_map(|r| (0..m.cols()).map(move |c| (r, c)))
+            .map(|(r, c)| *m.at_2d::<f64>(r, c).unwrap())
+            .collect()
+    };
+    let rotation = |m: &opencv::core::Mat| {
+        nalgebra::Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_row_slice(&values(m)))
+    };
+    let hand = get("R_hand");
+    YamlRig {
+        k1: get("K1"),
+        d1: get("D1"),
+        k2: get("K2"),
+        d2: get("D2"),
+        r: rotation(&get("R")),
+        t: nalgebra::Vector3::from_row_slice(&values(&get("T"))),
+        r_hand: (!hand.empty()).then(|| rotation(&hand)),
+    }
+}

@@ -2,67 +2,12 @@
 //! by OpenCV against the truth projected by OpenCV, the red bead's centroid against the true
 //! tip's projection, and byte-identical output for the same seed.
 
-use std::path::Path;
-use std::sync::atomic::AtomicBool;
-
 use nalgebra::{Rotation3, Vector3};
 use opencv::core::{self, FileStorage, Mat, Point2f, Point3f, Size, Vector};
 use opencv::prelude::*;
 use opencv::{calib3d, imgcodecs, imgproc};
 
-use handcap::provenance::Provenance;
-use handcap::synth::capture::{self, CaptureConfig};
-use handcap::synth::SynthConfig;
-
-use crate::common::tempdir;
-
-/// A small capture: 4 board pairs + the reference, 12 pressure steps.
-fn small_capture(dir: &Path, seed: u64) -> (SynthConfig, CaptureConfig) {
-    let synth = SynthConfig {
-        seed,
-        grid_step_kpa: 250.0,
-        sweep_step_kpa: 125.0,
-        ..SynthConfig::default()
-    };
-    let config = CaptureConfig {
-        views: 4,
-        ..CaptureConfig::default()
-    };
-    let provenance = Provenance::new(vec!["test".into()], Some(seed));
-    let summary = capture::write_capture(
-        dir,
-        &synth,
-        &config,
-        &provenance,
-        &|_, _| {},
-        &AtomicBool::new(false),
-    )
-    .expect("capture");
-    assert_eq!(summary.board_pairs, 4);
-    assert!(!summary.interrupted);
-    (synth, config)
-}
-
-fn read_mat(fs: &FileStorage, key: &str) -> Mat {
-    let m = fs.get(key).unwrap().mat().unwrap();
-    assert!(!m.empty(), "{key} missing from rig.yml");
-    m
-}
-
-fn to_rotation(m: &Mat) -> Rotation3<f64> {
-    let v: Vec<f64> = (0..9)
-        .map(|k| *m.at_2d::<f64>(k / 3, k % 3).unwrap())
-        .collect();
-    Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_row_slice(&v))
-}
-
-fn to_vector(m: &Mat) -> Vector3<f64> {
-    Vector3::new(
-        *m.at_2d::<f64>(0, 0).unwrap(),
-        *m.at_2d::<f64>(1, 0).unwrap(),
-        *m.at_2d::<f64>(2, 0).unwrap(),
-    )
-}
+use crate::common::{read_rig, small_capture, tempdir};
 
 /// OpenCV's projection of the board's inner corners seen with pose (rotation, translation).
 fn project(
@@ -121,23 +66,10 @@ fn corner_rms(detected: &Vector<Point2f>, truth: &[(f64, f64)]) -> f64 {
 fn opencv_finds_the_board_corners_where_the_truth_projects() {
     let dir = tempdir();
     let d = dir.path();
-    small_capture(d, 11);
-    let fs = FileStorage::new(
-        d.join("truth/rig.yml").to_str().unwrap(),
-        core::FileStorage_Mode::READ as i32,
-        "",
-    )
-    .unwrap();
-    let (k1, d1, k2, d2) = (
-        read_mat(&fs, "K1"),
-        read_mat(&fs, "D1"),
-        read_mat(&fs, "K2"),
-        read_mat(&fs, "D2"),
-    );
-    let (r, t) = (
-        to_rotation(&read_mat(&fs, "R")),
-        to_vector(&read_mat(&fs, "T")),
-    );
+    small_capture(d, 11, 4);
+    let rig = read_rig(&d.join("truth/rig.yml"));
+    let (k1, d1, k2, d2) = (&rig.k1, &rig.d1, &rig.k2, &rig.d2);
+    let (r, t) = (rig.r, rig.t);
     let board = FileStorage::new(
         d.join("calib/board.yml").to_str().unwrap(),
         core::FileStorage_Mode::READ as i32,
@@ -158,8 +90,8 @@ fn opencv_finds_the_board_corners_where_the_truth_projects() {
         let rot = Rotation3::from_scaled_axis(Vector3::new(v[0], v[1], v[2]));
         let trans = Vector3::new(v[3], v[4], v[5]);
         let views = [
-            ("left", rot, trans, &k1, &d1),
-            ("right", r * rot, r * trans + t, &k2, &d2),
+            ("left", rot, trans, k1, d1),
+            ("right", r * rot, r * trans + t, k2, d2),
         ];
         for (side, rot, trans, k, dist) in views {
             let truth = project(&rot, &trans, k, dist, cols, rows, square);
@@ -210,7 +142,7 @@ fn opencv_finds_the_board_corners_where_the_truth_projects() {
 fn the_red_bead_centroid_is_the_true_tip_projection_and_output_is_deterministic() {
     let dir = tempdir();
     let d = dir.path();
-    small_capture(d, 12);
+    small_capture(d, 12, 4);
     let truth = std::fs::read_to_string(d.join("truth/frames.csv")).unwrap();
     let mut worst = 0.0f64;
     let mut frames = 0;
@@ -259,7 +191,7 @@ fn the_red_bead_centroid_is_the_true_tip_projection_and_output_is_deterministic(
 
     // Same seed → the same bytes, file by file.
     let again = tempdir();
-    small_capture(again.path(), 12);
+    small_capture(again.path(), 12, 4);
     let mut files = 0;
     for sub in ["calib", "frames", "truth", "."] {
         for entry in std::fs::read_dir(d.join(sub)).unwrap() {
