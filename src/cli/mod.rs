@@ -12,8 +12,9 @@ use std::sync::Arc;
 
 use clap::{Parser, Subcommand};
 
-/// Model a soft pneumatic micro-hand from a pressure → tip dataset (MSVR, the method of
-/// Kawamura & Deng 2020), and generate such data from a virtual micro-hand.
+/// Model a soft pneumatic micro-hand from two webcams and a pressure log: calibrate the
+/// cameras, fit the pressure → tip map (MSVR, the method of Kawamura & Deng 2020), and generate
+/// all of it from a virtual micro-hand.
 #[derive(Parser)]
 #[command(name = "handcap", version, about, long_about = None)]
 pub struct Cli {
