@@ -557,8 +557,9 @@ pub fn calibrate(
     let coverage = [coverage(size, &left), coverage(size, &right)];
     let (r1, r2, p1, p2, q) = rectify(&rig, size)?;
 
-    let (hand_axes, hand_axes_note) = match (&listing.reference, found.len() > 2 * listing.pairs.len()) {
-        (Some(reference), true) => match &found[2 * listing.pairs.len()].1 {
+    // The reference pair's images follow the others' in `found`.
+    let (hand_axes, hand_axes_note) = match &listing.reference {
+        Some(reference) => match &found[2 * listing.pairs.len()].1 {
             Some(corners) => (
                 Some(hand_axes(board, &rig, corners)?),
                 format!(
@@ -571,7 +572,7 @@ pub fn calibrate(
                 format!("the board was not found in {}", reference.left.display()),
             ),
         },
-        _ => (None, "no reference pair (left_ref/right_ref)".into()),
+        None => (None, "no reference pair (left_ref/right_ref)".into()),
     };
 
     Ok(StereoCalibration {
