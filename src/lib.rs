@@ -20,6 +20,7 @@
 //! - Files are written atomically (temporary file, then rename) and never over an input.
 
 pub mod calib;
+mod cv;
 pub mod data;
 pub mod fsio;
 pub mod hand;
@@ -28,4 +29,5 @@ pub mod opencv_yaml;
 pub mod provenance;
 pub mod report;
 pub mod search;
+pub mod stereo;
 pub mod synth;

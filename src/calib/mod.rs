@@ -39,7 +39,9 @@ use opencv::prelude::*;
 use rayon::prelude::*;
 use serde::Serialize;
 
+use crate::cv::{self, fixed, mat, points, values};
 use crate::opencv_yaml::FileStorage;
+use crate::stereo::{Intrinsics, Side, StereoRig};
 use crate::provenance::Provenance;
 use detect::Detector;
 use pairs::ImagePair;
@@ -579,12 +581,12 @@ pub fn calibrate(
         image_size: size,
         board: *board,
         detector,
-        k1: rig.k1,
-        d1: rig.d1,
-        k2: rig.k2,
-        d2: rig.d2,
-        r: rig.r,
-        t: rig.t,
+        k1: rig.cams.left.k,
+        d1: rig.cams.left.dist,
+        k2: rig.cams.right.k,
+        d2: rig.cams.right.dist,
+        r: rig.cams.r,
+        t: rig.cams.t,
         e: rig.e,
         f: rig.f,
         r1,
@@ -711,50 +713,15 @@ fn order_right_like_left(
 
 /// The OpenCV results of one stereo calibration.
 struct Rig {
-    k1: [f64; 9],
-    d1: Vec<f64>,
-    k2: [f64; 9],
-    d2: Vec<f64>,
-    r: [f64; 9],
-    t: [f64; 3],
+    cams: StereoRig,
     e: [f64; 9],
     f: [f64; 9],
     rms: f64,
     per_view: Vec<[f64; 2]>,
 }
 
-fn points(c: &[[f32; 2]]) -> Vector<Point2f> {
-    c.iter().map(|p| Point2f::new(p[0], p[1])).collect()
-}
-
-fn values(m: &Mat) -> Result<Vec<f64>, CalibError> {
-    let mut m64 = Mat::default();
-    m.convert_to(&mut m64, core::CV_64F, 1.0, 0.0)?;
-    // One channel, continuous, so the values read row-major (channels interleaved).
-    let flat = m64.try_clone()?.reshape(1, 0)?.try_clone()?;
-    Ok(flat.data_typed::<f64>()?.to_vec())
-}
-
-fn fixed<const N: usize>(m: &Mat) -> Result<[f64; N], CalibError> {
-    let v = values(m)?;
-    v.try_into().map_err(|v: Vec<f64>| {
-        CalibError::OpenCv(opencv::Error::new(
-            core::StsBadSize,
-            format!("expected {N} values, got {}", v.len()),
-        ))
-    })
-}
-
-fn mat(rows: i32, values: &[f64]) -> Result<Mat, CalibError> {
-    Ok(Mat::from_slice(values)?.reshape(1, rows)?.try_clone()?)
-}
-
 fn criteria() -> Result<TermCriteria, CalibError> {
-    Ok(TermCriteria::new(
-        core::TermCriteria_COUNT + core::TermCriteria_EPS,
-        100,
-        1e-9,
-    )?)
+    Ok(cv::criteria(100, 1e-9)?)
 }
 
 /// A board pose: camera from board, rotation and translation (mm).
@@ -879,12 +846,19 @@ fn stereo(board: &BoardSpec, size: [i32; 2], usable: &[Usable]) -> Result<Rig, C
     )?;
     let errors = values(&per_view)?;
     Ok(Rig {
-        k1: fixed(&k1)?,
-        d1: values(&d1)?,
-        k2: fixed(&k2)?,
-        d2: values(&d2)?,
-        r: fixed(&r)?,
-        t: fixed(&t)?,
+        cams: StereoRig {
+            image_size: size,
+            left: Intrinsics {
+                k: fixed(&k1)?,
+                dist: values(&d1)?,
+            },
+            right: Intrinsics {
+                k: fixed(&k2)?,
+                dist: values(&d2)?,
+            },
+            r: fixed(&r)?,
+            t: fixed(&t)?,
+        },
         e: fixed(&e)?,
         f: fixed(&f)?,
         rms,
@@ -892,31 +866,9 @@ fn stereo(board: &BoardSpec, size: [i32; 2], usable: &[Usable]) -> Result<Rig, C
     })
 }
 
-/// Corners undistorted to pixel coordinates of the same camera.
-fn undistorted(
-    c: &[[f32; 2]],
-    k: &[f64; 9],
-    d: &[f64],
-    to: Option<&[f64; 9]>,
-) -> Result<Vec<[f64; 2]>, CalibError> {
-    let k = mat(3, k)?;
-    let d = mat(1, d)?;
-    let mut out = Mat::default();
-    match to {
-        Some(p) => {
-            calib3d::undistort_points(&points(c), &mut out, &k, &d, &core::no_array(), &mat(3, p)?)?
-        }
-        None => calib3d::undistort_points(
-            &points(c),
-            &mut out,
-            &k,
-            &d,
-            &core::no_array(),
-            &core::no_array(),
-        )?,
-    }
-    let v = values(&out)?;
-    Ok(v.chunks(2).map(|p| [p[0], p[1]]).collect())
+/// Corners as `f64`.
+fn wide(c: &[[f32; 2]]) -> Vec<[f64; 2]> {
+    c.iter().map(|p| [f64::from(p[0]), f64::from(p[1])]).collect()
 }
 
 /// Mean distance (px) of each undistorted corner from the epipolar line of its partner, both
@@ -929,8 +881,8 @@ fn epipolar_error(
     let f = Matrix3::from_row_slice(&rig.f);
     let (mut sum, mut n) = (0.0, 0usize);
     for (l, r) in left.iter().zip(right) {
-        let ul = undistorted(l, &rig.k1, &rig.d1, Some(&rig.k1))?;
-        let ur = undistorted(r, &rig.k2, &rig.d2, Some(&rig.k2))?;
+        let ul = rig.cams.undistorted(Side::Left, &wide(l))?;
+        let ur = rig.cams.undistorted(Side::Right, &wide(r))?;
         for (a, b) in ul.iter().zip(&ur) {
             let (pa, pb) = (Vector3::new(a[0], a[1], 1.0), Vector3::new(b[0], b[1], 1.0));
             let line_r = f * pa;
@@ -961,37 +913,10 @@ fn board_check(
     left: &[&[[f32; 2]]],
     right: &[&[[f32; 2]]],
 ) -> Result<BoardCheck, CalibError> {
-    let p1 = mat(
-        3,
-        &[1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0],
-    )?;
-    let r = &rig.r;
-    let t = &rig.t;
-    let p2 = mat(
-        3,
-        &[
-            r[0], r[1], r[2], t[0], r[3], r[4], r[5], t[1], r[6], r[7], r[8], t[2],
-        ],
-    )?;
     let (mut steps, mut plane_sq, mut plane_n) = (Vec::new(), 0.0, 0usize);
-    for (l, rr) in left.iter().zip(right) {
-        let to_mat = |p: Vec<[f64; 2]>| -> Result<Mat, CalibError> {
-            let flat: Vec<f64> = p.iter().flat_map(|q| [q[0], q[1]]).collect();
-            let m = Mat::from_slice(&flat)?
-                .reshape(1, p.len() as i32)?
-                .t()?
-                .to_mat()?;
-            Ok(m)
-        };
-        let nl = to_mat(undistorted(l, &rig.k1, &rig.d1, None)?)?;
-        let nr = to_mat(undistorted(rr, &rig.k2, &rig.d2, None)?)?;
-        let mut x4 = Mat::default();
-        calib3d::triangulate_points(&p1, &p2, &nl, &nr, &mut x4)?;
-        let v = values(&x4)?;
+    for (l, r) in left.iter().zip(right) {
+        let pts = rig.cams.triangulate(&wide(l), &wide(r))?;
         let n = l.len();
-        let pts: Vec<Vector3<f64>> = (0..n)
-            .map(|k| Vector3::new(v[k], v[n + k], v[2 * n + k]) / v[3 * n + k])
-            .collect();
         for j in 0..board.rows {
             for i in 0..board.cols {
                 let k = j * board.cols + i;
@@ -1033,13 +958,13 @@ fn rectify(rig: &Rig, size: [i32; 2]) -> Result<Rectification, CalibError> {
         Mat::default(),
     );
     calib3d::stereo_rectify(
-        &mat(3, &rig.k1)?,
-        &mat(1, &rig.d1)?,
-        &mat(3, &rig.k2)?,
-        &mat(1, &rig.d2)?,
+        &mat(3, &rig.cams.left.k)?,
+        &mat(1, &rig.cams.left.dist)?,
+        &mat(3, &rig.cams.right.k)?,
+        &mat(1, &rig.cams.right.dist)?,
         Size::new(size[0], size[1]),
-        &mat(3, &rig.r)?,
-        &mat(3, &rig.t)?,
+        &mat(3, &rig.cams.r)?,
+        &mat(3, &rig.cams.t)?,
         &mut r1,
         &mut r2,
         &mut p1,
@@ -1071,8 +996,8 @@ fn hand_axes(board: &BoardSpec, rig: &Rig, corners: &[[f32; 2]]) -> Result<[f64;
     calib3d::solve_pnp(
         &board.object_points(),
         &points(&ordered),
-        &mat(3, &rig.k1)?,
-        &mat(1, &rig.d1)?,
+        &mat(3, &rig.cams.left.k)?,
+        &mat(1, &rig.cams.left.dist)?,
         &mut rvec,
         &mut tvec,
         false,

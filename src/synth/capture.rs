@@ -54,6 +54,7 @@ use super::render::{Board, Finger, ImageFormat, Lighting, View};
 use super::{protocol, SynthConfig, SynthError};
 use crate::fsio;
 use crate::opencv_yaml::FileStorage;
+use crate::stereo::Side;
 
 /// How the virtual capture session runs (see the module docs).
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -117,21 +118,6 @@ enum Shot {
         exposure_s: f64,
         pressures: Pressures,
     },
-}
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Side {
-    Left,
-    Right,
-}
-
-impl Side {
-    fn name(self) -> &'static str {
-        match self {
-            Side::Left => "left",
-            Side::Right => "right",
-        }
-    }
 }
 
 /// One camera frame kept by the capture computer.

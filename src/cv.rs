@@ -1,0 +1,56 @@
+//! Conversions between OpenCV matrices and plain arrays (row-major `f64`).
+
+use opencv::core::{self, Mat, Point2f, TermCriteria, Vector};
+use opencv::prelude::*;
+
+/// Every value of `m`, row-major, channels interleaved, as `f64`.
+pub(crate) fn values(m: &Mat) -> opencv::Result<Vec<f64>> {
+    let mut m64 = Mat::default();
+    m.convert_to(&mut m64, core::CV_64F, 1.0, 0.0)?;
+    // One channel, continuous, so the values read row-major (channels interleaved).
+    let flat = m64.try_clone()?.reshape(1, 0)?.try_clone()?;
+    Ok(flat.data_typed::<f64>()?.to_vec())
+}
+
+/// Exactly `N` values of `m`.
+pub(crate) fn fixed<const N: usize>(m: &Mat) -> opencv::Result<[f64; N]> {
+    let v = values(m)?;
+    v.try_into().map_err(|v: Vec<f64>| {
+        opencv::Error::new(
+            core::StsBadSize,
+            format!("expected {N} values, got {}", v.len()),
+        )
+    })
+}
+
+/// A `rows`-row `CV_64F` matrix of `values` (row-major).
+pub(crate) fn mat(rows: i32, values: &[f64]) -> opencv::Result<Mat> {
+    Mat::from_slice(values)?.reshape(1, rows)?.try_clone()
+}
+
+/// Image points as OpenCV takes them.
+pub(crate) fn points(c: &[[f32; 2]]) -> Vector<Point2f> {
+    c.iter().map(|p| Point2f::new(p[0], p[1])).collect()
+}
+
+/// Points as an N × 1 two-channel `CV_64F` matrix (what the point functions take in `f64`).
+pub(crate) fn points64(p: &[[f64; 2]]) -> opencv::Result<Mat> {
+    let flat: Vec<f64> = p.iter().flat_map(|q| [q[0], q[1]]).collect();
+    Mat::from_slice(&flat)?
+        .reshape(2, p.len() as i32)?
+        .try_clone()
+}
+
+/// Pairs of values back from a two-channel (or N × 2) matrix.
+pub(crate) fn pairs(m: &Mat) -> opencv::Result<Vec<[f64; 2]>> {
+    Ok(values(m)?.chunks(2).map(|p| [p[0], p[1]]).collect())
+}
+
+/// Iterations for OpenCV's solvers: at most `count`, or until the change is below `eps`.
+pub(crate) fn criteria(count: i32, eps: f64) -> opencv::Result<TermCriteria> {
+    TermCriteria::new(
+        core::TermCriteria_COUNT + core::TermCriteria_EPS,
+        count,
+        eps,
+    )
+}

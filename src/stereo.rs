@@ -1,0 +1,332 @@
+//! The calibrated stereo pair as OpenCV models it: two pinhole cameras with (k1, k2, p1, p2, k3)
+//! distortion and the left → right pose. Undistortion, triangulation and projection go through
+//! OpenCV; `calibrate` checks its boards with them and `triangulate` finds the tip with them.
+//!
+//! Coordinates: pixels in each image; 3-D points in the left camera's frame (OpenCV's: x right,
+//! y down, z forward, mm); `R`, `T` map left-camera points to the right camera's frame
+//! (p_right = R · p_left + T), as `stereo_calibrate` returns them.
+
+use std::path::{Path, PathBuf};
+
+use nalgebra::{Matrix3, Vector3};
+use opencv::calib3d;
+use opencv::core::{self, FileStorage, Mat};
+use opencv::prelude::*;
+
+use crate::cv;
+
+/// Which camera of the pair.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Side {
+    Left,
+    Right,
+}
+
+impl Side {
+    /// `left` or `right`, as in file names.
+    pub fn name(self) -> &'static str {
+        match self {
+            Side::Left => "left",
+            Side::Right => "right",
+        }
+    }
+}
+
+/// One camera's intrinsics: K (row-major 3 × 3) and the distortion coefficients.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Intrinsics {
+    pub k: [f64; 9],
+    pub dist: Vec<f64>,
+}
+
+/// The two cameras and the left → right pose.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StereoRig {
+    /// Width and height in pixels.
+    pub image_size: [i32; 2],
+    pub left: Intrinsics,
+    pub right: Intrinsics,
+    /// Right from left: p_right = R · p_left + T (row-major R, T in mm).
+    pub r: [f64; 9],
+    pub t: [f64; 3],
+}
+
+/// A calibration file as `calibrate` writes it (and `synth` writes the truth).
+#[derive(Clone, Debug, PartialEq)]
+pub struct CalibrationFile {
+    pub rig: StereoRig,
+    /// Left camera → hand axes (`R_hand`), when the calibration had a reference pair.
+    pub r_hand: Option<Matrix3<f64>>,
+    /// The hand frame's translation (`t_hand`: p_hand = R_hand · p_left + t_hand), in files
+    /// that know the origin (the synthetic truth, `triangulate`'s hand file).
+    pub t_hand: Option<Vector3<f64>>,
+}
+
+/// Errors of reading a calibration file or of the geometry.
+#[derive(Debug, thiserror::Error)]
+pub enum StereoError {
+    #[error("{path}: not an OpenCV YAML/XML calibration file ({message}); pass the file `handcap calibrate` wrote")]
+    Unreadable { path: PathBuf, message: String },
+    #[error("{path}: {message}; pass the file `handcap calibrate` wrote")]
+    Invalid { path: PathBuf, message: String },
+    #[error("OpenCV: {0}")]
+    OpenCv(#[from] opencv::Error),
+}
+
+impl StereoRig {
+    /// The intrinsics of one camera.
+    pub fn camera(&self, side: Side) -> &Intrinsics {
+        match side {
+            Side::Left => &self.left,
+            Side::Right => &self.right,
+        }
+    }
+
+    /// The right camera's rotation from the left's.
+    pub fn rotation(&self) -> Matrix3<f64> {
+        Matrix3::from_row_slice(&self.r)
+    }
+
+    /// The essential matrix [T]ₓ R (normalised coordinates: x̂_rightᵀ E x̂_left = 0).
+    pub fn essential(&self) -> Matrix3<f64> {
+        Vector3::from_row_slice(&self.t).cross_matrix() * self.rotation()
+    }
+
+    /// Pixels of `side` undistorted to normalised image coordinates (x/z, y/z) by OpenCV's
+    /// iterative undistortion, run to convergence.
+    ///
+    /// # Errors
+    /// An OpenCV failure.
+    pub fn normalized(&self, side: Side, px: &[[f64; 2]]) -> opencv::Result<Vec<[f64; 2]>> {
+        if px.is_empty() {
+            return Ok(Vec::new());
+        }
+        let cam = self.camera(side);
+        let mut out = Mat::default();
+        calib3d::undistort_points_iter(
+            &cv::points64(px)?,
+            &mut out,
+            &cv::mat(3, &cam.k)?,
+            &cv::mat(1, &cam.dist)?,
+            &core::no_array(),
+            &core::no_array(),
+            cv::criteria(100, 1e-12)?,
+        )?;
+        cv::pairs(&out)
+    }
+
+    /// Pixels of `side` undistorted to pixels of the same camera without distortion.
+    ///
+    /// # Errors
+    /// An OpenCV failure.
+    pub fn undistorted(&self, side: Side, px: &[[f64; 2]]) -> opencv::Result<Vec<[f64; 2]>> {
+        let k = &self.camera(side).k;
+        Ok(self
+            .normalized(side, px)?
+            .into_iter()
+            .map(|[x, y]| [k[0] * x + k[1] * y + k[2], k[4] * y + k[5]])
+            .collect())
+    }
+
+    /// 3-D points (left camera, mm) from matching normalised coordinates, by OpenCV's
+    /// `triangulate_points` (linear, in `f64`).
+    ///
+    /// # Errors
+    /// An OpenCV failure.
+    pub fn triangulate_normalized(
+        &self,
+        left: &[[f64; 2]],
+        right: &[[f64; 2]],
+    ) -> opencv::Result<Vec<Vector3<f64>>> {
+        assert_eq!(left.len(), right.len(), "one right point per left point");
+        if left.is_empty() {
+            return Ok(Vec::new());
+        }
+        let (r, t) = (&self.r, &self.t);
+        let p1 = cv::mat(3, &[1., 0., 0., 0., 0., 1., 0., 0., 0., 0., 1., 0.])?;
+        let p2 = cv::mat(
+            3,
+            &[
+                r[0], r[1], r[2], t[0], r[3], r[4], r[5], t[1], r[6], r[7], r[8], t[2],
+            ],
+        )?;
+        // 2 × N matrices of f64, so that OpenCV triangulates in f64.
+        let rows = |p: &[[f64; 2]]| -> opencv::Result<Mat> {
+            let mut flat: Vec<f64> = p.iter().map(|q| q[0]).collect();
+            flat.extend(p.iter().map(|q| q[1]));
+            cv::mat(2, &flat)
+        };
+        let mut x4 = Mat::default();
+        calib3d::triangulate_points(&p1, &p2, &rows(left)?, &rows(right)?, &mut x4)?;
+        let v = cv::values(&x4)?;
+        let n = left.len();
+        Ok((0..n)
+            .map(|k| Vector3::new(v[k], v[n + k], v[2 * n + k]) / v[3 * n + k])
+            .collect())
+    }
+
+    /// 3-D points (left camera, mm) from matching pixels: undistorted, then triangulated.
+    ///
+    /// # Errors
+    /// An OpenCV failure.
+    pub fn triangulate(
+        &self,
+        left: &[[f64; 2]],
+        right: &[[f64; 2]],
+    ) -> opencv::Result<Vec<Vector3<f64>>> {
+        self.triangulate_normalized(
+            &self.normalized(Side::Left, left)?,
+            &self.normalized(Side::Right, right)?,
+        )
+    }
+
+    /// Hartley-Sturm optimal correction (`correct_matches`) of matching normalised coordinates:
+    /// the nearest pair that satisfies the epipolar constraint exactly.
+    ///
+    /// # Errors
+    /// An OpenCV failure.
+    pub fn correct_matches(
+        &self,
+        left: &[[f64; 2]],
+        right: &[[f64; 2]],
+    ) -> opencv::Result<(Vec<[f64; 2]>, Vec<[f64; 2]>)> {
+        if left.is_empty() {
+            return Ok((Vec::new(), Vec::new()));
+        }
+        let e = self.essential();
+        let e: Vec<f64> = (0..9).map(|k| e[(k / 3, k % 3)]).collect();
+        // 1 × N two-channel, the shape `correct_matches` asks for.
+        let row = |p: &[[f64; 2]]| -> opencv::Result<Mat> {
+            let flat: Vec<f64> = p.iter().flat_map(|q| [q[0], q[1]]).collect();
+            Mat::from_slice(&flat)?.reshape(2, 1)?.try_clone()
+        };
+        let (mut a, mut b) = (Mat::default(), Mat::default());
+        calib3d::correct_matches(&cv::mat(3, &e)?, &row(left)?, &row(right)?, &mut a, &mut b)?;
+        Ok((cv::pairs(&a)?, cv::pairs(&b)?))
+    }
+
+    /// Pixels of `side` where the 3-D points (left camera, mm) appear, distortion included
+    /// (OpenCV's `project_points`).
+    ///
+    /// # Errors
+    /// An OpenCV failure.
+    pub fn project(&self, side: Side, points: &[Vector3<f64>]) -> opencv::Result<Vec<[f64; 2]>> {
+        if points.is_empty() {
+            return Ok(Vec::new());
+        }
+        let cam = self.camera(side);
+        let (rvec, tvec) = match side {
+            Side::Left => ([0.0; 3], [0.0; 3]),
+            Side::Right => {
+                let mut rvec = Mat::default();
+                calib3d::rodrigues(&cv::mat(3, &self.r)?, &mut rvec, &mut core::no_array())?;
+                (cv::fixed::<3>(&rvec)?, self.t)
+            }
+        };
+        let flat: Vec<f64> = points.iter().flat_map(|p| [p.x, p.y, p.z]).collect();
+        let object = Mat::from_slice(&flat)?
+            .reshape(3, points.len() as i32)?
+            .try_clone()?;
+        let mut out = Mat::default();
+        calib3d::project_points_def(
+            &object,
+            &cv::mat(3, &rvec)?,
+            &cv::mat(3, &tvec)?,
+            &cv::mat(3, &cam.k)?,
+            &cv::mat(1, &cam.dist)?,
+            &mut out,
+        )?;
+        cv::pairs(&out)
+    }
+}
+
+/// Reads the cameras (`image_size`, `K1`, `D1`, `K2`, `D2`, `R`, `T`) and, when present, the
+/// hand frame (`R_hand`, `t_hand`) of an OpenCV FileStorage file.
+///
+/// # Errors
+/// [`StereoError`] naming the file and the key that is missing or malformed.
+pub fn read_calibration(path: &Path) -> Result<CalibrationFile, StereoError> {
+    let unreadable = |message: String| StereoError::Unreadable {
+        path: path.to_path_buf(),
+        message,
+    };
+    let invalid = |message: String| StereoError::Invalid {
+        path: path.to_path_buf(),
+        message,
+    };
+    if !path.is_file() {
+        return Err(unreadable("no such file".into()));
+    }
+    let name = path
+        .to_str()
+        .ok_or_else(|| unreadable("the path is not UTF-8".into()))?;
+    let fs = FileStorage::new(name, core::FileStorage_Mode::READ as i32, "")
+        .map_err(|e| unreadable(e.message))?;
+    if !fs.is_opened()? {
+        return Err(unreadable("OpenCV cannot open it".into()));
+    }
+    let optional = |key: &str, len: usize| -> Result<Option<Vec<f64>>, StereoError> {
+        let node = fs.get(key)?;
+        if node.empty()? || node.is_none()? {
+            return Ok(None);
+        }
+        let m = node.mat().map_err(|e| invalid(format!("{key}: {}", e.message)))?;
+        let v = cv::values(&m)?;
+        if v.len() != len || v.iter().any(|x| !x.is_finite()) {
+            return Err(invalid(format!(
+                "{key} has {} values (finite: {}), expected {len}",
+                v.len(),
+                v.iter().all(|x| x.is_finite())
+            )));
+        }
+        Ok(Some(v))
+    };
+    let required = |key: &str, len: usize| {
+        optional(key, len)?.ok_or_else(|| invalid(format!("no {key}")))
+    };
+    let distortion = |key: &str| -> Result<Vec<f64>, StereoError> {
+        let node = fs.get(key)?;
+        if node.empty()? || node.is_none()? {
+            return Err(invalid(format!("no {key}")));
+        }
+        let v = cv::values(&node.mat()?)?;
+        if ![4, 5, 8, 12, 14].contains(&v.len()) || v.iter().any(|x| !x.is_finite()) {
+            return Err(invalid(format!(
+                "{key} has {} values; OpenCV distortion has 4, 5, 8, 12 or 14",
+                v.len()
+            )));
+        }
+        Ok(v)
+    };
+    let size_node = fs.get("image_size")?;
+    if size_node.empty()? || !size_node.is_seq()? || size_node.size()? != 2 {
+        return Err(invalid("no image_size [width, height]".into()));
+    }
+    let image_size = [size_node.at(0)?.to_i32()?, size_node.at(1)?.to_i32()?];
+    let k = |key: &str| -> Result<[f64; 9], StereoError> {
+        let v = required(key, 9)?;
+        if v[0] <= 0.0 || v[4] <= 0.0 || v[8] != 1.0 {
+            return Err(invalid(format!("{key} is not a camera matrix")));
+        }
+        Ok(v.try_into().expect("nine values"))
+    };
+    let rig = StereoRig {
+        image_size,
+        left: Intrinsics {
+            k: k("K1")?,
+            dist: distortion("D1")?,
+        },
+        right: Intrinsics {
+            k: k("K2")?,
+            dist: distortion("D2")?,
+        },
+        r: required("R", 9)?.try_into().expect("nine values"),
+        t: required("T", 3)?.try_into().expect("three values"),
+    };
+    Ok(CalibrationFile {
+        rig,
+        r_hand: optional("R_hand", 9)?.map(|v| Matrix3::from_row_slice(&v)),
+        t_hand: optional("t_hand", 3)?.map(|v| Vector3::from_row_slice(&v)),
+    })
+}
