@@ -31,3 +31,4 @@ pub mod report;
 pub mod search;
 pub mod stereo;
 pub mod synth;
+pub mod triangulate;

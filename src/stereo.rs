@@ -15,6 +15,9 @@ use opencv::prelude::*;
 
 use crate::cv;
 
+/// An image point (x, y).
+pub type Point2 = [f64; 2];
+
 /// Which camera of the pair.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
@@ -55,6 +58,7 @@ pub struct StereoRig {
 /// A calibration file as `calibrate` writes it (and `synth` writes the truth).
 #[derive(Clone, Debug, PartialEq)]
 pub struct CalibrationFile {
+    pub path: PathBuf,
     pub rig: StereoRig,
     /// Left camera → hand axes (`R_hand`), when the calibration had a reference pair.
     pub r_hand: Option<Matrix3<f64>>,
@@ -91,6 +95,17 @@ impl StereoRig {
     /// The essential matrix [T]ₓ R (normalised coordinates: x̂_rightᵀ E x̂_left = 0).
     pub fn essential(&self) -> Matrix3<f64> {
         Vector3::from_row_slice(&self.t).cross_matrix() * self.rotation()
+    }
+
+    /// The fundamental matrix K₂⁻ᵀ E K₁⁻¹ (undistorted pixels), scaled so that F₃₃ = 1.
+    pub fn fundamental(&self) -> Matrix3<f64> {
+        let inv = |k: &[f64; 9]| {
+            Matrix3::from_row_slice(k)
+                .try_inverse()
+                .expect("a camera matrix is invertible")
+        };
+        let f = inv(&self.right.k).transpose() * self.essential() * inv(&self.left.k);
+        f / f[(2, 2)]
     }
 
     /// Pixels of `side` undistorted to normalised image coordinates (x/z, y/z) by OpenCV's
@@ -190,7 +205,7 @@ impl StereoRig {
         &self,
         left: &[[f64; 2]],
         right: &[[f64; 2]],
-    ) -> opencv::Result<(Vec<[f64; 2]>, Vec<[f64; 2]>)> {
+    ) -> opencv::Result<(Vec<Point2>, Vec<Point2>)> {
         if left.is_empty() {
             return Ok((Vec::new(), Vec::new()));
         }
@@ -271,7 +286,9 @@ pub fn read_calibration(path: &Path) -> Result<CalibrationFile, StereoError> {
         if node.empty()? || node.is_none()? {
             return Ok(None);
         }
-        let m = node.mat().map_err(|e| invalid(format!("{key}: {}", e.message)))?;
+        let m = node
+            .mat()
+            .map_err(|e| invalid(format!("{key}: {}", e.message)))?;
         let v = cv::values(&m)?;
         if v.len() != len || v.iter().any(|x| !x.is_finite()) {
             return Err(invalid(format!(
@@ -282,9 +299,8 @@ pub fn read_calibration(path: &Path) -> Result<CalibrationFile, StereoError> {
         }
         Ok(Some(v))
     };
-    let required = |key: &str, len: usize| {
-        optional(key, len)?.ok_or_else(|| invalid(format!("no {key}")))
-    };
+    let required =
+        |key: &str, len: usize| optional(key, len)?.ok_or_else(|| invalid(format!("no {key}")));
     let distortion = |key: &str| -> Result<Vec<f64>, StereoError> {
         let node = fs.get(key)?;
         if node.empty()? || node.is_none()? {
@@ -325,6 +341,7 @@ pub fn read_calibration(path: &Path) -> Result<CalibrationFile, StereoError> {
         t: required("T", 3)?.try_into().expect("three values"),
     };
     Ok(CalibrationFile {
+        path: path.to_path_buf(),
         rig,
         r_hand: optional("R_hand", 9)?.map(|v| Matrix3::from_row_slice(&v)),
         t_hand: optional("t_hand", 3)?.map(|v| Vector3::from_row_slice(&v)),

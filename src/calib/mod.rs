@@ -41,8 +41,8 @@ use serde::Serialize;
 
 use crate::cv::{self, fixed, mat, points, values};
 use crate::opencv_yaml::FileStorage;
-use crate::stereo::{Intrinsics, Side, StereoRig};
 use crate::provenance::Provenance;
+use crate::stereo::{Intrinsics, Side, StereoRig};
 use detect::Detector;
 use pairs::ImagePair;
 
@@ -868,7 +868,9 @@ fn stereo(board: &BoardSpec, size: [i32; 2], usable: &[Usable]) -> Result<Rig, C
 
 /// Corners as `f64`.
 fn wide(c: &[[f32; 2]]) -> Vec<[f64; 2]> {
-    c.iter().map(|p| [f64::from(p[0]), f64::from(p[1])]).collect()
+    c.iter()
+        .map(|p| [f64::from(p[0]), f64::from(p[1])])
+        .collect()
 }
 
 /// Mean distance (px) of each undistorted corner from the epipolar line of its partner, both

@@ -6,6 +6,7 @@ mod demo;
 mod model;
 mod predict;
 mod synth;
+mod triangulate;
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -28,6 +29,8 @@ enum Command {
     Synth(synth::Args),
     /// Stereo calibration from chessboard image pairs → OpenCV YAML
     Calibrate(calibrate::Args),
+    /// Red tip in each frame pair → 3-D tip in the hand frame → one dataset row per pressure step
+    Triangulate(triangulate::Args),
     /// Fit MSVR to a CSV dataset, report held-out errors, write the model file
     Model(model::Args),
     /// Predict outputs of a fitted model for the inputs in a CSV file
@@ -41,6 +44,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Synth(a) => synth::run(a),
         Command::Calibrate(a) => calibrate::run(a),
+        Command::Triangulate(a) => triangulate::run(a),
         Command::Model(a) => model::run(a),
         Command::Predict(a) => predict::run(a),
         Command::Demo(a) => demo::run(a),

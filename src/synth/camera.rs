@@ -149,6 +149,23 @@ impl Rig {
             translation: r.translation - rotation * l.translation,
         }
     }
+
+    /// The rig as OpenCV describes it (what a perfect calibration would return).
+    pub fn stereo(&self) -> crate::stereo::StereoRig {
+        let rl = self.right_from_left();
+        let r = rl.rotation.matrix();
+        let cam = |c: &Camera| crate::stereo::Intrinsics {
+            k: c.k(),
+            dist: c.dist.to_vec(),
+        };
+        crate::stereo::StereoRig {
+            image_size: [self.left.width as i32, self.left.height as i32],
+            left: cam(&self.left),
+            right: cam(&self.right),
+            r: std::array::from_fn(|k| r[(k / 3, k % 3)]),
+            t: rl.translation.into(),
+        }
+    }
 }
 
 /// What the virtual rig looks like (see the module docs for the defaults).

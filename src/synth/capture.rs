@@ -477,19 +477,7 @@ fn mat3(m: &Matrix3<f64>) -> Vec<f64> {
 }
 
 fn rig_yaml(rig: &Rig, provenance: &crate::provenance::Provenance) -> String {
-    let rl = rig.right_from_left();
-    let r = *rl.rotation.matrix();
-    let t = rl.translation;
-    let tx = Matrix3::new(0.0, -t.z, t.y, t.z, 0.0, -t.x, -t.y, t.x, 0.0);
-    let e = tx * r;
-    let k = |c: &Camera| Matrix3::from_row_slice(&c.k());
-    let f = k(&rig.right)
-        .try_inverse()
-        .expect("K invertible")
-        .transpose()
-        * e
-        * k(&rig.left).try_inverse().expect("K invertible");
-    let f = f / f[(2, 2)];
+    let cams = rig.stereo();
     let hand_r = rig.left.pose.rotation.inverse();
     let hand_t = rig.left.pose.centre().coords;
     let mut fs = FileStorage::new();
@@ -497,14 +485,14 @@ fn rig_yaml(rig: &Rig, provenance: &crate::provenance::Provenance) -> String {
         "image_size",
         &[i64::from(rig.left.width), i64::from(rig.left.height)],
     )
-    .matrix("K1", 3, 3, &rig.left.k())
-    .matrix("D1", 1, 5, &rig.left.dist)
-    .matrix("K2", 3, 3, &rig.right.k())
-    .matrix("D2", 1, 5, &rig.right.dist)
-    .matrix("R", 3, 3, &mat3(&r))
-    .matrix("T", 3, 1, t.as_slice())
-    .matrix("E", 3, 3, &mat3(&e))
-    .matrix("F", 3, 3, &mat3(&f))
+    .matrix("K1", 3, 3, &cams.left.k)
+    .matrix("D1", 1, 5, &cams.left.dist)
+    .matrix("K2", 3, 3, &cams.right.k)
+    .matrix("D2", 1, 5, &cams.right.dist)
+    .matrix("R", 3, 3, &cams.r)
+    .matrix("T", 3, 1, &cams.t)
+    .matrix("E", 3, 3, &mat3(&cams.essential()))
+    .matrix("F", 3, 3, &mat3(&cams.fundamental()))
     .matrix("R_hand", 3, 3, &mat3(hand_r.matrix()))
     .matrix("t_hand", 3, 1, hand_t.as_slice())
     .string("handcap_version", &provenance.handcap_version)

@@ -1,0 +1,81 @@
+//! Speed of `triangulate` per frame: PNG decoding, the marker search, a whole pair (read,
+//! decode, markers, triangulation and reprojection), and the throughput of 32 pairs on every
+//! core, as `handcap triangulate` runs them.
+//! Target (DESIGN.md): at least 100 frame pairs per second at 1280×720, decode included.
+//!
+//! Run: `cargo bench --bench triangulate`.
+
+use std::hint::black_box;
+use std::path::{Path, PathBuf};
+
+use criterion::{criterion_group, criterion_main, Criterion, Throughput};
+use rayon::prelude::*;
+
+use handcap::stereo::{Side, StereoRig};
+use handcap::synth::camera::RigConfig;
+use handcap::synth::plant::Plant;
+use handcap::synth::render::{encode_png, Finger, Lighting, View};
+use handcap::triangulate::frames::decode_into;
+use handcap::triangulate::marker::{find_markers, MarkerOptions, RgbImage};
+
+/// Reads, decodes and searches both frames, then triangulates and reprojects the tip.
+fn pair(rig: &StereoRig, files: [&Path; 2], image: &mut RgbImage, buf: &mut Vec<u8>) -> f64 {
+    let mut centres = [[0.0; 2]; 2];
+    for (k, f) in files.iter().enumerate() {
+        decode_into(f, image, buf).expect("a PNG");
+        centres[k] = find_markers(image, &MarkerOptions::default()).blobs[0].centre_px;
+    }
+    let p = rig.triangulate(&[centres[0]], &[centres[1]]).unwrap();
+    rig.project(Side::Left, &p).unwrap()[0][0] + rig.project(Side::Right, &p).unwrap()[0][0]
+}
+
+fn bench(c: &mut Criterion) {
+    let rig = RigConfig::default().build(2020);
+    let finger = Finger::from_centre_line(
+        &Plant::default().centre_line([0.0, 120.0, 200.0]).unwrap(),
+        4,
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let files: Vec<PathBuf> = [(&rig.left, "left"), (&rig.right, "right")]
+        .iter()
+        .enumerate()
+        .map(|(k, (cam, name))| {
+            let view = View::new((*cam).clone(), Lighting::from_seed(k as u64));
+            let rgb = view.finger(&finger).develop(1.0, 7, k as u64);
+            let path = dir.path().join(format!("{name}_00000.png"));
+            std::fs::write(&path, encode_png(1280, 720, &rgb)).unwrap();
+            path
+        })
+        .collect();
+    let cams = rig.stereo();
+    let (mut image, mut buf) = (RgbImage::default(), Vec::new());
+
+    let mut g = c.benchmark_group("triangulate");
+    g.sample_size(20);
+    g.bench_function("decode png 1280x720", |b| {
+        b.iter(|| decode_into(&files[0], &mut image, &mut buf).unwrap())
+    });
+    decode_into(&files[0], &mut image, &mut buf).unwrap();
+    g.bench_function("find markers 1280x720", |b| {
+        b.iter(|| black_box(find_markers(&image, &MarkerOptions::default())))
+    });
+    g.bench_function("frame pair, one core", |b| {
+        b.iter(|| black_box(pair(&cams, [&files[0], &files[1]], &mut image, &mut buf)))
+    });
+    g.throughput(Throughput::Elements(32));
+    g.bench_function("32 frame pairs, all cores", |b| {
+        b.iter(|| {
+            (0..32)
+                .into_par_iter()
+                .map_init(
+                    || (RgbImage::default(), Vec::new()),
+                    |(image, buf), _| pair(&cams, [&files[0], &files[1]], image, buf),
+                )
+                .sum::<f64>()
+        })
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

@@ -1,0 +1,192 @@
+//! The frames of a capture: `frames.csv` (`frame,camera,time_s`) and the images it names,
+//! `left_NNNNN.png` / `right_NNNNN.png` (or `.jpg`), as `synth` writes them and a capture script
+//! should.
+
+use std::collections::HashSet;
+use std::path::{Path, PathBuf};
+
+use opencv::core::{Mat, Vector};
+use opencv::imgcodecs;
+use opencv::prelude::*;
+
+use super::marker::RgbImage;
+use super::TriangulateError;
+use crate::stereo::Side;
+
+/// One row of `frames.csv`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FrameRecord {
+    pub camera: Side,
+    pub index: usize,
+    /// The capture computer's timestamp (s, the pressure log's clock).
+    pub time_s: f64,
+    /// Line of `frames.csv`, for messages.
+    pub line: u64,
+}
+
+/// Reads `dir/frames.csv`.
+///
+/// # Errors
+/// [`TriangulateError::Input`] naming the file and line: unreadable file, missing column, a
+/// camera other than `left`/`right`, a bad number, a frame listed twice.
+pub fn read_frame_list(dir: &Path) -> Result<Vec<FrameRecord>, TriangulateError> {
+    let path = dir.join("frames.csv");
+    let bad = |line: u64, message: String| TriangulateError::Input {
+        path: path.clone(),
+        line,
+        message,
+    };
+    let file = std::fs::File::open(&path).map_err(|e| {
+        bad(
+            0,
+            format!("{e}; the frames directory needs frames.csv with frame,camera,time_s"),
+        )
+    })?;
+    let mut reader = csv::ReaderBuilder::new()
+        .trim(csv::Trim::All)
+        .from_reader(std::io::BufReader::new(file));
+    let header = reader.headers().map_err(|e| bad(1, e.to_string()))?.clone();
+    let col = |name: &str| {
+        header.iter().position(|h| h == name).ok_or_else(|| {
+            bad(
+                1,
+                format!("no {name} column; the header must have frame,camera,time_s"),
+            )
+        })
+    };
+    let (c_frame, c_camera, c_time) = (col("frame")?, col("camera")?, col("time_s")?);
+    let mut out = Vec::new();
+    let mut seen = HashSet::new();
+    for record in reader.records() {
+        let record =
+            record.map_err(|e| bad(e.position().map_or(0, |p| p.line()), e.to_string()))?;
+        let line = record.position().map_or(0, |p| p.line());
+        let camera = match &record[c_camera] {
+            "left" => Side::Left,
+            "right" => Side::Right,
+            other => return Err(bad(line, format!("camera {other:?}: use left or right"))),
+        };
+        let index: usize = record[c_frame].parse().map_err(|_| {
+            bad(
+                line,
+                format!("frame {:?} is not a frame number", &record[c_frame]),
+            )
+        })?;
+        let time_s: f64 = record[c_time]
+            .parse()
+            .ok()
+            .filter(|t: &f64| t.is_finite())
+            .ok_or_else(|| {
+                bad(
+                    line,
+                    format!("time_s {:?} is not a number", &record[c_time]),
+                )
+            })?;
+        if !seen.insert((camera, index)) {
+            return Err(bad(
+                line,
+                format!("{} frame {index} is listed twice", camera.name()),
+            ));
+        }
+        out.push(FrameRecord {
+            camera,
+            index,
+            time_s,
+            line,
+        });
+    }
+    if out.is_empty() {
+        return Err(bad(1, "no frames listed".into()));
+    }
+    Ok(out)
+}
+
+/// The image file of a frame: `{camera}_{index:05}` with a PNG or JPEG extension.
+pub fn frame_path(dir: &Path, f: &FrameRecord) -> Option<PathBuf> {
+    ["png", "jpg", "jpeg"]
+        .iter()
+        .map(|ext| dir.join(format!("{}_{:05}.{ext}", f.camera.name(), f.index)))
+        .find(|p| p.is_file())
+}
+
+/// Decodes a PNG (with the `png` crate: the fastest decoder here) or any other format OpenCV
+/// reads (JPEG through libjpeg) into 8-bit RGB.
+///
+/// # Errors
+/// A message saying why the file is not an image.
+pub fn decode(path: &Path) -> Result<RgbImage, String> {
+    let mut image = RgbImage::default();
+    decode_into(path, &mut image, &mut Vec::new())?;
+    Ok(image)
+}
+
+/// [`decode`] into `image`, reusing its buffer and `file` (the file's bytes) from frame to
+/// frame: a 1280 × 720 frame is 2.7 MB, and fresh buffers cost page faults every time.
+///
+/// # Errors
+/// A message saying why the file is not an image.
+pub fn decode_into(path: &Path, image: &mut RgbImage, file: &mut Vec<u8>) -> Result<(), String> {
+    use std::io::Read;
+    file.clear();
+    std::fs::File::open(path)
+        .and_then(|mut f| f.read_to_end(file))
+        .map_err(|e| e.to_string())?;
+    if file.starts_with(b"\x89PNG") {
+        decode_png(file, image)
+    } else {
+        *image = decode_opencv(file)?;
+        Ok(())
+    }
+}
+
+fn decode_png(bytes: &[u8], image: &mut RgbImage) -> Result<(), String> {
+    let mut decoder = png::Decoder::new(std::io::Cursor::new(bytes));
+    decoder.set_transformations(png::Transformations::EXPAND | png::Transformations::STRIP_16);
+    let mut reader = decoder.read_info().map_err(|e| e.to_string())?;
+    let buf = &mut image.data;
+    buf.resize(reader.output_buffer_size(), 0);
+    let info = reader.next_frame(buf).map_err(|e| e.to_string())?;
+    buf.truncate(info.buffer_size());
+    (image.width, image.height) = (info.width as usize, info.height as usize);
+    let expanded: Vec<u8> = match info.color_type {
+        png::ColorType::Rgb => return Ok(()),
+        png::ColorType::Rgba => buf
+            .chunks_exact(4)
+            .flat_map(|p| [p[0], p[1], p[2]])
+            .collect(),
+        png::ColorType::Grayscale => buf.iter().flat_map(|&g| [g, g, g]).collect(),
+        png::ColorType::GrayscaleAlpha => buf
+            .chunks_exact(2)
+            .flat_map(|p| [p[0], p[0], p[0]])
+            .collect(),
+        png::ColorType::Indexed => return Err("indexed PNG left unexpanded".into()),
+    };
+    *buf = expanded;
+    Ok(())
+}
+
+fn decode_opencv(bytes: &[u8]) -> Result<RgbImage, String> {
+    let not_image = |_| "not an image OpenCV can read".to_string();
+    let buf = Vector::<u8>::from_slice(bytes);
+    let bgr: Mat = imgcodecs::imdecode(&buf, imgcodecs::IMREAD_COLOR).map_err(not_image)?;
+    if bgr.empty() {
+        return Err("not an image OpenCV can read".into());
+    }
+    let (width, height) = (bgr.cols() as usize, bgr.rows() as usize);
+    let bgr = if bgr.is_continuous() {
+        bgr
+    } else {
+        bgr.try_clone().map_err(not_image)?
+    };
+    let data = bgr
+        .data_bytes()
+        .map_err(not_image)?
+        .chunks_exact(3)
+        .flat_map(|p| [p[2], p[1], p[0]])
+        .collect();
+    Ok(RgbImage {
+        width,
+        height,
+        data,
+    })
+}

@@ -1,0 +1,639 @@
+//! From frames to a dataset: the red tip in every frame, its 3-D position from each left/right
+//! pair, and one row per pressure step of the regulator's log.
+//!
+//! # Steps
+//!
+//! 1. Every frame listed in `frames.csv` is decoded and searched for the marker, in parallel
+//!    ([`marker`]): zero candidates → the marker is missing from that frame.
+//! 2. Frames pair by timestamp, pairs fall into the log's steps, pairs in a step's settling
+//!    time are skipped ([`pairing`]).
+//! 3. Each pair's candidates (usually one per image) are undistorted and triangulated by OpenCV
+//!    ([`crate::stereo`]), optionally after Hartley-Sturm correction (`correct_matches`), and
+//!    reprojected into both images with the distortion. A combination is consistent when both
+//!    reprojection errors are at most `max_reproj_px` and the point is in front of both
+//!    cameras. Exactly one consistent combination → the pair is used (when there were several
+//!    candidates, the epipolar constraint resolved them); none → rejected for its reprojection
+//!    error; several → ambiguous, rejected. Nothing is guessed.
+//! 4. The hand frame: axes `R_hand` from the calibration (its reference pair), origin the
+//!    median tip over the zero-pressure steps (all three pressures ≤ `zero_kpa`):
+//!    p_hand = R_hand · (p_left − origin).
+//! 5. One row per step with at least one used pair: the per-coordinate median of its pairs,
+//!    with `n_frames` (pairs), `spread_mm` (largest distance of a pair from the median),
+//!    `reproj_px` (largest reprojection error) and `dt_ms` (largest left/right time
+//!    difference). A row is flagged (`flag` column, `;`-separated) when it has fewer than
+//!    `min_frames` pairs (`few_frames`), its pairs disagree by more than `max_spread_mm`
+//!    (`spread`), or its step lasted more than twice the log's median step (`long_step`: a gap
+//!    in the log, so frames of an unlogged step may be in it). `handcap model` leaves flagged
+//!    rows out.
+
+pub mod frames;
+pub mod marker;
+pub mod output;
+pub mod pairing;
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+
+use nalgebra::{Matrix3, Vector3};
+use rayon::prelude::*;
+use serde::Serialize;
+
+use crate::stereo::{CalibrationFile, Side, StereoRig};
+use frames::FrameRecord;
+use marker::{MarkerOptions, Markers};
+use pairing::{Placement, PressureLog};
+
+/// Errors of triangulating.
+#[derive(Debug, thiserror::Error)]
+pub enum TriangulateError {
+    #[error("{}{}: {message}", path.display(), if *line > 0 { format!(" line {line}") } else { String::new() })]
+    Input {
+        path: PathBuf,
+        line: u64,
+        message: String,
+    },
+    #[error("{path} has no R_hand: calibrate with a reference pair (left_ref/right_ref, the board at the finger's base) so the hand frame's axes are known")]
+    NoHandAxes { path: PathBuf },
+    #[error("{frame} is {width}×{height} but the calibration is for {cw}×{ch}; capture frames at the calibration's size")]
+    WrongSize {
+        frame: PathBuf,
+        width: usize,
+        height: usize,
+        cw: i32,
+        ch: i32,
+    },
+    #[error("no image of the frames listed in {0}/frames.csv was found (expected left_00000.png, right_00000.png, …)")]
+    NoImages(PathBuf),
+    #[error("no tip found in a zero-pressure step ({zero} steps with all pressures ≤ {zero_kpa} kPa in the log): the hand frame's origin is the tip at zero pressure; log and film at least one step at 0, 0, 0 kPa")]
+    NoOrigin { zero: usize, zero_kpa: f64 },
+    #[error("no frame pair gave a tip position: {0}")]
+    NothingUsed(String),
+    #[error(transparent)]
+    Stereo(#[from] crate::stereo::StereoError),
+    #[error("OpenCV: {0}")]
+    OpenCv(#[from] opencv::Error),
+    #[error("writing {path}: {message}")]
+    Write { path: PathBuf, message: String },
+}
+
+/// Settings of a run.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct TriangulateOptions {
+    pub marker: MarkerOptions,
+    /// Largest left/right timestamp difference of a pair (s).
+    pub max_dt_s: f64,
+    /// Frames earlier than this into their step are skipped (s).
+    pub settle_s: f64,
+    /// Largest reprojection error of a used pair, in either image (px).
+    pub max_reproj_px: f64,
+    /// Hartley-Sturm correction of the matches before triangulating.
+    pub correct_matches: bool,
+    /// Rows with fewer pairs are flagged.
+    pub min_frames: usize,
+    /// Rows whose pairs are further apart are flagged (mm).
+    pub max_spread_mm: f64,
+    /// A step is at zero pressure when all three are at most this (kPa).
+    pub zero_kpa: f64,
+}
+
+impl Default for TriangulateOptions {
+    fn default() -> Self {
+        TriangulateOptions {
+            marker: MarkerOptions::default(),
+            max_dt_s: 0.020,
+            settle_s: 0.1,
+            max_reproj_px: 1.0,
+            correct_matches: true,
+            min_frames: 2,
+            max_spread_mm: 0.5,
+            zero_kpa: 1.0,
+        }
+    }
+}
+
+/// What became of one frame.
+#[derive(Clone, Debug, PartialEq)]
+enum FrameResult {
+    Markers(Markers),
+    NoFile,
+    Unreadable(String),
+    /// Not examined: the run was interrupted.
+    Skipped,
+}
+
+/// What became of a frame pair.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PairStatus {
+    Used,
+    /// Used, after the epipolar constraint chose among several candidates.
+    Resolved,
+    OutsideLog,
+    Settling,
+    Straddles,
+    NoMarkerLeft,
+    NoMarkerRight,
+    NoMarkerBoth,
+    /// An image missing or unreadable.
+    NoImage,
+    /// No candidate combination reprojects within the limit.
+    Reprojection,
+    /// Several candidate combinations do.
+    Ambiguous,
+    /// Not examined: the run was interrupted.
+    Skipped,
+}
+
+impl PairStatus {
+    pub fn used(self) -> bool {
+        matches!(self, PairStatus::Used | PairStatus::Resolved)
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            PairStatus::Used => "used",
+            PairStatus::Resolved => "resolved",
+            PairStatus::OutsideLog => "outside_log",
+            PairStatus::Settling => "settling",
+            PairStatus::Straddles => "straddles",
+            PairStatus::NoMarkerLeft => "no_marker_left",
+            PairStatus::NoMarkerRight => "no_marker_right",
+            PairStatus::NoMarkerBoth => "no_marker_both",
+            PairStatus::NoImage => "no_image",
+            PairStatus::Reprojection => "reprojection",
+            PairStatus::Ambiguous => "ambiguous",
+            PairStatus::Skipped => "skipped",
+        }
+    }
+}
+
+/// One left/right pair and what became of it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PairRecord {
+    pub left: FrameRef,
+    pub right: FrameRef,
+    pub step: Option<usize>,
+    pub status: PairStatus,
+    /// Candidate combinations examined.
+    pub candidates: usize,
+    /// The chosen centroids (left, right), px.
+    pub centres_px: Option<[[f64; 2]; 2]>,
+    /// The tip in the left camera (mm) and its reprojections (left, right), px.
+    pub point_left_mm: Option<Vector3<f64>>,
+    pub reprojected_px: Option<[[f64; 2]; 2]>,
+    /// The larger of the two reprojection errors (px).
+    pub reproj_px: Option<f64>,
+}
+
+/// A frame by camera, number and timestamp.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FrameRef {
+    pub index: usize,
+    pub time_s: f64,
+    pub path: Option<PathBuf>,
+}
+
+/// One dataset row: a pressure step and its tip.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Row {
+    /// Row of the log (0-based).
+    pub step: usize,
+    pub pressures_kpa: [f64; 3],
+    /// Tip in the hand frame (mm).
+    pub tip_mm: [f64; 3],
+    pub n_frames: usize,
+    pub spread_mm: f64,
+    pub reproj_px: f64,
+    pub dt_ms: f64,
+    /// The log row's other columns.
+    pub extra: Vec<String>,
+    pub flags: Vec<&'static str>,
+}
+
+/// Counts per camera: [left, right].
+type PerCamera = [usize; 2];
+
+/// What happened to the frames.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct FrameCounts {
+    pub listed: PerCamera,
+    pub no_file: PerCamera,
+    pub unreadable: PerCamera,
+    pub marker_missing: PerCamera,
+    pub several_candidates: PerCamera,
+    /// Red regions that failed the marker's limits, all frames.
+    pub discarded_regions: usize,
+    pub skipped: PerCamera,
+}
+
+/// How the hand frame's origin was found.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Origin {
+    /// The tip at zero pressure, in the left camera (mm).
+    pub left_mm: [f64; 3],
+    pub zero_steps: usize,
+    pub pairs: usize,
+    /// RMS distance of those pairs' tips from the origin (mm).
+    pub spread_mm: f64,
+}
+
+/// Counts of everything, for the user and the summary file.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Summary {
+    pub frames: FrameCounts,
+    pub pairs_formed: usize,
+    pub unpaired: PerCamera,
+    /// Pairs per [`PairStatus`] name.
+    pub pairs: std::collections::BTreeMap<&'static str, usize>,
+    pub steps_logged: usize,
+    pub rows: usize,
+    pub rows_flagged: usize,
+    /// Log rows (0-based) with no used pair.
+    pub steps_without_tip: Vec<usize>,
+    /// Reprojection error of the used pairs (px): median, 95th percentile, largest.
+    pub reproj_px: [f64; 3],
+    pub origin: Origin,
+    pub interrupted: bool,
+}
+
+/// The result of a run.
+#[derive(Clone, Debug)]
+pub struct Triangulation {
+    pub rows: Vec<Row>,
+    pub pairs: Vec<PairRecord>,
+    pub summary: Summary,
+    /// Hand from left camera: p_hand = r_hand · p_left + t_hand.
+    pub r_hand: Matrix3<f64>,
+    pub t_hand: Vector3<f64>,
+    /// Names of the log's other columns, copied into each row.
+    pub extra_columns: Vec<String>,
+    pub options: TriangulateOptions,
+}
+
+/// Runs the whole triangulation; `progress(done, total)` counts frames examined, `interrupt`
+/// stops the frame search (the pairs examined so far are still used).
+///
+/// # Errors
+/// [`TriangulateError`]: bad inputs (each naming the file and line or frame), no hand axes, no
+/// zero-pressure tip, no usable pair at all.
+pub fn triangulate(
+    frames_dir: &Path,
+    calibration: &CalibrationFile,
+    log: &PressureLog,
+    options: &TriangulateOptions,
+    progress: &(dyn Fn(usize, usize) + Sync),
+    interrupt: &AtomicBool,
+) -> Result<Triangulation, TriangulateError> {
+    let r_hand = calibration
+        .r_hand
+        .ok_or_else(|| TriangulateError::NoHandAxes {
+            path: calibration.path.clone(),
+        })?;
+    let rig = &calibration.rig;
+    let records = frames::read_frame_list(frames_dir)?;
+    let paths: Vec<Option<PathBuf>> = records
+        .iter()
+        .map(|f| frames::frame_path(frames_dir, f))
+        .collect();
+    if paths.iter().all(Option::is_none) {
+        return Err(TriangulateError::NoImages(frames_dir.to_path_buf()));
+    }
+
+    // 1. Markers in every frame.
+    let done = AtomicUsize::new(0);
+    let results: Vec<Result<FrameResult, TriangulateError>> = paths
+        .par_iter()
+        .map_init(
+            || (marker::RgbImage::default(), Vec::new()),
+            |(image, file), path| {
+                let result = examine(path.as_deref(), rig, options, interrupt, image, file);
+                progress(done.fetch_add(1, Ordering::SeqCst) + 1, paths.len());
+                result
+            },
+        )
+        .collect();
+    let results = results.into_iter().collect::<Result<Vec<_>, _>>()?;
+    let mut summary = Summary {
+        interrupted: interrupt.load(Ordering::SeqCst),
+        steps_logged: log.steps.len(),
+        ..Summary::default()
+    };
+    count_frames(&records, &results, &mut summary.frames);
+
+    // 2-3. Pairs, their steps and their tips.
+    let pairing = pairing::pair_frames(&records, options.max_dt_s);
+    summary.pairs_formed = pairing.pairs.len();
+    summary.unpaired = pairing.unpaired;
+    let frame_ref = |i: usize| FrameRef {
+        index: records[i].index,
+        time_s: records[i].time_s,
+        path: paths[i].clone(),
+    };
+    let pairs: Vec<PairRecord> = pairing
+        .pairs
+        .par_iter()
+        .map(|&(l, r)| {
+            let mut record = PairRecord {
+                left: frame_ref(l),
+                right: frame_ref(r),
+                step: None,
+                status: PairStatus::Skipped,
+                candidates: 0,
+                centres_px: None,
+                point_left_mm: None,
+                reprojected_px: None,
+                reproj_px: None,
+            };
+            match pairing::place(log, records[l].time_s, records[r].time_s, options.settle_s) {
+                Placement::Step(k) => record.step = Some(k),
+                Placement::OutsideLog => record.status = PairStatus::OutsideLog,
+                Placement::Settling => record.status = PairStatus::Settling,
+                Placement::Straddles => record.status = PairStatus::Straddles,
+            }
+            if record.step.is_some() {
+                locate(rig, &results[l], &results[r], options, &mut record)?;
+            }
+            Ok(record)
+        })
+        .collect::<Result<Vec<_>, TriangulateError>>()?;
+    for p in &pairs {
+        *summary.pairs.entry(p.status.name()).or_default() += 1;
+    }
+    let used: Vec<&PairRecord> = pairs.iter().filter(|p| p.status.used()).collect();
+    if used.is_empty() {
+        let counts: Vec<String> = summary
+            .pairs
+            .iter()
+            .map(|(k, v)| format!("{v} {k}"))
+            .collect();
+        return Err(TriangulateError::NothingUsed(format!(
+            "{} pairs of {} left and {} right frames: {}",
+            pairs.len(),
+            summary.frames.listed[0],
+            summary.frames.listed[1],
+            counts.join(", ")
+        )));
+    }
+    let mut errors: Vec<f64> = used.iter().filter_map(|p| p.reproj_px).collect();
+    errors.sort_by(f64::total_cmp);
+    summary.reproj_px = [
+        errors[errors.len() / 2],
+        errors[((errors.len() - 1) as f64 * 0.95).round() as usize],
+        errors[errors.len() - 1],
+    ];
+
+    // 4. The hand frame.
+    let zero: Vec<usize> = (0..log.steps.len())
+        .filter(|&k| {
+            log.steps[k]
+                .pressures_kpa
+                .iter()
+                .all(|p| p.abs() <= options.zero_kpa)
+        })
+        .collect();
+    let at_zero: Vec<Vector3<f64>> = used
+        .iter()
+        .filter(|p| p.step.is_some_and(|k| zero.contains(&k)))
+        .filter_map(|p| p.point_left_mm)
+        .collect();
+    if at_zero.is_empty() {
+        return Err(TriangulateError::NoOrigin {
+            zero: zero.len(),
+            zero_kpa: options.zero_kpa,
+        });
+    }
+    let origin = median(&at_zero);
+    summary.origin = Origin {
+        left_mm: origin.into(),
+        zero_steps: zero.len(),
+        pairs: at_zero.len(),
+        spread_mm: (at_zero
+            .iter()
+            .map(|p| (p - origin).norm_squared())
+            .sum::<f64>()
+            / at_zero.len() as f64)
+            .sqrt(),
+    };
+    let t_hand = -(r_hand * origin);
+
+    // 5. One row per step.
+    let mut by_step: Vec<Vec<&PairRecord>> = vec![Vec::new(); log.steps.len()];
+    for p in &used {
+        by_step[p.step.expect("used pairs have a step")].push(p);
+    }
+    let mut rows = Vec::new();
+    for (k, step_pairs) in by_step.iter().enumerate() {
+        if step_pairs.is_empty() {
+            summary.steps_without_tip.push(k);
+            continue;
+        }
+        let tips: Vec<Vector3<f64>> = step_pairs
+            .iter()
+            .map(|p| r_hand * p.point_left_mm.expect("used") + t_hand)
+            .collect();
+        let centre = median(&tips);
+        let spread_mm = tips.iter().map(|t| (t - centre).norm()).fold(0.0, f64::max);
+        let mut flags = Vec::new();
+        if tips.len() < options.min_frames {
+            flags.push("few_frames");
+        }
+        if spread_mm > options.max_spread_mm {
+            flags.push("spread");
+        }
+        if log.end_s(k) - log.steps[k].time_s > 2.0 * log.median_step_s {
+            flags.push("long_step");
+        }
+        rows.push(Row {
+            step: k,
+            pressures_kpa: log.steps[k].pressures_kpa,
+            tip_mm: centre.into(),
+            n_frames: tips.len(),
+            spread_mm,
+            reproj_px: step_pairs
+                .iter()
+                .filter_map(|p| p.reproj_px)
+                .fold(0.0, f64::max),
+            dt_ms: step_pairs
+                .iter()
+                .map(|p| 1e3 * (p.left.time_s - p.right.time_s).abs())
+                .fold(0.0, f64::max),
+            extra: log.steps[k].extra.clone(),
+            flags,
+        });
+    }
+    summary.rows = rows.len();
+    summary.rows_flagged = rows.iter().filter(|r| !r.flags.is_empty()).count();
+    Ok(Triangulation {
+        rows,
+        pairs,
+        summary,
+        r_hand,
+        t_hand,
+        extra_columns: log.extra_columns.clone(),
+        options: options.clone(),
+    })
+}
+
+/// Decodes one frame (into the worker's buffers) and finds its marker candidates.
+fn examine(
+    path: Option<&Path>,
+    rig: &StereoRig,
+    options: &TriangulateOptions,
+    interrupt: &AtomicBool,
+    image: &mut marker::RgbImage,
+    file: &mut Vec<u8>,
+) -> Result<FrameResult, TriangulateError> {
+    if interrupt.load(Ordering::SeqCst) {
+        return Ok(FrameResult::Skipped);
+    }
+    let Some(path) = path else {
+        return Ok(FrameResult::NoFile);
+    };
+    if let Err(why) = frames::decode_into(path, image, file) {
+        return Ok(FrameResult::Unreadable(why));
+    }
+    let [cw, ch] = rig.image_size;
+    if (image.width, image.height) != (cw as usize, ch as usize) {
+        return Err(TriangulateError::WrongSize {
+            frame: path.to_path_buf(),
+            width: image.width,
+            height: image.height,
+            cw,
+            ch,
+        });
+    }
+    Ok(FrameResult::Markers(marker::find_markers(
+        image,
+        &options.marker,
+    )))
+}
+
+fn count_frames(records: &[FrameRecord], results: &[FrameResult], c: &mut FrameCounts) {
+    for (f, r) in records.iter().zip(results) {
+        let cam = usize::from(f.camera == Side::Right);
+        c.listed[cam] += 1;
+        match r {
+            FrameResult::NoFile => c.no_file[cam] += 1,
+            FrameResult::Unreadable(_) => c.unreadable[cam] += 1,
+            FrameResult::Skipped => c.skipped[cam] += 1,
+            FrameResult::Markers(m) => {
+                c.discarded_regions += m.discarded;
+                match m.blobs.len() {
+                    0 => c.marker_missing[cam] += 1,
+                    1 => {}
+                    _ => c.several_candidates[cam] += 1,
+                }
+            }
+        }
+    }
+}
+
+/// Candidates per image that are tried against each other (the reddest first).
+const MAX_CANDIDATES: usize = 4;
+
+/// Triangulates a pair's candidates and keeps the one consistent combination, if there is one.
+fn locate(
+    rig: &StereoRig,
+    left: &FrameResult,
+    right: &FrameResult,
+    options: &TriangulateOptions,
+    record: &mut PairRecord,
+) -> Result<(), TriangulateError> {
+    let (l, r) = match (left, right) {
+        (FrameResult::Skipped, _) | (_, FrameResult::Skipped) => {
+            record.status = PairStatus::Skipped;
+            return Ok(());
+        }
+        (FrameResult::Markers(l), FrameResult::Markers(r)) => (l, r),
+        _ => {
+            record.status = PairStatus::NoImage;
+            return Ok(());
+        }
+    };
+    record.status = match (l.blobs.is_empty(), r.blobs.is_empty()) {
+        (true, true) => PairStatus::NoMarkerBoth,
+        (true, false) => PairStatus::NoMarkerLeft,
+        (false, true) => PairStatus::NoMarkerRight,
+        (false, false) => PairStatus::Reprojection,
+    };
+    if l.blobs.is_empty() || r.blobs.is_empty() {
+        return Ok(());
+    }
+    let centres = |m: &Markers| -> Vec<[f64; 2]> {
+        m.blobs
+            .iter()
+            .take(MAX_CANDIDATES)
+            .map(|b| b.centre_px)
+            .collect()
+    };
+    let (cl, cr) = (centres(l), centres(r));
+    let (nl, nr) = (
+        rig.normalized(Side::Left, &cl)?,
+        rig.normalized(Side::Right, &cr)?,
+    );
+    // Every combination, left-major.
+    let combos: Vec<(usize, usize)> = (0..cl.len())
+        .flat_map(|i| (0..cr.len()).map(move |j| (i, j)))
+        .collect();
+    let (mut a, mut b): (Vec<[f64; 2]>, Vec<[f64; 2]>) =
+        combos.iter().map(|&(i, j)| (nl[i], nr[j])).unzip();
+    if options.correct_matches {
+        (a, b) = rig.correct_matches(&a, &b)?;
+    }
+    let points = rig.triangulate_normalized(&a, &b)?;
+    let (pl, pr) = (
+        rig.project(Side::Left, &points)?,
+        rig.project(Side::Right, &points)?,
+    );
+    let rot = rig.rotation();
+    let t = Vector3::from_row_slice(&rig.t);
+    let dist = |p: [f64; 2], q: [f64; 2]| (p[0] - q[0]).hypot(p[1] - q[1]);
+    let consistent: Vec<(usize, f64)> = combos
+        .iter()
+        .enumerate()
+        .map(|(k, &(i, j))| (k, dist(pl[k], cl[i]).max(dist(pr[k], cr[j]))))
+        .filter(|&(k, err)| {
+            let p = points[k];
+            err <= options.max_reproj_px && p.z > 0.0 && (rot * p + t).z > 0.0
+        })
+        .collect();
+    record.candidates = combos.len();
+    match consistent.as_slice() {
+        [] => {}
+        [(k, err)] => {
+            let (i, j) = combos[*k];
+            record.status = if combos.len() > 1 {
+                PairStatus::Resolved
+            } else {
+                PairStatus::Used
+            };
+            record.centres_px = Some([cl[i], cr[j]]);
+            record.point_left_mm = Some(points[*k]);
+            record.reprojected_px = Some([pl[*k], pr[*k]]);
+            record.reproj_px = Some(*err);
+        }
+        _ => record.status = PairStatus::Ambiguous,
+    }
+    if record.centres_px.is_none() && combos.len() == 1 {
+        // Keep what was seen, for the figures.
+        record.centres_px = Some([cl[0], cr[0]]);
+        record.reprojected_px = Some([pl[0], pr[0]]);
+        record.reproj_px = Some(dist(pl[0], cl[0]).max(dist(pr[0], cr[0])));
+    }
+    Ok(())
+}
+
+/// Per-coordinate median.
+fn median(points: &[Vector3<f64>]) -> Vector3<f64> {
+    let m = |k: usize| {
+        let mut v: Vec<f64> = points.iter().map(|p| p[k]).collect();
+        v.sort_by(f64::total_cmp);
+        let n = v.len();
+        if n % 2 == 1 {
+            v[n / 2]
+        } else {
+            (v[n / 2 - 1] + v[n / 2]) / 2.0
+        }
+    };
+    Vector3::new(m(0), m(1), m(2))
+}

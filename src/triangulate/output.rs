@@ -1,0 +1,385 @@
+//! The files a triangulation writes, all beside the dataset `OUT.csv`:
+//!
+//! - `OUT.csv`: one row per pressure step, `P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm,n_frames,
+//!   spread_mm,reproj_px,dt_ms`, the log's other columns (e.g. `step,phase`), then `flag`
+//!   (empty, or the reasons the row is doubtful).
+//! - `OUT_<phase>.csv`: the same rows split by the log's `phase` column, when it has one.
+//! - `OUT_pairs.csv`: every frame pair, what became of it and its tip (hand frame).
+//! - `OUT_hand.yml`: the hand frame (OpenCV YAML): `R_hand`, `t_hand` (p_hand = R_hand · p_left
+//!   + t_hand), `origin_left_mm`.
+//! - `OUT_summary.json`: the counts, the options, provenance.
+//! - `OUT_detections.png`: a few pairs, cropped around the tip: the detected centroid (green
+//!   cross), the reprojected tip (magenta circle), and where the crop is in the left frame.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use opencv::core::{self, Mat, Point, Rect, Scalar, Size, Vector};
+use opencv::prelude::*;
+use opencv::{imgcodecs, imgproc};
+
+use super::{PairRecord, PairStatus, TriangulateError, Triangulation};
+use crate::fsio;
+use crate::opencv_yaml::FileStorage;
+use crate::provenance::Provenance;
+
+/// `OUT` with `suffix` in place of its extension: `dataset.csv` + `_pairs.csv`.
+pub fn beside(out: &Path, suffix: &str) -> PathBuf {
+    let stem = out
+        .file_stem()
+        .map_or_else(|| "dataset".into(), |s| s.to_string_lossy().into_owned());
+    out.with_file_name(format!("{stem}{suffix}"))
+}
+
+fn write_err(path: &Path) -> impl Fn(String) -> TriangulateError + '_ {
+    move |message| TriangulateError::Write {
+        path: path.to_path_buf(),
+        message,
+    }
+}
+
+fn write_text(path: &Path, text: &str) -> Result<(), TriangulateError> {
+    fsio::write_bytes(path, text.as_bytes()).map_err(|e| write_err(path)(e.to_string()))
+}
+
+/// A CSV cell: quoted when it needs to be.
+fn cell(s: &str) -> String {
+    if s.contains([',', '"', '\n']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
+}
+
+impl Triangulation {
+    /// The dataset's text, with the rows `keep` selects.
+    fn dataset_csv(&self, keep: impl Fn(&super::Row) -> bool) -> String {
+        let mut out =
+            String::from("P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm,n_frames,spread_mm,reproj_px,dt_ms");
+        for c in &self.extra_columns {
+            out.push(',');
+            out += &cell(c);
+        }
+        out += ",flag\n";
+        for r in self.rows.iter().filter(|r| keep(r)) {
+            let [p1, p2, p3] = r.pressures_kpa.map(crate::data::format_number);
+            let [x, y, z] = r.tip_mm;
+            let _ = write!(
+                out,
+                "{p1},{p2},{p3},{x:.4},{y:.4},{z:.4},{},{:.4},{:.3},{:.1}",
+                r.n_frames, r.spread_mm, r.reproj_px, r.dt_ms
+            );
+            for e in &r.extra {
+                out.push(',');
+                out += &cell(e);
+            }
+            out.push(',');
+            out += &r.flags.join(";");
+            out.push('\n');
+        }
+        out
+    }
+
+    /// Every frame pair: frames, times, step, status, centroids, tip (hand frame), error.
+    fn pairs_csv(&self) -> String {
+        let mut out = String::from(
+            "left_frame,right_frame,left_time_s,right_time_s,step,status,candidates,left_u_px,left_v_px,right_u_px,right_v_px,x_mm,y_mm,z_mm,reproj_px\n",
+        );
+        let opt =
+            |v: Option<f64>, digits: usize| v.map_or(String::new(), |v| format!("{v:.digits$}"));
+        for p in &self.pairs {
+            let c = p.centres_px;
+            let tip = p.point_left_mm.map(|q| self.r_hand * q + self.t_hand);
+            let _ = writeln!(
+                out,
+                "{},{},{:.6},{:.6},{},{},{},{},{},{},{},{},{},{},{}",
+                p.left.index,
+                p.right.index,
+                p.left.time_s,
+                p.right.time_s,
+                p.step.map_or(String::new(), |k| k.to_string()),
+                p.status.name(),
+                p.candidates,
+                opt(c.map(|c| c[0][0]), 3),
+                opt(c.map(|c| c[0][1]), 3),
+                opt(c.map(|c| c[1][0]), 3),
+                opt(c.map(|c| c[1][1]), 3),
+                opt(tip.map(|t| t.x), 4),
+                opt(tip.map(|t| t.y), 4),
+                opt(tip.map(|t| t.z), 4),
+                opt(p.reproj_px, 3),
+            );
+        }
+        out
+    }
+
+    fn hand_yaml(&self, provenance: &Provenance) -> String {
+        let r: Vec<f64> = (0..9).map(|k| self.r_hand[(k / 3, k % 3)]).collect();
+        let mut fs = FileStorage::new();
+        fs.matrix("R_hand", 3, 3, &r)
+            .matrix("t_hand", 3, 1, self.t_hand.as_slice())
+            .matrix("origin_left_mm", 3, 1, &self.summary.origin.left_mm)
+            .int("origin_pairs", self.summary.origin.pairs as i64)
+            .string(
+                "convention",
+                "p_hand = R_hand * p_left + t_hand (mm); origin: median tip at zero pressure",
+            )
+            .string("handcap_version", &provenance.handcap_version)
+            .string("command", &provenance.command.join(" "));
+        fs.text().to_string()
+    }
+
+    /// Writes the dataset and everything beside it; returns the files written.
+    ///
+    /// # Errors
+    /// [`TriangulateError::Write`] naming the file.
+    pub fn write(
+        &self,
+        out: &Path,
+        provenance: &Provenance,
+    ) -> Result<Vec<PathBuf>, TriangulateError> {
+        let mut written = Vec::new();
+        write_text(out, &self.dataset_csv(|_| true))?;
+        written.push(out.to_path_buf());
+        if let Some(col) = self.extra_columns.iter().position(|c| c == "phase") {
+            let mut phases: Vec<&str> = Vec::new();
+            for r in &self.rows {
+                if !phases.contains(&r.extra[col].as_str()) {
+                    phases.push(&r.extra[col]);
+                }
+            }
+            for phase in phases {
+                let safe: String = phase
+                    .chars()
+                    .map(|c| {
+                        if c.is_ascii_alphanumeric() || c == '-' {
+                            c
+                        } else {
+                            '_'
+                        }
+                    })
+                    .collect();
+                let path = beside(out, &format!("_{safe}.csv"));
+                write_text(&path, &self.dataset_csv(|r| r.extra[col] == phase))?;
+                written.push(path);
+            }
+        }
+        let path = beside(out, "_pairs.csv");
+        write_text(&path, &self.pairs_csv())?;
+        written.push(path);
+        let path = beside(out, "_hand.yml");
+        write_text(&path, &self.hand_yaml(provenance))?;
+        written.push(path);
+        let path = beside(out, "_summary.json");
+        let json = serde_json::json!({
+            "summary": self.summary,
+            "options": self.options,
+            "provenance": provenance,
+        });
+        write_text(
+            &path,
+            &(serde_json::to_string_pretty(&json).expect("serialisable") + "\n"),
+        )?;
+        written.push(path);
+        let path = beside(out, "_detections.png");
+        if self.write_detections(&path)? {
+            written.push(path);
+        }
+        Ok(written)
+    }
+
+    /// Pairs worth showing: the problem cases first (resolved, ambiguous, reprojection), then
+    /// used pairs spread over the session; at most `n`.
+    fn examples(&self, n: usize) -> Vec<&PairRecord> {
+        let mut out: Vec<&PairRecord> = Vec::new();
+        for status in [
+            PairStatus::Resolved,
+            PairStatus::Ambiguous,
+            PairStatus::Reprojection,
+        ] {
+            if let Some(p) = self
+                .pairs
+                .iter()
+                .find(|p| p.status == status && p.centres_px.is_some())
+            {
+                out.push(p);
+            }
+        }
+        let used: Vec<&PairRecord> = self
+            .pairs
+            .iter()
+            .filter(|p| p.status == PairStatus::Used)
+            .collect();
+        let want = n.saturating_sub(out.len()).min(used.len());
+        for k in 0..want {
+            out.push(used[k * (used.len() - 1) / (want - 1).max(1)]);
+        }
+        out
+    }
+
+    /// Draws [`Self::examples`] into `path`; `false` when there is nothing to draw.
+    fn write_detections(&self, path: &Path) -> Result<bool, TriangulateError> {
+        let rows: Vec<Mat> = self
+            .examples(4)
+            .into_iter()
+            .map(detection_row)
+            .collect::<Result<Vec<Option<Mat>>, opencv::Error>>()?
+            .into_iter()
+            .flatten()
+            .collect();
+        if rows.is_empty() {
+            return Ok(false);
+        }
+        let mut sheet = Mat::default();
+        core::vconcat(&rows.into_iter().collect::<Vector<Mat>>(), &mut sheet)?;
+        let mut png = Vector::<u8>::new();
+        imgcodecs::imencode(".png", &sheet, &mut png, &Vector::new())?;
+        fsio::write_bytes(path, png.as_slice()).map_err(|e| write_err(path)(e.to_string()))?;
+        Ok(true)
+    }
+}
+
+const CROP: i32 = 48;
+const ZOOM: i32 = 5;
+const HEADER: i32 = 24;
+const OVERVIEW: Size = Size {
+    width: 320,
+    height: CROP * ZOOM,
+};
+
+fn bgr(b: f64, g: f64, r: f64) -> Scalar {
+    Scalar::new(b, g, r, 0.0)
+}
+
+/// One row of the detections sheet: left crop, right crop, left overview, with a caption.
+fn detection_row(p: &PairRecord) -> opencv::Result<Option<Mat>> {
+    let (Some(centres), Some(lp), Some(rp)) = (p.centres_px, &p.left.path, &p.right.path) else {
+        return Ok(None);
+    };
+    let read = |path: &Path| imgcodecs::imread(path.as_os_str(), imgcodecs::IMREAD_COLOR);
+    let (left, right) = (read(lp)?, read(rp)?);
+    if left.empty() || right.empty() {
+        return Ok(None);
+    }
+    let reprojected = p.reprojected_px;
+    let crop =
+        |img: &Mat, centre: [f64; 2], reproj: Option<[f64; 2]>| -> opencv::Result<(Mat, Rect)> {
+            let x0 = (centre[0].round() as i32 - CROP / 2).clamp(0, img.cols() - CROP);
+            let y0 = (centre[1].round() as i32 - CROP / 2).clamp(0, img.rows() - CROP);
+            let rect = Rect::new(x0, y0, CROP, CROP);
+            let roi = Mat::roi(img, rect)?.try_clone()?;
+            let mut big = Mat::default();
+            imgproc::resize(
+                &roi,
+                &mut big,
+                Size::new(CROP * ZOOM, CROP * ZOOM),
+                0.0,
+                0.0,
+                imgproc::INTER_NEAREST,
+            )?;
+            // Sub-pixel drawing: coordinates in 1/16 px.
+            let at = |q: [f64; 2]| {
+                Point::new(
+                    (((q[0] - f64::from(x0)) * f64::from(ZOOM) + f64::from(ZOOM - 1) / 2.0) * 16.0)
+                        .round() as i32,
+                    (((q[1] - f64::from(y0)) * f64::from(ZOOM) + f64::from(ZOOM - 1) / 2.0) * 16.0)
+                        .round() as i32,
+                )
+            };
+            if let Some(q) = reproj {
+                imgproc::circle(
+                    &mut big,
+                    at(q),
+                    9 * 16,
+                    bgr(255.0, 0.0, 255.0),
+                    1,
+                    imgproc::LINE_AA,
+                    4,
+                )?;
+            }
+            let c = at(centre);
+            let arm = 7 * 16;
+            for (a, b) in [
+                (Point::new(c.x - arm, c.y), Point::new(c.x + arm, c.y)),
+                (Point::new(c.x, c.y - arm), Point::new(c.x, c.y + arm)),
+            ] {
+                imgproc::line(&mut big, a, b, bgr(0.0, 220.0, 0.0), 1, imgproc::LINE_AA, 4)?;
+            }
+            Ok((big, rect))
+        };
+    let (lc, rect) = crop(&left, centres[0], reprojected.map(|r| r[0]))?;
+    let (rc, _) = crop(&right, centres[1], reprojected.map(|r| r[1]))?;
+    let mut overview = Mat::default();
+    imgproc::resize(
+        &left,
+        &mut overview,
+        Size::new(OVERVIEW.width, OVERVIEW.width * left.rows() / left.cols()),
+        0.0,
+        0.0,
+        imgproc::INTER_AREA,
+    )?;
+    let s = f64::from(OVERVIEW.width) / f64::from(left.cols());
+    let scaled = |v: i32| (f64::from(v) * s).round() as i32;
+    imgproc::rectangle(
+        &mut overview,
+        Rect::new(
+            scaled(rect.x),
+            scaled(rect.y),
+            scaled(rect.width).max(2),
+            scaled(rect.height).max(2),
+        ),
+        bgr(0.0, 220.0, 0.0),
+        1,
+        imgproc::LINE_8,
+        0,
+    )?;
+    let mut padded = Mat::default();
+    core::copy_make_border(
+        &overview,
+        &mut padded,
+        0,
+        OVERVIEW.height - overview.rows(),
+        0,
+        0,
+        core::BORDER_CONSTANT,
+        bgr(255.0, 255.0, 255.0),
+    )?;
+    let gap =
+        Mat::new_rows_cols_with_default(CROP * ZOOM, 8, core::CV_8UC3, bgr(255.0, 255.0, 255.0))?;
+    let mut row = Mat::default();
+    let parts: Vector<Mat> = [lc, gap.try_clone()?, rc, gap, padded]
+        .into_iter()
+        .collect();
+    core::hconcat(&parts, &mut row)?;
+    let mut framed = Mat::default();
+    core::copy_make_border(
+        &row,
+        &mut framed,
+        HEADER,
+        6,
+        0,
+        0,
+        core::BORDER_CONSTANT,
+        bgr(255.0, 255.0, 255.0),
+    )?;
+    let caption = format!(
+        "left {} / right {}  step {}  {}  reprojection {} px",
+        p.left.index,
+        p.right.index,
+        p.step.map_or("-".into(), |k| k.to_string()),
+        p.status.name(),
+        p.reproj_px.map_or("-".into(), |e| format!("{e:.2}")),
+    );
+    imgproc::put_text(
+        &mut framed,
+        &caption,
+        Point::new(6, 17),
+        imgproc::FONT_HERSHEY_SIMPLEX,
+        0.5,
+        bgr(0.0, 0.0, 0.0),
+        1,
+        imgproc::LINE_AA,
+        false,
+    )?;
+    Ok(Some(framed))
+}
