@@ -2,7 +2,8 @@
 //!
 //! A CSV file has one header row and one row per sample. Columns are chosen by name
 //! (`--inputs`/`--outputs`); other columns are ignored. Every value must parse as a finite
-//! number. Errors name the file, the line (the header is line 1) and the column, and say what to do.
+//! number. A column named `flag` marks doubtful rows (`triangulate` writes one): rows whose flag
+//! is not empty are left out, and [`count_flagged`] says how many. Errors name the file, the line (the header is line 1) and the column, and say what to do.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -238,9 +239,13 @@ fn read_selected(
         return Err(DataError::Empty { path: path.into() });
     }
     let index = column_index(path, &header, names)?;
+    let flag = flag_column(&header);
     let mut row = vec![0.0; names.len()];
     for record in records {
         let record = record.map_err(|e| csv_error(path, e))?;
+        if is_flagged(flag, &record) {
+            continue;
+        }
         let line = record.position().map_or(0, |p| p.line());
         if record.len() != header.len() {
             return Err(DataError::Malformed {
@@ -259,6 +264,37 @@ fn read_selected(
         sink(&row);
     }
     Ok(())
+}
+
+/// The rows of `path` that a `flag` column leaves out.
+///
+/// # Errors
+/// [`DataError::Io`] or a malformed CSV file.
+pub fn count_flagged(path: &Path) -> Result<usize, DataError> {
+    let file = std::fs::File::open(path).map_err(|source| DataError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let mut reader = csv::ReaderBuilder::new()
+        .trim(csv::Trim::All)
+        .flexible(true)
+        .from_reader(std::io::BufReader::new(file));
+    let flag = flag_column(reader.headers().map_err(|e| csv_error(path, e))?);
+    let mut n = 0;
+    for record in reader.records() {
+        n += usize::from(is_flagged(flag, &record.map_err(|e| csv_error(path, e))?));
+    }
+    Ok(n)
+}
+
+/// The index of the `flag` column, if the header has one.
+fn flag_column(header: &csv::StringRecord) -> Option<usize> {
+    header.iter().position(|h| h == "flag")
+}
+
+fn is_flagged(flag: Option<usize>, record: &csv::StringRecord) -> bool {
+    flag.and_then(|i| record.get(i))
+        .is_some_and(|f| !f.is_empty())
 }
 
 /// Finds each chosen name in the header; a chosen name that appears twice is ambiguous.

@@ -256,6 +256,17 @@ impl StereoRig {
     }
 }
 
+/// The part of an OpenCV error message a user can act on, on one line: "Input file is invalid
+/// in function 'open'" rather than the source location.
+fn reason(e: &opencv::Error) -> String {
+    let first = e.message.lines().next().unwrap_or_default();
+    let text = first.rsplit_once("error: ").map_or(first, |(_, t)| t);
+    text.split_once(") ")
+        .map_or(text, |(_, t)| t)
+        .trim()
+        .to_string()
+}
+
 /// Reads the cameras (`image_size`, `K1`, `D1`, `K2`, `D2`, `R`, `T`) and, when present, the
 /// hand frame (`R_hand`, `t_hand`) of an OpenCV FileStorage file.
 ///
@@ -277,7 +288,7 @@ pub fn read_calibration(path: &Path) -> Result<CalibrationFile, StereoError> {
         .to_str()
         .ok_or_else(|| unreadable("the path is not UTF-8".into()))?;
     let fs = FileStorage::new(name, core::FileStorage_Mode::READ as i32, "")
-        .map_err(|e| unreadable(e.message))?;
+        .map_err(|e| unreadable(reason(&e)))?;
     if !fs.is_opened()? {
         return Err(unreadable("OpenCV cannot open it".into()));
     }

@@ -236,6 +236,15 @@ pub fn execute(job: &Job) -> anyhow::Result<Outcome> {
         );
     }
     job.params.check().context("model parameters")?;
+    for path in &inputs {
+        let flagged = data::count_flagged(path)?;
+        if flagged > 0 {
+            println!(
+                "{}: {flagged} flagged rows left out (see their flag column)",
+                path.display()
+            );
+        }
+    }
     let train = data::read_dataset(&job.data, &job.inputs, &job.outputs)?;
     train.check_fittable(handcap::model::msvr::MIN_FIT_ROWS)?;
 

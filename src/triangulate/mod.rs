@@ -14,17 +14,18 @@
 //!    cameras. Exactly one consistent combination → the pair is used (when there were several
 //!    candidates, the epipolar constraint resolved them); none → rejected for its reprojection
 //!    error; several → ambiguous, rejected. Nothing is guessed.
-//! 4. The hand frame: axes `R_hand` from the calibration (its reference pair), origin the
-//!    median tip over the zero-pressure steps (all three pressures ≤ `zero_kpa`):
-//!    p_hand = R_hand · (p_left − origin).
-//! 5. One row per step with at least one used pair: the per-coordinate median of its pairs,
-//!    with `n_frames` (pairs), `spread_mm` (largest distance of a pair from the median),
-//!    `reproj_px` (largest reprojection error) and `dt_ms` (largest left/right time
-//!    difference). A row is flagged (`flag` column, `;`-separated) when it has fewer than
+//! 4. A step's row is flagged (`flag` column, `;`-separated) when it has fewer than
 //!    `min_frames` pairs (`few_frames`), its pairs disagree by more than `max_spread_mm`
-//!    (`spread`), or its step lasted more than twice the log's median step (`long_step`: a gap
+//!    (`spread`), or its step lasted over 1.5 times the log's median step (`long_step`: a gap
 //!    in the log, so frames of an unlogged step may be in it). `handcap model` leaves flagged
 //!    rows out.
+//! 5. The hand frame: axes `R_hand` from the calibration (its reference pair), origin the
+//!    median tip over the unflagged zero-pressure steps (all three pressures ≤ `zero_kpa`):
+//!    p_hand = R_hand · (p_left − origin).
+//! 6. One row per step with at least one used pair: the per-coordinate median of its pairs,
+//!    with `n_frames` (pairs), `spread_mm` (largest distance of a pair from the median),
+//!    `reproj_px` (largest reprojection error) and `dt_ms` (largest left/right time
+//!    difference).
 
 pub mod frames;
 pub mod marker;
@@ -382,7 +383,33 @@ pub fn triangulate(
         errors[errors.len() - 1],
     ];
 
-    // 4. The hand frame.
+    // 4. Each step's pairs, and whether its row is doubtful (before the origin: the spread of
+    //    the pairs does not depend on the frame).
+    let mut by_step: Vec<Vec<&PairRecord>> = vec![Vec::new(); log.steps.len()];
+    for p in &used {
+        by_step[p.step.expect("used pairs have a step")].push(p);
+    }
+    let flags: Vec<Vec<&'static str>> = by_step
+        .iter()
+        .enumerate()
+        .map(|(k, step_pairs)| {
+            let points: Vec<Vector3<f64>> =
+                step_pairs.iter().filter_map(|p| p.point_left_mm).collect();
+            let mut flags = Vec::new();
+            if points.len() < options.min_frames {
+                flags.push("few_frames");
+            }
+            if spread(&points) > options.max_spread_mm {
+                flags.push("spread");
+            }
+            if log.end_s(k) - log.steps[k].time_s > 1.5 * log.median_step_s {
+                flags.push("long_step");
+            }
+            flags
+        })
+        .collect();
+
+    // 5. The hand frame: the origin from the zero-pressure steps whose rows are not doubtful.
     let zero: Vec<usize> = (0..log.steps.len())
         .filter(|&k| {
             log.steps[k]
@@ -391,10 +418,10 @@ pub fn triangulate(
                 .all(|p| p.abs() <= options.zero_kpa)
         })
         .collect();
-    let at_zero: Vec<Vector3<f64>> = used
+    let at_zero: Vec<Vector3<f64>> = zero
         .iter()
-        .filter(|p| p.step.is_some_and(|k| zero.contains(&k)))
-        .filter_map(|p| p.point_left_mm)
+        .filter(|&&k| flags[k].is_empty())
+        .flat_map(|&k| by_step[k].iter().filter_map(|p| p.point_left_mm))
         .collect();
     if at_zero.is_empty() {
         return Err(TriangulateError::NoOrigin {
@@ -416,13 +443,9 @@ pub fn triangulate(
     };
     let t_hand = -(r_hand * origin);
 
-    // 5. One row per step.
-    let mut by_step: Vec<Vec<&PairRecord>> = vec![Vec::new(); log.steps.len()];
-    for p in &used {
-        by_step[p.step.expect("used pairs have a step")].push(p);
-    }
+    // 6. One row per step.
     let mut rows = Vec::new();
-    for (k, step_pairs) in by_step.iter().enumerate() {
+    for (k, (step_pairs, flags)) in by_step.iter().zip(flags).enumerate() {
         if step_pairs.is_empty() {
             summary.steps_without_tip.push(k);
             continue;
@@ -431,24 +454,12 @@ pub fn triangulate(
             .iter()
             .map(|p| r_hand * p.point_left_mm.expect("used") + t_hand)
             .collect();
-        let centre = median(&tips);
-        let spread_mm = tips.iter().map(|t| (t - centre).norm()).fold(0.0, f64::max);
-        let mut flags = Vec::new();
-        if tips.len() < options.min_frames {
-            flags.push("few_frames");
-        }
-        if spread_mm > options.max_spread_mm {
-            flags.push("spread");
-        }
-        if log.end_s(k) - log.steps[k].time_s > 2.0 * log.median_step_s {
-            flags.push("long_step");
-        }
         rows.push(Row {
             step: k,
             pressures_kpa: log.steps[k].pressures_kpa,
-            tip_mm: centre.into(),
+            tip_mm: median(&tips).into(),
             n_frames: tips.len(),
-            spread_mm,
+            spread_mm: spread(&tips),
             reproj_px: step_pairs
                 .iter()
                 .filter_map(|p| p.reproj_px)
@@ -621,6 +632,18 @@ fn locate(
         record.reproj_px = Some(dist(pl[0], cl[0]).max(dist(pr[0], cr[0])));
     }
     Ok(())
+}
+
+/// The largest distance of a point from the points' median (mm); 0 for no points.
+fn spread(points: &[Vector3<f64>]) -> f64 {
+    if points.is_empty() {
+        return 0.0;
+    }
+    let centre = median(points);
+    points
+        .iter()
+        .map(|p| (p - centre).norm())
+        .fold(0.0, f64::max)
 }
 
 /// Per-coordinate median.

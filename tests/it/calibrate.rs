@@ -7,7 +7,10 @@ use opencv::core::{self, Vector};
 use opencv::imgcodecs;
 use opencv::prelude::*;
 
-use crate::common::{handcap, handcap_err, handcap_ok, read_rig, small_capture, tempdir, YamlRig};
+use crate::common::{
+    handcap, handcap_err, handcap_ok, read_rig, small_capture, tempdir, tip_rms_against_truth,
+    YamlRig,
+};
 
 fn at(m: &opencv::core::Mat, r: i32, c: i32) -> f64 {
     *m.at_2d::<f64>(r, c).unwrap()
@@ -84,6 +87,27 @@ fn calibrates_the_synthetic_rig_within_tolerance_and_rejects_a_corrupted_pair() 
     ] {
         assert!(yaml.contains(key), "{key} missing");
     }
+
+    // The calibration, its hand axes included, puts the triangulated tip where the truth is.
+    handcap_ok(
+        d,
+        &[
+            "triangulate",
+            "frames",
+            "--calib",
+            "cal.yml",
+            "--out",
+            "tri/dataset.csv",
+        ],
+    );
+    let (rms, n) = tip_rms_against_truth(
+        &d.join("tri/dataset.csv"),
+        &d.join("truth/tips.csv"),
+        |_| true,
+    );
+    println!("tip RMS error through calibrate: {rms:.4} mm over {n} steps");
+    assert_eq!(n, 14);
+    assert!(rms <= 0.1, "tip RMS error {rms} mm");
 
     // Another view's right image in pair 03: the pair no longer agrees and must go.
     std::fs::copy(d.join("calib/right_05.png"), d.join("calib/right_03.png")).unwrap();

@@ -77,12 +77,18 @@ impl Lcg {
     }
 }
 
-/// A small rendered capture in `dir`: `views` board pairs + the reference, 12 pressure steps.
+/// A small rendered capture in `dir`: `views` board pairs + the reference, 14 pressure steps.
 pub fn small_capture(dir: &Path, seed: u64, views: usize) {
+    capture(dir, seed, views, 250.0, 125.0);
+}
+
+/// A rendered capture in `dir`: `views` board pairs + the reference, the training grid and the
+/// two sweeps at the given pressure steps.
+pub fn capture(dir: &Path, seed: u64, views: usize, grid_step_kpa: f64, sweep_step_kpa: f64) {
     let synth = handcap::synth::SynthConfig {
         seed,
-        grid_step_kpa: 250.0,
-        sweep_step_kpa: 125.0,
+        grid_step_kpa,
+        sweep_step_kpa,
         ..handcap::synth::SynthConfig::default()
     };
     let config = handcap::synth::capture::CaptureConfig {
@@ -101,6 +107,47 @@ pub fn small_capture(dir: &Path, seed: u64, views: usize) {
     .expect("capture");
     assert_eq!(summary.board_pairs, views);
     assert!(!summary.interrupted);
+}
+
+/// The rows of a CSV file as maps from column name to cell.
+pub fn csv_rows(path: &Path) -> Vec<std::collections::HashMap<String, String>> {
+    let mut reader = csv::Reader::from_path(path).expect("readable CSV");
+    let header = reader.headers().expect("header").clone();
+    reader
+        .records()
+        .map(|r| {
+            let r = r.expect("record");
+            header
+                .iter()
+                .zip(r.iter())
+                .map(|(h, v)| (h.to_string(), v.to_string()))
+                .collect()
+        })
+        .collect()
+}
+
+/// RMS Euclidean distance (mm) between the dataset's tips and the truth's (`truth/tips.csv`),
+/// matched by the `step` column; rows `keep` rejects are left out. Returns (RMS, rows).
+pub fn tip_rms_against_truth(
+    dataset: &Path,
+    truth: &Path,
+    keep: impl Fn(&std::collections::HashMap<String, String>) -> bool,
+) -> (f64, usize) {
+    let truth: std::collections::HashMap<String, [f64; 3]> = csv_rows(truth)
+        .into_iter()
+        .map(|r| {
+            let v = |k: &str| r[k].parse::<f64>().unwrap();
+            (r["step"].clone(), [v("x_mm"), v("y_mm"), v("z_mm")])
+        })
+        .collect();
+    let (mut sum, mut n) = (0.0, 0);
+    for row in csv_rows(dataset).iter().filter(|r| keep(r)) {
+        let t = truth[&row["step"]];
+        let v = |k: &str| row[k].parse::<f64>().unwrap();
+        sum += (v("x_mm") - t[0]).powi(2) + (v("y_mm") - t[1]).powi(2) + (v("z_mm") - t[2]).powi(2);
+        n += 1;
+    }
+    ((sum / n as f64).sqrt(), n)
 }
 
 /// A stereo rig read back from OpenCV YAML by OpenCV's own FileStorage.

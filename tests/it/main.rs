@@ -8,3 +8,4 @@ mod data;
 mod images;
 mod msvr;
 mod search;
+mod triangulate;

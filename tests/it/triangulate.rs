@@ -1,0 +1,327 @@
+//! `handcap triangulate` against the truth `synth` wrote: tip accuracy in the hand frame, the
+//! injected faults (a frame without the marker, a second red blob, a blob pair that fits the
+//! geometry as well as the tip, a gap in the frames and in the log), the dataset feeding
+//! `handcap model`, and the errors a user will hit.
+
+use std::path::Path;
+
+use nalgebra::Vector3;
+
+use handcap::stereo::{read_calibration, Side};
+use handcap::synth::render::encode_png;
+use handcap::triangulate::frames::decode;
+
+use crate::common::{
+    capture, csv_rows, handcap_err, handcap_ok, small_capture, tempdir, tip_rms_against_truth,
+};
+
+/// Paints a disc of `rgb` (radius `r` px, anti-aliased) into a frame, in place.
+fn paint_disc(path: &Path, centre: [f64; 2], r: f64, rgb: [f64; 3]) {
+    let mut img = decode(path).unwrap();
+    let (x0, x1) = (
+        (centre[0] - r - 2.0) as usize,
+        (centre[0] + r + 2.0) as usize,
+    );
+    let (y0, y1) = (
+        (centre[1] - r - 2.0) as usize,
+        (centre[1] + r + 2.0) as usize,
+    );
+    for y in y0..=y1 {
+        for x in x0..=x1 {
+            let d = (x as f64 - centre[0]).hypot(y as f64 - centre[1]);
+            let cover = (r + 0.5 - d).clamp(0.0, 1.0);
+            let at = 3 * (y * img.width + x);
+            for (v, c) in img.data[at..at + 3].iter_mut().zip(rgb) {
+                *v = (f64::from(*v) * (1.0 - cover) + c * cover).round() as u8;
+            }
+        }
+    }
+    std::fs::write(
+        path,
+        encode_png(img.width as u32, img.height as u32, &img.data),
+    )
+    .unwrap();
+}
+
+/// The truth of one frame: (step, projected tip u, v).
+fn truth_frame(d: &Path, camera: &str, frame: usize) -> (usize, [f64; 2]) {
+    let row = csv_rows(&d.join("truth/frames.csv"))
+        .into_iter()
+        .find(|r| r["camera"] == camera && r["frame"] == frame.to_string())
+        .unwrap();
+    let v = |k: &str| row[k].parse::<f64>().unwrap();
+    (row["step"].parse().unwrap(), [v("u_px"), v("v_px")])
+}
+
+/// `handcap triangulate frames` with the true rig as the calibration; returns stdout.
+fn triangulate_with_truth(d: &Path, out: &str) -> String {
+    let args = [
+        "triangulate",
+        "frames",
+        "--calib",
+        "truth/rig.yml",
+        "--out",
+        out,
+    ];
+    handcap_ok(d, &args)
+}
+
+fn summary(path: &Path) -> serde_json::Value {
+    serde_json::from_str::<serde_json::Value>(&std::fs::read_to_string(path).unwrap()).unwrap()
+        ["summary"]
+        .clone()
+}
+
+#[test]
+fn tips_match_the_truth_in_the_hand_frame_and_the_dataset_feeds_the_model() {
+    let dir = tempdir();
+    let d = dir.path();
+    // Grid every 125 kPa (27 steps) and sweeps every 50 kPa (6 + 6): 39 steps, 234 frames.
+    capture(d, 31, 3, 125.0, 50.0);
+    let out = triangulate_with_truth(d, "out/dataset.csv");
+    assert!(
+        out.contains("steps: 39 logged, 39 rows (0 flagged), 0 without a tip"),
+        "{out}"
+    );
+    let truth = d.join("truth/tips.csv");
+    let (rms, n) = tip_rms_against_truth(&d.join("out/dataset.csv"), &truth, |_| true);
+    println!("tip RMS error {rms:.4} mm over {n} steps");
+    assert_eq!(n, 39);
+    assert!(rms <= 0.1, "tip RMS error {rms} mm");
+    for (phase, rows) in [("train", 27), ("sweep_a", 6), ("sweep_b", 6)] {
+        let file = d.join(format!("out/dataset_{phase}.csv"));
+        let (rms, n) = tip_rms_against_truth(&file, &truth, |_| true);
+        assert_eq!(n, rows, "{phase}");
+        assert!(rms <= 0.1, "{phase}: tip RMS error {rms} mm");
+    }
+    for file in [
+        "dataset_pairs.csv",
+        "dataset_hand.yml",
+        "dataset_summary.json",
+        "dataset_detections.png",
+    ] {
+        assert!(d.join("out").join(file).is_file(), "{file} missing");
+    }
+    // The origin found from the zero-pressure steps is the truth's, read back by OpenCV.
+    let truth_rig = read_calibration(&d.join("truth/rig.yml")).unwrap();
+    let yaml = std::fs::read_to_string(d.join("out/dataset_hand.yml")).unwrap();
+    assert!(yaml.starts_with("%YAML:1.0"), "{yaml}");
+    let fs = opencv::core::FileStorage::new(
+        d.join("out/dataset_hand.yml").to_str().unwrap(),
+        opencv::core::FileStorage_Mode::READ as i32,
+        "",
+    )
+    .unwrap();
+    use opencv::prelude::*;
+    let t = fs.get("t_hand").unwrap().mat().unwrap();
+    let t = Vector3::new(
+        *t.at_2d::<f64>(0, 0).unwrap(),
+        *t.at_2d::<f64>(1, 0).unwrap(),
+        *t.at_2d::<f64>(2, 0).unwrap(),
+    );
+    let origin_error = (t - truth_rig.t_hand.unwrap()).norm();
+    assert!(origin_error < 0.05, "origin {origin_error} mm off");
+
+    // Straight into the model, held-out sweeps included.
+    let out = handcap_ok(
+        d,
+        &[
+            "model",
+            "out/dataset_train.csv",
+            "--search",
+            "none",
+            "--test",
+            "out/dataset_sweep_a.csv",
+            "--out",
+            "out/model.json",
+        ],
+    );
+    assert!(out.contains("| msvr | dataset_sweep_a.csv | 6 |"), "{out}");
+}
+
+#[test]
+fn faults_are_counted_resolved_or_flagged_never_guessed() {
+    let dir = tempdir();
+    let d = dir.path();
+    small_capture(d, 32, 3);
+    let frames = d.join("frames");
+    let rig = read_calibration(&d.join("truth/rig.yml")).unwrap().rig;
+
+    // 1. Left frame 4 without its marker: painted over with the background.
+    let (_, tip) = truth_frame(d, "left", 4);
+    paint_disc(
+        &frames.join("left_00004.png"),
+        tip,
+        7.0,
+        [118.0, 120.0, 124.0],
+    );
+    // 2. A second red blob in right frame 7, far from the tip and its epipolar line.
+    let (_, tip) = truth_frame(d, "right", 7);
+    paint_disc(
+        &frames.join("right_00007.png"),
+        [tip[0] + 150.0, tip[1] - 90.0],
+        3.5,
+        [200.0, 25.0, 22.0],
+    );
+    // 3. In left frame 10 and every right frame of its step, a red blob where one 3-D point
+    //    4 mm below the tip projects (off the tip's epipolar lines): in the pair with frame 10
+    //    two combinations fit the geometry and the pair must be rejected; the step's other
+    //    pairs are resolved.
+    let (step, _) = truth_frame(d, "left", 10);
+    let tips = csv_rows(&d.join("truth/tips.csv"));
+    let row = &tips[step];
+    let p = Vector3::new(
+        row["left_x_mm"].parse::<f64>().unwrap(),
+        row["left_y_mm"].parse::<f64>().unwrap() + 4.0,
+        row["left_z_mm"].parse::<f64>().unwrap(),
+    );
+    let red = [200.0, 25.0, 22.0];
+    paint_disc(
+        &frames.join("left_00010.png"),
+        rig.project(Side::Left, &[p]).unwrap()[0],
+        3.5,
+        red,
+    );
+    let right_frames: Vec<String> = csv_rows(&d.join("truth/frames.csv"))
+        .into_iter()
+        .filter(|r| r["camera"] == "right" && r["step"] == step.to_string())
+        .map(|r| r["frame"].clone())
+        .collect();
+    assert_eq!(right_frames.len(), 3);
+    for f in &right_frames {
+        let path = frames.join(format!("right_{:05}.png", f.parse::<usize>().unwrap()));
+        paint_disc(&path, rig.project(Side::Right, &[p]).unwrap()[0], 3.5, red);
+    }
+    // 4. A gap in the right camera: every right frame of step 5 dropped from the list.
+    let dropped: Vec<String> = csv_rows(&d.join("truth/frames.csv"))
+        .into_iter()
+        .filter(|r| r["camera"] == "right" && r["step"] == "5")
+        .map(|r| r["frame"].clone())
+        .collect();
+    assert_eq!(dropped.len(), 3);
+    let list = std::fs::read_to_string(frames.join("frames.csv")).unwrap();
+    let kept: Vec<&str> = list
+        .lines()
+        .filter(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            !(f[1] == "right" && dropped.iter().any(|k| k == f[0]))
+        })
+        .collect();
+    std::fs::write(frames.join("frames.csv"), kept.join("\n") + "\n").unwrap();
+    // 5. A gap in the log: step 9's command missing, so step 8 seems to last two steps.
+    let log = std::fs::read_to_string(d.join("pressures.csv")).unwrap();
+    let kept: Vec<&str> = log.lines().filter(|l| !l.ends_with(",9,sweep_a")).collect();
+    assert_eq!(kept.len(), log.lines().count() - 1);
+    std::fs::write(d.join("pressures.csv"), kept.join("\n") + "\n").unwrap();
+
+    let out = triangulate_with_truth(d, "dataset.csv");
+    println!("{out}");
+    let s = summary(&d.join("dataset_summary.json"));
+    assert_eq!(s["frames"]["marker_missing"], serde_json::json!([1, 0]));
+    assert_eq!(s["frames"]["several_candidates"], serde_json::json!([1, 4]));
+    assert_eq!(s["unpaired"], serde_json::json!([3, 0]));
+    assert_eq!(s["pairs"]["no_marker_left"], 1);
+    assert_eq!(s["pairs"]["resolved"], 3);
+    assert_eq!(s["pairs"]["ambiguous"], 1);
+    // Step 5 has no tip; the dataset has no row for it.
+    assert_eq!(s["steps_without_tip"], serde_json::json!([5]));
+    let rows = csv_rows(&d.join("dataset.csv"));
+    assert!(rows.iter().all(|r| r["step"] != "5" && r["step"] != "9"));
+    // Step 8 swallowed step 9's frames: flagged, and left out by the model.
+    let eight = rows.iter().find(|r| r["step"] == "8").unwrap();
+    assert!(eight["flag"].contains("long_step"), "{eight:?}");
+    assert!(eight["flag"].contains("spread"), "{eight:?}");
+    let flagged = rows.iter().filter(|r| !r["flag"].is_empty()).count();
+    assert_eq!(flagged, 1, "{rows:?}");
+    // Every other row is still right.
+    let (rms, n) = tip_rms_against_truth(&d.join("dataset.csv"), &d.join("truth/tips.csv"), |r| {
+        r["flag"].is_empty()
+    });
+    assert_eq!(n, 11);
+    assert!(rms <= 0.1, "tip RMS error {rms} mm");
+    let out = handcap_ok(
+        d,
+        &[
+            "model",
+            "dataset.csv",
+            "--search",
+            "none",
+            "--out",
+            "m.json",
+        ],
+    );
+    assert!(
+        out.contains("dataset.csv: 1 flagged rows left out"),
+        "{out}"
+    );
+}
+
+#[test]
+fn triangulate_errors_are_one_line_and_name_the_file() {
+    let dir = tempdir();
+    let d = dir.path();
+    small_capture(d, 33, 3);
+    let args = |calib: &'static str| -> Vec<&'static str> {
+        vec!["triangulate", "frames", "--calib", calib, "--out", "x.csv"]
+    };
+    // No hand axes in the calibration.
+    let rig = std::fs::read_to_string(d.join("truth/rig.yml")).unwrap();
+    std::fs::write(d.join("no_hand.yml"), rig.replace("R_hand:", "R_hand_old:")).unwrap();
+    let msg = handcap_err(d, &args("no_hand.yml"));
+    assert!(
+        msg.contains("no_hand.yml has no R_hand") && msg.contains("reference pair"),
+        "{msg}"
+    );
+    // A calibration for another image size.
+    std::fs::write(
+        d.join("small.yml"),
+        rig.replace("image_size: [ 1280, 720 ]", "image_size: [ 640, 480 ]"),
+    )
+    .unwrap();
+    let msg = handcap_err(d, &args("small.yml"));
+    assert!(
+        msg.contains("1280×720 but the calibration is for 640×480"),
+        "{msg}"
+    );
+    // Not a calibration file.
+    let msg = handcap_err(d, &args("pressures.csv"));
+    assert!(msg.contains("pressures.csv"), "{msg}");
+    // A bad camera name in frames.csv, line 3.
+    let list = std::fs::read_to_string(d.join("frames/frames.csv")).unwrap();
+    let mut lines: Vec<String> = list.lines().map(String::from).collect();
+    lines[2] = lines[2].replace("left", "centre");
+    std::fs::write(d.join("frames/frames.csv"), lines.join("\n") + "\n").unwrap();
+    let msg = handcap_err(d, &args("truth/rig.yml"));
+    assert!(
+        msg.contains("frames.csv line 3") && msg.contains("left or right"),
+        "{msg}"
+    );
+    std::fs::write(d.join("frames/frames.csv"), list).unwrap();
+    // A log out of order, line 4.
+    let log = std::fs::read_to_string(d.join("pressures.csv")).unwrap();
+    let mut lines: Vec<String> = log.lines().map(String::from).collect();
+    lines.swap(2, 3);
+    std::fs::write(d.join("shuffled.csv"), lines.join("\n") + "\n").unwrap();
+    let mut a = args("truth/rig.yml");
+    a.extend(["--pressures", "shuffled.csv"]);
+    let msg = handcap_err(d, &a);
+    assert!(
+        msg.contains("shuffled.csv line 4") && msg.contains("sort the log by time"),
+        "{msg}"
+    );
+    // No zero-pressure step: no origin.
+    let zero_free: Vec<&str> = log.lines().filter(|l| !l.contains(",0,0,0,")).collect();
+    std::fs::write(d.join("nozero.csv"), zero_free.join("\n") + "\n").unwrap();
+    let mut a = args("truth/rig.yml");
+    a.extend(["--pressures", "nozero.csv"]);
+    let msg = handcap_err(d, &a);
+    assert!(msg.contains("zero pressure"), "{msg}");
+    // Missing frames directory; output over an input.
+    let msg = handcap_err(d, &["triangulate", "nowhere", "--calib", "truth/rig.yml"]);
+    assert!(msg.contains("nowhere is not a directory"), "{msg}");
+    let mut a = args("truth/rig.yml");
+    a[5] = "pressures.csv";
+    let msg = handcap_err(d, &a);
+    assert!(msg.contains("is one of the inputs"), "{msg}");
+    assert!(!d.join("x.csv").exists(), "nothing is written on failure");
+}
