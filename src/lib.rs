@@ -4,7 +4,8 @@
 //! a 50 mm finger of three McKibben muscles driven by pressures P1, P2, P3 (0-250 kPa).
 //! The pipeline is `synth → calibrate → triangulate → model`; each stage reads and writes files
 //! a user can open. This build has the virtual plant and stereo capture ([`synth`]), stereo
-//! calibration ([`calib`]), the data layer ([`data`]), the multi-output SVR ([`model::msvr`])
+//! calibration ([`calib`]), the tip's triangulation into datasets ([`triangulate`], with the
+//! OpenCV geometry in [`stereo`]), the data layer ([`data`]), the multi-output SVR ([`model::msvr`])
 //! with its hyper-parameter searches ([`search`]), the previous physics model it is compared
 //! with ([`model::previous`]) and the reports ([`report`]).
 //!

@@ -92,7 +92,7 @@ impl StereoRig {
         Matrix3::from_row_slice(&self.r)
     }
 
-    /// The essential matrix [T]ₓ R (normalised coordinates: x̂_rightᵀ E x̂_left = 0).
+    /// The essential matrix \[T\]ₓ R (normalised coordinates: x̂_rightᵀ E x̂_left = 0).
     pub fn essential(&self) -> Matrix3<f64> {
         Vector3::from_row_slice(&self.t).cross_matrix() * self.rotation()
     }
