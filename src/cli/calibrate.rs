@@ -6,7 +6,7 @@
 //! board, the detector, `coverage`, the triangulated-board check, `R_hand` (left camera → hand
 //! axes) when a reference pair was given, and provenance.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -35,10 +35,14 @@ pub struct Args {
     min_pairs: usize,
 }
 
-/// Board size and square from the flags, else from `DIR/board.yml`.
-fn board_spec(a: &Args) -> anyhow::Result<BoardSpec> {
+/// Board size and square as given, else from `dir/board.yml`.
+pub fn board_spec(
+    dir: &Path,
+    board: Option<(usize, usize)>,
+    square_mm: Option<f64>,
+) -> anyhow::Result<BoardSpec> {
     let from_file = || -> anyhow::Result<BoardSpec> {
-        let path = a.dir.join("board.yml");
+        let path = dir.join("board.yml");
         let text = std::fs::read_to_string(&path).with_context(|| {
             format!(
                 "no --board/--square-mm given and {} cannot be read; pass --board COLSxROWS --square-mm MM",
@@ -57,20 +61,16 @@ fn board_spec(a: &Args) -> anyhow::Result<BoardSpec> {
             square_mm: value("square_mm")?,
         })
     };
-    let file = if a.board.is_none() || a.square_mm.is_none() {
+    let file = if board.is_none() || square_mm.is_none() {
         Some(from_file()?)
     } else {
         None
     };
-    let (cols, rows) = a
-        .board
-        .unwrap_or_else(|| file.map(|f| (f.cols, f.rows)).expect("read above"));
+    let (cols, rows) = board.unwrap_or_else(|| file.map(|f| (f.cols, f.rows)).expect("read above"));
     Ok(BoardSpec {
         cols,
         rows,
-        square_mm: a
-            .square_mm
-            .unwrap_or_else(|| file.map(|f| f.square_mm).expect("read above")),
+        square_mm: square_mm.unwrap_or_else(|| file.map(|f| f.square_mm).expect("read above")),
     })
 }
 
@@ -81,15 +81,26 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             a.dir.display()
         );
     }
-    let board = board_spec(&a)?;
-    let bar = ProgressBar::new(0).with_style(
-        ProgressStyle::with_template("detect {bar:30} {pos}/{len} images").expect("valid template"),
-    );
+    let board = board_spec(&a.dir, a.board, a.square_mm)?;
     let options = CalibOptions {
         min_pairs: a.min_pairs,
         ..CalibOptions::default()
     };
-    let result = calib::calibrate(&a.dir, &board, &options, &|done, total| {
+    calibrate_and_write(&a.dir, &board, &options, &a.out)?;
+    Ok(())
+}
+
+/// Calibrates with a progress bar, prints the summary, writes the YAML and the figures.
+pub fn calibrate_and_write(
+    dir: &Path,
+    board: &BoardSpec,
+    options: &CalibOptions,
+    out: &Path,
+) -> anyhow::Result<StereoCalibration> {
+    let bar = ProgressBar::new(0).with_style(
+        ProgressStyle::with_template("detect {bar:30} {pos}/{len} images").expect("valid template"),
+    );
+    let result = calib::calibrate(dir, board, options, &|done, total| {
         bar.set_length(total as u64);
         bar.set_position(done as u64);
     });
@@ -97,13 +108,13 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let cal = result?;
     print_summary(&cal);
     let provenance = Provenance::new(super::command_line(), None);
-    fsio::write_bytes(&a.out, cal.to_yaml(&provenance).as_bytes())
-        .with_context(|| format!("writing {}", a.out.display()))?;
-    println!("wrote {}", a.out.display());
-    for f in cal.write_figures(&a.out)? {
+    fsio::write_bytes(out, cal.to_yaml(&provenance).as_bytes())
+        .with_context(|| format!("writing {}", out.display()))?;
+    println!("wrote {}", out.display());
+    for f in cal.write_figures(out)? {
         println!("wrote {}", f.display());
     }
-    Ok(())
+    Ok(cal)
 }
 
 fn print_summary(c: &StereoCalibration) {

@@ -3,6 +3,7 @@
 
 mod calibrate;
 mod demo;
+mod inverse;
 mod model;
 mod predict;
 mod synth;
@@ -35,6 +36,8 @@ enum Command {
     Model(model::Args),
     /// Predict outputs of a fitted model for the inputs in a CSV file
     Predict(predict::Args),
+    /// Inputs (pressures) that put a fitted model's tip at a target, for feed-forward control
+    Inverse(inverse::Args),
     /// The whole pipeline on the built-in virtual micro-hand, with a report
     Demo(demo::Args),
 }
@@ -47,6 +50,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Triangulate(a) => triangulate::run(a),
         Command::Model(a) => model::run(a),
         Command::Predict(a) => predict::run(a),
+        Command::Inverse(a) => inverse::run(a),
         Command::Demo(a) => demo::run(a),
     }
 }

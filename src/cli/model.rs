@@ -236,6 +236,10 @@ pub fn execute(job: &Job) -> anyhow::Result<Outcome> {
         );
     }
     job.params.check().context("model parameters")?;
+    if let Some(parent) = job.out.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent)
+            .with_context(|| format!("creating {}", parent.display()))?;
+    }
     for path in &inputs {
         let flagged = data::count_flagged(path)?;
         if flagged > 0 {

@@ -2,7 +2,7 @@
 //! finger frames, the regulator's log, datasets and ground truth (layout:
 //! `handcap::synth::capture`).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::Ordering;
 use std::time::Instant;
 
@@ -11,7 +11,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 
 use handcap::provenance::Provenance;
 use handcap::synth::camera::RigConfig;
-use handcap::synth::capture::{self, CaptureConfig};
+use handcap::synth::capture::{self, CaptureConfig, CaptureSummary};
 use handcap::synth::render::ImageFormat;
 use handcap::synth::{self, plant::PlantParams, SynthConfig};
 
@@ -65,7 +65,7 @@ pub struct Args {
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, clap::ValueEnum)]
-enum FormatArg {
+pub enum FormatArg {
     Png,
     Jpeg,
 }
@@ -101,16 +101,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         },
     };
     let provenance = Provenance::new(super::command_line(), Some(a.seed));
-    let started = Instant::now();
-    let paths = synth::write_datasets(&a.out, &config, &provenance)
-        .with_context(|| format!("synth into {}", a.out.display()))?;
-    for p in &paths {
-        println!("wrote {}", p.display());
-    }
-    if a.no_images {
-        return Ok(());
-    }
-    let capture_config = CaptureConfig {
+    let capture_config = (!a.no_images).then(|| CaptureConfig {
         rig: RigConfig {
             baseline_mm: a.baseline_mm,
             distance_mm: a.distance_mm,
@@ -128,6 +119,27 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             },
         },
         ..CaptureConfig::default()
+    });
+    write_all(&a.out, &config, capture_config.as_ref(), &provenance)?;
+    Ok(())
+}
+
+/// Writes the datasets and, with a capture configuration, the rendered capture and the
+/// manifest, with a progress bar; prints what was written.
+pub fn write_all(
+    out: &Path,
+    config: &SynthConfig,
+    capture_config: Option<&CaptureConfig>,
+    provenance: &Provenance,
+) -> anyhow::Result<Option<CaptureSummary>> {
+    let started = Instant::now();
+    let paths = synth::write_datasets(out, config, provenance)
+        .with_context(|| format!("synth into {}", out.display()))?;
+    for p in &paths {
+        println!("wrote {}", p.display());
+    }
+    let Some(capture_config) = capture_config else {
+        return Ok(None);
     };
     let bar = ProgressBar::new(0).with_style(
         ProgressStyle::with_template("render {bar:30} {pos}/{len} images  {elapsed}")
@@ -135,30 +147,30 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     );
     let interrupt = super::interrupt_flag();
     let summary = capture::write_capture(
-        &a.out,
-        &config,
-        &capture_config,
-        &provenance,
+        out,
+        config,
+        capture_config,
+        provenance,
         &|done, total| {
             bar.set_length(total as u64);
             bar.set_position(done as u64);
         },
         &interrupt,
     )
-    .with_context(|| format!("synth into {}", a.out.display()))?;
+    .with_context(|| format!("synth into {}", out.display()))?;
     bar.finish_and_clear();
     synth::write_manifest(
-        &a.out,
-        &config,
+        out,
+        config,
         &paths,
-        Some((&capture_config, &summary)),
-        &provenance,
+        Some((capture_config, &summary)),
+        provenance,
     )?;
     println!(
         "wrote {}/calib/ ({} board pairs + the reference pair), {}/frames/ ({} left, {} right frames over {} pressure steps), pressures.csv, truth/ in {:.1} s",
-        a.out.display(),
+        out.display(),
         summary.board_pairs,
-        a.out.display(),
+        out.display(),
         summary.left_frames,
         summary.right_frames,
         summary.steps,
@@ -167,5 +179,5 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if summary.interrupted || interrupt.load(Ordering::SeqCst) {
         bail!("interrupted: the images written so far are complete, the rest are missing; run again to finish");
     }
-    Ok(())
+    Ok(Some(summary))
 }

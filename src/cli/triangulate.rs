@@ -1,7 +1,7 @@
 //! `handcap triangulate DIR/frames --calib calib.yml --pressures DIR/pressures.csv --out
 //! dataset.csv`: the tip in every frame pair, in the hand frame, one row per pressure step.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -84,23 +84,35 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             a.out.display()
         );
     }
-    let calibration = stereo::read_calibration(&a.calib)?;
-    if let Some(parent) = a.out.parent().filter(|p| !p.as_os_str().is_empty()) {
+    triangulate_and_write(&a.frames, &a.calib, &pressures, &options, &a.out)?;
+    Ok(())
+}
+
+/// Triangulates with a progress bar, prints the summary, writes the dataset and the files
+/// beside it.
+pub fn triangulate_and_write(
+    frames: &Path,
+    calib: &Path,
+    pressures: &Path,
+    options: &TriangulateOptions,
+    out: &Path,
+) -> anyhow::Result<Triangulation> {
+    let calibration = stereo::read_calibration(calib)?;
+    if let Some(parent) = out.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(parent)
             .with_context(|| format!("creating {}", parent.display()))?;
     }
-    let log = pairing::read_pressure_log(&pressures)?;
-
+    let log = pairing::read_pressure_log(pressures)?;
     let bar = ProgressBar::new(0).with_style(
         ProgressStyle::with_template("frames {bar:30} {pos}/{len} ({per_sec}, {eta})")
             .expect("valid template"),
     );
     let interrupt = super::interrupt_flag();
     let result = triangulate::triangulate(
-        &a.frames,
+        frames,
         &calibration,
         &log,
-        &options,
+        options,
         &|done, total| {
             bar.set_length(total as u64);
             bar.set_position(done as u64);
@@ -111,17 +123,17 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let tri = result?;
     print_summary(&tri);
     let provenance = Provenance::new(super::command_line(), None)
-        .with_input(&a.calib)
-        .and_then(|p| p.with_input(&pressures))
-        .and_then(|p| p.with_input(&a.frames.join("frames.csv")))
+        .with_input(calib)
+        .and_then(|p| p.with_input(pressures))
+        .and_then(|p| p.with_input(&frames.join("frames.csv")))
         .context("hashing the inputs")?;
-    for f in tri.write(&a.out, &provenance)? {
+    for f in tri.write(out, &provenance)? {
         println!("wrote {}", f.display());
     }
     if tri.summary.interrupted {
         bail!("interrupted: the dataset holds the frames examined before Ctrl-C; run again for all of them");
     }
-    Ok(())
+    Ok(tri)
 }
 
 fn print_summary(t: &Triangulation) {

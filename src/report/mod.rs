@@ -20,6 +20,7 @@ use crate::provenance::Provenance;
 use crate::search::{IterationRecord, SearchSummary};
 
 pub mod figures;
+pub mod html;
 
 /// Errors of writing a report.
 #[derive(Debug, thiserror::Error)]

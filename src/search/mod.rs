@@ -299,8 +299,9 @@ pub struct SearchSummary {
     /// The column whose values group rows into whole folds, if any.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub group_by: Option<String>,
-    /// Seed of the folds' shuffle (the method's own seed is in its settings).
-    pub seed: u64,
+    /// Seed of the folds' shuffle (the method's own `seed` is in its settings, flattened beside
+    /// this; one name for both made the model file unreadable).
+    pub fold_seed: u64,
     pub space: Option<SearchSpace>,
     pub best: Hyper,
     pub best_fitness: f64,
@@ -349,7 +350,7 @@ pub fn run(
         method: *method,
         fitness,
         group_by: groups.map(|g| g.column.clone()),
-        seed,
+        fold_seed: seed,
         space,
         best: result.best,
         best_fitness: result.best_fitness,

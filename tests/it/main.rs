@@ -7,5 +7,6 @@ mod contract;
 mod data;
 mod images;
 mod msvr;
+mod pipeline;
 mod search;
 mod triangulate;

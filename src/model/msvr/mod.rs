@@ -293,6 +293,42 @@ impl Msvr {
     pub fn support_vector_count(&self) -> usize {
         self.coefficients.len() / self.outputs.len()
     }
+
+    /// The outputs at `x` (raw input units) into `out`, and their analytic derivatives with
+    /// respect to the raw inputs into `jacobian` (`q × d`, row-major):
+    /// ∂f/∂xⱼ = Σᵢ βᵢ k(sᵢ, s) (sᵢⱼ − sⱼ) / (σ² (maxⱼ − minⱼ)), s the scaled inputs.
+    pub fn predict_with_jacobian(&self, x: &[f64], out: &mut [f64], jacobian: &mut [f64]) {
+        let (d, q) = (self.inputs.len(), self.outputs.len());
+        assert_eq!(jacobian.len(), q * d, "a q × d Jacobian");
+        let sigma2 = self.params.sigma * self.params.sigma;
+        let s: Vec<f64> = (0..d).map(|j| self.scaler.scale(j, x[j])).collect();
+        out.copy_from_slice(&self.bias);
+        jacobian.fill(0.0);
+        let mut diff = vec![0.0; d];
+        for (sv, beta) in self
+            .support_vectors
+            .chunks_exact(d)
+            .zip(self.coefficients.chunks_exact(q))
+        {
+            let mut d2 = 0.0;
+            for j in 0..d {
+                diff[j] = sv[j] - s[j];
+                d2 += diff[j] * diff[j];
+            }
+            let k = (-d2 / (2.0 * sigma2)).exp();
+            for (o, b) in beta.iter().enumerate() {
+                out[o] += k * b;
+                for j in 0..d {
+                    jacobian[o * d + j] += k * b * diff[j];
+                }
+            }
+        }
+        for o in 0..q {
+            for j in 0..d {
+                jacobian[o * d + j] /= sigma2 * (self.scaler.max[j] - self.scaler.min[j]);
+            }
+        }
+    }
 }
 
 impl Predict for Msvr {

@@ -1,0 +1,161 @@
+//! `handcap inverse model.json --target X,Y,Z` or `--targets targets.csv --out pressures.csv`:
+//! the pressures that put the model's tip where it is wanted (feed-forward).
+
+use std::path::PathBuf;
+
+use anyhow::{bail, Context};
+
+use handcap::data::{self, Columns};
+use handcap::fsio;
+use handcap::hand::MAX_PRESSURE_KPA;
+use handcap::model::file::{ModelFile, StoredModel};
+use handcap::model::inverse::{self, InverseOptions, InverseSolution};
+use handcap::model::msvr::Msvr;
+use handcap::model::Predict;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Model file written by `handcap model`
+    model: PathBuf,
+    /// One target, comma-separated in the model's output columns (e.g. x_mm,y_mm,z_mm)
+    #[arg(
+        long,
+        value_delimiter = ',',
+        allow_hyphen_values = true,
+        conflicts_with = "targets"
+    )]
+    target: Option<Vec<f64>>,
+    /// CSV of targets with the model's output columns
+    #[arg(long, requires = "out")]
+    targets: Option<PathBuf>,
+    /// CSV to write: the targets, the inputs found, the model's outputs there, the error
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Upper bound of every `_kpa` input (never above the regulator's 300 kPa); inputs also stay
+    /// inside the model's training range
+    #[arg(long, default_value_t = 250.0)]
+    max_kpa: f64,
+    /// A target is reached when the model's output is this close (output units)
+    #[arg(long, default_value_t = 0.01)]
+    reach: f64,
+}
+
+fn options(model: &Msvr, a: &Args) -> anyhow::Result<InverseOptions> {
+    if !(a.max_kpa > 0.0 && a.max_kpa <= MAX_PRESSURE_KPA) {
+        bail!(
+            "--max-kpa {} must lie in (0, {MAX_PRESSURE_KPA}]: the regulator caps the supply",
+            a.max_kpa
+        );
+    }
+    if a.reach.is_nan() || a.reach <= 0.0 {
+        bail!("--reach must be positive");
+    }
+    let cap = |name: &str| name.ends_with("_kpa").then_some((0.0, a.max_kpa));
+    Ok(InverseOptions {
+        reach: a.reach,
+        ..InverseOptions::within_training_range(model, cap)
+    })
+}
+
+fn describe(names: &[String], values: &[f64]) -> String {
+    names
+        .iter()
+        .zip(values)
+        .map(|(n, v)| format!("{n} {v:.4}"))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+pub fn run(a: Args) -> anyhow::Result<()> {
+    let file = ModelFile::load(&a.model)?;
+    let StoredModel::Msvr(model) = &file.model;
+    let options = options(model, &a)?;
+    match (&a.target, &a.targets) {
+        (Some(target), None) => {
+            let s = inverse::solve(model, target, &options)?;
+            if !s.reached {
+                bail!(
+                    "target ({}) is out of reach within {}: the nearest reachable point is ({}), {:.4} away, at {}",
+                    describe(model.outputs(), target),
+                    bounds(model, &options),
+                    describe(model.outputs(), &s.achieved),
+                    s.error,
+                    describe(model.inputs(), &s.inputs)
+                );
+            }
+            println!("{}", describe(model.inputs(), &s.inputs));
+            println!(
+                "model tip: {} (error {:.5})",
+                describe(model.outputs(), &s.achieved),
+                s.error
+            );
+            Ok(())
+        }
+        (None, Some(path)) => {
+            let out = a.out.as_ref().expect("clap requires --out with --targets");
+            if fsio::is_same_file_as_any(out, &[&a.model, path]) {
+                bail!(
+                    "--out {} is one of the inputs; choose another file",
+                    out.display()
+                );
+            }
+            let targets = data::read_columns(path, model.outputs())?;
+            let solutions: Vec<InverseSolution> = targets
+                .iter_rows()
+                .map(|t| inverse::solve(model, t, &options))
+                .collect::<Result<_, _>>()?;
+            write_solutions(out, model, &targets, &solutions)?;
+            let missed = solutions.iter().filter(|s| !s.reached).count();
+            let mean = solutions.iter().map(|s| s.error).sum::<f64>() / solutions.len() as f64;
+            println!(
+                "{} targets: {} reached within {}, {missed} out of reach (nearest points written); mean model error {mean:.5}",
+                solutions.len(),
+                solutions.len() - missed,
+                a.reach
+            );
+            println!("wrote {}", out.display());
+            Ok(())
+        }
+        _ => bail!("give --target X,Y,Z or --targets FILE.csv --out FILE.csv"),
+    }
+}
+
+/// The box, e.g. "P1_kpa 0-250, P2_kpa 0-250, P3_kpa 0-250".
+fn bounds(model: &Msvr, o: &InverseOptions) -> String {
+    model
+        .inputs()
+        .iter()
+        .enumerate()
+        .map(|(j, n)| format!("{n} {}-{}", o.lower[j], o.upper[j]))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+fn write_solutions(
+    out: &std::path::Path,
+    model: &Msvr,
+    targets: &Columns,
+    solutions: &[InverseSolution],
+) -> anyhow::Result<()> {
+    let inputs = Columns::new(
+        model.inputs().to_vec(),
+        solutions.iter().flat_map(|s| s.inputs.clone()).collect(),
+    );
+    let achieved = Columns::new(
+        model
+            .outputs()
+            .iter()
+            .map(|n| format!("{n}_model"))
+            .collect(),
+        solutions.iter().flat_map(|s| s.achieved.clone()).collect(),
+    );
+    let verdict = Columns::new(
+        vec!["error".into(), "reached".into()],
+        solutions
+            .iter()
+            .flat_map(|s| [s.error, f64::from(u8::from(s.reached))])
+            .collect(),
+    );
+    data::write_csv(out, &[targets, &inputs, &achieved, &verdict])
+        .with_context(|| format!("writing {}", out.display()))
+}

@@ -1,0 +1,186 @@
+//! A self-contained HTML page: headings, paragraphs, tables, and figures embedded in the file
+//! (SVG inline, PNG as base64 data), so it opens offline and can be mailed as one file.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use crate::fsio;
+
+/// An HTML page under construction.
+#[derive(Clone, Debug, Default)]
+pub struct Page {
+    title: String,
+    body: String,
+}
+
+/// Text with `&`, `<`, `>` and `"` escaped.
+pub fn escape(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
+}
+
+impl Page {
+    pub fn new(title: &str) -> Self {
+        Page {
+            title: title.to_string(),
+            body: String::new(),
+        }
+    }
+
+    /// A section heading, with an anchor `id`.
+    pub fn section(&mut self, id: &str, title: &str) -> &mut Self {
+        let _ = writeln!(self.body, "<h2 id=\"{id}\">{}</h2>", escape(title));
+        self
+    }
+
+    pub fn paragraph(&mut self, text: &str) -> &mut Self {
+        let _ = writeln!(self.body, "<p>{}</p>", escape(text));
+        self
+    }
+
+    /// A table; the first column is left-aligned, the others right-aligned (numbers).
+    pub fn table(&mut self, header: &[&str], rows: &[Vec<String>]) -> &mut Self {
+        self.body += "<table>\n<tr>";
+        for h in header {
+            let _ = write!(self.body, "<th>{}</th>", escape(h));
+        }
+        self.body += "</tr>\n";
+        for row in rows {
+            self.body += "<tr>";
+            for cell in row {
+                let _ = write!(self.body, "<td>{}</td>", escape(cell));
+            }
+            self.body += "</tr>\n";
+        }
+        self.body += "</table>\n";
+        self
+    }
+
+    /// Preformatted text.
+    pub fn pre(&mut self, text: &str) -> &mut Self {
+        let _ = writeln!(self.body, "<pre>{}</pre>", escape(text));
+        self
+    }
+
+    /// A figure from a file: SVG inline, PNG embedded as base64; a missing file is said so.
+    pub fn figure(&mut self, path: &Path, caption: &str) -> &mut Self {
+        let content = match path.extension().and_then(|e| e.to_str()) {
+            Some("svg") => std::fs::read_to_string(path).ok().map(|svg| {
+                // Drop the XML declaration: the SVG is an element of this page.
+                match svg.find("<svg") {
+                    Some(start) => svg[start..].to_string(),
+                    None => svg,
+                }
+            }),
+            Some("png") => std::fs::read(path).ok().map(|bytes| {
+                format!(
+                    "<img src=\"data:image/png;base64,{}\" alt=\"{}\">",
+                    base64(&bytes),
+                    escape(caption)
+                )
+            }),
+            _ => None,
+        };
+        let inner = content.unwrap_or_else(|| {
+            format!(
+                "<p class=\"missing\">(figure {} missing)</p>",
+                escape(&path.display().to_string())
+            )
+        });
+        let _ = writeln!(
+            self.body,
+            "<figure>{inner}<figcaption>{}</figcaption></figure>",
+            escape(caption)
+        );
+        self
+    }
+
+    /// The whole page.
+    pub fn html(&self) -> String {
+        format!(
+            "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n<title>{}</title>\n<style>{STYLE}</style>\n</head>\n<body>\n<h1>{}</h1>\n{}</body>\n</html>\n",
+            escape(&self.title),
+            escape(&self.title),
+            self.body
+        )
+    }
+
+    /// Writes the page atomically.
+    ///
+    /// # Errors
+    /// When the file cannot be written.
+    pub fn write(&self, path: &Path) -> std::io::Result<()> {
+        fsio::write_bytes(path, self.html().as_bytes())
+    }
+}
+
+const STYLE: &str = "body{font-family:sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;color:#222;line-height:1.45}\
+h1{font-size:1.7em}h2{margin-top:2em;border-bottom:1px solid #ccc;padding-bottom:.2em}\
+table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ccc;padding:.25em .6em;text-align:right}\
+td:first-child,th:first-child{text-align:left}th{background:#f3f3f3}\
+figure{margin:1em 0}figure svg,figure img{max-width:100%;height:auto;border:1px solid #eee}\
+figcaption{font-size:.9em;color:#555}pre{background:#f7f7f7;padding:.6em;overflow-x:auto;font-size:.85em}\
+.missing{color:#a00}";
+
+/// Standard base64 (RFC 4648, with padding).
+pub fn base64(bytes: &[u8]) -> String {
+    const ALPHABET: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut out = String::with_capacity(bytes.len().div_ceil(3) * 4);
+    for chunk in bytes.chunks(3) {
+        let b = [
+            chunk[0],
+            *chunk.get(1).unwrap_or(&0),
+            *chunk.get(2).unwrap_or(&0),
+        ];
+        let n = (u32::from(b[0]) << 16) | (u32::from(b[1]) << 8) | u32::from(b[2]);
+        for k in 0..4 {
+            if k <= chunk.len() {
+                out.push(ALPHABET[((n >> (18 - 6 * k)) & 63) as usize] as char);
+            } else {
+                out.push('=');
+            }
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn base64_matches_the_rfc_examples() {
+        for (plain, coded) in [
+            ("", ""),
+            ("f", "Zg=="),
+            ("fo", "Zm8="),
+            ("foo", "Zm9v"),
+            ("foob", "Zm9vYg=="),
+            ("fooba", "Zm9vYmE="),
+            ("foobar", "Zm9vYmFy"),
+        ] {
+            assert_eq!(base64(plain.as_bytes()), coded);
+        }
+    }
+
+    #[test]
+    fn text_is_escaped_and_figures_are_embedded() {
+        let dir = tempfile::tempdir().unwrap();
+        let svg = dir.path().join("a.svg");
+        std::fs::write(&svg, "<?xml version=\"1.0\"?>\n<svg width=\"1\"></svg>").unwrap();
+        let mut page = Page::new("R&D <report>");
+        page.paragraph("x < y")
+            .table(&["a", "b"], &[vec!["1".into(), "<2>".into()]])
+            .figure(&svg, "an svg")
+            .figure(&dir.path().join("none.png"), "gone");
+        let html = page.html();
+        assert!(html.contains("<title>R&amp;D &lt;report&gt;</title>"));
+        assert!(html.contains("<p>x &lt; y</p>"));
+        assert!(html.contains("<td>&lt;2&gt;</td>"));
+        assert!(html.contains("<figure><svg width=\"1\"></svg>"));
+        assert!(!html.contains("<?xml"));
+        assert!(html.contains("none.png missing"));
+    }
+}

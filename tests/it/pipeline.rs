@@ -1,0 +1,210 @@
+//! The inverse model from the command line, and the demo end to end at reduced size, its
+//! numbers checked against the virtual plant's truth.
+
+use std::path::Path;
+
+use handcap::synth::plant::Plant;
+
+use crate::common::{csv_rows, handcap_err, handcap_ok, tempdir, tip_rms_against_truth, write};
+
+#[test]
+fn inverse_finds_pressures_for_reachable_targets_and_says_what_is_out_of_reach() {
+    let dir = tempdir();
+    let d = dir.path();
+    handcap_ok(d, &["synth", "--out", "data", "--no-images", "--seed", "4"]);
+    handcap_ok(
+        d,
+        &[
+            "model",
+            "data/train.csv",
+            "--search",
+            "aco-paper",
+            "--ants",
+            "6",
+            "--max-iter",
+            "3",
+        ],
+    );
+    // A measured tip of the training data is reachable: the model's tip lands on it.
+    let row = &csv_rows(&d.join("data/train.csv"))[86]; // P = 100, 100, 100 kPa
+    let target = format!("{},{},{}", row["x_mm"], row["y_mm"], row["z_mm"]);
+    let out = handcap_ok(d, &["inverse", "model.json", "--target", &target]);
+    assert!(out.starts_with("P1_kpa "), "{out}");
+    let error: f64 = out
+        .split("(error ")
+        .nth(1)
+        .and_then(|s| s.trim_end().trim_end_matches(')').parse().ok())
+        .unwrap_or_else(|| panic!("no error in {out}"));
+    assert!(error <= 0.01, "{out}");
+    // 60 mm sideways is out of reach: one line with the nearest point.
+    let msg = handcap_err(d, &["inverse", "model.json", "--target", "60,0,0"]);
+    assert!(
+        msg.contains("out of reach") && msg.contains("nearest reachable point"),
+        "{msg}"
+    );
+    // A file of targets: each row answered, the unreachable one marked.
+    write(
+        d,
+        "targets.csv",
+        &format!("x_mm,y_mm,z_mm\n{target}\n60,0,0\n0,0,0\n"),
+    );
+    let out = handcap_ok(
+        d,
+        &[
+            "inverse",
+            "model.json",
+            "--targets",
+            "targets.csv",
+            "--out",
+            "planned.csv",
+            "--max-kpa",
+            "200",
+        ],
+    );
+    assert!(out.contains("3 targets: 2 reached"), "{out}");
+    let planned = csv_rows(&d.join("planned.csv"));
+    let reached: Vec<&str> = planned.iter().map(|r| r["reached"].as_str()).collect();
+    assert_eq!(reached, ["1", "0", "1"]);
+    for r in &planned {
+        for p in ["P1_kpa", "P2_kpa", "P3_kpa"] {
+            let v: f64 = r[p].parse().unwrap();
+            assert!((0.0..=200.0).contains(&v), "{p} {v} outside --max-kpa 200");
+        }
+    }
+    let msg = handcap_err(
+        d,
+        &[
+            "inverse",
+            "model.json",
+            "--target",
+            "1,2,3",
+            "--max-kpa",
+            "400",
+        ],
+    );
+    assert!(msg.contains("300"), "{msg}");
+    let msg = handcap_err(d, &["inverse", "model.json", "--target", "1,2"]);
+    assert!(msg.contains("3 outputs"), "{msg}");
+}
+
+/// Mean of a column.
+fn mean(rows: &[std::collections::HashMap<String, String>], column: &str) -> f64 {
+    rows.iter()
+        .map(|r| r[column].parse::<f64>().unwrap())
+        .sum::<f64>()
+        / rows.len() as f64
+}
+
+#[test]
+fn the_quick_demo_runs_end_to_end_and_its_numbers_hold_against_the_truth() {
+    let dir = tempdir();
+    let d = dir.path();
+    let out = handcap_ok(d, &["demo", "--out", "demo", "--quick", "--format", "png"]);
+    for stage in [
+        "[1/6] synth",
+        "[2/6] calibrate",
+        "[3/6] triangulate",
+        "[4/6] model",
+        "[5/6] inverse",
+        "[6/6] report",
+    ] {
+        assert!(out.contains(stage), "{stage} missing: {out}");
+    }
+    let demo = d.join("demo");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(demo.join("summary.json")).unwrap()).unwrap();
+
+    // Calibration against the true rig (the tolerances).
+    let c = &summary["calibration"];
+    assert!(c["rms_px"].as_f64().unwrap() <= 0.3, "{c}");
+    assert!(c["intrinsics_error_pct"].as_f64().unwrap() < 0.5, "{c}");
+    assert!(c["baseline_error_pct"].as_f64().unwrap() < 0.5, "{c}");
+    assert!(c["rotation_error_deg"].as_f64().unwrap() < 0.1, "{c}");
+    assert!(c["hand_axes_error_deg"].as_f64().unwrap() < 0.1, "{c}");
+
+    // The triangulated dataset against the truth, recomputed from the files.
+    let (rms, n) = tip_rms_against_truth(
+        &demo.join("triangulated/dataset.csv"),
+        &demo.join("capture/truth/tips.csv"),
+        |_| true,
+    );
+    assert_eq!(n, 39);
+    assert!(rms <= 0.1, "tip RMS error {rms} mm");
+    let all = summary["triangulation"].as_array().unwrap().last().unwrap();
+    assert!(
+        (all["rms_mm"].as_f64().unwrap() - rms).abs() < 1e-4,
+        "{all} vs {rms}"
+    );
+
+    // Even the quick model beats the previous model with default constants on the sweeps.
+    let score = |model: &str, test: &str| {
+        summary["scores"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|s| s["model"] == model && s["test"] == test)
+            .unwrap()["errors"]["mae"]
+            .as_f64()
+            .unwrap()
+    };
+    for test in ["dataset_sweep_a.csv", "sweep_b.csv"] {
+        assert!(
+            score("msvr", test) < score("previous-default", test),
+            "{test}"
+        );
+    }
+
+    // Feed-forward: the planned pressures, run through the plant again here, land where the
+    // check says, and the mean error is the summary's.
+    let rows = csv_rows(&demo.join("inverse_check.csv"));
+    assert_eq!(rows.len(), 20);
+    let plant = Plant::default();
+    for r in &rows {
+        let p = |k: &str| r[k].parse::<f64>().unwrap();
+        let planned = [p("P1_kpa"), p("P2_kpa"), p("P3_kpa")];
+        assert!(planned.iter().all(|v| (0.0..=250.0).contains(v)), "{r:?}");
+        let tip = plant.tip(planned).unwrap();
+        let target = [p("x_mm"), p("y_mm"), p("z_mm")];
+        let error = (0..3)
+            .map(|k| (tip[k] - target[k]).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        assert!((error - p("plant_error_mm")).abs() < 1e-3, "{r:?}: {error}");
+        let source = plant
+            .tip([p("source_P1_kpa"), p("source_P2_kpa"), p("source_P3_kpa")])
+            .unwrap();
+        assert!(
+            (0..3).all(|k| (source[k] - target[k]).abs() < 1e-3),
+            "{r:?}"
+        );
+    }
+    let inverse = &summary["inverse"][0];
+    assert!((inverse["mean_mm"].as_f64().unwrap() - mean(&rows, "plant_error_mm")).abs() < 1e-3);
+
+    // One self-contained page with every section.
+    let html = std::fs::read_to_string(demo.join("report/index.html")).unwrap();
+    for id in [
+        "summary",
+        "calibration",
+        "detection",
+        "triangulation",
+        "aco",
+        "sweeps",
+        "errors",
+        "inverse",
+        "manifest",
+    ] {
+        assert!(
+            html.contains(&format!("<h2 id=\"{id}\">")),
+            "section {id} missing"
+        );
+    }
+    assert!(!html.contains("missing</p>"), "a figure is missing");
+    assert!(
+        !html.contains("src=\"http") && !html.contains("href=\"http"),
+        "external references"
+    );
+    assert!(html.matches("data:image/png;base64,").count() >= 2);
+    assert!(html.matches("<svg").count() >= 10);
+    assert!(Path::new(&demo.join("model.json")).is_file());
+}
