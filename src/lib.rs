@@ -7,7 +7,8 @@
 //! calibration ([`calib`]), the tip's triangulation into datasets ([`triangulate`], with the
 //! OpenCV geometry in [`stereo`]), the data layer ([`data`]), the multi-output SVR ([`model::msvr`])
 //! with its hyper-parameter searches ([`search`]), the previous physics model it is compared
-//! with ([`model::previous`]) and the reports ([`report`]).
+//! with ([`model::previous`]), the inverse model for feed-forward control ([`model::inverse`])
+//! and the reports ([`report`]).
 //!
 //! # Conventions
 //!

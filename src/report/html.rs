@@ -40,7 +40,7 @@ impl Page {
         self
     }
 
-    /// A table; the first column is left-aligned, the others right-aligned (numbers).
+    /// A table; cells that are numbers are right-aligned.
     pub fn table(&mut self, header: &[&str], rows: &[Vec<String>]) -> &mut Self {
         self.body += "<table>\n<tr>";
         for h in header {
@@ -50,7 +50,12 @@ impl Page {
         for row in rows {
             self.body += "<tr>";
             for cell in row {
-                let _ = write!(self.body, "<td>{}</td>", escape(cell));
+                let class = if cell.parse::<f64>().is_ok() {
+                    " class=\"n\""
+                } else {
+                    ""
+                };
+                let _ = write!(self.body, "<td{class}>{}</td>", escape(cell));
             }
             self.body += "</tr>\n";
         }
@@ -118,8 +123,8 @@ impl Page {
 
 const STYLE: &str = "body{font-family:sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;color:#222;line-height:1.45}\
 h1{font-size:1.7em}h2{margin-top:2em;border-bottom:1px solid #ccc;padding-bottom:.2em}\
-table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ccc;padding:.25em .6em;text-align:right}\
-td:first-child,th:first-child{text-align:left}th{background:#f3f3f3}\
+table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ccc;padding:.25em .6em;text-align:left}\
+td.n{text-align:right;font-variant-numeric:tabular-nums}th{background:#f3f3f3}\
 figure{margin:1em 0}figure svg,figure img{max-width:100%;height:auto;border:1px solid #eee}\
 figcaption{font-size:.9em;color:#555}pre{background:#f7f7f7;padding:.6em;overflow-x:auto;font-size:.85em}\
 .missing{color:#a00}";
@@ -178,7 +183,7 @@ mod tests {
         let html = page.html();
         assert!(html.contains("<title>R&amp;D &lt;report&gt;</title>"));
         assert!(html.contains("<p>x &lt; y</p>"));
-        assert!(html.contains("<td>&lt;2&gt;</td>"));
+        assert!(html.contains("<td class=\"n\">1</td><td>&lt;2&gt;</td>"));
         assert!(html.contains("<figure><svg width=\"1\"></svg>"));
         assert!(!html.contains("<?xml"));
         assert!(html.contains("none.png missing"));
