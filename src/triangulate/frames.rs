@@ -10,7 +10,7 @@ use opencv::imgcodecs;
 use opencv::prelude::*;
 
 use super::marker::RgbImage;
-use super::TriangulateError;
+use super::{Table, TriangulateError};
 use crate::stereo::Side;
 
 /// One row of `frames.csv`.
@@ -30,44 +30,22 @@ pub struct FrameRecord {
 /// [`TriangulateError::Input`] naming the file and line: unreadable file, missing column, a
 /// camera other than `left`/`right`, a bad number, a frame listed twice.
 pub fn read_frame_list(dir: &Path) -> Result<Vec<FrameRecord>, TriangulateError> {
-    let path = dir.join("frames.csv");
-    let bad = |line: u64, message: String| TriangulateError::Input {
-        path: path.clone(),
-        line,
-        message,
-    };
-    let file = std::fs::File::open(&path).map_err(|e| {
-        bad(
-            0,
-            format!("{e}; the frames directory needs frames.csv with frame,camera,time_s"),
-        )
-    })?;
-    let mut reader = csv::ReaderBuilder::new()
-        .trim(csv::Trim::All)
-        .from_reader(std::io::BufReader::new(file));
-    let header = reader.headers().map_err(|e| bad(1, e.to_string()))?.clone();
-    let col = |name: &str| {
-        header.iter().position(|h| h == name).ok_or_else(|| {
-            bad(
-                1,
-                format!("no {name} column; the header must have frame,camera,time_s"),
-            )
-        })
-    };
-    let (c_frame, c_camera, c_time) = (col("frame")?, col("camera")?, col("time_s")?);
+    let mut table = Table::open(&dir.join("frames.csv"), "frame,camera,time_s")?;
+    let (c_frame, c_camera, c_time) = (
+        table.column("frame")?,
+        table.column("camera")?,
+        table.column("time_s")?,
+    );
     let mut out = Vec::new();
     let mut seen = HashSet::new();
-    for record in reader.records() {
-        let record =
-            record.map_err(|e| bad(e.position().map_or(0, |p| p.line()), e.to_string()))?;
-        let line = record.position().map_or(0, |p| p.line());
+    for (line, record) in table.records()? {
         let camera = match &record[c_camera] {
             "left" => Side::Left,
             "right" => Side::Right,
-            other => return Err(bad(line, format!("camera {other:?}: use left or right"))),
+            other => return Err(table.bad(line, format!("camera {other:?}: use left or right"))),
         };
         let index: usize = record[c_frame].parse().map_err(|_| {
-            bad(
+            table.bad(
                 line,
                 format!("frame {:?} is not a frame number", &record[c_frame]),
             )
@@ -77,13 +55,13 @@ pub fn read_frame_list(dir: &Path) -> Result<Vec<FrameRecord>, TriangulateError>
             .ok()
             .filter(|t: &f64| t.is_finite())
             .ok_or_else(|| {
-                bad(
+                table.bad(
                     line,
                     format!("time_s {:?} is not a number", &record[c_time]),
                 )
             })?;
         if !seen.insert((camera, index)) {
-            return Err(bad(
+            return Err(table.bad(
                 line,
                 format!("{} frame {index} is listed twice", camera.name()),
             ));
@@ -96,7 +74,7 @@ pub fn read_frame_list(dir: &Path) -> Result<Vec<FrameRecord>, TriangulateError>
         });
     }
     if out.is_empty() {
-        return Err(bad(1, "no frames listed".into()));
+        return Err(table.bad(1, "no frames listed".into()));
     }
     Ok(out)
 }

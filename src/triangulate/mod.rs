@@ -646,6 +646,71 @@ fn spread(points: &[Vector3<f64>]) -> f64 {
         .fold(0.0, f64::max)
 }
 
+/// A CSV input with a header row: its records with their line numbers, and its columns by
+/// name; every error names the file and the line.
+struct Table {
+    path: PathBuf,
+    header: csv::StringRecord,
+    reader: csv::Reader<std::io::BufReader<std::fs::File>>,
+    /// What the header must hold, for messages (e.g. "frame,camera,time_s").
+    needs: &'static str,
+}
+
+impl Table {
+    fn open(path: &Path, needs: &'static str) -> Result<Self, TriangulateError> {
+        let bad = |line, message| Table::error(path, line, message);
+        let file = std::fs::File::open(path)
+            .map_err(|e| bad(0, format!("{e}; it must be a CSV file with {needs}")))?;
+        let mut reader = csv::ReaderBuilder::new()
+            .trim(csv::Trim::All)
+            .from_reader(std::io::BufReader::new(file));
+        let header = reader.headers().map_err(|e| bad(1, e.to_string()))?.clone();
+        Ok(Table {
+            path: path.to_path_buf(),
+            header,
+            reader,
+            needs,
+        })
+    }
+
+    fn error(path: &Path, line: u64, message: String) -> TriangulateError {
+        TriangulateError::Input {
+            path: path.to_path_buf(),
+            line,
+            message,
+        }
+    }
+
+    /// An error at `line` of this file.
+    fn bad(&self, line: u64, message: String) -> TriangulateError {
+        Table::error(&self.path, line, message)
+    }
+
+    /// The position of a required column.
+    fn column(&self, name: &str) -> Result<usize, TriangulateError> {
+        self.header.iter().position(|h| h == name).ok_or_else(|| {
+            self.bad(
+                1,
+                format!("no {name} column; the header must have {}", self.needs),
+            )
+        })
+    }
+
+    /// Every record with its line number.
+    fn records(&mut self) -> Result<Vec<(u64, csv::StringRecord)>, TriangulateError> {
+        let path = self.path.clone();
+        self.reader
+            .records()
+            .map(|r| {
+                let r = r.map_err(|e| {
+                    Table::error(&path, e.position().map_or(0, |p| p.line()), e.to_string())
+                })?;
+                Ok((r.position().map_or(0, |p| p.line()), r))
+            })
+            .collect()
+    }
+}
+
 /// Per-coordinate median.
 fn median(points: &[Vector3<f64>]) -> Vector3<f64> {
     let m = |k: usize| {

@@ -12,7 +12,7 @@
 use std::path::{Path, PathBuf};
 
 use super::frames::FrameRecord;
-use super::TriangulateError;
+use super::{Table, TriangulateError};
 use crate::stereo::Side;
 
 /// One commanded step of the log.
@@ -53,45 +53,26 @@ pub const PRESSURE_COLUMNS: [&str; 3] = ["P1_kpa", "P2_kpa", "P3_kpa"];
 /// [`TriangulateError::Input`] naming the file and line: a missing column, a bad number, times
 /// that do not increase, fewer than two steps.
 pub fn read_pressure_log(path: &Path) -> Result<PressureLog, TriangulateError> {
-    let bad = |line: u64, message: String| TriangulateError::Input {
-        path: path.to_path_buf(),
-        line,
-        message,
-    };
-    let file = std::fs::File::open(path).map_err(|e| bad(0, e.to_string()))?;
-    let mut reader = csv::ReaderBuilder::new()
-        .trim(csv::Trim::All)
-        .from_reader(std::io::BufReader::new(file));
-    let header = reader.headers().map_err(|e| bad(1, e.to_string()))?.clone();
-    let find = |name: &str| {
-        header.iter().position(|h| h == name).ok_or_else(|| {
-            bad(
-                1,
-                format!("no {name} column; the log needs time_s,P1_kpa,P2_kpa,P3_kpa"),
-            )
-        })
-    };
-    let time_col = find("time_s")?;
+    let mut table = Table::open(path, "time_s,P1_kpa,P2_kpa,P3_kpa")?;
+    let time_col = table.column("time_s")?;
     let p_cols = [
-        find(PRESSURE_COLUMNS[0])?,
-        find(PRESSURE_COLUMNS[1])?,
-        find(PRESSURE_COLUMNS[2])?,
+        table.column(PRESSURE_COLUMNS[0])?,
+        table.column(PRESSURE_COLUMNS[1])?,
+        table.column(PRESSURE_COLUMNS[2])?,
     ];
+    let header = table.header.clone();
     let extra_idx: Vec<usize> = (0..header.len())
         .filter(|i| *i != time_col && !p_cols.contains(i))
         .collect();
     let mut steps: Vec<LogStep> = Vec::new();
-    for record in reader.records() {
-        let record =
-            record.map_err(|e| bad(e.position().map_or(0, |p| p.line()), e.to_string()))?;
-        let line = record.position().map_or(0, |p| p.line());
+    for (line, record) in table.records()? {
         let number = |col: usize| -> Result<f64, TriangulateError> {
             record[col]
                 .parse::<f64>()
                 .ok()
                 .filter(|v| v.is_finite())
                 .ok_or_else(|| {
-                    bad(
+                    table.bad(
                         line,
                         format!("{} {:?} is not a number", &header[col], &record[col]),
                     )
@@ -100,7 +81,7 @@ pub fn read_pressure_log(path: &Path) -> Result<PressureLog, TriangulateError> {
         let time_s = number(time_col)?;
         if let Some(prev) = steps.last() {
             if time_s <= prev.time_s {
-                return Err(bad(
+                return Err(table.bad(
                     line,
                     format!(
                         "time_s {time_s} is not after the previous row's {}; sort the log by time",
@@ -116,7 +97,7 @@ pub fn read_pressure_log(path: &Path) -> Result<PressureLog, TriangulateError> {
         });
     }
     if steps.len() < 2 {
-        return Err(bad(0, "fewer than two steps logged".into()));
+        return Err(table.bad(0, "fewer than two steps logged".into()));
     }
     let mut gaps: Vec<f64> = steps
         .windows(2)
