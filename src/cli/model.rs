@@ -75,6 +75,10 @@ pub struct Args {
     /// Seed of the search and of the folds' shuffle
     #[arg(long, default_value_t = DEFAULT_SEED)]
     seed: u64,
+    /// Score the search's candidates on this file's rows instead of the training data's (e.g. a
+    /// coarser subset of a dense grid: the search stays fast, the fit uses every row)
+    #[arg(long)]
+    search_on: Option<PathBuf>,
     /// aco-paper: ants per iteration
     #[arg(long, default_value_t = AcoPaper::default().ants)]
     ants: usize,
@@ -124,6 +128,8 @@ pub enum Selection {
         fitness: FitnessKind,
         group_by: Option<String>,
         seed: u64,
+        /// The rows candidates are scored on, when not the training data.
+        on: Option<PathBuf>,
     },
 }
 
@@ -151,6 +157,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         FitnessArg::Cv => FitnessKind::Cv { folds: a.folds },
         FitnessArg::Train => FitnessKind::Train,
     };
+    if a.search_on.is_some() && a.search == SearchKind::None {
+        bail!("--search-on gives the rows a search scores candidates on: use it with a --search");
+    }
     if a.group_by.is_some() && (a.fitness != FitnessArg::Cv || a.search == SearchKind::None) {
         bail!("--group-by groups the folds of a cross-validated search: use it with --fitness cv and a --search");
     }
@@ -187,6 +196,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 fitness,
                 group_by: a.group_by,
                 seed: a.seed,
+                on: a.search_on,
             },
         },
         tests: a.tests,
@@ -226,7 +236,12 @@ fn iteration_cap(method: &Method) -> u64 {
 
 /// Chooses the parameters, fits, scores and writes; returns what was done.
 pub fn execute(job: &Job) -> anyhow::Result<Outcome> {
+    let search_on = match &job.selection {
+        Selection::Search { on: Some(p), .. } => Some(p.as_path()),
+        _ => None,
+    };
     let inputs: Vec<&Path> = std::iter::once(job.data.as_path())
+        .chain(search_on)
         .chain(job.tests.iter().map(PathBuf::as_path))
         .collect();
     if fsio::is_same_file_as_any(&job.out, &inputs) {
@@ -259,12 +274,22 @@ pub fn execute(job: &Job) -> anyhow::Result<Outcome> {
             fitness,
             group_by,
             seed,
+            on,
         } => {
+            let scored_on = on.as_deref().unwrap_or(&job.data);
+            let scored = match on {
+                None => train.clone(),
+                Some(path) => {
+                    let d = data::read_dataset(path, &job.inputs, &job.outputs)?;
+                    d.check_fittable(handcap::model::msvr::MIN_FIT_ROWS)?;
+                    d
+                }
+            };
             let groups = match group_by {
                 None => None,
                 Some(column) => Some(search::Groups {
                     column: column.clone(),
-                    labels: data::read_columns(&job.data, std::slice::from_ref(column))?.values,
+                    labels: data::read_columns(scored_on, std::slice::from_ref(column))?.values,
                 }),
             };
             let started = Instant::now();
@@ -275,7 +300,7 @@ pub fn execute(job: &Job) -> anyhow::Result<Outcome> {
             let mut progress = Progress(bar);
             let (summary, result, counters) = search::run(
                 method,
-                &train,
+                &scored,
                 *fitness,
                 *seed,
                 groups.as_ref(),
