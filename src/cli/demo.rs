@@ -681,7 +681,7 @@ fn report(
 
     page.section("manifest", "Run manifest")
         .table(
-            &["", ""],
+            &["item", "value"],
             &[
                 vec!["handcap version".into(), s.provenance.handcap_version.clone()],
                 vec!["command".into(), s.provenance.command.join(" ")],
@@ -689,7 +689,7 @@ fn report(
                 vec!["stage timings (s)".into(), s.timings_s.iter().map(|(k, v)| format!("{k} {v:.1}")).collect::<Vec<_>>().join(", ")],
             ],
         )
-        .paragraph("Files: capture/ (images, pressures.csv, truth/), calib.yml, triangulated/ (dataset and its diagnostics), model.json and model/ (report.md, metrics.csv, history.csv, figures), model_plant/, inverse_check.csv, summary.json.");
+        .paragraph("Files: capture/ (images, pressures.csv, truth/), calib.yml, triangulated/ (dataset and its diagnostics), search/ (the rows the search scored), model.json and model/ (report.md, metrics.csv, history.csv, figures), model_plant/, inverse_check.csv, summary.json.");
     page
 }
 
