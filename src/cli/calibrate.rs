@@ -106,12 +106,14 @@ pub fn calibrate_and_write(
     });
     bar.finish_and_clear();
     let cal = result?;
-    print_summary(&cal);
     let provenance = Provenance::new(super::command_line(), None);
+    // Files first, then the printing: a closed pipe on stdout must not cost the results.
     fsio::write_bytes(out, cal.to_yaml(&provenance).as_bytes())
         .with_context(|| format!("writing {}", out.display()))?;
+    let figures = cal.write_figures(out)?;
+    print_summary(&cal);
     println!("wrote {}", out.display());
-    for f in cal.write_figures(out)? {
+    for f in figures {
         println!("wrote {}", f.display());
     }
     Ok(cal)

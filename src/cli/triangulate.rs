@@ -121,13 +121,15 @@ pub fn triangulate_and_write(
     );
     bar.finish_and_clear();
     let tri = result?;
-    print_summary(&tri);
     let provenance = Provenance::new(super::command_line(), None)
         .with_input(calib)
         .and_then(|p| p.with_input(pressures))
         .and_then(|p| p.with_input(&frames.join("frames.csv")))
         .context("hashing the inputs")?;
-    for f in tri.write(out, &provenance)? {
+    // Files first, then the printing: a closed pipe on stdout must not cost the results.
+    let written = tri.write(out, &provenance)?;
+    print_summary(&tri);
+    for f in written {
         println!("wrote {}", f.display());
     }
     if tri.summary.interrupted {
