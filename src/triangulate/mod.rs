@@ -383,31 +383,33 @@ pub fn triangulate(
         errors[errors.len() - 1],
     ];
 
-    // 4. Each step's pairs, and whether its row is doubtful (before the origin: the spread of
-    //    the pairs does not depend on the frame).
+    // 4. Each step's pairs, their spread (in the left camera: distances do not depend on the
+    //    frame), and whether its row is doubtful; before the origin, which doubtful rows must
+    //    not place.
     let mut by_step: Vec<Vec<&PairRecord>> = vec![Vec::new(); log.steps.len()];
     for p in &used {
         by_step[p.step.expect("used pairs have a step")].push(p);
     }
-    let flags: Vec<Vec<&'static str>> = by_step
+    let (spreads, flags): (Vec<f64>, Vec<Vec<&'static str>>) = by_step
         .iter()
         .enumerate()
         .map(|(k, step_pairs)| {
             let points: Vec<Vector3<f64>> =
                 step_pairs.iter().filter_map(|p| p.point_left_mm).collect();
+            let spread = spread(&points);
             let mut flags = Vec::new();
             if points.len() < options.min_frames {
                 flags.push("few_frames");
             }
-            if spread(&points) > options.max_spread_mm {
+            if spread > options.max_spread_mm {
                 flags.push("spread");
             }
             if log.end_s(k) - log.steps[k].time_s > 1.5 * log.median_step_s {
                 flags.push("long_step");
             }
-            flags
+            (spread, flags)
         })
-        .collect();
+        .unzip();
 
     // 5. The hand frame: the origin from the zero-pressure steps whose rows are not doubtful.
     let zero: Vec<usize> = (0..log.steps.len())
@@ -445,7 +447,8 @@ pub fn triangulate(
 
     // 6. One row per step.
     let mut rows = Vec::new();
-    for (k, (step_pairs, flags)) in by_step.iter().zip(flags).enumerate() {
+    for (k, ((step_pairs, flags), spread_mm)) in by_step.iter().zip(flags).zip(spreads).enumerate()
+    {
         if step_pairs.is_empty() {
             summary.steps_without_tip.push(k);
             continue;
@@ -459,7 +462,7 @@ pub fn triangulate(
             pressures_kpa: log.steps[k].pressures_kpa,
             tip_mm: median(&tips).into(),
             n_frames: tips.len(),
-            spread_mm: spread(&tips),
+            spread_mm,
             reproj_px: step_pairs
                 .iter()
                 .filter_map(|p| p.reproj_px)
