@@ -9,7 +9,6 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
-use indicatif::{ProgressBar, ProgressStyle};
 
 use handcap::calib::{self, BoardSpec, CalibOptions, StereoCalibration};
 use handcap::fsio;
@@ -97,14 +96,9 @@ pub fn calibrate_and_write(
     options: &CalibOptions,
     out: &Path,
 ) -> anyhow::Result<StereoCalibration> {
-    let bar = ProgressBar::new(0).with_style(
-        ProgressStyle::with_template("detect {bar:30} {pos}/{len} images").expect("valid template"),
-    );
-    let result = calib::calibrate(dir, board, options, &|done, total| {
-        bar.set_length(total as u64);
-        bar.set_position(done as u64);
-    });
-    bar.finish_and_clear();
+    let bar = super::Counter::new("detect {bar:30} {pos}/{len} images");
+    let result = calib::calibrate(dir, board, options, &|done, total| bar.update(done, total));
+    bar.finish();
     let cal = result?;
     let provenance = Provenance::new(super::command_line(), None);
     // Files first, then the printing: a closed pipe on stdout must not cost the results.

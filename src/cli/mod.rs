@@ -69,6 +69,29 @@ fn interrupt_flag() -> Arc<AtomicBool> {
     .clone()
 }
 
+/// A progress bar for library work that reports `(done, total)`.
+struct Counter(indicatif::ProgressBar);
+
+impl Counter {
+    fn new(template: &str) -> Self {
+        Counter(
+            indicatif::ProgressBar::new(0).with_style(
+                indicatif::ProgressStyle::with_template(template).expect("valid template"),
+            ),
+        )
+    }
+
+    /// The callback the library reports to.
+    fn update(&self, done: usize, total: usize) {
+        self.0.set_length(total as u64);
+        self.0.set_position(done as u64);
+    }
+
+    fn finish(&self) {
+        self.0.finish_and_clear();
+    }
+}
+
 /// The command line as typed, for provenance.
 fn command_line() -> Vec<String> {
     std::env::args().collect()

@@ -7,7 +7,6 @@ use std::sync::atomic::Ordering;
 use std::time::Instant;
 
 use anyhow::{bail, Context};
-use indicatif::{ProgressBar, ProgressStyle};
 
 use handcap::provenance::Provenance;
 use handcap::synth::camera::RigConfig;
@@ -141,24 +140,18 @@ pub fn write_all(
     let Some(capture_config) = capture_config else {
         return Ok(None);
     };
-    let bar = ProgressBar::new(0).with_style(
-        ProgressStyle::with_template("render {bar:30} {pos}/{len} images  {elapsed}")
-            .expect("valid template"),
-    );
+    let bar = super::Counter::new("render {bar:30} {pos}/{len} images  {elapsed}");
     let interrupt = super::interrupt_flag();
     let summary = capture::write_capture(
         out,
         config,
         capture_config,
         provenance,
-        &|done, total| {
-            bar.set_length(total as u64);
-            bar.set_position(done as u64);
-        },
+        &|done, total| bar.update(done, total),
         &interrupt,
     )
     .with_context(|| format!("synth into {}", out.display()))?;
-    bar.finish_and_clear();
+    bar.finish();
     synth::write_manifest(
         out,
         config,

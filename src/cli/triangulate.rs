@@ -4,7 +4,6 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context};
-use indicatif::{ProgressBar, ProgressStyle};
 
 use handcap::fsio;
 use handcap::provenance::Provenance;
@@ -103,23 +102,17 @@ pub fn triangulate_and_write(
             .with_context(|| format!("creating {}", parent.display()))?;
     }
     let log = pairing::read_pressure_log(pressures)?;
-    let bar = ProgressBar::new(0).with_style(
-        ProgressStyle::with_template("frames {bar:30} {pos}/{len} ({per_sec}, {eta})")
-            .expect("valid template"),
-    );
+    let bar = super::Counter::new("frames {bar:30} {pos}/{len} ({per_sec}, {eta})");
     let interrupt = super::interrupt_flag();
     let result = triangulate::triangulate(
         frames,
         &calibration,
         &log,
         options,
-        &|done, total| {
-            bar.set_length(total as u64);
-            bar.set_position(done as u64);
-        },
+        &|done, total| bar.update(done, total),
         &interrupt,
     );
-    bar.finish_and_clear();
+    bar.finish();
     let tri = result?;
     let provenance = Provenance::new(super::command_line(), None)
         .with_input(calib)
