@@ -14,6 +14,7 @@ use opencv::core::{self, FileStorage, Mat};
 use opencv::prelude::*;
 
 use crate::cv;
+use crate::opencv_yaml::FileStorage as FileStorageWriter;
 
 /// An image point (x, y).
 pub type Point2 = [f64; 2];
@@ -37,14 +38,14 @@ impl Side {
 }
 
 /// One camera's intrinsics: K (row-major 3 × 3) and the distortion coefficients.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct Intrinsics {
     pub k: [f64; 9],
     pub dist: Vec<f64>,
 }
 
 /// The two cameras and the left → right pose.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct StereoRig {
     /// Width and height in pixels.
     pub image_size: [i32; 2],
@@ -85,6 +86,21 @@ impl StereoRig {
             Side::Left => &self.left,
             Side::Right => &self.right,
         }
+    }
+
+    /// Writes `image_size`, `K1`, `D1`, `K2`, `D2`, `R`, `T`: the keys [`read_calibration`]
+    /// reads back.
+    pub fn write_yaml<'a>(&self, fs: &'a mut FileStorageWriter) -> &'a mut FileStorageWriter {
+        fs.ints(
+            "image_size",
+            &[self.image_size[0].into(), self.image_size[1].into()],
+        )
+        .matrix("K1", 3, 3, &self.left.k)
+        .matrix("D1", 1, self.left.dist.len(), &self.left.dist)
+        .matrix("K2", 3, 3, &self.right.k)
+        .matrix("D2", 1, self.right.dist.len(), &self.right.dist)
+        .matrix("R", 3, 3, &self.r)
+        .matrix("T", 3, 1, &self.t)
     }
 
     /// The right camera's rotation from the left's.

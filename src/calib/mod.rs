@@ -189,16 +189,10 @@ pub struct BoardCheck {
 /// A stereo calibration and its quality.
 #[derive(Clone, Debug, Serialize)]
 pub struct StereoCalibration {
-    pub image_size: [i32; 2],
     pub board: BoardSpec,
     pub detector: Detector,
-    pub k1: [f64; 9],
-    pub d1: Vec<f64>,
-    pub k2: [f64; 9],
-    pub d2: Vec<f64>,
-    /// Left → right: p_right = R p_left + T (mm).
-    pub r: [f64; 9],
-    pub t: [f64; 3],
+    /// The image size, both cameras and the left → right pose.
+    pub rig: StereoRig,
     pub e: [f64; 9],
     pub f: [f64; 9],
     pub r1: [f64; 9],
@@ -231,25 +225,17 @@ impl StereoCalibration {
     /// The calibration as OpenCV FileStorage YAML (keys in the module docs of `cli::calibrate`).
     pub fn to_yaml(&self, provenance: &Provenance) -> String {
         let mut fs = FileStorage::new();
-        fs.ints(
-            "image_size",
-            &[self.image_size[0].into(), self.image_size[1].into()],
-        )
-        .matrix("K1", 3, 3, &self.k1)
-        .matrix("D1", 1, self.d1.len(), &self.d1)
-        .matrix("K2", 3, 3, &self.k2)
-        .matrix("D2", 1, self.d2.len(), &self.d2)
-        .matrix("R", 3, 3, &self.r)
-        .matrix("T", 3, 1, &self.t)
-        .matrix("E", 3, 3, &self.e)
-        .matrix("F", 3, 3, &self.f)
-        .matrix("R1", 3, 3, &self.r1)
-        .matrix("R2", 3, 3, &self.r2)
-        .matrix("P1", 3, 4, &self.p1)
-        .matrix("P2", 3, 4, &self.p2)
-        .matrix("Q", 4, 4, &self.q)
-        .real("rms_px", self.rms_px)
-        .real("epipolar_px", self.epipolar_px);
+        self.rig
+            .write_yaml(&mut fs)
+            .matrix("E", 3, 3, &self.e)
+            .matrix("F", 3, 3, &self.f)
+            .matrix("R1", 3, 3, &self.r1)
+            .matrix("R2", 3, 3, &self.r2)
+            .matrix("P1", 3, 4, &self.p1)
+            .matrix("P2", 3, 4, &self.p2)
+            .matrix("Q", 4, 4, &self.q)
+            .real("rms_px", self.rms_px)
+            .real("epipolar_px", self.epipolar_px);
         let used: Vec<&PairReport> = self.used().collect();
         let per_view: Vec<f64> = used
             .iter()
@@ -331,7 +317,7 @@ impl StereoCalibration {
 
     fn write_rectified(&self, pair: &PairReport, path: &Path) -> Result<(), CalibError> {
         use opencv::{imgcodecs, imgproc};
-        let size = Size::new(self.image_size[0], self.image_size[1]);
+        let size = Size::new(self.rig.image_size[0], self.rig.image_size[1]);
         let rectified = |image: &Path, k: &[f64; 9], d: &[f64], r: &[f64; 9], p: &[f64; 12]| {
             let src = imgcodecs::imread(
                 image
@@ -361,8 +347,9 @@ impl StereoCalibration {
             )?;
             Ok::<Mat, CalibError>(out)
         };
-        let l = rectified(&pair.left, &self.k1, &self.d1, &self.r1, &self.p1)?;
-        let r = rectified(&pair.right, &self.k2, &self.d2, &self.r2, &self.p2)?;
+        let (left, right) = (&self.rig.left, &self.rig.right);
+        let l = rectified(&pair.left, &left.k, &left.dist, &self.r1, &self.p1)?;
+        let r = rectified(&pair.right, &right.k, &right.dist, &self.r2, &self.p2)?;
         let mut both = Mat::default();
         let halves: Vector<Mat> = [l, r].into_iter().collect();
         core::hconcat(&halves, &mut both)?;
@@ -578,15 +565,9 @@ pub fn calibrate(
     };
 
     Ok(StereoCalibration {
-        image_size: size,
         board: *board,
         detector,
-        k1: rig.cams.left.k,
-        d1: rig.cams.left.dist,
-        k2: rig.cams.right.k,
-        d2: rig.cams.right.dist,
-        r: rig.cams.r,
-        t: rig.cams.t,
+        rig: rig.cams,
         e: rig.e,
         f: rig.f,
         r1,

@@ -137,14 +137,14 @@ fn print_summary(c: &StereoCalibration) {
             _ => {}
         }
     }
-    let t = c.t;
+    let t = c.rig.t;
     println!(
         "RMS {:.3} px, epipolar {:.3} px, baseline {:.2} mm, f {:.1}/{:.1} px",
         c.rms_px,
         c.epipolar_px,
         (t[0] * t[0] + t[1] * t[1] + t[2] * t[2]).sqrt(),
-        c.k1[0],
-        c.k2[0]
+        c.rig.left.k[0],
+        c.rig.right.k[0]
     );
     println!(
         "coverage {:.0} % / {:.0} % of the image; boards triangulate to {:.4} ± {:.4} squares, {:.3} mm off-plane RMS",

@@ -488,13 +488,13 @@ fn check_calibration(cal: &StereoCalibration, truth: &CalibrationFile) -> Calibr
     use nalgebra::{Matrix3, Rotation3, Vector3};
     let t = &truth.rig;
     let mut intrinsics = 0.0f64;
-    for (got, want) in [(&cal.k1, &t.left.k), (&cal.k2, &t.right.k)] {
+    for (got, want) in [(&cal.rig.left.k, &t.left.k), (&cal.rig.right.k, &t.right.k)] {
         for i in [0, 4, 2, 5] {
             intrinsics = intrinsics.max(100.0 * ((got[i] - want[i]) / want[i]).abs());
         }
     }
     let (gt, tt) = (
-        Vector3::from_row_slice(&cal.t),
+        Vector3::from_row_slice(&cal.rig.t),
         Vector3::from_row_slice(&t.t),
     );
     let rot = |m: &[f64; 9]| Rotation3::from_matrix_unchecked(Matrix3::from_row_slice(m));
@@ -504,7 +504,7 @@ fn check_calibration(cal: &StereoCalibration, truth: &CalibrationFile) -> Calibr
         epipolar_px: cal.epipolar_px,
         intrinsics_error_pct: intrinsics,
         baseline_error_pct: 100.0 * (gt.norm() - tt.norm()).abs() / tt.norm(),
-        rotation_error_deg: (rot(&cal.r).inverse() * rot(&t.r)).angle().to_degrees(),
+        rotation_error_deg: (rot(&cal.rig.r).inverse() * rot(&t.r)).angle().to_degrees(),
         hand_axes_error_deg: cal
             .hand_axes
             .as_ref()

@@ -481,22 +481,13 @@ fn rig_yaml(rig: &Rig, provenance: &crate::provenance::Provenance) -> String {
     let hand_r = rig.left.pose.rotation.inverse();
     let hand_t = rig.left.pose.centre().coords;
     let mut fs = FileStorage::new();
-    fs.ints(
-        "image_size",
-        &[i64::from(rig.left.width), i64::from(rig.left.height)],
-    )
-    .matrix("K1", 3, 3, &cams.left.k)
-    .matrix("D1", 1, 5, &cams.left.dist)
-    .matrix("K2", 3, 3, &cams.right.k)
-    .matrix("D2", 1, 5, &cams.right.dist)
-    .matrix("R", 3, 3, &cams.r)
-    .matrix("T", 3, 1, &cams.t)
-    .matrix("E", 3, 3, &mat3(&cams.essential()))
-    .matrix("F", 3, 3, &mat3(&cams.fundamental()))
-    .matrix("R_hand", 3, 3, &mat3(hand_r.matrix()))
-    .matrix("t_hand", 3, 1, hand_t.as_slice())
-    .string("handcap_version", &provenance.handcap_version)
-    .string("command", &provenance.command.join(" "));
+    cams.write_yaml(&mut fs)
+        .matrix("E", 3, 3, &mat3(&cams.essential()))
+        .matrix("F", 3, 3, &mat3(&cams.fundamental()))
+        .matrix("R_hand", 3, 3, &mat3(hand_r.matrix()))
+        .matrix("t_hand", 3, 1, hand_t.as_slice())
+        .string("handcap_version", &provenance.handcap_version)
+        .string("command", &provenance.command.join(" "));
     if let Some(seed) = provenance.seed {
         fs.int("seed", seed as i64);
     }
