@@ -14,6 +14,7 @@ use rand_distr::{Distribution, Normal};
 use handcap::data::{names, Columns, Dataset, HAND_INPUTS, HAND_OUTPUTS};
 use handcap::model::msvr::MsvrParams;
 use handcap::model::Predict;
+use handcap::search::aco_paper::PAPER_TABLE2;
 use handcap::synth::plant::Plant;
 
 fn random_hand_data(n: usize, seed: u64) -> Dataset {
@@ -36,7 +37,10 @@ fn random_hand_data(n: usize, seed: u64) -> Dataset {
 }
 
 fn fit(c: &mut Criterion) {
-    let params = MsvrParams::new(326.7, 0.0169, 0.259).check().unwrap();
+    let params = MsvrParams::default()
+        .with_hyper(PAPER_TABLE2)
+        .check()
+        .unwrap();
     let mut group = c.benchmark_group("msvr_fit");
     group.sample_size(10);
     for n in [250, 1000, 2000] {
@@ -54,7 +58,10 @@ fn fit(c: &mut Criterion) {
 }
 
 fn predict(c: &mut Criterion) {
-    let params = MsvrParams::new(326.7, 0.0169, 0.259).check().unwrap();
+    let params = MsvrParams::default()
+        .with_hyper(PAPER_TABLE2)
+        .check()
+        .unwrap();
     let model = params.fit(&random_hand_data(216, 2)).unwrap();
     let queries = random_hand_data(100_000, 3);
     let mut group = c.benchmark_group("msvr_predict");

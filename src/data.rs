@@ -61,6 +61,12 @@ pub enum DataError {
         column: String,
         value: String,
     },
+    #[error("{}{}: {message}", path.display(), if *line > 0 { format!(" line {line}") } else { String::new() })]
+    Input {
+        path: PathBuf,
+        line: u64,
+        message: String,
+    },
     #[error("{path}: line {line}: {message}")]
     Malformed {
         path: PathBuf,
@@ -266,6 +272,58 @@ fn read_selected(
     Ok(())
 }
 
+/// Copies the header and the rows of `from` whose `columns` satisfy `keep` into `to`
+/// (atomically), every field as it was; returns the rows kept.
+///
+/// # Errors
+/// As [`read_columns`] for `from`; [`DataError::Write`] for `to`.
+pub fn copy_rows(
+    from: &Path,
+    to: &Path,
+    columns: &[String],
+    keep: impl Fn(&[f64]) -> bool,
+) -> Result<usize, DataError> {
+    let file = std::fs::File::open(from).map_err(|source| DataError::Io {
+        path: from.to_path_buf(),
+        source,
+    })?;
+    let mut reader = csv::ReaderBuilder::new()
+        .has_headers(false)
+        .from_reader(std::io::BufReader::new(file));
+    let mut records = reader.records();
+    let header = match records.next() {
+        None => return Err(DataError::Empty { path: from.into() }),
+        Some(r) => r.map_err(|e| csv_error(from, e))?,
+    };
+    let trimmed: csv::StringRecord = header.iter().map(str::trim).collect();
+    let index = column_index(from, &trimmed, columns)?;
+    let mut kept = vec![header];
+    let mut values = vec![0.0; columns.len()];
+    for record in records {
+        let record = record.map_err(|e| csv_error(from, e))?;
+        let line = record.position().map_or(0, |p| p.line());
+        for (slot, (&col, name)) in values.iter_mut().zip(index.iter().zip(columns)) {
+            *slot = parse_cell(from, line, name, record.get(col).unwrap_or("").trim())?;
+        }
+        if keep(&values) {
+            kept.push(record);
+        }
+    }
+    fsio::write_atomic(to, |w| {
+        let mut out = csv::Writer::from_writer(w);
+        for record in &kept {
+            out.write_record(record)?;
+        }
+        out.flush()?;
+        Ok(())
+    })
+    .map_err(|source| DataError::Write {
+        path: to.into(),
+        source,
+    })?;
+    Ok(kept.len() - 1)
+}
+
 /// The rows of `path` that a `flag` column leaves out.
 ///
 /// # Errors
@@ -365,6 +423,76 @@ fn csv_error(path: &Path, e: csv::Error) -> DataError {
             line,
             message: format!("{kind:?}"),
         },
+    }
+}
+
+/// A CSV input read as text (a frame index, a pressure log): its records with their line
+/// numbers, and its columns by name; every error names the file and the line.
+pub struct Table {
+    path: PathBuf,
+    pub header: csv::StringRecord,
+    reader: csv::Reader<std::io::BufReader<std::fs::File>>,
+    /// What the header must hold, for messages (e.g. "frame,camera,time_s").
+    needs: &'static str,
+}
+
+impl Table {
+    pub fn open(path: &Path, needs: &'static str) -> Result<Self, DataError> {
+        let bad = |line, message| Table::error(path, line, message);
+        let file = std::fs::File::open(path)
+            .map_err(|e| bad(0, format!("{e}; it must be a CSV file with {needs}")))?;
+        let mut reader = csv::ReaderBuilder::new()
+            .trim(csv::Trim::All)
+            .from_reader(std::io::BufReader::new(file));
+        let header = reader.headers().map_err(|e| bad(1, e.to_string()))?.clone();
+        Ok(Table {
+            path: path.to_path_buf(),
+            header,
+            reader,
+            needs,
+        })
+    }
+
+    fn error(path: &Path, line: u64, message: String) -> DataError {
+        DataError::Input {
+            path: path.to_path_buf(),
+            line,
+            message,
+        }
+    }
+
+    /// [`Table::bad`] as the `Err` of any result whose error takes a [`DataError`].
+    pub fn fail<T, E: From<DataError>>(&self, line: u64, message: String) -> Result<T, E> {
+        Err(self.bad(line, message).into())
+    }
+
+    /// An error at `line` of this file.
+    pub fn bad(&self, line: u64, message: String) -> DataError {
+        Table::error(&self.path, line, message)
+    }
+
+    /// The position of a required column.
+    pub fn column(&self, name: &str) -> Result<usize, DataError> {
+        self.header.iter().position(|h| h == name).ok_or_else(|| {
+            self.bad(
+                1,
+                format!("no {name} column; the header must have {}", self.needs),
+            )
+        })
+    }
+
+    /// Every record with its line number.
+    pub fn records(&mut self) -> Result<Vec<(u64, csv::StringRecord)>, DataError> {
+        let path = self.path.clone();
+        self.reader
+            .records()
+            .map(|r| {
+                let r = r.map_err(|e| {
+                    Table::error(&path, e.position().map_or(0, |p| p.line()), e.to_string())
+                })?;
+                Ok((r.position().map_or(0, |p| p.line()), r))
+            })
+            .collect()
     }
 }
 

@@ -21,6 +21,9 @@
 //! - Every random choice takes an explicit seed, and the same command writes the same bytes.
 //! - Files are written atomically (temporary file, then rename) and never over an input.
 
+/// The seed every command uses when none is given (the paper's year).
+pub const DEFAULT_SEED: u64 = 2020;
+
 pub mod calib;
 mod cv;
 pub mod data;
@@ -28,9 +31,12 @@ pub mod fsio;
 pub mod hand;
 pub mod model;
 pub mod opencv_yaml;
+pub mod pipeline;
+pub mod plot;
 pub mod provenance;
 pub mod report;
 pub mod search;
+pub mod stats;
 pub mod stereo;
 pub mod synth;
 pub mod triangulate;

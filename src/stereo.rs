@@ -6,15 +6,14 @@
 //! y down, z forward, mm); `R`, `T` map left-camera points to the right camera's frame
 //! (p_right = R · p_left + T), as `stereo_calibrate` returns them.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use nalgebra::{Matrix3, Vector3};
 use opencv::calib3d;
-use opencv::core::{self, FileStorage, Mat};
+use opencv::core::{self, Mat};
 use opencv::prelude::*;
 
 use crate::cv;
-use crate::opencv_yaml::FileStorage as FileStorageWriter;
 
 /// An image point (x, y).
 pub type Point2 = [f64; 2];
@@ -56,18 +55,6 @@ pub struct StereoRig {
     pub t: [f64; 3],
 }
 
-/// A calibration file as `calibrate` writes it (and `synth` writes the truth).
-#[derive(Clone, Debug, PartialEq)]
-pub struct CalibrationFile {
-    pub path: PathBuf,
-    pub rig: StereoRig,
-    /// Left camera → hand axes (`R_hand`), when the calibration had a reference pair.
-    pub r_hand: Option<Matrix3<f64>>,
-    /// The hand frame's translation (`t_hand`: p_hand = R_hand · p_left + t_hand), in files
-    /// that know the origin (the synthetic truth, `triangulate`'s hand file).
-    pub t_hand: Option<Vector3<f64>>,
-}
-
 /// Errors of reading a calibration file or of the geometry.
 #[derive(Debug, thiserror::Error)]
 pub enum StereoError {
@@ -86,21 +73,6 @@ impl StereoRig {
             Side::Left => &self.left,
             Side::Right => &self.right,
         }
-    }
-
-    /// Writes `image_size`, `K1`, `D1`, `K2`, `D2`, `R`, `T`: the keys [`read_calibration`]
-    /// reads back.
-    pub fn write_yaml<'a>(&self, fs: &'a mut FileStorageWriter) -> &'a mut FileStorageWriter {
-        fs.ints(
-            "image_size",
-            &[self.image_size[0].into(), self.image_size[1].into()],
-        )
-        .matrix("K1", 3, 3, &self.left.k)
-        .matrix("D1", 1, self.left.dist.len(), &self.left.dist)
-        .matrix("K2", 3, 3, &self.right.k)
-        .matrix("D2", 1, self.right.dist.len(), &self.right.dist)
-        .matrix("R", 3, 3, &self.r)
-        .matrix("T", 3, 1, &self.t)
     }
 
     /// The right camera's rotation from the left's.
@@ -270,107 +242,4 @@ impl StereoRig {
         )?;
         cv::pairs(&out)
     }
-}
-
-/// The part of an OpenCV error message a user can act on, on one line: "Input file is invalid
-/// in function 'open'" rather than the source location.
-fn reason(e: &opencv::Error) -> String {
-    let first = e.message.lines().next().unwrap_or_default();
-    let text = first.rsplit_once("error: ").map_or(first, |(_, t)| t);
-    text.split_once(") ")
-        .map_or(text, |(_, t)| t)
-        .trim()
-        .to_string()
-}
-
-/// Reads the cameras (`image_size`, `K1`, `D1`, `K2`, `D2`, `R`, `T`) and, when present, the
-/// hand frame (`R_hand`, `t_hand`) of an OpenCV FileStorage file.
-///
-/// # Errors
-/// [`StereoError`] naming the file and the key that is missing or malformed.
-pub fn read_calibration(path: &Path) -> Result<CalibrationFile, StereoError> {
-    let unreadable = |message: String| StereoError::Unreadable {
-        path: path.to_path_buf(),
-        message,
-    };
-    let invalid = |message: String| StereoError::Invalid {
-        path: path.to_path_buf(),
-        message,
-    };
-    if !path.is_file() {
-        return Err(unreadable("no such file".into()));
-    }
-    let name = path
-        .to_str()
-        .ok_or_else(|| unreadable("the path is not UTF-8".into()))?;
-    let fs = FileStorage::new(name, core::FileStorage_Mode::READ as i32, "")
-        .map_err(|e| unreadable(reason(&e)))?;
-    if !fs.is_opened()? {
-        return Err(unreadable("OpenCV cannot open it".into()));
-    }
-    let optional = |key: &str, len: usize| -> Result<Option<Vec<f64>>, StereoError> {
-        let node = fs.get(key)?;
-        if node.empty()? || node.is_none()? {
-            return Ok(None);
-        }
-        let m = node
-            .mat()
-            .map_err(|e| invalid(format!("{key}: {}", e.message)))?;
-        let v = cv::values(&m)?;
-        if v.len() != len || v.iter().any(|x| !x.is_finite()) {
-            return Err(invalid(format!(
-                "{key} has {} values (finite: {}), expected {len}",
-                v.len(),
-                v.iter().all(|x| x.is_finite())
-            )));
-        }
-        Ok(Some(v))
-    };
-    let required =
-        |key: &str, len: usize| optional(key, len)?.ok_or_else(|| invalid(format!("no {key}")));
-    let distortion = |key: &str| -> Result<Vec<f64>, StereoError> {
-        let node = fs.get(key)?;
-        if node.empty()? || node.is_none()? {
-            return Err(invalid(format!("no {key}")));
-        }
-        let v = cv::values(&node.mat()?)?;
-        if ![4, 5, 8, 12, 14].contains(&v.len()) || v.iter().any(|x| !x.is_finite()) {
-            return Err(invalid(format!(
-                "{key} has {} values; OpenCV distortion has 4, 5, 8, 12 or 14",
-                v.len()
-            )));
-        }
-        Ok(v)
-    };
-    let size_node = fs.get("image_size")?;
-    if size_node.empty()? || !size_node.is_seq()? || size_node.size()? != 2 {
-        return Err(invalid("no image_size [width, height]".into()));
-    }
-    let image_size = [size_node.at(0)?.to_i32()?, size_node.at(1)?.to_i32()?];
-    let k = |key: &str| -> Result<[f64; 9], StereoError> {
-        let v = required(key, 9)?;
-        if v[0] <= 0.0 || v[4] <= 0.0 || v[8] != 1.0 {
-            return Err(invalid(format!("{key} is not a camera matrix")));
-        }
-        Ok(v.try_into().expect("nine values"))
-    };
-    let rig = StereoRig {
-        image_size,
-        left: Intrinsics {
-            k: k("K1")?,
-            dist: distortion("D1")?,
-        },
-        right: Intrinsics {
-            k: k("K2")?,
-            dist: distortion("D2")?,
-        },
-        r: required("R", 9)?.try_into().expect("nine values"),
-        t: required("T", 3)?.try_into().expect("three values"),
-    };
-    Ok(CalibrationFile {
-        path: path.to_path_buf(),
-        rig,
-        r_hand: optional("R_hand", 9)?.map(|v| Matrix3::from_row_slice(&v)),
-        t_hand: optional("t_hand", 3)?.map(|v| Vector3::from_row_slice(&v)),
-    })
 }

@@ -27,7 +27,11 @@
 //!    hand frame's axes; the origin (the tip at zero pressure) is found later, by
 //!    `triangulate`.
 
+mod checks;
 pub mod detect;
+mod figures;
+pub mod file;
+use checks::{board_check, coverage, epipolar_error, hand_axes, rectify};
 pub mod pairs;
 
 use std::path::{Path, PathBuf};
@@ -40,8 +44,6 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::cv::{self, fixed, mat, points, values};
-use crate::opencv_yaml::FileStorage;
-use crate::provenance::Provenance;
 use crate::stereo::{Intrinsics, Side, StereoRig};
 use detect::Detector;
 use pairs::ImagePair;
@@ -91,7 +93,7 @@ pub enum CalibError {
     #[error("OpenCV: {0}")]
     OpenCv(#[from] opencv::Error),
     #[error(transparent)]
-    Figure(#[from] crate::report::figures::FigureError),
+    Figure(#[from] crate::plot::FigureError),
     #[error("writing {path}: {message}")]
     Write { path: PathBuf, message: String },
 }
@@ -221,170 +223,6 @@ impl StereoCalibration {
     pub fn rejected(&self) -> impl Iterator<Item = &PairReport> {
         self.pairs.iter().filter(|p| p.rejected.is_some())
     }
-
-    /// The calibration as OpenCV FileStorage YAML (keys in the module docs of `cli::calibrate`).
-    pub fn to_yaml(&self, provenance: &Provenance) -> String {
-        let mut fs = FileStorage::new();
-        self.rig
-            .write_yaml(&mut fs)
-            .matrix("E", 3, 3, &self.e)
-            .matrix("F", 3, 3, &self.f)
-            .matrix("R1", 3, 3, &self.r1)
-            .matrix("R2", 3, 3, &self.r2)
-            .matrix("P1", 3, 4, &self.p1)
-            .matrix("P2", 3, 4, &self.p2)
-            .matrix("Q", 4, 4, &self.q)
-            .real("rms_px", self.rms_px)
-            .real("epipolar_px", self.epipolar_px);
-        let used: Vec<&PairReport> = self.used().collect();
-        let per_view: Vec<f64> = used
-            .iter()
-            .flat_map(|p| p.rms_px.unwrap_or([f64::NAN; 2]))
-            .collect();
-        fs.matrix("per_view_rms_px", used.len(), 2, &per_view)
-            .strings(
-                "views_used",
-                &used.iter().map(|p| p.name.clone()).collect::<Vec<_>>(),
-            )
-            .strings(
-                "views_rejected",
-                &self.rejected().map(|p| p.name.clone()).collect::<Vec<_>>(),
-            )
-            .int("board_cols", self.board.cols as i64)
-            .int("board_rows", self.board.rows as i64)
-            .real("square_mm", self.board.square_mm)
-            .string("detector", self.detector.name())
-            .reals("coverage", &self.coverage)
-            .real(
-                "board_neighbour_squares",
-                self.board_check.neighbour_mean_squares,
-            )
-            .real("board_planarity_rms_mm", self.board_check.planarity_rms_mm);
-        if let Some(axes) = &self.hand_axes {
-            fs.matrix("R_hand", 3, 3, axes);
-        }
-        fs.string("hand_axes", &self.hand_axes_note)
-            .string("handcap_version", &provenance.handcap_version)
-            .string("command", &provenance.command.join(" "));
-        fs.text().to_string()
-    }
-}
-
-impl StereoCalibration {
-    /// Writes `<stem>_pairs.png/.svg` (each used pair's left and right error, as bars) and
-    /// `<stem>_rectified.png` (the first used pair rectified side by side, with horizontal
-    /// lines: a point must lie on the same line in both halves). Returns the files written.
-    ///
-    /// # Errors
-    /// [`CalibError`] when an image cannot be read or a figure written.
-    pub fn write_figures(&self, stem: &Path) -> Result<Vec<PathBuf>, CalibError> {
-        use crate::report::figures::{self, LinePlot, Mark, Series};
-        let used: Vec<&PairReport> = self.used().collect();
-        let bars = |side: usize, label: &str, offset: f64| Series {
-            label: label.into(),
-            points: used
-                .iter()
-                .enumerate()
-                .map(|(k, p)| (k as f64, p.rms_px.map_or(f64::NAN, |e| e[side])))
-                .collect(),
-            mark: Mark::Bars {
-                offset,
-                width: 0.38,
-            },
-            colour: side,
-        };
-        let names: Vec<&str> = used.iter().map(|p| p.name.as_str()).collect();
-        let plot = LinePlot {
-            title: format!("Reprojection error per pair (RMS {:.3} px)", self.rms_px),
-            x_label: format!("pair: {}", names.join(" ")),
-            y_label: "RMS error (px)".into(),
-            series: vec![bars(0, "left", -0.2), bars(1, "right", 0.2)],
-            log_y: false,
-        };
-        let pairs_stem = stem.with_file_name(format!("{}_pairs", file_stem(stem)));
-        figures::write_line_plot(&pairs_stem, &plot)?;
-        let mut written = vec![
-            pairs_stem.with_extension("png"),
-            pairs_stem.with_extension("svg"),
-        ];
-        if let Some(first) = used.first() {
-            let path = stem.with_file_name(format!("{}_rectified.png", file_stem(stem)));
-            self.write_rectified(first, &path)?;
-            written.push(path);
-        }
-        Ok(written)
-    }
-
-    fn write_rectified(&self, pair: &PairReport, path: &Path) -> Result<(), CalibError> {
-        use opencv::{imgcodecs, imgproc};
-        let size = Size::new(self.rig.image_size[0], self.rig.image_size[1]);
-        let rectified = |image: &Path, k: &[f64; 9], d: &[f64], r: &[f64; 9], p: &[f64; 12]| {
-            let src = imgcodecs::imread(
-                image
-                    .to_str()
-                    .ok_or_else(|| CalibError::NotAnImage(image.to_path_buf()))?,
-                imgcodecs::IMREAD_COLOR,
-            )?;
-            let (mut m1, mut m2, mut out) = (Mat::default(), Mat::default(), Mat::default());
-            calib3d::init_undistort_rectify_map(
-                &mat(3, k)?,
-                &mat(1, d)?,
-                &mat(3, r)?,
-                &mat(3, p)?,
-                size,
-                core::CV_32FC1,
-                &mut m1,
-                &mut m2,
-            )?;
-            imgproc::remap(
-                &src,
-                &mut out,
-                &m1,
-                &m2,
-                imgproc::INTER_LINEAR,
-                core::BORDER_CONSTANT,
-                core::Scalar::default(),
-            )?;
-            Ok::<Mat, CalibError>(out)
-        };
-        let (left, right) = (&self.rig.left, &self.rig.right);
-        let l = rectified(&pair.left, &left.k, &left.dist, &self.r1, &self.p1)?;
-        let r = rectified(&pair.right, &right.k, &right.dist, &self.r2, &self.p2)?;
-        let mut both = Mat::default();
-        let halves: Vector<Mat> = [l, r].into_iter().collect();
-        core::hconcat(&halves, &mut both)?;
-        for y in (20..size.height).step_by(40) {
-            imgproc::line(
-                &mut both,
-                core::Point::new(0, y),
-                core::Point::new(2 * size.width - 1, y),
-                core::Scalar::new(0.0, 200.0, 0.0, 0.0),
-                1,
-                imgproc::LINE_8,
-                0,
-            )?;
-        }
-        let write_err = |message: String| CalibError::Write {
-            path: path.to_path_buf(),
-            message,
-        };
-        let tmp = crate::fsio::temp_beside(path, ".png").map_err(|e| write_err(e.to_string()))?;
-        let tmp_name = tmp
-            .path()
-            .to_str()
-            .ok_or_else(|| write_err("path is not UTF-8".into()))?;
-        if !imgcodecs::imwrite(tmp_name, &both, &Vector::new())? {
-            return Err(write_err("OpenCV could not encode the PNG".into()));
-        }
-        tmp.persist(path)
-            .map_err(|e| write_err(e.error.to_string()))?;
-        Ok(())
-    }
-}
-
-fn file_stem(path: &Path) -> String {
-    path.file_stem()
-        .map_or_else(|| "calib".into(), |s| s.to_string_lossy().into_owned())
 }
 
 /// Corners of one image: its size and the corners if the board was found.
@@ -517,9 +355,7 @@ pub fn calibrate(
     loop {
         rig = stereo(board, size, &usable)?;
         let errors: Vec<f64> = rig.per_view.iter().map(|e| e[0].max(e[1])).collect();
-        let mut sorted = errors.clone();
-        sorted.sort_by(f64::total_cmp);
-        let median = sorted[sorted.len() / 2];
+        let median = crate::stats::upper_median(&mut errors.clone()).expect("pairs");
         let (worst, &err) = errors
             .iter()
             .enumerate()
@@ -765,8 +601,7 @@ fn inconsistent_pairs(
         .collect();
     let median = |k: usize| {
         let mut v: Vec<f64> = relative.iter().map(|(_, t)| t[k]).collect();
-        v.sort_by(f64::total_cmp);
-        v[v.len() / 2]
+        crate::stats::upper_median(&mut v).expect("pairs")
     };
     let t_med = Vector3::new(median(0), median(1), median(2));
     // The reference rotation: the pair whose translation is nearest the median.
@@ -845,152 +680,4 @@ fn stereo(board: &BoardSpec, size: [i32; 2], usable: &[Usable]) -> Result<Rig, C
         rms,
         per_view: errors.chunks(2).map(|c| [c[0], c[1]]).collect(),
     })
-}
-
-/// Corners as `f64`.
-fn wide(c: &[[f32; 2]]) -> Vec<[f64; 2]> {
-    c.iter()
-        .map(|p| [f64::from(p[0]), f64::from(p[1])])
-        .collect()
-}
-
-/// Mean distance (px) of each undistorted corner from the epipolar line of its partner, both
-/// ways.
-fn epipolar_error(
-    rig: &Rig,
-    left: &[&[[f32; 2]]],
-    right: &[&[[f32; 2]]],
-) -> Result<f64, CalibError> {
-    let f = Matrix3::from_row_slice(&rig.f);
-    let (mut sum, mut n) = (0.0, 0usize);
-    for (l, r) in left.iter().zip(right) {
-        let ul = rig.cams.undistorted(Side::Left, &wide(l))?;
-        let ur = rig.cams.undistorted(Side::Right, &wide(r))?;
-        for (a, b) in ul.iter().zip(&ur) {
-            let (pa, pb) = (Vector3::new(a[0], a[1], 1.0), Vector3::new(b[0], b[1], 1.0));
-            let line_r = f * pa;
-            let line_l = f.transpose() * pb;
-            sum += line_r.dot(&pb).abs() / line_r.x.hypot(line_r.y);
-            sum += line_l.dot(&pa).abs() / line_l.x.hypot(line_l.y);
-            n += 2;
-        }
-    }
-    Ok(sum / n as f64)
-}
-
-/// Share of an 8 × 6 grid of image cells that hold at least one corner.
-fn coverage(size: [i32; 2], views: &[&[[f32; 2]]]) -> f64 {
-    let mut cells = [[false; 8]; 6];
-    for c in views.iter().flat_map(|v| v.iter()) {
-        let i = ((c[0] / size[0] as f32) * 8.0).clamp(0.0, 7.0) as usize;
-        let j = ((c[1] / size[1] as f32) * 6.0).clamp(0.0, 5.0) as usize;
-        cells[j][i] = true;
-    }
-    cells.iter().flatten().filter(|&&c| c).count() as f64 / 48.0
-}
-
-/// Triangulates every used board and compares it with the printed one.
-fn board_check(
-    board: &BoardSpec,
-    rig: &Rig,
-    left: &[&[[f32; 2]]],
-    right: &[&[[f32; 2]]],
-) -> Result<BoardCheck, CalibError> {
-    let (mut steps, mut plane_sq, mut plane_n) = (Vec::new(), 0.0, 0usize);
-    for (l, r) in left.iter().zip(right) {
-        let pts = rig.cams.triangulate(&wide(l), &wide(r))?;
-        let n = l.len();
-        for j in 0..board.rows {
-            for i in 0..board.cols {
-                let k = j * board.cols + i;
-                if i + 1 < board.cols {
-                    steps.push((pts[k + 1] - pts[k]).norm() / board.square_mm);
-                }
-                if j + 1 < board.rows {
-                    steps.push((pts[k + board.cols] - pts[k]).norm() / board.square_mm);
-                }
-            }
-        }
-        let centre = pts.iter().sum::<Vector3<f64>>() / n as f64;
-        let mut cov = Matrix3::zeros();
-        for p in &pts {
-            let d = p - centre;
-            cov += d * d.transpose();
-        }
-        let eig = cov.symmetric_eigen();
-        plane_sq += eig.eigenvalues.min();
-        plane_n += n;
-    }
-    let mean = steps.iter().sum::<f64>() / steps.len() as f64;
-    let sd = (steps.iter().map(|s| (s - mean).powi(2)).sum::<f64>() / steps.len() as f64).sqrt();
-    Ok(BoardCheck {
-        neighbour_mean_squares: mean,
-        neighbour_sd_squares: sd,
-        planarity_rms_mm: (plane_sq.max(0.0) / plane_n as f64).sqrt(),
-    })
-}
-
-type Rectification = ([f64; 9], [f64; 9], [f64; 12], [f64; 12], [f64; 16]);
-
-fn rectify(rig: &Rig, size: [i32; 2]) -> Result<Rectification, CalibError> {
-    let (mut r1, mut r2, mut p1, mut p2, mut q) = (
-        Mat::default(),
-        Mat::default(),
-        Mat::default(),
-        Mat::default(),
-        Mat::default(),
-    );
-    calib3d::stereo_rectify(
-        &mat(3, &rig.cams.left.k)?,
-        &mat(1, &rig.cams.left.dist)?,
-        &mat(3, &rig.cams.right.k)?,
-        &mat(1, &rig.cams.right.dist)?,
-        Size::new(size[0], size[1]),
-        &mat(3, &rig.cams.r)?,
-        &mat(3, &rig.cams.t)?,
-        &mut r1,
-        &mut r2,
-        &mut p1,
-        &mut p2,
-        &mut q,
-        calib3d::CALIB_ZERO_DISPARITY,
-        0.0,
-        Size::new(size[0], size[1]),
-        None,
-        None,
-    )?;
-    Ok((
-        fixed(&r1)?,
-        fixed(&r2)?,
-        fixed(&p1)?,
-        fixed(&p2)?,
-        fixed(&q)?,
-    ))
-}
-
-/// Left-camera → hand-frame rotation from the reference board's corners in the left image.
-fn hand_axes(board: &BoardSpec, rig: &Rig, corners: &[[f32; 2]]) -> Result<[f64; 9], CalibError> {
-    // Corners in the order that makes the board's x axis point to the image's right.
-    let mut ordered = corners.to_vec();
-    if corners[board.cols - 1][0] < corners[0][0] {
-        ordered.reverse();
-    }
-    let (mut rvec, mut tvec) = (Mat::default(), Mat::default());
-    calib3d::solve_pnp(
-        &board.object_points(),
-        &points(&ordered),
-        &mat(3, &rig.cams.left.k)?,
-        &mat(1, &rig.cams.left.dist)?,
-        &mut rvec,
-        &mut tvec,
-        false,
-        calib3d::SOLVEPNP_ITERATIVE,
-    )?;
-    let mut rot = Mat::default();
-    calib3d::rodrigues(&rvec, &mut rot, &mut core::no_array())?;
-    let left_from_board = Matrix3::from_row_slice(&fixed::<9>(&rot)?);
-    // Board axes in the hand frame: x → x, y → −z, z → +y.
-    let hand_from_board = Matrix3::new(1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, -1.0, 0.0);
-    let hand_from_left = hand_from_board * left_from_board.transpose();
-    Ok(std::array::from_fn(|k| hand_from_left[(k / 3, k % 3)]))
 }

@@ -1,5 +1,5 @@
 //! Command-line front end: one file per subcommand turns arguments into a library call and
-//! prints the result. Nothing below this module prints.
+//! prints the result ([`handcap::pipeline`] does the work). Nothing below this module prints.
 
 mod calibrate;
 mod demo;
@@ -9,10 +9,14 @@ mod predict;
 mod synth;
 mod triangulate;
 
+use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
+use std::sync::{Mutex, OnceLock};
 
 use clap::{Parser, Subcommand};
+use indicatif::{ProgressBar, ProgressStyle};
+
+use handcap::pipeline::{Event, Session, Task};
 
 /// Model a soft pneumatic micro-hand from two webcams and a pressure log: calibrate the
 /// cameras, fit the pressure → tip map (MSVR, the method of Kawamura & Deng 2020), and generate
@@ -57,42 +61,106 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
 
 /// Ctrl-C sets this; long work (a search, rendering) stops at its next checkpoint and keeps
 /// what it finished.
-fn interrupt_flag() -> Arc<AtomicBool> {
-    static FLAG: std::sync::OnceLock<Arc<AtomicBool>> = std::sync::OnceLock::new();
-    FLAG.get_or_init(|| {
-        let flag = Arc::new(AtomicBool::new(false));
-        let handler_flag = Arc::clone(&flag);
+fn interrupt_flag() -> &'static AtomicBool {
+    static FLAG: OnceLock<AtomicBool> = OnceLock::new();
+    static HANDLER: OnceLock<()> = OnceLock::new();
+    let flag = FLAG.get_or_init(|| AtomicBool::new(false));
+    HANDLER.get_or_init(|| {
         // Without a handler (another one is installed) Ctrl-C just ends the process.
-        let _ = ctrlc::set_handler(move || handler_flag.store(true, Ordering::SeqCst));
-        flag
-    })
-    .clone()
+        let _ = ctrlc::set_handler(|| {
+            if let Some(f) = FLAG.get() {
+                f.store(true, Ordering::SeqCst);
+            }
+        });
+    });
+    flag
 }
 
-/// A progress bar for library work that reports `(done, total)`.
-struct Counter(indicatif::ProgressBar);
+/// Shows the pipeline's events: a progress bar per counted task and for a search, sentences
+/// and stage lines as they come.
+#[derive(Default)]
+struct Ui {
+    bars: Mutex<HashMap<Task, ProgressBar>>,
+    search: Mutex<Option<ProgressBar>>,
+}
 
-impl Counter {
-    fn new(template: &str) -> Self {
-        Counter(
-            indicatif::ProgressBar::new(0).with_style(
-                indicatif::ProgressStyle::with_template(template).expect("valid template"),
-            ),
-        )
-    }
-
-    /// The callback the library reports to.
-    fn update(&self, done: usize, total: usize) {
-        self.0.set_length(total as u64);
-        self.0.set_position(done as u64);
-    }
-
-    fn finish(&self) {
-        self.0.finish_and_clear();
+impl Ui {
+    fn show(&self, event: Event) {
+        match event {
+            Event::Count { task, done, total } => {
+                let mut bars = self.bars.lock().expect("progress bars");
+                let bar = bars.entry(task).or_insert_with(|| bar(template(task), 0));
+                bar.set_length(total as u64);
+                bar.set_position(done as u64);
+            }
+            Event::Finished(task) => {
+                if let Some(bar) = self.bars.lock().expect("progress bars").remove(&task) {
+                    bar.finish_and_clear();
+                }
+            }
+            Event::Iteration { record: r, cap } => {
+                let mut search = self.search.lock().expect("search bar");
+                let bar = search.get_or_insert_with(|| {
+                    bar("search {bar:30} {pos}/{len} iterations  {msg}", cap as u64)
+                });
+                bar.set_position(r.iteration as u64);
+                bar.set_message(format!(
+                    "best {:.5} (C {:.4}, ε {:.4}, σ {:.4})",
+                    r.best_fitness, r.best.c, r.best.epsilon, r.best.sigma
+                ));
+            }
+            Event::Searched(_) => {
+                if let Some(bar) = self.search.lock().expect("search bar").take() {
+                    bar.finish_and_clear();
+                }
+            }
+            Event::Note(line) => println!("{line}"),
+            Event::Stage { step, of, text } => println!("[{step}/{of}] {text}"),
+            Event::StageTime { name, seconds } => println!("      {name} done in {seconds:.1} s"),
+            Event::Calibrated(c) => calibrate::print_summary(c),
+            Event::Triangulated(t) => triangulate::print_summary(t),
+            Event::Fitted(f) => model::print_summary(f),
+        }
     }
 }
 
-/// The command line as typed, for provenance.
-fn command_line() -> Vec<String> {
-    std::env::args().collect()
+fn template(task: Task) -> &'static str {
+    match task {
+        Task::Render => "render {bar:30} {pos}/{len} images  {elapsed}",
+        Task::Detect => "detect {bar:30} {pos}/{len} images",
+        Task::Frames => "frames {bar:30} {pos}/{len} ({per_sec}, {eta})",
+    }
+}
+
+fn bar(template: &str, len: u64) -> ProgressBar {
+    ProgressBar::new(len)
+        .with_style(ProgressStyle::with_template(template).expect("valid template"))
+}
+
+/// Runs `work` with a session of this process: its command line, Ctrl-C and the terminal.
+fn with_session<T>(work: impl FnOnce(&Session) -> T) -> T {
+    let ui = Ui::default();
+    let events = |e: Event| ui.show(e);
+    let session = Session {
+        command: std::env::args().collect(),
+        interrupt: interrupt_flag(),
+        events: &events,
+    };
+    work(&session)
+}
+
+/// Prints the files a stage wrote.
+fn print_written(files: &[std::path::PathBuf]) {
+    for f in files {
+        println!("wrote {}", f.display());
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn the_command_line_is_consistent() {
+        use clap::CommandFactory;
+        super::Cli::command().debug_assert();
+    }
 }

@@ -2,17 +2,15 @@
 //! finger frames, the regulator's log, datasets and ground truth (layout:
 //! `handcap::synth::capture`).
 
-use std::path::{Path, PathBuf};
-use std::sync::atomic::Ordering;
-use std::time::Instant;
+use std::path::PathBuf;
 
 use anyhow::{bail, Context};
 
-use handcap::provenance::Provenance;
+use handcap::pipeline::synth;
 use handcap::synth::camera::RigConfig;
-use handcap::synth::capture::{self, CaptureConfig, CaptureSummary};
+use handcap::synth::capture::CaptureConfig;
 use handcap::synth::render::ImageFormat;
-use handcap::synth::{self, plant::PlantParams, SynthConfig};
+use handcap::synth::{plant::PlantParams, SynthConfig, DEFAULT_NOISE_MM};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -23,10 +21,10 @@ pub struct Args {
     #[arg(long)]
     no_images: bool,
     /// Seed of every random choice (noise, rig variation, board poses, clocks)
-    #[arg(long, default_value_t = synth::DEFAULT_SEED)]
+    #[arg(long, default_value_t = handcap::DEFAULT_SEED)]
     seed: u64,
     /// Tip measurement noise of the datasets, standard deviation per coordinate (mm)
-    #[arg(long, default_value_t = synth::DEFAULT_NOISE_MM)]
+    #[arg(long, default_value_t = DEFAULT_NOISE_MM)]
     noise_mm: f64,
     /// Width of the muscles' pressure hysteresis (kPa); 0 turns it off (datasets only)
     #[arg(long, default_value_t = 0.0)]
@@ -69,6 +67,16 @@ pub enum FormatArg {
     Jpeg,
 }
 
+impl FormatArg {
+    /// The image format, with `quality` for JPEG.
+    pub fn format(self, quality: u8) -> ImageFormat {
+        match self {
+            FormatArg::Png => ImageFormat::Png,
+            FormatArg::Jpeg => ImageFormat::Jpeg { quality },
+        }
+    }
+}
+
 /// `9x6` → (9, 6).
 pub fn parse_board(s: &str) -> Result<(usize, usize), String> {
     let (c, r) = s
@@ -99,7 +107,6 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             ..PlantParams::default()
         },
     };
-    let provenance = Provenance::new(super::command_line(), Some(a.seed));
     let capture_config = (!a.no_images).then(|| CaptureConfig {
         rig: RigConfig {
             baseline_mm: a.baseline_mm,
@@ -111,66 +118,25 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         board_rows: a.board.1,
         square_mm: a.square_mm,
         exposure_drift: a.exposure_drift,
-        format: match a.format {
-            FormatArg::Png => ImageFormat::Png,
-            FormatArg::Jpeg => ImageFormat::Jpeg {
-                quality: a.jpeg_quality,
-            },
-        },
+        format: a.format.format(a.jpeg_quality),
         ..CaptureConfig::default()
     });
-    write_all(&a.out, &config, capture_config.as_ref(), &provenance)?;
+    let done = super::with_session(|s| synth::run(&a.out, &config, capture_config.as_ref(), s))
+        .with_context(|| format!("synth into {}", a.out.display()))?;
+    super::print_written(&done.datasets);
+    if let Some(c) = &done.capture {
+        println!(
+            "wrote {out}/calib/ ({} board pairs + the reference pair), {out}/frames/ ({} left, {} right frames over {} pressure steps), pressures.csv, truth/ in {:.1} s",
+            c.board_pairs,
+            c.left_frames,
+            c.right_frames,
+            c.steps,
+            done.seconds,
+            out = a.out.display(),
+        );
+        if c.interrupted {
+            bail!("interrupted: the images written so far are complete, the rest are missing; run again to finish");
+        }
+    }
     Ok(())
-}
-
-/// Writes the datasets and, with a capture configuration, the rendered capture and the
-/// manifest, with a progress bar; prints what was written.
-pub fn write_all(
-    out: &Path,
-    config: &SynthConfig,
-    capture_config: Option<&CaptureConfig>,
-    provenance: &Provenance,
-) -> anyhow::Result<Option<CaptureSummary>> {
-    let started = Instant::now();
-    let paths = synth::write_datasets(out, config, provenance)
-        .with_context(|| format!("synth into {}", out.display()))?;
-    for p in &paths {
-        println!("wrote {}", p.display());
-    }
-    let Some(capture_config) = capture_config else {
-        return Ok(None);
-    };
-    let bar = super::Counter::new("render {bar:30} {pos}/{len} images  {elapsed}");
-    let interrupt = super::interrupt_flag();
-    let summary = capture::write_capture(
-        out,
-        config,
-        capture_config,
-        provenance,
-        &|done, total| bar.update(done, total),
-        &interrupt,
-    )
-    .with_context(|| format!("synth into {}", out.display()))?;
-    bar.finish();
-    synth::write_manifest(
-        out,
-        config,
-        &paths,
-        Some((capture_config, &summary)),
-        provenance,
-    )?;
-    println!(
-        "wrote {}/calib/ ({} board pairs + the reference pair), {}/frames/ ({} left, {} right frames over {} pressure steps), pressures.csv, truth/ in {:.1} s",
-        out.display(),
-        summary.board_pairs,
-        out.display(),
-        summary.left_frames,
-        summary.right_frames,
-        summary.steps,
-        started.elapsed().as_secs_f64()
-    );
-    if summary.interrupted || interrupt.load(Ordering::SeqCst) {
-        bail!("interrupted: the images written so far are complete, the rest are missing; run again to finish");
-    }
-    Ok(Some(summary))
 }

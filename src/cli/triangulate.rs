@@ -1,14 +1,12 @@
 //! `handcap triangulate DIR/frames --calib calib.yml --pressures DIR/pressures.csv --out
 //! dataset.csv`: the tip in every frame pair, in the hand frame, one row per pressure step.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
-use anyhow::{bail, Context};
+use anyhow::bail;
 
-use handcap::fsio;
-use handcap::provenance::Provenance;
-use handcap::stereo;
-use handcap::triangulate::{self, pairing, TriangulateOptions, Triangulation};
+use handcap::pipeline::triangulate::{self, Triangulated};
+use handcap::triangulate::TriangulateOptions;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -48,23 +46,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
-    if !a.frames.is_dir() {
-        bail!("{} is not a directory of frames", a.frames.display());
-    }
-    let pressures = match a.pressures {
-        Some(p) => p,
-        None => a
-            .frames
-            .parent()
-            .map(|d| d.join("pressures.csv"))
-            .filter(|p| p.is_file())
-            .with_context(|| {
-                format!(
-                    "no --pressures given and no pressures.csv beside {}; pass --pressures LOG.csv",
-                    a.frames.display()
-                )
-            })?,
-    };
+    let pressures = triangulate::pressure_log(&a.frames, a.pressures.clone())?;
     let mut options = TriangulateOptions {
         max_dt_s: a.max_dt_ms / 1e3,
         settle_s: a.settle_s,
@@ -76,62 +58,20 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     options.marker.min_area_px = a.marker_area_px[0];
     options.marker.max_area_px = a.marker_area_px[1];
-    let inputs = [a.calib.as_path(), pressures.as_path()];
-    if fsio::is_same_file_as_any(&a.out, &inputs) {
-        bail!(
-            "--out {} is one of the inputs; choose another file",
-            a.out.display()
-        );
+    let done = super::with_session(|s| {
+        triangulate::run(&a.frames, &a.calib, &pressures, &options, &a.out, s)
+    })?;
+    // Files first (written above), then the printing: a closed pipe must not cost the results.
+    print_summary(&done);
+    super::print_written(&done.written);
+    if done.triangulation.summary.interrupted {
+        bail!("interrupted: the dataset holds the frames examined before Ctrl-C; run again for all of them");
     }
-    triangulate_and_write(&a.frames, &a.calib, &pressures, &options, &a.out)?;
     Ok(())
 }
 
-/// Triangulates with a progress bar, prints the summary, writes the dataset and the files
-/// beside it.
-pub fn triangulate_and_write(
-    frames: &Path,
-    calib: &Path,
-    pressures: &Path,
-    options: &TriangulateOptions,
-    out: &Path,
-) -> anyhow::Result<Triangulation> {
-    let calibration = stereo::read_calibration(calib)?;
-    if let Some(parent) = out.parent().filter(|p| !p.as_os_str().is_empty()) {
-        std::fs::create_dir_all(parent)
-            .with_context(|| format!("creating {}", parent.display()))?;
-    }
-    let log = pairing::read_pressure_log(pressures)?;
-    let bar = super::Counter::new("frames {bar:30} {pos}/{len} ({per_sec}, {eta})");
-    let interrupt = super::interrupt_flag();
-    let result = triangulate::triangulate(
-        frames,
-        &calibration,
-        &log,
-        options,
-        &|done, total| bar.update(done, total),
-        &interrupt,
-    );
-    bar.finish();
-    let tri = result?;
-    let provenance = Provenance::new(super::command_line(), None)
-        .with_input(calib)
-        .and_then(|p| p.with_input(pressures))
-        .and_then(|p| p.with_input(&frames.join("frames.csv")))
-        .context("hashing the inputs")?;
-    // Files first, then the printing: a closed pipe on stdout must not cost the results.
-    let written = tri.write(out, &provenance)?;
-    print_summary(&tri);
-    for f in written {
-        println!("wrote {}", f.display());
-    }
-    if tri.summary.interrupted {
-        bail!("interrupted: the dataset holds the frames examined before Ctrl-C; run again for all of them");
-    }
-    Ok(tri)
-}
-
-fn print_summary(t: &Triangulation) {
+pub fn print_summary(done: &Triangulated) {
+    let t = &done.triangulation;
     let s = &t.summary;
     let f = &s.frames;
     println!(

@@ -14,9 +14,9 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::fsio;
+use crate::model::msvr::tune::SearchSummary;
 use crate::model::msvr::Msvr;
 use crate::provenance::Provenance;
-use crate::search::SearchSummary;
 
 /// The `format` field of every model file.
 pub const FORMAT: &str = "handcap-model";

@@ -13,13 +13,14 @@ use serde::Serialize;
 
 use crate::data::{format_number, Columns, Dataset};
 use crate::fsio;
+use crate::model::msvr::tune::SearchSummary;
 use crate::model::msvr::{FitDiagnostics, MsvrParams};
 use crate::model::previous::{Calibration, PreviousParams};
 use crate::model::{Errors, Predict};
 use crate::provenance::Provenance;
-use crate::search::{IterationRecord, SearchSummary};
+use crate::search::IterationRecord;
 
-pub mod figures;
+use crate::plot as figures;
 pub mod html;
 
 /// Errors of writing a report.

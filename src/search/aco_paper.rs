@@ -43,10 +43,18 @@ impl Default for AcoPaper {
             rho: 0.04,
             tau0: 0.5,
             max_iter: 80,
-            seed: crate::synth::DEFAULT_SEED,
+            seed: crate::DEFAULT_SEED,
         }
     }
 }
+
+/// The paper's Table 2: the (C, ε, σ) its colony selected for the micro-hand (path
+/// 326701690259), the parameters `handcap model --search none` uses by default.
+pub const PAPER_TABLE2: Hyper = Hyper {
+    c: 326.7,
+    epsilon: 0.0169,
+    sigma: 0.259,
+};
 
 /// The 12 digits of a path.
 pub type Path = [u8; LAYERS];
@@ -118,7 +126,7 @@ impl AcoPaper {
                 })
                 .collect();
             let candidates: Vec<Hyper> = paths.iter().map(decode).collect();
-            let scores = objective(&candidates);
+            let scores = score_valid_paths(objective, &candidates);
             tracker.record(&candidates, &scores);
 
             let keep = 1.0 - self.rho;
@@ -145,6 +153,31 @@ impl AcoPaper {
     }
 }
 
+/// The paper's rule for its digit encoding: a path with a zero-valued parameter is invalid.
+pub fn is_valid_path(h: &Hyper) -> bool {
+    h.c > 0.0 && h.epsilon > 0.0 && h.sigma > 0.0
+}
+
+/// Scores the valid paths' candidates; an invalid path scores +∞ and is never evaluated.
+fn score_valid_paths(objective: &Objective, candidates: &[Hyper]) -> Vec<f64> {
+    let valid: Vec<Hyper> = candidates
+        .iter()
+        .filter(|h| is_valid_path(h))
+        .copied()
+        .collect();
+    let mut scores = objective(&valid).into_iter();
+    candidates
+        .iter()
+        .map(|h| {
+            if is_valid_path(h) {
+                scores.next().unwrap_or(f64::INFINITY)
+            } else {
+                f64::INFINITY
+            }
+        })
+        .collect()
+}
+
 /// A node drawn with probability proportional to its edge's pheromone (eq. 13, η = 1).
 fn pick(rng: &mut ChaCha8Rng, tau: &[f64; DIGITS]) -> u8 {
     let total: f64 = tau.iter().sum();
@@ -168,10 +201,12 @@ mod tests {
         let h = decode(&[6, 3, 1, 2, 8, 8, 3, 2, 2, 1, 5, 1]);
         assert_eq!((h.c, h.epsilon, h.sigma), (631.2, 0.8832, 2.151));
         let table2 = decode(&[3, 2, 6, 7, 0, 1, 6, 9, 0, 2, 5, 9]);
-        assert_eq!(
-            (table2.c, table2.epsilon, table2.sigma),
-            (326.7, 0.0169, 0.259)
-        );
-        assert!(!decode(&[0, 0, 0, 0, 1, 1, 1, 1, 1, 1, 1, 1]).is_valid());
+        assert_eq!(table2, PAPER_TABLE2);
+        assert!(!is_valid_path(&decode(&[
+            0, 0, 0, 0, 1, 1, 1, 1, 1, 1, 1, 1
+        ])));
+        assert!(!is_valid_path(&decode(&[
+            1, 1, 1, 1, 0, 0, 0, 0, 1, 1, 1, 1
+        ])));
     }
 }

@@ -45,7 +45,7 @@ impl Default for AcoR {
             q: 0.2,
             xi: 0.85,
             budget: 400,
-            seed: crate::synth::DEFAULT_SEED,
+            seed: crate::DEFAULT_SEED,
         }
     }
 }

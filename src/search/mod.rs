@@ -1,18 +1,17 @@
-//! Hyper-parameter search for MSVR: which (C, ε, σ) to fit with.
+//! Optimisers over (C, ε, σ): which candidate scores best on an objective.
 //!
 //! A search sees only an objective — a function scoring a batch of candidates, lower is better —
-//! and reports each iteration to an [`Observer`] (progress bars and history writers live there).
-//! Every search takes a seed; the same seed gives the same result.
+//! and a box, and reports each iteration to an [`Observer`] (progress bars and history writers
+//! live there). It knows nothing of MSVR or data: the bridge that scores candidates by fitting
+//! MSVR is [`crate::model::msvr::tune`]. Every search takes a seed; the same seed gives the same
+//! result.
 //!
 //! - [`aco_paper`]: the paper's digit-encoded ant colony (§2.3.2, Table 1).
 //! - [`aco_r`]: continuous ACO_R (Socha & Dorigo 2008) on (log C, log ε, log σ).
 //! - [`grid`]: a log-spaced grid, the baseline the paper says ACO beats.
-//!
-//! [`fitness`] provides the objective: cross-validated (default) or training MAE.
 
 pub mod aco_paper;
 pub mod aco_r;
-pub mod fitness;
 pub mod grid;
 
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -27,12 +26,39 @@ pub struct Hyper {
     pub sigma: f64,
 }
 
+/// A parameter outside its range: which one, its value and the rule.
+#[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
+#[error("{name} = {value}: {requirement}")]
+pub struct InvalidParam {
+    pub name: &'static str,
+    pub value: f64,
+    pub requirement: &'static str,
+}
+
 impl Hyper {
-    /// Whether every parameter is finite and > 0 (the paper's zero-valued paths are invalid).
-    pub fn is_valid(&self) -> bool {
-        [self.c, self.epsilon, self.sigma]
-            .iter()
-            .all(|v| v.is_finite() && *v > 0.0)
+    /// The one rule for (C, ε, σ): C finite and > 0, ε finite and ≥ 0 (ε = 0 is kernel ridge
+    /// regression), σ finite and > 0.
+    ///
+    /// # Errors
+    /// [`InvalidParam`] naming the first value that breaks it.
+    pub fn check(&self) -> Result<(), InvalidParam> {
+        let bad = |name, value, requirement| {
+            Err(InvalidParam {
+                name,
+                value,
+                requirement,
+            })
+        };
+        if !(self.c > 0.0 && self.c.is_finite()) {
+            return bad("C", self.c, "must be finite and > 0");
+        }
+        if !(self.epsilon >= 0.0 && self.epsilon.is_finite()) {
+            return bad("epsilon", self.epsilon, "must be finite and ≥ 0");
+        }
+        if !(self.sigma > 0.0 && self.sigma.is_finite()) {
+            return bad("sigma", self.sigma, "must be finite and > 0");
+        }
+        Ok(())
     }
 }
 
@@ -89,8 +115,6 @@ pub struct SearchResult {
 pub enum SearchError {
     #[error("the search found no candidate with a finite fitness (interrupted too early, or every fit failed)")]
     NothingValid,
-    #[error(transparent)]
-    Folds(#[from] fitness::FitnessError),
     #[error("{name} = {value}: {requirement}")]
     InvalidSetting {
         name: &'static str,
@@ -172,13 +196,8 @@ impl<'a> Tracker<'a> {
     }
 }
 
-/// The box searched by [`aco_r`] and [`grid`], in (ln C, ln ε, ln σ), derived from the data:
-/// - σ from half the median nearest-neighbour distance of the scaled inputs (a narrower kernel
-///   sees no neighbour) to 2√d (twice the diagonal of the unit cube: nearly linear);
-/// - ε from 10⁻⁴ to ½ of the outputs' RMS distance from their mean (a wider tube fits nothing);
-/// - C from 0.1 to 10⁷ (the loss and the regulariser scale alike with the outputs, so C needs no
-///   output scale; the ridge 1/(2C) of the step system stays far above rounding of K's unit
-///   diagonal, and on smooth, lightly noisy data the best C found is at the top of this range).
+/// The box searched by [`aco_r`] and [`grid`], searched in (ln C, ln ε, ln σ); the MSVR bridge
+/// derives it from the data ([`crate::model::msvr::tune::space_for`]).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SearchSpace {
     pub c: (f64, f64),
@@ -187,49 +206,6 @@ pub struct SearchSpace {
 }
 
 impl SearchSpace {
-    /// The box for a dataset.
-    pub fn from_data(data: &crate::data::Dataset) -> Self {
-        let scaled = crate::model::msvr::MinMaxScaler::fit(&data.inputs).transform(&data.inputs);
-        let d2 = crate::model::msvr::kernel::squared_distances(&scaled, &scaled);
-        let n = scaled.rows();
-        let mut nearest: Vec<f64> = (0..n)
-            .map(|j| {
-                (0..n)
-                    .filter(|&i| i != j)
-                    .map(|i| d2[(i, j)])
-                    .filter(|&v| v > 0.0)
-                    .fold(f64::INFINITY, f64::min)
-                    .sqrt()
-            })
-            .filter(|v| v.is_finite())
-            .collect();
-        nearest.sort_by(f64::total_cmp);
-        let median_nn = nearest.get(nearest.len() / 2).copied().unwrap_or(0.1);
-        let q = data.outputs.width();
-        let mean: Vec<f64> = (0..q)
-            .map(|j| data.outputs.column(j).sum::<f64>() / n as f64)
-            .collect();
-        let spread = (data
-            .outputs
-            .iter_rows()
-            .map(|r| {
-                r.iter()
-                    .zip(&mean)
-                    .map(|(v, m)| (v - m) * (v - m))
-                    .sum::<f64>()
-            })
-            .sum::<f64>()
-            / n as f64)
-            .sqrt()
-            .max(f64::MIN_POSITIVE);
-        let d = scaled.width() as f64;
-        SearchSpace {
-            c: (0.1, 1e7),
-            epsilon: (1e-4 * spread, 0.5 * spread),
-            sigma: (0.5 * median_nn, 2.0 * d.sqrt()),
-        }
-    }
-
     /// (ln lo, ln hi) per axis, in the order C, ε, σ.
     fn log_bounds(&self) -> [(f64, f64); 3] {
         [self.c, self.epsilon, self.sigma].map(|(lo, hi)| (lo.ln(), hi.ln()))
@@ -253,25 +229,6 @@ pub enum Method {
     Grid(grid::Grid),
 }
 
-/// Group labels of the training rows (one per row) and the column they came from: rows of a
-/// group are held out together, as when consecutive rows of one ramp are nearly the same.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Groups {
-    pub column: String,
-    pub labels: Vec<f64>,
-}
-
-impl Method {
-    /// The `--search` name.
-    pub fn name(&self) -> &'static str {
-        match self {
-            Method::AcoPaper(_) => "aco-paper",
-            Method::AcoR(_) => "aco-r",
-            Method::Grid(_) => "grid",
-        }
-    }
-}
-
 impl std::fmt::Display for Method {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
@@ -290,75 +247,60 @@ impl std::fmt::Display for Method {
     }
 }
 
-/// What the model file records of the search that chose its parameters.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct SearchSummary {
-    #[serde(flatten)]
-    pub method: Method,
-    pub fitness: fitness::FitnessKind,
-    /// The column whose values group rows into whole folds, if any.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub group_by: Option<String>,
-    /// Seed of the folds' shuffle (the method's own `seed` is in its settings, flattened beside
-    /// this; one name for both made the model file unreadable).
-    pub fold_seed: u64,
-    pub space: Option<SearchSpace>,
-    pub best: Hyper,
-    pub best_fitness: f64,
-    pub iterations: usize,
-    pub stop: SearchStop,
-    /// Distinct candidates scored; each costs one fit per fold.
-    pub evaluations: usize,
-    pub fits: usize,
-    /// Candidates answered from the memo of scored ones.
-    pub memo_hits: usize,
+/// An optimiser: runs on an objective inside a box and says why it stopped.
+pub trait Search {
+    /// The `--search` name.
+    fn name(&self) -> &'static str;
+    /// Iterations it runs at most (for a progress bar).
+    fn iteration_cap(&self) -> usize;
+    /// Whether it searches `space` (the paper's colony has its own digit box and ignores it).
+    fn uses_space(&self) -> bool;
+    /// Runs the search.
+    ///
+    /// # Errors
+    /// [`SearchError::InvalidSetting`] for a bad setting; [`SearchError::NothingValid`] when no
+    /// candidate scored a finite fitness.
+    fn run(
+        &self,
+        space: &SearchSpace,
+        objective: &Objective,
+        observer: &mut dyn Observer,
+        interrupt: &AtomicBool,
+    ) -> Result<SearchResult, SearchError>;
 }
 
-/// Runs `method` on `data` with the given fitness; returns the summary, the full result and
-/// the work counters.
-///
-/// # Errors
-/// [`SearchError`] from the method, or a fitness set-up error as
-/// [`SearchError::InvalidSetting`].
-#[allow(clippy::too_many_arguments)]
-pub fn run(
-    method: &Method,
-    data: &crate::data::Dataset,
-    fitness: fitness::FitnessKind,
-    seed: u64,
-    groups: Option<&Groups>,
-    solver: &crate::model::msvr::MsvrParams,
-    observer: &mut dyn Observer,
-    interrupt: &AtomicBool,
-) -> Result<(SearchSummary, SearchResult, fitness::Counters), SearchError> {
-    let labels = groups.map(|g| g.labels.as_slice());
-    let scorer = fitness::Fitness::new(data, fitness, seed, labels, solver)?;
-    let objective = |batch: &[Hyper]| scorer.evaluate(batch);
-    let (result, space) = match method {
-        Method::AcoPaper(m) => (m.run(&objective, observer, interrupt)?, None),
-        Method::AcoR(m) => {
-            let space = SearchSpace::from_data(data);
-            (m.run(&space, &objective, observer, interrupt)?, Some(space))
+impl Search for Method {
+    fn name(&self) -> &'static str {
+        match self {
+            Method::AcoPaper(_) => "aco-paper",
+            Method::AcoR(_) => "aco-r",
+            Method::Grid(_) => "grid",
         }
-        Method::Grid(m) => {
-            let space = SearchSpace::from_data(data);
-            (m.run(&space, &objective, observer, interrupt)?, Some(space))
+    }
+
+    fn iteration_cap(&self) -> usize {
+        match self {
+            Method::AcoPaper(m) => m.max_iter,
+            Method::AcoR(m) => (m.budget.saturating_sub(m.archive)).div_ceil(m.ants.max(1)) + 1,
+            Method::Grid(m) => (m.per_axis().pow(3)).div_ceil(m.batch.max(1)),
         }
-    };
-    let counters = scorer.counters();
-    let summary = SearchSummary {
-        method: *method,
-        fitness,
-        group_by: groups.map(|g| g.column.clone()),
-        fold_seed: seed,
-        space,
-        best: result.best,
-        best_fitness: result.best_fitness,
-        iterations: result.history.len(),
-        stop: result.stop,
-        evaluations: counters.evaluations,
-        fits: counters.fits,
-        memo_hits: counters.memo_hits,
-    };
-    Ok((summary, result, counters))
+    }
+
+    fn uses_space(&self) -> bool {
+        !matches!(self, Method::AcoPaper(_))
+    }
+
+    fn run(
+        &self,
+        space: &SearchSpace,
+        objective: &Objective,
+        observer: &mut dyn Observer,
+        interrupt: &AtomicBool,
+    ) -> Result<SearchResult, SearchError> {
+        match self {
+            Method::AcoPaper(m) => m.run(objective, observer, interrupt),
+            Method::AcoR(m) => m.run(space, objective, observer, interrupt),
+            Method::Grid(m) => m.run(space, objective, observer, interrupt),
+        }
+    }
 }

@@ -169,7 +169,14 @@ pub fn write_capture(
         let path = dir.join(sub);
         std::fs::create_dir_all(&path).map_err(io_err(&path))?;
     }
-    write_text(&dir.join("calib/board.yml"), &board_yaml(config))?;
+    write_text(
+        &dir.join("calib").join(crate::calib::file::BOARD_FILE),
+        &crate::calib::file::board_yaml(&crate::calib::BoardSpec {
+            cols: config.board_cols,
+            rows: config.board_rows,
+            square_mm: config.square_mm,
+        }),
+    )?;
     write_text(&dir.join("truth/rig.yml"), &rig_yaml(&rig, provenance))?;
     write_text(
         &dir.join("truth/boards.csv"),
@@ -462,14 +469,6 @@ fn pressure_at(c: &CaptureConfig, steps: &[(&str, Pressures)], t: f64) -> Pressu
     std::array::from_fn(|i| target[i] + (before[i] - target[i]) * decay)
 }
 
-fn board_yaml(c: &CaptureConfig) -> String {
-    let mut fs = FileStorage::new();
-    fs.int("inner_corners_cols", c.board_cols as i64)
-        .int("inner_corners_rows", c.board_rows as i64)
-        .real("square_mm", c.square_mm);
-    fs.text().to_string()
-}
-
 fn mat3(m: &Matrix3<f64>) -> Vec<f64> {
     (0..3)
         .flat_map(|r| (0..3).map(move |c| m[(r, c)]))
@@ -481,7 +480,7 @@ fn rig_yaml(rig: &Rig, provenance: &crate::provenance::Provenance) -> String {
     let hand_r = rig.left.pose.rotation.inverse();
     let hand_t = rig.left.pose.centre().coords;
     let mut fs = FileStorage::new();
-    cams.write_yaml(&mut fs)
+    crate::calib::file::write_rig(&mut fs, &cams)
         .matrix("E", 3, 3, &mat3(&cams.essential()))
         .matrix("F", 3, 3, &mat3(&cams.fundamental()))
         .matrix("R_hand", 3, 3, &mat3(hand_r.matrix()))

@@ -16,6 +16,7 @@ pub mod camera;
 pub mod capture;
 pub mod plant;
 pub mod render;
+pub mod scene;
 
 use std::path::{Path, PathBuf};
 
@@ -28,8 +29,6 @@ use crate::data::{self, names, Columns, DataError, HAND_INPUTS, HAND_OUTPUTS};
 use crate::provenance::Provenance;
 use plant::{Plant, PlantError, PlantParams, Pressures};
 
-/// The seed used when none is given.
-pub const DEFAULT_SEED: u64 = 2020;
 /// Default tip measurement noise (mm, standard deviation per coordinate): what two 720p webcams
 /// at 150-200 mm achieve on a sub-pixel centroid (see `notes/stereo.md`).
 pub const DEFAULT_NOISE_MM: f64 = 0.02;
@@ -74,7 +73,7 @@ pub struct SynthConfig {
 impl Default for SynthConfig {
     fn default() -> Self {
         SynthConfig {
-            seed: DEFAULT_SEED,
+            seed: crate::DEFAULT_SEED,
             noise_mm: DEFAULT_NOISE_MM,
             grid_step_kpa: 50.0,
             sweep_step_kpa: 10.0,

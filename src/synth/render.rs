@@ -22,6 +22,8 @@ use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
 use super::camera::Camera;
+use super::scene::ray_segment_gap;
+pub use super::scene::{Board, Finger};
 
 /// Samples per pixel side.
 pub const SUPERSAMPLING: usize = 4;
@@ -33,10 +35,10 @@ const BLUR_SIGMA_PX: f64 = 0.7;
 const READ_NOISE_DN: f32 = 0.4;
 const SHOT_NOISE_DN: f32 = 0.004;
 
-const SILICONE: [f64; 3] = [0.93, 0.89, 0.82];
-const BEAD: [f64; 3] = [0.80, 0.10, 0.09];
-const PAPER: [f64; 3] = [0.92, 0.92, 0.90];
-const INK: [f64; 3] = [0.08, 0.08, 0.09];
+pub(super) const SILICONE: [f64; 3] = [0.93, 0.89, 0.82];
+pub(super) const BEAD: [f64; 3] = [0.80, 0.10, 0.09];
+pub(super) const PAPER: [f64; 3] = [0.92, 0.92, 0.90];
+pub(super) const INK: [f64; 3] = [0.08, 0.08, 0.09];
 const BACKDROP: [f64; 3] = [0.47, 0.48, 0.50];
 /// Ambient share of the lighting.
 const AMBIENT: f64 = 0.35;
@@ -506,198 +508,6 @@ fn for_samples(mut f: impl FnMut(f64, f64)) {
     }
 }
 
-/// A printed chessboard placed in the world.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Board {
-    /// Inner corners along the board's x and y.
-    pub cols: usize,
-    pub rows: usize,
-    pub square_mm: f64,
-    /// World position of the first inner corner (the board frame's origin).
-    pub origin: Point3<f64>,
-    /// Board frame → world: x along a row of corners, y down the columns, z into the board.
-    pub rotation: nalgebra::Rotation3<f64>,
-}
-
-impl Board {
-    /// The square-sized cell holding board coordinates (mm): cell (0, 0) has the first inner
-    /// corner at its top-left. Squares, margin and paper edge all follow cell boundaries.
-    fn cell(&self, x: f64, y: f64) -> (i64, i64) {
-        let s = self.square_mm;
-        ((x / s).floor() as i64, (y / s).floor() as i64)
-    }
-
-    /// Albedo of a cell; `None` off the paper. The squares span cells −1 … n − 1 (n inner
-    /// corners), the one-square white margin around them is paper too.
-    fn albedo(&self, (cx, cy): (i64, i64)) -> Option<[f64; 3]> {
-        let (cols, rows) = (self.cols as i64, self.rows as i64);
-        if !(-2..=cols).contains(&cx) || !(-2..=rows).contains(&cy) {
-            return None;
-        }
-        let on_squares = (-1..cols).contains(&cx) && (-1..rows).contains(&cy);
-        Some(if on_squares && (cx + cy).rem_euclid(2) == 0 {
-            INK
-        } else {
-            PAPER
-        })
-    }
-
-    /// World positions of the inner corners, row by row (OpenCV's object point order).
-    pub fn corners(&self) -> Vec<Point3<f64>> {
-        (0..self.rows)
-            .flat_map(|j| (0..self.cols).map(move |i| (i, j)))
-            .map(|(i, j)| {
-                self.origin
-                    + self.rotation
-                        * Vector3::new(i as f64 * self.square_mm, j as f64 * self.square_mm, 0.0)
-            })
-            .collect()
-    }
-
-    /// World positions of the paper's four outer corners.
-    pub fn paper_corners(&self) -> [Point3<f64>; 4] {
-        let s = self.square_mm;
-        let (x0, y0) = (-2.0 * s, -2.0 * s);
-        let (x1, y1) = ((self.cols + 1) as f64 * s, (self.rows + 1) as f64 * s);
-        [(x0, y0), (x1, y0), (x1, y1), (x0, y1)]
-            .map(|(x, y)| self.origin + self.rotation * Vector3::new(x, y, 0.0))
-    }
-}
-
-/// The finger's geometry in the world: its axis polyline and the bead's centre.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Finger {
-    /// The tube's axis, from the base to where its rounded end starts.
-    pub axis: Vec<Point3<f64>>,
-    pub tip: Point3<f64>,
-}
-
-impl Finger {
-    /// From the plant's centre line (base → tip): the bead sits on the tip, and the tube's axis
-    /// stops one tube radius plus one bead diameter short of the tip so that its rounded end
-    /// touches the bead. Every `stride`-th point is kept.
-    pub fn from_centre_line(line: &[[f64; 3]], stride: usize) -> Self {
-        let pts: Vec<Point3<f64>> = line.iter().map(|&p| Point3::from(p)).collect();
-        let tip = *pts.last().expect("centre line has points");
-        let cut = FINGER_RADIUS_MM + BEAD_RADIUS_MM;
-        // Walk back from the tip until `cut` of arc length is behind us.
-        let mut remaining = cut;
-        let mut end = pts.len() - 1;
-        let mut last = tip;
-        while end > 0 {
-            let seg = (pts[end] - pts[end - 1]).norm();
-            if seg >= remaining {
-                last = pts[end] + (pts[end - 1] - pts[end]) * (remaining / seg);
-                break;
-            }
-            remaining -= seg;
-            end -= 1;
-        }
-        let mut axis: Vec<Point3<f64>> =
-            pts[..end].iter().step_by(stride.max(1)).copied().collect();
-        axis.push(last);
-        Finger { axis, tip }
-    }
-
-    /// Nearest surface hit along the ray from `eye` in direction `d` among `pieces` (indices of
-    /// axis segments, or `bead` for the bead): outward normal and albedo.
-    fn hit(
-        &self,
-        eye: &Point3<f64>,
-        d: &Vector3<f64>,
-        pieces: &[usize],
-        bead: usize,
-    ) -> Option<(Vector3<f64>, [f64; 3])> {
-        let mut best: Option<(f64, Vector3<f64>, [f64; 3])> = None;
-        for &k in pieces {
-            let found = if k == bead {
-                sphere(eye, d, &self.tip, BEAD_RADIUS_MM)
-                    .map(|t| (t, (eye + d * t - self.tip).normalize(), BEAD))
-            } else {
-                capsule(eye, d, &self.axis[k], &self.axis[k + 1], FINGER_RADIUS_MM)
-                    .map(|(t, n)| (t, n, SILICONE))
-            };
-            if let Some(f) = found {
-                if best.as_ref().is_none_or(|b| f.0 < b.0) {
-                    best = Some(f);
-                }
-            }
-        }
-        best.map(|(_, n, albedo)| (n, albedo))
-    }
-}
-
-/// Distance between the ray from `o` along unit `d` and the segment a-b, and how far along the
-/// ray the closest approach lies.
-fn ray_segment_gap(
-    o: &Point3<f64>,
-    d: &Vector3<f64>,
-    a: &Point3<f64>,
-    b: &Point3<f64>,
-) -> (f64, f64) {
-    let u = b - a;
-    let w = a - o;
-    let uu = u.norm_squared();
-    let ud = u.dot(d);
-    let denom = uu - ud * ud;
-    // Parameter along the segment of the closest approach to the ray's line, clamped.
-    let s = if uu < 1e-18 || denom.abs() < 1e-12 {
-        0.0
-    } else {
-        ((ud * w.dot(d) - w.dot(&u)) / denom).clamp(0.0, 1.0)
-    };
-    let p = a + u * s;
-    let t = (p - o).dot(d);
-    ((o + d * t - p).norm(), t)
-}
-
-/// Nearest positive hit of a ray (unit `d`) with a sphere.
-fn sphere(o: &Point3<f64>, d: &Vector3<f64>, c: &Point3<f64>, r: f64) -> Option<f64> {
-    let oc = o - c;
-    let b = oc.dot(d);
-    let disc = b * b - (oc.norm_squared() - r * r);
-    if disc < 0.0 {
-        return None;
-    }
-    let t = -b - disc.sqrt();
-    (t > 0.0).then_some(t)
-}
-
-/// Nearest positive hit of a ray (unit `d`) with the capsule around segment a-b, and the normal.
-fn capsule(
-    o: &Point3<f64>,
-    d: &Vector3<f64>,
-    a: &Point3<f64>,
-    b: &Point3<f64>,
-    r: f64,
-) -> Option<(f64, Vector3<f64>)> {
-    let ba = b - a;
-    let oa = o - a;
-    let baba = ba.norm_squared();
-    let bard = ba.dot(d);
-    let baoa = ba.dot(&oa);
-    let rdoa = d.dot(&oa);
-    let oaoa = oa.norm_squared();
-    let qa = baba - bard * bard;
-    let qb = baba * rdoa - baoa * bard;
-    let qc = baba * oaoa - baoa * baoa - r * r * baba;
-    let h = qb * qb - qa * qc;
-    if h < 0.0 {
-        return None;
-    }
-    let t = (-qb - h.sqrt()) / qa;
-    let y = baoa + t * bard;
-    // The cylinder's side.
-    if qa > 1e-12 && y > 0.0 && y < baba && t > 0.0 {
-        let p = o + d * t;
-        let along = (p - a).dot(&ba) / baba;
-        return Some((t, (p - (a + ba * along)).normalize()));
-    }
-    // One of the caps.
-    let c = if y <= 0.0 { *a } else { *b };
-    sphere(o, d, &c, r).map(|t| (t, (o + d * t - c).normalize()))
-}
-
 fn splitmix(mut z: u64) -> u64 {
     z = z.wrapping_add(0x9e37_79b9_7f4a_7c15);
     z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
@@ -726,6 +536,7 @@ fn pixel_noise(key: u64, k: u64) -> [f32; 3] {
 mod tests {
     use super::*;
     use crate::synth::camera::RigConfig;
+    use crate::synth::scene::capsule;
 
     #[test]
     fn interpolated_rays_match_exact_undistortion() {

@@ -10,7 +10,8 @@ use opencv::imgcodecs;
 use opencv::prelude::*;
 
 use super::marker::RgbImage;
-use super::{Table, TriangulateError};
+use super::TriangulateError;
+use crate::data::Table;
 use crate::stereo::Side;
 
 /// One row of `frames.csv`.
@@ -27,7 +28,7 @@ pub struct FrameRecord {
 /// Reads `dir/frames.csv`.
 ///
 /// # Errors
-/// [`TriangulateError::Input`] naming the file and line: unreadable file, missing column, a
+/// [`DataError::Input`](crate::data::DataError::Input) naming the file and line: unreadable file, missing column, a
 /// camera other than `left`/`right`, a bad number, a frame listed twice.
 pub fn read_frame_list(dir: &Path) -> Result<Vec<FrameRecord>, TriangulateError> {
     let mut table = Table::open(&dir.join("frames.csv"), "frame,camera,time_s")?;
@@ -42,7 +43,7 @@ pub fn read_frame_list(dir: &Path) -> Result<Vec<FrameRecord>, TriangulateError>
         let camera = match &record[c_camera] {
             "left" => Side::Left,
             "right" => Side::Right,
-            other => return Err(table.bad(line, format!("camera {other:?}: use left or right"))),
+            other => return table.fail(line, format!("camera {other:?}: use left or right")),
         };
         let index: usize = record[c_frame].parse().map_err(|_| {
             table.bad(
@@ -61,10 +62,10 @@ pub fn read_frame_list(dir: &Path) -> Result<Vec<FrameRecord>, TriangulateError>
                 )
             })?;
         if !seen.insert((camera, index)) {
-            return Err(table.bad(
+            return table.fail(
                 line,
                 format!("{} frame {index} is listed twice", camera.name()),
-            ));
+            );
         }
         out.push(FrameRecord {
             camera,
@@ -74,7 +75,7 @@ pub fn read_frame_list(dir: &Path) -> Result<Vec<FrameRecord>, TriangulateError>
         });
     }
     if out.is_empty() {
-        return Err(table.bad(1, "no frames listed".into()));
+        return table.fail(1, "no frames listed".into());
     }
     Ok(out)
 }

@@ -16,6 +16,7 @@
 //!    elongation at most `max_elongation`, and it does not touch the border. Several candidates
 //!    are left to the epipolar constraint; none means the marker is missing from the frame.
 
+use crate::stats::upper_median_by;
 use std::collections::HashSet;
 
 use serde::Serialize;
@@ -186,10 +187,9 @@ fn seed_threshold(image: &RgbImage, options: &MarkerOptions) -> i32 {
         .flat_map(|y| (0..w).step_by(8).map(move |x| y * w + x))
         .map(|i| image.redness(i))
         .collect();
-    let mid = sample.len() / 2;
-    let median = *sample.select_nth_unstable(mid).1;
+    let median = upper_median_by(&mut sample, i32::cmp).unwrap_or(0);
     let mut dev: Vec<i32> = sample.iter().map(|v| (v - median).abs()).collect();
-    let mad = *dev.select_nth_unstable(mid).1;
+    let mad = upper_median_by(&mut dev, i32::cmp).unwrap_or(0);
     // MAD of integers can be 0 on a very clean frame; one level is the floor.
     let sigma = 1.4826 * f64::from(mad.max(1));
     let noise = f64::from(median) + options.noise_factor * sigma;

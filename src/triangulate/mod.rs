@@ -39,7 +39,8 @@ use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::stereo::{CalibrationFile, Side, StereoRig};
+use crate::calib::file::CalibrationFile;
+use crate::stereo::{Side, StereoRig};
 use frames::FrameRecord;
 use marker::{MarkerOptions, Markers};
 use pairing::{Placement, PressureLog};
@@ -47,12 +48,8 @@ use pairing::{Placement, PressureLog};
 /// Errors of triangulating.
 #[derive(Debug, thiserror::Error)]
 pub enum TriangulateError {
-    #[error("{}{}: {message}", path.display(), if *line > 0 { format!(" line {line}") } else { String::new() })]
-    Input {
-        path: PathBuf,
-        line: u64,
-        message: String,
-    },
+    #[error(transparent)]
+    Input(#[from] crate::data::DataError),
     #[error("{path} has no R_hand: calibrate with a reference pair (left_ref/right_ref, the board at the finger's base) so the hand frame's axes are known")]
     NoHandAxes { path: PathBuf },
     #[error("{frame} is {width}×{height} but the calibration is for {cw}×{ch}; capture frames at the calibration's size")]
@@ -431,7 +428,7 @@ pub fn triangulate(
             zero_kpa: options.zero_kpa,
         });
     }
-    let origin = median(&at_zero);
+    let origin = crate::stats::median_point(&at_zero);
     summary.origin = Origin {
         left_mm: origin.into(),
         zero_steps: zero.len(),
@@ -460,7 +457,7 @@ pub fn triangulate(
         rows.push(Row {
             step: k,
             pressures_kpa: log.steps[k].pressures_kpa,
-            tip_mm: median(&tips).into(),
+            tip_mm: crate::stats::median_point(&tips).into(),
             n_frames: tips.len(),
             spread_mm,
             reproj_px: step_pairs
@@ -642,89 +639,9 @@ fn spread(points: &[Vector3<f64>]) -> f64 {
     if points.is_empty() {
         return 0.0;
     }
-    let centre = median(points);
+    let centre = crate::stats::median_point(points);
     points
         .iter()
         .map(|p| (p - centre).norm())
         .fold(0.0, f64::max)
-}
-
-/// A CSV input with a header row: its records with their line numbers, and its columns by
-/// name; every error names the file and the line.
-struct Table {
-    path: PathBuf,
-    header: csv::StringRecord,
-    reader: csv::Reader<std::io::BufReader<std::fs::File>>,
-    /// What the header must hold, for messages (e.g. "frame,camera,time_s").
-    needs: &'static str,
-}
-
-impl Table {
-    fn open(path: &Path, needs: &'static str) -> Result<Self, TriangulateError> {
-        let bad = |line, message| Table::error(path, line, message);
-        let file = std::fs::File::open(path)
-            .map_err(|e| bad(0, format!("{e}; it must be a CSV file with {needs}")))?;
-        let mut reader = csv::ReaderBuilder::new()
-            .trim(csv::Trim::All)
-            .from_reader(std::io::BufReader::new(file));
-        let header = reader.headers().map_err(|e| bad(1, e.to_string()))?.clone();
-        Ok(Table {
-            path: path.to_path_buf(),
-            header,
-            reader,
-            needs,
-        })
-    }
-
-    fn error(path: &Path, line: u64, message: String) -> TriangulateError {
-        TriangulateError::Input {
-            path: path.to_path_buf(),
-            line,
-            message,
-        }
-    }
-
-    /// An error at `line` of this file.
-    fn bad(&self, line: u64, message: String) -> TriangulateError {
-        Table::error(&self.path, line, message)
-    }
-
-    /// The position of a required column.
-    fn column(&self, name: &str) -> Result<usize, TriangulateError> {
-        self.header.iter().position(|h| h == name).ok_or_else(|| {
-            self.bad(
-                1,
-                format!("no {name} column; the header must have {}", self.needs),
-            )
-        })
-    }
-
-    /// Every record with its line number.
-    fn records(&mut self) -> Result<Vec<(u64, csv::StringRecord)>, TriangulateError> {
-        let path = self.path.clone();
-        self.reader
-            .records()
-            .map(|r| {
-                let r = r.map_err(|e| {
-                    Table::error(&path, e.position().map_or(0, |p| p.line()), e.to_string())
-                })?;
-                Ok((r.position().map_or(0, |p| p.line()), r))
-            })
-            .collect()
-    }
-}
-
-/// Per-coordinate median.
-fn median(points: &[Vector3<f64>]) -> Vector3<f64> {
-    let m = |k: usize| {
-        let mut v: Vec<f64> = points.iter().map(|p| p[k]).collect();
-        v.sort_by(f64::total_cmp);
-        let n = v.len();
-        if n % 2 == 1 {
-            v[n / 2]
-        } else {
-            (v[n / 2 - 1] + v[n / 2]) / 2.0
-        }
-    };
-    Vector3::new(m(0), m(1), m(2))
 }

@@ -20,7 +20,6 @@ use opencv::{imgcodecs, imgproc};
 
 use super::{PairRecord, PairStatus, TriangulateError, Triangulation};
 use crate::fsio;
-use crate::opencv_yaml::FileStorage;
 use crate::provenance::Provenance;
 
 /// `OUT` with `suffix` in place of its extension: `dataset.csv` + `_pairs.csv`.
@@ -114,19 +113,13 @@ impl Triangulation {
     }
 
     fn hand_yaml(&self, provenance: &Provenance) -> String {
-        let r: Vec<f64> = (0..9).map(|k| self.r_hand[(k / 3, k % 3)]).collect();
-        let mut fs = FileStorage::new();
-        fs.matrix("R_hand", 3, 3, &r)
-            .matrix("t_hand", 3, 1, self.t_hand.as_slice())
-            .matrix("origin_left_mm", 3, 1, &self.summary.origin.left_mm)
-            .int("origin_pairs", self.summary.origin.pairs as i64)
-            .string(
-                "convention",
-                "p_hand = R_hand * p_left + t_hand (mm); origin: median tip at zero pressure",
-            )
-            .string("handcap_version", &provenance.handcap_version)
-            .string("command", &provenance.command.join(" "));
-        fs.text().to_string()
+        crate::calib::file::hand_yaml(
+            &self.r_hand,
+            &self.t_hand,
+            &self.summary.origin.left_mm,
+            self.summary.origin.pairs,
+            provenance,
+        )
     }
 
     /// Writes the dataset and everything beside it; returns the files written.

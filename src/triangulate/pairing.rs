@@ -12,7 +12,8 @@
 use std::path::{Path, PathBuf};
 
 use super::frames::FrameRecord;
-use super::{Table, TriangulateError};
+use super::TriangulateError;
+use crate::data::Table;
 use crate::stereo::Side;
 
 /// One commanded step of the log.
@@ -50,7 +51,7 @@ pub const PRESSURE_COLUMNS: [&str; 3] = ["P1_kpa", "P2_kpa", "P3_kpa"];
 /// Reads the log.
 ///
 /// # Errors
-/// [`TriangulateError::Input`] naming the file and line: a missing column, a bad number, times
+/// [`DataError::Input`](crate::data::DataError::Input) naming the file and line: a missing column, a bad number, times
 /// that do not increase, fewer than two steps.
 pub fn read_pressure_log(path: &Path) -> Result<PressureLog, TriangulateError> {
     let mut table = Table::open(path, "time_s,P1_kpa,P2_kpa,P3_kpa")?;
@@ -72,22 +73,24 @@ pub fn read_pressure_log(path: &Path) -> Result<PressureLog, TriangulateError> {
                 .ok()
                 .filter(|v| v.is_finite())
                 .ok_or_else(|| {
-                    table.bad(
-                        line,
-                        format!("{} {:?} is not a number", &header[col], &record[col]),
-                    )
+                    table
+                        .bad(
+                            line,
+                            format!("{} {:?} is not a number", &header[col], &record[col]),
+                        )
+                        .into()
                 })
         };
         let time_s = number(time_col)?;
         if let Some(prev) = steps.last() {
             if time_s <= prev.time_s {
-                return Err(table.bad(
+                return table.fail(
                     line,
                     format!(
                         "time_s {time_s} is not after the previous row's {}; sort the log by time",
                         prev.time_s
                     ),
-                ));
+                );
             }
         }
         steps.push(LogStep {
@@ -97,14 +100,13 @@ pub fn read_pressure_log(path: &Path) -> Result<PressureLog, TriangulateError> {
         });
     }
     if steps.len() < 2 {
-        return Err(table.bad(0, "fewer than two steps logged".into()));
+        return table.fail(0, "fewer than two steps logged".into());
     }
     let mut gaps: Vec<f64> = steps
         .windows(2)
         .map(|w| w[1].time_s - w[0].time_s)
         .collect();
-    let mid = gaps.len() / 2;
-    let median_step_s = *gaps.select_nth_unstable_by(mid, f64::total_cmp).1;
+    let median_step_s = crate::stats::upper_median(&mut gaps).expect("two steps or more");
     Ok(PressureLog {
         path: path.to_path_buf(),
         steps,

@@ -137,9 +137,14 @@ fn calibrate_errors_are_one_line_and_say_what_to_do() {
         &["calibrate", "empty", "--board", "9x6", "--square-mm", "10"],
     );
     assert!(msg.contains("no left*/right* image pairs"), "{msg}");
-    // No board.yml and no flags.
-    let msg = handcap_err(d, &["calibrate", "empty"]);
-    assert!(msg.contains("--board"), "{msg}");
+    // No board.yml and no flags: the printed board of calib/board.yml is assumed, and said.
+    let out = handcap(d, &["calibrate", "empty"]);
+    assert!(!out.status.success());
+    let said = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        said.contains("calib/board.yml (9x6 inner corners, 10 mm"),
+        "{said}"
+    );
 
     // A few pairs only, plus an unpaired image: too few, with the reasons.
     let few = d.join("few");
@@ -242,4 +247,34 @@ fn calibrate_errors_are_one_line_and_say_what_to_do() {
             .code(),
         Some(2)
     );
+}
+
+#[test]
+fn the_repository_calib_folder_stays_valid() {
+    use handcap::calib::file::{default_board, read_board, read_calibration};
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("calib");
+    // The printed board: 9x6 inner corners, 10 mm, and the one built into the binary.
+    let board = read_board(&root.join("board.yml")).unwrap();
+    assert_eq!((board.cols, board.rows, board.square_mm), (9, 6, 10.0));
+    assert_eq!(board, default_board());
+    // The commented example reads as a calibration with the hand axes, a rotation.
+    let example = root.join("example_calib.yml");
+    let cal = read_calibration(&example).unwrap();
+    assert_eq!(cal.rig.image_size, [1280, 720]);
+    let baseline = cal.rig.t.iter().map(|v| v * v).sum::<f64>().sqrt();
+    // The virtual rig: 60 mm apart, each camera mounted within ±2 mm.
+    assert!((baseline - 60.0).abs() < 5.0, "baseline {baseline} mm");
+    let r = cal.r_hand.expect("R_hand");
+    assert!((r * r.transpose() - nalgebra::Matrix3::identity()).norm() < 1e-9);
+    // Every key is explained by a comment just above it.
+    let text = std::fs::read_to_string(&example).unwrap();
+    let lines: Vec<&str> = text.lines().collect();
+    for (i, line) in lines.iter().enumerate().skip(2) {
+        if !line.starts_with([' ', '#']) && line.contains(':') {
+            assert!(
+                lines[i - 1].starts_with('#'),
+                "key without a comment: {line}"
+            );
+        }
+    }
 }

@@ -5,6 +5,7 @@ use handcap::data::{Columns, Dataset};
 use handcap::model::msvr::MsvrParams;
 use handcap::model::previous::{self, PreviousModel};
 use handcap::model::{ModelError, Predict};
+use handcap::search::aco_paper::PAPER_TABLE2;
 use handcap::synth::{self, SynthConfig};
 
 /// Checks a fitted model against the dataset it was fitted on.
@@ -79,7 +80,8 @@ fn previous_model_passes_the_contract_in_both_variants() {
 #[test]
 fn msvr_passes_the_contract() {
     let train = training_data();
-    let model = MsvrParams::new(326.7, 0.0169, 0.259)
+    let model = MsvrParams::default()
+        .with_hyper(PAPER_TABLE2)
         .check()
         .unwrap()
         .fit(&train)

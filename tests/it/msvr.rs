@@ -12,6 +12,7 @@ use handcap::model::msvr::irwls::{self, Problem, SolverOptions, StopReason};
 use handcap::model::msvr::{kernel, MsvrParams};
 use handcap::model::Predict;
 use handcap::provenance::Provenance;
+use handcap::search::aco_paper::PAPER_TABLE2;
 use handcap::synth::{self, SynthConfig};
 
 use crate::common::{dataset, tempdir, Lcg};
@@ -423,7 +424,8 @@ fn permuting_rows_or_outputs_permutes_the_solution() {
 fn save_load_predicts_identically() {
     let train = hand_data("train");
     let test = hand_data("sweep_a");
-    let model = MsvrParams::new(326.7, 0.0169, 0.259)
+    let model = MsvrParams::default()
+        .with_hyper(PAPER_TABLE2)
         .check()
         .unwrap()
         .fit(&train)
@@ -447,7 +449,8 @@ fn save_load_predicts_identically() {
 
 #[test]
 fn fits_the_virtual_hand_and_generalises_to_the_sweeps() {
-    let model = MsvrParams::new(326.7, 0.0169, 0.259)
+    let model = MsvrParams::default()
+        .with_hyper(PAPER_TABLE2)
         .check()
         .unwrap()
         .fit(&hand_data("train"))
@@ -462,7 +465,8 @@ fn fits_the_virtual_hand_and_generalises_to_the_sweeps() {
 
 #[test]
 fn iteration_cap_is_reported_as_not_converged() {
-    let model = MsvrParams::new(326.7, 0.0169, 0.259)
+    let model = MsvrParams::default()
+        .with_hyper(PAPER_TABLE2)
         .max_iter(1)
         .check()
         .unwrap()

@@ -3,26 +3,26 @@
 use std::sync::atomic::AtomicBool;
 
 use handcap::data::Dataset;
+use handcap::model::msvr::fitness::{Fitness, FitnessKind};
 use handcap::model::msvr::MsvrParams;
-use handcap::search::aco_paper::{decode, AcoPaper};
+use handcap::search::aco_paper::{decode, is_valid_path, AcoPaper, PAPER_TABLE2 as T2};
 use handcap::search::aco_r::AcoR;
-use handcap::search::fitness::{Fitness, FitnessKind};
 use handcap::search::grid::Grid;
 use handcap::search::{Hyper, SearchSpace, SearchStop};
 use handcap::synth::{self, SynthConfig};
 
-/// A cheap objective whose optimum is the paper's Table 2 (C 326.7, ε 0.0169, σ 0.259): the
+/// A cheap objective whose optimum is the paper's Table 2 : the
 /// relative distance from it, plus 0.01.
 fn table2_bowl(batch: &[Hyper]) -> Vec<f64> {
     batch
         .iter()
         .map(|h| {
-            if !h.is_valid() {
+            if h.check().is_err() {
                 return f64::INFINITY;
             }
-            0.01 + ((h.c / 326.7).ln().abs()
-                + (h.epsilon / 0.0169).ln().abs()
-                + (h.sigma / 0.259).ln().abs())
+            0.01 + ((h.c / T2.c).ln().abs()
+                + (h.epsilon / T2.epsilon).ln().abs()
+                + (h.sigma / T2.sigma).ln().abs())
                 / 3.0
         })
         .collect()
@@ -34,12 +34,12 @@ fn table2_linear(batch: &[Hyper]) -> Vec<f64> {
     batch
         .iter()
         .map(|h| {
-            if !h.is_valid() {
+            if h.check().is_err() {
                 return f64::INFINITY;
             }
-            0.05 + (h.c - 326.7).abs() / 999.9
-                + (h.epsilon - 0.0169).abs() / 0.9999
-                + (h.sigma - 0.259).abs() / 9.999
+            0.05 + (h.c - T2.c).abs() / 999.9
+                + (h.epsilon - T2.epsilon).abs() / 0.9999
+                + (h.sigma - T2.sigma).abs() / 9.999
         })
         .collect()
 }
@@ -111,9 +111,18 @@ fn aco_paper_stops_when_every_ant_takes_the_same_path() {
 
 #[test]
 fn aco_paper_paths_with_a_zero_parameter_are_invalid() {
-    assert!(!decode(&[0; 12]).is_valid());
-    assert!(!decode(&[1, 0, 0, 0, 0, 0, 0, 0, 1, 0, 0, 0]).is_valid()); // ε = 0
-    assert!(decode(&[0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1]).is_valid()); // smallest values
+    assert!(!is_valid_path(&decode(&[0; 12])));
+    assert!(!is_valid_path(&decode(&[
+        1, 0, 0, 0, 0, 0, 0, 0, 1, 0, 0, 0
+    ]))); // ε = 0
+    assert!(is_valid_path(&decode(&[
+        0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1
+    ]))); // smallest values
+          // ε = 0 is a valid MSVR parameter (kernel ridge regression): the zero rule is the
+          // encoding's, not the model's.
+    assert!(decode(&[1, 0, 0, 0, 0, 0, 0, 0, 1, 0, 0, 0])
+        .check()
+        .is_ok());
 }
 
 #[test]

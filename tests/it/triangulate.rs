@@ -7,7 +7,8 @@ use std::path::Path;
 
 use nalgebra::Vector3;
 
-use handcap::stereo::{read_calibration, Side};
+use handcap::calib::file::read_calibration;
+use handcap::stereo::Side;
 use handcap::synth::render::encode_png;
 use handcap::triangulate::frames::decode;
 

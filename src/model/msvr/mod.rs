@@ -23,14 +23,18 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
+pub mod fitness;
 pub mod irwls;
 pub mod kernel;
+pub mod tune;
 
 use faer::{Mat, MatRef, Par};
 use serde::{Deserialize, Serialize};
 
 use crate::data::{Columns, DataError, Dataset};
 use crate::model::Predict;
+use crate::search::aco_paper::PAPER_TABLE2;
+use crate::search::{Hyper, InvalidParam};
 use irwls::{NotPositiveDefinite, Problem, SolverOptions, StopReason};
 
 /// Default relative tolerance on the objective's decrease.
@@ -43,12 +47,8 @@ pub const MIN_FIT_ROWS: usize = 3;
 /// Errors of checking parameters and fitting.
 #[derive(Debug, thiserror::Error)]
 pub enum MsvrError {
-    #[error("{name} = {value}: {requirement}")]
-    InvalidParam {
-        name: &'static str,
-        value: f64,
-        requirement: &'static str,
-    },
+    #[error(transparent)]
+    InvalidParam(#[from] InvalidParam),
     #[error(transparent)]
     Data(#[from] DataError),
     #[error(transparent)]
@@ -68,6 +68,13 @@ pub struct MsvrParams {
     pub tol: f64,
     /// Iteration cap (default [`DEFAULT_MAX_ITER`]).
     pub max_iter: usize,
+}
+
+impl Default for MsvrParams {
+    /// The paper's Table 2 ([`PAPER_TABLE2`]) with the default solver controls.
+    fn default() -> Self {
+        MsvrParams::new(PAPER_TABLE2.c, PAPER_TABLE2.epsilon, PAPER_TABLE2.sigma)
+    }
 }
 
 impl MsvrParams {
@@ -92,27 +99,39 @@ impl MsvrParams {
         MsvrParams { max_iter, ..self }
     }
 
-    /// Checks every value.
+    /// The (C, ε, σ) of these parameters.
+    pub fn hyper(&self) -> Hyper {
+        Hyper {
+            c: self.c,
+            epsilon: self.epsilon,
+            sigma: self.sigma,
+        }
+    }
+
+    /// These solver controls with another (C, ε, σ): the one place a search's candidate becomes
+    /// parameters.
+    pub fn with_hyper(self, h: Hyper) -> Self {
+        MsvrParams {
+            c: h.c,
+            epsilon: h.epsilon,
+            sigma: h.sigma,
+            ..self
+        }
+    }
+
+    /// Checks every value: (C, ε, σ) by [`Hyper::check`], the solver controls here.
     ///
     /// # Errors
     /// [`MsvrError::InvalidParam`] naming the first bad value.
     pub fn check(self) -> Result<ValidMsvrParams, MsvrError> {
+        self.hyper().check()?;
         let bad = |name, value, requirement| {
-            Err(MsvrError::InvalidParam {
+            Err(MsvrError::InvalidParam(InvalidParam {
                 name,
                 value,
                 requirement,
-            })
+            }))
         };
-        if !(self.c > 0.0 && self.c.is_finite()) {
-            return bad("C", self.c, "must be finite and > 0");
-        }
-        if !(self.epsilon >= 0.0 && self.epsilon.is_finite()) {
-            return bad("epsilon", self.epsilon, "must be finite and ≥ 0");
-        }
-        if !(self.sigma > 0.0 && self.sigma.is_finite()) {
-            return bad("sigma", self.sigma, "must be finite and > 0");
-        }
         if !(self.tol > 0.0 && self.tol < 1.0) {
             return bad("tol", self.tol, "must be in (0, 1)");
         }
@@ -123,9 +142,16 @@ impl MsvrParams {
     }
 }
 
-impl MsvrParams {
-    /// Solves the training problem on a kernel matrix and targets with these parameters (the
-    /// caller has checked them).
+/// Checked parameters: the only way to fit.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ValidMsvrParams(MsvrParams);
+
+impl ValidMsvrParams {
+    pub fn params(&self) -> &MsvrParams {
+        &self.0
+    }
+
+    /// Solves the training problem on a kernel matrix and targets with these parameters.
     ///
     /// # Errors
     /// [`NotPositiveDefinite`] when the linear algebra fails.
@@ -135,28 +161,19 @@ impl MsvrParams {
         targets: MatRef<f64>,
         par: Par,
     ) -> Result<irwls::Solution, NotPositiveDefinite> {
+        let p = &self.0;
         let problem = Problem {
             kernel,
             targets,
-            c: self.c,
-            epsilon: self.epsilon,
+            c: p.c,
+            epsilon: p.epsilon,
         };
         let options = SolverOptions {
-            tol: self.tol,
-            max_iter: self.max_iter,
+            tol: p.tol,
+            max_iter: p.max_iter,
             par,
         };
         irwls::solve(&problem, &options, None)
-    }
-}
-
-/// Checked parameters: the only way to fit.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct ValidMsvrParams(MsvrParams);
-
-impl ValidMsvrParams {
-    pub fn params(&self) -> &MsvrParams {
-        &self.0
     }
 
     /// Fits the model, using every core for the linear algebra.
@@ -179,7 +196,7 @@ impl ValidMsvrParams {
         let scaled = scaler.transform(&data.inputs);
         let k = kernel::rbf(&scaled, &scaled, p.sigma);
         let y = to_mat(&data.outputs);
-        let solution = p.solve(k.as_ref(), y.as_ref(), par)?;
+        let solution = self.solve(k.as_ref(), y.as_ref(), par)?;
         let beta = &solution.beta;
         let sv_rows: Vec<usize> = (0..beta.nrows())
             .filter(|&i| (0..beta.ncols()).any(|j| beta[(i, j)] != 0.0))

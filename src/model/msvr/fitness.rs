@@ -241,15 +241,16 @@ impl Fitness {
         }
     }
 
-    /// Fitness of every candidate, in order, evaluating new ones in parallel. A candidate with a
-    /// zero or non-finite parameter scores +∞.
+    /// Fitness of every candidate, in order, evaluating new ones in parallel. A candidate that
+    /// breaks [`Hyper::check`] scores +∞.
     pub fn evaluate(&self, batch: &[Hyper]) -> Vec<f64> {
         let key = |h: &Hyper| [h.c.to_bits(), h.epsilon.to_bits(), h.sigma.to_bits()];
+        let is_valid = |h: &Hyper| h.check().is_ok();
         let mut fresh: Vec<Hyper> = Vec::new();
         {
             let memo = self.memo.lock().expect("memo lock");
             for h in batch {
-                if h.is_valid()
+                if is_valid(h)
                     && !memo.contains_key(&key(h))
                     && !fresh.iter().any(|f| key(f) == key(h))
                 {
@@ -263,13 +264,13 @@ impl Fitness {
             memo.insert(key(h), *s);
         }
         self.evaluations.fetch_add(fresh.len(), Ordering::Relaxed);
-        let valid = batch.iter().filter(|h| h.is_valid()).count();
+        let valid = batch.iter().filter(|h| is_valid(h)).count();
         self.memo_hits
             .fetch_add(valid - fresh.len(), Ordering::Relaxed);
         batch
             .iter()
             .map(|h| {
-                if h.is_valid() {
+                if is_valid(h) {
                     memo[&key(h)]
                 } else {
                     f64::INFINITY
@@ -281,11 +282,8 @@ impl Fitness {
     /// MAE over every held-out prediction for one tuple.
     fn score(&self, h: &Hyper) -> f64 {
         let kernels = self.fold_kernels(h.sigma);
-        let params = MsvrParams {
-            c: h.c,
-            epsilon: h.epsilon,
-            sigma: h.sigma,
-            ..self.solver
+        let Ok(params) = self.solver.with_hyper(*h).check() else {
+            return f64::INFINITY;
         };
         let (mut abs_sum, mut count) = (0.0, 0usize);
         for (fold, (k_train, k_held_out)) in self.folds.iter().zip(kernels.iter()) {

@@ -1,0 +1,156 @@
+//! The calibration's checks: epipolar distance, coverage, the boards triangulated back,
+//! rectification, and the hand frame's axes from the reference pair.
+
+use super::*;
+
+/// Corners as `f64`.
+fn wide(c: &[[f32; 2]]) -> Vec<[f64; 2]> {
+    c.iter()
+        .map(|p| [f64::from(p[0]), f64::from(p[1])])
+        .collect()
+}
+
+/// Mean distance (px) of each undistorted corner from the epipolar line of its partner, both
+/// ways.
+pub(super) fn epipolar_error(
+    rig: &Rig,
+    left: &[&[[f32; 2]]],
+    right: &[&[[f32; 2]]],
+) -> Result<f64, CalibError> {
+    let f = Matrix3::from_row_slice(&rig.f);
+    let (mut sum, mut n) = (0.0, 0usize);
+    for (l, r) in left.iter().zip(right) {
+        let ul = rig.cams.undistorted(Side::Left, &wide(l))?;
+        let ur = rig.cams.undistorted(Side::Right, &wide(r))?;
+        for (a, b) in ul.iter().zip(&ur) {
+            let (pa, pb) = (Vector3::new(a[0], a[1], 1.0), Vector3::new(b[0], b[1], 1.0));
+            let line_r = f * pa;
+            let line_l = f.transpose() * pb;
+            sum += line_r.dot(&pb).abs() / line_r.x.hypot(line_r.y);
+            sum += line_l.dot(&pa).abs() / line_l.x.hypot(line_l.y);
+            n += 2;
+        }
+    }
+    Ok(sum / n as f64)
+}
+
+/// Share of an 8 × 6 grid of image cells that hold at least one corner.
+pub(super) fn coverage(size: [i32; 2], views: &[&[[f32; 2]]]) -> f64 {
+    let mut cells = [[false; 8]; 6];
+    for c in views.iter().flat_map(|v| v.iter()) {
+        let i = ((c[0] / size[0] as f32) * 8.0).clamp(0.0, 7.0) as usize;
+        let j = ((c[1] / size[1] as f32) * 6.0).clamp(0.0, 5.0) as usize;
+        cells[j][i] = true;
+    }
+    cells.iter().flatten().filter(|&&c| c).count() as f64 / 48.0
+}
+
+/// Triangulates every used board and compares it with the printed one.
+pub(super) fn board_check(
+    board: &BoardSpec,
+    rig: &Rig,
+    left: &[&[[f32; 2]]],
+    right: &[&[[f32; 2]]],
+) -> Result<BoardCheck, CalibError> {
+    let (mut steps, mut plane_sq, mut plane_n) = (Vec::new(), 0.0, 0usize);
+    for (l, r) in left.iter().zip(right) {
+        let pts = rig.cams.triangulate(&wide(l), &wide(r))?;
+        let n = l.len();
+        for j in 0..board.rows {
+            for i in 0..board.cols {
+                let k = j * board.cols + i;
+                if i + 1 < board.cols {
+                    steps.push((pts[k + 1] - pts[k]).norm() / board.square_mm);
+                }
+                if j + 1 < board.rows {
+                    steps.push((pts[k + board.cols] - pts[k]).norm() / board.square_mm);
+                }
+            }
+        }
+        let centre = pts.iter().sum::<Vector3<f64>>() / n as f64;
+        let mut cov = Matrix3::zeros();
+        for p in &pts {
+            let d = p - centre;
+            cov += d * d.transpose();
+        }
+        let eig = cov.symmetric_eigen();
+        plane_sq += eig.eigenvalues.min();
+        plane_n += n;
+    }
+    let mean = steps.iter().sum::<f64>() / steps.len() as f64;
+    let sd = (steps.iter().map(|s| (s - mean).powi(2)).sum::<f64>() / steps.len() as f64).sqrt();
+    Ok(BoardCheck {
+        neighbour_mean_squares: mean,
+        neighbour_sd_squares: sd,
+        planarity_rms_mm: (plane_sq.max(0.0) / plane_n as f64).sqrt(),
+    })
+}
+
+type Rectification = ([f64; 9], [f64; 9], [f64; 12], [f64; 12], [f64; 16]);
+
+pub(super) fn rectify(rig: &Rig, size: [i32; 2]) -> Result<Rectification, CalibError> {
+    let (mut r1, mut r2, mut p1, mut p2, mut q) = (
+        Mat::default(),
+        Mat::default(),
+        Mat::default(),
+        Mat::default(),
+        Mat::default(),
+    );
+    calib3d::stereo_rectify(
+        &mat(3, &rig.cams.left.k)?,
+        &mat(1, &rig.cams.left.dist)?,
+        &mat(3, &rig.cams.right.k)?,
+        &mat(1, &rig.cams.right.dist)?,
+        Size::new(size[0], size[1]),
+        &mat(3, &rig.cams.r)?,
+        &mat(3, &rig.cams.t)?,
+        &mut r1,
+        &mut r2,
+        &mut p1,
+        &mut p2,
+        &mut q,
+        calib3d::CALIB_ZERO_DISPARITY,
+        0.0,
+        Size::new(size[0], size[1]),
+        None,
+        None,
+    )?;
+    Ok((
+        fixed(&r1)?,
+        fixed(&r2)?,
+        fixed(&p1)?,
+        fixed(&p2)?,
+        fixed(&q)?,
+    ))
+}
+
+/// Left-camera → hand-frame rotation from the reference board's corners in the left image.
+pub(super) fn hand_axes(
+    board: &BoardSpec,
+    rig: &Rig,
+    corners: &[[f32; 2]],
+) -> Result<[f64; 9], CalibError> {
+    // Corners in the order that makes the board's x axis point to the image's right.
+    let mut ordered = corners.to_vec();
+    if corners[board.cols - 1][0] < corners[0][0] {
+        ordered.reverse();
+    }
+    let (mut rvec, mut tvec) = (Mat::default(), Mat::default());
+    calib3d::solve_pnp(
+        &board.object_points(),
+        &points(&ordered),
+        &mat(3, &rig.cams.left.k)?,
+        &mat(1, &rig.cams.left.dist)?,
+        &mut rvec,
+        &mut tvec,
+        false,
+        calib3d::SOLVEPNP_ITERATIVE,
+    )?;
+    let mut rot = Mat::default();
+    calib3d::rodrigues(&rvec, &mut rot, &mut core::no_array())?;
+    let left_from_board = Matrix3::from_row_slice(&fixed::<9>(&rot)?);
+    // Board axes in the hand frame: x → x, y → −z, z → +y.
+    let hand_from_board = Matrix3::new(1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, -1.0, 0.0);
+    let hand_from_left = hand_from_board * left_from_board.transpose();
+    Ok(std::array::from_fn(|k| hand_from_left[(k / 3, k % 3)]))
+}

@@ -1,0 +1,123 @@
+//! The calibration's figures: each pair's error, and a pair rectified side by side.
+
+use std::path::{Path, PathBuf};
+
+use crate::plot::{self as figures, LinePlot, Mark, Series};
+
+use super::*;
+
+impl StereoCalibration {
+    /// Writes `<stem>_pairs.png/.svg` (each used pair's left and right error, as bars) and
+    /// `<stem>_rectified.png` (the first used pair rectified side by side, with horizontal
+    /// lines: a point must lie on the same line in both halves). Returns the files written.
+    ///
+    /// # Errors
+    /// [`CalibError`] when an image cannot be read or a figure written.
+    pub fn write_figures(&self, stem: &Path) -> Result<Vec<PathBuf>, CalibError> {
+        let used: Vec<&PairReport> = self.used().collect();
+        let bars = |side: usize, label: &str, offset: f64| Series {
+            label: label.into(),
+            points: used
+                .iter()
+                .enumerate()
+                .map(|(k, p)| (k as f64, p.rms_px.map_or(f64::NAN, |e| e[side])))
+                .collect(),
+            mark: Mark::Bars {
+                offset,
+                width: 0.38,
+            },
+            colour: side,
+        };
+        let names: Vec<&str> = used.iter().map(|p| p.name.as_str()).collect();
+        let plot = LinePlot {
+            title: format!("Reprojection error per pair (RMS {:.3} px)", self.rms_px),
+            x_label: format!("pair: {}", names.join(" ")),
+            y_label: "RMS error (px)".into(),
+            series: vec![bars(0, "left", -0.2), bars(1, "right", 0.2)],
+            log_y: false,
+        };
+        let pairs_stem = stem.with_file_name(format!("{}_pairs", file_stem(stem)));
+        figures::write_line_plot(&pairs_stem, &plot)?;
+        let mut written = vec![
+            pairs_stem.with_extension("png"),
+            pairs_stem.with_extension("svg"),
+        ];
+        if let Some(first) = used.first() {
+            let path = stem.with_file_name(format!("{}_rectified.png", file_stem(stem)));
+            self.write_rectified(first, &path)?;
+            written.push(path);
+        }
+        Ok(written)
+    }
+
+    fn write_rectified(&self, pair: &PairReport, path: &Path) -> Result<(), CalibError> {
+        use opencv::{imgcodecs, imgproc};
+        let size = Size::new(self.rig.image_size[0], self.rig.image_size[1]);
+        let rectified = |image: &Path, k: &[f64; 9], d: &[f64], r: &[f64; 9], p: &[f64; 12]| {
+            let src = imgcodecs::imread(
+                image
+                    .to_str()
+                    .ok_or_else(|| CalibError::NotAnImage(image.to_path_buf()))?,
+                imgcodecs::IMREAD_COLOR,
+            )?;
+            let (mut m1, mut m2, mut out) = (Mat::default(), Mat::default(), Mat::default());
+            calib3d::init_undistort_rectify_map(
+                &mat(3, k)?,
+                &mat(1, d)?,
+                &mat(3, r)?,
+                &mat(3, p)?,
+                size,
+                core::CV_32FC1,
+                &mut m1,
+                &mut m2,
+            )?;
+            imgproc::remap(
+                &src,
+                &mut out,
+                &m1,
+                &m2,
+                imgproc::INTER_LINEAR,
+                core::BORDER_CONSTANT,
+                core::Scalar::default(),
+            )?;
+            Ok::<Mat, CalibError>(out)
+        };
+        let (left, right) = (&self.rig.left, &self.rig.right);
+        let l = rectified(&pair.left, &left.k, &left.dist, &self.r1, &self.p1)?;
+        let r = rectified(&pair.right, &right.k, &right.dist, &self.r2, &self.p2)?;
+        let mut both = Mat::default();
+        let halves: Vector<Mat> = [l, r].into_iter().collect();
+        core::hconcat(&halves, &mut both)?;
+        for y in (20..size.height).step_by(40) {
+            imgproc::line(
+                &mut both,
+                core::Point::new(0, y),
+                core::Point::new(2 * size.width - 1, y),
+                core::Scalar::new(0.0, 200.0, 0.0, 0.0),
+                1,
+                imgproc::LINE_8,
+                0,
+            )?;
+        }
+        let write_err = |message: String| CalibError::Write {
+            path: path.to_path_buf(),
+            message,
+        };
+        let tmp = crate::fsio::temp_beside(path, ".png").map_err(|e| write_err(e.to_string()))?;
+        let tmp_name = tmp
+            .path()
+            .to_str()
+            .ok_or_else(|| write_err("path is not UTF-8".into()))?;
+        if !imgcodecs::imwrite(tmp_name, &both, &Vector::new())? {
+            return Err(write_err("OpenCV could not encode the PNG".into()));
+        }
+        tmp.persist(path)
+            .map_err(|e| write_err(e.error.to_string()))?;
+        Ok(())
+    }
+}
+
+fn file_stem(path: &Path) -> String {
+    path.file_stem()
+        .map_or_else(|| "calib".into(), |s| s.to_string_lossy().into_owned())
+}

@@ -1,0 +1,317 @@
+//! The calibration files, read and written in one place: the stereo calibration (`calib.yml`),
+//! the board description (`board.yml`), the synthetic rig's truth and the hand transform that
+//! `triangulate` finds. All are OpenCV FileStorage YAML (`%YAML:1.0`), so `cv2.FileStorage` and
+//! C++ read them; `calib/example_calib.yml` at the top of the repository is a commented example.
+//!
+//! # Keys
+//!
+//! | key | shape | meaning |
+//! |---|---|---|
+//! | `image_size` | [w, h] | pixels of both cameras |
+//! | `K1`, `K2` | 3 × 3 | camera matrices, px: [fx 0 cx; 0 fy cy; 0 0 1] |
+//! | `D1`, `D2` | 1 × 5 | distortion (k1, k2, p1, p2, k3), OpenCV's model |
+//! | `R`, `T` | 3 × 3, 3 × 1 | right from left: p_right = R · p_left + T (mm) |
+//! | `E`, `F` | 3 × 3 | essential (normalised coordinates) and fundamental (pixels) matrices |
+//! | `R1`, `R2`, `P1`, `P2`, `Q` | | `stereoRectify`'s rectification (α = 0) |
+//! | `rms_px`, `epipolar_px`, `per_view_rms_px` | | reprojection RMS, mean epipolar distance, per pair (left, right) |
+//! | `views_used`, `views_rejected` | | pair names |
+//! | `board_cols`, `board_rows`, `square_mm`, `detector`, `coverage` | | the board and how it was seen |
+//! | `board_neighbour_squares`, `board_planarity_rms_mm` | | the boards triangulated back |
+//! | `R_hand` | 3 × 3 | hand from left camera axes: p_hand = R_hand · p_left + t_hand |
+//! | `t_hand` | 3 × 1 | the hand frame's translation (mm), where the origin is known (truth, `dataset_hand.yml`) |
+//! | `hand_axes`, `handcap_version`, `command`, `seed` | text | provenance |
+//!
+//! `board.yml`: `inner_corners_cols`, `inner_corners_rows`, `square_mm`.
+
+use std::path::{Path, PathBuf};
+
+use nalgebra::{Matrix3, Vector3};
+use opencv::core;
+use opencv::prelude::*;
+
+use super::{BoardSpec, CalibError, PairReport, StereoCalibration};
+use crate::cv;
+use crate::opencv_yaml::FileStorage;
+use crate::provenance::Provenance;
+use crate::stereo::{Intrinsics, StereoError, StereoRig};
+
+/// The board description's file name inside a calibration directory.
+pub const BOARD_FILE: &str = "board.yml";
+
+/// The repository's `calib/board.yml`: the printed board handcap assumes when a calibration
+/// directory has no `board.yml` and no flags say otherwise.
+pub const DEFAULT_BOARD_YAML: &str = include_str!("../../calib/board.yml");
+
+/// [`DEFAULT_BOARD_YAML`] read.
+pub fn default_board() -> BoardSpec {
+    read_board_text(DEFAULT_BOARD_YAML).expect("calib/board.yml is a board description")
+}
+
+/// Reads a board description from its text.
+///
+/// # Errors
+/// As [`read_board`].
+pub fn read_board_text(text: &str) -> Result<BoardSpec, CalibError> {
+    let mode = core::FileStorage_Mode::READ as i32 | core::FileStorage_Mode::MEMORY as i32;
+    board_from(text, mode, Path::new("(built-in board.yml)"))
+}
+
+/// A calibration file as `calibrate` writes it (and `synth` writes the truth).
+#[derive(Clone, Debug, PartialEq)]
+pub struct CalibrationFile {
+    pub path: PathBuf,
+    pub rig: StereoRig,
+    /// Left camera → hand axes (`R_hand`), when the calibration had a reference pair.
+    pub r_hand: Option<Matrix3<f64>>,
+    /// The hand frame's translation (`t_hand`: p_hand = R_hand · p_left + t_hand), in files
+    /// that know the origin (the synthetic truth, `triangulate`'s hand file).
+    pub t_hand: Option<Vector3<f64>>,
+}
+
+/// Writes `image_size`, `K1`, `D1`, `K2`, `D2`, `R`, `T`: the keys [`read_calibration`] reads
+/// back.
+pub fn write_rig<'a>(fs: &'a mut FileStorage, rig: &StereoRig) -> &'a mut FileStorage {
+    fs.ints(
+        "image_size",
+        &[rig.image_size[0].into(), rig.image_size[1].into()],
+    )
+    .matrix("K1", 3, 3, &rig.left.k)
+    .matrix("D1", 1, rig.left.dist.len(), &rig.left.dist)
+    .matrix("K2", 3, 3, &rig.right.k)
+    .matrix("D2", 1, rig.right.dist.len(), &rig.right.dist)
+    .matrix("R", 3, 3, &rig.r)
+    .matrix("T", 3, 1, &rig.t)
+}
+
+/// The calibration file `calibrate` writes (the keys in the module docs).
+pub fn calibration_yaml(cal: &StereoCalibration, provenance: &Provenance) -> String {
+    let mut fs = FileStorage::new();
+    write_rig(&mut fs, &cal.rig)
+        .matrix("E", 3, 3, &cal.e)
+        .matrix("F", 3, 3, &cal.f)
+        .matrix("R1", 3, 3, &cal.r1)
+        .matrix("R2", 3, 3, &cal.r2)
+        .matrix("P1", 3, 4, &cal.p1)
+        .matrix("P2", 3, 4, &cal.p2)
+        .matrix("Q", 4, 4, &cal.q)
+        .real("rms_px", cal.rms_px)
+        .real("epipolar_px", cal.epipolar_px);
+    let used: Vec<&PairReport> = cal.used().collect();
+    let per_view: Vec<f64> = used
+        .iter()
+        .flat_map(|p| p.rms_px.unwrap_or([f64::NAN; 2]))
+        .collect();
+    fs.matrix("per_view_rms_px", used.len(), 2, &per_view)
+        .strings(
+            "views_used",
+            &used.iter().map(|p| p.name.clone()).collect::<Vec<_>>(),
+        )
+        .strings(
+            "views_rejected",
+            &cal.rejected().map(|p| p.name.clone()).collect::<Vec<_>>(),
+        )
+        .int("board_cols", cal.board.cols as i64)
+        .int("board_rows", cal.board.rows as i64)
+        .real("square_mm", cal.board.square_mm)
+        .string("detector", cal.detector.name())
+        .reals("coverage", &cal.coverage)
+        .real(
+            "board_neighbour_squares",
+            cal.board_check.neighbour_mean_squares,
+        )
+        .real("board_planarity_rms_mm", cal.board_check.planarity_rms_mm);
+    if let Some(axes) = &cal.hand_axes {
+        fs.matrix("R_hand", 3, 3, axes);
+    }
+    fs.string("hand_axes", &cal.hand_axes_note)
+        .string("handcap_version", &provenance.handcap_version)
+        .string("command", &provenance.command.join(" "));
+    fs.text().to_string()
+}
+
+/// `board.yml`: the printed board's inner corners and square size.
+pub fn board_yaml(board: &BoardSpec) -> String {
+    let mut fs = FileStorage::new();
+    fs.int("inner_corners_cols", board.cols as i64)
+        .int("inner_corners_rows", board.rows as i64)
+        .real("square_mm", board.square_mm);
+    fs.text().to_string()
+}
+
+/// Reads `board.yml`.
+///
+/// # Errors
+/// [`CalibError::BadBoard`] naming the file and what is missing.
+pub fn read_board(path: &Path) -> Result<BoardSpec, CalibError> {
+    let bad = |what: String| {
+        CalibError::BadBoard(format!(
+            "{}: {what}; pass --board COLSxROWS --square-mm MM, or write the file (see calib/board.yml)",
+            path.display()
+        ))
+    };
+    if !path.is_file() {
+        return Err(bad("no such file".into()));
+    }
+    let name = path
+        .to_str()
+        .ok_or_else(|| bad("the path is not UTF-8".into()))?;
+    board_from(name, core::FileStorage_Mode::READ as i32, path)
+}
+
+/// Reads a board description from a file name or, with the MEMORY flag, the text itself.
+fn board_from(source: &str, mode: i32, path: &Path) -> Result<BoardSpec, CalibError> {
+    let bad = |what: String| {
+        CalibError::BadBoard(format!(
+            "{}: {what}; pass --board COLSxROWS --square-mm MM, or write the file (see calib/board.yml)",
+            path.display()
+        ))
+    };
+    let fs = core::FileStorage::new(source, mode, "").map_err(|e| bad(reason(&e)))?;
+    let number = |key: &str| -> Result<f64, CalibError> {
+        let node = fs.get(key).map_err(|e| bad(reason(&e)))?;
+        if node.empty().unwrap_or(true)
+            || !node.is_real().unwrap_or(false) && !node.is_int().unwrap_or(false)
+        {
+            return Err(bad(format!("no number for {key}")));
+        }
+        node.to_f64().map_err(|e| bad(reason(&e)))
+    };
+    let count = |key: &str| -> Result<usize, CalibError> {
+        let v = number(key)?;
+        if v.fract() != 0.0 || v < 0.0 {
+            return Err(bad(format!("{key} is {v}, not a whole number")));
+        }
+        Ok(v as usize)
+    };
+    Ok(BoardSpec {
+        cols: count("inner_corners_cols")?,
+        rows: count("inner_corners_rows")?,
+        square_mm: number("square_mm")?,
+    })
+}
+
+/// The hand transform `triangulate` writes beside its dataset (`dataset_hand.yml`).
+pub fn hand_yaml(
+    r_hand: &Matrix3<f64>,
+    t_hand: &Vector3<f64>,
+    origin_left_mm: &[f64; 3],
+    origin_pairs: usize,
+    provenance: &Provenance,
+) -> String {
+    let r: Vec<f64> = (0..9).map(|k| r_hand[(k / 3, k % 3)]).collect();
+    let mut fs = FileStorage::new();
+    fs.matrix("R_hand", 3, 3, &r)
+        .matrix("t_hand", 3, 1, t_hand.as_slice())
+        .matrix("origin_left_mm", 3, 1, origin_left_mm)
+        .int("origin_pairs", origin_pairs as i64)
+        .string(
+            "convention",
+            "p_hand = R_hand * p_left + t_hand (mm); origin: median tip at zero pressure",
+        )
+        .string("handcap_version", &provenance.handcap_version)
+        .string("command", &provenance.command.join(" "));
+    fs.text().to_string()
+}
+
+/// The part of an OpenCV error message a user can act on, on one line: "Input file is invalid
+/// in function 'open'" rather than the source location.
+fn reason(e: &opencv::Error) -> String {
+    let first = e.message.lines().next().unwrap_or_default();
+    let text = first.rsplit_once("error: ").map_or(first, |(_, t)| t);
+    text.split_once(") ")
+        .map_or(text, |(_, t)| t)
+        .trim()
+        .to_string()
+}
+
+/// Reads the cameras (`image_size`, `K1`, `D1`, `K2`, `D2`, `R`, `T`) and, when present, the
+/// hand frame (`R_hand`, `t_hand`) of an OpenCV FileStorage file.
+///
+/// # Errors
+/// [`StereoError`] naming the file and the key that is missing or malformed.
+pub fn read_calibration(path: &Path) -> Result<CalibrationFile, StereoError> {
+    let unreadable = |message: String| StereoError::Unreadable {
+        path: path.to_path_buf(),
+        message,
+    };
+    let invalid = |message: String| StereoError::Invalid {
+        path: path.to_path_buf(),
+        message,
+    };
+    if !path.is_file() {
+        return Err(unreadable("no such file".into()));
+    }
+    let name = path
+        .to_str()
+        .ok_or_else(|| unreadable("the path is not UTF-8".into()))?;
+    let fs = core::FileStorage::new(name, core::FileStorage_Mode::READ as i32, "")
+        .map_err(|e| unreadable(reason(&e)))?;
+    if !fs.is_opened()? {
+        return Err(unreadable("OpenCV cannot open it".into()));
+    }
+    let optional = |key: &str, len: usize| -> Result<Option<Vec<f64>>, StereoError> {
+        let node = fs.get(key)?;
+        if node.empty()? || node.is_none()? {
+            return Ok(None);
+        }
+        let m = node
+            .mat()
+            .map_err(|e| invalid(format!("{key}: {}", e.message)))?;
+        let v = cv::values(&m)?;
+        if v.len() != len || v.iter().any(|x| !x.is_finite()) {
+            return Err(invalid(format!(
+                "{key} has {} values (finite: {}), expected {len}",
+                v.len(),
+                v.iter().all(|x| x.is_finite())
+            )));
+        }
+        Ok(Some(v))
+    };
+    let required =
+        |key: &str, len: usize| optional(key, len)?.ok_or_else(|| invalid(format!("no {key}")));
+    let distortion = |key: &str| -> Result<Vec<f64>, StereoError> {
+        let node = fs.get(key)?;
+        if node.empty()? || node.is_none()? {
+            return Err(invalid(format!("no {key}")));
+        }
+        let v = cv::values(&node.mat()?)?;
+        if ![4, 5, 8, 12, 14].contains(&v.len()) || v.iter().any(|x| !x.is_finite()) {
+            return Err(invalid(format!(
+                "{key} has {} values; OpenCV distortion has 4, 5, 8, 12 or 14",
+                v.len()
+            )));
+        }
+        Ok(v)
+    };
+    let size_node = fs.get("image_size")?;
+    if size_node.empty()? || !size_node.is_seq()? || size_node.size()? != 2 {
+        return Err(invalid("no image_size [width, height]".into()));
+    }
+    let image_size = [size_node.at(0)?.to_i32()?, size_node.at(1)?.to_i32()?];
+    let k = |key: &str| -> Result<[f64; 9], StereoError> {
+        let v = required(key, 9)?;
+        if v[0] <= 0.0 || v[4] <= 0.0 || v[8] != 1.0 {
+            return Err(invalid(format!("{key} is not a camera matrix")));
+        }
+        Ok(v.try_into().expect("nine values"))
+    };
+    let rig = StereoRig {
+        image_size,
+        left: Intrinsics {
+            k: k("K1")?,
+            dist: distortion("D1")?,
+        },
+        right: Intrinsics {
+            k: k("K2")?,
+            dist: distortion("D2")?,
+        },
+        r: required("R", 9)?.try_into().expect("nine values"),
+        t: required("T", 3)?.try_into().expect("three values"),
+    };
+    Ok(CalibrationFile {
+        path: path.to_path_buf(),
+        rig,
+        r_hand: optional("R_hand", 9)?.map(|v| Matrix3::from_row_slice(&v)),
+        t_hand: optional("t_hand", 3)?.map(|v| Vector3::from_row_slice(&v)),
+    })
+}

@@ -1,0 +1,80 @@
+//! The calibrate stage: chessboard pairs → the calibration file and its figures.
+
+use std::path::{Path, PathBuf};
+
+use super::{io_error, PipelineError, Session, Task};
+use crate::calib::{self, file, BoardSpec, CalibOptions, StereoCalibration};
+use crate::fsio;
+
+/// What the stage did and wrote.
+pub struct Calibrated {
+    pub calibration: StereoCalibration,
+    /// The calibration file first, then the figures.
+    pub written: Vec<PathBuf>,
+}
+
+/// The board: `cols_rows` and `square_mm` as given, the rest from `dir/board.yml`, or, when the
+/// directory has none, from the printed board of the repository's `calib/board.yml` (said in an
+/// [`super::Event::Note`]).
+///
+/// # Errors
+/// [`PipelineError::Calib`] when `dir/board.yml` exists but cannot be read.
+pub fn board(
+    dir: &Path,
+    cols_rows: Option<(usize, usize)>,
+    square_mm: Option<f64>,
+    session: &Session,
+) -> Result<BoardSpec, PipelineError> {
+    let path = dir.join(file::BOARD_FILE);
+    let from_file = match (cols_rows, square_mm) {
+        (Some(_), Some(_)) => None,
+        _ if path.exists() => Some(file::read_board(&path)?),
+        _ => {
+            let b = file::default_board();
+            session.emit(super::Event::Note(format!(
+                "no {} and no --board/--square-mm: assuming the printed board of calib/board.yml ({}x{} inner corners, {} mm squares)",
+                path.display(),
+                b.cols,
+                b.rows,
+                b.square_mm
+            )));
+            Some(b)
+        }
+    };
+    let (cols, rows) = cols_rows
+        .or(from_file.map(|b| (b.cols, b.rows)))
+        .expect("given or read");
+    Ok(BoardSpec {
+        cols,
+        rows,
+        square_mm: square_mm
+            .or(from_file.map(|b| b.square_mm))
+            .expect("given or read"),
+    })
+}
+
+/// Calibrates from the pairs in `dir` and writes `out` (OpenCV YAML) and the figures beside it.
+///
+/// # Errors
+/// [`PipelineError`]: too few usable pairs, unreadable images, a file that cannot be written,
+/// or `out` naming an input.
+pub fn run(
+    dir: &Path,
+    board: &BoardSpec,
+    options: &CalibOptions,
+    out: &Path,
+    session: &Session,
+) -> Result<Calibrated, PipelineError> {
+    let result = calib::calibrate(dir, board, options, &session.counter(Task::Detect));
+    session.emit(super::Event::Finished(Task::Detect));
+    let calibration = result?;
+    super::create_parent(out).map_err(io_error(out))?;
+    let yaml = file::calibration_yaml(&calibration, &session.provenance(None));
+    fsio::write_bytes(out, yaml.as_bytes()).map_err(io_error(out))?;
+    let mut written = vec![out.to_path_buf()];
+    written.extend(calibration.write_figures(out)?);
+    Ok(Calibrated {
+        calibration,
+        written,
+    })
+}

@@ -1,0 +1,581 @@
+//! The demo: the whole pipeline on the built-in virtual micro-hand, checked against its
+//! ground truth, with one report a lab can read.
+//!
+//! Stages: synth (images, log, truth: `DIR/capture/`) → calibrate (`DIR/calib.yml`) →
+//! triangulate (`DIR/triangulated/`) → model: MSVR with the default search and fitness, and the
+//! previous model, from the triangulated data (`DIR/model.json`, `DIR/model/`) and, for
+//! comparison, from the plant's own data (`DIR/model_plant/`) → inverse: pressures planned for
+//! targets the virtual plant can reach, run through the plant (`DIR/inverse_check.csv`) →
+//! `DIR/report/index.html` and `DIR/summary.json`.
+//!
+//! The training grid is 25 kPa (1331 steps): feed-forward needs the model within 0.1 mm between
+//! grid levels, and the paper's 50 kPa grid leaves about 0.18 mm there (the report shows both).
+//! The search scores its candidates on the 50 kPa points of the grid (`DIR/search/`, the paper's
+//! 216 steps), so it takes as long as the paper's; the fit uses every step.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use rand::{Rng, SeedableRng};
+use serde::Serialize;
+
+use super::fit::{self, FitJob, FitOutcome, Selection};
+use super::{io_error, Event, PipelineError, Session};
+use crate::calib::file::{read_calibration, CalibrationFile};
+use crate::calib::{CalibOptions, StereoCalibration};
+use crate::data::{self, names, HAND_INPUTS, HAND_OUTPUTS};
+use crate::fsio;
+use crate::model::file::{ModelFile, StoredModel};
+use crate::model::inverse::{self, InverseOptions, PlannedTarget};
+use crate::model::msvr::fitness::FitnessKind;
+use crate::model::msvr::{Msvr, MsvrParams};
+use crate::model::Errors;
+use crate::provenance::Provenance;
+use crate::search::aco_paper::AcoPaper;
+use crate::search::Method;
+use crate::synth::capture::CaptureConfig;
+use crate::synth::plant::Plant;
+use crate::synth::render::ImageFormat;
+use crate::synth::SynthConfig;
+use crate::triangulate::{TriangulateOptions, Triangulation};
+
+/// What to run.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DemoConfig {
+    /// Seed of every random choice.
+    pub seed: u64,
+    /// A reduced run for a first look and the tests: 8 board pairs, a 125 kPa grid and 50 kPa
+    /// sweeps, a short search, 20 inverse targets.
+    pub quick: bool,
+    /// How the frames are stored.
+    pub format: ImageFormat,
+}
+
+/// The sizes of a run.
+struct Plan {
+    views: usize,
+    grid_step_kpa: f64,
+    sweep_step_kpa: f64,
+    /// The search scores candidates on the grid points at this step only (none: all of them),
+    /// so that a dense grid keeps the search fast; the fit uses every row.
+    search_grid_kpa: Option<f64>,
+    /// Frames kept per step: stamped this far into it (s).
+    window_s: [f64; 2],
+    triangulate: TriangulateOptions,
+    aco: AcoPaper,
+    targets: usize,
+}
+
+impl Plan {
+    fn new(quick: bool, seed: u64) -> Self {
+        let aco = AcoPaper {
+            seed,
+            ..AcoPaper::default()
+        };
+        if quick {
+            Plan {
+                views: 8,
+                grid_step_kpa: 125.0,
+                sweep_step_kpa: 50.0,
+                search_grid_kpa: None,
+                window_s: CaptureConfig::default().window_s,
+                triangulate: TriangulateOptions::default(),
+                aco: AcoPaper {
+                    ants: 8,
+                    max_iter: 6,
+                    ..aco
+                },
+                targets: 20,
+            }
+        } else {
+            // A 25 kPa training grid (1331 steps): the 50 kPa grid of the paper leaves 0.18 mm of
+            // interpolation error between its levels, too much for feed-forward. One or two
+            // frames per camera and step (the finger holds still, so a pair may be up to 50 ms
+            // apart) keep the capture to about 3300 frames.
+            Plan {
+                views: 20,
+                grid_step_kpa: 25.0,
+                sweep_step_kpa: 10.0,
+                search_grid_kpa: Some(50.0),
+                window_s: [0.10, 0.14],
+                triangulate: TriangulateOptions {
+                    max_dt_s: 0.05,
+                    min_frames: 1,
+                    ..TriangulateOptions::default()
+                },
+                aco,
+                targets: 100,
+            }
+        }
+    }
+}
+
+/// Calibration against the truth.
+#[derive(Serialize)]
+pub struct CalibrationCheck {
+    pub pairs_used: usize,
+    pub rms_px: f64,
+    pub epipolar_px: f64,
+    /// Largest relative error of fx, fy, cx, cy over both cameras (%).
+    pub intrinsics_error_pct: f64,
+    pub baseline_error_pct: f64,
+    pub rotation_error_deg: f64,
+    pub hand_axes_error_deg: Option<f64>,
+}
+
+/// Triangulated tips against the truth, per phase.
+#[derive(Serialize)]
+pub struct TipCheck {
+    pub phase: String,
+    pub rows: usize,
+    pub rms_mm: f64,
+    pub max_mm: f64,
+}
+
+/// One model × test file.
+#[derive(Serialize)]
+pub struct Score {
+    pub trained_on: String,
+    pub model: String,
+    pub test: String,
+    pub errors: Errors,
+}
+
+/// Planned pressures run through the plant.
+#[derive(Serialize)]
+pub struct InverseCheck {
+    pub model: String,
+    pub targets: usize,
+    pub reached_by_model: usize,
+    pub mean_mm: f64,
+    pub median_mm: f64,
+    pub p90_mm: f64,
+    pub max_mm: f64,
+}
+
+#[derive(Serialize)]
+pub struct Summary {
+    pub seed: u64,
+    pub quick: bool,
+    pub timings_s: Vec<(String, f64)>,
+    pub calibration: CalibrationCheck,
+    pub triangulation: Vec<TipCheck>,
+    pub scores: Vec<Score>,
+    pub inverse: Vec<InverseCheck>,
+    pub provenance: Provenance,
+}
+
+/// What the demo did: the summary it wrote to `summary.json`.
+pub struct DemoOutcome {
+    pub summary: Summary,
+    /// The report page.
+    pub index: PathBuf,
+}
+
+/// Runs every stage into `out`, checks each against the virtual capture's truth, and writes
+/// `summary.json` and `report/index.html`. Each stage is announced with an [`Event::Stage`],
+/// reports its result, and ends with an [`Event::StageTime`].
+///
+/// # Errors
+/// [`PipelineError`] from any stage, or a file that cannot be written.
+pub fn run(
+    out: &Path,
+    config: DemoConfig,
+    session: &Session,
+) -> Result<DemoOutcome, PipelineError> {
+    let started = Instant::now();
+    let plan = Plan::new(config.quick, config.seed);
+    std::fs::create_dir_all(out).map_err(io_error(out))?;
+    let provenance = session.provenance(Some(config.seed));
+    let mut timings: Vec<(String, f64)> = Vec::new();
+    let mut clock = Instant::now();
+    let mut lap = |name: &str, timings: &mut Vec<(String, f64)>| {
+        let seconds = clock.elapsed().as_secs_f64();
+        session.emit(Event::StageTime { name, seconds });
+        timings.push((name.to_string(), seconds));
+        clock = Instant::now();
+    };
+    let stage = |step: usize, text: String| session.emit(Event::Stage { step, of: 6, text });
+
+    // 1. The virtual capture.
+    let capture = out.join("capture");
+    stage(
+        1,
+        format!(
+            "synth: the virtual micro-hand filmed by two webcams → {}",
+            capture.display()
+        ),
+    );
+    let synth_config = SynthConfig {
+        seed: config.seed,
+        grid_step_kpa: plan.grid_step_kpa,
+        sweep_step_kpa: plan.sweep_step_kpa,
+        ..SynthConfig::default()
+    };
+    let capture_config = CaptureConfig {
+        views: plan.views,
+        window_s: plan.window_s,
+        format: config.format,
+        ..CaptureConfig::default()
+    };
+    let synthesized = super::synth::run(&capture, &synth_config, Some(&capture_config), session)?;
+    if synthesized.capture.is_some_and(|c| c.interrupted) {
+        return Err(PipelineError::Usage(
+            "interrupted while rendering the capture; run the demo again".into(),
+        ));
+    }
+    lap("synth", &mut timings);
+
+    // 2. Calibration.
+    stage(
+        2,
+        format!("calibrate: {} chessboard pairs → calib.yml", plan.views),
+    );
+    let calib_dir = capture.join("calib");
+    let board = super::calibrate::board(&calib_dir, None, None, session)?;
+    let calib_path = out.join("calib.yml");
+    let calibrated = super::calibrate::run(
+        &calib_dir,
+        &board,
+        &CalibOptions::default(),
+        &calib_path,
+        session,
+    )?;
+    session.emit(Event::Calibrated(&calibrated));
+    let cal = &calibrated.calibration;
+    let truth = read_calibration(&capture.join("truth/rig.yml"))?;
+    let calibration = check_calibration(cal, &truth);
+    lap("calibrate", &mut timings);
+
+    // 3. Triangulation.
+    stage(
+        3,
+        "triangulate: the red tip in every frame pair → dataset".into(),
+    );
+    let triangulated = super::triangulate::run(
+        &capture.join("frames"),
+        &calib_path,
+        &capture.join("pressures.csv"),
+        &plan.triangulate,
+        &out.join("triangulated/dataset.csv"),
+        session,
+    )?;
+    session.emit(Event::Triangulated(&triangulated));
+    let tri = &triangulated.triangulation;
+    let triangulation = check_tips(tri, &capture.join("truth/tips.csv"))?;
+    for t in &triangulation {
+        session.emit(Event::Note(format!(
+            "      tip vs truth, {}: RMS {:.4} mm, max {:.4} mm over {} steps",
+            t.phase, t.rms_mm, t.max_mm, t.rows
+        )));
+    }
+    lap("triangulate", &mut timings);
+
+    // 4. Models: from the triangulated data (the pipeline) and from the plant's own data.
+    stage(
+        4,
+        "model: MSVR, (C, ε, σ) by the paper's ant colony on 5-fold CV, and the previous model"
+            .into(),
+    );
+    let tri_dir = out.join("triangulated");
+    let plant_tests = [capture.join("sweep_a.csv"), capture.join("sweep_b.csv")];
+    let (tri_train, plant_train) = (tri_dir.join("dataset_train.csv"), capture.join("train.csv"));
+    let (tri_coarse, plant_coarse) = match plan.search_grid_kpa {
+        Some(step) => (
+            Some(coarse_rows(
+                &tri_train,
+                step,
+                &out.join("search/triangulated_train.csv"),
+            )?),
+            Some(coarse_rows(
+                &plant_train,
+                step,
+                &out.join("search/plant_train.csv"),
+            )?),
+        ),
+        None => (None, None),
+    };
+    let images = fit::run(
+        &job(
+            &plan,
+            tri_train.clone(),
+            tri_coarse.clone(),
+            [
+                tri_dir.join("dataset_sweep_a.csv"),
+                tri_dir.join("dataset_sweep_b.csv"),
+            ]
+            .into_iter()
+            .chain(plant_tests.iter().cloned())
+            .collect(),
+            out.join("model.json"),
+            out.join("model"),
+        ),
+        session,
+    )?;
+    session.emit(Event::Fitted(&images));
+    let plant_data = fit::run(
+        &job(
+            &plan,
+            plant_train,
+            plant_coarse,
+            plant_tests.to_vec(),
+            out.join("model_plant.json"),
+            out.join("model_plant"),
+        ),
+        session,
+    )?;
+    let mut scores = scores_of("triangulated frames", &images);
+    scores.extend(scores_of("the plant's data", &plant_data));
+    lap("model", &mut timings);
+
+    // 5. Feed-forward: planned pressures run through the virtual plant.
+    stage(
+        5,
+        format!(
+            "inverse: pressures planned for {} reachable targets, run through the virtual plant",
+            plan.targets
+        ),
+    );
+    let plant = Plant::new(synth_config.plant.clone());
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(config.seed ^ 0x494e_5645);
+    let sources: Vec<Vec<f64>> = (0..plan.targets)
+        .map(|_| (0..3).map(|_| rng.random_range(0.0..=250.0)).collect())
+        .collect();
+    let msvr = load_msvr(&out.join("model.json"))?;
+    let planned = feedforward(&msvr, &plant, &sources)?;
+    write_inverse_csv(&out.join("inverse_check.csv"), &planned)?;
+    let mut inverse = vec![inverse_stats(
+        &format!(
+            "MSVR from the triangulated frames ({} kPa grid)",
+            plan.grid_step_kpa
+        ),
+        &planned,
+    )];
+    if let (Some(step), Some(coarse)) = (plan.search_grid_kpa, &tri_coarse) {
+        // The same check with the same parameters fitted on the coarse grid alone: what the
+        // training grid's spacing costs.
+        let data = data::read_dataset(coarse, &names(&HAND_INPUTS), &names(&HAND_OUTPUTS))?;
+        let sparse = msvr.params.check()?.fit(&data)?;
+        inverse.push(inverse_stats(
+            &format!(
+                "MSVR from the triangulated frames, {step} kPa grid only ({} rows)",
+                data.rows()
+            ),
+            &feedforward(&sparse, &plant, &sources)?,
+        ));
+    }
+    for c in &inverse {
+        session.emit(Event::Note(format!(
+            "      {}: plant tip error mean {:.4} mm, median {:.4}, 90 % {:.4}, max {:.4} ({} of {} reached by the model)",
+            c.model, c.mean_mm, c.median_mm, c.p90_mm, c.max_mm, c.reached_by_model, c.targets
+        )));
+    }
+    lap("inverse", &mut timings);
+
+    // 6. The report.
+    stage(6, "report".into());
+    timings.push(("total".into(), started.elapsed().as_secs_f64()));
+    let summary = Summary {
+        seed: config.seed,
+        quick: config.quick,
+        timings_s: timings,
+        calibration,
+        triangulation,
+        scores,
+        inverse,
+        provenance,
+    };
+    let summary_path = out.join("summary.json");
+    let json = serde_json::to_string_pretty(&summary).expect("the summary serialises") + "\n";
+    fsio::write_bytes(&summary_path, json.as_bytes()).map_err(io_error(&summary_path))?;
+    let index = out.join("report/index.html");
+    let report_dir = out.join("report");
+    std::fs::create_dir_all(&report_dir).map_err(io_error(&report_dir))?;
+    super::demo_report::page(out, &summary, tri, cal, &planned)
+        .write(&index)
+        .map_err(io_error(&index))?;
+    lap("report", &mut Vec::new());
+    Ok(DemoOutcome { summary, index })
+}
+
+fn job(
+    plan: &Plan,
+    data: PathBuf,
+    search_on: Option<PathBuf>,
+    tests: Vec<PathBuf>,
+    out: PathBuf,
+    report: PathBuf,
+) -> FitJob {
+    FitJob {
+        data,
+        inputs: names(&HAND_INPUTS),
+        outputs: names(&HAND_OUTPUTS),
+        params: MsvrParams::default(),
+        selection: Selection::Search {
+            method: Method::AcoPaper(plan.aco),
+            fitness: FitnessKind::Cv { folds: 5 },
+            group_by: None,
+            seed: plan.aco.seed,
+            on: search_on,
+        },
+        tests,
+        out,
+        report: Some(report),
+    }
+}
+
+fn scores_of(trained_on: &str, outcome: &FitOutcome) -> Vec<Score> {
+    outcome
+        .report
+        .tests
+        .iter()
+        .map(|t| Score {
+            trained_on: trained_on.to_string(),
+            model: t.model.clone(),
+            test: t.test.clone(),
+            errors: t.errors.clone(),
+        })
+        .collect()
+}
+
+/// The rows of a dataset whose pressures all lie on a `step_kpa` grid, written to `to`.
+fn coarse_rows(from: &Path, step_kpa: f64, to: &Path) -> Result<PathBuf, PipelineError> {
+    super::create_parent(to).map_err(io_error(to))?;
+    let on_grid = |p: &f64| (p / step_kpa - (p / step_kpa).round()).abs() < 1e-9;
+    data::copy_rows(from, to, &names(&HAND_INPUTS), |pressures| {
+        pressures.iter().all(on_grid)
+    })?;
+    Ok(to.to_path_buf())
+}
+
+fn load_msvr(path: &Path) -> Result<Msvr, PipelineError> {
+    let StoredModel::Msvr(m) = ModelFile::load(path)?.model;
+    Ok(m)
+}
+
+fn feedforward(
+    model: &Msvr,
+    plant: &Plant,
+    sources: &[Vec<f64>],
+) -> Result<Vec<PlannedTarget>, PipelineError> {
+    let options = InverseOptions::within_training_range(model, |_| Some((0.0, 250.0)));
+    Ok(inverse::feedforward_check(
+        model,
+        |p| plant.tip([p[0], p[1], p[2]]).ok().map(|t| t.to_vec()),
+        sources,
+        &options,
+    )?)
+}
+
+fn inverse_stats(model: &str, rows: &[PlannedTarget]) -> InverseCheck {
+    let mut e: Vec<f64> = rows.iter().map(|r| r.plant_error).collect();
+    e.sort_by(f64::total_cmp);
+    let at = |q: f64| e[((e.len() - 1) as f64 * q).round() as usize];
+    InverseCheck {
+        model: model.to_string(),
+        targets: rows.len(),
+        reached_by_model: rows.iter().filter(|r| r.solution.reached).count(),
+        mean_mm: e.iter().sum::<f64>() / e.len() as f64,
+        median_mm: at(0.5),
+        p90_mm: at(0.9),
+        max_mm: at(1.0),
+    }
+}
+
+fn write_inverse_csv(path: &Path, rows: &[PlannedTarget]) -> Result<(), PipelineError> {
+    let mut text = String::from("x_mm,y_mm,z_mm,P1_kpa,P2_kpa,P3_kpa,x_model_mm,y_model_mm,z_model_mm,x_plant_mm,y_plant_mm,z_plant_mm,plant_error_mm,source_P1_kpa,source_P2_kpa,source_P3_kpa\n");
+    for r in rows {
+        let cells: Vec<String> = r
+            .target
+            .iter()
+            .chain(&r.solution.inputs)
+            .chain(&r.solution.achieved)
+            .chain(&r.plant)
+            .chain(std::iter::once(&r.plant_error))
+            .chain(&r.source_inputs)
+            .map(|v| format!("{v:.4}"))
+            .collect();
+        text += &cells.join(",");
+        text.push('\n');
+    }
+    fsio::write_bytes(path, text.as_bytes()).map_err(io_error(path))
+}
+
+fn check_calibration(cal: &StereoCalibration, truth: &CalibrationFile) -> CalibrationCheck {
+    use nalgebra::{Matrix3, Rotation3, Vector3};
+    let t = &truth.rig;
+    let mut intrinsics = 0.0f64;
+    for (got, want) in [(&cal.rig.left.k, &t.left.k), (&cal.rig.right.k, &t.right.k)] {
+        for i in [0, 4, 2, 5] {
+            intrinsics = intrinsics.max(100.0 * ((got[i] - want[i]) / want[i]).abs());
+        }
+    }
+    let (gt, tt) = (
+        Vector3::from_row_slice(&cal.rig.t),
+        Vector3::from_row_slice(&t.t),
+    );
+    let rot = |m: &[f64; 9]| Rotation3::from_matrix_unchecked(Matrix3::from_row_slice(m));
+    CalibrationCheck {
+        pairs_used: cal.used().count(),
+        rms_px: cal.rms_px,
+        epipolar_px: cal.epipolar_px,
+        intrinsics_error_pct: intrinsics,
+        baseline_error_pct: 100.0 * (gt.norm() - tt.norm()).abs() / tt.norm(),
+        rotation_error_deg: (rot(&cal.rig.r).inverse() * rot(&t.r)).angle().to_degrees(),
+        hand_axes_error_deg: cal
+            .hand_axes
+            .as_ref()
+            .zip(truth.r_hand.as_ref())
+            .map(|(g, w)| {
+                (rot(g).inverse() * Rotation3::from_matrix_unchecked(*w))
+                    .angle()
+                    .to_degrees()
+            }),
+    }
+}
+
+/// RMS and largest Euclidean error of the rows against `truth/tips.csv`, per phase and overall.
+fn check_tips(tri: &Triangulation, truth: &Path) -> Result<Vec<TipCheck>, PipelineError> {
+    let column = |name: &str| tri.extra_columns.iter().position(|c| c == name);
+    let (Some(step_col), Some(phase_col)) = (column("step"), column("phase")) else {
+        return Err(PipelineError::Check(
+            "the synthetic log has step and phase columns".into(),
+        ));
+    };
+    let truth_tips = data::read_columns(truth, &names(&["step", "x_mm", "y_mm", "z_mm"]))?;
+    let tips: std::collections::HashMap<u64, [f64; 3]> = truth_tips
+        .iter_rows()
+        .map(|r| (r[0] as u64, [r[1], r[2], r[3]]))
+        .collect();
+    let mut by_phase: Vec<(String, Vec<f64>)> = Vec::new();
+    for row in tri.rows.iter().filter(|r| r.flags.is_empty()) {
+        let step = &row.extra[step_col];
+        let t = step
+            .parse::<u64>()
+            .ok()
+            .and_then(|k| tips.get(&k))
+            .ok_or_else(|| {
+                PipelineError::Check(format!("step {step} not in {}", truth.display()))
+            })?;
+        let e = (0..3)
+            .map(|k| (row.tip_mm[k] - t[k]).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        let phase = &row.extra[phase_col];
+        match by_phase.iter_mut().find(|(p, _)| p == phase) {
+            Some((_, v)) => v.push(e),
+            None => by_phase.push((phase.clone(), vec![e])),
+        }
+    }
+    let all: Vec<f64> = by_phase.iter().flat_map(|(_, v)| v.clone()).collect();
+    by_phase.push(("all".into(), all));
+    Ok(by_phase
+        .into_iter()
+        .map(|(phase, e)| TipCheck {
+            rows: e.len(),
+            rms_mm: (e.iter().map(|x| x * x).sum::<f64>() / e.len() as f64).sqrt(),
+            max_mm: e.iter().copied().fold(0.0, f64::max),
+            phase,
+        })
+        .collect())
+}

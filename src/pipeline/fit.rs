@@ -1,0 +1,242 @@
+//! The fit stage: choose (C, ε, σ), fit MSVR and the previous model, score them on held-out
+//! files, write the report and the model file.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use super::{io_error, Event, PipelineError, Session};
+use crate::data::{self, HAND_INPUTS, HAND_OUTPUTS};
+use crate::fsio;
+use crate::model::file::{ModelFile, StoredModel};
+use crate::model::msvr::fitness::{Counters, FitnessKind};
+use crate::model::msvr::tune::{self, Groups, SearchSummary};
+use crate::model::msvr::{MsvrParams, MIN_FIT_ROWS};
+use crate::model::previous::{self, PreviousModel};
+use crate::model::{self, Predict};
+use crate::report::{self, Comparison, ModelReport, NamedModel, PreviousSummary, TestResult};
+use crate::search::{IterationRecord, Method, Observer, Search};
+
+/// How the job chooses its hyper-parameters.
+pub enum Selection {
+    /// The parameters of [`FitJob::params`] as they are.
+    Fixed,
+    Search {
+        method: Method,
+        fitness: FitnessKind,
+        group_by: Option<String>,
+        seed: u64,
+        /// The rows candidates are scored on, when not the training data.
+        on: Option<PathBuf>,
+    },
+}
+
+/// One model run, as the `model` and `demo` commands describe it.
+pub struct FitJob {
+    pub data: PathBuf,
+    pub inputs: Vec<String>,
+    pub outputs: Vec<String>,
+    /// The fixed parameters (`Selection::Fixed`) and the solver controls (always).
+    pub params: MsvrParams,
+    pub selection: Selection,
+    pub tests: Vec<PathBuf>,
+    pub out: PathBuf,
+    pub report: Option<PathBuf>,
+}
+
+/// What a run produced.
+pub struct FitOutcome {
+    pub report: ModelReport,
+    /// The search, its work counters and its time (s), when there was one.
+    pub search: Option<(SearchSummary, Counters, f64)>,
+}
+
+/// Reports each search iteration as an [`Event::Iteration`].
+struct Iterations<'a> {
+    session: &'a Session<'a>,
+    cap: usize,
+}
+
+impl Observer for Iterations<'_> {
+    fn iteration(&mut self, record: &IterationRecord) {
+        self.session.emit(Event::Iteration {
+            record,
+            cap: self.cap,
+        });
+    }
+}
+
+/// Chooses the parameters, fits, scores and writes: the report first (an interrupted search
+/// still leaves its history), the model file last.
+///
+/// # Errors
+/// [`PipelineError`]: bad parameters, unreadable or unusable data, `--out` naming an input, a
+/// search or fit failure, or a file that cannot be written.
+pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError> {
+    let search_on = match &job.selection {
+        Selection::Search { on: Some(p), .. } => Some(p.as_path()),
+        _ => None,
+    };
+    let inputs: Vec<&Path> = std::iter::once(job.data.as_path())
+        .chain(search_on)
+        .chain(job.tests.iter().map(PathBuf::as_path))
+        .collect();
+    if fsio::is_same_file_as_any(&job.out, &inputs) {
+        return Err(PipelineError::Usage(format!(
+            "--out {} is one of the input files; choose another name",
+            job.out.display()
+        )));
+    }
+    job.params
+        .check()
+        .map_err(|e| PipelineError::Usage(format!("model parameters: {e}")))?;
+    super::create_parent(&job.out).map_err(io_error(&job.out))?;
+    for path in &inputs {
+        let flagged = data::count_flagged(path)?;
+        if flagged > 0 {
+            session.emit(Event::Note(format!(
+                "{}: {flagged} flagged rows left out (see their flag column)",
+                path.display()
+            )));
+        }
+    }
+    let train = data::read_dataset(&job.data, &job.inputs, &job.outputs)?;
+    train.check_fittable(MIN_FIT_ROWS)?;
+
+    let (params, search, history) = match &job.selection {
+        Selection::Fixed => (job.params, None, None),
+        Selection::Search {
+            method,
+            fitness,
+            group_by,
+            seed,
+            on,
+        } => {
+            let scored_on = on.as_deref().unwrap_or(&job.data);
+            let scored = match on {
+                None => train.clone(),
+                Some(path) => {
+                    let d = data::read_dataset(path, &job.inputs, &job.outputs)?;
+                    d.check_fittable(MIN_FIT_ROWS)?;
+                    d
+                }
+            };
+            let groups = match group_by {
+                None => None,
+                Some(column) => Some(Groups {
+                    column: column.clone(),
+                    labels: data::read_columns(scored_on, std::slice::from_ref(column))?.values,
+                }),
+            };
+            let started = Instant::now();
+            let mut observer = Iterations {
+                session,
+                cap: method.iteration_cap(),
+            };
+            let (summary, result, counters) = tune::run(
+                method,
+                &scored,
+                *fitness,
+                *seed,
+                groups.as_ref(),
+                &job.params,
+                &mut observer,
+                session.interrupt,
+            )?;
+            session.emit(Event::Searched(&summary));
+            let params = job.params.with_hyper(summary.best);
+            let seconds = started.elapsed().as_secs_f64();
+            (
+                params,
+                Some((summary, counters, seconds)),
+                Some(result.history),
+            )
+        }
+    };
+
+    let msvr = params.check()?.fit(&train)?;
+    let train_errors = model::evaluate(&msvr, &train)?;
+
+    // The previous physics model describes the micro-hand only.
+    let is_hand = train.inputs.names == HAND_INPUTS && train.outputs.names == HAND_OUTPUTS;
+    let previous = if is_hand {
+        let default = PreviousModel::with_defaults();
+        let (calibrated, calibration) = previous::calibrate(&train, &default.params)?;
+        Some((default, calibrated, calibration))
+    } else {
+        None
+    };
+    let mut models = vec![NamedModel {
+        name: "msvr",
+        model: &msvr,
+    }];
+    if let Some((default, calibrated, _)) = &previous {
+        for m in [default, calibrated] {
+            models.push(NamedModel {
+                name: m.name(),
+                model: m,
+            });
+        }
+    }
+    let test_data = job
+        .tests
+        .iter()
+        .map(|path| {
+            Ok((
+                file_name(path),
+                data::read_dataset(path, &job.inputs, &job.outputs)?,
+            ))
+        })
+        .collect::<Result<Vec<_>, PipelineError>>()?;
+    let mut tests = Vec::new();
+    for (name, test) in &test_data {
+        for m in &models {
+            tests.push(TestResult {
+                model: m.name.into(),
+                test: name.clone(),
+                errors: model::evaluate(m.model, test)?,
+            });
+        }
+    }
+
+    let seed = match job.selection {
+        Selection::Fixed => None,
+        Selection::Search { seed, .. } => Some(seed),
+    };
+    let mut provenance = session.provenance(seed);
+    for path in &inputs {
+        provenance = provenance.with_input(path).map_err(io_error(path))?;
+    }
+    let report = ModelReport {
+        training_file: file_name(&job.data),
+        inputs: msvr.inputs().to_vec(),
+        outputs: msvr.outputs().to_vec(),
+        params: msvr.params,
+        fit: msvr.fit.clone(),
+        search: search.as_ref().map(|(s, _, _)| s.clone()),
+        train_errors,
+        previous: previous.as_ref().map(|(d, c, cal)| PreviousSummary {
+            default: d.params.clone(),
+            calibrated: c.params.clone(),
+            calibration: cal.clone(),
+        }),
+        tests,
+        provenance: provenance.clone(),
+    };
+    if let Some(dir) = &job.report {
+        let comparison = Comparison {
+            models: &models,
+            tests: &test_data,
+        };
+        report::write_model_report(dir, &report, history.as_deref(), &comparison)?;
+    }
+    ModelFile::new(StoredModel::Msvr(msvr), report.search.clone(), provenance).save(&job.out)?;
+    Ok(FitOutcome { report, search })
+}
+
+/// The file name of a path, for tables.
+pub(crate) fn file_name(path: &Path) -> String {
+    path.file_name().map_or_else(
+        || path.display().to_string(),
+        |f| f.to_string_lossy().into_owned(),
+    )
+}

@@ -1,0 +1,159 @@
+//! The stages as library calls: each reads its input files, does its work, writes its output
+//! files atomically and returns what it did. The command line (and any other front end: a
+//! capture program, a notebook binding) only turns its arguments into these calls and shows
+//! the [`Event`]s they report.
+//!
+//! `synth → calibrate → triangulate → fit`, and [`demo`] composes them on the virtual
+//! micro-hand with checks against its ground truth.
+//!
+//! Every stage takes a [`Session`]: the command line (recorded in provenance), the interrupt
+//! flag (Ctrl-C: long work stops at its next checkpoint and keeps what it finished) and the
+//! callback that receives progress and results. Nothing here prints.
+
+pub mod calibrate;
+pub mod demo;
+mod demo_report;
+pub mod fit;
+pub mod synth;
+pub mod triangulate;
+
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use crate::model::msvr::tune::SearchSummary;
+use crate::provenance::Provenance;
+use crate::search::IterationRecord;
+
+/// A long task that reports `(done, total)`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Task {
+    /// Rendering the virtual capture's images.
+    Render,
+    /// Finding chessboard corners.
+    Detect,
+    /// Finding the tip in frames.
+    Frames,
+}
+
+/// What a stage reports while it works.
+pub enum Event<'a> {
+    /// Progress of a counted task.
+    Count {
+        task: Task,
+        done: usize,
+        total: usize,
+    },
+    /// A counted task ended.
+    Finished(Task),
+    /// A search iteration ended; `cap` is the most iterations the search runs.
+    Iteration {
+        record: &'a IterationRecord,
+        cap: usize,
+    },
+    /// A search ended.
+    Searched(&'a SearchSummary),
+    /// A sentence for the user (e.g. rows left out of a file).
+    Note(String),
+    /// The demo starts stage `step` of `of`.
+    Stage {
+        step: usize,
+        of: usize,
+        text: String,
+    },
+    /// A stage ended after `seconds`.
+    StageTime {
+        name: &'a str,
+        seconds: f64,
+    },
+    /// A stage's outcome, for a front end that shows each as it comes (the demo).
+    Calibrated(&'a calibrate::Calibrated),
+    Triangulated(&'a triangulate::Triangulated),
+    Fitted(&'a fit::FitOutcome),
+}
+
+/// What every stage is handed by its caller.
+pub struct Session<'a> {
+    /// The command line, for provenance.
+    pub command: Vec<String>,
+    /// Set by Ctrl-C.
+    pub interrupt: &'a AtomicBool,
+    /// Receives progress and results; called from worker threads too.
+    pub events: &'a (dyn Fn(Event) + Sync),
+}
+
+impl Session<'_> {
+    pub(crate) fn emit(&self, event: Event) {
+        (self.events)(event);
+    }
+
+    pub(crate) fn interrupted(&self) -> bool {
+        self.interrupt.load(Ordering::SeqCst)
+    }
+
+    /// A `(done, total)` callback for `task`.
+    pub(crate) fn counter(&self, task: Task) -> impl Fn(usize, usize) + Sync + '_ {
+        move |done, total| self.emit(Event::Count { task, done, total })
+    }
+
+    /// Provenance of this run, with `seed` when it draws random numbers.
+    pub(crate) fn provenance(&self, seed: Option<u64>) -> Provenance {
+        Provenance::new(self.command.clone(), seed)
+    }
+}
+
+/// Creates the directory a file is written into, when it has one.
+pub(crate) fn create_parent(path: &std::path::Path) -> std::io::Result<()> {
+    match path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        Some(parent) => std::fs::create_dir_all(parent),
+        None => Ok(()),
+    }
+}
+
+/// Errors of a stage: the failing library's own, or a file the stage itself writes.
+#[derive(Debug, thiserror::Error)]
+pub enum PipelineError {
+    #[error(transparent)]
+    Synth(#[from] crate::synth::SynthError),
+    #[error(transparent)]
+    Calib(#[from] crate::calib::CalibError),
+    #[error(transparent)]
+    Stereo(#[from] crate::stereo::StereoError),
+    #[error(transparent)]
+    Triangulate(#[from] crate::triangulate::TriangulateError),
+    #[error(transparent)]
+    Data(#[from] crate::data::DataError),
+    #[error(transparent)]
+    Msvr(#[from] crate::model::msvr::MsvrError),
+    #[error(transparent)]
+    Tune(#[from] crate::model::msvr::tune::TuneError),
+    #[error(transparent)]
+    Previous(#[from] crate::model::previous::PreviousError),
+    #[error(transparent)]
+    Model(#[from] crate::model::ModelError),
+    #[error(transparent)]
+    Inverse(#[from] crate::model::inverse::InverseError),
+    #[error(transparent)]
+    ModelFile(#[from] crate::model::file::ModelFileError),
+    #[error(transparent)]
+    Report(#[from] crate::report::ReportError),
+    #[error("{path}: {source}")]
+    Io {
+        path: std::path::PathBuf,
+        source: std::io::Error,
+    },
+    /// Options that do not go together, or an output that would replace an input.
+    #[error("{0}")]
+    Usage(String),
+    /// A demo result that contradicts the ground truth it is checked against.
+    #[error("{0}")]
+    Check(String),
+}
+
+/// The error for an I/O failure on `path`.
+pub(crate) fn io_error(
+    path: &std::path::Path,
+) -> impl FnOnce(std::io::Error) -> PipelineError + '_ {
+    move |source| PipelineError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
