@@ -143,12 +143,7 @@ pub fn board_yaml(board: &BoardSpec) -> String {
 /// # Errors
 /// [`CalibError::BadBoard`] naming the file and what is missing.
 pub fn read_board(path: &Path) -> Result<BoardSpec, CalibError> {
-    let bad = |what: String| {
-        CalibError::BadBoard(format!(
-            "{}: {what}; pass --board COLSxROWS --square-mm MM, or write the file (see calib/board.yml)",
-            path.display()
-        ))
-    };
+    let bad = |what: String| board_error(path, &what);
     if !path.is_file() {
         return Err(bad("no such file".into()));
     }
@@ -158,14 +153,17 @@ pub fn read_board(path: &Path) -> Result<BoardSpec, CalibError> {
     board_from(name, core::FileStorage_Mode::READ as i32, path)
 }
 
+/// A board description that cannot be used, and what to do instead.
+fn board_error(path: &Path, what: &str) -> CalibError {
+    CalibError::BadBoard(format!(
+        "{}: {what}; pass --board COLSxROWS --square-mm MM, or write the file (see calib/board.yml)",
+        path.display()
+    ))
+}
+
 /// Reads a board description from a file name or, with the MEMORY flag, the text itself.
 fn board_from(source: &str, mode: i32, path: &Path) -> Result<BoardSpec, CalibError> {
-    let bad = |what: String| {
-        CalibError::BadBoard(format!(
-            "{}: {what}; pass --board COLSxROWS --square-mm MM, or write the file (see calib/board.yml)",
-            path.display()
-        ))
-    };
+    let bad = |what: String| board_error(path, &what);
     let fs = core::FileStorage::new(source, mode, "").map_err(|e| bad(reason(&e)))?;
     let number = |key: &str| -> Result<f64, CalibError> {
         let node = fs.get(key).map_err(|e| bad(reason(&e)))?;

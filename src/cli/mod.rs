@@ -11,7 +11,7 @@ mod triangulate;
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Mutex, OnceLock};
+use std::sync::{Mutex, Once};
 
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -62,18 +62,13 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
 /// Ctrl-C sets this; long work (a search, rendering) stops at its next checkpoint and keeps
 /// what it finished.
 fn interrupt_flag() -> &'static AtomicBool {
-    static FLAG: OnceLock<AtomicBool> = OnceLock::new();
-    static HANDLER: OnceLock<()> = OnceLock::new();
-    let flag = FLAG.get_or_init(|| AtomicBool::new(false));
-    HANDLER.get_or_init(|| {
+    static INTERRUPTED: AtomicBool = AtomicBool::new(false);
+    static HANDLER: Once = Once::new();
+    HANDLER.call_once(|| {
         // Without a handler (another one is installed) Ctrl-C just ends the process.
-        let _ = ctrlc::set_handler(|| {
-            if let Some(f) = FLAG.get() {
-                f.store(true, Ordering::SeqCst);
-            }
-        });
+        let _ = ctrlc::set_handler(|| INTERRUPTED.store(true, Ordering::SeqCst));
     });
-    flag
+    &INTERRUPTED
 }
 
 /// Shows the pipeline's events: a progress bar per counted task and for a search, sentences
