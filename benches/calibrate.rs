@@ -8,7 +8,7 @@ use std::sync::atomic::AtomicBool;
 
 use criterion::{criterion_group, criterion_main, Criterion};
 
-use handcap::calib::{self, BoardSpec, CalibOptions};
+use handcap::calib::{self, CalibOptions};
 use handcap::provenance::Provenance;
 use handcap::synth::capture::{self, CaptureConfig};
 use handcap::synth::SynthConfig;
@@ -30,11 +30,7 @@ fn bench(c: &mut Criterion) {
         &AtomicBool::new(false),
     )
     .expect("capture");
-    let board = BoardSpec {
-        cols: config.board_cols,
-        rows: config.board_rows,
-        square_mm: config.square_mm,
-    };
+    let board = config.board;
     let mut g = c.benchmark_group("calibrate");
     g.sample_size(10);
     g.bench_function("20 pairs 1280x720", |b| {

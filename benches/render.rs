@@ -9,6 +9,7 @@ use std::hint::black_box;
 use criterion::{criterion_group, criterion_main, Criterion};
 use nalgebra::{Point3, Rotation3, Vector3};
 
+use handcap::geometry::WorldFromBoard;
 use handcap::synth::camera::RigConfig;
 use handcap::synth::plant::Plant;
 use handcap::synth::render::{encode_png, Board, Finger, Lighting, View};
@@ -26,11 +27,11 @@ fn bench(c: &mut Criterion) {
     let rotation =
         Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_columns(&[x, y, toward]));
     let board = Board {
-        cols: 9,
-        rows: 6,
-        square_mm: 10.0,
-        origin: aim - rotation * Vector3::new(40.0, 25.0, 0.0),
-        rotation,
+        spec: handcap::calib::file::default_board(),
+        pose: WorldFromBoard::new(
+            rotation,
+            (aim - rotation * Vector3::new(40.0, 25.0, 0.0)).coords,
+        ),
     };
     let plant = Plant::default();
     let finger = Finger::from_centre_line(&plant.centre_line([0.0, 120.0, 200.0]).unwrap(), 4);

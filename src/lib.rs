@@ -28,6 +28,7 @@ pub mod calib;
 mod cv;
 pub mod data;
 pub mod fsio;
+pub mod geometry;
 pub mod hand;
 pub mod model;
 pub mod opencv_yaml;

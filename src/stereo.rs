@@ -14,6 +14,7 @@ use opencv::core::{self, Mat};
 use opencv::prelude::*;
 
 use crate::cv;
+use crate::geometry::{Intrinsics, RightFromLeft};
 
 /// An image point (x, y).
 pub type Point2 = [f64; 2];
@@ -36,23 +37,15 @@ impl Side {
     }
 }
 
-/// One camera's intrinsics: K (row-major 3 × 3) and the distortion coefficients.
-#[derive(Clone, Debug, PartialEq, serde::Serialize)]
-pub struct Intrinsics {
-    pub k: [f64; 9],
-    pub dist: Vec<f64>,
-}
-
 /// The two cameras and the left → right pose.
-#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct StereoRig {
     /// Width and height in pixels.
     pub image_size: [i32; 2],
     pub left: Intrinsics,
     pub right: Intrinsics,
-    /// Right from left: p_right = R · p_left + T (row-major R, T in mm).
-    pub r: [f64; 9],
-    pub t: [f64; 3],
+    /// p_right = R · p_left + T (T in mm).
+    pub right_from_left: RightFromLeft,
 }
 
 /// Errors of reading a calibration file or of the geometry.
@@ -75,14 +68,10 @@ impl StereoRig {
         }
     }
 
-    /// The right camera's rotation from the left's.
-    pub fn rotation(&self) -> Matrix3<f64> {
-        Matrix3::from_row_slice(&self.r)
-    }
-
     /// The essential matrix \[T\]ₓ R (normalised coordinates: x̂_rightᵀ E x̂_left = 0).
     pub fn essential(&self) -> Matrix3<f64> {
-        Vector3::from_row_slice(&self.t).cross_matrix() * self.rotation()
+        let pose = &self.right_from_left;
+        pose.translation.cross_matrix() * pose.rotation.matrix()
     }
 
     /// The fundamental matrix K₂⁻ᵀ E K₁⁻¹ (undistorted pixels), scaled so that F₃₃ = 1.
@@ -146,7 +135,10 @@ impl StereoRig {
         if left.is_empty() {
             return Ok(Vec::new());
         }
-        let (r, t) = (&self.r, &self.t);
+        let (r, t) = (
+            self.right_from_left.rotation_rows(),
+            self.right_from_left.translation,
+        );
         let p1 = cv::mat(3, &[1., 0., 0., 0., 0., 1., 0., 0., 0., 0., 1., 0.])?;
         let p2 = cv::mat(
             3,
@@ -223,8 +215,13 @@ impl StereoRig {
             Side::Left => ([0.0; 3], [0.0; 3]),
             Side::Right => {
                 let mut rvec = Mat::default();
-                calib3d::rodrigues(&cv::mat(3, &self.r)?, &mut rvec, &mut core::no_array())?;
-                (cv::fixed::<3>(&rvec)?, self.t)
+                let pose = &self.right_from_left;
+                calib3d::rodrigues(
+                    &cv::mat(3, &pose.rotation_rows())?,
+                    &mut rvec,
+                    &mut core::no_array(),
+                )?;
+                (cv::fixed::<3>(&rvec)?, pose.translation_array())
             }
         };
         let flat: Vec<f64> = points.iter().flat_map(|p| [p.x, p.y, p.z]).collect();

@@ -1,7 +1,13 @@
 //! The calibration's checks: epipolar distance, coverage, the boards triangulated back,
 //! rectification, and the hand frame's axes from the reference pair.
 
-use super::*;
+use nalgebra::{Matrix3, Rotation3, Vector3};
+use opencv::calib3d;
+use opencv::core::{self, Mat, Size};
+
+use super::{BoardCheck, BoardSpec, CalibError, StereoFit};
+use crate::cv::{fixed, mat, points};
+use crate::stereo::Side;
 
 /// Corners as `f64`.
 fn wide(c: &[[f32; 2]]) -> Vec<[f64; 2]> {
@@ -13,7 +19,7 @@ fn wide(c: &[[f32; 2]]) -> Vec<[f64; 2]> {
 /// Mean distance (px) of each undistorted corner from the epipolar line of its partner, both
 /// ways.
 pub(super) fn epipolar_error(
-    rig: &Rig,
+    rig: &StereoFit,
     left: &[&[[f32; 2]]],
     right: &[&[[f32; 2]]],
 ) -> Result<f64, CalibError> {
@@ -48,7 +54,7 @@ pub(super) fn coverage(size: [i32; 2], views: &[&[[f32; 2]]]) -> f64 {
 /// Triangulates every used board and compares it with the printed one.
 pub(super) fn board_check(
     board: &BoardSpec,
-    rig: &Rig,
+    rig: &StereoFit,
     left: &[&[[f32; 2]]],
     right: &[&[[f32; 2]]],
 ) -> Result<BoardCheck, CalibError> {
@@ -88,7 +94,7 @@ pub(super) fn board_check(
 
 type Rectification = ([f64; 9], [f64; 9], [f64; 12], [f64; 12], [f64; 16]);
 
-pub(super) fn rectify(rig: &Rig, size: [i32; 2]) -> Result<Rectification, CalibError> {
+pub(super) fn rectify(rig: &StereoFit, size: [i32; 2]) -> Result<Rectification, CalibError> {
     let (mut r1, mut r2, mut p1, mut p2, mut q) = (
         Mat::default(),
         Mat::default(),
@@ -102,8 +108,8 @@ pub(super) fn rectify(rig: &Rig, size: [i32; 2]) -> Result<Rectification, CalibE
         &mat(3, &rig.cams.right.k)?,
         &mat(1, &rig.cams.right.dist)?,
         Size::new(size[0], size[1]),
-        &mat(3, &rig.cams.r)?,
-        &mat(3, &rig.cams.t)?,
+        &mat(3, &rig.cams.right_from_left.rotation_rows())?,
+        &mat(3, &rig.cams.right_from_left.translation_array())?,
         &mut r1,
         &mut r2,
         &mut p1,
@@ -127,9 +133,9 @@ pub(super) fn rectify(rig: &Rig, size: [i32; 2]) -> Result<Rectification, CalibE
 /// Left-camera → hand-frame rotation from the reference board's corners in the left image.
 pub(super) fn hand_axes(
     board: &BoardSpec,
-    rig: &Rig,
+    rig: &StereoFit,
     corners: &[[f32; 2]],
-) -> Result<[f64; 9], CalibError> {
+) -> Result<Rotation3<f64>, CalibError> {
     // Corners in the order that makes the board's x axis point to the image's right.
     let mut ordered = corners.to_vec();
     if corners[board.cols - 1][0] < corners[0][0] {
@@ -152,5 +158,5 @@ pub(super) fn hand_axes(
     // Board axes in the hand frame: x → x, y → −z, z → +y.
     let hand_from_board = Matrix3::new(1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, -1.0, 0.0);
     let hand_from_left = hand_from_board * left_from_board.transpose();
-    Ok(std::array::from_fn(|k| hand_from_left[(k / 3, k % 3)]))
+    Ok(Rotation3::from_matrix_unchecked(hand_from_left))
 }

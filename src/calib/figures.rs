@@ -4,7 +4,11 @@ use std::path::{Path, PathBuf};
 
 use crate::plot::{self as figures, LinePlot, Mark, Series};
 
-use super::*;
+use opencv::calib3d;
+use opencv::core::{self, Mat, Size, Vector};
+
+use super::{CalibError, PairReport, StereoCalibration};
+use crate::cv::mat;
 
 impl StereoCalibration {
     /// Writes `<stem>_pairs.png/.svg` (each used pair's left and right error, as bars) and

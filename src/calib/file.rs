@@ -25,15 +25,16 @@
 
 use std::path::{Path, PathBuf};
 
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::{Rotation3, Vector3};
 use opencv::core;
 use opencv::prelude::*;
 
 use super::{BoardSpec, CalibError, PairReport, StereoCalibration};
 use crate::cv;
+use crate::geometry::{rotation_from_rows, rotation_rows, HandFromLeft, Intrinsics, RightFromLeft};
 use crate::opencv_yaml::FileStorage;
 use crate::provenance::Provenance;
-use crate::stereo::{Intrinsics, StereoError, StereoRig};
+use crate::stereo::{StereoError, StereoRig};
 
 /// The board description's file name inside a calibration directory.
 pub const BOARD_FILE: &str = "board.yml";
@@ -62,7 +63,7 @@ pub struct CalibrationFile {
     pub path: PathBuf,
     pub rig: StereoRig,
     /// Left camera → hand axes (`R_hand`), when the calibration had a reference pair.
-    pub r_hand: Option<Matrix3<f64>>,
+    pub r_hand: Option<Rotation3<f64>>,
     /// The hand frame's translation (`t_hand`: p_hand = R_hand · p_left + t_hand), in files
     /// that know the origin (the synthetic truth, `triangulate`'s hand file).
     pub t_hand: Option<Vector3<f64>>,
@@ -79,8 +80,8 @@ pub fn write_rig<'a>(fs: &'a mut FileStorage, rig: &StereoRig) -> &'a mut FileSt
     .matrix("D1", 1, rig.left.dist.len(), &rig.left.dist)
     .matrix("K2", 3, 3, &rig.right.k)
     .matrix("D2", 1, rig.right.dist.len(), &rig.right.dist)
-    .matrix("R", 3, 3, &rig.r)
-    .matrix("T", 3, 1, &rig.t)
+    .matrix("R", 3, 3, &rig.right_from_left.rotation_rows())
+    .matrix("T", 3, 1, &rig.right_from_left.translation_array())
 }
 
 /// The calibration file `calibrate` writes (the keys in the module docs).
@@ -121,7 +122,7 @@ pub fn calibration_yaml(cal: &StereoCalibration, provenance: &Provenance) -> Str
         )
         .real("board_planarity_rms_mm", cal.board_check.planarity_rms_mm);
     if let Some(axes) = &cal.hand_axes {
-        fs.matrix("R_hand", 3, 3, axes);
+        fs.matrix("R_hand", 3, 3, &rotation_rows(axes));
     }
     fs.string("hand_axes", &cal.hand_axes_note)
         .string("handcap_version", &provenance.handcap_version)
@@ -190,16 +191,14 @@ fn board_from(source: &str, mode: i32, path: &Path) -> Result<BoardSpec, CalibEr
 
 /// The hand transform `triangulate` writes beside its dataset (`dataset_hand.yml`).
 pub fn hand_yaml(
-    r_hand: &Matrix3<f64>,
-    t_hand: &Vector3<f64>,
+    hand: &HandFromLeft,
     origin_left_mm: &[f64; 3],
     origin_pairs: usize,
     provenance: &Provenance,
 ) -> String {
-    let r: Vec<f64> = (0..9).map(|k| r_hand[(k / 3, k % 3)]).collect();
     let mut fs = FileStorage::new();
-    fs.matrix("R_hand", 3, 3, &r)
-        .matrix("t_hand", 3, 1, t_hand.as_slice())
+    fs.matrix("R_hand", 3, 3, &hand.rotation_rows())
+        .matrix("t_hand", 3, 1, &hand.translation_array())
         .matrix("origin_left_mm", 3, 1, origin_left_mm)
         .int("origin_pairs", origin_pairs as i64)
         .string(
@@ -303,13 +302,20 @@ pub fn read_calibration(path: &Path) -> Result<CalibrationFile, StereoError> {
             k: k("K2")?,
             dist: distortion("D2")?,
         },
-        r: required("R", 9)?.try_into().expect("nine values"),
-        t: required("T", 3)?.try_into().expect("three values"),
+        right_from_left: RightFromLeft::from_rows(
+            &required("R", 9)?.try_into().expect("nine values"),
+            required("T", 3)?.try_into().expect("three values"),
+        )
+        .map_err(|e| invalid(format!("R is {e}")))?,
     };
+    let r_hand = optional("R_hand", 9)?
+        .map(|v| rotation_from_rows(&v.try_into().expect("nine values")))
+        .transpose()
+        .map_err(|e| invalid(format!("R_hand is {e}")))?;
     Ok(CalibrationFile {
         path: path.to_path_buf(),
         rig,
-        r_hand: optional("R_hand", 9)?.map(|v| Matrix3::from_row_slice(&v)),
+        r_hand,
         t_hand: optional("t_hand", 3)?.map(|v| Vector3::from_row_slice(&v)),
     })
 }

@@ -36,15 +36,16 @@ pub mod pairs;
 
 use std::path::{Path, PathBuf};
 
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::{Matrix3, Rotation3, Vector3};
 use opencv::calib3d;
 use opencv::core::{self, Mat, Point2f, Point3f, Size, TermCriteria, Vector};
 use opencv::prelude::*;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::cv::{self, fixed, mat, points, values};
-use crate::stereo::{Intrinsics, Side, StereoRig};
+use crate::cv::{self, fixed, points, values};
+use crate::geometry::{relative, CamFromBoard, Intrinsics, RightFromLeft};
+use crate::stereo::StereoRig;
 use detect::Detector;
 use pairs::ImagePair;
 
@@ -189,7 +190,7 @@ pub struct BoardCheck {
 }
 
 /// A stereo calibration and its quality.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug)]
 pub struct StereoCalibration {
     pub board: BoardSpec,
     pub detector: Detector,
@@ -210,8 +211,8 @@ pub struct StereoCalibration {
     pub pairs: Vec<PairReport>,
     /// Images without a partner, skipped.
     pub unpaired: Vec<PathBuf>,
-    /// Left-camera → hand-frame rotation from the reference pair.
-    pub hand_axes: Option<[f64; 9]>,
+    /// Left-camera → hand-frame axes (p_hand = R_hand · p_left, up to the origin).
+    pub hand_axes: Option<Rotation3<f64>>,
     pub hand_axes_note: String,
 }
 
@@ -529,7 +530,7 @@ fn order_right_like_left(
 }
 
 /// The OpenCV results of one stereo calibration.
-struct Rig {
+struct StereoFit {
     cams: StereoRig,
     e: [f64; 9],
     f: [f64; 9],
@@ -541,15 +542,12 @@ fn criteria() -> Result<TermCriteria, CalibError> {
     Ok(cv::criteria(100, 1e-9)?)
 }
 
-/// A board pose: camera from board, rotation and translation (mm).
-type Pose = (Matrix3<f64>, Vector3<f64>);
-
 /// One camera calibrated alone: K, distortion, and each view's board pose.
 fn single_camera(
     board: &BoardSpec,
     size: [i32; 2],
     image: &Vector<Vector<Point2f>>,
-) -> Result<(Mat, Mat, Vec<Pose>), CalibError> {
+) -> Result<(Mat, Mat, Vec<CamFromBoard>), CalibError> {
     let object: Vector<Vector<Point3f>> = image.iter().map(|_| board.object_points()).collect();
     let (mut k, mut d) = (Mat::default(), Mat::default());
     let (mut rv, mut tv) = (Vector::<Mat>::new(), Vector::<Mat>::new());
@@ -570,8 +568,8 @@ fn single_camera(
         .map(|(r, t)| {
             let mut m = Mat::default();
             calib3d::rodrigues(&r, &mut m, &mut core::no_array())?;
-            Ok((
-                Matrix3::from_row_slice(&fixed::<9>(&m)?),
+            Ok(CamFromBoard::new(
+                Rotation3::from_matrix_unchecked(Matrix3::from_row_slice(&fixed::<9>(&m)?)),
                 Vector3::from_row_slice(&fixed::<3>(&t)?),
             ))
         })
@@ -591,31 +589,23 @@ fn inconsistent_pairs(
     let right: Vector<Vector<Point2f>> = usable.iter().map(|u| points(&u.right)).collect();
     let (_, _, pl) = single_camera(board, size, &left)?;
     let (_, _, pr) = single_camera(board, size, &right)?;
-    let relative: Vec<Pose> = pl
-        .iter()
-        .zip(&pr)
-        .map(|((rl, tl), (rr, tr))| {
-            let r = rr * rl.transpose();
-            (r, tr - r * tl)
-        })
-        .collect();
+    let between: Vec<_> = pl.iter().zip(&pr).map(|(l, r)| relative(l, r)).collect();
     let median = |k: usize| {
-        let mut v: Vec<f64> = relative.iter().map(|(_, t)| t[k]).collect();
+        let mut v: Vec<f64> = between.iter().map(|x| x.translation[k]).collect();
         crate::stats::upper_median(&mut v).expect("pairs")
     };
     let t_med = Vector3::new(median(0), median(1), median(2));
     // The reference rotation: the pair whose translation is nearest the median.
-    let reference = relative
+    let reference = between
         .iter()
-        .min_by(|a, b| (a.1 - t_med).norm().total_cmp(&(b.1 - t_med).norm()))
-        .map(|(r, _)| *r)
+        .map(|x| ((x.translation - t_med).norm(), x.rotation))
+        .min_by(|a, b| a.0.total_cmp(&b.0))
+        .map(|(_, rotation)| rotation)
         .expect("pairs");
     let mut out = Vec::new();
-    for (k, (r, t)) in relative.iter().enumerate() {
-        let angle = nalgebra::Rotation3::from_matrix_unchecked(r * reference.transpose())
-            .angle()
-            .to_degrees();
-        let off = (t - t_med).norm() / t_med.norm();
+    for (k, x) in between.iter().enumerate() {
+        let angle = (x.rotation * reference.inverse()).angle().to_degrees();
+        let off = (x.translation - t_med).norm() / t_med.norm();
         if angle > 2.0 || off > 0.10 {
             out.push((
                 k,
@@ -629,7 +619,7 @@ fn inconsistent_pairs(
     Ok(out)
 }
 
-fn stereo(board: &BoardSpec, size: [i32; 2], usable: &[Usable]) -> Result<Rig, CalibError> {
+fn stereo(board: &BoardSpec, size: [i32; 2], usable: &[Usable]) -> Result<StereoFit, CalibError> {
     let image_size = Size::new(size[0], size[1]);
     let object: Vector<Vector<Point3f>> = usable.iter().map(|_| board.object_points()).collect();
     let left: Vector<Vector<Point2f>> = usable.iter().map(|u| points(&u.left)).collect();
@@ -661,7 +651,7 @@ fn stereo(board: &BoardSpec, size: [i32; 2], usable: &[Usable]) -> Result<Rig, C
         criteria()?,
     )?;
     let errors = values(&per_view)?;
-    Ok(Rig {
+    Ok(StereoFit {
         cams: StereoRig {
             image_size: size,
             left: Intrinsics {
@@ -672,8 +662,10 @@ fn stereo(board: &BoardSpec, size: [i32; 2], usable: &[Usable]) -> Result<Rig, C
                 k: fixed(&k2)?,
                 dist: values(&d2)?,
             },
-            r: fixed(&r)?,
-            t: fixed(&t)?,
+            right_from_left: RightFromLeft::new(
+                Rotation3::from_matrix_unchecked(Matrix3::from_row_slice(&fixed::<9>(&r)?)),
+                Vector3::from(fixed::<3>(&t)?),
+            ),
         },
         e: fixed(&e)?,
         f: fixed(&f)?,

@@ -73,14 +73,13 @@ pub fn print_summary(done: &Calibrated) {
             _ => {}
         }
     }
-    let t = c.rig.t;
     println!(
         "RMS {:.3} px, epipolar {:.3} px, baseline {:.2} mm, f {:.1}/{:.1} px",
         c.rms_px,
         c.epipolar_px,
-        (t[0] * t[0] + t[1] * t[1] + t[2] * t[2]).sqrt(),
-        c.rig.left.k[0],
-        c.rig.right.k[0]
+        c.rig.right_from_left.translation.norm(),
+        c.rig.left.fx(),
+        c.rig.right.fx()
     );
     println!(
         "coverage {:.0} % / {:.0} % of the image; boards triangulate to {:.4} ± {:.4} squares, {:.3} mm off-plane RMS",

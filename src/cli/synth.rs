@@ -6,6 +6,7 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context};
 
+use handcap::calib::BoardSpec;
 use handcap::pipeline::synth;
 use handcap::synth::camera::RigConfig;
 use handcap::synth::capture::CaptureConfig;
@@ -42,7 +43,7 @@ pub struct Args {
     #[arg(long, default_value = "9x6", value_parser = parse_board)]
     board: (usize, usize),
     /// Chessboard square size (mm)
-    #[arg(long, default_value_t = CaptureConfig::default().square_mm)]
+    #[arg(long, default_value_t = CaptureConfig::default().board.square_mm)]
     square_mm: f64,
     /// Distance between the two cameras (mm)
     #[arg(long, default_value_t = RigConfig::default().baseline_mm)]
@@ -114,9 +115,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             ..RigConfig::default()
         },
         views: a.views,
-        board_cols: a.board.0,
-        board_rows: a.board.1,
-        square_mm: a.square_mm,
+        board: BoardSpec {
+            cols: a.board.0,
+            rows: a.board.1,
+            square_mm: a.square_mm,
+        },
         exposure_drift: a.exposure_drift,
         format: a.format.format(a.jpeg_quality),
         ..CaptureConfig::default()

@@ -189,11 +189,13 @@ pub fn run(
     let provenance = session.provenance(Some(config.seed));
     let mut timings: Vec<(String, f64)> = Vec::new();
     let mut clock = Instant::now();
-    let mut lap = |name: &str, timings: &mut Vec<(String, f64)>| {
+    // A stage's time, shown as it ends; recorded in `timings` by each stage before the
+    // report's (which ends after `summary.json` is written).
+    let mut lap = |name: &str| {
         let seconds = clock.elapsed().as_secs_f64();
         session.emit(Event::StageTime { name, seconds });
-        timings.push((name.to_string(), seconds));
         clock = Instant::now();
+        (name.to_string(), seconds)
     };
     let stage = |step: usize, text: String| session.emit(Event::Stage { step, of: 6, text });
 
@@ -224,7 +226,7 @@ pub fn run(
             "interrupted while rendering the capture; run the demo again".into(),
         ));
     }
-    lap("synth", &mut timings);
+    timings.push(lap("synth"));
 
     // 2. Calibration.
     stage(
@@ -245,7 +247,7 @@ pub fn run(
     let cal = &calibrated.calibration;
     let truth = read_calibration(&capture.join("truth/rig.yml"))?;
     let calibration = check_calibration(cal, &truth);
-    lap("calibrate", &mut timings);
+    timings.push(lap("calibrate"));
 
     // 3. Triangulation.
     stage(
@@ -269,7 +271,7 @@ pub fn run(
             t.phase, t.rms_mm, t.max_mm, t.rows
         )));
     }
-    lap("triangulate", &mut timings);
+    timings.push(lap("triangulate"));
 
     // 4. Models: from the triangulated data (the pipeline) and from the plant's own data.
     stage(
@@ -326,7 +328,7 @@ pub fn run(
     )?;
     let mut scores = scores_of("triangulated frames", &images);
     scores.extend(scores_of("the plant's data", &plant_data));
-    lap("model", &mut timings);
+    timings.push(lap("model"));
 
     // 5. Feed-forward: planned pressures run through the virtual plant.
     stage(
@@ -370,7 +372,7 @@ pub fn run(
             c.model, c.mean_mm, c.median_mm, c.p90_mm, c.max_mm, c.reached_by_model, c.targets
         )));
     }
-    lap("inverse", &mut timings);
+    timings.push(lap("inverse"));
 
     // 6. The report.
     stage(6, "report".into());
@@ -394,7 +396,7 @@ pub fn run(
     super::demo_report::page(out, &summary, tri, cal, &planned)
         .write(&index)
         .map_err(io_error(&index))?;
-    lap("report", &mut Vec::new());
+    lap("report");
     Ok(DemoOutcome { summary, index })
 }
 
@@ -502,7 +504,6 @@ fn write_inverse_csv(path: &Path, rows: &[PlannedTarget]) -> Result<(), Pipeline
 }
 
 fn check_calibration(cal: &StereoCalibration, truth: &CalibrationFile) -> CalibrationCheck {
-    use nalgebra::{Matrix3, Rotation3, Vector3};
     let t = &truth.rig;
     let mut intrinsics = 0.0f64;
     for (got, want) in [(&cal.rig.left.k, &t.left.k), (&cal.rig.right.k, &t.right.k)] {
@@ -510,27 +511,21 @@ fn check_calibration(cal: &StereoCalibration, truth: &CalibrationFile) -> Calibr
             intrinsics = intrinsics.max(100.0 * ((got[i] - want[i]) / want[i]).abs());
         }
     }
-    let (gt, tt) = (
-        Vector3::from_row_slice(&cal.rig.t),
-        Vector3::from_row_slice(&t.t),
-    );
-    let rot = |m: &[f64; 9]| Rotation3::from_matrix_unchecked(Matrix3::from_row_slice(m));
+    let (got, want) = (&cal.rig.right_from_left, &t.right_from_left);
+    let (gt, tt) = (got.translation, want.translation);
     CalibrationCheck {
         pairs_used: cal.used().count(),
         rms_px: cal.rms_px,
         epipolar_px: cal.epipolar_px,
         intrinsics_error_pct: intrinsics,
         baseline_error_pct: 100.0 * (gt.norm() - tt.norm()).abs() / tt.norm(),
-        rotation_error_deg: (rot(&cal.rig.r).inverse() * rot(&t.r)).angle().to_degrees(),
+        rotation_error_deg: (got.rotation.inverse() * want.rotation)
+            .angle()
+            .to_degrees(),
         hand_axes_error_deg: cal
             .hand_axes
-            .as_ref()
-            .zip(truth.r_hand.as_ref())
-            .map(|(g, w)| {
-                (rot(g).inverse() * Rotation3::from_matrix_unchecked(*w))
-                    .angle()
-                    .to_degrees()
-            }),
+            .zip(truth.r_hand)
+            .map(|(g, w)| (g.inverse() * w).angle().to_degrees()),
     }
 }
 

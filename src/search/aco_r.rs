@@ -51,6 +51,29 @@ impl Default for AcoR {
 }
 
 impl AcoR {
+    fn check(&self) -> Result<(), SearchError> {
+        if self.archive < 2 {
+            return invalid("archive", self.archive as f64, "must be at least 2");
+        }
+        if self.ants == 0 {
+            return invalid("ants", 0.0, "must be at least 1");
+        }
+        if self.budget < self.archive {
+            return invalid(
+                "budget",
+                self.budget as f64,
+                "must hold the archive's first fill",
+            );
+        }
+        if !(self.q > 0.0 && self.q.is_finite()) {
+            return invalid("q", self.q, "must be finite and > 0");
+        }
+        if !(self.xi > 0.0 && self.xi.is_finite()) {
+            return invalid("xi", self.xi, "must be finite and > 0");
+        }
+        Ok(())
+    }
+
     /// Runs the search on `objective` inside `space`.
     ///
     /// # Errors
@@ -63,19 +86,8 @@ impl AcoR {
         observer: &mut dyn Observer,
         interrupt: &AtomicBool,
     ) -> Result<SearchResult, SearchError> {
-        if self.archive < 2 {
-            return invalid("archive", self.archive as f64, "must be at least 2");
-        }
-        if self.ants == 0 || self.budget < self.archive {
-            return invalid(
-                "budget",
-                self.budget as f64,
-                "must hold the archive's first fill",
-            );
-        }
-        if !(self.q > 0.0 && self.xi > 0.0) {
-            return invalid("q, xi", self.q.min(self.xi), "must be > 0");
-        }
+        self.check()?;
+        space.check()?;
         let bounds = space.log_bounds();
         let mut rng = ChaCha8Rng::seed_from_u64(self.seed);
         let mut tracker = Tracker::new(observer, interrupt);

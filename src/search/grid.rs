@@ -47,13 +47,17 @@ impl Grid {
         observer: &mut dyn Observer,
         interrupt: &AtomicBool,
     ) -> Result<SearchResult, SearchError> {
-        if self.budget < 8 || self.batch == 0 {
+        if self.budget < 8 {
             return invalid(
                 "budget",
                 self.budget as f64,
                 "must be at least 8 (2 values per axis)",
             );
         }
+        if self.batch == 0 {
+            return invalid("batch", 0.0, "must be at least 1");
+        }
+        space.check()?;
         let k = self.per_axis();
         let axis = |(lo, hi): (f64, f64)| -> Vec<f64> {
             (0..k)

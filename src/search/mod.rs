@@ -206,6 +206,23 @@ pub struct SearchSpace {
 }
 
 impl SearchSpace {
+    /// Each axis a range 0 < lo ≤ hi of finite numbers (the searches work in logarithms).
+    ///
+    /// # Errors
+    /// [`SearchError::InvalidSetting`] naming the axis.
+    pub fn check(&self) -> Result<(), SearchError> {
+        for (name, (lo, hi)) in [
+            ("C", self.c),
+            ("epsilon", self.epsilon),
+            ("sigma", self.sigma),
+        ] {
+            if !(lo > 0.0 && lo <= hi && hi.is_finite()) {
+                return invalid(name, lo, "its search range must be 0 < low ≤ high, finite");
+            }
+        }
+        Ok(())
+    }
+
     /// (ln lo, ln hi) per axis, in the order C, ε, σ.
     fn log_bounds(&self) -> [(f64, f64); 3] {
         [self.c, self.epsilon, self.sigma].map(|(lo, hi)| (lo.ln(), hi.ln()))

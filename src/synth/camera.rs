@@ -17,119 +17,44 @@
 //! one webcam model and a hand-built rig differ.
 
 use nalgebra::{Matrix3, Point3, Rotation3, Unit, Vector3};
+
+use crate::geometry::{relative, CamFromWorld, Intrinsics, RightFromLeft};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
-/// Camera pose: p_cam = rotation · p_world + translation (mm).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct CamFromWorld {
-    pub rotation: Rotation3<f64>,
-    pub translation: Vector3<f64>,
-}
-
-impl CamFromWorld {
-    pub fn apply(&self, p: &Point3<f64>) -> Point3<f64> {
-        Point3::from(self.rotation * p.coords + self.translation)
-    }
-
-    /// The camera centre in world coordinates.
-    pub fn centre(&self) -> Point3<f64> {
-        Point3::from(-(self.rotation.inverse() * self.translation))
-    }
-
-    /// A camera at `eye` looking at `target`, with image-up as close to `up` as possible.
-    pub fn looking_at(eye: Point3<f64>, target: Point3<f64>, up: Vector3<f64>) -> Self {
-        let z = (target - eye).normalize();
-        let x = z.cross(&up).normalize(); // x = y × z with y ≈ −up
-        let y = z.cross(&x);
-        let rotation = Rotation3::from_matrix_unchecked(Matrix3::from_rows(&[
-            x.transpose(),
-            y.transpose(),
-            z.transpose(),
-        ]));
-        CamFromWorld {
-            rotation,
-            translation: -(rotation * eye.coords),
-        }
-    }
-}
-
-/// One camera: intrinsics, distortion, image size and pose.
+/// One virtual camera: image size, intrinsics and pose.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Camera {
     pub width: u32,
     pub height: u32,
-    pub fx: f64,
-    pub fy: f64,
-    pub cx: f64,
-    pub cy: f64,
-    /// k1, k2, p1, p2, k3 (OpenCV order).
-    pub dist: [f64; 5],
+    pub intrinsics: Intrinsics,
     pub pose: CamFromWorld,
 }
 
 impl Camera {
-    /// Camera matrix K, row-major.
-    pub fn k(&self) -> [f64; 9] {
-        [self.fx, 0.0, self.cx, 0.0, self.fy, self.cy, 0.0, 0.0, 1.0]
-    }
-
-    /// Normalised → distorted normalised coordinates.
-    pub fn distort(&self, x: f64, y: f64) -> (f64, f64) {
-        let [k1, k2, p1, p2, k3] = self.dist;
-        let r2 = x * x + y * y;
-        let radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3));
-        (
-            x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x),
-            y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y,
-        )
-    }
-
-    /// Pixel of a point in the camera frame; `None` behind the camera.
-    pub fn project_cam(&self, p: &Point3<f64>) -> Option<[f64; 2]> {
-        if p.z <= 1e-9 {
-            return None;
-        }
-        let (xd, yd) = self.distort(p.x / p.z, p.y / p.z);
-        Some([self.fx * xd + self.cx, self.fy * yd + self.cy])
-    }
-
     /// Pixel of a world point; `None` behind the camera.
     pub fn project(&self, p: &Point3<f64>) -> Option<[f64; 2]> {
-        self.project_cam(&self.pose.apply(p))
-    }
-
-    /// Normalised undistorted coordinates of a pixel: the inverse of [`Camera::distort`] by
-    /// Newton's method (to 1e-12; converges in a few steps for webcam-sized distortion).
-    pub fn undistort(&self, u: f64, v: f64) -> (f64, f64) {
-        let (xd, yd) = ((u - self.cx) / self.fx, (v - self.cy) / self.fy);
-        let (mut x, mut y) = (xd, yd);
-        for _ in 0..20 {
-            let (fx, fy) = self.distort(x, y);
-            let (rx, ry) = (fx - xd, fy - yd);
-            if rx.abs().max(ry.abs()) < 1e-13 {
-                break;
-            }
-            // Jacobian by central differences (the map is smooth and nearly the identity).
-            let h = 1e-7;
-            let (ax, ay) = self.distort(x + h, y);
-            let (bx, by) = self.distort(x - h, y);
-            let (cx, cy) = self.distort(x, y + h);
-            let (dx, dy) = self.distort(x, y - h);
-            let (j11, j21) = ((ax - bx) / (2.0 * h), (ay - by) / (2.0 * h));
-            let (j12, j22) = ((cx - dx) / (2.0 * h), (cy - dy) / (2.0 * h));
-            let det = j11 * j22 - j12 * j21;
-            x -= (j22 * rx - j12 * ry) / det;
-            y -= (j11 * ry - j21 * rx) / det;
-        }
-        (x, y)
+        self.intrinsics.pixel(&self.pose.apply(p))
     }
 
     /// World-space direction (unit) of the ray through normalised coordinates (x, y).
     pub fn ray_direction(&self, x: f64, y: f64) -> Unit<Vector3<f64>> {
         Unit::new_normalize(self.pose.rotation.inverse() * Vector3::new(x, y, 1.0))
     }
+}
+
+/// A camera at `eye` looking at `target`, with image-up as close to `up` as possible.
+pub fn looking_at(eye: Point3<f64>, target: Point3<f64>, up: Vector3<f64>) -> CamFromWorld {
+    let z = (target - eye).normalize();
+    let x = z.cross(&up).normalize(); // x = y × z with y ≈ −up
+    let y = z.cross(&x);
+    let rotation = Rotation3::from_matrix_unchecked(Matrix3::from_rows(&[
+        x.transpose(),
+        y.transpose(),
+        z.transpose(),
+    ]));
+    CamFromWorld::new(rotation, -(rotation * eye.coords))
 }
 
 /// The two cameras of a stereo pair.
@@ -141,29 +66,18 @@ pub struct Rig {
 
 impl Rig {
     /// The right camera's pose relative to the left: p_right = R p_left + T (OpenCV's R, T).
-    pub fn right_from_left(&self) -> CamFromWorld {
-        let (l, r) = (&self.left.pose, &self.right.pose);
-        let rotation = r.rotation * l.rotation.inverse();
-        CamFromWorld {
-            rotation,
-            translation: r.translation - rotation * l.translation,
-        }
+    pub fn right_from_left(&self) -> RightFromLeft {
+        let between = relative(&self.left.pose, &self.right.pose);
+        RightFromLeft::new(between.rotation, between.translation)
     }
 
     /// The rig as OpenCV describes it (what a perfect calibration would return).
     pub fn stereo(&self) -> crate::stereo::StereoRig {
-        let rl = self.right_from_left();
-        let r = rl.rotation.matrix();
-        let cam = |c: &Camera| crate::stereo::Intrinsics {
-            k: c.k(),
-            dist: c.dist.to_vec(),
-        };
         crate::stereo::StereoRig {
             image_size: [self.left.width as i32, self.left.height as i32],
-            left: cam(&self.left),
-            right: cam(&self.right),
-            r: std::array::from_fn(|k| r[(k / 3, k % 3)]),
-            t: rl.translation.into(),
+            left: self.left.intrinsics.clone(),
+            right: self.right.intrinsics.clone(),
+            right_from_left: self.right_from_left(),
         }
     }
 }
@@ -224,7 +138,7 @@ impl RigConfig {
             let eye = centre
                 + Vector3::new(side * self.baseline_mm / 2.0, 0.0, 0.0)
                 + Vector3::new(jitter(2.0), jitter(2.0), jitter(2.0));
-            let look = CamFromWorld::looking_at(eye, aim, rig_up);
+            let look = looking_at(eye, aim, rig_up);
             let tweak = Rotation3::from_euler_angles(
                 jitter(1f64.to_radians()),
                 jitter(1f64.to_radians()),
@@ -235,15 +149,14 @@ impl RigConfig {
             Camera {
                 width: self.width,
                 height: self.height,
-                fx: focal,
-                fy: focal * (1.0 + jitter(0.002)),
-                cx: f64::from(self.width) / 2.0 - 0.5 + jitter(8.0),
-                cy: f64::from(self.height) / 2.0 - 0.5 + jitter(8.0),
-                dist: self.dist.map(|d| d * (1.0 + jitter(0.15))),
-                pose: CamFromWorld {
-                    rotation,
-                    translation: -(rotation * eye.coords),
-                },
+                intrinsics: Intrinsics::new(
+                    focal,
+                    focal * (1.0 + jitter(0.002)),
+                    f64::from(self.width) / 2.0 - 0.5 + jitter(8.0),
+                    f64::from(self.height) / 2.0 - 0.5 + jitter(8.0),
+                    self.dist.map(|d| d * (1.0 + jitter(0.15))).to_vec(),
+                ),
+                pose: CamFromWorld::new(rotation, -(rotation * eye.coords)),
             }
         };
         let left = camera(-1.0);
@@ -257,23 +170,11 @@ mod tests {
     use super::*;
 
     #[test]
-    fn undistort_inverts_distort_across_the_image() {
-        let rig = RigConfig::default().build(1);
-        let cam = &rig.left;
-        for &(u, v) in &[(0.0, 0.0), (1279.0, 719.0), (640.0, 360.0), (100.0, 600.0)] {
-            let (x, y) = cam.undistort(u, v);
-            let (xd, yd) = cam.distort(x, y);
-            let (u2, v2) = (cam.fx * xd + cam.cx, cam.fy * yd + cam.cy);
-            assert!((u2 - u).abs() < 1e-9 && (v2 - v).abs() < 1e-9, "{u},{v}");
-        }
-    }
-
-    #[test]
     fn default_rig_is_a_converging_c920_pair() {
         let rig = RigConfig::default().build(2020);
         let aim = Point3::new(0.0, 0.0, 8.0);
         for cam in [&rig.left, &rig.right] {
-            assert!((cam.fx - 907.0).abs() < 15.0, "{}", cam.fx);
+            assert!((cam.intrinsics.fx() - 907.0).abs() < 15.0);
             // The aim point lands near the image centre.
             let [u, v] = cam.project(&aim).unwrap();
             assert!(

@@ -52,7 +52,9 @@ use super::camera::{Camera, Rig, RigConfig};
 use super::plant::{Plant, Pressures};
 use super::render::{Board, Finger, ImageFormat, Lighting, View};
 use super::{protocol, SynthConfig, SynthError};
+use crate::calib::BoardSpec;
 use crate::fsio;
+use crate::geometry::WorldFromBoard;
 use crate::opencv_yaml::FileStorage;
 use crate::stereo::Side;
 
@@ -62,10 +64,8 @@ pub struct CaptureConfig {
     pub rig: RigConfig,
     /// Chessboard pairs for calibration (besides the reference pair).
     pub views: usize,
-    /// Inner corners along a row and down a column.
-    pub board_cols: usize,
-    pub board_rows: usize,
-    pub square_mm: f64,
+    /// The printed board.
+    pub board: BoardSpec,
     pub step_s: f64,
     /// Frames are kept when stamped in [start, end) seconds after their step's command.
     pub window_s: [f64; 2],
@@ -81,9 +81,7 @@ impl Default for CaptureConfig {
         CaptureConfig {
             rig: RigConfig::default(),
             views: 20,
-            board_cols: 9,
-            board_rows: 6,
-            square_mm: 10.0,
+            board: crate::calib::file::default_board(),
             step_s: 0.3,
             window_s: [0.10, 0.20],
             fps: 30.0,
@@ -149,7 +147,7 @@ pub fn write_capture(
     progress: &(dyn Fn(usize, usize) + Sync),
     interrupt: &AtomicBool,
 ) -> Result<CaptureSummary, SynthError> {
-    check(config)?;
+    config.check()?;
     let rig = config.rig.build(synth.seed);
     let plant = Plant::new(synth.plant.clone());
     // Separate streams, so that the board count does not change the clocks.
@@ -171,11 +169,7 @@ pub fn write_capture(
     }
     write_text(
         &dir.join("calib").join(crate::calib::file::BOARD_FILE),
-        &crate::calib::file::board_yaml(&crate::calib::BoardSpec {
-            cols: config.board_cols,
-            rows: config.board_rows,
-            square_mm: config.square_mm,
-        }),
+        &crate::calib::file::board_yaml(&config.board),
     )?;
     write_text(&dir.join("truth/rig.yml"), &rig_yaml(&rig, provenance))?;
     write_text(
@@ -284,26 +278,31 @@ pub fn write_capture(
     })
 }
 
-fn check(c: &CaptureConfig) -> Result<(), SynthError> {
-    let bad = |what: &str| Err(SynthError::BadCapture(what.to_string()));
-    if c.views < 3 {
-        return bad("at least 3 board views are needed");
+impl CaptureConfig {
+    /// # Errors
+    /// [`SynthError::BadCapture`] saying which rule the settings break.
+    pub fn check(&self) -> Result<(), SynthError> {
+        let c = self;
+        let bad = |what: &str| Err(SynthError::BadCapture(what.to_string()));
+        if c.views < 3 {
+            return bad("at least 3 board views are needed");
+        }
+        if let Err(e) = c.board.check() {
+            return bad(&e.to_string());
+        }
+        if !(c.board.square_mm > 1.0 && c.board.square_mm < 40.0) {
+            return bad("square size must lie between 1 and 40 mm");
+        }
+        if !(c.fps > 1.0 && c.step_s > 0.0 && c.window_s[0] >= 0.0 && c.window_s[1] > c.window_s[0])
+            || c.window_s[1] > c.step_s
+        {
+            return bad("the capture window must lie inside a step and the frame rate be positive");
+        }
+        if !(c.exposure_drift >= 0.0 && c.exposure_drift < 0.5) {
+            return bad("exposure drift must lie in [0, 0.5)");
+        }
+        Ok(())
     }
-    if c.board_cols < 3 || c.board_rows < 3 || c.board_cols == c.board_rows {
-        return bad("the board needs at least 3 × 3 inner corners, and different counts along its sides (so its orientation is unambiguous)");
-    }
-    if !(c.square_mm > 1.0 && c.square_mm < 40.0) {
-        return bad("square size must lie between 1 and 40 mm");
-    }
-    if !(c.fps > 1.0 && c.step_s > 0.0 && c.window_s[0] >= 0.0 && c.window_s[1] > c.window_s[0])
-        || c.window_s[1] > c.step_s
-    {
-        return bad("the capture window must lie inside a step and the frame rate be positive");
-    }
-    if !(c.exposure_drift >= 0.0 && c.exposure_drift < 0.5) {
-        return bad("exposure drift must lie in [0, 0.5)");
-    }
-    Ok(())
 }
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> SynthError {
@@ -317,8 +316,8 @@ fn write_text(path: &Path, text: &str) -> Result<(), SynthError> {
 
 /// The board at the finger's base that fixes the hand frame's axes (module docs).
 fn reference_board(c: &CaptureConfig) -> Board {
-    let s = c.square_mm;
-    let (wide, tall) = ((c.board_cols - 1) as f64 * s, (c.board_rows - 1) as f64 * s);
+    let s = c.board.square_mm;
+    let (wide, tall) = ((c.board.cols - 1) as f64 * s, (c.board.rows - 1) as f64 * s);
     // Columns x, y, z of board → hand: x = hand x, y = hand −z, z = hand +y.
     let rotation = Rotation3::from_matrix_unchecked(Matrix3::new(
         1.0, 0.0, 0.0, //
@@ -326,11 +325,8 @@ fn reference_board(c: &CaptureConfig) -> Board {
         0.0, -1.0, 0.0,
     ));
     Board {
-        cols: c.board_cols,
-        rows: c.board_rows,
-        square_mm: s,
-        origin: Point3::new(-wide / 2.0, 5.0, 25.0 + tall / 2.0),
-        rotation,
+        spec: c.board,
+        pose: WorldFromBoard::new(rotation, Vector3::new(-wide / 2.0, 5.0, 25.0 + tall / 2.0)),
     }
 }
 
@@ -341,10 +337,10 @@ fn board_poses(
     rig: &Rig,
     rng: &mut ChaCha8Rng,
 ) -> Result<Vec<Board>, SynthError> {
-    let s = c.square_mm;
+    let s = c.board.square_mm;
     let half = Vector3::new(
-        (c.board_cols - 1) as f64 * s / 2.0,
-        (c.board_rows - 1) as f64 * s / 2.0,
+        (c.board.cols - 1) as f64 * s / 2.0,
+        (c.board.rows - 1) as f64 * s / 2.0,
         0.0,
     );
     let eye = Point3::from((rig.left.pose.centre().coords + rig.right.pose.centre().coords) / 2.0);
@@ -378,11 +374,8 @@ fn board_poses(
         );
         let rotation = tilt * spin * facing;
         let board = Board {
-            cols: c.board_cols,
-            rows: c.board_rows,
-            square_mm: s,
-            origin: centre - rotation * half,
-            rotation,
+            spec: c.board,
+            pose: WorldFromBoard::new(rotation, (centre - rotation * half).coords),
         };
         if fully_visible(&board, rig) {
             boards.push(board);
@@ -400,9 +393,9 @@ fn board_poses(
 
 /// The whole paper inside both images (15 px margin), seen from its front at under 70°.
 fn fully_visible(board: &Board, rig: &Rig) -> bool {
-    let normal = board.rotation * Vector3::z();
+    let normal = board.pose.rotation * Vector3::z();
     [&rig.left, &rig.right].iter().all(|cam| {
-        let view = (board.origin - cam.pose.centre()).normalize();
+        let view = (Point3::from(board.pose.translation) - cam.pose.centre()).normalize();
         if view.dot(&normal) < 70f64.to_radians().cos() {
             return false;
         }
@@ -477,14 +470,14 @@ fn mat3(m: &Matrix3<f64>) -> Vec<f64> {
 
 fn rig_yaml(rig: &Rig, provenance: &crate::provenance::Provenance) -> String {
     let cams = rig.stereo();
-    let hand_r = rig.left.pose.rotation.inverse();
-    let hand_t = rig.left.pose.centre().coords;
+    // The virtual world is the hand frame: the left camera's pose inverted.
+    let hand_from_left = rig.left.pose.inverse();
     let mut fs = FileStorage::new();
     crate::calib::file::write_rig(&mut fs, &cams)
         .matrix("E", 3, 3, &mat3(&cams.essential()))
         .matrix("F", 3, 3, &mat3(&cams.fundamental()))
-        .matrix("R_hand", 3, 3, &mat3(hand_r.matrix()))
-        .matrix("t_hand", 3, 1, hand_t.as_slice())
+        .matrix("R_hand", 3, 3, &hand_from_left.rotation_rows())
+        .matrix("t_hand", 3, 1, &hand_from_left.translation_array())
         .string("handcap_version", &provenance.handcap_version)
         .string("command", &provenance.command.join(" "));
     if let Some(seed) = provenance.seed {
@@ -501,9 +494,11 @@ fn boards_csv(rig: &Rig, boards: &[Board], reference: &Board) -> String {
         .map(|(k, b)| (format!("{k:02}"), b))
         .chain(std::iter::once(("ref".to_string(), reference)));
     for (name, b) in named {
-        let rotation = rig.left.pose.rotation * b.rotation;
-        let t = rig.left.pose.apply(&b.origin);
-        let r = rotation.scaled_axis();
+        let left_from_board = b.pose.then(&rig.left.pose);
+        let (r, t) = (
+            left_from_board.rotation.scaled_axis(),
+            left_from_board.translation,
+        );
         out += &format!("{name},{},{},{},{},{},{}\n", r.x, r.y, r.z, t.x, t.y, t.z);
     }
     out
@@ -576,4 +571,82 @@ fn truth_frames(
         );
     }
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_capture_rule_is_checked() {
+        let ok = CaptureConfig::default();
+        assert!(ok.check().is_ok());
+        let board = |cols, rows, square_mm| BoardSpec {
+            cols,
+            rows,
+            square_mm,
+        };
+        let cases = [
+            (
+                CaptureConfig {
+                    views: 2,
+                    ..ok.clone()
+                },
+                "board views",
+            ),
+            (
+                CaptureConfig {
+                    board: board(2, 6, 10.0),
+                    ..ok.clone()
+                },
+                "at least 3",
+            ),
+            (
+                CaptureConfig {
+                    board: board(7, 7, 10.0),
+                    ..ok.clone()
+                },
+                "no orientation",
+            ),
+            (
+                CaptureConfig {
+                    board: board(9, 6, 45.0),
+                    ..ok.clone()
+                },
+                "between 1 and 40",
+            ),
+            (
+                CaptureConfig {
+                    fps: 0.5,
+                    ..ok.clone()
+                },
+                "frame rate",
+            ),
+            (
+                CaptureConfig {
+                    window_s: [0.2, 0.1],
+                    ..ok.clone()
+                },
+                "window",
+            ),
+            (
+                CaptureConfig {
+                    window_s: [0.1, 0.4],
+                    ..ok.clone()
+                },
+                "window",
+            ),
+            (
+                CaptureConfig {
+                    exposure_drift: 0.5,
+                    ..ok.clone()
+                },
+                "exposure drift",
+            ),
+        ];
+        for (config, says) in cases {
+            let err = config.check().unwrap_err().to_string();
+            assert!(err.contains(says), "{err}");
+        }
+    }
 }

@@ -192,7 +192,7 @@ impl View {
             .into_par_iter()
             .map(|k| {
                 let (i, j) = (k % (w + 1), k / (w + 1));
-                let (x, y) = camera.undistort(i as f64 - 0.5, j as f64 - 0.5);
+                let (x, y) = camera.intrinsics.undistort(i as f64 - 0.5, j as f64 - 0.5);
                 [x, y]
             })
             .collect();
@@ -255,8 +255,8 @@ impl View {
         let (w, h) = (self.width(), self.height());
         canvas.detail = Some((0, 0, w - 1, h - 1));
         // The board in camera coordinates: a ray (x, y, 1) meets its plane at t = n·o / n·ray.
-        let to_cam = self.camera.pose.rotation * board.rotation;
-        let origin = self.camera.pose.apply(&board.origin).coords;
+        let cam_from_board = board.pose.then(&self.camera.pose);
+        let (to_cam, origin) = (cam_from_board.rotation, cam_from_board.translation);
         let normal = to_cam * Vector3::z();
         let reach = normal.dot(&origin);
         let cell_of = |[x, y]: [f64; 2]| -> Option<(i64, i64)> {
@@ -376,7 +376,7 @@ impl View {
                             (finger.axis[k], finger.axis[k + 1], FINGER_RADIUS_MM)
                         };
                         let (gap, depth) = ray_segment_gap(&self.eye, &centre, &a, &b);
-                        gap <= r + 1.2 * depth.max(0.0) / self.camera.fx
+                        gap <= r + 1.2 * depth.max(0.0) / self.camera.intrinsics.fx()
                     };
                     pieces.clear();
                     pieces.extend(
@@ -432,7 +432,7 @@ impl View {
             if depth <= 0.0 {
                 return None;
             }
-            let r = radius * self.camera.fx / depth * 1.5 + 2.0;
+            let r = radius * self.camera.intrinsics.fx() / depth * 1.5 + 2.0;
             b = [
                 b[0].min(u - r),
                 b[1].min(v - r),
@@ -546,8 +546,11 @@ mod tests {
         for &(i, j) in &[(0, 0), (1279, 719), (640, 360), (30, 700), (1200, 15)] {
             for &(a, b) in &[(0.125, 0.125), (0.625, 0.875), (0.375, 0.5)] {
                 let [x, y] = view.sample(i, j, a, b);
-                let (ex, ey) = rig.left.undistort(i as f64 - 0.5 + a, j as f64 - 0.5 + b);
-                worst = worst.max((x - ex).abs().max((y - ey).abs()) * rig.left.fx);
+                let (ex, ey) = rig
+                    .left
+                    .intrinsics
+                    .undistort(i as f64 - 0.5 + a, j as f64 - 0.5 + b);
+                worst = worst.max((x - ex).abs().max((y - ey).abs()) * rig.left.intrinsics.fx());
             }
         }
         assert!(worst < 2e-4, "interpolation error {worst} px");

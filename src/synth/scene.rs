@@ -4,33 +4,32 @@
 
 use nalgebra::{Point3, Vector3};
 
+use crate::calib::BoardSpec;
+use crate::geometry::WorldFromBoard;
+
 use super::render::{BEAD, BEAD_RADIUS_MM, FINGER_RADIUS_MM, INK, PAPER, SILICONE};
 
 /// A printed chessboard placed in the world.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Board {
-    /// Inner corners along the board's x and y.
-    pub cols: usize,
-    pub rows: usize,
-    pub square_mm: f64,
-    /// World position of the first inner corner (the board frame's origin).
-    pub origin: Point3<f64>,
-    /// Board frame → world: x along a row of corners, y down the columns, z into the board.
-    pub rotation: nalgebra::Rotation3<f64>,
+    pub spec: BoardSpec,
+    /// Board frame → world: the origin at the first inner corner, x along a row of corners,
+    /// y down the columns, z into the board.
+    pub pose: WorldFromBoard,
 }
 
 impl Board {
     /// The square-sized cell holding board coordinates (mm): cell (0, 0) has the first inner
     /// corner at its top-left. Squares, margin and paper edge all follow cell boundaries.
     pub(super) fn cell(&self, x: f64, y: f64) -> (i64, i64) {
-        let s = self.square_mm;
+        let s = self.spec.square_mm;
         ((x / s).floor() as i64, (y / s).floor() as i64)
     }
 
     /// Albedo of a cell; `None` off the paper. The squares span cells −1 … n − 1 (n inner
     /// corners), the one-square white margin around them is paper too.
     pub(super) fn albedo(&self, (cx, cy): (i64, i64)) -> Option<[f64; 3]> {
-        let (cols, rows) = (self.cols as i64, self.rows as i64);
+        let (cols, rows) = (self.spec.cols as i64, self.spec.rows as i64);
         if !(-2..=cols).contains(&cx) || !(-2..=rows).contains(&cy) {
             return None;
         }
@@ -44,23 +43,27 @@ impl Board {
 
     /// World positions of the inner corners, row by row (OpenCV's object point order).
     pub fn corners(&self) -> Vec<Point3<f64>> {
-        (0..self.rows)
-            .flat_map(|j| (0..self.cols).map(move |i| (i, j)))
-            .map(|(i, j)| {
-                self.origin
-                    + self.rotation
-                        * Vector3::new(i as f64 * self.square_mm, j as f64 * self.square_mm, 0.0)
-            })
+        let s = self.spec.square_mm;
+        (0..self.spec.rows)
+            .flat_map(|j| (0..self.spec.cols).map(move |i| (i, j)))
+            .map(|(i, j)| self.at(i as f64 * s, j as f64 * s))
             .collect()
     }
 
     /// World positions of the paper's four outer corners.
     pub fn paper_corners(&self) -> [Point3<f64>; 4] {
-        let s = self.square_mm;
+        let s = self.spec.square_mm;
         let (x0, y0) = (-2.0 * s, -2.0 * s);
-        let (x1, y1) = ((self.cols + 1) as f64 * s, (self.rows + 1) as f64 * s);
-        [(x0, y0), (x1, y0), (x1, y1), (x0, y1)]
-            .map(|(x, y)| self.origin + self.rotation * Vector3::new(x, y, 0.0))
+        let (x1, y1) = (
+            (self.spec.cols + 1) as f64 * s,
+            (self.spec.rows + 1) as f64 * s,
+        );
+        [(x0, y0), (x1, y0), (x1, y1), (x0, y1)].map(|(x, y)| self.at(x, y))
+    }
+
+    /// World position of board point (x, y) mm.
+    fn at(&self, x: f64, y: f64) -> Point3<f64> {
+        Point3::from(self.pose.translation) + self.pose.rotation * Vector3::new(x, y, 0.0)
     }
 }
 

@@ -35,7 +35,9 @@ pub mod pairing;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::Vector3;
+
+use crate::geometry::HandFromLeft;
 use rayon::prelude::*;
 use serde::Serialize;
 
@@ -260,9 +262,8 @@ pub struct Triangulation {
     pub rows: Vec<Row>,
     pub pairs: Vec<PairRecord>,
     pub summary: Summary,
-    /// Hand from left camera: p_hand = r_hand · p_left + t_hand.
-    pub r_hand: Matrix3<f64>,
-    pub t_hand: Vector3<f64>,
+    /// p_hand = R_hand · p_left + t_hand, the origin at the median zero-pressure tip.
+    pub hand_from_left: HandFromLeft,
     /// Names of the log's other columns, copied into each row.
     pub extra_columns: Vec<String>,
     pub options: TriangulateOptions,
@@ -440,7 +441,7 @@ pub fn triangulate(
             / at_zero.len() as f64)
             .sqrt(),
     };
-    let t_hand = -(r_hand * origin);
+    let hand_from_left = HandFromLeft::new(r_hand, -(r_hand * origin));
 
     // 6. One row per step.
     let mut rows = Vec::new();
@@ -452,7 +453,11 @@ pub fn triangulate(
         }
         let tips: Vec<Vector3<f64>> = step_pairs
             .iter()
-            .map(|p| r_hand * p.point_left_mm.expect("used") + t_hand)
+            .map(|p| {
+                hand_from_left
+                    .apply(&p.point_left_mm.expect("used").into())
+                    .coords
+            })
             .collect();
         rows.push(Row {
             step: k,
@@ -478,8 +483,7 @@ pub fn triangulate(
         rows,
         pairs,
         summary,
-        r_hand,
-        t_hand,
+        hand_from_left,
         extra_columns: log.extra_columns.clone(),
         options: options.clone(),
     })
@@ -596,8 +600,7 @@ fn locate(
         rig.project(Side::Left, &points)?,
         rig.project(Side::Right, &points)?,
     );
-    let rot = rig.rotation();
-    let t = Vector3::from_row_slice(&rig.t);
+    let right_from_left = &rig.right_from_left;
     let dist = |p: [f64; 2], q: [f64; 2]| (p[0] - q[0]).hypot(p[1] - q[1]);
     let consistent: Vec<(usize, f64)> = combos
         .iter()
@@ -605,7 +608,7 @@ fn locate(
         .map(|(k, &(i, j))| (k, dist(pl[k], cl[i]).max(dist(pr[k], cr[j]))))
         .filter(|&(k, err)| {
             let p = points[k];
-            err <= options.max_reproj_px && p.z > 0.0 && (rot * p + t).z > 0.0
+            err <= options.max_reproj_px && p.z > 0.0 && right_from_left.apply(&p.into()).z > 0.0
         })
         .collect();
     record.candidates = combos.len();

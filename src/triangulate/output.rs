@@ -6,7 +6,7 @@
 //! - `OUT_<phase>.csv`: the same rows split by the log's `phase` column, when it has one.
 //! - `OUT_pairs.csv`: every frame pair, what became of it and its tip (hand frame).
 //! - `OUT_hand.yml`: the hand frame (OpenCV YAML): `R_hand`, `t_hand` (p_hand = R_hand · p_left
-//!   + t_hand), `origin_left_mm`.
+//!   + t_hand, [`crate::geometry::HandFromLeft`]), `origin_left_mm`.
 //! - `OUT_summary.json`: the counts, the options, provenance.
 //! - `OUT_detections.png`: a few pairs, cropped around the tip: the detected centroid (green
 //!   cross), the reprojected tip (magenta circle), and where the crop is in the left frame.
@@ -88,7 +88,9 @@ impl Triangulation {
             |v: Option<f64>, digits: usize| v.map_or(String::new(), |v| format!("{v:.digits$}"));
         for p in &self.pairs {
             let c = p.centres_px;
-            let tip = p.point_left_mm.map(|q| self.r_hand * q + self.t_hand);
+            let tip = p
+                .point_left_mm
+                .map(|q| self.hand_from_left.apply(&q.into()));
             let _ = writeln!(
                 out,
                 "{},{},{:.6},{:.6},{},{},{},{},{},{},{},{},{},{},{}",
@@ -114,8 +116,7 @@ impl Triangulation {
 
     fn hand_yaml(&self, provenance: &Provenance) -> String {
         crate::calib::file::hand_yaml(
-            &self.r_hand,
-            &self.t_hand,
+            &self.hand_from_left,
             &self.summary.origin.left_mm,
             self.summary.origin.pairs,
             provenance,

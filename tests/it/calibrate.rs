@@ -261,10 +261,10 @@ fn the_repository_calib_folder_stays_valid() {
     let example = root.join("example_calib.yml");
     let cal = read_calibration(&example).unwrap();
     assert_eq!(cal.rig.image_size, [1280, 720]);
-    let baseline = cal.rig.t.iter().map(|v| v * v).sum::<f64>().sqrt();
+    let baseline = cal.rig.right_from_left.translation.norm();
     // The virtual rig: 60 mm apart, each camera mounted within ±2 mm.
     assert!((baseline - 60.0).abs() < 5.0, "baseline {baseline} mm");
-    let r = cal.r_hand.expect("R_hand");
+    let r = cal.r_hand.expect("R_hand").into_inner();
     assert!((r * r.transpose() - nalgebra::Matrix3::identity()).norm() < 1e-9);
     // Every key is explained by a comment just above it.
     let text = std::fs::read_to_string(&example).unwrap();
@@ -276,5 +276,27 @@ fn the_repository_calib_folder_stays_valid() {
                 "key without a comment: {line}"
             );
         }
+    }
+}
+
+/// Each rule of a board description refuses its value with a line saying what to give.
+#[test]
+fn every_board_rule_is_checked() {
+    use handcap::calib::BoardSpec;
+    let board = |cols, rows, square_mm| BoardSpec {
+        cols,
+        rows,
+        square_mm,
+    };
+    assert!(board(9, 6, 10.0).check().is_ok());
+    for (bad, says) in [
+        (board(2, 6, 10.0), "at least 3"),
+        (board(9, 2, 10.0), "at least 3"),
+        (board(7, 7, 10.0), "no orientation"),
+        (board(9, 6, 0.0), "square size"),
+        (board(9, 6, f64::NAN), "square size"),
+    ] {
+        let err = bad.check().unwrap_err().to_string();
+        assert!(err.contains(says), "{bad:?}: {err}");
     }
 }

@@ -1,15 +1,83 @@
 //! The contract every model passes (after scikit-learn's `check_estimator`): shapes and names,
-//! determinism, finite outputs, a clear error on the wrong inputs.
+//! determinism, finite outputs, a clear error on the wrong inputs, constant targets, and for
+//! models a file can hold, the same predictions after a save and a load.
 
 use handcap::data::{Columns, Dataset};
+use handcap::model::file::{ModelFile, StoredModel};
 use handcap::model::msvr::MsvrParams;
 use handcap::model::previous::{self, PreviousModel};
 use handcap::model::{ModelError, Predict};
+use handcap::provenance::Provenance;
 use handcap::search::aco_paper::PAPER_TABLE2;
 use handcap::synth::{self, SynthConfig};
 
+use crate::common::tempdir;
+
+/// A fitted model, and its stored form when it is a kind a model file holds.
+type Fitted = (Box<dyn Predict>, Option<StoredModel>);
+
+/// What a model can represent: a learner any smooth function (so a constant), a physics model
+/// only the shapes its equations allow.
+#[derive(Clone, Copy, PartialEq)]
+pub enum Kind {
+    Learner,
+    Physics,
+}
+
+/// Fits with `fit` on `train` and checks the result, then checks the stored form's round trip
+/// and a fit on constant targets.
+pub fn check_regressor(
+    fit: &dyn Fn(&Dataset) -> Result<Fitted, String>,
+    kind: Kind,
+    train: &Dataset,
+) {
+    let (model, stored) = fit(train).expect("fits the training data");
+    check_fitted(model.as_ref(), train);
+
+    if let Some(stored) = stored {
+        let dir = tempdir();
+        let path = dir.path().join("model.json");
+        ModelFile::new(stored, None, Provenance::new(vec!["contract".into()], None))
+            .save(&path)
+            .unwrap();
+        let StoredModel::Msvr(loaded) = ModelFile::load(&path).unwrap().model;
+        assert_eq!(
+            loaded.predict(&train.inputs).unwrap(),
+            model.predict(&train.inputs).unwrap(),
+            "a saved and loaded model predicts other values"
+        );
+    }
+
+    // Constant targets (a stuck sensor, an output that never moved): the fit fails with an
+    // error or gives finite predictions, a learner's the constant itself; never a panic or a NaN.
+    let mut constant = train.clone();
+    let width = constant.outputs.width();
+    for (k, v) in constant.outputs.values.iter_mut().enumerate() {
+        *v = 1.5 + (k % width) as f64;
+    }
+    let flat = fit(&constant);
+    assert!(
+        kind == Kind::Physics || flat.is_ok(),
+        "a learner fails on constant targets: {:?}",
+        flat.as_ref().err()
+    );
+    if let Ok((flat, _)) = flat {
+        let pred = flat.predict(&constant.inputs).unwrap();
+        for (k, v) in pred.values.iter().enumerate() {
+            let want = 1.5 + (k % width) as f64;
+            assert!(v.is_finite(), "constant target {want}, predicted {v}");
+            if kind == Kind::Learner {
+                assert!(
+                    (v - want).abs() < 1e-6,
+                    "constant target {want}, predicted {v}"
+                );
+            }
+        }
+    }
+}
+
 /// Checks a fitted model against the dataset it was fitted on.
-pub fn check_regressor(model: &dyn Predict, train: &Dataset) {
+fn check_fitted(model: &dyn Predict, train: &Dataset) {
     assert_eq!(model.inputs(), train.inputs.names.as_slice());
     assert_eq!(model.outputs(), train.outputs.names.as_slice());
 
@@ -72,19 +140,31 @@ fn training_data() -> Dataset {
 fn previous_model_passes_the_contract_in_both_variants() {
     let train = training_data();
     let default = PreviousModel::with_defaults();
-    check_regressor(&default, &train);
-    let (calibrated, _) = previous::calibrate(&train, &default.params).unwrap();
-    check_regressor(&calibrated, &train);
+    check_fitted(&default, &train);
+    check_regressor(
+        &|data| {
+            let (calibrated, _) =
+                previous::calibrate(data, &default.params).map_err(|e| e.to_string())?;
+            Ok((Box::new(calibrated), None))
+        },
+        Kind::Physics,
+        &train,
+    );
 }
 
 #[test]
 fn msvr_passes_the_contract() {
     let train = training_data();
-    let model = MsvrParams::default()
+    let params = MsvrParams::default()
         .with_hyper(PAPER_TABLE2)
         .check()
-        .unwrap()
-        .fit(&train)
         .unwrap();
-    check_regressor(&model, &train);
+    check_regressor(
+        &|data| {
+            let model = params.fit(data).map_err(|e| e.to_string())?;
+            Ok((Box::new(model.clone()), Some(StoredModel::Msvr(model))))
+        },
+        Kind::Learner,
+        &train,
+    );
 }

@@ -5,6 +5,7 @@ mod cli;
 mod common;
 mod contract;
 mod data;
+mod geometry;
 mod images;
 mod msvr;
 mod pipeline;

@@ -519,7 +519,17 @@ fn invalid_parameters_are_named() {
         (MsvrParams::new(0.0, 0.1, 1.0), "C"),
         (MsvrParams::new(1.0, -0.1, 1.0), "epsilon"),
         (MsvrParams::new(1.0, 0.1, f64::NAN), "sigma"),
+        (MsvrParams::new(f64::INFINITY, 0.1, 1.0), "C"),
+        (MsvrParams::new(1.0, f64::INFINITY, 1.0), "epsilon"),
+        (MsvrParams::new(1.0, 0.1, 0.0), "sigma"),
         (MsvrParams::new(1.0, 0.1, 1.0).max_iter(0), "max_iter"),
+        (
+            MsvrParams {
+                tol: 1.0,
+                ..MsvrParams::new(1.0, 0.1, 1.0)
+            },
+            "tol",
+        ),
     ] {
         let err = params.check().unwrap_err().to_string();
         assert!(err.starts_with(name), "{err}");

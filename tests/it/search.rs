@@ -323,3 +323,87 @@ fn grouped_folds_hold_out_whole_groups() {
     .unwrap();
     assert!(err.to_string().contains("6 groups"), "{err}");
 }
+
+/// Every setting rule of every search, and of the box, refuses its value and names it.
+#[test]
+fn every_search_setting_rule_is_checked_and_named() {
+    use handcap::search::{Method, Search, SearchError};
+    let paper = AcoPaper::default();
+    let aco_r = AcoR::default();
+    let grid = Grid::default();
+    let cases = [
+        (Method::AcoPaper(AcoPaper { ants: 0, ..paper }), "ants"),
+        (Method::AcoPaper(AcoPaper { rho: 1.0, ..paper }), "rho"),
+        (Method::AcoPaper(AcoPaper { tau0: 0.0, ..paper }), "tau0"),
+        (
+            Method::AcoPaper(AcoPaper {
+                max_iter: 0,
+                ..paper
+            }),
+            "max_iter",
+        ),
+        (
+            Method::AcoR(AcoR {
+                archive: 1,
+                ..aco_r
+            }),
+            "archive",
+        ),
+        (Method::AcoR(AcoR { ants: 0, ..aco_r }), "ants"),
+        (Method::AcoR(AcoR { budget: 5, ..aco_r }), "budget"),
+        (
+            Method::AcoR(AcoR {
+                q: f64::NAN,
+                ..aco_r
+            }),
+            "q",
+        ),
+        (Method::AcoR(AcoR { xi: -1.0, ..aco_r }), "xi"),
+        (Method::Grid(Grid { budget: 7, ..grid }), "budget"),
+        (Method::Grid(Grid { batch: 0, ..grid }), "batch"),
+    ];
+    let never = |_: &[Hyper]| -> Vec<f64> { panic!("a bad setting must stop before any fit") };
+    for (method, name) in cases {
+        let err = method
+            .run(&table2_space(), &never, &mut (), &AtomicBool::new(false))
+            .unwrap_err();
+        assert!(
+            matches!(err, SearchError::InvalidSetting { name: n, .. } if n == name),
+            "{method:?}: {err}"
+        );
+    }
+    let boxes = [
+        (
+            SearchSpace {
+                c: (0.0, 10.0),
+                ..table2_space()
+            },
+            "C",
+        ),
+        (
+            SearchSpace {
+                epsilon: (0.1, 0.01),
+                ..table2_space()
+            },
+            "epsilon",
+        ),
+        (
+            SearchSpace {
+                sigma: (0.1, f64::INFINITY),
+                ..table2_space()
+            },
+            "sigma",
+        ),
+    ];
+    for (space, name) in boxes {
+        for method in [Method::AcoR(aco_r), Method::Grid(grid)] {
+            let err = method
+                .run(&space, &never, &mut (), &AtomicBool::new(false))
+                .unwrap_err();
+            assert!(
+                matches!(err, SearchError::InvalidSetting { name: n, .. } if n == name),
+                "{space:?}: {err}"
+            );
+        }
+    }
+}
