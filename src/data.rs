@@ -85,6 +85,12 @@ pub enum DataError {
         column: String,
         value: f64,
     },
+    #[error("{path}: column `{column}` holds {value:e}; values beyond ±1e100 cannot be scaled and fitted, express the column in other units")]
+    TooLarge {
+        path: PathBuf,
+        column: String,
+        value: f64,
+    },
     #[error("column `{name}` is chosen twice; each column may appear once in --inputs and --outputs together")]
     RepeatedSelection { name: String },
     #[error("writing {path}: {source}")]
@@ -153,6 +159,20 @@ pub struct Dataset {
 }
 
 impl Dataset {
+    /// The rows [`evenly_spaced`] keeps, in order.
+    pub fn subsample(&self, max: usize) -> Dataset {
+        let rows = evenly_spaced(self.rows(), max);
+        let pick = |c: &Columns| {
+            let values = rows.iter().flat_map(|&i| c.row(i).to_vec()).collect();
+            Columns::new(c.names.clone(), values)
+        };
+        Dataset {
+            source: self.source.clone(),
+            inputs: pick(&self.inputs),
+            outputs: pick(&self.outputs),
+        }
+    }
+
     pub fn rows(&self) -> usize {
         self.inputs.rows()
     }
@@ -169,6 +189,17 @@ impl Dataset {
                 needed: min_rows,
             });
         }
+        for block in [&self.inputs, &self.outputs] {
+            for (j, name) in block.names.iter().enumerate() {
+                if let Some(v) = block.column(j).find(|v| v.abs() > 1e100) {
+                    return Err(DataError::TooLarge {
+                        path: self.source.clone(),
+                        column: name.clone(),
+                        value: v,
+                    });
+                }
+            }
+        }
         for (j, name) in self.inputs.names.iter().enumerate() {
             let first = self.inputs.row(0)[j];
             if self.inputs.column(j).all(|v| v == first) {
@@ -181,6 +212,15 @@ impl Dataset {
         }
         Ok(())
     }
+}
+
+/// At most `max` of `n` row indices, evenly spaced (⌊k·n/max⌋ for k < max); all of them when
+/// `n ≤ max`.
+pub fn evenly_spaced(n: usize, max: usize) -> Vec<usize> {
+    if n <= max {
+        return (0..n).collect();
+    }
+    (0..max).map(|k| k * n / max).collect()
 }
 
 /// Reads the named columns of a CSV file, in the order given.

@@ -51,13 +51,3 @@ pub fn temp_beside(path: &Path, suffix: &str) -> io::Result<tempfile::NamedTempF
 pub fn write_bytes(path: &Path, bytes: &[u8]) -> io::Result<()> {
     write_atomic(path, |w| w.write_all(bytes))
 }
-
-/// Whether `output` names the same file as any of `inputs` (after resolving links).
-pub fn is_same_file_as_any(output: &Path, inputs: &[&Path]) -> bool {
-    let Ok(out) = output.canonicalize() else {
-        return false; // an output that does not exist yet is not an input
-    };
-    inputs
-        .iter()
-        .any(|p| p.canonicalize().is_ok_and(|p| p == out))
-}

@@ -1,4 +1,6 @@
-//! The `handcap` command. Exit codes: 0 success, 1 error (one line on stderr), 2 usage error.
+//! The `handcap` command. Exit codes: 0 success, 1 error (one line on stderr), 2 usage error
+//! (clap's, and options or outputs that do not go together), 130 interrupted by Ctrl-C (what was
+//! finished is kept).
 
 mod cli;
 
@@ -12,8 +14,8 @@ fn main() -> ExitCode {
     match cli::run(args) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("handcap: {e:#}");
-            ExitCode::from(1)
+            eprintln!("handcap: {}", cli::one_line(&e));
+            ExitCode::from(cli::exit_code(&e))
         }
     }
 }

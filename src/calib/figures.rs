@@ -40,14 +40,11 @@ impl StereoCalibration {
             series: vec![bars(0, "left", -0.2), bars(1, "right", 0.2)],
             log_y: false,
         };
-        let pairs_stem = stem.with_file_name(format!("{}_pairs", file_stem(stem)));
-        figures::write_line_plot(&pairs_stem, &plot)?;
-        let mut written = vec![
-            pairs_stem.with_extension("png"),
-            pairs_stem.with_extension("svg"),
-        ];
+        let [png, svg, rectified] = figure_paths(stem);
+        figures::write_line_plot(&png.with_extension(""), &plot)?;
+        let mut written = vec![png, svg];
         if let Some(first) = used.first() {
-            let path = stem.with_file_name(format!("{}_rectified.png", file_stem(stem)));
+            let path = rectified;
             self.write_rectified(first, &path)?;
             written.push(path);
         }
@@ -121,7 +118,12 @@ impl StereoCalibration {
     }
 }
 
-fn file_stem(path: &Path) -> String {
-    path.file_stem()
-        .map_or_else(|| "calib".into(), |s| s.to_string_lossy().into_owned())
+/// The figures written beside the calibration file `stem`: `STEM_pairs.png`, `STEM_pairs.svg`
+/// and `STEM_rectified.png`.
+pub fn figure_paths(stem: &Path) -> [PathBuf; 3] {
+    let name = stem
+        .file_stem()
+        .map_or_else(|| "calib".into(), |s| s.to_string_lossy().into_owned());
+    ["_pairs.png", "_pairs.svg", "_rectified.png"]
+        .map(|suffix| stem.with_file_name(format!("{name}{suffix}")))
 }

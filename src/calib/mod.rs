@@ -29,7 +29,7 @@
 
 mod checks;
 pub mod detect;
-mod figures;
+pub mod figures;
 pub mod file;
 use checks::{board_check, coverage, epipolar_error, hand_axes, rectify};
 pub mod pairs;

@@ -5,15 +5,18 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context};
 
+use super::usage;
+
 use handcap::data::{self, Columns};
-use handcap::fsio;
 use handcap::hand::MAX_PRESSURE_KPA;
 use handcap::model::file::{ModelFile, StoredModel};
 use handcap::model::inverse::{self, InverseOptions, InverseSolution};
 use handcap::model::msvr::Msvr;
 use handcap::model::Predict;
+use handcap::pipeline::outputs::{self, Output};
 
 #[derive(clap::Args)]
+#[command(group(clap::ArgGroup::new("what").required(true).args(["target", "targets"])))]
 pub struct Args {
     /// Model file written by `handcap model`
     model: PathBuf,
@@ -22,6 +25,7 @@ pub struct Args {
         long,
         value_delimiter = ',',
         allow_hyphen_values = true,
+        value_parser = super::finite,
         conflicts_with = "targets"
     )]
     target: Option<Vec<f64>>,
@@ -42,13 +46,13 @@ pub struct Args {
 
 fn options(model: &Msvr, a: &Args) -> anyhow::Result<InverseOptions> {
     if !(a.max_kpa > 0.0 && a.max_kpa <= MAX_PRESSURE_KPA) {
-        bail!(
+        usage!(
             "--max-kpa {} must lie in (0, {MAX_PRESSURE_KPA}]: the regulator caps the supply",
             a.max_kpa
         );
     }
     if a.reach.is_nan() || a.reach <= 0.0 {
-        bail!("--reach must be positive");
+        usage!("--reach must be positive");
     }
     let cap = |name: &str| name.ends_with("_kpa").then_some((0.0, a.max_kpa));
     Ok(InverseOptions {
@@ -93,12 +97,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         }
         (None, Some(path)) => {
             let out = a.out.as_ref().expect("clap requires --out with --targets");
-            if fsio::is_same_file_as_any(out, &[&a.model, path]) {
-                bail!(
-                    "--out {} is one of the inputs; choose another file",
-                    out.display()
-                );
-            }
+            outputs::check(&[&a.model, path], &[Output::new(out, "--out")])?;
             let targets = data::read_columns(path, model.outputs())?;
             let solutions: Vec<InverseSolution> = targets
                 .iter_rows()
@@ -116,7 +115,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             println!("wrote {}", out.display());
             Ok(())
         }
-        _ => bail!("give --target X,Y,Z or --targets FILE.csv --out FILE.csv"),
+        _ => usage!("give --target X,Y,Z or --targets FILE.csv --out FILE.csv"),
     }
 }
 

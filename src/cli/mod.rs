@@ -46,6 +46,60 @@ enum Command {
     Demo(demo::Args),
 }
 
+/// An error in how the command was called (exit 2, as clap's own).
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct Usage(pub String);
+
+/// Work stopped by Ctrl-C after keeping what was finished (exit 130, as shells report SIGINT).
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct Interrupted(pub String);
+
+/// `Err(Usage)` with a formatted message.
+macro_rules! usage {
+    ($($arg:tt)*) => {
+        return Err($crate::cli::Usage(format!($($arg)*)).into())
+    };
+}
+pub(crate) use usage;
+
+/// The exit code of an error: 2 usage, 130 interrupted, 1 anything else.
+pub fn exit_code(e: &anyhow::Error) -> u8 {
+    use handcap::pipeline::PipelineError;
+    if e.is::<Usage>() || matches!(e.downcast_ref(), Some(PipelineError::Usage(_))) {
+        2
+    } else if e.is::<Interrupted>()
+        || matches!(e.downcast_ref(), Some(PipelineError::Interrupted(_)))
+    {
+        130
+    } else {
+        1
+    }
+}
+
+/// The error on one line: its message, then each cause the message does not already contain
+/// (an I/O error wrapped with its path is said once, not twice).
+pub fn one_line(e: &anyhow::Error) -> String {
+    let mut line = e.to_string();
+    for cause in e.chain().skip(1) {
+        let text = cause.to_string();
+        if !line.contains(&text) {
+            line = format!("{line}: {text}");
+        }
+    }
+    line.replace('\n', " ")
+}
+
+/// A number that is finite (not NaN or infinite), for flags.
+pub fn finite(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() => Ok(v),
+        Ok(v) => Err(format!("{v} is not a finite number")),
+        Err(e) => Err(format!("{s:?}: {e}")),
+    }
+}
+
 /// Runs the chosen subcommand.
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {

@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use anyhow::bail;
+use super::usage;
 
 use handcap::data::{HAND_INPUTS, HAND_OUTPUTS};
 use handcap::model::msvr::fitness::FitnessKind;
@@ -107,6 +107,10 @@ pub struct Args {
     /// Directory for metrics.csv, history.csv, fit.json, report.md and the figures
     #[arg(long)]
     report: Option<PathBuf>,
+    /// Keep at most N training rows, evenly spaced through the file (the MSVR holds an n × n
+    /// kernel: 10 000 rows take about 5 GB)
+    #[arg(long, value_parser = clap::value_parser!(u64).range(10..))]
+    max_rows: Option<u64>,
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
@@ -115,10 +119,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         FitnessArg::Train => FitnessKind::Train,
     };
     if a.search_on.is_some() && a.search == SearchKind::None {
-        bail!("--search-on gives the rows a search scores candidates on: use it with a --search");
+        usage!("--search-on gives the rows a search scores candidates on: use it with a --search");
     }
     if a.group_by.is_some() && (a.fitness != FitnessArg::Cv || a.search == SearchKind::None) {
-        bail!("--group-by groups the folds of a cross-validated search: use it with --fitness cv and a --search");
+        usage!("--group-by groups the folds of a cross-validated search: use it with --fitness cv and a --search");
     }
     let method = match a.search {
         SearchKind::None => None,
@@ -159,12 +163,24 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         tests: a.tests,
         out: a.out,
         report: a.report,
+        max_rows: a.max_rows.map(|n| n as usize),
     };
     let outcome = super::with_session(|s| fit::run(&job, s))?;
     print_summary(&outcome);
     println!("wrote {}", job.out.display());
     if let Some(dir) = &job.report {
         println!("wrote {}/", dir.display());
+    }
+    if outcome
+        .search
+        .as_ref()
+        .is_some_and(|(s, _, _)| s.stop == SearchStop::Interrupted)
+    {
+        return Err(super::Interrupted(format!(
+            "interrupted: {} holds the model with the best parameters found before Ctrl-C",
+            job.out.display()
+        ))
+        .into());
     }
     Ok(())
 }

@@ -2,12 +2,10 @@
 
 use std::path::PathBuf;
 
-use anyhow::bail;
-
 use handcap::data;
-use handcap::fsio;
 use handcap::model::file::{ModelFile, StoredModel};
 use handcap::model::Predict;
+use handcap::pipeline::outputs::{self, Output};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -21,15 +19,22 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
-    if fsio::is_same_file_as_any(&a.out, &[&a.model, &a.inputs]) {
-        bail!(
-            "--out {} is one of the input files; choose another name",
-            a.out.display()
-        );
-    }
+    outputs::check(&[&a.model, &a.inputs], &[Output::new(&a.out, "--out")])?;
     let file = ModelFile::load(&a.model)?;
     let StoredModel::Msvr(model) = &file.model;
     let x = data::read_columns(&a.inputs, model.inputs())?;
+    let outside = model.scaler.outside(&x);
+    if let Some((j, v)) = outside.farthest {
+        let s = &model.scaler;
+        eprintln!(
+            "warning: {} of {} rows lie outside the training range (farthest: {} = {v}, trained on {}-{}); far from its data an RBF model flattens to a constant, so those predictions are guesses",
+            outside.rows,
+            x.rows(),
+            model.inputs[j],
+            s.min[j],
+            s.max[j]
+        );
+    }
     let y = model.predict(&x)?;
     data::write_csv(&a.out, &[&x, &y])?;
     println!("wrote {} ({} rows)", a.out.display(), x.rows());

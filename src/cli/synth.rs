@@ -138,7 +138,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             out = a.out.display(),
         );
         if c.interrupted {
-            bail!("interrupted: the images written so far are complete, the rest are missing; run again to finish");
+            return Err(super::Interrupted("interrupted: the images written so far are complete, the rest are missing; run again to finish".into()).into());
         }
     }
     Ok(())

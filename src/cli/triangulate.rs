@@ -3,8 +3,6 @@
 
 use std::path::PathBuf;
 
-use anyhow::bail;
-
 use handcap::pipeline::triangulate::{self, Triangulated};
 use handcap::triangulate::TriangulateOptions;
 
@@ -65,7 +63,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     print_summary(&done);
     super::print_written(&done.written);
     if done.triangulation.summary.interrupted {
-        bail!("interrupted: the dataset holds the frames examined before Ctrl-C; run again for all of them");
+        return Err(super::Interrupted("interrupted: the dataset holds the frames examined before Ctrl-C; run again for all of them".into()).into());
     }
     Ok(())
 }

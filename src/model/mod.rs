@@ -20,6 +20,8 @@ pub enum ModelError {
     InputMismatch { expected: String, found: String },
     #[error("outputs are ({found}) but the model predicts ({expected})")]
     OutputMismatch { expected: String, found: String },
+    #[error("input row {row}: the model predicts a non-finite {output} (its coefficients are out of range); fit the model again")]
+    NonFinite { row: usize, output: String },
 }
 
 /// A fitted model: named inputs in, named outputs out.
@@ -34,7 +36,8 @@ pub trait Predict: Sync {
     /// Predicts every row of `x`, in parallel.
     ///
     /// # Errors
-    /// [`ModelError::InputMismatch`] when `x` does not have the model's input columns in order.
+    /// [`ModelError::InputMismatch`] when `x` does not have the model's input columns in order;
+    /// [`ModelError::NonFinite`] (1-based row) when a prediction is not a finite number.
     fn predict(&self, x: &Columns) -> Result<Columns, ModelError> {
         if x.names != self.inputs() {
             return Err(ModelError::InputMismatch {
@@ -49,6 +52,12 @@ pub trait Predict: Sync {
             .zip(x.values.par_chunks(x.width()))
             .with_min_len(64)
             .for_each(|(out, row)| self.predict_row(row, out));
+        if let Some(k) = values.iter().position(|v| !v.is_finite()) {
+            return Err(ModelError::NonFinite {
+                row: k / q + 1,
+                output: self.outputs()[k % q].clone(),
+            });
+        }
         Ok(Columns::new(self.outputs().to_vec(), values))
     }
 }

@@ -2,6 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
+use super::outputs::{self, Output};
 use super::{io_error, PipelineError, Session, Task};
 use crate::calib::{self, file, BoardSpec, CalibOptions, StereoCalibration};
 use crate::fsio;
@@ -15,10 +16,12 @@ pub struct Calibrated {
 
 /// The board: `cols_rows` and `square_mm` as given, the rest from `dir/board.yml`, or, when the
 /// directory has none, from the printed board of the repository's `calib/board.yml` (said in an
-/// [`super::Event::Note`]).
+/// [`super::Event::Note`]). A flag that contradicts `dir/board.yml` is refused: a board read as
+/// 6x9 instead of 9x6 turns the hand frame by 90°.
 ///
 /// # Errors
-/// [`PipelineError::Calib`] when `dir/board.yml` exists but cannot be read.
+/// [`PipelineError::Calib`] when `dir/board.yml` exists but cannot be read;
+/// [`PipelineError::Usage`] when a flag contradicts it.
 pub fn board(
     dir: &Path,
     cols_rows: Option<(usize, usize)>,
@@ -26,6 +29,25 @@ pub fn board(
     session: &Session,
 ) -> Result<BoardSpec, PipelineError> {
     let path = dir.join(file::BOARD_FILE);
+    if path.exists() {
+        let written = file::read_board(&path)?;
+        let contradiction = match (cols_rows, square_mm) {
+            (Some((c, r)), _) if (c, r) != (written.cols, written.rows) => {
+                Some(format!("--board {c}x{r}"))
+            }
+            (_, Some(s)) if s != written.square_mm => Some(format!("--square-mm {s}")),
+            _ => None,
+        };
+        if let Some(flag) = contradiction {
+            return Err(PipelineError::Usage(format!(
+                "{flag} contradicts {} ({}x{} inner corners, {} mm squares); correct the file or drop the flag",
+                path.display(),
+                written.cols,
+                written.rows,
+                written.square_mm
+            )));
+        }
+    }
     let from_file = match (cols_rows, square_mm) {
         (Some(_), Some(_)) => None,
         _ if path.exists() => Some(file::read_board(&path)?),
@@ -65,10 +87,28 @@ pub fn run(
     out: &Path,
     session: &Session,
 ) -> Result<Calibrated, PipelineError> {
+    let listing = calib::pairs::list_pairs(dir).map_err(io_error(dir))?;
+    let board_file = dir.join(file::BOARD_FILE);
+    let images = listing
+        .pairs
+        .iter()
+        .chain(&listing.reference)
+        .flat_map(|p| [p.left.as_path(), p.right.as_path()])
+        .chain(listing.unpaired.iter().map(PathBuf::as_path));
+    let inputs: Vec<&Path> = images.chain([board_file.as_path()]).collect();
+    let [pairs_png, pairs_svg, rectified] = calib::figures::figure_paths(out);
+    outputs::check(
+        &inputs,
+        &[
+            Output::new(out, "--out"),
+            Output::new(pairs_png, "the per-pair error figure"),
+            Output::new(pairs_svg, "the per-pair error figure"),
+            Output::new(rectified, "the rectified pair figure"),
+        ],
+    )?;
     let result = calib::calibrate(dir, board, options, &session.counter(Task::Detect));
     session.emit(super::Event::Finished(Task::Detect));
     let calibration = result?;
-    super::create_parent(out).map_err(io_error(out))?;
     let yaml = file::calibration_yaml(&calibration, &session.provenance(None));
     fsio::write_bytes(out, yaml.as_bytes()).map_err(io_error(out))?;
     let mut written = vec![out.to_path_buf()];

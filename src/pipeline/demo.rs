@@ -222,7 +222,7 @@ pub fn run(
     };
     let synthesized = super::synth::run(&capture, &synth_config, Some(&capture_config), session)?;
     if synthesized.capture.is_some_and(|c| c.interrupted) {
-        return Err(PipelineError::Usage(
+        return Err(PipelineError::Interrupted(
             "interrupted while rendering the capture; run the demo again".into(),
         ));
     }
@@ -423,6 +423,7 @@ fn job(
         tests,
         out,
         report: Some(report),
+        max_rows: None,
     }
 }
 

@@ -4,13 +4,13 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use super::outputs::{self, Output};
 use super::{io_error, Event, PipelineError, Session};
 use crate::data::{self, HAND_INPUTS, HAND_OUTPUTS};
-use crate::fsio;
 use crate::model::file::{ModelFile, StoredModel};
 use crate::model::msvr::fitness::{Counters, FitnessKind};
 use crate::model::msvr::tune::{self, Groups, SearchSummary};
-use crate::model::msvr::{MsvrParams, MIN_FIT_ROWS};
+use crate::model::msvr::{self, MsvrParams, MIN_FIT_ROWS};
 use crate::model::previous::{self, PreviousModel};
 use crate::model::{self, Predict};
 use crate::report::{self, Comparison, ModelReport, NamedModel, PreviousSummary, TestResult};
@@ -41,6 +41,8 @@ pub struct FitJob {
     pub tests: Vec<PathBuf>,
     pub out: PathBuf,
     pub report: Option<PathBuf>,
+    /// Rows kept at most from the training (and search) data, evenly spaced; `None` keeps all.
+    pub max_rows: Option<usize>,
 }
 
 /// What a run produced.
@@ -80,16 +82,20 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
         .chain(search_on)
         .chain(job.tests.iter().map(PathBuf::as_path))
         .collect();
-    if fsio::is_same_file_as_any(&job.out, &inputs) {
-        return Err(PipelineError::Usage(format!(
-            "--out {} is one of the input files; choose another name",
-            job.out.display()
-        )));
-    }
     job.params
         .check()
         .map_err(|e| PipelineError::Usage(format!("model parameters: {e}")))?;
-    super::create_parent(&job.out).map_err(io_error(&job.out))?;
+    let mut planned = vec![Output::new(&job.out, "--out")];
+    if let Some(dir) = &job.report {
+        let searched = matches!(job.selection, Selection::Search { .. });
+        let tests: Vec<String> = job.tests.iter().map(|p| file_name(p)).collect();
+        planned.extend(
+            report::report_files(dir, searched, &tests, &job.outputs)
+                .into_iter()
+                .map(|(path, role)| Output::new(path, format!("{role} in --report"))),
+        );
+    }
+    outputs::check(&inputs, &planned)?;
     for path in &inputs {
         let flagged = data::count_flagged(path)?;
         if flagged > 0 {
@@ -99,8 +105,31 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
             )));
         }
     }
-    let train = data::read_dataset(&job.data, &job.inputs, &job.outputs)?;
+    let keep = |d: data::Dataset| match job.max_rows {
+        Some(max) if d.rows() > max => {
+            session.emit(Event::Note(format!(
+                "{}: {} rows, {max} evenly spaced ones kept (--max-rows)",
+                d.source.display(),
+                d.rows()
+            )));
+            d.subsample(max)
+        }
+        _ => d,
+    };
+    let train = keep(data::read_dataset(&job.data, &job.inputs, &job.outputs)?);
     train.check_fittable(MIN_FIT_ROWS)?;
+    msvr::check_memory(train.rows())?;
+    // Every test file is read before the search: a bad one must not cost the search.
+    let test_data = job
+        .tests
+        .iter()
+        .map(|path| {
+            Ok((
+                file_name(path),
+                data::read_dataset(path, &job.inputs, &job.outputs)?,
+            ))
+        })
+        .collect::<Result<Vec<_>, PipelineError>>()?;
 
     let (params, search, history) = match &job.selection {
         Selection::Fixed => (job.params, None, None),
@@ -115,17 +144,21 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
             let scored = match on {
                 None => train.clone(),
                 Some(path) => {
-                    let d = data::read_dataset(path, &job.inputs, &job.outputs)?;
+                    let d = keep(data::read_dataset(path, &job.inputs, &job.outputs)?);
                     d.check_fittable(MIN_FIT_ROWS)?;
                     d
                 }
             };
             let groups = match group_by {
                 None => None,
-                Some(column) => Some(Groups {
-                    column: column.clone(),
-                    labels: data::read_columns(scored_on, std::slice::from_ref(column))?.values,
-                }),
+                Some(column) => {
+                    let all = data::read_columns(scored_on, std::slice::from_ref(column))?.values;
+                    let kept = data::evenly_spaced(all.len(), job.max_rows.unwrap_or(usize::MAX));
+                    Some(Groups {
+                        column: column.clone(),
+                        labels: kept.iter().map(|&i| all[i]).collect(),
+                    })
+                }
             };
             let started = Instant::now();
             let mut observer = Iterations {
@@ -177,16 +210,6 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
             });
         }
     }
-    let test_data = job
-        .tests
-        .iter()
-        .map(|path| {
-            Ok((
-                file_name(path),
-                data::read_dataset(path, &job.inputs, &job.outputs)?,
-            ))
-        })
-        .collect::<Result<Vec<_>, PipelineError>>()?;
     let mut tests = Vec::new();
     for (name, test) in &test_data {
         for m in &models {
@@ -222,14 +245,22 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
         tests,
         provenance: provenance.clone(),
     };
-    if let Some(dir) = &job.report {
+    // The model is saved even when the report cannot be written (a full disk), and the error
+    // says so: the search is never lost to a report.
+    let reported = job.report.as_ref().map(|dir| {
         let comparison = Comparison {
             models: &models,
             tests: &test_data,
         };
-        report::write_model_report(dir, &report, history.as_deref(), &comparison)?;
-    }
+        report::write_model_report(dir, &report, history.as_deref(), &comparison)
+    });
     ModelFile::new(StoredModel::Msvr(msvr), report.search.clone(), provenance).save(&job.out)?;
+    if let Some(Err(e)) = reported {
+        return Err(PipelineError::Partial {
+            source: Box::new(e.into()),
+            written: job.out.clone(),
+        });
+    }
     Ok(FitOutcome { report, search })
 }
 

@@ -14,6 +14,7 @@ pub mod calibrate;
 pub mod demo;
 mod demo_report;
 pub mod fit;
+pub mod outputs;
 pub mod synth;
 pub mod triangulate;
 
@@ -143,6 +144,18 @@ pub enum PipelineError {
     /// Options that do not go together, or an output that would replace an input.
     #[error("{0}")]
     Usage(String),
+    /// An input or output place that cannot be used (not a directory, not writable).
+    #[error("{0}")]
+    Place(String),
+    /// Ctrl-C stopped the work; what was finished is kept.
+    #[error("{0}")]
+    Interrupted(String),
+    /// A failure after the main result was written.
+    #[error("{source} (written all the same: {})", written.display())]
+    Partial {
+        source: Box<PipelineError>,
+        written: std::path::PathBuf,
+    },
     /// A demo result that contradicts the ground truth it is checked against.
     #[error("{0}")]
     Check(String),

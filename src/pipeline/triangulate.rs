@@ -3,10 +3,10 @@
 
 use std::path::{Path, PathBuf};
 
+use super::outputs::{self, Output};
 use super::{io_error, PipelineError, Session, Task};
 use crate::calib::file::read_calibration;
-use crate::fsio;
-use crate::triangulate::{self, pairing, TriangulateOptions, Triangulation};
+use crate::triangulate::{self, output, pairing, TriangulateOptions, Triangulation};
 
 /// What the stage did and wrote.
 pub struct Triangulated {
@@ -35,6 +35,45 @@ pub fn pressure_log(frames: &Path, given: Option<PathBuf>) -> Result<PathBuf, Pi
         })
 }
 
+/// Checks every file `run` writes against every file it reads (the frames and their index, the
+/// calibration, the log) and against each other.
+fn check_outputs(
+    frames: &Path,
+    calib: &Path,
+    pressures: &Path,
+    log: &pairing::PressureLog,
+    out: &Path,
+) -> Result<(), PipelineError> {
+    let index = frames.join("frames.csv");
+    let listed = triangulate::frames::read_frame_list(frames)?;
+    let images: Vec<PathBuf> = listed
+        .iter()
+        .filter_map(|f| triangulate::frames::frame_path(frames, f))
+        .collect();
+    let inputs: Vec<&Path> = [calib, pressures, index.as_path()]
+        .into_iter()
+        .chain(images.iter().map(PathBuf::as_path))
+        .collect();
+    let mut planned = vec![Output::new(out, "--out")];
+    if let Some(col) = log.extra_columns.iter().position(|c| c == "phase") {
+        let mut phases: Vec<&str> = log.steps.iter().map(|s| s.extra[col].as_str()).collect();
+        phases.sort_unstable();
+        phases.dedup();
+        planned.extend(phases.into_iter().map(|phase| {
+            Output::new(
+                output::phase_path(out, phase),
+                format!("the dataset of phase `{phase}`"),
+            )
+        }));
+    }
+    planned.extend(
+        output::BESIDE
+            .iter()
+            .map(|(suffix, role)| Output::new(output::beside(out, suffix), *role)),
+    );
+    outputs::check(&inputs, &planned)
+}
+
 /// Finds the tip in every frame pair of `frames`, in the hand frame of `calib`, one row per
 /// step of the log at `pressures`; writes `out` and the files beside it. Ctrl-C stops at the
 /// next frame: the files hold the frames examined, and the summary says `interrupted`.
@@ -51,20 +90,14 @@ pub fn run(
     session: &Session,
 ) -> Result<Triangulated, PipelineError> {
     if !frames.is_dir() {
-        return Err(PipelineError::Usage(format!(
+        return Err(PipelineError::Place(format!(
             "{} is not a directory of frames",
             frames.display()
         )));
     }
-    if fsio::is_same_file_as_any(out, &[calib, pressures]) {
-        return Err(PipelineError::Usage(format!(
-            "--out {} is one of the inputs; choose another file",
-            out.display()
-        )));
-    }
     let calibration = read_calibration(calib)?;
-    super::create_parent(out).map_err(io_error(out))?;
     let log = pairing::read_pressure_log(pressures)?;
+    check_outputs(frames, calib, pressures, &log, out)?;
     let result = triangulate::triangulate(
         frames,
         &calibration,

@@ -118,6 +118,55 @@ pub fn write_model_report(
     Ok(())
 }
 
+/// The files [`write_model_report`] may write into `dir` and what each is: with a search
+/// (`searched`), the history and Figures 7-8; for each test file (by name) that is a sweep,
+/// a figure per output and one of residuals. A run writes a subset of these, never another.
+pub fn report_files(
+    dir: &Path,
+    searched: bool,
+    tests: &[String],
+    outputs: &[String],
+) -> Vec<(PathBuf, String)> {
+    let mut files: Vec<(String, String)> = ["metrics.csv", "fit.json", "report.md"]
+        .map(|f| (f.to_string(), format!("report file {f}")))
+        .to_vec();
+    let figure = |stem: &str, what: &str| {
+        ["png", "svg"].map(|ext| (format!("{stem}.{ext}"), what.to_string()))
+    };
+    if searched {
+        files.push(("history.csv".into(), "report file history.csv".into()));
+        files.extend(figure(CONVERGENCE[0], "the report's Figure 7"));
+        files.extend(figure(CONVERGENCE[1], "the report's Figure 8"));
+    }
+    for test in tests {
+        let stem = test_stem(test);
+        for output in outputs {
+            files.extend(figure(
+                &format!("{stem}_{output}"),
+                &format!("the report's sweep figure of {test}"),
+            ));
+        }
+        files.extend(figure(
+            &format!("{stem}_residuals"),
+            &format!("the report's residual figure of {test}"),
+        ));
+    }
+    files
+        .into_iter()
+        .map(|(name, role)| (dir.join(name), role))
+        .collect()
+}
+
+/// The paper's Figures 7 and 8 (file stems).
+const CONVERGENCE: [&str; 2] = ["fig7_min_mae", "fig8_mean_mae"];
+
+/// A test file's name without its extension, the stem of its figures.
+fn test_stem(test: &str) -> String {
+    Path::new(test)
+        .file_stem()
+        .map_or_else(|| test.to_string(), |s| s.to_string_lossy().into_owned())
+}
+
 /// A test file whose inputs move along one line: some columns rise together (equal on every
 /// row), the others stay fixed.
 #[derive(Clone, Debug, PartialEq)]
@@ -223,9 +272,7 @@ fn sweep_figures(dir: &Path, c: &Comparison) -> Result<Vec<SweepFigures>, Report
             curves.push((m.name, curve));
             at_data.push((m.name, fitted));
         }
-        let stem = Path::new(test)
-            .file_stem()
-            .map_or_else(|| test.clone(), |s| s.to_string_lossy().into_owned());
+        let stem = test_stem(test);
         let label = sweep.label(names);
         let held = sweep.held(names);
         let mut stems = Vec::new();
@@ -359,13 +406,13 @@ fn convergence_figures(dir: &Path, history: &[IterationRecord]) -> Result<(), Re
         figures::write_line_plot(&dir.join(name), &plot)
     };
     figure(
-        "fig7_min_mae",
+        CONVERGENCE[0],
         "Minimum MAE per iteration (paper Fig. 7)",
         "minimum",
         |r| r.min,
     )?;
     figure(
-        "fig8_mean_mae",
+        CONVERGENCE[1],
         "Mean MAE per iteration (paper Fig. 8)",
         "mean",
         |r| r.mean,

@@ -37,7 +37,7 @@ pub struct InvalidParam {
 
 impl Hyper {
     /// The one rule for (C, ε, σ): C finite and > 0, ε finite and ≥ 0 (ε = 0 is kernel ridge
-    /// regression), σ finite and > 0.
+    /// regression), σ > 0 with 1/(2σ²) a finite number > 0.
     ///
     /// # Errors
     /// [`InvalidParam`] naming the first value that breaks it.
@@ -55,8 +55,12 @@ impl Hyper {
         if !(self.epsilon >= 0.0 && self.epsilon.is_finite()) {
             return bad("epsilon", self.epsilon, "must be finite and ≥ 0");
         }
-        if !(self.sigma > 0.0 && self.sigma.is_finite()) {
-            return bad("sigma", self.sigma, "must be finite and > 0");
+        if !(self.sigma >= 1e-150 && self.sigma <= 1e150) {
+            return bad(
+                "sigma",
+                self.sigma,
+                "must lie in [1e-150, 1e150] (the kernel's 1/(2σ²) must be a finite number > 0)",
+            );
         }
         Ok(())
     }

@@ -48,8 +48,14 @@ pub enum SynthError {
     BadHysteresis(f64),
     #[error("capture settings: {0}")]
     BadCapture(String),
-    #[error("grid step must divide 0-{PROTOCOL_MAX_KPA} kPa into whole steps, got {0} kPa")]
-    BadStep(f64),
+    #[error("--{flag} {step} kPa: the step must divide 0-{PROTOCOL_MAX_KPA} kPa into whole steps")]
+    BadStep { flag: &'static str, step: f64 },
+    #[error("--grid-step-kpa {step} kPa makes a grid of {steps:.3e} steps; at most {MAX_GRID_STEPS} (a step of {min_step} kPa or more)")]
+    GridTooLarge {
+        step: f64,
+        steps: f64,
+        min_step: f64,
+    },
     #[error("writing {path}: {source}")]
     Write {
         path: PathBuf,
@@ -96,8 +102,16 @@ pub struct Recording {
 
 /// The protocol's pressure sequences, in the order they are applied.
 pub fn protocol(config: &SynthConfig) -> Result<Vec<(&'static str, Vec<Pressures>)>, SynthError> {
-    let grid = levels(config.grid_step_kpa)?;
-    let sweep = levels(config.sweep_step_kpa)?;
+    let grid = levels(config.grid_step_kpa, "grid-step-kpa")?;
+    let steps = (grid.len() as f64).powi(3);
+    if steps > MAX_GRID_STEPS as f64 {
+        return Err(SynthError::GridTooLarge {
+            step: config.grid_step_kpa,
+            steps,
+            min_step: 5.0,
+        });
+    }
+    let sweep = levels(config.sweep_step_kpa, "sweep-step-kpa")?;
     let mut train = Vec::with_capacity(grid.len().pow(3));
     for &p1 in &grid {
         for &p2 in &grid {
@@ -113,11 +127,22 @@ pub fn protocol(config: &SynthConfig) -> Result<Vec<(&'static str, Vec<Pressures
     ])
 }
 
-/// 0, step, 2·step, …, 250 kPa.
-fn levels(step_kpa: f64) -> Result<Vec<f64>, SynthError> {
+/// The largest training grid `synth` records: 51³ steps (5 kPa), 11 hours of a real session at
+/// 0.3 s a step, and what the MSVR's n × n kernel can hold.
+pub const MAX_GRID_STEPS: usize = 51 * 51 * 51;
+
+/// 0, step, 2·step, …, 250 kPa; `flag` names the option in the error.
+fn levels(step_kpa: f64, flag: &'static str) -> Result<Vec<f64>, SynthError> {
     let count = PROTOCOL_MAX_KPA / step_kpa;
-    if !(step_kpa > 0.0 && count.is_finite() && (count - count.round()).abs() < 1e-9) {
-        return Err(SynthError::BadStep(step_kpa));
+    if !(step_kpa > 0.0
+        && count.is_finite()
+        && count <= 1e6
+        && (count - count.round()).abs() < 1e-9)
+    {
+        return Err(SynthError::BadStep {
+            flag,
+            step: step_kpa,
+        });
     }
     Ok((0..=count.round() as usize)
         .map(|k| k as f64 * step_kpa)
@@ -264,7 +289,13 @@ mod tests {
                 ..SynthConfig::default()
             };
             assert!(
-                matches!(record(&config), Err(SynthError::BadStep(_))),
+                matches!(
+                    record(&config),
+                    Err(SynthError::BadStep {
+                        flag: "grid-step-kpa",
+                        ..
+                    })
+                ),
                 "{step}"
             );
         }

@@ -30,6 +30,34 @@ pub fn beside(out: &Path, suffix: &str) -> PathBuf {
     out.with_file_name(format!("{stem}{suffix}"))
 }
 
+/// `OUT_<phase>.csv`, the phase's characters outside `[A-Za-z0-9-]` replaced by `_`.
+pub fn phase_path(out: &Path, phase: &str) -> PathBuf {
+    let safe: String = phase
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    beside(out, &format!("_{safe}.csv"))
+}
+
+const PAIRS: &str = "_pairs.csv";
+const HAND: &str = "_hand.yml";
+const SUMMARY: &str = "_summary.json";
+const DETECTIONS: &str = "_detections.png";
+
+/// The files beside `OUT` and what each is (the per-phase files are [`phase_path`]).
+pub const BESIDE: [(&str, &str); 4] = [
+    (PAIRS, "the pairs table"),
+    (HAND, "the hand frame"),
+    (SUMMARY, "the summary"),
+    (DETECTIONS, "the detection figure"),
+];
+
 fn write_err(path: &Path) -> impl Fn(String) -> TriangulateError + '_ {
     move |message| TriangulateError::Write {
         path: path.to_path_buf(),
@@ -143,28 +171,18 @@ impl Triangulation {
                 }
             }
             for phase in phases {
-                let safe: String = phase
-                    .chars()
-                    .map(|c| {
-                        if c.is_ascii_alphanumeric() || c == '-' {
-                            c
-                        } else {
-                            '_'
-                        }
-                    })
-                    .collect();
-                let path = beside(out, &format!("_{safe}.csv"));
+                let path = phase_path(out, phase);
                 write_text(&path, &self.dataset_csv(|r| r.extra[col] == phase))?;
                 written.push(path);
             }
         }
-        let path = beside(out, "_pairs.csv");
+        let path = beside(out, PAIRS);
         write_text(&path, &self.pairs_csv())?;
         written.push(path);
-        let path = beside(out, "_hand.yml");
+        let path = beside(out, HAND);
         write_text(&path, &self.hand_yaml(provenance))?;
         written.push(path);
-        let path = beside(out, "_summary.json");
+        let path = beside(out, SUMMARY);
         let json = serde_json::json!({
             "summary": self.summary,
             "options": self.options,
@@ -175,7 +193,7 @@ impl Triangulation {
             &(serde_json::to_string_pretty(&json).expect("serialisable") + "\n"),
         )?;
         written.push(path);
-        let path = beside(out, "_detections.png");
+        let path = beside(out, DETECTIONS);
         if self.write_detections(&path)? {
             written.push(path);
         }

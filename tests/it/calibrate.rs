@@ -124,7 +124,8 @@ fn calibrate_errors_are_one_line_and_say_what_to_do() {
     let d = dir.path();
     small_capture(d, 22, 6);
 
-    // Wrong board size: the right one is suggested.
+    // Wrong board size: the right one is suggested (without a board.yml to contradict).
+    std::fs::remove_file(d.join("calib/board.yml")).unwrap();
     let msg = handcap_err(
         d,
         &["calibrate", "calib", "--board", "8x5", "--square-mm", "10"],
@@ -158,7 +159,6 @@ fn calibrate_errors_are_one_line_and_say_what_to_do() {
     ] {
         std::fs::copy(d.join("calib").join(name), few.join(name)).unwrap();
     }
-    std::fs::copy(d.join("calib/board.yml"), few.join("board.yml")).unwrap();
     let msg = handcap_err(d, &["calibrate", "few"]);
     assert!(msg.contains("only 2 usable pairs, 6 needed"), "{msg}");
 

@@ -39,11 +39,23 @@ pub fn handcap_ok(dir: &Path, args: &[&str]) -> String {
 
 /// Runs `handcap`, asserts exit code 1 and a one-line error; returns that line.
 pub fn handcap_err(dir: &Path, args: &[&str]) -> String {
+    handcap_fails(dir, args, 1)
+}
+
+/// Runs `handcap`, asserts exit code 2 (a usage error: flags, or outputs, that do not go
+/// together) and a one-line error; returns that line.
+pub fn handcap_usage(dir: &Path, args: &[&str]) -> String {
+    handcap_fails(dir, args, 2)
+}
+
+/// Runs `handcap`, asserts exit code `code` and a one-line error; returns that line.
+pub fn handcap_fails(dir: &Path, args: &[&str], code: i32) -> String {
     let out = handcap(dir, args);
     assert_eq!(
         out.status.code(),
-        Some(1),
-        "handcap {args:?} should fail with 1"
+        Some(code),
+        "handcap {args:?} should fail with {code}: {}",
+        String::from_utf8_lossy(&out.stderr)
     );
     let stderr = String::from_utf8(out.stderr).expect("utf-8 stderr");
     assert_eq!(stderr.lines().count(), 1, "error is not one line: {stderr}");

@@ -5,7 +5,9 @@ use std::path::Path;
 
 use handcap::synth::plant::Plant;
 
-use crate::common::{csv_rows, handcap_err, handcap_ok, tempdir, tip_rms_against_truth, write};
+use crate::common::{
+    csv_rows, handcap_err, handcap_ok, handcap_usage, tempdir, tip_rms_against_truth, write,
+};
 
 #[test]
 fn inverse_finds_pressures_for_reachable_targets_and_says_what_is_out_of_reach() {
@@ -71,7 +73,7 @@ fn inverse_finds_pressures_for_reachable_targets_and_says_what_is_out_of_reach()
             assert!((0.0..=200.0).contains(&v), "{p} {v} outside --max-kpa 200");
         }
     }
-    let msg = handcap_err(
+    let msg = handcap_usage(
         d,
         &[
             "inverse",

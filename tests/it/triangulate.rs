@@ -13,7 +13,8 @@ use handcap::synth::render::encode_png;
 use handcap::triangulate::frames::decode;
 
 use crate::common::{
-    capture, csv_rows, handcap_err, handcap_ok, small_capture, tempdir, tip_rms_against_truth,
+    capture, csv_rows, handcap_err, handcap_ok, handcap_usage, small_capture, tempdir,
+    tip_rms_against_truth,
 };
 
 /// Paints a disc of `rgb` (radius `r` px, anti-aliased) into a frame, in place.
@@ -322,7 +323,7 @@ fn triangulate_errors_are_one_line_and_name_the_file() {
     assert!(msg.contains("nowhere is not a directory"), "{msg}");
     let mut a = args("truth/rig.yml");
     a[5] = "pressures.csv";
-    let msg = handcap_err(d, &a);
-    assert!(msg.contains("is one of the inputs"), "{msg}");
+    let msg = handcap_usage(d, &a);
+    assert!(msg.contains("would replace the input"), "{msg}");
     assert!(!d.join("x.csv").exists(), "nothing is written on failure");
 }

@@ -53,6 +53,48 @@ pub enum MsvrError {
     Data(#[from] DataError),
     #[error(transparent)]
     Solver(#[from] NotPositiveDefinite),
+    #[error("the fit with C = {c}, ε = {epsilon}, σ = {sigma} gave non-finite numbers; choose other parameters or rescale the data")]
+    NonFinite { c: f64, epsilon: f64, sigma: f64 },
+    #[error("{rows} rows need about {need_gb:.1} GB for the n × n kernel and its solve, and {available_gb:.1} GB are available; keep fewer rows (`handcap model --max-rows N` keeps N evenly spaced ones)")]
+    TooLarge {
+        rows: usize,
+        need_gb: f64,
+        available_gb: f64,
+    },
+}
+
+/// Bytes a fit on `rows` rows holds at once: the n × n kernel, the IRWLS system and its
+/// Cholesky factor, and room for a second fit running beside it (cross-validation), about
+/// six n × n matrices of f64.
+pub fn fit_bytes(rows: usize) -> f64 {
+    6.0 * 8.0 * (rows as f64).powi(2)
+}
+
+/// Refuses a fit that would not fit in memory: [`fit_bytes`] against the memory the system
+/// says is available (`MemAvailable` of `/proc/meminfo`; no limit where it cannot be read).
+///
+/// # Errors
+/// [`MsvrError::TooLarge`].
+pub fn check_memory(rows: usize) -> Result<(), MsvrError> {
+    let Some(available) = available_bytes() else {
+        return Ok(());
+    };
+    let need = fit_bytes(rows);
+    if need > available {
+        return Err(MsvrError::TooLarge {
+            rows,
+            need_gb: need / 1e9,
+            available_gb: available / 1e9,
+        });
+    }
+    Ok(())
+}
+
+fn available_bytes() -> Option<f64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024.0)
 }
 
 /// MSVR hyper-parameters and solver controls, not yet checked.
@@ -191,6 +233,7 @@ impl ValidMsvrParams {
     /// As [`ValidMsvrParams::fit`].
     pub fn fit_with(&self, data: &Dataset, par: Par) -> Result<Msvr, MsvrError> {
         data.check_fittable(MIN_FIT_ROWS)?;
+        check_memory(data.rows())?;
         let p = &self.0;
         let scaler = MinMaxScaler::fit(&data.inputs);
         let scaled = scaler.transform(&data.inputs);
@@ -198,6 +241,16 @@ impl ValidMsvrParams {
         let y = to_mat(&data.outputs);
         let solution = self.solve(k.as_ref(), y.as_ref(), par)?;
         let beta = &solution.beta;
+        let finite = solution.objective.is_finite()
+            && solution.bias.iter().all(|b| b.is_finite())
+            && (0..beta.nrows()).all(|i| (0..beta.ncols()).all(|j| beta[(i, j)].is_finite()));
+        if !finite {
+            return Err(MsvrError::NonFinite {
+                c: p.c,
+                epsilon: p.epsilon,
+                sigma: p.sigma,
+            });
+        }
         let sv_rows: Vec<usize> = (0..beta.nrows())
             .filter(|&i| (0..beta.ncols()).any(|j| beta[(i, j)] != 0.0))
             .collect();
@@ -237,6 +290,14 @@ pub struct FitDiagnostics {
     pub stop: StopReason,
 }
 
+/// Inputs outside a model's training range ([`MinMaxScaler::outside`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Outside {
+    pub rows: usize,
+    /// The farthest value: its column and the value.
+    pub farthest: Option<(usize, f64)>,
+}
+
 /// Per-column min-max scaling to [0, 1], with the training minimum and maximum.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct MinMaxScaler {
@@ -258,6 +319,29 @@ impl MinMaxScaler {
             }
         }
         MinMaxScaler { min, max }
+    }
+
+    /// The rows of `x` (same columns) outside the training range by more than 1 % of it, and
+    /// the farthest value: (column, value), measured in training ranges.
+    pub fn outside(&self, x: &Columns) -> Outside {
+        let mut out = Outside::default();
+        let mut farthest = 0.0;
+        for row in x.iter_rows() {
+            let mut outside = false;
+            for (j, &v) in row.iter().enumerate() {
+                let s = self.scale(j, v);
+                let beyond = (-s).max(s - 1.0);
+                if beyond > 0.01 {
+                    outside = true;
+                    if beyond > farthest {
+                        farthest = beyond;
+                        out.farthest = Some((j, v));
+                    }
+                }
+            }
+            out.rows += usize::from(outside);
+        }
+        out
     }
 
     pub fn scale(&self, j: usize, v: f64) -> f64 {

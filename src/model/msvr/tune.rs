@@ -21,12 +21,14 @@ use crate::search::{
 };
 
 /// Errors of a tuning run.
-#[derive(Debug, thiserror::Error, PartialEq)]
+#[derive(Debug, thiserror::Error)]
 pub enum TuneError {
     #[error(transparent)]
     Search(#[from] SearchError),
     #[error(transparent)]
     Folds(#[from] FitnessError),
+    #[error(transparent)]
+    Msvr(#[from] super::MsvrError),
 }
 
 /// Group labels of the training rows (one per row) and the column they came from: rows of a
@@ -119,6 +121,7 @@ pub fn run(
     observer: &mut dyn Observer,
     interrupt: &AtomicBool,
 ) -> Result<(SearchSummary, SearchResult, Counters), TuneError> {
+    super::check_memory(data.rows())?;
     let labels = groups.map(|g| g.labels.as_slice());
     let scorer = Fitness::new(data, fitness, seed, labels, solver)?;
     let objective = |batch: &[Hyper]| scorer.evaluate(batch);
