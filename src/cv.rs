@@ -54,3 +54,48 @@ pub(crate) fn criteria(count: i32, eps: f64) -> opencv::Result<TermCriteria> {
         eps,
     )
 }
+
+/// Decodes an image file's bytes with OpenCV (`flags`: `IMREAD_COLOR`, `IMREAD_GRAYSCALE`).
+/// A JPEG cut short (no end-of-image marker after its last scan: a copy or a capture that
+/// stopped mid-file) is refused, where libjpeg would decode it silently with grey rows.
+///
+/// # Errors
+/// A message saying why the bytes are not a whole image.
+pub(crate) fn decode_image(bytes: &[u8], flags: i32) -> Result<Mat, String> {
+    if is_truncated_jpeg(bytes) {
+        return Err("a truncated JPEG (no end-of-image marker)".into());
+    }
+    let unreadable = || "not an image OpenCV can read".to_string();
+    let image = opencv::imgcodecs::imdecode(&Vector::<u8>::from_slice(bytes), flags)
+        .map_err(|_| unreadable())?;
+    if image.empty() {
+        return Err(unreadable());
+    }
+    Ok(image)
+}
+
+/// A JPEG whose last scan (`FF DA`) has no end-of-image marker (`FF D9`) after it. Inside a
+/// scan every `FF` byte is stuffed (`FF 00`), so `FF D9` there can only be the end.
+fn is_truncated_jpeg(bytes: &[u8]) -> bool {
+    if !bytes.starts_with(&[0xFF, 0xD8]) {
+        return false;
+    }
+    let last = |marker: u8| bytes.windows(2).rposition(|w| w == [0xFF, marker]);
+    match (last(0xDA), last(0xD9)) {
+        (Some(scan), Some(end)) => end < scan,
+        _ => true,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn a_jpeg_cut_short_is_truncated_and_a_whole_one_is_not() {
+        let whole = [0xFF, 0xD8, 0xFF, 0xDA, 1, 2, 0xFF, 0x00, 3, 0xFF, 0xD9];
+        assert!(!super::is_truncated_jpeg(&whole));
+        assert!(super::is_truncated_jpeg(&whole[..8]));
+        // Trailing bytes after the end marker are fine; a PNG is not a JPEG.
+        assert!(!super::is_truncated_jpeg(&[&whole[..], &[0, 0]].concat()));
+        assert!(!super::is_truncated_jpeg(b"\x89PNG"));
+    }
+}

@@ -39,7 +39,7 @@ pub enum DataError {
         first: usize,
         second: usize,
     },
-    #[error("{path}: no column `{name}` (the header has: {available}); choose columns with --inputs/--outputs")]
+    #[error("{path}: no column `{name}` (the header has: {available})")]
     MissingColumn {
         path: PathBuf,
         name: String,
@@ -458,10 +458,27 @@ fn csv_error(path: &Path, e: csv::Error) -> DataError {
             path: path.into(),
             source,
         },
+        csv::ErrorKind::Utf8 { err, .. } => DataError::Malformed {
+            path: path.into(),
+            line,
+            message: format!(
+                "field {} is not UTF-8 text; save the file as UTF-8 (or plain ASCII) CSV",
+                err.field() + 1
+            ),
+        },
+        csv::ErrorKind::UnequalLengths {
+            expected_len, len, ..
+        } => DataError::Malformed {
+            path: path.into(),
+            line,
+            message: format!(
+                "{len} fields, but the header has {expected_len}; every row needs one value per column"
+            ),
+        },
         kind => DataError::Malformed {
             path: path.into(),
             line,
-            message: format!("{kind:?}"),
+            message: format!("not a CSV row ({kind:?})"),
         },
     }
 }
@@ -484,7 +501,7 @@ impl Table {
         let mut reader = csv::ReaderBuilder::new()
             .trim(csv::Trim::All)
             .from_reader(std::io::BufReader::new(file));
-        let header = reader.headers().map_err(|e| bad(1, e.to_string()))?.clone();
+        let header = reader.headers().map_err(|e| csv_error(path, e))?.clone();
         Ok(Table {
             path: path.to_path_buf(),
             header,
@@ -527,9 +544,7 @@ impl Table {
         self.reader
             .records()
             .map(|r| {
-                let r = r.map_err(|e| {
-                    Table::error(&path, e.position().map_or(0, |p| p.line()), e.to_string())
-                })?;
+                let r = r.map_err(|e| csv_error(&path, e))?;
                 Ok((r.position().map_or(0, |p| p.line()), r))
             })
             .collect()

@@ -51,3 +51,49 @@ pub fn temp_beside(path: &Path, suffix: &str) -> io::Result<tempfile::NamedTempF
 pub fn write_bytes(path: &Path, bytes: &[u8]) -> io::Result<()> {
     write_atomic(path, |w| w.write_all(bytes))
 }
+
+/// The file names a previous run listed under `"files"` in the JSON file `listing` (empty when
+/// there is none, or it cannot be read).
+pub fn listed_files(listing: &Path) -> Vec<String> {
+    let Ok(text) = std::fs::read_to_string(listing) else {
+        return Vec::new();
+    };
+    let Ok(json) = serde_json::from_str::<serde_json::Value>(&text) else {
+        return Vec::new();
+    };
+    json["files"]
+        .as_array()
+        .map(|a| {
+            a.iter()
+                .filter_map(|v| v.as_str().map(str::to_string))
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+/// Removes the files of a previous run (`previous`, names in `dir`, as [`listed_files`] read
+/// them) that this run did not write again (`written`): a folder never mixes two runs' files.
+/// Names with a path separator are ignored. Returns what was removed.
+pub fn remove_stale(
+    dir: &Path,
+    previous: &[String],
+    written: &[std::path::PathBuf],
+) -> Vec<std::path::PathBuf> {
+    let kept: Vec<&std::ffi::OsStr> = written.iter().filter_map(|p| p.file_name()).collect();
+    previous
+        .iter()
+        .filter(|name| !name.contains(['/', '\\']) && !name.is_empty() && !name.starts_with('.'))
+        .filter(|name| !kept.contains(&std::ffi::OsStr::new(name.as_str())))
+        .map(|name| dir.join(name))
+        .filter(|path| path.is_file() && std::fs::remove_file(path).is_ok())
+        .collect()
+}
+
+/// The file names of `paths`, for a `"files"` listing.
+pub fn file_names(paths: &[std::path::PathBuf]) -> Vec<String> {
+    paths
+        .iter()
+        .filter_map(|p| p.file_name())
+        .map(|n| n.to_string_lossy().into_owned())
+        .collect()
+}

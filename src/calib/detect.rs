@@ -38,13 +38,16 @@ impl Detector {
 /// # Errors
 /// [`CalibError::NotAnImage`] when OpenCV cannot decode it.
 pub fn read_gray(path: &Path) -> Result<Mat, CalibError> {
-    let not_image = || CalibError::NotAnImage(path.to_path_buf());
-    let name = path.to_str().ok_or_else(not_image)?;
-    let image = imgcodecs::imread(name, imgcodecs::IMREAD_GRAYSCALE).map_err(|_| not_image())?;
-    if image.empty() {
-        return Err(not_image());
-    }
-    Ok(image)
+    let bytes = std::fs::read(path).map_err(|e| CalibError::NotAnImage {
+        path: path.to_path_buf(),
+        why: e.to_string(),
+    })?;
+    crate::cv::decode_image(&bytes, imgcodecs::IMREAD_GRAYSCALE).map_err(|why| {
+        CalibError::NotAnImage {
+            path: path.to_path_buf(),
+            why,
+        }
+    })
 }
 
 /// The inner corners of a `cols × rows` board in `gray`, row by row; `None` when not found.

@@ -55,12 +55,13 @@ impl StereoCalibration {
         use opencv::{imgcodecs, imgproc};
         let size = Size::new(self.rig.image_size[0], self.rig.image_size[1]);
         let rectified = |image: &Path, k: &[f64; 9], d: &[f64], r: &[f64; 9], p: &[f64; 12]| {
-            let src = imgcodecs::imread(
-                image
-                    .to_str()
-                    .ok_or_else(|| CalibError::NotAnImage(image.to_path_buf()))?,
-                imgcodecs::IMREAD_COLOR,
-            )?;
+            let not_image = |why: String| CalibError::NotAnImage {
+                path: image.to_path_buf(),
+                why,
+            };
+            let bytes = std::fs::read(image).map_err(|e| not_image(e.to_string()))?;
+            let src =
+                crate::cv::decode_image(&bytes, imgcodecs::IMREAD_COLOR).map_err(not_image)?;
             let (mut m1, mut m2, mut out) = (Mat::default(), Mat::default(), Mat::default());
             calib3d::init_undistort_rectify_map(
                 &mat(3, k)?,

@@ -61,8 +61,8 @@ pub enum CalibError {
         "no left*/right* image pairs (PNG or JPEG) in {0}; name them left_00.png, right_00.png, …"
     )]
     NoPairs(PathBuf),
-    #[error("{0} is not an image OpenCV can read; remove it or replace it")]
-    NotAnImage(PathBuf),
+    #[error("{path}: {why}; remove it or replace it")]
+    NotAnImage { path: PathBuf, why: String },
     #[error(
         "{left} is {lw}×{lh} but {right} is {rw}×{rh}; both cameras must capture at the same size"
     )]

@@ -6,6 +6,8 @@ use std::path::PathBuf;
 use handcap::pipeline::triangulate::{self, Triangulated};
 use handcap::triangulate::TriangulateOptions;
 
+use super::usage;
+
 #[derive(clap::Args)]
 pub struct Args {
     /// Directory with frames.csv and left_NNNNN / right_NNNNN images (PNG or JPEG)
@@ -39,7 +41,7 @@ pub struct Args {
     #[arg(long, default_value_t = TriangulateOptions::default().max_spread_mm)]
     max_spread_mm: f64,
     /// Marker area limits (pixels above half its peak redness): MIN,MAX
-    #[arg(long, value_delimiter = ',', num_args = 2, default_values_t = [TriangulateOptions::default().marker.min_area_px, TriangulateOptions::default().marker.max_area_px])]
+    #[arg(long, value_delimiter = ',', num_args = 1..=2, default_values_t = [TriangulateOptions::default().marker.min_area_px, TriangulateOptions::default().marker.max_area_px])]
     marker_area_px: Vec<usize>,
 }
 
@@ -54,8 +56,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         max_spread_mm: a.max_spread_mm,
         ..TriangulateOptions::default()
     };
-    options.marker.min_area_px = a.marker_area_px[0];
-    options.marker.max_area_px = a.marker_area_px[1];
+    let [min, max] = a.marker_area_px[..] else {
+        usage!("--marker-area-px takes two numbers, MIN,MAX");
+    };
+    (options.marker.min_area_px, options.marker.max_area_px) = (min, max);
     let done = super::with_session(|s| {
         triangulate::run(&a.frames, &a.calib, &pressures, &options, &a.out, s)
     })?;
@@ -85,6 +89,9 @@ pub fn print_summary(done: &Triangulated) {
         f.no_file[0],
         f.no_file[1],
     );
+    if let Some(first) = &f.first_unreadable {
+        println!("  first unreadable: {first}");
+    }
     let pairs: Vec<String> = s.pairs.iter().map(|(k, v)| format!("{v} {k}")).collect();
     println!(
         "pairs: {} formed ({} left, {} right frames unpaired): {}",

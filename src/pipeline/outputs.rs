@@ -81,8 +81,10 @@ pub fn check(inputs: &[&Path], outputs: &[Output]) -> Result<(), PipelineError> 
 
 /// A directory that takes new files: created when missing, then probed with a temporary file.
 fn writable(dir: &Path) -> Result<(), String> {
-    if dir.exists() && !dir.is_dir() {
-        return Err(format!("{} is not a directory", dir.display()));
+    if let Some(existing) = dir.ancestors().find(|a| a.exists()) {
+        if !existing.is_dir() {
+            return Err(format!("{} is not a directory", existing.display()));
+        }
     }
     std::fs::create_dir_all(dir)
         .map_err(|e| format!("cannot create the directory {}: {}", dir.display(), os(&e)))?;

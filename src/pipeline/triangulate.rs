@@ -95,6 +95,7 @@ pub fn run(
             frames.display()
         )));
     }
+    options.check().map_err(PipelineError::Usage)?;
     let calibration = read_calibration(calib)?;
     let log = pairing::read_pressure_log(pressures)?;
     check_outputs(frames, calib, pressures, &log, out)?;

@@ -102,19 +102,42 @@ pub fn write_model_report(
         move |source| ReportError::Io { path, source }
     };
     std::fs::create_dir_all(dir).map_err(err(dir))?;
+    let fit = dir.join("fit.json");
+    let previous = fsio::listed_files(&fit);
     let metrics = dir.join("metrics.csv");
     fsio::write_bytes(&metrics, metrics_csv(&report.tests).as_bytes()).map_err(err(&metrics))?;
-    let fit = dir.join("fit.json");
-    let json = serde_json::to_vec_pretty(report).expect("report serialises");
-    fsio::write_bytes(&fit, &json).map_err(err(&fit))?;
+    let mut written = vec![metrics];
     if let Some(history) = history {
         let path = dir.join("history.csv");
         fsio::write_bytes(&path, history_csv(history).as_bytes()).map_err(err(&path))?;
         convergence_figures(dir, history)?;
+        written.push(path);
+        for stem in CONVERGENCE {
+            written.extend(["png", "svg"].map(|ext| dir.join(format!("{stem}.{ext}"))));
+        }
     }
     let sweeps = sweep_figures(dir, comparison)?;
+    for stem in sweeps.iter().flat_map(|s| &s.stems) {
+        written.extend(["png", "svg"].map(|ext| dir.join(format!("{stem}.{ext}"))));
+    }
     let md = dir.join("report.md");
     fsio::write_bytes(&md, markdown(report, &sweeps).as_bytes()).map_err(err(&md))?;
+    written.extend([md, fit.clone()]);
+    // fit.json last, listing this run's files: the next run into `dir` removes the figures of
+    // this one that it does not draw again.
+    #[derive(Serialize)]
+    struct Listed<'a> {
+        #[serde(flatten)]
+        report: &'a ModelReport,
+        files: Vec<String>,
+    }
+    let listed = Listed {
+        report,
+        files: fsio::file_names(&written),
+    };
+    let bytes = serde_json::to_vec_pretty(&listed).expect("report serialises");
+    fsio::write_bytes(&fit, &bytes).map_err(err(&fit))?;
+    fsio::remove_stale(dir, &previous, &written);
     Ok(())
 }
 

@@ -5,7 +5,6 @@
 use std::collections::HashSet;
 use std::path::{Path, PathBuf};
 
-use opencv::core::{Mat, Vector};
 use opencv::imgcodecs;
 use opencv::prelude::*;
 
@@ -146,11 +145,7 @@ fn decode_png(bytes: &[u8], image: &mut RgbImage) -> Result<(), String> {
 
 fn decode_opencv(bytes: &[u8]) -> Result<RgbImage, String> {
     let not_image = |_| "not an image OpenCV can read".to_string();
-    let buf = Vector::<u8>::from_slice(bytes);
-    let bgr: Mat = imgcodecs::imdecode(&buf, imgcodecs::IMREAD_COLOR).map_err(not_image)?;
-    if bgr.empty() {
-        return Err("not an image OpenCV can read".into());
-    }
+    let bgr = crate::cv::decode_image(bytes, imgcodecs::IMREAD_COLOR)?;
     let (width, height) = (bgr.cols() as usize, bgr.rows() as usize);
     let bgr = if bgr.is_continuous() {
         bgr

@@ -96,6 +96,58 @@ pub struct TriangulateOptions {
     pub zero_kpa: f64,
 }
 
+impl TriangulateOptions {
+    /// Every limit within its range; the message names the flag.
+    ///
+    /// # Errors
+    /// What is wrong, e.g. "--marker-area-px 10,5: the smallest area must be at least 1 and
+    /// not above the largest".
+    pub fn check(&self) -> Result<(), String> {
+        let m = &self.marker;
+        let rules = [
+            (
+                m.min_area_px >= 1 && m.min_area_px <= m.max_area_px,
+                format!(
+                    "--marker-area-px {},{}: the smallest area must be at least 1 and not above the largest",
+                    m.min_area_px, m.max_area_px
+                ),
+            ),
+            (
+                self.max_dt_s > 0.0 && self.max_dt_s.is_finite(),
+                format!("--max-dt-ms {}: must be a positive number", 1e3 * self.max_dt_s),
+            ),
+            (
+                self.settle_s >= 0.0 && self.settle_s.is_finite(),
+                format!("--settle-s {}: must be a number ≥ 0", self.settle_s),
+            ),
+            (
+                self.max_reproj_px > 0.0 && self.max_reproj_px.is_finite(),
+                format!("--max-reproj-px {}: must be a positive number", self.max_reproj_px),
+            ),
+            (
+                self.min_frames >= 1,
+                "--min-frames 0: a row needs at least one frame pair".to_string(),
+            ),
+            (
+                self.max_spread_mm > 0.0 && self.max_spread_mm.is_finite(),
+                format!("--max-spread-mm {}: must be a positive number", self.max_spread_mm),
+            ),
+            (
+                m.max_elongation >= 1.0 && m.min_chroma.is_finite() && m.min_redness.is_finite(),
+                "the marker limits must be finite, the elongation at least 1".to_string(),
+            ),
+            (
+                self.zero_kpa >= 0.0 && self.zero_kpa.is_finite(),
+                format!("zero pressure threshold {} kPa: must be ≥ 0", self.zero_kpa),
+            ),
+        ];
+        match rules.into_iter().find(|(ok, _)| !ok) {
+            Some((_, why)) => Err(why),
+            None => Ok(()),
+        }
+    }
+}
+
 impl Default for TriangulateOptions {
     fn default() -> Self {
         TriangulateOptions {
@@ -224,6 +276,8 @@ pub struct FrameCounts {
     /// Red regions that failed the marker's limits, all frames.
     pub discarded_regions: usize,
     pub skipped: PerCamera,
+    /// The first unreadable frame and why (`frames.csv` line: reason), for the user to look at.
+    pub first_unreadable: Option<String>,
 }
 
 /// How the hand frame's origin was found.
@@ -529,7 +583,17 @@ fn count_frames(records: &[FrameRecord], results: &[FrameResult], c: &mut FrameC
         c.listed[cam] += 1;
         match r {
             FrameResult::NoFile => c.no_file[cam] += 1,
-            FrameResult::Unreadable(_) => c.unreadable[cam] += 1,
+            FrameResult::Unreadable(why) => {
+                c.unreadable[cam] += 1;
+                c.first_unreadable.get_or_insert_with(|| {
+                    format!(
+                        "{} frame {} (frames.csv line {}): {why}",
+                        f.camera.name(),
+                        f.index,
+                        f.line
+                    )
+                });
+            }
             FrameResult::Skipped => c.skipped[cam] += 1,
             FrameResult::Markers(m) => {
                 c.discarded_regions += m.discarded;

@@ -160,6 +160,8 @@ impl Triangulation {
         out: &Path,
         provenance: &Provenance,
     ) -> Result<Vec<PathBuf>, TriangulateError> {
+        let summary = beside(out, SUMMARY);
+        let previous = fsio::listed_files(&summary);
         let mut written = Vec::new();
         write_text(out, &self.dataset_csv(|_| true))?;
         written.push(out.to_path_buf());
@@ -182,21 +184,25 @@ impl Triangulation {
         let path = beside(out, HAND);
         write_text(&path, &self.hand_yaml(provenance))?;
         written.push(path);
-        let path = beside(out, SUMMARY);
-        let json = serde_json::json!({
-            "summary": self.summary,
-            "options": self.options,
-            "provenance": provenance,
-        });
-        write_text(
-            &path,
-            &(serde_json::to_string_pretty(&json).expect("serialisable") + "\n"),
-        )?;
-        written.push(path);
         let path = beside(out, DETECTIONS);
         if self.write_detections(&path)? {
             written.push(path);
         }
+        // The summary last, listing every file of this run (itself included), so that the
+        // next run into the same place removes what it does not write again.
+        written.push(summary.clone());
+        let json = serde_json::json!({
+            "summary": self.summary,
+            "options": self.options,
+            "provenance": provenance,
+            "files": fsio::file_names(&written),
+        });
+        write_text(
+            &summary,
+            &(serde_json::to_string_pretty(&json).expect("serialisable") + "\n"),
+        )?;
+        let dir = out.parent().unwrap_or(Path::new("."));
+        fsio::remove_stale(dir, &previous, &written);
         Ok(written)
     }
 

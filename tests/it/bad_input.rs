@@ -1,0 +1,464 @@
+//! Bad input, as a hostile-but-realistic user gives it: each test guards one defect found by
+//! trying 219 such cases (issue 14), named after what it guards. The promises: an output never
+//! replaces an input or another output; problems with outputs are found before the work; every
+//! error is one line naming the file and what to do; exit 2 for usage, 1 for errors, 130 for
+//! Ctrl-C.
+
+use std::path::Path;
+
+use crate::common::{
+    handcap, handcap_err, handcap_ok, handcap_usage, small_capture, tempdir, write,
+};
+
+/// A command line written as one string (no argument has a space).
+fn words(line: &str) -> Vec<&str> {
+    line.split_whitespace().collect()
+}
+
+fn synth(dir: &Path) {
+    handcap_ok(dir, &words("synth --out data --no-images --seed 1"));
+}
+
+/// Every file in `dir`, with its bytes, to check nothing changed.
+fn snapshot(dir: &Path) -> Vec<(std::path::PathBuf, Vec<u8>)> {
+    let mut files: Vec<_> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.is_file())
+        .map(|p| {
+            let bytes = std::fs::read(&p).unwrap();
+            (p, bytes)
+        })
+        .collect();
+    files.sort();
+    files
+}
+
+#[test]
+fn calibrate_never_writes_over_its_board_file_or_images() {
+    let dir = tempdir();
+    let d = dir.path();
+    small_capture(d, 5, 6);
+    let before = snapshot(&d.join("calib"));
+    for out in [
+        "calib/board.yml",
+        "calib/right_03.png",
+        "calib/left_ref.png",
+    ] {
+        let msg = handcap_usage(d, &["calibrate", "calib", "--out", out]);
+        assert!(msg.contains("would replace the input"), "{msg}");
+    }
+    assert_eq!(snapshot(&d.join("calib")), before);
+}
+
+#[test]
+fn a_board_flag_contradicting_board_yml_is_refused() {
+    let dir = tempdir();
+    let d = dir.path();
+    small_capture(d, 6, 6);
+    // 6x9 for a 9x6 board would turn the hand frame by 90°.
+    let msg = handcap_usage(d, &["calibrate", "calib", "--board", "6x9"]);
+    assert!(msg.contains("contradicts") && msg.contains("9x6"), "{msg}");
+    let msg = handcap_usage(d, &["calibrate", "calib", "--square-mm", "12"]);
+    assert!(msg.contains("--square-mm 12 contradicts"), "{msg}");
+}
+
+#[test]
+fn model_report_never_writes_over_inputs_named_like_report_files() {
+    let dir = tempdir();
+    let d = dir.path();
+    synth(d);
+    std::fs::create_dir(d.join("r")).unwrap();
+    std::fs::copy(d.join("data/train.csv"), d.join("r/metrics.csv")).unwrap();
+    std::fs::copy(d.join("data/sweep_a.csv"), d.join("r/history.csv")).unwrap();
+    let before = snapshot(&d.join("r"));
+    let args = [
+        "model",
+        "metrics.csv",
+        "--test",
+        "history.csv",
+        "--search",
+        "grid",
+        "--budget",
+        "8",
+        "--out",
+        "m.json",
+        "--report",
+        ".",
+    ];
+    let msg = handcap_usage(&d.join("r"), &args);
+    assert!(msg.contains("would replace the input"), "{msg}");
+    assert_eq!(snapshot(&d.join("r")), before);
+    assert!(!d.join("r/m.json").exists(), "nothing written");
+}
+
+#[test]
+fn triangulate_outputs_never_replace_the_frame_index_or_the_log_or_each_other() {
+    let dir = tempdir();
+    let d = dir.path();
+    small_capture(d, 7, 6);
+    let base = ["triangulate", "frames", "--calib", "truth/rig.yml", "--out"];
+    let frames_before = std::fs::read(d.join("frames/frames.csv")).unwrap();
+    let msg = handcap_usage(d, &[&base[..], &["frames/frames.csv"]].concat());
+    assert!(msg.contains("would replace the input"), "{msg}");
+    // The log is beside the dataset: `--out d.csv` writes d_pairs.csv.
+    std::fs::copy(d.join("pressures.csv"), d.join("d_pairs.csv")).unwrap();
+    let mut a = [&base[..], &["d.csv", "--pressures", "d_pairs.csv"]].concat();
+    let msg = handcap_usage(d, &a);
+    assert!(
+        msg.contains("d_pairs.csv") && msg.contains("would replace the input"),
+        "{msg}"
+    );
+    // A phase named `pairs` would make two outputs one file.
+    let log = std::fs::read_to_string(d.join("pressures.csv")).unwrap();
+    write(d, "log.csv", &log.replace(",sweep_a", ",pairs"));
+    a[7] = "log.csv";
+    let msg = handcap_usage(d, &a);
+    assert!(
+        msg.contains("written twice") && msg.contains("phase `pairs`"),
+        "{msg}"
+    );
+    assert_eq!(
+        std::fs::read(d.join("frames/frames.csv")).unwrap(),
+        frames_before
+    );
+    assert!(!d.join("d.csv").exists());
+}
+
+#[test]
+fn outputs_that_cannot_be_written_are_found_before_the_work() {
+    let dir = tempdir();
+    let d = dir.path();
+    synth(d);
+    write(d, "afile", "x");
+    // --report naming a file, an --out inside a file: refused before any search.
+    let msg = handcap_err(
+        d,
+        &words("model data/train.csv --search aco-paper --report afile/r"),
+    );
+    assert!(msg.contains("afile is not a directory"), "{msg}");
+    let msg = handcap_err(d, &["model", "data/train.csv", "--report", "afile"]);
+    assert!(msg.contains("afile is not a directory"), "{msg}");
+    if Path::new("/proc/self").is_dir() {
+        let msg = handcap_err(
+            d,
+            &words("model data/train.csv --search none --out /proc/x"),
+        );
+        assert!(
+            msg.contains("/proc") && msg.contains("does not take new files"),
+            "{msg}"
+        );
+        assert!(!msg.contains("os error"), "{msg}");
+    }
+    // A --test file with a missing column: found before the search, not after it.
+    write(d, "short.csv", "P1_kpa,P2_kpa\n1,2\n");
+    let msg = handcap_err(
+        d,
+        &words("model data/train.csv --search aco-paper --test short.csv"),
+    );
+    assert!(
+        msg.contains("short.csv") && msg.contains("no column"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn a_sigma_that_breaks_the_kernel_or_huge_values_are_refused_not_fitted_to_nan() {
+    let dir = tempdir();
+    let d = dir.path();
+    synth(d);
+    let msg = handcap_usage(
+        d,
+        &words("model data/train.csv --search none --sigma 1e-300"),
+    );
+    assert!(msg.contains("sigma") && msg.contains("1e-150"), "{msg}");
+    // One x_mm of ±1.7e308: its range overflows, so scaling would give NaN.
+    let text = std::fs::read_to_string(d.join("data/train.csv")).unwrap();
+    let mut lines: Vec<String> = text.lines().map(str::to_string).collect();
+    let x = lines[0].split(',').position(|h| h == "x_mm").unwrap();
+    let mut fields: Vec<String> = lines[3].split(',').map(str::to_string).collect();
+    fields[x] = "1.7e308".into();
+    lines[3] = fields.join(",");
+    write(d, "huge.csv", &(lines.join("\n") + "\n"));
+    let msg = handcap_err(d, &words("model huge.csv --search none --out h.json"));
+    assert!(
+        msg.contains("huge.csv") && msg.contains("x_mm") && msg.contains("1e100"),
+        "{msg}"
+    );
+    assert!(!d.join("h.json").exists());
+}
+
+#[test]
+fn predict_warns_far_outside_the_training_range() {
+    let dir = tempdir();
+    let d = dir.path();
+    synth(d);
+    handcap_ok(d, &words("model data/train.csv --search none --out m.json"));
+    write(
+        d,
+        "far.csv",
+        "P1_kpa,P2_kpa,P3_kpa\n1000,0,0\n-500,0,0\n100,100,100\n",
+    );
+    let out = handcap(d, &words("predict m.json far.csv --out p.csv"));
+    assert!(out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("2 of 3 rows lie outside the training range"),
+        "{stderr}"
+    );
+    assert!(stderr.contains("P1_kpa = 1000"), "{stderr}");
+    // Inside the range: no warning.
+    write(d, "near.csv", "P1_kpa,P2_kpa,P3_kpa\n100,100,100\n");
+    let out = handcap(d, &words("predict m.json near.csv --out q.csv"));
+    assert!(
+        out.stderr.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+#[test]
+fn predict_refuses_a_model_whose_numbers_overflow() {
+    let dir = tempdir();
+    let d = dir.path();
+    synth(d);
+    handcap_ok(d, &words("model data/train.csv --search none --out m.json"));
+    // Every coefficient 1e308 (finite, so the file loads): the sum overflows to infinity.
+    let mut model: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("m.json")).unwrap()).unwrap();
+    for row in model["model"]["coefficients"].as_array_mut().unwrap() {
+        for v in row.as_array_mut().unwrap() {
+            *v = 1e308.into();
+        }
+    }
+    write(d, "big.json", &model.to_string());
+    write(d, "in.csv", "P1_kpa,P2_kpa,P3_kpa\n100,100,100\n");
+    let msg = handcap_err(d, &words("predict big.json in.csv --out p.csv"));
+    assert!(msg.contains("row 1") && msg.contains("non-finite"), "{msg}");
+    assert!(!d.join("p.csv").exists());
+}
+
+#[test]
+fn a_calibration_whose_hand_axes_are_not_a_rotation_is_refused() {
+    let dir = tempdir();
+    let d = dir.path();
+    small_capture(d, 8, 6);
+    let rig = std::fs::read_to_string(d.join("truth/rig.yml")).unwrap();
+    let start = rig.find("R_hand").unwrap();
+    let data = start + rig[start..].find("data: [").unwrap() + "data: [".len();
+    let end = data + rig[data..].find(']').unwrap();
+    let zeros = format!("{}{}{}", &rig[..data], ["0."; 9].join(", "), &rig[end..]);
+    write(d, "zero.yml", &zeros);
+    let msg = handcap_err(d, &words("triangulate frames --calib zero.yml --out x.csv"));
+    assert!(
+        msg.contains("zero.yml") && msg.contains("R_hand is not a rotation"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn sizes_are_checked_before_allocating() {
+    let dir = tempdir();
+    let d = dir.path();
+    let msg = handcap_err(d, &words("synth --out s --no-images --grid-step-kpa 0.001"));
+    assert!(
+        msg.contains("--grid-step-kpa 0.001") && msg.contains("at most"),
+        "{msg}"
+    );
+    let msg = handcap_err(d, &words("synth --out s --no-images --sweep-step-kpa 0"));
+    assert!(msg.contains("--sweep-step-kpa 0"), "{msg}");
+    // 50 000 rows: the n × n kernel is refused with the limit and what to do (on a machine
+    // with less than the 120 GB it needs), or kept to --max-rows.
+    let mut text = String::from("a,b,y\n");
+    for k in 0..50_000 {
+        text += &format!("{},{},{}\n", k % 97, k % 89, (k % 13) as f64 * 0.1);
+    }
+    write(d, "big.csv", &text);
+    let args = [
+        "model",
+        "big.csv",
+        "--inputs",
+        "a,b",
+        "--outputs",
+        "y",
+        "--search",
+        "none",
+    ];
+    let out = handcap(d, &args);
+    if !out.status.success() {
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            stderr.contains("50000 rows need about") && stderr.contains("--max-rows"),
+            "{stderr}"
+        );
+    }
+    let said = handcap_ok(
+        d,
+        &[&args[..], &["--max-rows", "300", "--out", "small.json"]].concat(),
+    );
+    assert!(said.contains("300 rows"), "{said}");
+}
+
+#[test]
+fn unreadable_csv_bytes_and_ragged_rows_are_explained_not_dumped() {
+    let dir = tempdir();
+    let d = dir.path();
+    std::fs::write(
+        d.join("latin1.csv"),
+        b"P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm\n1,2,3,4,5,6\n\xe9,1,1,1,1,1\n",
+    )
+    .unwrap();
+    let msg = handcap_err(d, &["model", "latin1.csv", "--search", "none"]);
+    assert!(
+        msg.contains("latin1.csv: line 3") && msg.contains("UTF-8"),
+        "{msg}"
+    );
+    assert!(!msg.contains("Utf8 {"), "{msg}");
+    write(
+        d,
+        "ragged.csv",
+        "P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm\n1,2,3,4,5,6\n1,2,3\n",
+    );
+    let msg = handcap_err(d, &["model", "ragged.csv", "--search", "none"]);
+    assert!(
+        msg.contains("ragged.csv: line 3: 3 fields, but the header has 6"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn a_truncated_jpeg_is_reported_as_truncated() {
+    let dir = tempdir();
+    let d = dir.path();
+    small_capture(d, 9, 6);
+    // A JPEG cut short: libjpeg would decode it with grey rows and call the board "not found".
+    use opencv::core::Vector;
+    use opencv::imgcodecs;
+    use opencv::prelude::*;
+    let png = imgcodecs::imread(
+        d.join("calib/left_02.png").to_str().unwrap(),
+        imgcodecs::IMREAD_COLOR,
+    )
+    .unwrap();
+    let mut buf = Vector::<u8>::new();
+    imgcodecs::imencode(".jpg", &png, &mut buf, &Vector::new()).unwrap();
+    let jpeg = buf.to_vec();
+    std::fs::remove_file(d.join("calib/left_02.png")).unwrap();
+    std::fs::write(d.join("calib/left_02.jpg"), &jpeg[..jpeg.len() / 2]).unwrap();
+    let msg = handcap_err(d, &["calibrate", "calib"]);
+    assert!(
+        msg.contains("left_02.jpg") && msg.contains("truncated JPEG"),
+        "{msg}"
+    );
+}
+
+#[test]
+fn flags_are_checked_and_suggest_only_what_the_command_has() {
+    let dir = tempdir();
+    let d = dir.path();
+    synth(d);
+    handcap_ok(d, &words("model data/train.csv --search none --out m.json"));
+    // inverse: a NaN target and no target at all are usage errors.
+    let out = handcap(d, &["inverse", "m.json", "--target", "NaN,0,0"]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("not a finite number"));
+    assert_eq!(handcap(d, &["inverse", "m.json"]).status.code(), Some(2));
+    // predict on a file without the model's columns: no talk of --inputs, which it has not.
+    write(d, "other.csv", "a,b\n1,2\n");
+    let msg = handcap_err(d, &words("predict m.json other.csv --out p.csv"));
+    assert!(
+        msg.contains("no column `P1_kpa`") && !msg.contains("--inputs"),
+        "{msg}"
+    );
+    let msg = handcap_err(
+        d,
+        &words("model data/train.csv --group-by run --search grid --budget 8"),
+    );
+    assert!(
+        msg.contains("no column `run`") && !msg.contains("--inputs"),
+        "{msg}"
+    );
+    // --marker-area-px with the smallest above the largest.
+    small_capture(d, 10, 6);
+    let msg = handcap_usage(
+        d,
+        &words("triangulate frames --calib truth/rig.yml --marker-area-px 10,5"),
+    );
+    assert!(msg.contains("--marker-area-px 10,5"), "{msg}");
+}
+
+#[test]
+fn errors_say_an_os_reason_once() {
+    let dir = tempdir();
+    let d = dir.path();
+    let msg = handcap_err(d, &["model", "missing.csv"]);
+    assert_eq!(msg.matches("No such file").count(), 1, "{msg}");
+}
+
+#[test]
+fn a_second_run_into_the_same_place_leaves_no_files_of_the_first() {
+    let dir = tempdir();
+    let d = dir.path();
+    synth(d);
+    let model = |test: &str| {
+        handcap_ok(
+            d,
+            &[
+                "model",
+                "data/train.csv",
+                "--search",
+                "none",
+                "--test",
+                test,
+                "--out",
+                "m.json",
+                "--report",
+                "rep",
+            ],
+        )
+    };
+    model("data/sweep_a.csv");
+    assert!(d.join("rep/sweep_a_residuals.png").exists());
+    model("data/sweep_b.csv");
+    assert!(d.join("rep/sweep_b_residuals.png").exists());
+    assert!(
+        !d.join("rep/sweep_a_residuals.png").exists(),
+        "a figure of the first run is left beside the second's"
+    );
+    // A file of the user's in the folder is not handcap's to remove.
+    write(d, "rep/notes.txt", "mine");
+    model("data/sweep_a.csv");
+    assert!(d.join("rep/notes.txt").exists());
+
+    // triangulate: the per-phase files of a log with phases go when the next log has none.
+    small_capture(d, 11, 6);
+    let run = |log: &str| {
+        handcap_ok(
+            d,
+            &[
+                "triangulate",
+                "frames",
+                "--calib",
+                "truth/rig.yml",
+                "--pressures",
+                log,
+                "--out",
+                "t.csv",
+            ],
+        )
+    };
+    run("pressures.csv");
+    assert!(d.join("t_train.csv").exists());
+    let log = std::fs::read_to_string(d.join("pressures.csv")).unwrap();
+    let no_phase: String = log
+        .lines()
+        .map(|l| l.rsplit_once(',').unwrap().0.to_string() + "\n")
+        .collect();
+    write(d, "plain.csv", &no_phase);
+    run("plain.csv");
+    assert!(d.join("t.csv").exists());
+    assert!(
+        !d.join("t_train.csv").exists(),
+        "a stale per-phase file is left"
+    );
+}
