@@ -86,14 +86,21 @@ pub fn write_line_plot(stem: &Path, plot: &LinePlot) -> Result<(), FigureError> 
         let path = path.to_path_buf();
         move |e: String| FigureError::Draw { path, message: e }
     };
-    let tmp = fsio::temp_beside(&png, ".png").map_err(|e| draw_err(&png)(e.to_string()))?;
+    // Drawn in memory, encoded as plotters would (image's PNG encoder, its defaults), written
+    // atomically: a full disk is an I/O error naming the file, not a backend dump.
+    let mut rgb = vec![0u8; 3 * SIZE.0 as usize * SIZE.1 as usize];
     draw(
-        BitMapBackend::new(tmp.path(), SIZE).into_drawing_area(),
+        BitMapBackend::with_buffer(&mut rgb, SIZE).into_drawing_area(),
         plot,
     )
     .map_err(draw_err(&png))?;
-    tmp.persist(&png)
-        .map_err(|e| draw_err(&png)(e.error.to_string()))?;
+    fsio::write_atomic(&png, |w| {
+        use image::ImageEncoder;
+        image::codecs::png::PngEncoder::new(w)
+            .write_image(&rgb, SIZE.0, SIZE.1, image::ColorType::Rgb8)
+            .map_err(std::io::Error::other)
+    })
+    .map_err(|e| draw_err(&png)(e.to_string()))?;
 
     let svg_path = stem.with_extension("svg");
     let mut svg = String::new();

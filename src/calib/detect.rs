@@ -36,19 +36,30 @@ impl Detector {
 /// Reads an image as 8-bit grey.
 ///
 /// # Errors
-/// [`CalibError::NotAnImage`] when OpenCV cannot decode it.
+/// [`CalibError::NotAnImage`] when OpenCV cannot decode it, or it is too small to show a board.
 pub fn read_gray(path: &Path) -> Result<Mat, CalibError> {
     let bytes = std::fs::read(path).map_err(|e| CalibError::NotAnImage {
         path: path.to_path_buf(),
         why: e.to_string(),
     })?;
-    crate::cv::decode_image(&bytes, imgcodecs::IMREAD_GRAYSCALE).map_err(|why| {
-        CalibError::NotAnImage {
-            path: path.to_path_buf(),
-            why,
-        }
-    })
+    let not_image = |why: String| CalibError::NotAnImage {
+        path: path.to_path_buf(),
+        why,
+    };
+    let image = crate::cv::decode_image(&bytes, imgcodecs::IMREAD_GRAYSCALE).map_err(not_image)?;
+    if image.cols() < MIN_SIDE_PX || image.rows() < MIN_SIDE_PX {
+        return Err(not_image(format!(
+            "only {}×{} pixels, too small to show a chessboard (at least {MIN_SIDE_PX} a side)",
+            image.cols(),
+            image.rows()
+        )));
+    }
+    Ok(image)
 }
+
+/// The smallest image side a calibration image may have (OpenCV's detectors need room for
+/// their filters, and a board needs a few pixels per square).
+const MIN_SIDE_PX: i32 = 64;
 
 /// The inner corners of a `cols × rows` board in `gray`, row by row; `None` when not found.
 ///

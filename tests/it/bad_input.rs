@@ -462,3 +462,22 @@ fn a_second_run_into_the_same_place_leaves_no_files_of_the_first() {
         "a stale per-phase file is left"
     );
 }
+
+#[test]
+fn a_tiny_image_is_named_not_an_opencv_assertion() {
+    let dir = tempdir();
+    let d = dir.path();
+    std::fs::create_dir(d.join("tiny")).unwrap();
+    let pixel = handcap::synth::render::encode_png(1, 1, &[128, 128, 128]);
+    for k in 0..8 {
+        for side in ["left", "right"] {
+            std::fs::write(d.join(format!("tiny/{side}_{k:02}.png")), &pixel).unwrap();
+        }
+    }
+    let msg = handcap_err(d, &["calibrate", "tiny"]);
+    assert!(
+        msg.contains("tiny/") && msg.contains(".png: only 1×1 pixels"),
+        "{msg}"
+    );
+    assert!(!msg.contains("Assertion"), "{msg}");
+}

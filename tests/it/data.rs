@@ -61,7 +61,7 @@ fn missing_column_lists_what_there_is() {
     let (err, msg) = error_of("P1_kpa,x_mm\n1,2\n");
     assert!(matches!(err, DataError::MissingColumn { ref name, .. } if name == "P2_kpa"));
     assert!(
-        msg.contains("P1_kpa,x_mm") && msg.contains("--inputs"),
+        msg.contains("P1_kpa,x_mm") && msg.contains("no column `P2_kpa`"),
         "{msg}"
     );
 }

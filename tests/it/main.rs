@@ -6,6 +6,7 @@ mod cli;
 mod common;
 mod contract;
 mod data;
+mod fuzz;
 mod geometry;
 mod images;
 mod msvr;

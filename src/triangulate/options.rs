@@ -1,0 +1,92 @@
+//! The settings of a triangulation run and their ranges.
+
+use serde::Serialize;
+
+use super::marker::MarkerOptions;
+
+/// Settings of a run.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct TriangulateOptions {
+    pub marker: MarkerOptions,
+    /// Largest left/right timestamp difference of a pair (s).
+    pub max_dt_s: f64,
+    /// Frames earlier than this into their step are skipped (s).
+    pub settle_s: f64,
+    /// Largest reprojection error of a used pair, in either image (px).
+    pub max_reproj_px: f64,
+    /// Hartley-Sturm correction of the matches before triangulating.
+    pub correct_matches: bool,
+    /// Rows with fewer pairs are flagged.
+    pub min_frames: usize,
+    /// Rows whose pairs are further apart are flagged (mm).
+    pub max_spread_mm: f64,
+    /// A step is at zero pressure when all three are at most this (kPa).
+    pub zero_kpa: f64,
+}
+
+impl TriangulateOptions {
+    /// Every limit within its range; the message names the flag.
+    ///
+    /// # Errors
+    /// What is wrong, e.g. "--marker-area-px 10,5: the smallest area must be at least 1 and
+    /// not above the largest".
+    pub fn check(&self) -> Result<(), String> {
+        let m = &self.marker;
+        let rules = [
+            (
+                m.min_area_px >= 1 && m.min_area_px <= m.max_area_px,
+                format!(
+                    "--marker-area-px {},{}: the smallest area must be at least 1 and not above the largest",
+                    m.min_area_px, m.max_area_px
+                ),
+            ),
+            (
+                self.max_dt_s > 0.0 && self.max_dt_s.is_finite(),
+                format!("--max-dt-ms {}: must be a positive number", 1e3 * self.max_dt_s),
+            ),
+            (
+                self.settle_s >= 0.0 && self.settle_s.is_finite(),
+                format!("--settle-s {}: must be a number ≥ 0", self.settle_s),
+            ),
+            (
+                self.max_reproj_px > 0.0 && self.max_reproj_px.is_finite(),
+                format!("--max-reproj-px {}: must be a positive number", self.max_reproj_px),
+            ),
+            (
+                self.min_frames >= 1,
+                "--min-frames 0: a row needs at least one frame pair".to_string(),
+            ),
+            (
+                self.max_spread_mm > 0.0 && self.max_spread_mm.is_finite(),
+                format!("--max-spread-mm {}: must be a positive number", self.max_spread_mm),
+            ),
+            (
+                m.max_elongation >= 1.0 && m.min_chroma.is_finite() && m.min_redness.is_finite(),
+                "the marker limits must be finite, the elongation at least 1".to_string(),
+            ),
+            (
+                self.zero_kpa >= 0.0 && self.zero_kpa.is_finite(),
+                format!("zero pressure threshold {} kPa: must be ≥ 0", self.zero_kpa),
+            ),
+        ];
+        match rules.into_iter().find(|(ok, _)| !ok) {
+            Some((_, why)) => Err(why),
+            None => Ok(()),
+        }
+    }
+}
+
+impl Default for TriangulateOptions {
+    fn default() -> Self {
+        TriangulateOptions {
+            marker: MarkerOptions::default(),
+            max_dt_s: 0.020,
+            settle_s: 0.1,
+            max_reproj_px: 1.0,
+            correct_matches: true,
+            min_frames: 2,
+            max_spread_mm: 0.5,
+            zero_kpa: 1.0,
+        }
+    }
+}
