@@ -223,6 +223,15 @@ pub fn evenly_spaced(n: usize, max: usize) -> Vec<usize> {
     (0..max).map(|k| k * n / max).collect()
 }
 
+/// The column names of a CSV file's header.
+///
+/// # Errors
+/// The file cannot be read or has no header.
+pub fn header(path: &Path) -> Result<Vec<String>, DataError> {
+    let table = Table::open(path, "a header row")?;
+    Ok(table.header.iter().map(str::to_string).collect())
+}
+
 /// Reads the named columns of a CSV file, in the order given.
 ///
 /// # Errors

@@ -7,6 +7,7 @@ use super::usage;
 
 use handcap::data::{HAND_INPUTS, HAND_OUTPUTS};
 use handcap::model::msvr::fitness::FitnessKind;
+use handcap::model::msvr::folds::FoldsBy;
 use handcap::model::msvr::{MsvrParams, DEFAULT_MAX_ITER, DEFAULT_TOL};
 use handcap::pipeline::fit::{self, FitJob, FitOutcome, Selection};
 use handcap::report;
@@ -57,9 +58,13 @@ pub struct Args {
     /// Folds of the cross-validated fitness
     #[arg(long, default_value_t = 5)]
     folds: usize,
-    /// Column whose values group rows that must be held out together (e.g. a ramp or trial id
-    /// when consecutive rows are nearly the same); with --fitness cv
-    #[arg(long)]
+    /// How cross-validation cuts the rows: auto (a designed grid → shuffled; a run/ramp/trial
+    /// column → whole groups; a time series of near-copies → contiguous blocks), shuffle,
+    /// blocks, or a column whose values group rows held out together
+    #[arg(long, default_value = "auto", value_parser = clap::value_parser!(FoldsBy))]
+    folds_by: FoldsBy,
+    /// The same as --folds-by COLUMN
+    #[arg(long, conflicts_with = "folds_by")]
     group_by: Option<String>,
     /// Seed of the search and of the folds' shuffle
     #[arg(long, default_value_t = DEFAULT_SEED)]
@@ -121,8 +126,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if a.search_on.is_some() && a.search == SearchKind::None {
         usage!("--search-on gives the rows a search scores candidates on: use it with a --search");
     }
-    if a.group_by.is_some() && (a.fitness != FitnessArg::Cv || a.search == SearchKind::None) {
-        usage!("--group-by groups the folds of a cross-validated search: use it with --fitness cv and a --search");
+    let folds_given = a.group_by.is_some() || a.folds_by != FoldsBy::Auto;
+    if folds_given && (a.fitness != FitnessArg::Cv || a.search == SearchKind::None) {
+        usage!("--folds-by and --group-by cut the folds of a cross-validated search: use them with --fitness cv and a --search");
     }
     let method = match a.search {
         SearchKind::None => None,
@@ -155,7 +161,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             Some(method) => Selection::Search {
                 method,
                 fitness,
-                group_by: a.group_by,
+                folds_by: a.group_by.map_or(a.folds_by, FoldsBy::Column),
                 seed: a.seed,
                 on: a.search_on,
             },

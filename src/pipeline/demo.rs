@@ -28,6 +28,7 @@ use crate::fsio;
 use crate::model::file::{ModelFile, StoredModel};
 use crate::model::inverse::{self, InverseOptions, PlannedTarget};
 use crate::model::msvr::fitness::FitnessKind;
+use crate::model::msvr::folds::FoldsBy;
 use crate::model::msvr::{Msvr, MsvrParams};
 use crate::model::Errors;
 use crate::provenance::Provenance;
@@ -416,7 +417,7 @@ fn job(
         selection: Selection::Search {
             method: Method::AcoPaper(plan.aco),
             fitness: FitnessKind::Cv { folds: 5 },
-            group_by: None,
+            folds_by: FoldsBy::Auto,
             seed: plan.aco.seed,
             on: search_on,
         },

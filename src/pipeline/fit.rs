@@ -9,7 +9,8 @@ use super::{io_error, Event, PipelineError, Session};
 use crate::data::{self, HAND_INPUTS, HAND_OUTPUTS};
 use crate::model::file::{ModelFile, StoredModel};
 use crate::model::msvr::fitness::{Counters, FitnessKind};
-use crate::model::msvr::tune::{self, Groups, SearchSummary};
+use crate::model::msvr::folds::{self, FoldsBy};
+use crate::model::msvr::tune::{self, SearchSummary};
 use crate::model::msvr::{self, MsvrParams, MIN_FIT_ROWS};
 use crate::model::previous::{self, PreviousModel};
 use crate::model::{self, Predict};
@@ -23,7 +24,8 @@ pub enum Selection {
     Search {
         method: Method,
         fitness: FitnessKind,
-        group_by: Option<String>,
+        /// How cross-validation cuts the rows ([`folds::plan`]).
+        folds_by: FoldsBy,
         seed: u64,
         /// The rows candidates are scored on, when not the training data.
         on: Option<PathBuf>,
@@ -136,7 +138,7 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
         Selection::Search {
             method,
             fitness,
-            group_by,
+            folds_by,
             seed,
             on,
         } => {
@@ -149,17 +151,19 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
                     d
                 }
             };
-            let groups = match group_by {
-                None => None,
-                Some(column) => {
-                    let all = data::read_columns(scored_on, std::slice::from_ref(column))?.values;
-                    let kept = data::evenly_spaced(all.len(), job.max_rows.unwrap_or(usize::MAX));
-                    Some(Groups {
-                        column: column.clone(),
-                        labels: kept.iter().map(|&i| all[i]).collect(),
-                    })
-                }
+            let folds = match fitness {
+                FitnessKind::Cv { folds } => *folds,
+                FitnessKind::Train => 2,
             };
+            let plan = folds::plan(
+                folds_by,
+                &scored,
+                &other_columns(scored_on, folds_by, job)?,
+                folds,
+            )?;
+            if matches!(fitness, FitnessKind::Cv { .. }) {
+                session.emit(Event::Note(format!("folds: {}", plan.choice)));
+            }
             let started = Instant::now();
             let mut observer = Iterations {
                 session,
@@ -170,7 +174,7 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
                 &scored,
                 *fitness,
                 *seed,
-                groups.as_ref(),
+                &plan,
                 &job.params,
                 &mut observer,
                 session.interrupt,
@@ -262,6 +266,35 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
         });
     }
     Ok(FitOutcome { report, search })
+}
+
+/// The columns of `path` the fold choice may use, one value per kept row: the named column for
+/// `--folds-by COLUMN`; for `auto`, every numeric column that is neither input nor output.
+fn other_columns(
+    path: &Path,
+    by: &FoldsBy,
+    job: &FitJob,
+) -> Result<Vec<(String, Vec<f64>)>, PipelineError> {
+    let names: Vec<String> = match by {
+        FoldsBy::Shuffle | FoldsBy::Blocks => return Ok(Vec::new()),
+        FoldsBy::Column(column) => vec![column.clone()],
+        FoldsBy::Auto => data::header(path)?
+            .into_iter()
+            .filter(|h| !job.inputs.contains(h) && !job.outputs.contains(h) && h != "flag")
+            .collect(),
+    };
+    let mut out = Vec::new();
+    for name in names {
+        let read = data::read_columns(path, std::slice::from_ref(&name));
+        let values = match (read, by) {
+            (Ok(c), _) => c.values,
+            (Err(e), FoldsBy::Column(_)) => return Err(e.into()),
+            (Err(_), _) => continue, // not numeric: not a candidate
+        };
+        let kept = data::evenly_spaced(values.len(), job.max_rows.unwrap_or(usize::MAX));
+        out.push((name, kept.iter().map(|&i| values[i]).collect()));
+    }
+    Ok(out)
 }
 
 /// The file name of a path, for tables.

@@ -127,6 +127,8 @@ pub enum PipelineError {
     #[error(transparent)]
     Tune(#[from] crate::model::msvr::tune::TuneError),
     #[error(transparent)]
+    Folds(#[from] crate::model::msvr::folds::FoldsError),
+    #[error(transparent)]
     Previous(#[from] crate::model::previous::PreviousError),
     #[error(transparent)]
     Model(#[from] crate::model::ModelError),

@@ -537,9 +537,9 @@ fn markdown(r: &ModelReport, sweeps: &[SweepFigures]) -> String {
             search.method,
             search.fitness,
             search
-                .group_by
+                .folds
                 .as_ref()
-                .map(|c| format!(" with rows grouped by `{c}`"))
+                .map(|f| format!(" over {f}"))
                 .unwrap_or_default(),
             search.iterations,
             search.stop,

@@ -481,3 +481,40 @@ fn a_tiny_image_is_named_not_an_opencv_assertion() {
     );
     assert!(!msg.contains("Assertion"), "{msg}");
 }
+
+#[test]
+fn fold_columns_that_cannot_make_folds_are_named() {
+    let dir = tempdir();
+    let d = dir.path();
+    let mut text = String::from("run,one,three,P1_kpa,x_mm\n");
+    for k in 0..60 {
+        text += &format!(
+            "{},{},{},{},{}\n",
+            k / 6,
+            1,
+            k % 3,
+            k,
+            (k as f64 * 0.1).sin()
+        );
+    }
+    write(d, "runs.csv", &text);
+    let base = "model runs.csv --inputs P1_kpa --outputs x_mm --search grid --budget 8 --folds-by";
+    let msg = handcap_err(d, &[&words(base)[..], &["nothing"]].concat());
+    assert!(msg.contains("no column `nothing`"), "{msg}");
+    let msg = handcap_err(d, &[&words(base)[..], &["one"]].concat());
+    assert!(
+        msg.contains("--folds-by one: all 60 rows are in one group"),
+        "{msg}"
+    );
+    let msg = handcap_err(d, &[&words(base)[..], &["three"]].concat());
+    assert!(msg.contains("3 groups, fewer than the 5 folds"), "{msg}");
+    // The run column is found by itself and said.
+    let said = handcap_ok(
+        d,
+        &words(
+            "model runs.csv --inputs P1_kpa --outputs x_mm --search grid --budget 8 --out m.json",
+        ),
+    );
+    let model = std::fs::read_to_string(d.join("m.json")).unwrap();
+    assert!(model.contains("\"column\": \"run\""), "{said}");
+}

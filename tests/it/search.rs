@@ -195,7 +195,7 @@ fn aco_r_is_deterministic_and_keeps_its_budget() {
 #[test]
 fn grid_covers_the_box_log_evenly() {
     let grid = Grid {
-        budget: 125,
+        budget: 216,
         batch: 20,
     };
     assert_eq!(grid.per_axis(), 5);
@@ -406,4 +406,95 @@ fn every_search_setting_rule_is_checked_and_named() {
             );
         }
     }
+}
+
+/// A measured time series in miniature: one input ramping slowly between random targets, the
+/// output a smooth function of it plus a slow drift (lag, temperature) that neighbours share.
+/// Returns `ramps` ramps of 30 rows.
+fn drifting_ramps(seed: u64, ramps: usize) -> Dataset {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let (mut x, mut y) = (Vec::new(), Vec::new());
+    let (mut at, mut drift) = (0.5f64, 0.0f64);
+    for _ in 0..ramps {
+        let to = rng.random_range(0.0..1.0);
+        for k in 1..=30 {
+            let p = at + (to - at) * k as f64 / 30.0;
+            drift = 0.99 * drift + 0.05 * rng.random_range(-1.0..1.0);
+            x.push(p);
+            y.push((std::f64::consts::TAU * p).sin() + drift);
+        }
+        at = to;
+    }
+    handcap::data::Dataset {
+        source: "ramps.csv".into(),
+        inputs: handcap::data::Columns::new(vec!["p".into()], x),
+        outputs: handcap::data::Columns::new(vec!["y".into()], y),
+    }
+}
+
+/// Shuffled folds on a time series reward interpolating the drift between neighbours: their CV
+/// error is optimistic and the model chosen interpolates (large C, ε ≈ 0). The automatic folds
+/// see a time series, hold out blocks, estimate the error on new ramps, and choose a model at
+/// least as good there.
+#[test]
+fn auto_folds_on_a_time_series_estimate_the_error_on_new_ramps() {
+    use handcap::model::evaluate;
+    use handcap::model::msvr::folds::{self, FoldScheme, FoldsBy};
+    use handcap::model::msvr::tune;
+    let train = drifting_ramps(1, 24);
+    let unseen = drifting_ramps(2, 12);
+    let auto = folds::plan(&FoldsBy::Auto, &train, &[], 5).unwrap();
+    assert_eq!(
+        auto.choice.scheme,
+        FoldScheme::Blocks,
+        "{}",
+        auto.choice.reason
+    );
+    let shuffled = folds::plan(&FoldsBy::Shuffle, &train, &[], 5).unwrap();
+    let method = handcap::search::Method::Grid(Grid {
+        budget: 216,
+        ..Grid::default()
+    });
+    let choose = |plan| {
+        let (summary, _, _) = tune::run(
+            &method,
+            &train,
+            FitnessKind::Cv { folds: 5 },
+            7,
+            plan,
+            &MsvrParams::default(),
+            &mut (),
+            &never(),
+        )
+        .unwrap();
+        let model = MsvrParams::default()
+            .with_hyper(summary.best)
+            .check()
+            .unwrap()
+            .fit(&train)
+            .unwrap();
+        (summary, evaluate(&model, &unseen).unwrap().mae)
+    };
+    let (by_blocks, blocks_mae) = choose(&auto);
+    let (by_shuffle, shuffle_mae) = choose(&shuffled);
+    let (cv_blocks, cv_shuffled) = (by_blocks.best_fitness, by_shuffle.best_fitness);
+    assert!(
+        cv_shuffled < 0.85 * shuffle_mae,
+        "shuffled CV {cv_shuffled:.4} is not optimistic against {shuffle_mae:.4} on new ramps"
+    );
+    assert!(
+        (cv_blocks / blocks_mae - 1.0).abs() < 0.15,
+        "blocks CV {cv_blocks:.4} against {blocks_mae:.4} on new ramps"
+    );
+    assert!(
+        by_shuffle.best.c > 10.0 * by_blocks.best.c,
+        "shuffled folds pick C {} against {}",
+        by_shuffle.best.c,
+        by_blocks.best.c
+    );
+    assert!(
+        blocks_mae <= 1.02 * shuffle_mae,
+        "on new ramps: blocks {blocks_mae:.4}, shuffled {shuffle_mae:.4}"
+    );
 }

@@ -24,6 +24,7 @@
 //! ```
 
 pub mod fitness;
+pub mod folds;
 pub mod irwls;
 pub mod kernel;
 pub mod tune;

@@ -14,6 +14,7 @@ use std::sync::atomic::AtomicBool;
 use serde::{Deserialize, Serialize};
 
 use super::fitness::{Counters, Fitness, FitnessError, FitnessKind};
+use super::folds::{FoldChoice, FoldPlan};
 use super::{kernel, MinMaxScaler, MsvrParams};
 use crate::data::Dataset;
 use crate::search::{
@@ -31,23 +32,15 @@ pub enum TuneError {
     Msvr(#[from] super::MsvrError),
 }
 
-/// Group labels of the training rows (one per row) and the column they came from: rows of a
-/// group are held out together, as when consecutive rows of one ramp are nearly the same.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Groups {
-    pub column: String,
-    pub labels: Vec<f64>,
-}
-
 /// What the model file records of the search that chose its parameters.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SearchSummary {
     #[serde(flatten)]
     pub method: Method,
     pub fitness: FitnessKind,
-    /// The column whose values group rows into whole folds, if any.
+    /// How the cross-validation folds were cut, and why (`None` for the training fitness).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub group_by: Option<String>,
+    pub folds: Option<FoldChoice>,
     /// Seed of the folds' shuffle (the method's own `seed` is in its settings, flattened beside
     /// this; one name for both made the model file unreadable).
     pub fold_seed: u64,
@@ -116,13 +109,13 @@ pub fn run(
     data: &Dataset,
     fitness: FitnessKind,
     seed: u64,
-    groups: Option<&Groups>,
+    folds: &FoldPlan,
     solver: &MsvrParams,
     observer: &mut dyn Observer,
     interrupt: &AtomicBool,
 ) -> Result<(SearchSummary, SearchResult, Counters), TuneError> {
     super::check_memory(data.rows())?;
-    let labels = groups.map(|g| g.labels.as_slice());
+    let labels = folds.labels.as_deref();
     let scorer = Fitness::new(data, fitness, seed, labels, solver)?;
     let objective = |batch: &[Hyper]| scorer.evaluate(batch);
     let space = method.uses_space().then(|| space_for(data));
@@ -137,7 +130,7 @@ pub fn run(
     let summary = SearchSummary {
         method: *method,
         fitness,
-        group_by: groups.map(|g| g.column.clone()),
+        folds: matches!(fitness, FitnessKind::Cv { .. }).then(|| folds.choice.clone()),
         fold_seed: seed,
         space,
         best: result.best,

@@ -1,0 +1,356 @@
+//! How cross-validation cuts the rows into folds, and why.
+//!
+//! Shuffled k-fold CV assumes independent rows. A measured time series breaks that: each row is
+//! a near copy of its neighbours, so a held-out row is predicted from its neighbours on either
+//! side and CV rewards a model that interpolates them (tiny σ, huge C), which then fails on a
+//! new ramp (`../shared/notes/realdata.md`: 8.35 mm held out against 3.4 mm for contiguous
+//! folds on the soft trunk). `--folds-by auto` (the default) decides from the data:
+//!
+//! 1. **A designed grid** (every input takes at most [`GRID_LEVELS`] values): the rows are
+//!    independent settings of the experiment → shuffled folds (the paper's protocol; the
+//!    virtual micro-hand's grid keeps its folds and its search history).
+//! 2. **A grouping column** (a column of the file that is neither input nor output, whose every
+//!    value occupies one contiguous run of rows, at least two rows long on average, with at least
+//!    2 × folds groups: a ramp, trial or iteration id) → whole groups held out.
+//! 3. **Near-copies of neighbours** (the median distance between consecutive rows, inputs scaled
+//!    to [0, 1], below [`NEAR_COPY_RATIO`] of the median distance between random rows) →
+//!    contiguous blocks, one per fold (scikit-learn's unshuffled `KFold`).
+//! 4. Otherwise → shuffled folds.
+//!
+//! `shuffle`, `blocks` or a column name choose directly. The choice and its reason go to the
+//! output and the model file.
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use crate::data::{Columns, Dataset};
+
+/// Inputs with at most this many distinct values make a designed grid.
+pub const GRID_LEVELS: usize = 30;
+
+/// Consecutive rows closer than this share of random pairs are near copies.
+pub const NEAR_COPY_RATIO: f64 = 0.15;
+
+/// What `--folds-by` asks for.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum FoldsBy {
+    Auto,
+    Shuffle,
+    Blocks,
+    Column(String),
+}
+
+impl std::str::FromStr for FoldsBy {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        Ok(match s {
+            "auto" => FoldsBy::Auto,
+            "shuffle" => FoldsBy::Shuffle,
+            "blocks" => FoldsBy::Blocks,
+            "" => return Err("give auto, shuffle, blocks or a column name".into()),
+            column => FoldsBy::Column(column.to_string()),
+        })
+    }
+}
+
+/// The scheme chosen.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "scheme", rename_all = "snake_case")]
+pub enum FoldScheme {
+    /// Rows shuffled with the fold seed, dealt to folds.
+    Shuffle,
+    /// Contiguous blocks of rows in file order, one per fold.
+    Blocks,
+    /// Whole groups of the column held out together.
+    Groups { column: String },
+}
+
+/// The scheme and why, as the output and the model file record it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FoldChoice {
+    #[serde(flatten)]
+    pub scheme: FoldScheme,
+    pub reason: String,
+}
+
+impl std::fmt::Display for FoldChoice {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match &self.scheme {
+            FoldScheme::Shuffle => write!(f, "shuffled folds")?,
+            FoldScheme::Blocks => write!(f, "contiguous blocks")?,
+            FoldScheme::Groups { column } => write!(f, "whole groups of `{column}`")?,
+        }
+        write!(f, " ({})", self.reason)
+    }
+}
+
+/// The choice and the group label of every row (`None`: every row its own group).
+#[derive(Clone, Debug, PartialEq)]
+pub struct FoldPlan {
+    pub choice: FoldChoice,
+    pub labels: Option<Vec<f64>>,
+}
+
+/// Errors of choosing the folds.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum FoldsError {
+    #[error("--folds-by {column}: all {rows} rows are in one group; give a column that separates runs, or --folds-by blocks")]
+    OneGroup { column: String, rows: usize },
+    #[error("--folds-by {column}: {groups} groups, fewer than the {folds} folds; use --folds {groups} or fewer, or --folds-by blocks")]
+    FewGroups {
+        column: String,
+        groups: usize,
+        folds: usize,
+    },
+}
+
+/// Chooses the folds of `data` (module docs). `others` are the file's other numeric columns,
+/// one value per row of `data` (for `auto`, and the named column's values for a column).
+///
+/// # Errors
+/// [`FoldsError`] for a grouping column with one group or fewer groups than folds.
+pub fn plan(
+    by: &FoldsBy,
+    data: &Dataset,
+    others: &[(String, Vec<f64>)],
+    folds: usize,
+) -> Result<FoldPlan, FoldsError> {
+    let blocks = |reason: String| FoldPlan {
+        choice: FoldChoice {
+            scheme: FoldScheme::Blocks,
+            reason,
+        },
+        labels: Some(block_labels(data.rows(), folds)),
+    };
+    let shuffle = |reason: String| FoldPlan {
+        choice: FoldChoice {
+            scheme: FoldScheme::Shuffle,
+            reason,
+        },
+        labels: None,
+    };
+    let groups = |column: &str, labels: &[f64], reason: String| FoldPlan {
+        choice: FoldChoice {
+            scheme: FoldScheme::Groups {
+                column: column.to_string(),
+            },
+            reason,
+        },
+        labels: Some(labels.to_vec()),
+    };
+    match by {
+        FoldsBy::Shuffle => Ok(shuffle("--folds-by shuffle".into())),
+        FoldsBy::Blocks => Ok(blocks("--folds-by blocks".into())),
+        FoldsBy::Column(column) => {
+            let labels = others
+                .iter()
+                .find(|(name, _)| name == column)
+                .map(|(_, v)| v.as_slice())
+                .unwrap_or_default();
+            let count = distinct(labels);
+            if count < 2 {
+                return Err(FoldsError::OneGroup {
+                    column: column.clone(),
+                    rows: labels.len(),
+                });
+            }
+            if count < folds {
+                return Err(FoldsError::FewGroups {
+                    column: column.clone(),
+                    groups: count,
+                    folds,
+                });
+            }
+            Ok(groups(
+                column,
+                labels,
+                format!("--folds-by {column}: {count} groups"),
+            ))
+        }
+        FoldsBy::Auto => {
+            if let Some(levels) = grid_levels(&data.inputs) {
+                return Ok(shuffle(format!(
+                    "a designed grid: each input takes at most {levels} values, so rows are independent settings"
+                )));
+            }
+            if let Some((column, labels)) = others.iter().find(|(_, v)| is_run_grouping(v, folds)) {
+                let count = distinct(labels);
+                return Ok(groups(
+                    column,
+                    labels,
+                    format!("`{column}` holds {count} runs of consecutive rows; each run is held out whole"),
+                ));
+            }
+            let ratio = neighbour_ratio(&data.inputs);
+            if ratio < NEAR_COPY_RATIO {
+                return Ok(blocks(format!(
+                    "consecutive rows are near copies (their median distance is {:.0} % of random rows'): a time series, held out in contiguous blocks",
+                    100.0 * ratio
+                )));
+            }
+            Ok(shuffle(format!(
+                "rows look independent (consecutive rows {:.0} % as far apart as random ones)",
+                100.0 * ratio
+            )))
+        }
+    }
+}
+
+/// Row `i` of `n` in block ⌊i·k/n⌋.
+fn block_labels(n: usize, folds: usize) -> Vec<f64> {
+    (0..n).map(|i| (i * folds / n.max(1)) as f64).collect()
+}
+
+fn distinct(values: &[f64]) -> usize {
+    let mut v = values.to_vec();
+    v.sort_by(f64::total_cmp);
+    v.dedup();
+    v.len()
+}
+
+/// The largest number of distinct values of an input, when every input has at most
+/// [`GRID_LEVELS`].
+fn grid_levels(inputs: &Columns) -> Option<usize> {
+    let levels = (0..inputs.width())
+        .map(|j| distinct(&inputs.column(j).collect::<Vec<_>>()))
+        .max()?;
+    (levels <= GRID_LEVELS).then_some(levels)
+}
+
+/// Every value in one contiguous run, at least 2 × `folds` runs, runs 2 rows long on average.
+fn is_run_grouping(values: &[f64], folds: usize) -> bool {
+    let runs = 1 + values.windows(2).filter(|w| w[0] != w[1]).count();
+    !values.is_empty() && runs == distinct(values) && runs >= 2 * folds && values.len() >= 2 * runs
+}
+
+/// Median distance between consecutive rows over the median distance between random pairs
+/// (1000 pairs, a fixed seed), inputs scaled to [0, 1].
+fn neighbour_ratio(inputs: &Columns) -> f64 {
+    let n = inputs.rows();
+    if n < 3 {
+        return 1.0;
+    }
+    let scaler = super::MinMaxScaler::fit(inputs);
+    let scaled = scaler.transform(inputs);
+    let distance = |a: usize, b: usize| -> f64 {
+        scaled
+            .row(a)
+            .iter()
+            .zip(scaled.row(b))
+            .map(|(p, q)| {
+                let d = p - q;
+                if d.is_finite() {
+                    d * d
+                } else {
+                    0.0
+                }
+            })
+            .sum::<f64>()
+            .sqrt()
+    };
+    let mut consecutive: Vec<f64> = (1..n).map(|i| distance(i - 1, i)).collect();
+    let mut rng = ChaCha8Rng::seed_from_u64(0x666f_6c64);
+    let mut random: Vec<f64> = (0..1000)
+        .map(|_| distance(rng.random_range(0..n), rng.random_range(0..n)))
+        .collect();
+    let (Some(c), Some(r)) = (
+        crate::stats::median(&mut consecutive),
+        crate::stats::median(&mut random),
+    ) else {
+        return 1.0;
+    };
+    if r > 0.0 {
+        c / r
+    } else {
+        1.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn dataset(x: Vec<f64>, d: usize) -> Dataset {
+        let n = x.len() / d;
+        Dataset {
+            source: "t.csv".into(),
+            inputs: Columns::new((0..d).map(|j| format!("x{j}")).collect(), x),
+            outputs: Columns::new(vec!["y".into()], vec![0.0; n]),
+        }
+    }
+
+    #[test]
+    fn a_grid_keeps_shuffled_folds_even_in_nested_order() {
+        let mut x = Vec::new();
+        for a in 0..6 {
+            for b in 0..6 {
+                x.extend([a as f64 * 50.0, b as f64 * 50.0]);
+            }
+        }
+        let p = plan(&FoldsBy::Auto, &dataset(x, 2), &[], 5).unwrap();
+        assert_eq!(p.choice.scheme, FoldScheme::Shuffle);
+        assert!(
+            p.choice.reason.contains("designed grid"),
+            "{}",
+            p.choice.reason
+        );
+    }
+
+    #[test]
+    fn a_slow_ramp_is_held_out_in_blocks_and_a_ramp_id_as_groups() {
+        // Two inputs ramping slowly between random targets: near copies.
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let (mut x, mut ramp) = (Vec::new(), Vec::new());
+        let mut at = [0.0f64, 0.0];
+        for r in 0..20 {
+            let to = [rng.random_range(0.0..100.0), rng.random_range(0.0..100.0)];
+            for k in 1..=25 {
+                let t = k as f64 / 25.0;
+                x.extend([at[0] + t * (to[0] - at[0]), at[1] + t * (to[1] - at[1])]);
+                ramp.push(r as f64);
+            }
+            at = to;
+        }
+        let data = dataset(x, 2);
+        let p = plan(&FoldsBy::Auto, &data, &[], 5).unwrap();
+        assert_eq!(p.choice.scheme, FoldScheme::Blocks, "{}", p.choice.reason);
+        let labels = p.labels.unwrap();
+        assert_eq!(distinct(&labels), 5);
+        assert!(
+            labels.windows(2).all(|w| w[0] <= w[1]),
+            "blocks follow file order"
+        );
+        let others = [("ramp".to_string(), ramp)];
+        let p = plan(&FoldsBy::Auto, &data, &others, 5).unwrap();
+        assert_eq!(
+            p.choice.scheme,
+            FoldScheme::Groups {
+                column: "ramp".into()
+            }
+        );
+        // Random rows: shuffled.
+        let x: Vec<f64> = (0..400).map(|_| rng.random_range(0.0..100.0)).collect();
+        let p = plan(&FoldsBy::Auto, &dataset(x, 2), &[], 5).unwrap();
+        assert_eq!(p.choice.scheme, FoldScheme::Shuffle, "{}", p.choice.reason);
+    }
+
+    #[test]
+    fn a_grouping_column_with_too_few_groups_is_refused_by_name() {
+        let data = dataset((0..40).map(f64::from).collect(), 1);
+        let one = [("run".to_string(), vec![1.0; 40])];
+        let err = plan(&FoldsBy::Column("run".into()), &data, &one, 5).unwrap_err();
+        assert!(err
+            .to_string()
+            .contains("--folds-by run: all 40 rows are in one group"));
+        let three = [(
+            "run".to_string(),
+            (0..40).map(|i| f64::from(i % 3)).collect(),
+        )];
+        let err = plan(&FoldsBy::Column("run".into()), &data, &three, 5).unwrap_err();
+        assert!(
+            err.to_string().contains("3 groups, fewer than the 5 folds"),
+            "{err}"
+        );
+    }
+}
