@@ -22,6 +22,10 @@
 //! | `hand_axes`, `handcap_version`, `command`, `seed` | text | provenance |
 //!
 //! `board.yml`: `inner_corners_cols`, `inner_corners_rows`, `square_mm`.
+//!
+//! Reading checks what the geometry needs: `R` and `R_hand` must be rotations (orthonormal to
+//! 1e-3, determinant > 0; [`crate::geometry::Transform::from_rows`]), camera matrices must have
+//! positive focal lengths, every value must be finite.
 
 use std::path::{Path, PathBuf};
 
