@@ -195,7 +195,7 @@ fn aco_r_is_deterministic_and_keeps_its_budget() {
 #[test]
 fn grid_covers_the_box_log_evenly() {
     let grid = Grid {
-        budget: 216,
+        budget: 125,
         batch: 20,
     };
     assert_eq!(grid.per_axis(), 5);
