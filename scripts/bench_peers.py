@@ -1,0 +1,195 @@
+"""handcap's model search against what a user would pick instead, on the same splits.
+
+Run through `bash scripts/bench-peers.sh` (which makes the venv and builds handcap). For each
+dataset: handcap (the searches asked for, default folds) and scikit-learn SVR x 3 +
+GridSearchCV, KernelRidge + GridSearchCV, a Gaussian process (ARD RBF + white noise), random
+search and Optuna TPE over handcap's (C, epsilon, sigma) box at the same candidate budget (per-
+output SVR, unshuffled 5-fold CV as scikit-learn's default). Prints held-out MAE (mean over rows
+and outputs of |y - y_hat|, handcap's and the paper's measure) and wall time, one table.
+
+Datasets (from ../shared/realdata, never copied into the repository):
+  soft_trunk  6 pressures -> tip; ramps 0-23 for training (every 4th row, file order), 24-29 held out
+  tendon_arm  phase 1, 3 offsets -> tip; first 780 rows for training, last 220 held out
+  synthetic   handcap synth: the 50 kPa grid for training, the two sweeps held out
+"""
+
+import argparse
+import csv
+import json
+import os
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+SHARED = os.path.join(os.path.dirname(ROOT), "shared", "realdata")
+HANDCAP = os.path.join(ROOT, "target", "release", "handcap")
+
+
+def write(path, header, rows):
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(header)
+        w.writerows(rows)
+
+
+def splits(work):
+    """Writes the train/test files; returns (name, train, [tests], inputs, outputs)."""
+    out = []
+    st = os.path.join(SHARED, "soft_trunk", "soft_trunk_taskspace_clean.csv")
+    if os.path.exists(st):
+        rows = list(csv.reader(open(st)))
+        header, body = rows[0], rows[1:]
+        held = {24, 25, 26, 27, 28, 29}
+        train = [r for r in body if int(r[0]) not in held][::4]
+        test = [r for r in body if int(r[0]) in held]
+        write(os.path.join(work, "st_train.csv"), header, train)
+        write(os.path.join(work, "st_test.csv"), header, test)
+        out.append(("soft_trunk", "st_train.csv", ["st_test.csv"],
+                    [f"p{i}_kPa" for i in range(6)], ["x_mm", "y_mm", "z_mm"]))
+    ta = os.path.join(SHARED, "tendon_arm", "tendon_soft_arm_3000_joined.csv")
+    if os.path.exists(ta):
+        rows = list(csv.reader(open(ta)))
+        header, body = rows[0], [r for r in rows[1:] if r[1] == "1"]
+        write(os.path.join(work, "ta_train.csv"), header, body[:780])
+        write(os.path.join(work, "ta_test.csv"), header, body[780:])
+        out.append(("tendon_arm", "ta_train.csv", ["ta_test.csv"],
+                    ["act_s0_m0", "act_s0_m1", "act_s0_m2"],
+                    ["SA-up-X_mm", "SA-up-Y_mm", "SA-up-Z_mm"]))
+    subprocess.run([HANDCAP, "synth", "--out", os.path.join(work, "syn"), "--no-images"],
+                   check=True, stdout=subprocess.DEVNULL)
+    out.append(("synthetic", "syn/train.csv", ["syn/sweep_a.csv", "syn/sweep_b.csv"],
+                ["P1_kpa", "P2_kpa", "P3_kpa"], ["x_mm", "y_mm", "z_mm"]))
+    return out
+
+
+def load(path, inputs, outputs):
+    import pandas as pd
+    d = pd.read_csv(path)
+    return d[inputs].values, d[outputs].values
+
+
+def mae(y, p):
+    return float(np.abs(np.asarray(y) - np.asarray(p)).mean())
+
+
+def run_handcap(work, name, train, tests, inputs, outputs, search, budget):
+    model = os.path.join(work, f"{name}_{search}.json")
+    args = [HANDCAP, "model", train, "--inputs", ",".join(inputs), "--outputs",
+            ",".join(outputs), "--out", model, "--search", search]
+    if search in ("aco-r", "grid") and budget:
+        args += ["--budget", str(budget)]
+    for t in tests:
+        args += ["--test", t]
+    start = time.time()
+    subprocess.run(args, cwd=work, check=True, stdout=subprocess.DEVNULL,
+                   stderr=subprocess.DEVNULL)
+    seconds = time.time() - start
+    errors = []
+    for t in tests:
+        pred = os.path.join(work, "pred.csv")
+        subprocess.run([HANDCAP, "predict", model, t, "--out", pred], cwd=work, check=True,
+                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        _, y = load(os.path.join(work, t), inputs, outputs)
+        _, p = load(pred, inputs, outputs)
+        errors.append(mae(y, p))
+    with open(model) as f:
+        folds = json.load(f).get("search", {}).get("folds", {}).get("scheme", "-")
+    return errors, seconds, folds
+
+
+def peers(x, y, tests, budget, seed):
+    """(name, [held-out MAE per test], seconds) for each peer."""
+    from sklearn.gaussian_process import GaussianProcessRegressor
+    from sklearn.gaussian_process.kernels import RBF, WhiteKernel, ConstantKernel
+    from sklearn.kernel_ridge import KernelRidge
+    from sklearn.model_selection import GridSearchCV, RandomizedSearchCV, cross_val_score
+    from sklearn.multioutput import MultiOutputRegressor
+    from sklearn.pipeline import make_pipeline
+    from sklearn.preprocessing import MinMaxScaler
+    from sklearn.svm import SVR
+    from scipy.stats import loguniform
+
+    results = []
+
+    def timed(name, fit):
+        start = time.time()
+        model = fit()
+        seconds = time.time() - start
+        results.append((name, [mae(ty, model.predict(tx)) for tx, ty in tests], seconds))
+
+    svr = make_pipeline(MinMaxScaler(), MultiOutputRegressor(SVR()))
+    key = "multioutputregressor__estimator__"
+    spread = float(np.sqrt(((y - y.mean(0)) ** 2).sum(1).mean()))
+    timed("scikit-learn SVR x3 + GridSearchCV (48)", lambda: GridSearchCV(
+        svr, {key + "C": [1, 10, 100, 1000], key + "epsilon": [0.01 * spread, 0.1 * spread, 0.5],
+              key + "gamma": [0.1, 1, 10, 100]},
+        scoring="neg_mean_absolute_error", cv=5, n_jobs=2).fit(x, y))
+    kr = make_pipeline(MinMaxScaler(), KernelRidge(kernel="rbf"))
+    timed("scikit-learn KernelRidge + GridSearchCV (16)", lambda: GridSearchCV(
+        kr, {"kernelridge__alpha": [1e-3, 1e-2, 1e-1, 1], "kernelridge__gamma": [0.1, 1, 10, 100]},
+        scoring="neg_mean_absolute_error", cv=5, n_jobs=2).fit(x, y))
+    gp = make_pipeline(MinMaxScaler(), GaussianProcessRegressor(
+        ConstantKernel() * RBF(length_scale=np.ones(x.shape[1])) + WhiteKernel(),
+        normalize_y=True, random_state=seed))
+    timed("scikit-learn GaussianProcess (ARD RBF + white)", lambda: gp.fit(x, y))
+    box = {key + "C": loguniform(0.1, 1e7), key + "epsilon": loguniform(1e-4 * spread, 0.5 * spread),
+           key + "gamma": loguniform(0.1, 1e4)}
+    timed(f"scikit-learn SVR x3 + RandomizedSearchCV ({budget})", lambda: RandomizedSearchCV(
+        svr, box, n_iter=budget, scoring="neg_mean_absolute_error", cv=5, n_jobs=2,
+        random_state=seed).fit(x, y))
+    try:
+        import optuna
+        optuna.logging.set_verbosity(optuna.logging.WARNING)
+
+        def fit_tpe():
+            def objective(trial):
+                svr.set_params(**{
+                    key + "C": trial.suggest_float("C", 0.1, 1e7, log=True),
+                    key + "epsilon": trial.suggest_float("eps", 1e-4 * spread, 0.5 * spread, log=True),
+                    key + "gamma": trial.suggest_float("gamma", 0.1, 1e4, log=True)})
+                return -cross_val_score(svr, x, y, cv=5, scoring="neg_mean_absolute_error",
+                                        n_jobs=2).mean()
+            study = optuna.create_study(sampler=optuna.samplers.TPESampler(seed=seed))
+            study.optimize(objective, n_trials=budget)
+            p = study.best_params
+            svr.set_params(**{key + "C": p["C"], key + "epsilon": p["eps"], key + "gamma": p["gamma"]})
+            return svr.fit(x, y)
+        timed(f"Optuna TPE over SVR x3 ({budget})", fit_tpe)
+    except ImportError:
+        pass
+    return results
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--work", required=True)
+    ap.add_argument("--searches", default="aco-paper,aco-r,grid")
+    ap.add_argument("--budget", type=int, default=200)
+    ap.add_argument("--seed", type=int, default=2020)
+    ap.add_argument("--only", default="", help="comma-separated dataset names")
+    a = ap.parse_args()
+    os.makedirs(a.work, exist_ok=True)
+    print("| data | method | held-out MAE | time (s) |")
+    print("|---|---|---|---|")
+    for name, train, tests, inputs, outputs in splits(a.work):
+        if a.only and name not in a.only.split(","):
+            continue
+        for search in a.searches.split(","):
+            errors, seconds, folds = run_handcap(a.work, name, train, tests, inputs, outputs,
+                                                 search, a.budget)
+            label = f"handcap --search {search} (folds: {folds})"
+            print(f"| {name} | {label} | {' / '.join(f'{e:.3f}' for e in errors)} | {seconds:.1f} |",
+                  flush=True)
+        x, y = load(os.path.join(a.work, train), inputs, outputs)
+        held = [load(os.path.join(a.work, t), inputs, outputs) for t in tests]
+        for peer, errors, seconds in peers(x, y, held, a.budget, a.seed):
+            print(f"| {name} | {peer} | {' / '.join(f'{e:.3f}' for e in errors)} | {seconds:.1f} |",
+                  flush=True)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
