@@ -172,6 +172,7 @@ def main():
     ap.add_argument("--seed", type=int, default=2020)
     ap.add_argument("--only", default="", help="comma-separated dataset names")
     a = ap.parse_args()
+    a.work = os.path.abspath(a.work)
     os.makedirs(a.work, exist_ok=True)
     print("| data | method | held-out MAE | time (s) |")
     print("|---|---|---|---|")

@@ -134,6 +134,48 @@ pub fn calibration_yaml(cal: &StereoCalibration, provenance: &Provenance) -> Str
     fs.text().to_string()
 }
 
+/// Where [`anipose_toml`] is written beside the calibration file `out`: `OUT.toml`.
+pub fn toml_path(out: &Path) -> PathBuf {
+    out.with_extension("toml")
+}
+
+/// The calibration as Anipose/aniposelib's `calibration.toml` (what `CameraGroup.load` reads):
+/// `[cam_0]` (the left camera, `name = "left"`) and `[cam_1]` (`"right"`), each with `size`
+/// [w, h], `matrix` (K, rows), `distortions` (OpenCV's order), `rotation` and `translation`
+/// (Rodrigues vector and translation taking points of the first camera's frame, the world, into
+/// this camera's: the left camera's are zero, the right's are `R`, `T`, mm), then `[metadata]`
+/// with the calibration's reprojection RMS (px) as `error`.
+pub fn anipose_toml(cal: &StereoCalibration) -> String {
+    let list = |v: &[f64]| {
+        let items: Vec<String> = v.iter().map(|x| format!("{x:?}")).collect();
+        format!("[{}]", items.join(", "))
+    };
+    let pose = &cal.rig.right_from_left;
+    let cameras = [
+        ("left", &cal.rig.left, [0.0; 3], [0.0; 3]),
+        (
+            "right",
+            &cal.rig.right,
+            pose.rotation.scaled_axis().into(),
+            pose.translation_array(),
+        ),
+    ];
+    let mut out = String::new();
+    for (k, (name, cam, rotation, translation)) in cameras.iter().enumerate() {
+        let rows: Vec<String> = cam.k.chunks(3).map(list).collect();
+        out += &format!(
+            "[cam_{k}]\nname = \"{name}\"\nsize = [{}, {}]\nmatrix = [{}]\ndistortions = {}\nrotation = {}\ntranslation = {}\n\n",
+            cal.rig.image_size[0],
+            cal.rig.image_size[1],
+            rows.join(", "),
+            list(&cam.dist),
+            list(rotation),
+            list(translation),
+        );
+    }
+    out + &format!("[metadata]\nadjusted = false\nerror = {:?}\n", cal.rms_px)
+}
+
 /// `board.yml`: the printed board's inner corners and square size.
 pub fn board_yaml(board: &BoardSpec) -> String {
     let mut fs = FileStorage::new();

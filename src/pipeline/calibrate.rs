@@ -101,6 +101,7 @@ pub fn run(
         &inputs,
         &[
             Output::new(out, "--out"),
+            Output::new(file::toml_path(out), "the Anipose calibration.toml"),
             Output::new(pairs_png, "the per-pair error figure"),
             Output::new(pairs_svg, "the per-pair error figure"),
             Output::new(rectified, "the rectified pair figure"),
@@ -111,7 +112,10 @@ pub fn run(
     let calibration = result?;
     let yaml = file::calibration_yaml(&calibration, &session.provenance(None));
     fsio::write_bytes(out, yaml.as_bytes()).map_err(io_error(out))?;
-    let mut written = vec![out.to_path_buf()];
+    let toml = file::toml_path(out);
+    fsio::write_bytes(&toml, file::anipose_toml(&calibration).as_bytes())
+        .map_err(io_error(&toml))?;
+    let mut written = vec![out.to_path_buf(), toml];
     written.extend(calibration.write_figures(out)?);
     Ok(Calibrated {
         calibration,

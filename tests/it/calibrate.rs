@@ -45,6 +45,58 @@ fn assert_close(truth: &YamlRig, got: &YamlRig) {
     assert!(hand < 0.1, "hand axes off by {hand}°");
 }
 
+/// The Anipose `calibration.toml` beside the YAML, read by an independent TOML reader (the
+/// `toml` crate), holds the same cameras: K, distortion, size, and the right camera's pose as a
+/// Rodrigues vector and translation (the left camera's zero), OpenCV's conventions.
+fn anipose_toml_matches_the_yaml(toml_path: &Path, yaml: &YamlRig) {
+    use opencv::prelude::*;
+    let text = std::fs::read_to_string(toml_path).unwrap();
+    let doc: toml::Table = text.parse().unwrap();
+    let floats = |v: &toml::Value| -> Vec<f64> {
+        v.as_array()
+            .unwrap()
+            .iter()
+            .flat_map(|x| match x {
+                toml::Value::Array(row) => row.iter().map(|y| y.as_float().unwrap()).collect(),
+                other => vec![other.as_float().unwrap()],
+            })
+            .collect()
+    };
+    let mat = |m: &opencv::core::Mat| -> Vec<f64> {
+        (0..m.rows())
+            .flat_map(|r| (0..m.cols()).map(move |c| (r, c)))
+            .map(|(r, c)| *m.at_2d::<f64>(r, c).unwrap())
+            .collect()
+    };
+    for (cam, name, k, dist) in [
+        ("cam_0", "left", &yaml.k1, &yaml.d1),
+        ("cam_1", "right", &yaml.k2, &yaml.d2),
+    ] {
+        let t = doc[cam].as_table().unwrap();
+        assert_eq!(t["name"].as_str(), Some(name));
+        let size: Vec<i64> = t["size"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_integer().unwrap())
+            .collect();
+        assert_eq!(size, [1280, 720]);
+        assert_eq!(floats(&t["matrix"]), mat(k), "{cam} matrix");
+        assert_eq!(floats(&t["distortions"]), mat(dist), "{cam} distortions");
+    }
+    assert_eq!(floats(&doc["cam_0"]["rotation"]), [0.0; 3]);
+    assert_eq!(floats(&doc["cam_0"]["translation"]), [0.0; 3]);
+    let r = floats(&doc["cam_1"]["rotation"]);
+    let rotation = nalgebra::Rotation3::from_scaled_axis(nalgebra::Vector3::new(r[0], r[1], r[2]));
+    assert!(
+        (rotation.inverse() * yaml.r).angle() < 1e-9,
+        "Rodrigues vector ≠ R"
+    );
+    let t = floats(&doc["cam_1"]["translation"]);
+    assert!((nalgebra::Vector3::new(t[0], t[1], t[2]) - yaml.t).norm() < 1e-12);
+    assert!(doc["metadata"]["error"].as_float().unwrap() > 0.0);
+}
+
 fn rms_of(yaml: &Path) -> f64 {
     let text = std::fs::read_to_string(yaml).unwrap();
     text.lines()
@@ -68,6 +120,7 @@ fn calibrates_the_synthetic_rig_within_tolerance_and_rejects_a_corrupted_pair() 
     for figure in ["cal_pairs.png", "cal_pairs.svg", "cal_rectified.png"] {
         assert!(d.join(figure).is_file(), "{figure} missing");
     }
+    anipose_toml_matches_the_yaml(&d.join("cal.toml"), &read_rig(&d.join("cal.yml")));
     let yaml = std::fs::read_to_string(d.join("cal.yml")).unwrap();
     for key in [
         "image_size:",
