@@ -35,7 +35,10 @@ use opencv::prelude::*;
 
 use super::{BoardSpec, CalibError, PairReport, StereoCalibration};
 use crate::cv;
-use crate::geometry::{rotation_from_rows, rotation_rows, HandFromLeft, Intrinsics, RightFromLeft};
+use crate::geometry::{
+    relative, rotation_from_rows, rotation_rows, CamFromWorld, HandFromLeft, Intrinsics,
+    RightFromLeft,
+};
 use crate::opencv_yaml::FileStorage;
 use crate::provenance::Provenance;
 use crate::stereo::{StereoError, StereoRig};
@@ -176,6 +179,117 @@ pub fn anipose_toml(cal: &StereoCalibration) -> String {
     out + &format!("[metadata]\nadjusted = false\nerror = {:?}\n", cal.rms_px)
 }
 
+/// Reads an Anipose/aniposelib `calibration.toml` of two cameras (as [`anipose_toml`] writes
+/// it, or Anipose does): `cam_0` is taken as the left camera and the world, `cam_1` as the right.
+/// The pose between them is [`relative`] of the two cameras' poses (R = R₁ R₀ᵀ, T = t₁ − R t₀). It has no hand frame (`R_hand`): `triangulate` needs the YAML of a calibration
+/// with a reference pair.
+///
+/// # Errors
+/// [`StereoError`] naming the file and the camera or key that is missing or malformed.
+pub fn read_anipose_toml(path: &Path) -> Result<CalibrationFile, StereoError> {
+    let invalid = |message: String| StereoError::Invalid {
+        path: path.to_path_buf(),
+        message,
+    };
+    let text = std::fs::read_to_string(path).map_err(|e| StereoError::Unreadable {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })?;
+    let doc: toml::Table = text
+        .parse()
+        .map_err(|e: toml::de::Error| StereoError::Unreadable {
+            path: path.to_path_buf(),
+            message: format!("not TOML: {}", e.message()),
+        })?;
+    let numbers =
+        |cam: &str, key: &str, v: Option<&toml::Value>| -> Result<Vec<f64>, StereoError> {
+            let bad = || invalid(format!("[{cam}] {key} is missing or not a list of numbers"));
+            let mut out = Vec::new();
+            let mut push = |x: &toml::Value| -> Result<(), StereoError> {
+                let f = x
+                    .as_float()
+                    .or(x.as_integer().map(|i| i as f64))
+                    .ok_or_else(bad)?;
+                if !f.is_finite() {
+                    return Err(bad());
+                }
+                out.push(f);
+                Ok(())
+            };
+            for item in v.and_then(toml::Value::as_array).ok_or_else(bad)? {
+                match item.as_array() {
+                    Some(row) => row.iter().try_for_each(&mut push)?,
+                    None => push(item)?,
+                }
+            }
+            Ok(out)
+        };
+    let cameras: Vec<&str> = ["cam_0", "cam_1"]
+        .into_iter()
+        .filter(|c| doc.get(*c).is_some_and(toml::Value::is_table))
+        .collect();
+    if cameras.len() < 2 || doc.keys().filter(|k| k.starts_with("cam_")).count() != 2 {
+        return Err(invalid(format!(
+            "handcap needs exactly two cameras, [cam_0] (left) and [cam_1] (right); the file has {}",
+            doc.keys().filter(|k| k.starts_with("cam_")).count()
+        )));
+    }
+    // Each camera: intrinsics, size, and its pose in the world (the first camera's frame).
+    type Camera = (Intrinsics, [f64; 2], CamFromWorld);
+    let camera = |cam: &str| -> Result<Camera, StereoError> {
+        let t = &doc[cam];
+        let size = numbers(cam, "size", t.get("size"))?;
+        let k = numbers(cam, "matrix", t.get("matrix"))?;
+        let dist = numbers(cam, "distortions", t.get("distortions"))?;
+        let r = numbers(cam, "rotation", t.get("rotation"))?;
+        let tr = numbers(cam, "translation", t.get("translation"))?;
+        if size.len() != 2 || k.len() != 9 || r.len() != 3 || tr.len() != 3 {
+            return Err(invalid(format!(
+                "[{cam}]: size needs 2 numbers, matrix 3 × 3, rotation and translation 3 each"
+            )));
+        }
+        if k[0] <= 0.0 || k[4] <= 0.0 || k[8] != 1.0 {
+            return Err(invalid(format!("[{cam}] matrix is not a camera matrix")));
+        }
+        if ![4, 5, 8, 12, 14].contains(&dist.len()) {
+            return Err(invalid(format!(
+                "[{cam}] distortions has {} values; OpenCV distortion has 4, 5, 8, 12 or 14",
+                dist.len()
+            )));
+        }
+        Ok((
+            Intrinsics {
+                k: k.try_into().expect("nine values"),
+                dist,
+            },
+            [size[0], size[1]],
+            CamFromWorld::new(
+                Rotation3::from_scaled_axis(Vector3::new(r[0], r[1], r[2])),
+                Vector3::new(tr[0], tr[1], tr[2]),
+            ),
+        ))
+    };
+    let (left, left_size, left_pose) = camera("cam_0")?;
+    let (right, right_size, right_pose) = camera("cam_1")?;
+    if left_size != right_size {
+        return Err(invalid(format!(
+            "the cameras' sizes differ ({left_size:?} and {right_size:?}); both must capture at the same size"
+        )));
+    }
+    let between = relative(&left_pose, &right_pose);
+    Ok(CalibrationFile {
+        path: path.to_path_buf(),
+        rig: StereoRig {
+            image_size: left_size.map(|v| v as i32),
+            left,
+            right,
+            right_from_left: RightFromLeft::new(between.rotation, between.translation),
+        },
+        r_hand: None,
+        t_hand: None,
+    })
+}
+
 /// `board.yml`: the printed board's inner corners and square size.
 pub fn board_yaml(board: &BoardSpec) -> String {
     let mut fs = FileStorage::new();
@@ -273,6 +387,12 @@ fn reason(e: &opencv::Error) -> String {
 /// # Errors
 /// [`StereoError`] naming the file and the key that is missing or malformed.
 pub fn read_calibration(path: &Path) -> Result<CalibrationFile, StereoError> {
+    if path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("toml"))
+    {
+        return read_anipose_toml(path);
+    }
     let unreadable = |message: String| StereoError::Unreadable {
         path: path.to_path_buf(),
         message,

@@ -518,3 +518,38 @@ fn fold_columns_that_cannot_make_folds_are_named() {
     let model = std::fs::read_to_string(d.join("m.json")).unwrap();
     assert!(model.contains("\"column\": \"run\""), "{said}");
 }
+
+#[test]
+fn an_anipose_toml_without_two_cameras_is_one_line() {
+    let dir = tempdir();
+    let d = dir.path();
+    let cam = |k: usize| {
+        format!(
+            "[cam_{k}]\nname = \"c{k}\"\nsize = [1280, 720]\nmatrix = [[900.0, 0.0, 640.0], [0.0, 900.0, 360.0], [0.0, 0.0, 1.0]]\ndistortions = [0.0, 0.0, 0.0, 0.0, 0.0]\nrotation = [0.0, 0.0, 0.0]\ntranslation = [{}.0, 0.0, 0.0]\n\n",
+            -60 * k as i64
+        )
+    };
+    write(d, "one.toml", &cam(0));
+    write(d, "three.toml", &(cam(0) + &cam(1) + &cam(2)));
+    write(
+        d,
+        "bad.toml",
+        &(cam(0) + &cam(1).replace("matrix = [[900.0", "matrix = [[\"x\"")),
+    );
+    write(d, "two.toml", &(cam(0) + &cam(1)));
+    use handcap::calib::file::read_calibration;
+    for (file, says) in [
+        ("one.toml", "exactly two cameras"),
+        ("three.toml", "the file has 3"),
+        (
+            "bad.toml",
+            "[cam_1] matrix is missing or not a list of numbers",
+        ),
+    ] {
+        let msg = read_calibration(&d.join(file)).unwrap_err().to_string();
+        assert!(msg.contains(file) && msg.contains(says), "{msg}");
+        assert_eq!(msg.lines().count(), 1);
+    }
+    let two = read_calibration(&d.join("two.toml")).unwrap();
+    assert!((two.rig.right_from_left.translation.x + 60.0).abs() < 1e-12);
+}

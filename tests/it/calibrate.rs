@@ -95,6 +95,16 @@ fn anipose_toml_matches_the_yaml(toml_path: &Path, yaml: &YamlRig) {
     let t = floats(&doc["cam_1"]["translation"]);
     assert!((nalgebra::Vector3::new(t[0], t[1], t[2]) - yaml.t).norm() < 1e-12);
     assert!(doc["metadata"]["error"].as_float().unwrap() > 0.0);
+
+    // handcap reads it back as the same rig (any command taking --calib accepts it).
+    let back = handcap::calib::file::read_calibration(toml_path).unwrap();
+    assert_eq!(back.rig.image_size, [1280, 720]);
+    assert_eq!(back.rig.left.k.to_vec(), mat(&yaml.k1));
+    assert_eq!(back.rig.right.dist, mat(&yaml.d2));
+    let pose = back.rig.right_from_left;
+    assert!((pose.rotation.inverse() * yaml.r).angle() < 1e-9);
+    assert!((pose.translation - yaml.t).norm() < 1e-9);
+    assert!(back.r_hand.is_none());
 }
 
 fn rms_of(yaml: &Path) -> f64 {
