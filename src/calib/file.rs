@@ -179,6 +179,27 @@ pub fn anipose_toml(cal: &StereoCalibration) -> String {
     out + &format!("[metadata]\nadjusted = false\nerror = {:?}\n", cal.rms_px)
 }
 
+/// A camera matrix from a file's values (`name` for the message): nine values, fx and fy > 0,
+/// K₃₃ = 1. With [`distortion_coefficients`], the one rule both calibration readers (OpenCV
+/// YAML, Anipose TOML) apply.
+fn camera_matrix(name: &str, k: Vec<f64>) -> Result<[f64; 9], String> {
+    match <[f64; 9]>::try_from(k) {
+        Ok(k) if k[0] > 0.0 && k[4] > 0.0 && k[8] == 1.0 => Ok(k),
+        _ => Err(format!("{name} is not a camera matrix")),
+    }
+}
+
+/// OpenCV distortion from a file's values: 4, 5, 8, 12 or 14 finite numbers.
+fn distortion_coefficients(name: &str, d: Vec<f64>) -> Result<Vec<f64>, String> {
+    if ![4, 5, 8, 12, 14].contains(&d.len()) || d.iter().any(|x| !x.is_finite()) {
+        return Err(format!(
+            "{name} has {} values; OpenCV distortion has 4, 5, 8, 12 or 14",
+            d.len()
+        ));
+    }
+    Ok(d)
+}
+
 /// Reads an Anipose/aniposelib `calibration.toml` of two cameras (as [`anipose_toml`] writes
 /// it, or Anipose does): `cam_0` is taken as the left camera and the world, `cam_1` as the right.
 /// The pose between them is [`relative`] of the two cameras' poses (R = R₁ R₀ᵀ, T = t₁ − R t₀). It has no hand frame (`R_hand`): `triangulate` needs the YAML of a calibration
@@ -248,20 +269,13 @@ pub fn read_anipose_toml(path: &Path) -> Result<CalibrationFile, StereoError> {
                 "[{cam}]: size needs 2 numbers, matrix 3 × 3, rotation and translation 3 each"
             )));
         }
-        if k[0] <= 0.0 || k[4] <= 0.0 || k[8] != 1.0 {
-            return Err(invalid(format!("[{cam}] matrix is not a camera matrix")));
-        }
-        if ![4, 5, 8, 12, 14].contains(&dist.len()) {
-            return Err(invalid(format!(
-                "[{cam}] distortions has {} values; OpenCV distortion has 4, 5, 8, 12 or 14",
-                dist.len()
-            )));
-        }
+        let intrinsics = Intrinsics {
+            k: camera_matrix(&format!("[{cam}] matrix"), k).map_err(invalid)?,
+            dist: distortion_coefficients(&format!("[{cam}] distortions"), dist)
+                .map_err(invalid)?,
+        };
         Ok((
-            Intrinsics {
-                k: k.try_into().expect("nine values"),
-                dist,
-            },
+            intrinsics,
             [size[0], size[1]],
             CamFromWorld::new(
                 Rotation3::from_scaled_axis(Vector3::new(r[0], r[1], r[2])),
@@ -437,37 +451,23 @@ pub fn read_calibration(path: &Path) -> Result<CalibrationFile, StereoError> {
         if node.empty()? || node.is_none()? {
             return Err(invalid(format!("no {key}")));
         }
-        let v = cv::values(&node.mat()?)?;
-        if ![4, 5, 8, 12, 14].contains(&v.len()) || v.iter().any(|x| !x.is_finite()) {
-            return Err(invalid(format!(
-                "{key} has {} values; OpenCV distortion has 4, 5, 8, 12 or 14",
-                v.len()
-            )));
-        }
-        Ok(v)
+        distortion_coefficients(key, cv::values(&node.mat()?)?).map_err(invalid)
     };
     let size_node = fs.get("image_size")?;
     if size_node.empty()? || !size_node.is_seq()? || size_node.size()? != 2 {
         return Err(invalid("no image_size [width, height]".into()));
     }
     let image_size = [size_node.at(0)?.to_i32()?, size_node.at(1)?.to_i32()?];
-    let k = |key: &str| -> Result<[f64; 9], StereoError> {
-        let v = required(key, 9)?;
-        if v[0] <= 0.0 || v[4] <= 0.0 || v[8] != 1.0 {
-            return Err(invalid(format!("{key} is not a camera matrix")));
-        }
-        Ok(v.try_into().expect("nine values"))
+    let camera = |k: &str, d: &str| -> Result<Intrinsics, StereoError> {
+        Ok(Intrinsics {
+            k: camera_matrix(k, required(k, 9)?).map_err(invalid)?,
+            dist: distortion(d)?,
+        })
     };
     let rig = StereoRig {
         image_size,
-        left: Intrinsics {
-            k: k("K1")?,
-            dist: distortion("D1")?,
-        },
-        right: Intrinsics {
-            k: k("K2")?,
-            dist: distortion("D2")?,
-        },
+        left: camera("K1", "D1")?,
+        right: camera("K2", "D2")?,
         right_from_left: RightFromLeft::from_rows(
             &required("R", 9)?.try_into().expect("nine values"),
             required("T", 3)?.try_into().expect("three values"),
