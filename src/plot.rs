@@ -75,13 +75,24 @@ fn register_font() -> Result<(), FigureError> {
     .map_err(FigureError::Font)
 }
 
-/// Writes `stem.png` and `stem.svg`.
+/// The files [`write_line_plot`] writes for `stem`: `STEM.png` and `STEM.svg`, the extension
+/// added to the whole name (a stem with a dot, `sweep.a_x_mm`, keeps it).
+pub fn line_plot_files(stem: &Path) -> [PathBuf; 2] {
+    ["png", "svg"].map(|ext| {
+        let mut name = stem.as_os_str().to_owned();
+        name.push(".");
+        name.push(ext);
+        PathBuf::from(name)
+    })
+}
+
+/// Writes the two [`line_plot_files`] of `stem`.
 ///
 /// # Errors
 /// [`FigureError`] when the font is missing or a file cannot be drawn or written.
 pub fn write_line_plot(stem: &Path, plot: &LinePlot) -> Result<(), FigureError> {
     register_font()?;
-    let png = stem.with_extension("png");
+    let [png, svg_path] = line_plot_files(stem);
     let draw_err = |path: &Path| {
         let path = path.to_path_buf();
         move |e: String| FigureError::Draw { path, message: e }
@@ -102,7 +113,6 @@ pub fn write_line_plot(stem: &Path, plot: &LinePlot) -> Result<(), FigureError> 
     })
     .map_err(|e| draw_err(&png)(e.to_string()))?;
 
-    let svg_path = stem.with_extension("svg");
     let mut svg = String::new();
     draw(
         SVGBackend::with_string(&mut svg, SIZE).into_drawing_area(),

@@ -40,13 +40,12 @@ impl StereoCalibration {
             series: vec![bars(0, "left", -0.2), bars(1, "right", 0.2)],
             log_y: false,
         };
-        let [png, svg, rectified] = figure_paths(stem);
-        figures::write_line_plot(&png.with_extension(""), &plot)?;
-        let mut written = vec![png, svg];
+        let [pairs, rectified] = stems(stem);
+        figures::write_line_plot(&pairs, &plot)?;
+        let mut written = figures::line_plot_files(&pairs).to_vec();
         if let Some(first) = used.first() {
-            let path = rectified;
-            self.write_rectified(first, &path)?;
-            written.push(path);
+            self.write_rectified(first, &rectified)?;
+            written.push(rectified);
         }
         Ok(written)
     }
@@ -122,9 +121,15 @@ impl StereoCalibration {
 /// The figures written beside the calibration file `stem`: `STEM_pairs.png`, `STEM_pairs.svg`
 /// and `STEM_rectified.png`.
 pub fn figure_paths(stem: &Path) -> [PathBuf; 3] {
+    let [pairs, rectified] = stems(stem);
+    let [png, svg] = figures::line_plot_files(&pairs);
+    [png, svg, rectified]
+}
+
+/// `STEM_pairs` (the per-pair error plot's stem) and `STEM_rectified.png`.
+fn stems(stem: &Path) -> [PathBuf; 2] {
     let name = stem
         .file_stem()
         .map_or_else(|| "calib".into(), |s| s.to_string_lossy().into_owned());
-    ["_pairs.png", "_pairs.svg", "_rectified.png"]
-        .map(|suffix| stem.with_file_name(format!("{name}{suffix}")))
+    ["_pairs", "_rectified.png"].map(|suffix| stem.with_file_name(format!("{name}{suffix}")))
 }

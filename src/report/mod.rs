@@ -113,12 +113,12 @@ pub fn write_model_report(
         convergence_figures(dir, history)?;
         written.push(path);
         for stem in CONVERGENCE {
-            written.extend(["png", "svg"].map(|ext| dir.join(format!("{stem}.{ext}"))));
+            written.extend(figures::line_plot_files(&dir.join(stem)));
         }
     }
     let sweeps = sweep_figures(dir, comparison)?;
     for stem in sweeps.iter().flat_map(|s| &s.stems) {
-        written.extend(["png", "svg"].map(|ext| dir.join(format!("{stem}.{ext}"))));
+        written.extend(figures::line_plot_files(&dir.join(stem)));
     }
     let md = dir.join("report.md");
     fsio::write_bytes(&md, markdown(report, &sweeps).as_bytes()).map_err(err(&md))?;
@@ -150,44 +150,45 @@ pub fn report_files(
     tests: &[String],
     outputs: &[String],
 ) -> Vec<(PathBuf, String)> {
-    let mut files: Vec<(String, String)> = ["metrics.csv", "fit.json", "report.md"]
-        .map(|f| (f.to_string(), format!("report file {f}")))
+    let mut files: Vec<(PathBuf, String)> = ["metrics.csv", "fit.json", "report.md"]
+        .map(|f| (dir.join(f), format!("report file {f}")))
         .to_vec();
     let figure = |stem: &str, what: &str| {
-        ["png", "svg"].map(|ext| (format!("{stem}.{ext}"), what.to_string()))
+        figures::line_plot_files(&dir.join(stem)).map(|path| (path, what.to_string()))
     };
     if searched {
-        files.push(("history.csv".into(), "report file history.csv".into()));
+        files.push((dir.join("history.csv"), "report file history.csv".into()));
         files.extend(figure(CONVERGENCE[0], "the report's Figure 7"));
         files.extend(figure(CONVERGENCE[1], "the report's Figure 8"));
     }
     for test in tests {
-        let stem = test_stem(test);
         for output in outputs {
             files.extend(figure(
-                &format!("{stem}_{output}"),
+                &sweep_stem(test, output),
                 &format!("the report's sweep figure of {test}"),
             ));
         }
         files.extend(figure(
-            &format!("{stem}_residuals"),
+            &sweep_stem(test, RESIDUALS),
             &format!("the report's residual figure of {test}"),
         ));
     }
     files
-        .into_iter()
-        .map(|(name, role)| (dir.join(name), role))
-        .collect()
 }
 
 /// The paper's Figures 7 and 8 (file stems).
 const CONVERGENCE: [&str; 2] = ["fig7_min_mae", "fig8_mean_mae"];
 
-/// A test file's name without its extension, the stem of its figures.
-fn test_stem(test: &str) -> String {
-    Path::new(test)
+/// The residual figure's name beside the outputs' ([`sweep_stem`]).
+const RESIDUALS: &str = "residuals";
+
+/// The stem of a sweep figure of test file `test`: its name without the extension, then
+/// `_<figure>` (an output column, or [`RESIDUALS`]).
+fn sweep_stem(test: &str, figure: &str) -> String {
+    let stem = Path::new(test)
         .file_stem()
-        .map_or_else(|| test.to_string(), |s| s.to_string_lossy().into_owned())
+        .map_or_else(|| test.to_string(), |s| s.to_string_lossy().into_owned());
+    format!("{stem}_{figure}")
 }
 
 /// A test file whose inputs move along one line: some columns rise together (equal on every
@@ -295,7 +296,6 @@ fn sweep_figures(dir: &Path, c: &Comparison) -> Result<Vec<SweepFigures>, Report
             curves.push((m.name, curve));
             at_data.push((m.name, fitted));
         }
-        let stem = test_stem(test);
         let label = sweep.label(names);
         let held = sweep.held(names);
         let mut stems = Vec::new();
@@ -318,7 +318,7 @@ fn sweep_figures(dir: &Path, c: &Comparison) -> Result<Vec<SweepFigures>, Report
                     colour: k,
                 });
             }
-            let name = format!("{stem}_{output}");
+            let name = sweep_stem(test, output);
             let plot = figures::LinePlot {
                 title: format!("{output} along {test} ({held})"),
                 x_label: format!("{label} (swept)"),
@@ -348,7 +348,7 @@ fn sweep_figures(dir: &Path, c: &Comparison) -> Result<Vec<SweepFigures>, Report
                 colour: k,
             })
             .collect();
-        let name = format!("{stem}_residuals");
+        let name = sweep_stem(test, RESIDUALS);
         let plot = figures::LinePlot {
             title: format!("Euclidean error along {test} ({held})"),
             x_label: format!("{label} (swept)"),

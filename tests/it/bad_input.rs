@@ -553,3 +553,25 @@ fn an_anipose_toml_without_two_cameras_is_one_line() {
     let two = read_calibration(&d.join("two.toml")).unwrap();
     assert!((two.rig.right_from_left.translation.x + 60.0).abs() < 1e-12);
 }
+
+#[test]
+fn figures_of_a_file_with_a_dot_in_its_name_keep_their_names() {
+    let dir = tempdir();
+    let d = dir.path();
+    synth(d);
+    std::fs::copy(d.join("data/sweep_a.csv"), d.join("data/sweep.a.csv")).unwrap();
+    handcap_ok(
+        d,
+        &words(
+            "model data/train.csv --search none --test data/sweep.a.csv --out m.json --report rep",
+        ),
+    );
+    // One figure per output, not all four drawn over `sweep.png`.
+    for output in ["x_mm", "y_mm", "z_mm", "residuals"] {
+        for ext in ["png", "svg"] {
+            let figure = d.join(format!("rep/sweep.a_{output}.{ext}"));
+            assert!(figure.is_file(), "{} missing", figure.display());
+        }
+    }
+    assert!(!d.join("rep/sweep.png").exists());
+}
