@@ -80,11 +80,15 @@ fn is_truncated_jpeg(bytes: &[u8]) -> bool {
     if !bytes.starts_with(&[0xFF, 0xD8]) {
         return false;
     }
-    let last = |marker: u8| bytes.windows(2).rposition(|w| w == [0xFF, marker]);
-    match (last(0xDA), last(0xD9)) {
-        (Some(scan), Some(end)) => end < scan,
-        _ => true,
-    }
+    // Searched from the ends that find them at once (the end marker is last, the first scan
+    // follows the headers), not the whole frame: this runs on every frame.
+    let is_scan = |w: &[u8]| w == [0xFF, 0xDA];
+    let Some(end) = bytes.windows(2).rposition(|w| w == [0xFF, 0xD9]) else {
+        return true;
+    };
+    let scan_after_end = bytes[end..].windows(2).any(is_scan);
+    let any_scan = bytes.windows(2).any(is_scan);
+    scan_after_end || !any_scan
 }
 
 #[cfg(test)]

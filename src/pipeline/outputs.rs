@@ -3,7 +3,8 @@
 //! created) and can be written. A long search or triangulation is never lost to an output
 //! problem found at the end.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
+use std::ffi::OsStr;
 use std::path::{Component, Path, PathBuf};
 
 use super::PipelineError;
@@ -31,13 +32,22 @@ impl Output {
 /// [`PipelineError::Usage`] naming the output, what it would replace and what to do; or the
 /// directory that cannot be created or written.
 pub fn check(inputs: &[&Path], outputs: &[Output]) -> Result<(), PipelineError> {
+    let resolved: Vec<PathBuf> = outputs.iter().map(|o| resolve(&o.path)).collect();
+    // An input can be an output only if its resolved name is an output's: only those inputs,
+    // and inputs that are links themselves, are resolved (triangulate reads thousands of
+    // frames; resolving each costs several system calls).
+    let names: HashSet<&OsStr> = resolved.iter().filter_map(|p| p.file_name()).collect();
     let read: HashMap<PathBuf, &Path> = inputs
         .iter()
+        .filter(|p| {
+            p.file_name().is_some_and(|n| names.contains(n))
+                || p.symlink_metadata()
+                    .is_ok_and(|m| m.file_type().is_symlink())
+        })
         .filter_map(|p| p.canonicalize().ok().map(|c| (c, *p)))
         .collect();
     let mut seen: HashMap<PathBuf, &Output> = HashMap::new();
-    for out in outputs {
-        let resolved = resolve(&out.path);
+    for (out, resolved) in outputs.iter().zip(resolved) {
         if let Some(input) = read.get(&resolved) {
             return Err(PipelineError::Usage(format!(
                 "{} ({}) would replace the input {}; outputs never overwrite inputs, choose another name",
@@ -62,7 +72,7 @@ pub fn check(inputs: &[&Path], outputs: &[Output]) -> Result<(), PipelineError> 
             )));
         }
     }
-    let mut checked = std::collections::HashSet::new();
+    let mut checked = HashSet::new();
     for out in outputs {
         let dir = directory(&out.path);
         if !checked.insert(dir) {
