@@ -55,19 +55,21 @@ pub(crate) fn criteria(count: i32, eps: f64) -> opencv::Result<TermCriteria> {
     )
 }
 
-/// Decodes an image file's bytes with OpenCV (`flags`: `IMREAD_COLOR`, `IMREAD_GRAYSCALE`).
-/// A JPEG cut short (no end-of-image marker after its last scan: a copy or a capture that
-/// stopped mid-file) is refused, where libjpeg would decode it silently with grey rows.
+/// Decodes an image file's bytes, copied into an OpenCV buffer by the caller (a caller that
+/// converts the image further keeps the buffer until it is done: freeing it before the
+/// conversion's allocation tripled the page faults of triangulating JPEG frames), with
+/// `flags` `IMREAD_COLOR` or `IMREAD_GRAYSCALE`. A JPEG cut short (no end-of-image marker
+/// after its last scan: a copy or a capture that stopped mid-file) is refused, where libjpeg
+/// would decode it silently with grey rows.
 ///
 /// # Errors
 /// A message saying why the bytes are not a whole image.
-pub(crate) fn decode_image(bytes: &[u8], flags: i32) -> Result<Mat, String> {
-    if is_truncated_jpeg(bytes) {
+pub(crate) fn decode_image(bytes: &Vector<u8>, flags: i32) -> Result<Mat, String> {
+    if is_truncated_jpeg(bytes.as_slice()) {
         return Err("a truncated JPEG (no end-of-image marker)".into());
     }
     let unreadable = || "not an image OpenCV can read".to_string();
-    let image = opencv::imgcodecs::imdecode(&Vector::<u8>::from_slice(bytes), flags)
-        .map_err(|_| unreadable())?;
+    let image = opencv::imgcodecs::imdecode(bytes, flags).map_err(|_| unreadable())?;
     if image.empty() {
         return Err(unreadable());
     }

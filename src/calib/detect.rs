@@ -46,7 +46,8 @@ pub fn read_gray(path: &Path) -> Result<Mat, CalibError> {
         path: path.to_path_buf(),
         why,
     };
-    let image = crate::cv::decode_image(&bytes, imgcodecs::IMREAD_GRAYSCALE).map_err(not_image)?;
+    let image = crate::cv::decode_image(&Vector::from_slice(&bytes), imgcodecs::IMREAD_GRAYSCALE)
+        .map_err(not_image)?;
     if image.cols() < MIN_SIDE_PX || image.rows() < MIN_SIDE_PX {
         return Err(not_image(format!(
             "only {}×{} pixels, too small to show a chessboard (at least {MIN_SIDE_PX} a side)",

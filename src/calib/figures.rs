@@ -59,8 +59,8 @@ impl StereoCalibration {
                 why,
             };
             let bytes = std::fs::read(image).map_err(|e| not_image(e.to_string()))?;
-            let src =
-                crate::cv::decode_image(&bytes, imgcodecs::IMREAD_COLOR).map_err(not_image)?;
+            let src = crate::cv::decode_image(&Vector::from_slice(&bytes), imgcodecs::IMREAD_COLOR)
+                .map_err(not_image)?;
             let (mut m1, mut m2, mut out) = (Mat::default(), Mat::default(), Mat::default());
             calib3d::init_undistort_rectify_map(
                 &mat(3, k)?,

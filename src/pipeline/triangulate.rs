@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use super::outputs::{self, Output};
 use super::{io_error, PipelineError, Session, Task};
 use crate::calib::file::read_calibration;
+use crate::triangulate::frames::FrameList;
 use crate::triangulate::{self, output, pairing, TriangulateOptions, Triangulation};
 
 /// What the stage did and wrote.
@@ -39,20 +40,16 @@ pub fn pressure_log(frames: &Path, given: Option<PathBuf>) -> Result<PathBuf, Pi
 /// calibration, the log) and against each other.
 fn check_outputs(
     frames: &Path,
+    listed: &FrameList,
     calib: &Path,
     pressures: &Path,
     log: &pairing::PressureLog,
     out: &Path,
 ) -> Result<(), PipelineError> {
     let index = frames.join("frames.csv");
-    let listed = triangulate::frames::read_frame_list(frames)?;
-    let images: Vec<PathBuf> = listed
-        .iter()
-        .filter_map(|f| triangulate::frames::frame_path(frames, f))
-        .collect();
     let inputs: Vec<&Path> = [calib, pressures, index.as_path()]
         .into_iter()
-        .chain(images.iter().map(PathBuf::as_path))
+        .chain(listed.paths.iter().flatten().map(PathBuf::as_path))
         .collect();
     let mut planned = vec![Output::new(out, "--out")];
     if let Some(col) = log.extra_columns.iter().position(|c| c == "phase") {
@@ -98,9 +95,10 @@ pub fn run(
     options.check().map_err(PipelineError::Usage)?;
     let calibration = read_calibration(calib)?;
     let log = pairing::read_pressure_log(pressures)?;
-    check_outputs(frames, calib, pressures, &log, out)?;
+    let listed = FrameList::read(frames)?;
+    check_outputs(frames, &listed, calib, pressures, &log, out)?;
     let result = triangulate::triangulate(
-        frames,
+        &listed,
         &calibration,
         &log,
         options,

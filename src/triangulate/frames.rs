@@ -5,6 +5,7 @@
 use std::collections::HashSet;
 use std::path::{Path, PathBuf};
 
+use opencv::core::Vector;
 use opencv::imgcodecs;
 use opencv::prelude::*;
 
@@ -87,6 +88,29 @@ pub fn frame_path(dir: &Path, f: &FrameRecord) -> Option<PathBuf> {
         .find(|p| p.is_file())
 }
 
+/// A session's frames: the records of `frames.csv` and each one's image file (`None` when
+/// there is none), read once for the output check and the run.
+#[derive(Clone, Debug)]
+pub struct FrameList {
+    pub records: Vec<FrameRecord>,
+    pub paths: Vec<Option<PathBuf>>,
+}
+
+impl FrameList {
+    /// Reads `dir/frames.csv` and finds each frame's image.
+    ///
+    /// # Errors
+    /// As [`read_frame_list`], and [`TriangulateError::NoImages`] when no frame has an image.
+    pub fn read(dir: &Path) -> Result<Self, TriangulateError> {
+        let records = read_frame_list(dir)?;
+        let paths: Vec<Option<PathBuf>> = records.iter().map(|f| frame_path(dir, f)).collect();
+        if paths.iter().all(Option::is_none) {
+            return Err(TriangulateError::NoImages(dir.to_path_buf()));
+        }
+        Ok(FrameList { records, paths })
+    }
+}
+
 /// Decodes a PNG (with the `png` crate: the fastest decoder here) or any other format OpenCV
 /// reads (JPEG through libjpeg) into 8-bit RGB.
 ///
@@ -145,7 +169,8 @@ fn decode_png(bytes: &[u8], image: &mut RgbImage) -> Result<(), String> {
 
 fn decode_opencv(bytes: &[u8]) -> Result<RgbImage, String> {
     let not_image = |_| "not an image OpenCV can read".to_string();
-    let bgr = crate::cv::decode_image(bytes, imgcodecs::IMREAD_COLOR)?;
+    let buf = Vector::<u8>::from_slice(bytes);
+    let bgr = crate::cv::decode_image(&buf, imgcodecs::IMREAD_COLOR)?;
     let (width, height) = (bgr.cols() as usize, bgr.rows() as usize);
     let bgr = if bgr.is_continuous() {
         bgr

@@ -43,7 +43,7 @@ use serde::Serialize;
 use crate::calib::file::CalibrationFile;
 use crate::geometry::HandFromLeft;
 use crate::stereo::{Side, StereoRig};
-use frames::FrameRecord;
+use frames::{FrameList, FrameRecord};
 use marker::Markers;
 pub use options::TriangulateOptions;
 use pairing::{Placement, PressureLog};
@@ -244,7 +244,7 @@ pub struct Triangulation {
 /// [`TriangulateError`]: bad inputs (each naming the file and line or frame), no hand axes, no
 /// zero-pressure tip, no usable pair at all.
 pub fn triangulate(
-    frames_dir: &Path,
+    frames: &FrameList,
     calibration: &CalibrationFile,
     log: &PressureLog,
     options: &TriangulateOptions,
@@ -257,14 +257,7 @@ pub fn triangulate(
             path: calibration.path.clone(),
         })?;
     let rig = &calibration.rig;
-    let records = frames::read_frame_list(frames_dir)?;
-    let paths: Vec<Option<PathBuf>> = records
-        .iter()
-        .map(|f| frames::frame_path(frames_dir, f))
-        .collect();
-    if paths.iter().all(Option::is_none) {
-        return Err(TriangulateError::NoImages(frames_dir.to_path_buf()));
-    }
+    let (records, paths) = (&frames.records, &frames.paths);
 
     // 1. Markers in every frame.
     let done = AtomicUsize::new(0);
@@ -285,10 +278,10 @@ pub fn triangulate(
         steps_logged: log.steps.len(),
         ..Summary::default()
     };
-    count_frames(&records, &results, &mut summary.frames);
+    count_frames(records, &results, &mut summary.frames);
 
     // 2-3. Pairs, their steps and their tips.
-    let pairing = pairing::pair_frames(&records, options.max_dt_s);
+    let pairing = pairing::pair_frames(records, options.max_dt_s);
     summary.pairs_formed = pairing.pairs.len();
     summary.unpaired = pairing.unpaired;
     let frame_ref = |i: usize| FrameRef {
