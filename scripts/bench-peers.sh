@@ -5,7 +5,7 @@
 # Makes its own Python venv (target/peers-venv) with scikit-learn, pandas and optuna; not part
 # of the tests.
 #
-#   bash scripts/bench-peers.sh [--searches aco-paper,aco-r,grid] [--budget 200] [--only soft_trunk]
+#   bash scripts/bench-peers.sh [--searches default,aco-r,grid,aco-paper] [--budget N] [--only soft_trunk]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 venv=target/peers-venv

@@ -1,10 +1,10 @@
 """handcap's model search against what a user would pick instead, on the same splits.
 
 Run through `bash scripts/bench-peers.sh` (which makes the venv and builds handcap). For each
-dataset: handcap (the searches asked for, default folds) and scikit-learn SVR x 3 +
+dataset: handcap with all defaults and with each search asked for, and scikit-learn SVR x 3 +
 GridSearchCV, KernelRidge + GridSearchCV, a Gaussian process (ARD RBF + white noise), random
-search and Optuna TPE over handcap's (C, epsilon, sigma) box at the same candidate budget (per-
-output SVR, unshuffled 5-fold CV as scikit-learn's default). Prints held-out MAE (mean over rows
+search and Optuna TPE over handcap's (C, epsilon, sigma) box at the candidate budget handcap's
+default chose (per-output SVR, unshuffled 5-fold CV as scikit-learn's default). Prints held-out MAE (mean over rows
 and outputs of |y - y_hat|, handcap's and the paper's measure) and wall time, one table.
 
 Datasets (from ../shared/realdata, never copied into the repository):
@@ -17,6 +17,7 @@ import argparse
 import csv
 import json
 import os
+import shutil
 import subprocess
 import sys
 import time
@@ -26,7 +27,8 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
 SHARED = os.path.join(os.path.dirname(ROOT), "shared", "realdata")
-HANDCAP = os.path.join(ROOT, "target", "release", "handcap")
+BUILT = os.path.join(ROOT, "target", "release", "handcap")
+HANDCAP = BUILT  # the copy in the work directory once main() has made it
 
 
 def write(path, header, rows):
@@ -77,9 +79,13 @@ def mae(y, p):
 
 
 def run_handcap(work, name, train, tests, inputs, outputs, search, budget):
+    """Held-out MAE per test, seconds, fold scheme and candidates scored; `search` "default"
+    gives no --search (nor --budget)."""
     model = os.path.join(work, f"{name}_{search}.json")
     args = [HANDCAP, "model", train, "--inputs", ",".join(inputs), "--outputs",
-            ",".join(outputs), "--out", model, "--search", search]
+            ",".join(outputs), "--out", model]
+    if search != "default":
+        args += ["--search", search]
     if search in ("aco-r", "grid") and budget:
         args += ["--budget", str(budget)]
     for t in tests:
@@ -97,8 +103,8 @@ def run_handcap(work, name, train, tests, inputs, outputs, search, budget):
         _, p = load(pred, inputs, outputs)
         errors.append(mae(y, p))
     with open(model) as f:
-        folds = json.load(f).get("search", {}).get("folds", {}).get("scheme", "-")
-    return errors, seconds, folds
+        searched = json.load(f).get("search", {})
+    return errors, seconds, searched.get("folds", {}).get("scheme", "-"), searched.get("evaluations")
 
 
 def peers(x, y, tests, budget, seed):
@@ -167,27 +173,37 @@ def peers(x, y, tests, budget, seed):
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--work", required=True)
-    ap.add_argument("--searches", default="aco-paper,aco-r,grid")
-    ap.add_argument("--budget", type=int, default=200)
+    ap.add_argument("--searches", default="default,grid,aco-paper",
+                    help="handcap runs: default (no --search), aco-r, grid, aco-paper")
+    ap.add_argument("--budget", type=int, default=None,
+                    help="for aco-r and grid runs (default: handcap's, from the rows)")
     ap.add_argument("--seed", type=int, default=2020)
     ap.add_argument("--only", default="", help="comma-separated dataset names")
     a = ap.parse_args()
     a.work = os.path.abspath(a.work)
     os.makedirs(a.work, exist_ok=True)
+    global HANDCAP
+    HANDCAP = os.path.join(a.work, "handcap")  # rebuilding during a run changes nothing
+    shutil.copy2(BUILT, HANDCAP)
     print("| data | method | held-out MAE | time (s) |")
     print("|---|---|---|---|")
     for name, train, tests, inputs, outputs in splits(a.work):
         if a.only and name not in a.only.split(","):
             continue
+        budget = a.budget
         for search in a.searches.split(","):
-            errors, seconds, folds = run_handcap(a.work, name, train, tests, inputs, outputs,
-                                                 search, a.budget)
-            label = f"handcap --search {search} (folds: {folds})"
+            errors, seconds, folds, scored = run_handcap(a.work, name, train, tests, inputs,
+                                                         outputs, search, a.budget)
+            if search == "default":
+                label = f"handcap, defaults ({scored} candidates, folds: {folds})"
+                budget = budget or scored
+            else:
+                label = f"handcap --search {search} ({scored} candidates, folds: {folds})"
             print(f"| {name} | {label} | {' / '.join(f'{e:.3f}' for e in errors)} | {seconds:.1f} |",
                   flush=True)
         x, y = load(os.path.join(a.work, train), inputs, outputs)
         held = [load(os.path.join(a.work, t), inputs, outputs) for t in tests]
-        for peer, errors, seconds in peers(x, y, held, a.budget, a.seed):
+        for peer, errors, seconds in peers(x, y, held, budget or 120, a.seed):
             print(f"| {name} | {peer} | {' / '.join(f'{e:.3f}' for e in errors)} | {seconds:.1f} |",
                   flush=True)
 

@@ -8,7 +8,7 @@ use super::usage;
 use handcap::data::{HAND_INPUTS, HAND_OUTPUTS};
 use handcap::model::msvr::fitness::FitnessKind;
 use handcap::model::msvr::folds::FoldsBy;
-use handcap::model::msvr::{MsvrParams, DEFAULT_MAX_ITER, DEFAULT_TOL};
+use handcap::model::msvr::{Loss, MsvrParams, DEFAULT_MAX_ITER, DEFAULT_TOL};
 use handcap::pipeline::fit::{self, FitJob, FitOutcome, Selection};
 use handcap::report;
 use handcap::search::aco_paper::{AcoPaper, PAPER_TABLE2};
@@ -28,6 +28,18 @@ pub enum SearchKind {
     Grid,
     /// Use --c, --epsilon and --sigma as given
     None,
+}
+
+/// The loss outside the ε-tube.
+#[derive(Clone, Copy, Debug, PartialEq, clap::ValueEnum)]
+pub enum LossArg {
+    /// The paper's with --search aco-paper, robust otherwise
+    Auto,
+    /// (u − ε)²: the paper's
+    Quadratic,
+    /// Quadratic for 10 ε beyond the tube, linear further out: rows far off the surface
+    /// (transients, lost markers, hysteresis) pull the fit less
+    Robust,
 }
 
 /// How candidates are scored.
@@ -50,8 +62,11 @@ pub struct Args {
     #[arg(long, value_delimiter = ',', default_values = HAND_OUTPUTS)]
     outputs: Vec<String>,
     /// How to choose C, ε and σ
-    #[arg(long, value_enum, default_value = "aco-paper")]
+    #[arg(long, value_enum, default_value = "aco-r")]
     search: SearchKind,
+    /// The MSVR loss outside the ε-tube
+    #[arg(long, value_enum, default_value = "auto")]
+    loss: LossArg,
     /// How a search scores candidates
     #[arg(long, value_enum, default_value = "cv")]
     fitness: FitnessArg,
@@ -85,9 +100,10 @@ pub struct Args {
     /// aco-paper: iteration cap N_max
     #[arg(long, default_value_t = AcoPaper::default().max_iter)]
     max_iter: usize,
-    /// aco-r, grid: candidates evaluated at most
-    #[arg(long, default_value_t = AcoR::default().budget)]
-    budget: usize,
+    /// aco-r, grid: candidates evaluated at most [default: from the rows: 400 up to 400 rows,
+    /// 200 up to 700, 120 above]
+    #[arg(long)]
+    budget: Option<usize>,
     /// Penalty C, with --search none (default: the paper's Table 2)
     #[arg(long = "c", default_value_t = PAPER_TABLE2.c)]
     c: f64,
@@ -140,14 +156,18 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             seed: a.seed,
         })),
         SearchKind::AcoR => Some(Method::AcoR(AcoR {
-            budget: a.budget,
             seed: a.seed,
             ..AcoR::default()
         })),
-        SearchKind::Grid => Some(Method::Grid(Grid {
-            budget: a.budget,
-            ..Grid::default()
-        })),
+        SearchKind::Grid => Some(Method::Grid(Grid::default())),
+    };
+    if a.budget.is_some() && !matches!(a.search, SearchKind::AcoR | SearchKind::Grid) {
+        usage!("--budget is the candidate budget of --search aco-r and grid");
+    }
+    let loss = match a.loss {
+        LossArg::Auto if a.search == SearchKind::AcoPaper => Loss::Quadratic,
+        LossArg::Auto | LossArg::Robust => Loss::Robust,
+        LossArg::Quadratic => Loss::Quadratic,
     };
     let job = FitJob {
         data: a.data,
@@ -155,11 +175,13 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         outputs: a.outputs,
         params: MsvrParams::new(a.c, a.epsilon, a.sigma)
             .tol(a.solver_tol)
-            .max_iter(a.solver_max_iter),
+            .max_iter(a.solver_max_iter)
+            .loss(loss),
         selection: match method {
             None => Selection::Fixed,
             Some(method) => Selection::Search {
                 method,
+                budget: a.budget,
                 fitness,
                 folds_by: a.group_by.map_or(a.folds_by, FoldsBy::Column),
                 seed: a.seed,
@@ -203,8 +225,13 @@ pub fn print_summary(outcome: &FitOutcome) {
             s.best_fitness
         );
         println!(
-            "  {} candidates scored, {} fits, {} memo hits, {} kernel cache hits, {:.1} s",
-            counters.evaluations, counters.fits, counters.memo_hits, counters.kernel_hits, seconds
+            "  {} candidates scored ({} stopped early by racing), {} fits, {} memo hits, {} kernel cache hits, {:.1} s",
+            counters.evaluations,
+            counters.raced,
+            counters.fits,
+            counters.memo_hits,
+            counters.kernel_hits,
+            seconds
         );
         if s.stop == SearchStop::Interrupted {
             println!("  interrupted: the model uses the best parameters found so far");
@@ -212,8 +239,8 @@ pub fn print_summary(outcome: &FitOutcome) {
     }
     let (p, f) = (&r.params, &r.fit);
     println!(
-        "MSVR on {}: {} rows, C = {}, ε = {}, σ = {}",
-        r.training_file, f.rows, p.c, p.epsilon, p.sigma
+        "MSVR on {}: {} rows, C = {}, ε = {}, σ = {}, {} loss",
+        r.training_file, f.rows, p.c, p.epsilon, p.sigma, p.loss
     );
     println!(
         "  {} iterations, objective {:.6e}, {} support vectors, {} ({:?})",

@@ -416,6 +416,7 @@ fn job(
         params: MsvrParams::default(),
         selection: Selection::Search {
             method: Method::AcoPaper(plan.aco),
+            budget: None,
             fitness: FitnessKind::Cv { folds: 5 },
             folds_by: FoldsBy::Auto,
             seed: plan.aco.seed,

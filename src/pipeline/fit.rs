@@ -23,6 +23,8 @@ pub enum Selection {
     Fixed,
     Search {
         method: Method,
+        /// Candidates at most (ACO_R, grid); `None`: [`tune::budget_for`] the rows scored.
+        budget: Option<usize>,
         fitness: FitnessKind,
         /// How cross-validation cuts the rows ([`folds::plan`]).
         folds_by: FoldsBy,
@@ -137,6 +139,7 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
         Selection::Fixed => (job.params, None, None),
         Selection::Search {
             method,
+            budget,
             fitness,
             folds_by,
             seed,
@@ -164,6 +167,7 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
             if matches!(fitness, FitnessKind::Cv { .. }) {
                 session.emit(Event::Note(format!("folds: {}", plan.choice)));
             }
+            let method = &method.with_budget(budget.unwrap_or(tune::budget_for(scored.rows())));
             let started = Instant::now();
             let mut observer = Iterations {
                 session,
@@ -180,7 +184,7 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
                 session.interrupt,
             )?;
             session.emit(Event::Searched(&summary));
-            let params = job.params.with_hyper(summary.best);
+            let params = tune::solver_for(method, &job.params).with_hyper(summary.best);
             let seconds = started.elapsed().as_secs_f64();
             (
                 params,

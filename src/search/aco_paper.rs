@@ -165,7 +165,7 @@ fn score_valid_paths(objective: &Objective, candidates: &[Hyper]) -> Vec<f64> {
         .filter(|h| is_valid_path(h))
         .copied()
         .collect();
-    let mut scores = objective(&valid).into_iter();
+    let mut scores = objective(&valid, f64::INFINITY).into_iter();
     candidates
         .iter()
         .map(|h| {

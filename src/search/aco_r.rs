@@ -4,7 +4,8 @@
 //! An archive keeps the k best solutions found, ranked by fitness; rank l (0-based) has weight
 //! ∝ exp(−l² / (2 q² k²)). Each ant picks an archive member s_l by weight and samples every
 //! coordinate from N(s_l, ξ · mean over the archive of |s_e − s_l|), reflected into the box.
-//! The m ants of an iteration are scored together; the archive keeps the k best of old and new.
+//! The m ants of an iteration are scored together; the archive keeps the k best of old and new,
+//! so an ant that cannot beat the archive's worst is raced out (see [`super::Objective`]).
 //! Searching in logarithms gives each decade of C, ε and σ the same resolution, where the
 //! paper's digits spend it on the largest values.
 
@@ -95,7 +96,8 @@ impl AcoR {
         let first: Vec<[f64; 3]> = (0..self.archive)
             .map(|_| bounds.map(|(lo, hi)| rng.random_range(lo..=hi)))
             .collect();
-        let mut archive = self.score(&first, objective, &mut tracker);
+        let mut archive = self.score(&first, f64::INFINITY, objective, &mut tracker);
+        archive.sort_by(|a, b| a.1.total_cmp(&b.1));
         let mut spent = first.len();
         let weights: Vec<f64> = (0..self.archive)
             .map(|l| {
@@ -133,22 +135,25 @@ impl AcoR {
                 })
                 .collect();
             spent += m;
-            archive.extend(self.score(&ants, objective, &mut tracker));
+            let bar = archive[self.archive - 1].1;
+            archive.extend(self.score(&ants, bar, objective, &mut tracker));
             archive.sort_by(|a, b| a.1.total_cmp(&b.1));
             archive.truncate(self.archive);
         }
         tracker.finish(SearchStop::Budget)
     }
 
-    /// Scores points (in logarithms), records the iteration, returns (point, fitness) pairs.
+    /// Scores points (in logarithms) against the bar, records the iteration, returns (point,
+    /// fitness) pairs.
     fn score(
         &self,
         points: &[[f64; 3]],
+        bar: f64,
         objective: &Objective,
         tracker: &mut Tracker,
     ) -> Vec<([f64; 3], f64)> {
         let candidates: Vec<Hyper> = points.iter().map(|&x| SearchSpace::from_log(x)).collect();
-        let scores = objective(&candidates);
+        let scores = objective(&candidates, bar);
         tracker.record(&candidates, &scores);
         points.iter().copied().zip(scores).collect()
     }

@@ -82,7 +82,7 @@ impl Grid {
             if tracker.interrupted() {
                 return tracker.finish(SearchStop::Interrupted);
             }
-            let scores = objective(chunk);
+            let scores = objective(chunk, tracker.best_fitness());
             tracker.record(chunk, &scores);
         }
         tracker.finish(SearchStop::Budget)

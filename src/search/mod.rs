@@ -137,8 +137,11 @@ fn invalid<T>(name: &'static str, value: f64, requirement: &'static str) -> Resu
 }
 
 /// What a search optimises: scores a batch of candidates, lower is better, +∞ for an invalid
-/// candidate or a failed fit.
-pub type Objective<'a> = dyn Fn(&[Hyper]) -> Vec<f64> + Sync + 'a;
+/// candidate or a failed fit. The second argument is the search's bar: a candidate whose
+/// fitness reaches it cannot change the search (it would not enter ACO_R's archive, nor beat
+/// the grid's best), so the objective may stop scoring it early and return any value ≥ the bar
+/// (racing). +∞ asks for every fitness in full.
+pub type Objective<'a> = dyn Fn(&[Hyper], f64) -> Vec<f64> + Sync + 'a;
 
 /// Keeps the best candidate and the history, and builds each iteration's record.
 struct Tracker<'a> {
@@ -160,6 +163,11 @@ impl<'a> Tracker<'a> {
 
     fn interrupted(&self) -> bool {
         self.interrupt.load(Ordering::Relaxed)
+    }
+
+    /// The best fitness so far (+∞ before any).
+    fn best_fitness(&self) -> f64 {
+        self.best.map_or(f64::INFINITY, |(_, f)| f)
     }
 
     /// Records one iteration's candidates and scores (+∞ marks an invalid candidate).
@@ -264,6 +272,19 @@ impl std::fmt::Display for Method {
                 m.archive, m.ants, m.q, m.xi, m.budget, m.seed
             ),
             Method::Grid(m) => write!(f, "a log-spaced grid ({} values per axis)", m.per_axis()),
+        }
+    }
+}
+
+impl Method {
+    /// The same method with another candidate budget (ACO_R and the grid; the paper's colony
+    /// has none).
+    #[must_use]
+    pub fn with_budget(self, budget: usize) -> Method {
+        match self {
+            Method::AcoPaper(_) => self,
+            Method::AcoR(m) => Method::AcoR(aco_r::AcoR { budget, ..m }),
+            Method::Grid(m) => Method::Grid(grid::Grid { budget, ..m }),
         }
     }
 }

@@ -9,7 +9,7 @@ use faer::{Mat, MatRef, Par};
 use handcap::data::{Columns, Dataset};
 use handcap::model::file::{ModelFile, StoredModel};
 use handcap::model::msvr::irwls::{self, Problem, SolverOptions, StopReason};
-use handcap::model::msvr::{kernel, MsvrParams};
+use handcap::model::msvr::{kernel, Loss, MsvrParams, ROBUST_ZONE};
 use handcap::model::Predict;
 use handcap::provenance::Provenance;
 use handcap::search::aco_paper::PAPER_TABLE2;
@@ -18,6 +18,7 @@ use handcap::synth::{self, SynthConfig};
 use crate::common::{dataset, tempdir, Lcg};
 
 const OPTIONS: SolverOptions = SolverOptions {
+    factor_updates: true,
     tol: 1e-12,
     max_iter: 500,
     par: Par::Seq,
@@ -74,6 +75,7 @@ fn epsilon_zero_is_kernel_ridge_regression() {
         targets: y.as_ref(),
         c,
         epsilon: 0.0,
+        loss: Loss::Quadratic,
     };
     let sol = irwls::solve(&problem, &OPTIONS, None).unwrap();
 
@@ -140,6 +142,7 @@ fn a_tube_wider_than_every_residual_gives_beta_zero() {
         targets: y.as_ref(),
         c: 100.0,
         epsilon: widest * 1.01,
+        loss: Loss::Quadratic,
     };
     // From the default start and from a warm start far from β = 0: an iterate with every
     // sample inside the tube must step towards β = 0, not stop or collapse elsewhere.
@@ -164,7 +167,14 @@ fn a_tube_wider_than_every_residual_gives_beta_zero() {
 }
 
 /// F(W, b) = ½‖W‖² + C Σ L(‖yᵢ − Wᵀφᵢ − b‖) and its gradient, for an explicit feature map Φ.
-fn primal(phi: MatRef<f64>, y: MatRef<f64>, c: f64, eps: f64, z: &[f64]) -> (f64, Vec<f64>) {
+/// The primal objective and gradient in (W, b) for K = ΦΦᵀ, with the loss (u − ε)² up to
+/// u = ε + `zone` and linear beyond (`zone` = ∞: the paper's quadratic loss).
+fn primal(
+    phi: MatRef<f64>,
+    y: MatRef<f64>,
+    (c, eps, zone): (f64, f64, f64),
+    z: &[f64],
+) -> (f64, Vec<f64>) {
     let (n, m) = phi.shape();
     let q = y.ncols();
     let (w, b) = z.split_at(m * q);
@@ -180,8 +190,13 @@ fn primal(phi: MatRef<f64>, y: MatRef<f64>, c: f64, eps: f64, z: &[f64]) -> (f64
             .collect();
         let u = e.iter().map(|v| v * v).sum::<f64>().sqrt();
         if u > eps {
-            f += c * (u - eps) * (u - eps);
-            let s = 2.0 * c * (u - eps) / u;
+            let excess = u - eps;
+            f += c * if excess <= zone {
+                excess * excess
+            } else {
+                zone * (2.0 * excess - zone)
+            };
+            let s = 2.0 * c * excess.min(zone) / u;
             for j in 0..q {
                 for k in 0..m {
                     grad[k * q + j] -= s * e[j] * phi[(i, k)];
@@ -247,18 +262,23 @@ fn lbfgs(f: impl Fn(&[f64]) -> (f64, Vec<f64>), mut z: Vec<f64>, gtol: f64) -> f
 fn objective_matches_an_independent_lbfgs_solver() {
     // K = ΦΦᵀ with an explicit feature map, so the problem has a small, well-conditioned primal
     // in (W, b) that L-BFGS solves to high accuracy. Q = 1 is the single-output L2-loss SVR.
+    // Every seventh row is an outlier 3 units off, so the robust loss's linear part is used.
     let mut rng = Lcg(3);
-    for (case, (n, m, q, c, eps)) in [
-        (25, 5, 3, 10.0, 0.1),
-        (40, 6, 2, 200.0, 0.05),
-        (30, 4, 1, 1.0, 0.02),
+    for (case, (n, m, q, c, eps, loss)) in [
+        (25, 5, 3, 10.0, 0.1, Loss::Quadratic),
+        (40, 6, 2, 200.0, 0.05, Loss::Quadratic),
+        (30, 4, 1, 1.0, 0.02, Loss::Quadratic),
+        (25, 5, 3, 10.0, 0.1, Loss::Robust),
+        (40, 6, 2, 200.0, 0.05, Loss::Robust),
+        (30, 4, 1, 1.0, 0.02, Loss::Robust),
     ]
     .into_iter()
     .enumerate()
     {
         let phi = Mat::from_fn(n, m, |_, _| rng.next() - 0.5);
         let y = Mat::from_fn(n, q, |i, j| {
-            (phi[(i, 0)] * 4.0 + j as f64).sin() + 0.3 * rng.next()
+            let outlier = if i % 7 == 0 && j == 0 { 3.0 } else { 0.0 };
+            (phi[(i, 0)] * 4.0 + j as f64).sin() + 0.3 * rng.next() + outlier
         });
         let k = &phi * phi.transpose();
         let problem = Problem {
@@ -266,11 +286,16 @@ fn objective_matches_an_independent_lbfgs_solver() {
             targets: y.as_ref(),
             c,
             epsilon: eps,
+            loss,
         };
         let sol = irwls::solve(&problem, &OPTIONS, None).unwrap();
         assert!(sol.stop.converged(), "case {case}: {:?}", sol.stop);
+        let zone = match loss {
+            Loss::Quadratic => f64::INFINITY,
+            Loss::Robust => ROBUST_ZONE * eps,
+        };
         let f_ref = lbfgs(
-            |z| primal(phi.as_ref(), y.as_ref(), c, eps, z),
+            |z| primal(phi.as_ref(), y.as_ref(), (c, eps, zone), z),
             vec![0.0; (m + 1) * q],
             1e-10,
         );
@@ -307,6 +332,7 @@ fn objective_matches_lbfgs_on_a_well_conditioned_rbf_kernel() {
         targets: y.as_ref(),
         c,
         epsilon: eps,
+        loss: Loss::Quadratic,
     };
     let sol = irwls::solve(&problem, &OPTIONS, None).unwrap();
     let dual = |z: &[f64]| {
@@ -485,6 +511,7 @@ fn monotone_objective_and_few_iterations_on_a_larger_problem() {
         targets: y.as_ref(),
         c: 500.0,
         epsilon: 0.01,
+        loss: Loss::Quadratic,
     };
     let mut last = f64::INFINITY;
     for iters in 1..=8 {
@@ -523,6 +550,10 @@ fn invalid_parameters_are_named() {
         (MsvrParams::new(1.0, f64::INFINITY, 1.0), "epsilon"),
         (MsvrParams::new(1.0, 0.1, 0.0), "sigma"),
         (MsvrParams::new(1.0, 0.1, 1.0).max_iter(0), "max_iter"),
+        (
+            MsvrParams::new(1.0, 0.0, 1.0).loss(handcap::model::msvr::Loss::Robust),
+            "epsilon",
+        ),
         (
             MsvrParams {
                 tol: 1.0,
@@ -577,4 +608,90 @@ fn support_vectors_are_exactly_the_samples_outside_the_tube() {
         "{outside} samples outside the tube, {svs} support vectors"
     );
     assert_eq!(model.support_vector_count(), svs);
+}
+
+#[test]
+fn the_robust_loss_resists_rows_far_off_the_surface() {
+    // One training row in eight has its tip 3 mm off (a transient caught mid-move, a marker
+    // lost for a frame): the quadratic loss bends the surface towards them, the robust loss
+    // (linear beyond 10 ε) much less. The clean sweep measures the harm, against the same
+    // losses fitted to the clean rows.
+    let clean = hand_data("train");
+    let mut corrupted = clean.clone();
+    let width = clean.outputs.width();
+    let mut values: Vec<f64> = clean.outputs.iter_rows().flatten().copied().collect();
+    for row in (0..clean.rows()).step_by(8) {
+        values[row * width] += 3.0;
+    }
+    corrupted.outputs = Columns::new(clean.outputs.names.clone(), values);
+    let sweep = hand_data("sweep_a");
+    let mae = |loss, train: &Dataset| {
+        let model = MsvrParams::new(300.0, 0.02, 0.6)
+            .loss(loss)
+            .check()
+            .unwrap()
+            .fit(train)
+            .unwrap();
+        assert!(model.fit.converged, "{loss}");
+        handcap::model::evaluate(&model, &sweep).unwrap().mae
+    };
+    let harm = |loss| mae(loss, &corrupted) - mae(loss, &clean);
+    let (quadratic, robust) = (harm(Loss::Quadratic), harm(Loss::Robust));
+    assert!(
+        robust < 0.5 * quadratic,
+        "the outliers add {robust} mm to the robust loss's error, {quadratic} mm to the quadratic's"
+    );
+}
+
+#[test]
+fn factor_updates_reach_the_same_optimum_with_fewer_factorisations() {
+    // Rows join and leave the support set a few at a time once the first iterations are past:
+    // the updated factor must give the optimum of a factor computed afresh at every change.
+    // Every 50th row is an outlier, in the robust loss's linear part: its weight changes at
+    // every iteration (a diagonal update).
+    for (seed, loss) in [(5, Loss::Quadratic), (6, Loss::Robust)] {
+        let (x, mut y) = random_problem(seed, 600, 3, 3);
+        for i in (0..600).step_by(50) {
+            y[(i, 0)] += 1.0;
+        }
+        let k = kernel::rbf(&x, &x, 0.4);
+        let problem = Problem {
+            kernel: k.as_ref(),
+            targets: y.as_ref(),
+            c: 50.0,
+            epsilon: 0.02,
+            loss,
+        };
+        let fresh = irwls::solve(
+            &problem,
+            &SolverOptions {
+                factor_updates: false,
+                ..OPTIONS
+            },
+            None,
+        )
+        .unwrap();
+        let updated = irwls::solve(&problem, &OPTIONS, None).unwrap();
+        assert!(fresh.stop.converged() && updated.stop.converged());
+        assert!(
+            updated.factorizations < fresh.factorizations,
+            "{loss}: {} factorisations with updates, {} without",
+            updated.factorizations,
+            fresh.factorizations
+        );
+        let rel = (updated.objective - fresh.objective).abs() / fresh.objective;
+        assert!(rel < 1e-9, "{loss}: objectives differ by {rel:e}");
+        let worst = (0..600)
+            .flat_map(|i| (0..3).map(move |j| (i, j)))
+            .map(|(i, j)| (updated.beta[(i, j)] - fresh.beta[(i, j)]).abs())
+            .fold(0.0, f64::max);
+        let scale = (0..600)
+            .flat_map(|i| (0..3).map(move |j| (i, j)))
+            .map(|(i, j)| fresh.beta[(i, j)].abs())
+            .fold(0.0, f64::max);
+        assert!(
+            worst < 1e-6 * scale,
+            "{loss}: β differs by {worst} (of {scale})"
+        );
+    }
 }

@@ -4,16 +4,17 @@ use std::sync::atomic::AtomicBool;
 
 use handcap::data::Dataset;
 use handcap::model::msvr::fitness::{Fitness, FitnessKind};
+use handcap::model::msvr::tune;
 use handcap::model::msvr::MsvrParams;
 use handcap::search::aco_paper::{decode, is_valid_path, AcoPaper, PAPER_TABLE2 as T2};
 use handcap::search::aco_r::AcoR;
 use handcap::search::grid::Grid;
-use handcap::search::{Hyper, SearchSpace, SearchStop};
+use handcap::search::{Hyper, Method, Search, SearchSpace, SearchStop};
 use handcap::synth::{self, SynthConfig};
 
 /// A cheap objective whose optimum is the paper's Table 2 : the
 /// relative distance from it, plus 0.01.
-fn table2_bowl(batch: &[Hyper]) -> Vec<f64> {
+fn table2_bowl(batch: &[Hyper], _bar: f64) -> Vec<f64> {
     batch
         .iter()
         .map(|h| {
@@ -30,7 +31,7 @@ fn table2_bowl(batch: &[Hyper]) -> Vec<f64> {
 
 /// The same optimum with distances measured in each parameter's digit range (C to 999.9, ε to
 /// 0.9999, σ to 9.999), the scale the paper's colony resolves, plus 0.05.
-fn table2_linear(batch: &[Hyper]) -> Vec<f64> {
+fn table2_linear(batch: &[Hyper], _bar: f64) -> Vec<f64> {
     batch
         .iter()
         .map(|h| {
@@ -200,9 +201,9 @@ fn grid_covers_the_box_log_evenly() {
     };
     assert_eq!(grid.per_axis(), 5);
     let seen = std::sync::Mutex::new(Vec::new());
-    let record = |batch: &[Hyper]| {
+    let record = |batch: &[Hyper], _bar: f64| {
         seen.lock().unwrap().extend_from_slice(batch);
-        table2_bowl(batch)
+        table2_bowl(batch, _bar)
     };
     let r = grid
         .run(&table2_space(), &record, &mut (), &never())
@@ -248,10 +249,10 @@ fn cv_fitness_is_honest_and_memoised() {
         epsilon: 0.02,
         sigma: 0.3,
     };
-    let [t_over, t_sane] = train.evaluate(&[overfit, sane])[..] else {
+    let [t_over, t_sane] = train.evaluate(&[overfit, sane], f64::INFINITY)[..] else {
         unreachable!()
     };
-    let [cv_over, cv_sane] = cv.evaluate(&[overfit, sane])[..] else {
+    let [cv_over, cv_sane] = cv.evaluate(&[overfit, sane], f64::INFINITY)[..] else {
         unreachable!()
     };
     assert!(
@@ -268,13 +269,59 @@ fn cv_fitness_is_honest_and_memoised() {
     );
 
     let before = cv.counters();
-    let again = cv.evaluate(&[sane, sane, Hyper { c: 0.0, ..sane }]);
+    let again = cv.evaluate(&[sane, sane, Hyper { c: 0.0, ..sane }], f64::INFINITY);
     assert_eq!(again[0], cv_sane);
     assert_eq!(again[2], f64::INFINITY);
     let after = cv.counters();
     assert_eq!(after.evaluations, before.evaluations);
     assert_eq!(after.memo_hits, before.memo_hits + 2);
     assert_eq!(before.fits, 10);
+}
+
+#[test]
+fn racing_never_changes_what_a_search_finds() {
+    // Racing stops a candidate once its partial error shows it cannot enter ACO_R's archive
+    // or beat the grid's best: each search must end exactly where it ends scoring every fold.
+    let data = hand_train();
+    let solver = MsvrParams::new(1.0, 0.01, 1.0);
+    let space = tune::space_for(&data);
+    let fitness = || Fitness::new(&data, FitnessKind::Cv { folds: 5 }, 3, None, &solver).unwrap();
+    for method in [
+        Method::AcoR(AcoR {
+            budget: 60,
+            ..AcoR::default()
+        }),
+        Method::Grid(Grid {
+            budget: 64,
+            ..Grid::default()
+        }),
+    ] {
+        let (raced, full) = (fitness(), fitness());
+        let a = method
+            .run(
+                &space,
+                &|b: &[Hyper], bar| raced.evaluate(b, bar),
+                &mut (),
+                &never(),
+            )
+            .unwrap();
+        let b = method
+            .run(
+                &space,
+                &|b: &[Hyper], _| full.evaluate(b, f64::INFINITY),
+                &mut (),
+                &never(),
+            )
+            .unwrap();
+        assert_eq!(
+            (a.best, a.best_fitness),
+            (b.best, b.best_fitness),
+            "{method}"
+        );
+        let (r, f) = (raced.counters(), full.counters());
+        assert!(r.raced > 0 && r.fits < f.fits, "{method}: {r:?} vs {f:?}");
+        assert_eq!(f.raced, 0);
+    }
 }
 
 #[test]
@@ -307,7 +354,10 @@ fn grouped_folds_hold_out_whole_groups() {
         epsilon: 0.02,
         sigma: 0.3,
     }];
-    let (g, r) = (grouped.evaluate(&h)[0], rows.evaluate(&h)[0]);
+    let (g, r) = (
+        grouped.evaluate(&h, f64::INFINITY)[0],
+        rows.evaluate(&h, f64::INFINITY)[0],
+    );
     assert!(
         g > 2.0 * r,
         "grouped CV {g} should be far harsher than row-wise {r}: whole P1 levels are unseen"
@@ -362,7 +412,8 @@ fn every_search_setting_rule_is_checked_and_named() {
         (Method::Grid(Grid { budget: 7, ..grid }), "budget"),
         (Method::Grid(Grid { batch: 0, ..grid }), "batch"),
     ];
-    let never = |_: &[Hyper]| -> Vec<f64> { panic!("a bad setting must stop before any fit") };
+    let never =
+        |_: &[Hyper], _: f64| -> Vec<f64> { panic!("a bad setting must stop before any fit") };
     for (method, name) in cases {
         let err = method
             .run(&table2_space(), &never, &mut (), &AtomicBool::new(false))

@@ -17,6 +17,12 @@
 //! looser solver tolerance given): a fitness needs a few significant digits, not eight, and at
 //! large C the solver's last digits cost the most iterations. The chosen model is then fitted to
 //! the full tolerance.
+//! Racing: a candidate's folds are fitted in turn, and once the absolute errors summed so far,
+//! divided by every held-out prediction to come, reach the search's bar (the worst fitness in
+//! ACO_R's archive, the grid's best; +∞ for the paper's colony, whose history stays the
+//! paper's), the candidate cannot matter (the remaining folds only add) and stops there, scored
+//! with that lower bound. The eventual best is therefore never raced out, and the bar is fixed
+//! for a whole batch, so the result does not depend on thread timing.
 //! Fits are not warm-started from neighbouring tuples: with parallel evaluation the neighbour
 //! found would depend on thread timing, and a seeded search must give the same result every run.
 
@@ -133,6 +139,8 @@ pub struct Counters {
     pub memo_hits: usize,
     /// Fold kernels taken from the per-σ cache.
     pub kernel_hits: usize,
+    /// Candidates stopped before their last fold by racing.
+    pub raced: usize,
 }
 
 /// Scores (C, ε, σ) tuples on one dataset.
@@ -148,6 +156,7 @@ pub struct Fitness {
     fits: AtomicUsize,
     memo_hits: AtomicUsize,
     kernel_hits: AtomicUsize,
+    raced: AtomicUsize,
 }
 
 /// Relative objective tolerance of the fits that score candidates.
@@ -225,6 +234,7 @@ impl Fitness {
             fits: AtomicUsize::new(0),
             memo_hits: AtomicUsize::new(0),
             kernel_hits: AtomicUsize::new(0),
+            raced: AtomicUsize::new(0),
         })
     }
 
@@ -238,12 +248,14 @@ impl Fitness {
             fits: self.fits.load(Ordering::Relaxed),
             memo_hits: self.memo_hits.load(Ordering::Relaxed),
             kernel_hits: self.kernel_hits.load(Ordering::Relaxed),
+            raced: self.raced.load(Ordering::Relaxed),
         }
     }
 
-    /// Fitness of every candidate, in order, evaluating new ones in parallel. A candidate that
-    /// breaks [`Hyper::check`] scores +∞.
-    pub fn evaluate(&self, batch: &[Hyper]) -> Vec<f64> {
+    /// Fitness of every candidate, in order, evaluating new ones in parallel; a new one whose
+    /// fitness reaches `bar` may stop there with a lower bound ≥ `bar` (racing, see the module
+    /// docs). A candidate that breaks [`Hyper::check`] scores +∞.
+    pub fn evaluate(&self, batch: &[Hyper], bar: f64) -> Vec<f64> {
         let key = |h: &Hyper| [h.c.to_bits(), h.epsilon.to_bits(), h.sigma.to_bits()];
         let is_valid = |h: &Hyper| h.check().is_ok();
         let mut fresh: Vec<Hyper> = Vec::new();
@@ -258,7 +270,7 @@ impl Fitness {
                 }
             }
         }
-        let scores: Vec<f64> = fresh.par_iter().map(|h| self.score(h)).collect();
+        let scores: Vec<f64> = fresh.par_iter().map(|h| self.score(h, bar)).collect();
         let mut memo = self.memo.lock().expect("memo lock");
         for (h, s) in fresh.iter().zip(&scores) {
             memo.insert(key(h), *s);
@@ -279,14 +291,24 @@ impl Fitness {
             .collect()
     }
 
-    /// MAE over every held-out prediction for one tuple.
-    fn score(&self, h: &Hyper) -> f64 {
+    /// MAE over every held-out prediction for one tuple, or a lower bound of it that is at
+    /// least `bar` once one is reached (racing).
+    fn score(&self, h: &Hyper, bar: f64) -> f64 {
         let kernels = self.fold_kernels(h.sigma);
         let Ok(params) = self.solver.with_hyper(*h).check() else {
             return f64::INFINITY;
         };
+        let total: usize = self
+            .folds
+            .iter()
+            .map(|f| f.y_held_out.nrows() * f.y_held_out.ncols())
+            .sum();
         let (mut abs_sum, mut count) = (0.0, 0usize);
         for (fold, (k_train, k_held_out)) in self.folds.iter().zip(kernels.iter()) {
+            if count > 0 && abs_sum / total as f64 >= bar {
+                self.raced.fetch_add(1, Ordering::Relaxed);
+                return abs_sum / total as f64;
+            }
             self.fits.fetch_add(1, Ordering::Relaxed);
             let Ok(sol) = params.solve(k_train.as_ref(), fold.y_train.as_ref(), Par::Seq) else {
                 return f64::INFINITY;

@@ -36,6 +36,7 @@ use crate::data::{Columns, DataError, Dataset};
 use crate::model::Predict;
 use crate::search::aco_paper::PAPER_TABLE2;
 use crate::search::{Hyper, InvalidParam};
+pub use irwls::{Loss, ROBUST_ZONE};
 use irwls::{NotPositiveDefinite, Problem, SolverOptions, StopReason};
 
 /// Default relative tolerance on the objective's decrease.
@@ -111,6 +112,16 @@ pub struct MsvrParams {
     pub tol: f64,
     /// Iteration cap (default [`DEFAULT_MAX_ITER`]).
     pub max_iter: usize,
+    /// The loss outside the tube (model files written before it existed: the paper's).
+    #[serde(default)]
+    pub loss: Loss,
+    /// [`irwls::SolverOptions::factor_updates`] (on by default; a solver detail, not written).
+    #[serde(skip, default = "factor_updates_default")]
+    pub factor_updates: bool,
+}
+
+fn factor_updates_default() -> bool {
+    true
 }
 
 impl Default for MsvrParams {
@@ -129,12 +140,19 @@ impl MsvrParams {
             sigma,
             tol: DEFAULT_TOL,
             max_iter: DEFAULT_MAX_ITER,
+            loss: Loss::Quadratic,
+            factor_updates: true,
         }
     }
 
     /// Sets the relative tolerance (default [`DEFAULT_TOL`]).
     pub fn tol(self, tol: f64) -> Self {
         MsvrParams { tol, ..self }
+    }
+
+    /// Sets the loss (default the paper's quadratic).
+    pub fn loss(self, loss: Loss) -> Self {
+        MsvrParams { loss, ..self }
     }
 
     /// Sets the iteration cap (default [`DEFAULT_MAX_ITER`]).
@@ -181,6 +199,13 @@ impl MsvrParams {
         if self.max_iter == 0 {
             return bad("max_iter", 0.0, "must be at least 1");
         }
+        if self.loss == Loss::Robust && self.epsilon <= 0.0 {
+            return bad(
+                "epsilon",
+                self.epsilon,
+                "must be > 0 with the robust loss (its quadratic zone is 10 ε wide); use the quadratic loss for ε = 0",
+            );
+        }
         Ok(ValidMsvrParams(self))
     }
 }
@@ -210,11 +235,13 @@ impl ValidMsvrParams {
             targets,
             c: p.c,
             epsilon: p.epsilon,
+            loss: p.loss,
         };
         let options = SolverOptions {
             tol: p.tol,
             max_iter: p.max_iter,
             par,
+            factor_updates: p.factor_updates,
         };
         irwls::solve(&problem, &options, None)
     }
