@@ -533,7 +533,7 @@ fn markdown(r: &ModelReport, sweeps: &[SweepFigures]) -> String {
         let _ = writeln!(s, "## Hyper-parameter search\n");
         let _ = writeln!(
             s,
-            "{} scored by {}{}: {} iterations, stopped by {:?}; {} candidates scored ({} fits, {} memo hits). Best fitness {:.5} at C = {}, ε = {}, σ = {}. Per-iteration history: `history.csv`; Figures 7-8: `fig7_min_mae.png`, `fig8_mean_mae.png` (and `.svg`).\n",
+            "{} scored by {}{}: {} iterations, stopped by {:?}; {} candidates scored ({} stopped early by racing, {} fits, {} memo hits). Best fitness {:.5} at C = {}, ε = {}, σ = {}. Per-iteration history: `history.csv`; Figures 7-8: `fig7_min_mae.png`, `fig8_mean_mae.png` (and `.svg`).\n",
             search.method,
             search.fitness,
             search
@@ -544,6 +544,7 @@ fn markdown(r: &ModelReport, sweeps: &[SweepFigures]) -> String {
             search.iterations,
             search.stop,
             search.evaluations,
+            search.raced,
             search.fits,
             search.memo_hits,
             search.best_fitness,
@@ -555,15 +556,16 @@ fn markdown(r: &ModelReport, sweeps: &[SweepFigures]) -> String {
     let _ = writeln!(s, "## Fit\n");
     let _ = writeln!(
         s,
-        "| C | ε | σ | rows | iterations | objective | support vectors | converged | stop |"
+        "| C | ε | σ | loss | rows | iterations | objective | support vectors | converged | stop |"
     );
-    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|");
     let _ = writeln!(
         s,
-        "| {} | {} | {} | {} | {} | {:.6e} | {} | {} | {:?} |\n",
+        "| {} | {} | {} | {} | {} | {} | {:.6e} | {} | {} | {:?} |\n",
         r.params.c,
         r.params.epsilon,
         r.params.sigma,
+        r.params.loss,
         r.fit.rows,
         r.fit.iterations,
         r.fit.objective,
