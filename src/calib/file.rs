@@ -142,6 +142,47 @@ pub fn toml_path(out: &Path) -> PathBuf {
     out.with_extension("toml")
 }
 
+/// Where [`calibration_json`] is written beside the calibration file `out`: `OUT.json`.
+pub fn json_path(out: &Path) -> PathBuf {
+    out.with_extension("json")
+}
+
+/// The cameras and the hand axes as JSON, for tools that read JSON rather than OpenCV YAML
+/// (Python's `json` + `numpy.array`, MATLAB's `jsondecode`, JavaScript): the YAML's keys and
+/// meanings, matrices as lists of rows. What [`read_calibration`] needs (`image_size`, `K1`,
+/// `D1`, `K2`, `D2`, `R`, `T`, `R_hand` when known) and the derived matrices (`E`, `F`,
+/// `R1`, `R2`, `P1`, `P2`, `Q`) and quality (`rms_px`, `epipolar_px`).
+pub fn calibration_json(cal: &StereoCalibration) -> String {
+    let rows =
+        |m: &[f64], cols: usize| -> Vec<Vec<f64>> { m.chunks(cols).map(<[f64]>::to_vec).collect() };
+    let rig = &cal.rig;
+    let mut doc = serde_json::json!({
+        "format": "handcap stereo calibration: the keys of calib.yml, matrices as rows; lengths in mm, image coordinates in px",
+        "image_size": rig.image_size,
+        "K1": rows(&rig.left.k, 3),
+        "D1": rig.left.dist,
+        "K2": rows(&rig.right.k, 3),
+        "D2": rig.right.dist,
+        "R": rows(&rig.right_from_left.rotation_rows(), 3),
+        "T": rig.right_from_left.translation_array(),
+        "E": rows(&cal.e, 3),
+        "F": rows(&cal.f, 3),
+        "R1": rows(&cal.r1, 3),
+        "R2": rows(&cal.r2, 3),
+        "P1": rows(&cal.p1, 4),
+        "P2": rows(&cal.p2, 4),
+        "Q": rows(&cal.q, 4),
+        "rms_px": cal.rms_px,
+        "epipolar_px": cal.epipolar_px,
+    });
+    if let Some(axes) = &cal.hand_axes {
+        doc["R_hand"] = serde_json::json!(rows(&rotation_rows(axes), 3));
+    }
+    let mut text = serde_json::to_string_pretty(&doc).expect("numbers and strings serialise");
+    text.push('\n');
+    text
+}
+
 /// The calibration as Anipose/aniposelib's `calibration.toml` (what `CameraGroup.load` reads):
 /// `[cam_0]` (the left camera, `name = "left"`) and `[cam_1]` (`"right"`), each with `size`
 /// [w, h], `matrix` (K, rows), `distortions` (OpenCV's order), `rotation` and `translation`
@@ -179,6 +220,65 @@ pub fn anipose_toml(cal: &StereoCalibration) -> String {
     out + &format!("[metadata]\nadjusted = false\nerror = {:?}\n", cal.rms_px)
 }
 
+/// Reads a calibration written by [`calibration_json`].
+///
+/// # Errors
+/// [`StereoError`] naming the file and the key that is missing or malformed.
+pub fn read_calibration_json(path: &Path) -> Result<CalibrationFile, StereoError> {
+    #[derive(serde::Deserialize)]
+    #[allow(non_snake_case)]
+    struct Keys {
+        image_size: [i32; 2],
+        K1: [[f64; 3]; 3],
+        D1: Vec<f64>,
+        K2: [[f64; 3]; 3],
+        D2: Vec<f64>,
+        R: [[f64; 3]; 3],
+        T: [f64; 3],
+        R_hand: Option<[[f64; 3]; 3]>,
+    }
+    let invalid = |message: String| StereoError::Invalid {
+        path: path.to_path_buf(),
+        message,
+    };
+    let text = read_text(path)?;
+    let keys: Keys = serde_json::from_str(&text)
+        .map_err(|e| invalid(format!("not a handcap calibration JSON ({e})")))?;
+    let flat = |m: [[f64; 3]; 3]| -> Vec<f64> { m.concat() };
+    let camera = |k: [[f64; 3]; 3], d: Vec<f64>, kn: &str, dn: &str| {
+        Ok::<_, StereoError>(Intrinsics {
+            k: camera_matrix(kn, flat(k)).map_err(invalid)?,
+            dist: distortion_coefficients(dn, d).map_err(invalid)?,
+        })
+    };
+    let rotation = |m: [[f64; 3]; 3], name: &str| {
+        rotation_from_rows(&std::array::from_fn(|k| m[k / 3][k % 3]))
+            .map_err(|e| invalid(format!("{name}: {e}")))
+    };
+    if keys.image_size.iter().any(|&v| v <= 0) || keys.T.iter().any(|v| !v.is_finite()) {
+        return Err(invalid("image_size must be positive and T finite".into()));
+    }
+    Ok(CalibrationFile {
+        path: path.to_path_buf(),
+        rig: StereoRig {
+            image_size: keys.image_size,
+            left: camera(keys.K1, keys.D1, "K1", "D1")?,
+            right: camera(keys.K2, keys.D2, "K2", "D2")?,
+            right_from_left: RightFromLeft::new(rotation(keys.R, "R")?, keys.T.into()),
+        },
+        r_hand: keys.R_hand.map(|m| rotation(m, "R_hand")).transpose()?,
+        t_hand: None,
+    })
+}
+
+/// A text calibration file's contents.
+fn read_text(path: &Path) -> Result<String, StereoError> {
+    std::fs::read_to_string(path).map_err(|e| StereoError::Unreadable {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })
+}
+
 /// A camera matrix from a file's values (`name` for the message): nine values, fx and fy > 0,
 /// K₃₃ = 1. With [`distortion_coefficients`], the one rule both calibration readers (OpenCV
 /// YAML, Anipose TOML) apply.
@@ -212,10 +312,7 @@ pub fn read_anipose_toml(path: &Path) -> Result<CalibrationFile, StereoError> {
         path: path.to_path_buf(),
         message,
     };
-    let text = std::fs::read_to_string(path).map_err(|e| StereoError::Unreadable {
-        path: path.to_path_buf(),
-        message: e.to_string(),
-    })?;
+    let text = read_text(path)?;
     let doc: toml::Table = text
         .parse()
         .map_err(|e: toml::de::Error| StereoError::Unreadable {
@@ -401,11 +498,14 @@ fn reason(e: &opencv::Error) -> String {
 /// # Errors
 /// [`StereoError`] naming the file and the key that is missing or malformed.
 pub fn read_calibration(path: &Path) -> Result<CalibrationFile, StereoError> {
-    if path
+    let extension = path
         .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("toml"))
-    {
-        return read_anipose_toml(path);
+        .and_then(|e| e.to_str())
+        .map(str::to_lowercase);
+    match extension.as_deref() {
+        Some("toml") => return read_anipose_toml(path),
+        Some("json") => return read_calibration_json(path),
+        _ => {}
     }
     let unreadable = |message: String| StereoError::Unreadable {
         path: path.to_path_buf(),

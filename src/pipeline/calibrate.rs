@@ -102,6 +102,7 @@ pub fn run(
         &[
             Output::new(out, "--out"),
             Output::new(file::toml_path(out), "the Anipose calibration.toml"),
+            Output::new(file::json_path(out), "the calibration as JSON"),
             Output::new(pairs_png, "the per-pair error figure"),
             Output::new(pairs_svg, "the per-pair error figure"),
             Output::new(rectified, "the rectified pair figure"),
@@ -115,7 +116,10 @@ pub fn run(
     let toml = file::toml_path(out);
     fsio::write_bytes(&toml, file::anipose_toml(&calibration).as_bytes())
         .map_err(io_error(&toml))?;
-    let mut written = vec![out.to_path_buf(), toml];
+    let json = file::json_path(out);
+    fsio::write_bytes(&json, file::calibration_json(&calibration).as_bytes())
+        .map_err(io_error(&json))?;
+    let mut written = vec![out.to_path_buf(), toml, json];
     written.extend(calibration.write_figures(out)?);
     Ok(Calibrated {
         calibration,

@@ -555,6 +555,40 @@ fn an_anipose_toml_without_two_cameras_is_one_line() {
 }
 
 #[test]
+fn a_calibration_json_with_a_missing_or_bad_key_is_one_line() {
+    let dir = tempdir();
+    let d = dir.path();
+    let k = "[[900.0, 0.0, 640.0], [0.0, 900.0, 360.0], [0.0, 0.0, 1.0]]";
+    let doc = |r: &str, k2: bool| {
+        format!(
+            "{{\"image_size\": [1280, 720], \"K1\": {k}, \"D1\": [0, 0, 0, 0, 0],{} \"D2\": [0, 0, 0, 0, 0], \"R\": {r}, \"T\": [-60, 0, 0]}}",
+            if k2 { format!(" \"K2\": {k},") } else { String::new() }
+        )
+    };
+    let identity = "[[1, 0, 0], [0, 1, 0], [0, 0, 1]]";
+    write(d, "good.json", &doc(identity, true));
+    write(d, "no_k2.json", &doc(identity, false));
+    write(
+        d,
+        "zeros.json",
+        &doc("[[0, 0, 0], [0, 0, 0], [0, 0, 0]]", true),
+    );
+    write(d, "text.json", "image_size: [1280, 720]\n");
+    use handcap::calib::file::read_calibration;
+    for (file, says) in [
+        ("no_k2.json", "missing field `K2`"),
+        ("zeros.json", "R: "),
+        ("text.json", "not a handcap calibration JSON"),
+    ] {
+        let msg = read_calibration(&d.join(file)).unwrap_err().to_string();
+        assert!(msg.contains(file) && msg.contains(says), "{msg}");
+        assert_eq!(msg.lines().count(), 1);
+    }
+    let good = read_calibration(&d.join("good.json")).unwrap();
+    assert_eq!(good.rig.right_from_left.translation.x, -60.0);
+}
+
+#[test]
 fn figures_of_a_file_with_a_dot_in_its_name_keep_their_names() {
     let dir = tempdir();
     let d = dir.path();

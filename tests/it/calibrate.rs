@@ -45,11 +45,19 @@ fn assert_close(truth: &YamlRig, got: &YamlRig) {
     assert!(hand < 0.1, "hand axes off by {hand}°");
 }
 
+/// A matrix's values, row by row.
+fn mat(m: &opencv::core::Mat) -> Vec<f64> {
+    use opencv::prelude::*;
+    (0..m.rows())
+        .flat_map(|r| (0..m.cols()).map(move |c| (r, c)))
+        .map(|(r, c)| *m.at_2d::<f64>(r, c).unwrap())
+        .collect()
+}
+
 /// The Anipose `calibration.toml` beside the YAML, read by an independent TOML reader (the
 /// `toml` crate), holds the same cameras: K, distortion, size, and the right camera's pose as a
 /// Rodrigues vector and translation (the left camera's zero), OpenCV's conventions.
 fn anipose_toml_matches_the_yaml(toml_path: &Path, yaml: &YamlRig) {
-    use opencv::prelude::*;
     let text = std::fs::read_to_string(toml_path).unwrap();
     let doc: toml::Table = text.parse().unwrap();
     let floats = |v: &toml::Value| -> Vec<f64> {
@@ -60,12 +68,6 @@ fn anipose_toml_matches_the_yaml(toml_path: &Path, yaml: &YamlRig) {
                 toml::Value::Array(row) => row.iter().map(|y| y.as_float().unwrap()).collect(),
                 other => vec![other.as_float().unwrap()],
             })
-            .collect()
-    };
-    let mat = |m: &opencv::core::Mat| -> Vec<f64> {
-        (0..m.rows())
-            .flat_map(|r| (0..m.cols()).map(move |c| (r, c)))
-            .map(|(r, c)| *m.at_2d::<f64>(r, c).unwrap())
             .collect()
     };
     for (cam, name, k, dist) in [
@@ -107,6 +109,48 @@ fn anipose_toml_matches_the_yaml(toml_path: &Path, yaml: &YamlRig) {
     assert!(back.r_hand.is_none());
 }
 
+/// `calib.json` beside the YAML, read by a generic JSON parser, holds the same numbers under the
+/// YAML's keys (matrices as rows), and handcap reads it back as the same rig and hand axes.
+fn json_matches_the_yaml(json_path: &Path, yaml: &YamlRig) {
+    let doc: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(json_path).unwrap()).unwrap();
+    let floats = |key: &str| -> Vec<f64> {
+        let flat = |v: &serde_json::Value| -> Vec<f64> {
+            match v {
+                serde_json::Value::Array(row) => row.iter().map(|x| x.as_f64().unwrap()).collect(),
+                other => vec![other.as_f64().unwrap()],
+            }
+        };
+        doc[key]
+            .as_array()
+            .unwrap_or_else(|| panic!("{key} missing"))
+            .iter()
+            .flat_map(flat)
+            .collect()
+    };
+    assert_eq!(floats("image_size"), [1280.0, 720.0]);
+    assert_eq!(floats("K1"), mat(&yaml.k1));
+    assert_eq!(floats("D1"), mat(&yaml.d1));
+    assert_eq!(floats("K2"), mat(&yaml.k2));
+    assert_eq!(floats("D2"), mat(&yaml.d2));
+    let rows = |r: &nalgebra::Rotation3<f64>| -> Vec<f64> {
+        (0..9).map(|k| r.matrix()[(k / 3, k % 3)]).collect()
+    };
+    assert_eq!(floats("R"), rows(&yaml.r));
+    assert_eq!(floats("T"), yaml.t.as_slice());
+    assert_eq!(floats("R_hand"), rows(yaml.r_hand.as_ref().unwrap()));
+    for key in ["E", "F", "P1", "P2", "Q"] {
+        assert!(!floats(key).is_empty(), "{key}");
+    }
+    assert!(doc["rms_px"].as_f64().unwrap() > 0.0);
+    let back = handcap::calib::file::read_calibration(json_path).unwrap();
+    assert_eq!(back.rig.left.k.to_vec(), mat(&yaml.k1));
+    assert_eq!(back.rig.right.dist, mat(&yaml.d2));
+    assert_eq!(back.rig.right_from_left.rotation, yaml.r);
+    assert_eq!(back.rig.right_from_left.translation, yaml.t);
+    assert_eq!(back.r_hand, yaml.r_hand);
+}
+
 fn rms_of(yaml: &Path) -> f64 {
     let text = std::fs::read_to_string(yaml).unwrap();
     text.lines()
@@ -131,6 +175,7 @@ fn calibrates_the_synthetic_rig_within_tolerance_and_rejects_a_corrupted_pair() 
         assert!(d.join(figure).is_file(), "{figure} missing");
     }
     anipose_toml_matches_the_yaml(&d.join("cal.toml"), &read_rig(&d.join("cal.yml")));
+    json_matches_the_yaml(&d.join("cal.json"), &read_rig(&d.join("cal.yml")));
     let yaml = std::fs::read_to_string(d.join("cal.yml")).unwrap();
     for key in [
         "image_size:",
