@@ -507,81 +507,146 @@ pub fn read_calibration(path: &Path) -> Result<CalibrationFile, StereoError> {
         Some("json") => return read_calibration_json(path),
         _ => {}
     }
-    let unreadable = |message: String| StereoError::Unreadable {
-        path: path.to_path_buf(),
-        message,
-    };
-    let invalid = |message: String| StereoError::Invalid {
-        path: path.to_path_buf(),
-        message,
-    };
-    if !path.is_file() {
-        return Err(unreadable("no such file".into()));
+    let file = YamlFile::open(path)?;
+    let size_node = file.fs.get("image_size")?;
+    if size_node.empty()? || !size_node.is_seq()? || size_node.size()? != 2 {
+        return Err(file.invalid("no image_size [width, height]".into()));
     }
-    let name = path
-        .to_str()
-        .ok_or_else(|| unreadable("the path is not UTF-8".into()))?;
-    let fs = core::FileStorage::new(name, core::FileStorage_Mode::READ as i32, "")
-        .map_err(|e| unreadable(reason(&e)))?;
-    if !fs.is_opened()? {
-        return Err(unreadable("OpenCV cannot open it".into()));
+    let image_size = [size_node.at(0)?.to_i32()?, size_node.at(1)?.to_i32()?];
+    let rig = StereoRig {
+        image_size,
+        left: file.camera("K1", "D1")?,
+        right: file.camera("K2", "D2")?,
+        right_from_left: RightFromLeft::from_rows(
+            &file.required("R", 9)?.try_into().expect("nine values"),
+            file.required("T", 3)?.try_into().expect("three values"),
+        )
+        .map_err(|e| file.invalid(format!("R is {e}")))?,
+    };
+    let r_hand = file
+        .optional("R_hand", 9)?
+        .map(|v| rotation_from_rows(&v.try_into().expect("nine values")))
+        .transpose()
+        .map_err(|e| file.invalid(format!("R_hand is {e}")))?;
+    Ok(CalibrationFile {
+        path: path.to_path_buf(),
+        rig,
+        r_hand,
+        t_hand: file
+            .optional("t_hand", 3)?
+            .map(|v| Vector3::from_row_slice(&v)),
+    })
+}
+
+/// One camera's intrinsics from an earlier single-camera calibration (`calibrate --intrinsics`):
+/// OpenCV YAML/XML with `camera_matrix` and `distortion_coefficients` and the image size as
+/// `image_width` and `image_height` (what OpenCV's calibration sample writes), or `K`, `D` and
+/// `image_size` [w, h]. Returns the size and the intrinsics.
+///
+/// # Errors
+/// [`StereoError`] naming the file and the key that is missing or malformed.
+pub fn read_intrinsics(path: &Path) -> Result<([i32; 2], Intrinsics), StereoError> {
+    let file = YamlFile::open(path)?;
+    let present = |key: &str| -> Result<bool, StereoError> {
+        let node = file.fs.get(key)?;
+        Ok(!(node.empty()? || node.is_none()?))
+    };
+    let int = |key: &str| -> Result<i32, StereoError> { Ok(file.fs.get(key)?.to_i32()?) };
+    let size = if present("image_width")? && present("image_height")? {
+        [int("image_width")?, int("image_height")?]
+    } else if present("image_size")? {
+        let node = file.fs.get("image_size")?;
+        if !node.is_seq()? || node.size()? != 2 {
+            return Err(file.invalid("image_size is not [width, height]".into()));
+        }
+        [node.at(0)?.to_i32()?, node.at(1)?.to_i32()?]
+    } else {
+        return Err(
+            file.invalid("no image size (image_width and image_height, or image_size)".into())
+        );
+    };
+    let intrinsics = if present("camera_matrix")? {
+        file.camera("camera_matrix", "distortion_coefficients")?
+    } else if present("K")? {
+        file.camera("K", "D")?
+    } else {
+        return Err(file.invalid(
+            "no camera matrix (camera_matrix and distortion_coefficients, or K and D)".into(),
+        ));
+    };
+    Ok((size, intrinsics))
+}
+
+/// An OpenCV FileStorage file opened for reading, and the key readers with one error rule.
+struct YamlFile {
+    path: PathBuf,
+    fs: core::FileStorage,
+}
+
+impl YamlFile {
+    fn open(path: &Path) -> Result<Self, StereoError> {
+        let unreadable = |message: String| StereoError::Unreadable {
+            path: path.to_path_buf(),
+            message,
+        };
+        if !path.is_file() {
+            return Err(unreadable("no such file".into()));
+        }
+        let name = path
+            .to_str()
+            .ok_or_else(|| unreadable("the path is not UTF-8".into()))?;
+        let fs = core::FileStorage::new(name, core::FileStorage_Mode::READ as i32, "")
+            .map_err(|e| unreadable(reason(&e)))?;
+        if !fs.is_opened()? {
+            return Err(unreadable("OpenCV cannot open it".into()));
+        }
+        Ok(YamlFile {
+            path: path.to_path_buf(),
+            fs,
+        })
     }
-    let optional = |key: &str, len: usize| -> Result<Option<Vec<f64>>, StereoError> {
-        let node = fs.get(key)?;
+
+    fn invalid(&self, message: String) -> StereoError {
+        StereoError::Invalid {
+            path: self.path.clone(),
+            message,
+        }
+    }
+
+    /// A matrix of `len` finite values, `None` when the key is absent.
+    fn optional(&self, key: &str, len: usize) -> Result<Option<Vec<f64>>, StereoError> {
+        let node = self.fs.get(key)?;
         if node.empty()? || node.is_none()? {
             return Ok(None);
         }
         let m = node
             .mat()
-            .map_err(|e| invalid(format!("{key}: {}", e.message)))?;
+            .map_err(|e| self.invalid(format!("{key}: {}", e.message)))?;
         let v = cv::values(&m)?;
         if v.len() != len || v.iter().any(|x| !x.is_finite()) {
-            return Err(invalid(format!(
+            return Err(self.invalid(format!(
                 "{key} has {} values (finite: {}), expected {len}",
                 v.len(),
                 v.iter().all(|x| x.is_finite())
             )));
         }
         Ok(Some(v))
-    };
-    let required =
-        |key: &str, len: usize| optional(key, len)?.ok_or_else(|| invalid(format!("no {key}")));
-    let distortion = |key: &str| -> Result<Vec<f64>, StereoError> {
-        let node = fs.get(key)?;
-        if node.empty()? || node.is_none()? {
-            return Err(invalid(format!("no {key}")));
-        }
-        distortion_coefficients(key, cv::values(&node.mat()?)?).map_err(invalid)
-    };
-    let size_node = fs.get("image_size")?;
-    if size_node.empty()? || !size_node.is_seq()? || size_node.size()? != 2 {
-        return Err(invalid("no image_size [width, height]".into()));
     }
-    let image_size = [size_node.at(0)?.to_i32()?, size_node.at(1)?.to_i32()?];
-    let camera = |k: &str, d: &str| -> Result<Intrinsics, StereoError> {
-        Ok(Intrinsics {
-            k: camera_matrix(k, required(k, 9)?).map_err(invalid)?,
-            dist: distortion(d)?,
-        })
-    };
-    let rig = StereoRig {
-        image_size,
-        left: camera("K1", "D1")?,
-        right: camera("K2", "D2")?,
-        right_from_left: RightFromLeft::from_rows(
-            &required("R", 9)?.try_into().expect("nine values"),
-            required("T", 3)?.try_into().expect("three values"),
-        )
-        .map_err(|e| invalid(format!("R is {e}")))?,
-    };
-    let r_hand = optional("R_hand", 9)?
-        .map(|v| rotation_from_rows(&v.try_into().expect("nine values")))
-        .transpose()
-        .map_err(|e| invalid(format!("R_hand is {e}")))?;
-    Ok(CalibrationFile {
-        path: path.to_path_buf(),
-        rig,
-        r_hand,
-        t_hand: optional("t_hand", 3)?.map(|v| Vector3::from_row_slice(&v)),
-    })
+
+    fn required(&self, key: &str, len: usize) -> Result<Vec<f64>, StereoError> {
+        self.optional(key, len)?
+            .ok_or_else(|| self.invalid(format!("no {key}")))
+    }
+
+    /// The camera of matrix key `k` and distortion key `d`.
+    fn camera(&self, k: &str, d: &str) -> Result<Intrinsics, StereoError> {
+        let k = camera_matrix(k, self.required(k, 9)?).map_err(|e| self.invalid(e))?;
+        let node = self.fs.get(d)?;
+        if node.empty()? || node.is_none()? {
+            return Err(self.invalid(format!("no {d}")));
+        }
+        let dist =
+            distortion_coefficients(d, cv::values(&node.mat()?)?).map_err(|e| self.invalid(e))?;
+        Ok(Intrinsics { k, dist })
+    }
 }

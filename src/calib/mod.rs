@@ -91,6 +91,14 @@ pub enum CalibError {
     },
     #[error("board: {0}")]
     BadBoard(String),
+    #[error("{path}: intrinsics of {fw}×{fh} images, but the calibration images are {w}×{h}; give the file of this camera at this resolution")]
+    IntrinsicsSize {
+        path: PathBuf,
+        fw: i32,
+        fh: i32,
+        w: i32,
+        h: i32,
+    },
     #[error("OpenCV: {0}")]
     OpenCv(#[from] opencv::Error),
     #[error(transparent)]
@@ -144,8 +152,16 @@ impl BoardSpec {
     }
 }
 
-/// How pairs are kept or rejected.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+/// A camera's intrinsics known from an earlier calibration (`--intrinsics`), and its file.
+#[derive(Clone, Debug, PartialEq)]
+pub struct KnownIntrinsics {
+    pub path: PathBuf,
+    pub image_size: [i32; 2],
+    pub intrinsics: Intrinsics,
+}
+
+/// How pairs are kept or rejected, and what is known beforehand.
+#[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct CalibOptions {
     /// Fewest pairs the calibration may keep.
     pub min_pairs: usize,
@@ -153,6 +169,9 @@ pub struct CalibOptions {
     pub reject_factor: f64,
     /// … and this many pixels.
     pub reject_floor_px: f64,
+    /// Intrinsics of the left and right camera fixed instead of solved (see [`stereo`]).
+    #[serde(skip)]
+    pub intrinsics: [Option<KnownIntrinsics>; 2],
 }
 
 impl Default for CalibOptions {
@@ -161,6 +180,7 @@ impl Default for CalibOptions {
             min_pairs: 6,
             reject_factor: 3.0,
             reject_floor_px: 0.25,
+            intrinsics: [None, None],
         }
     }
 }
@@ -303,6 +323,17 @@ pub fn calibrate(
         });
     }
     let size = check_sizes(&all, &found)?;
+    for known in options.intrinsics.iter().flatten() {
+        if known.image_size != size {
+            return Err(CalibError::IntrinsicsSize {
+                path: known.path.clone(),
+                fw: known.image_size[0],
+                fh: known.image_size[1],
+                w: size[0],
+                h: size[1],
+            });
+        }
+    }
 
     // Pairs with the board in both images, in a consistent corner order.
     let mut reports = Vec::new();
@@ -354,7 +385,7 @@ pub fn calibrate(
     }
     let mut rig;
     loop {
-        rig = stereo(board, size, &usable)?;
+        rig = stereo(board, size, &usable, &options.intrinsics)?;
         let errors: Vec<f64> = rig.per_view.iter().map(|e| e[0].max(e[1])).collect();
         let median = crate::stats::upper_median(&mut errors.clone()).expect("pairs");
         let (worst, &err) = errors
@@ -619,13 +650,36 @@ fn inconsistent_pairs(
     Ok(out)
 }
 
-fn stereo(board: &BoardSpec, size: [i32; 2], usable: &[Usable]) -> Result<StereoFit, CalibError> {
+/// The joint calibration: each camera's intrinsics from its own calibration (or as known), then
+/// both cameras and the pose together (`stereoCalibrate`, refining the intrinsics), or, when a
+/// camera's intrinsics are known, the pose alone with both cameras' intrinsics fixed
+/// (`CALIB_FIX_INTRINSIC`: OpenCV fixes both or neither; the other camera keeps its own
+/// calibration's).
+fn stereo(
+    board: &BoardSpec,
+    size: [i32; 2],
+    usable: &[Usable],
+    known: &[Option<KnownIntrinsics>; 2],
+) -> Result<StereoFit, CalibError> {
     let image_size = Size::new(size[0], size[1]);
     let object: Vector<Vector<Point3f>> = usable.iter().map(|_| board.object_points()).collect();
     let left: Vector<Vector<Point2f>> = usable.iter().map(|u| points(&u.left)).collect();
     let right: Vector<Vector<Point2f>> = usable.iter().map(|u| points(&u.right)).collect();
-    let (mut k1, mut d1, _) = single_camera(board, size, &left)?;
-    let (mut k2, mut d2, _) = single_camera(board, size, &right)?;
+    let camera = |image: &Vector<Vector<Point2f>>, known: &Option<KnownIntrinsics>| match known {
+        Some(k) => Ok((
+            Mat::new_rows_cols_with_data(3, 3, &k.intrinsics.k)?.try_clone()?,
+            Mat::new_rows_cols_with_data(1, k.intrinsics.dist.len() as i32, &k.intrinsics.dist)?
+                .try_clone()?,
+        )),
+        None => single_camera(board, size, image).map(|(k, d, _)| (k, d)),
+    };
+    let (mut k1, mut d1) = camera(&left, &known[0])?;
+    let (mut k2, mut d2) = camera(&right, &known[1])?;
+    let flags = if known.iter().any(Option::is_some) {
+        calib3d::CALIB_FIX_INTRINSIC
+    } else {
+        calib3d::CALIB_USE_INTRINSIC_GUESS
+    };
     let (mut r, mut t, mut e, mut f, mut per_view) = (
         Mat::default(),
         Mat::default(),
@@ -647,7 +701,7 @@ fn stereo(board: &BoardSpec, size: [i32; 2], usable: &[Usable]) -> Result<Stereo
         &mut e,
         &mut f,
         &mut per_view,
-        calib3d::CALIB_USE_INTRINSIC_GUESS,
+        flags,
         criteria()?,
     )?;
     let errors = values(&per_view)?;

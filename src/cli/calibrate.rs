@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::bail;
 
-use handcap::calib::CalibOptions;
+use handcap::calib::{file, CalibOptions, KnownIntrinsics};
 use handcap::pipeline::calibrate::{self, Calibrated};
 
 use super::synth::parse_board;
@@ -26,6 +26,11 @@ pub struct Args {
     /// Fewest pairs to keep when rejecting outliers
     #[arg(long, default_value_t = CalibOptions::default().min_pairs)]
     min_pairs: usize,
+    /// LEFT,RIGHT: each camera's intrinsics from an earlier single-camera calibration (OpenCV
+    /// YAML: camera_matrix, distortion_coefficients, image_width, image_height), fixed instead of
+    /// solved; `-` for a camera to solve (e.g. `--intrinsics left.yml,-`)
+    #[arg(long, value_delimiter = ',', num_args = 1)]
+    intrinsics: Vec<PathBuf>,
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
@@ -35,8 +40,27 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             a.dir.display()
         );
     }
+    if !a.intrinsics.is_empty() && a.intrinsics.len() != 2 {
+        super::usage!("--intrinsics takes LEFT,RIGHT (`-` for a camera to solve)");
+    }
+    let known = |path: &PathBuf| -> anyhow::Result<Option<KnownIntrinsics>> {
+        if path.as_os_str() == "-" {
+            return Ok(None);
+        }
+        let (image_size, intrinsics) = file::read_intrinsics(path)?;
+        Ok(Some(KnownIntrinsics {
+            path: path.clone(),
+            image_size,
+            intrinsics,
+        }))
+    };
+    let mut intrinsics = [None, None];
+    for (slot, path) in intrinsics.iter_mut().zip(&a.intrinsics) {
+        *slot = known(path)?;
+    }
     let options = CalibOptions {
         min_pairs: a.min_pairs,
+        intrinsics,
         ..CalibOptions::default()
     };
     let done = super::with_session(|s| {
@@ -44,6 +68,14 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         calibrate::run(&a.dir, &board, &options, &a.out, s)
     })?;
     print_summary(&done);
+    for (camera, known) in ["left", "right"].iter().zip(&options.intrinsics) {
+        if let Some(k) = known {
+            println!(
+                "{camera} intrinsics fixed as {} gives them",
+                k.path.display()
+            );
+        }
+    }
     super::print_written(&done.written);
     Ok(())
 }

@@ -95,7 +95,12 @@ pub fn run(
         .chain(&listing.reference)
         .flat_map(|p| [p.left.as_path(), p.right.as_path()])
         .chain(listing.unpaired.iter().map(PathBuf::as_path));
-    let inputs: Vec<&Path> = images.chain([board_file.as_path()]).collect();
+    let known = options
+        .intrinsics
+        .iter()
+        .flatten()
+        .map(|k| k.path.as_path());
+    let inputs: Vec<&Path> = images.chain([board_file.as_path()]).chain(known).collect();
     let [pairs_png, pairs_svg, rectified] = calib::figures::figure_paths(out);
     outputs::check(
         &inputs,

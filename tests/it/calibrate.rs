@@ -8,8 +8,8 @@ use opencv::imgcodecs;
 use opencv::prelude::*;
 
 use crate::common::{
-    handcap, handcap_err, handcap_ok, read_rig, small_capture, tempdir, tip_rms_against_truth,
-    YamlRig,
+    handcap, handcap_err, handcap_ok, handcap_usage, read_rig, small_capture, tempdir,
+    tip_rms_against_truth, YamlRig,
 };
 
 fn at(m: &opencv::core::Mat, r: i32, c: i32) -> f64 {
@@ -407,4 +407,124 @@ fn every_board_rule_is_checked() {
         let err = bad.check().unwrap_err().to_string();
         assert!(err.contains(says), "{bad:?}: {err}");
     }
+}
+
+/// A single-camera calibration file as OpenCV's calibration sample writes it.
+fn intrinsics_file(path: &Path, size: [i32; 2], k: &[f64], d: &[f64]) {
+    let list = |v: &[f64]| {
+        v.iter()
+            .map(|x| format!("{x:e}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    std::fs::write(
+        path,
+        format!(
+            "%YAML:1.0\n---\nimage_width: {}\nimage_height: {}\ncamera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ {} ]\ndistortion_coefficients: !!opencv-matrix\n   rows: 1\n   cols: {}\n   dt: d\n   data: [ {} ]\n",
+            size[0],
+            size[1],
+            list(k),
+            d.len(),
+            list(d)
+        ),
+    )
+    .unwrap();
+}
+
+#[test]
+fn known_intrinsics_are_kept_and_the_pose_is_at_least_as_close() {
+    let dir = tempdir();
+    let d = dir.path();
+    small_capture(d, 23, 8);
+    let truth = read_rig(&d.join("truth/rig.yml"));
+    intrinsics_file(
+        &d.join("left.yml"),
+        [1280, 720],
+        &mat(&truth.k1),
+        &mat(&truth.d1),
+    );
+    intrinsics_file(
+        &d.join("right.yml"),
+        [1280, 720],
+        &mat(&truth.k2),
+        &mat(&truth.d2),
+    );
+    handcap_ok(d, &["calibrate", "calib", "--out", "free.yml"]);
+    handcap_ok(
+        d,
+        &[
+            "calibrate",
+            "calib",
+            "--intrinsics",
+            "left.yml,right.yml",
+            "--out",
+            "fixed.yml",
+        ],
+    );
+    let (free, fixed) = (
+        read_rig(&d.join("free.yml")),
+        read_rig(&d.join("fixed.yml")),
+    );
+    // Fixed means fixed: the files' values, not refined.
+    assert_eq!(mat(&fixed.k1), mat(&truth.k1));
+    assert_eq!(mat(&fixed.d2), mat(&truth.d2));
+    let off = |rig: &YamlRig| (rig.t - truth.t).norm();
+    assert!(
+        off(&fixed) <= off(&free),
+        "baseline {} mm off with the true intrinsics, {} mm free",
+        off(&fixed),
+        off(&free)
+    );
+    // One camera known, the other solved.
+    handcap_ok(
+        d,
+        &[
+            "calibrate",
+            "calib",
+            "--intrinsics",
+            "left.yml,-",
+            "--out",
+            "half.yml",
+        ],
+    );
+    let half = read_rig(&d.join("half.yml"));
+    assert_eq!(mat(&half.k1), mat(&truth.k1));
+    assert_close(&truth, &half);
+
+    // A file of another resolution, or without a camera matrix: one line naming the file.
+    intrinsics_file(
+        &d.join("small.yml"),
+        [640, 480],
+        &mat(&truth.k1),
+        &mat(&truth.d1),
+    );
+    std::fs::write(
+        d.join("empty.yml"),
+        "%YAML:1.0\n---\nimage_width: 1280\nimage_height: 720\n",
+    )
+    .unwrap();
+    for (file, says) in [
+        (
+            "small.yml",
+            "intrinsics of 640×480 images, but the calibration images are 1280×720",
+        ),
+        ("empty.yml", "no camera matrix"),
+    ] {
+        let msg = handcap_err(
+            d,
+            &[
+                "calibrate",
+                "calib",
+                "--intrinsics",
+                &format!("{file},-"),
+                "--out",
+                "x.yml",
+            ],
+        );
+        assert!(msg.contains(file) && msg.contains(says), "{msg}");
+        assert_eq!(msg.trim().lines().count(), 1, "{msg}");
+        assert!(!d.join("x.yml").exists());
+    }
+    let msg = handcap_usage(d, &["calibrate", "calib", "--intrinsics", "left.yml"]);
+    assert!(msg.contains("LEFT,RIGHT"), "{msg}");
 }
