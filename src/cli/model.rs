@@ -22,7 +22,7 @@ use handcap::DEFAULT_SEED;
 pub enum SearchKind {
     /// The paper's digit-encoded ant colony (--ants, --rho, --tau0, --max-iter)
     AcoPaper,
-    /// Continuous ACO_R on log C, log ε, log σ (--budget)
+    /// Continuous ACO_R on log C, log ε, log σ, racing candidates over the folds (--budget)
     AcoR,
     /// Log-spaced grid (--budget)
     Grid,
