@@ -147,6 +147,8 @@ pub struct Counters {
 pub struct Fitness {
     kind: FitnessKind,
     folds: Vec<Fold>,
+    /// Held-out predictions over all folds (rows × outputs): the MAE's divisor.
+    held_out_values: usize,
     /// Solver controls (tol, max_iter) of every fit.
     solver: MsvrParams,
     memo: Mutex<HashMap<[u64; 3], f64>>,
@@ -220,9 +222,14 @@ impl Fitness {
                     + f.d2_held_out.nrows() * f.d2_held_out.ncols())
             })
             .sum();
+        let held_out_values = folds
+            .iter()
+            .map(|f| f.y_held_out.nrows() * f.y_held_out.ncols())
+            .sum();
         Ok(Fitness {
             kind,
             folds,
+            held_out_values,
             solver: MsvrParams {
                 tol: solver.tol.max(SEARCH_TOL),
                 ..*solver
@@ -298,16 +305,13 @@ impl Fitness {
         let Ok(params) = self.solver.with_hyper(*h).check() else {
             return f64::INFINITY;
         };
-        let total: usize = self
-            .folds
-            .iter()
-            .map(|f| f.y_held_out.nrows() * f.y_held_out.ncols())
-            .sum();
-        let (mut abs_sum, mut count) = (0.0, 0usize);
-        for (fold, (k_train, k_held_out)) in self.folds.iter().zip(kernels.iter()) {
-            if count > 0 && abs_sum / total as f64 >= bar {
+        let all = self.held_out_values as f64;
+        let mut abs_sum = 0.0;
+        for (k, (fold, (k_train, k_held_out))) in self.folds.iter().zip(kernels.iter()).enumerate()
+        {
+            if k > 0 && abs_sum / all >= bar {
                 self.raced.fetch_add(1, Ordering::Relaxed);
-                return abs_sum / total as f64;
+                return abs_sum / all;
             }
             self.fits.fetch_add(1, Ordering::Relaxed);
             let Ok(sol) = params.solve(k_train.as_ref(), fold.y_train.as_ref(), Par::Seq) else {
@@ -320,9 +324,8 @@ impl Fitness {
                     abs_sum += (y[(r, j)] - pred[(r, j)] - sol.bias[j]).abs();
                 }
             }
-            count += y.nrows() * y.ncols();
         }
-        abs_sum / count as f64
+        abs_sum / all
     }
 
     /// The kernels of every fold for σ, from the cache or computed (and cached).

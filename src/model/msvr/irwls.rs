@@ -452,6 +452,21 @@ impl Problem<'_> {
         }
     }
 
+    /// A row's part in the step (step 2), `None` inside the tube: its inverse weight 1/aᵢ and
+    /// the share of its residual its target is pulled in by (y'ᵢ = yᵢ − shrink · rᵢ). In the
+    /// quadratic zone 1/(2C) and ε/uᵢ (the target at the tube's edge), in the robust loss's
+    /// linear part uᵢ/(2Cδ) and 0 (the target itself).
+    fn step_row(&self, u: f64) -> Option<(f64, f64)> {
+        let (excess, zone) = (u - self.epsilon, self.zone());
+        (excess > 0.0).then(|| {
+            if excess > zone {
+                (u / (2.0 * self.c * zone), 0.0)
+            } else {
+                (0.5 / self.c, self.epsilon / u)
+            }
+        })
+    }
+
     /// L′(u) / u: the loss's pull on a residual vector per unit of its length.
     fn pull(&self, u: f64) -> f64 {
         2.0 * (u - self.epsilon).min(self.zone()) / u
@@ -509,20 +524,13 @@ impl Problem<'_> {
         par: Par,
     ) -> Result<(Mat<f64>, Vec<f64>), NotPositiveDefinite> {
         let (n, q) = self.targets.shape();
-        // Support rows with their inverse weights: 1/(2C) in the quadratic zone, uᵢ/(2Cδ)
-        // in the robust loss's linear part.
-        let zone = self.zone();
-        let support: Vec<(usize, f64)> = (0..n)
-            .filter_map(|i| {
-                let u = row_norm(it.resid.as_ref(), i);
-                let excess = u - self.epsilon;
-                let inv_weight = if excess > zone {
-                    u / (2.0 * self.c * zone)
-                } else {
-                    0.5 / self.c
-                };
-                (excess > 0.0).then_some((i, inv_weight))
-            })
+        let rows: Vec<Option<(f64, f64)>> = (0..n)
+            .map(|i| self.step_row(row_norm(it.resid.as_ref(), i)))
+            .collect();
+        let support: Vec<(usize, f64)> = rows
+            .iter()
+            .enumerate()
+            .filter_map(|(i, row)| row.map(|(inv_weight, _)| (i, inv_weight)))
             .collect();
         let s = support.len();
         let mut beta_star = Mat::zeros(n, q);
@@ -530,16 +538,9 @@ impl Problem<'_> {
             return Ok((beta_star, it.bias.clone()));
         }
         work.prepare(self.kernel, &support, par)?;
-        // Targets pulled in to the tube's edge in the quadratic zone (yᵢ − ε eᵢ/uᵢ), the
-        // targets themselves in the linear part.
         let mut rhs = work.rhs.as_mut().submatrix_mut(0, 0, s, q + 1);
         for (r, &(i, _)) in work.factored.iter().enumerate() {
-            let u = row_norm(it.resid.as_ref(), i);
-            let shrink = if u - self.epsilon > zone {
-                0.0
-            } else {
-                self.epsilon / u
-            };
+            let (_, shrink) = rows[i].expect("the factor holds support rows");
             rhs[(r, 0)] = 1.0;
             for j in 0..q {
                 rhs[(r, j + 1)] = self.targets[(i, j)] - shrink * it.resid[(i, j)];

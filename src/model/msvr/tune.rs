@@ -54,7 +54,7 @@ pub struct SearchSummary {
     pub fits: usize,
     /// Candidates answered from the memo of scored ones.
     pub memo_hits: usize,
-    /// Candidates stopped before their last fold, unable to beat the best (racing).
+    /// Candidates stopped before their last fold, unable to change the search (racing).
     #[serde(default)]
     pub raced: usize,
 }
@@ -103,9 +103,9 @@ pub fn space_for(data: &Dataset) -> SearchSpace {
 
 /// The candidate budget of ACO_R and the grid when none is given, from the rows scored: one
 /// candidate costs a fit per fold, and a fit grows as n² to n³, so small sets get a finer search
-/// for the same time. Measured with 5 folds on 2 cores (ACO_R): 780 rows × 3 inputs (tendon arm)
-/// 120 candidates in 6 s, 1096 rows × 6 inputs (soft trunk) in 13 s, both within 1 % of the
-/// held-out error at 400 candidates.
+/// for the same time. Measured with 5 folds on 2 cores (ACO_R, robust loss): 780 rows × 3
+/// inputs (tendon arm) 120 candidates in 11 s, 13.7 mm held out (400: 34 s, 14.4 mm); 1096 rows
+/// × 6 inputs (soft trunk) 120 in 20 s, 3.73 mm (400: 74 s, 3.82 mm).
 pub fn budget_for(rows: usize) -> usize {
     match rows {
         0..=400 => 400,
