@@ -33,7 +33,7 @@ use nalgebra::{Rotation3, Vector3};
 use opencv::core;
 use opencv::prelude::*;
 
-use super::{BoardSpec, CalibError, PairReport, StereoCalibration};
+use super::{BoardSpec, CalibError, KnownIntrinsics, PairReport, StereoCalibration};
 use crate::cv;
 use crate::geometry::{
     relative, rotation_from_rows, rotation_rows, CamFromWorld, HandFromLeft, Intrinsics,
@@ -244,16 +244,15 @@ pub fn read_calibration_json(path: &Path) -> Result<CalibrationFile, StereoError
     let text = read_text(path)?;
     let keys: Keys = serde_json::from_str(&text)
         .map_err(|e| invalid(format!("not a handcap calibration JSON ({e})")))?;
-    let flat = |m: [[f64; 3]; 3]| -> Vec<f64> { m.concat() };
+    let flat = |m: [[f64; 3]; 3]| -> [f64; 9] { std::array::from_fn(|k| m[k / 3][k % 3]) };
     let camera = |k: [[f64; 3]; 3], d: Vec<f64>, kn: &str, dn: &str| {
         Ok::<_, StereoError>(Intrinsics {
-            k: camera_matrix(kn, flat(k)).map_err(invalid)?,
+            k: camera_matrix(kn, flat(k).to_vec()).map_err(invalid)?,
             dist: distortion_coefficients(dn, d).map_err(invalid)?,
         })
     };
     let rotation = |m: [[f64; 3]; 3], name: &str| {
-        rotation_from_rows(&std::array::from_fn(|k| m[k / 3][k % 3]))
-            .map_err(|e| invalid(format!("{name}: {e}")))
+        rotation_from_rows(&flat(m)).map_err(|e| invalid(format!("{name}: {e}")))
     };
     if keys.image_size.iter().any(|&v| v <= 0) || keys.T.iter().any(|v| !v.is_finite()) {
         return Err(invalid("image_size must be positive and T finite".into()));
@@ -508,11 +507,9 @@ pub fn read_calibration(path: &Path) -> Result<CalibrationFile, StereoError> {
         _ => {}
     }
     let file = YamlFile::open(path)?;
-    let size_node = file.fs.get("image_size")?;
-    if size_node.empty()? || !size_node.is_seq()? || size_node.size()? != 2 {
-        return Err(file.invalid("no image_size [width, height]".into()));
-    }
-    let image_size = [size_node.at(0)?.to_i32()?, size_node.at(1)?.to_i32()?];
+    let image_size = file
+        .size_pair("image_size")?
+        .ok_or_else(|| file.invalid("no image_size [width, height]".into()))?;
     let rig = StereoRig {
         image_size,
         left: file.camera("K1", "D1")?,
@@ -541,40 +538,33 @@ pub fn read_calibration(path: &Path) -> Result<CalibrationFile, StereoError> {
 /// One camera's intrinsics from an earlier single-camera calibration (`calibrate --intrinsics`):
 /// OpenCV YAML/XML with `camera_matrix` and `distortion_coefficients` and the image size as
 /// `image_width` and `image_height` (what OpenCV's calibration sample writes), or `K`, `D` and
-/// `image_size` [w, h]. Returns the size and the intrinsics.
+/// `image_size` [w, h].
 ///
 /// # Errors
 /// [`StereoError`] naming the file and the key that is missing or malformed.
-pub fn read_intrinsics(path: &Path) -> Result<([i32; 2], Intrinsics), StereoError> {
+pub fn read_intrinsics(path: &Path) -> Result<KnownIntrinsics, StereoError> {
     let file = YamlFile::open(path)?;
-    let present = |key: &str| -> Result<bool, StereoError> {
-        let node = file.fs.get(key)?;
-        Ok(!(node.empty()? || node.is_none()?))
-    };
-    let int = |key: &str| -> Result<i32, StereoError> { Ok(file.fs.get(key)?.to_i32()?) };
-    let size = if present("image_width")? && present("image_height")? {
-        [int("image_width")?, int("image_height")?]
-    } else if present("image_size")? {
-        let node = file.fs.get("image_size")?;
-        if !node.is_seq()? || node.size()? != 2 {
-            return Err(file.invalid("image_size is not [width, height]".into()));
-        }
-        [node.at(0)?.to_i32()?, node.at(1)?.to_i32()?]
-    } else {
-        return Err(
-            file.invalid("no image size (image_width and image_height, or image_size)".into())
-        );
-    };
-    let intrinsics = if present("camera_matrix")? {
+    let image_size = match (file.node("image_width")?, file.node("image_height")?) {
+        (Some(w), Some(h)) => Some([w.to_i32()?, h.to_i32()?]),
+        _ => file.size_pair("image_size")?,
+    }
+    .ok_or_else(|| {
+        file.invalid("no image size (image_width and image_height, or image_size [w, h])".into())
+    })?;
+    let intrinsics = if file.node("camera_matrix")?.is_some() {
         file.camera("camera_matrix", "distortion_coefficients")?
-    } else if present("K")? {
+    } else if file.node("K")?.is_some() {
         file.camera("K", "D")?
     } else {
         return Err(file.invalid(
             "no camera matrix (camera_matrix and distortion_coefficients, or K and D)".into(),
         ));
     };
-    Ok((size, intrinsics))
+    Ok(KnownIntrinsics {
+        path: path.to_path_buf(),
+        image_size,
+        intrinsics,
+    })
 }
 
 /// An OpenCV FileStorage file opened for reading, and the key readers with one error rule.
@@ -613,12 +603,27 @@ impl YamlFile {
         }
     }
 
+    /// The key's node, `None` when the key is absent.
+    fn node(&self, key: &str) -> Result<Option<core::FileNode>, StereoError> {
+        let node = self.fs.get(key)?;
+        Ok((!(node.empty()? || node.is_none()?)).then_some(node))
+    }
+
+    /// A [width, height] sequence, `None` when the key is absent or not one.
+    fn size_pair(&self, key: &str) -> Result<Option<[i32; 2]>, StereoError> {
+        match self.node(key)? {
+            Some(node) if node.is_seq()? && node.size()? == 2 => {
+                Ok(Some([node.at(0)?.to_i32()?, node.at(1)?.to_i32()?]))
+            }
+            _ => Ok(None),
+        }
+    }
+
     /// A matrix of `len` finite values, `None` when the key is absent.
     fn optional(&self, key: &str, len: usize) -> Result<Option<Vec<f64>>, StereoError> {
-        let node = self.fs.get(key)?;
-        if node.empty()? || node.is_none()? {
+        let Some(node) = self.node(key)? else {
             return Ok(None);
-        }
+        };
         let m = node
             .mat()
             .map_err(|e| self.invalid(format!("{key}: {}", e.message)))?;
@@ -641,10 +646,9 @@ impl YamlFile {
     /// The camera of matrix key `k` and distortion key `d`.
     fn camera(&self, k: &str, d: &str) -> Result<Intrinsics, StereoError> {
         let k = camera_matrix(k, self.required(k, 9)?).map_err(|e| self.invalid(e))?;
-        let node = self.fs.get(d)?;
-        if node.empty()? || node.is_none()? {
-            return Err(self.invalid(format!("no {d}")));
-        }
+        let node = self
+            .node(d)?
+            .ok_or_else(|| self.invalid(format!("no {d}")))?;
         let dist =
             distortion_coefficients(d, cv::values(&node.mat()?)?).map_err(|e| self.invalid(e))?;
         Ok(Intrinsics { k, dist })

@@ -667,9 +667,8 @@ fn stereo(
     let right: Vector<Vector<Point2f>> = usable.iter().map(|u| points(&u.right)).collect();
     let camera = |image: &Vector<Vector<Point2f>>, known: &Option<KnownIntrinsics>| match known {
         Some(k) => Ok((
-            Mat::new_rows_cols_with_data(3, 3, &k.intrinsics.k)?.try_clone()?,
-            Mat::new_rows_cols_with_data(1, k.intrinsics.dist.len() as i32, &k.intrinsics.dist)?
-                .try_clone()?,
+            cv::mat(3, &k.intrinsics.k)?,
+            cv::mat(1, &k.intrinsics.dist)?,
         )),
         None => single_camera(board, size, image).map(|(k, d, _)| (k, d)),
     };

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::bail;
 
-use handcap::calib::{file, CalibOptions, KnownIntrinsics};
+use handcap::calib::{file, CalibOptions};
 use handcap::pipeline::calibrate::{self, Calibrated};
 
 use super::synth::parse_board;
@@ -43,20 +43,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if !a.intrinsics.is_empty() && a.intrinsics.len() != 2 {
         super::usage!("--intrinsics takes LEFT,RIGHT (`-` for a camera to solve)");
     }
-    let known = |path: &PathBuf| -> anyhow::Result<Option<KnownIntrinsics>> {
-        if path.as_os_str() == "-" {
-            return Ok(None);
-        }
-        let (image_size, intrinsics) = file::read_intrinsics(path)?;
-        Ok(Some(KnownIntrinsics {
-            path: path.clone(),
-            image_size,
-            intrinsics,
-        }))
-    };
     let mut intrinsics = [None, None];
     for (slot, path) in intrinsics.iter_mut().zip(&a.intrinsics) {
-        *slot = known(path)?;
+        if path.as_os_str() != "-" {
+            *slot = Some(file::read_intrinsics(path)?);
+        }
     }
     let options = CalibOptions {
         min_pairs: a.min_pairs,

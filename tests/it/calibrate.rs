@@ -133,9 +133,7 @@ fn json_matches_the_yaml(json_path: &Path, yaml: &YamlRig) {
     assert_eq!(floats("D1"), mat(&yaml.d1));
     assert_eq!(floats("K2"), mat(&yaml.k2));
     assert_eq!(floats("D2"), mat(&yaml.d2));
-    let rows = |r: &nalgebra::Rotation3<f64>| -> Vec<f64> {
-        (0..9).map(|k| r.matrix()[(k / 3, k % 3)]).collect()
-    };
+    let rows = |r: &nalgebra::Rotation3<f64>| handcap::geometry::rotation_rows(r).to_vec();
     assert_eq!(floats("R"), rows(&yaml.r));
     assert_eq!(floats("T"), yaml.t.as_slice());
     assert_eq!(floats("R_hand"), rows(yaml.r_hand.as_ref().unwrap()));
