@@ -12,13 +12,21 @@ use nalgebra::{Point3, Rotation3, Vector3};
 use handcap::geometry::WorldFromBoard;
 use handcap::synth::camera::RigConfig;
 use handcap::synth::plant::Plant;
-use handcap::synth::render::{encode_png, Board, Finger, Lighting, View};
+use handcap::synth::render::{encode_png, Board, Finger, Lighting, Surroundings, View};
 
 fn bench(c: &mut Criterion) {
     let rig = RigConfig::default().build(2020);
     let views = [
-        View::new(rig.left.clone(), Lighting::from_seed(1)),
-        View::new(rig.right.clone(), Lighting::from_seed(2)),
+        View::new(
+            rig.left.clone(),
+            Lighting::from_seed(1),
+            Surroundings::default(),
+        ),
+        View::new(
+            rig.right.clone(),
+            Lighting::from_seed(2),
+            Surroundings::default(),
+        ),
     ];
     let aim = Point3::new(0.0, 0.0, 8.0);
     let toward = (aim - rig.left.pose.centre()).normalize();
@@ -42,9 +50,9 @@ fn bench(c: &mut Criterion) {
         b.iter(|| black_box(views[0].board(&board)))
     });
     g.bench_function("finger view", |b| {
-        b.iter(|| black_box(views[0].finger(&finger)))
+        b.iter(|| black_box(views[0].finger(std::slice::from_ref(&finger))))
     });
-    let canvas = views[0].finger(&finger);
+    let canvas = views[0].finger(std::slice::from_ref(&finger));
     g.bench_function("develop", |b| {
         b.iter(|| black_box(canvas.clone().develop(1.0, 7, 1)))
     });
@@ -55,7 +63,9 @@ fn bench(c: &mut Criterion) {
     g.bench_function("frame pair (render, develop, encode)", |b| {
         b.iter(|| {
             for (k, view) in views.iter().enumerate() {
-                let rgb = view.finger(&finger).develop(1.0, 7, k as u64);
+                let rgb = view
+                    .finger(std::slice::from_ref(&finger))
+                    .develop(1.0, 7, k as u64);
                 black_box(encode_png(1280, 720, &rgb));
             }
         })

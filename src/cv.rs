@@ -55,30 +55,57 @@ pub(crate) fn criteria(count: i32, eps: f64) -> opencv::Result<TermCriteria> {
     )
 }
 
-/// Decodes an image file's bytes, copied into an OpenCV buffer by the caller (a caller that
-/// converts the image further keeps the buffer until it is done: freeing it before the
-/// conversion's allocation tripled the page faults of triangulating JPEG frames), with
-/// `flags` `IMREAD_COLOR` or `IMREAD_GRAYSCALE`. A JPEG cut short (no end-of-image marker
-/// after its last scan: a copy or a capture that stopped mid-file) is refused, where libjpeg
-/// would decode it silently with grey rows.
+/// JPEG bytes of an 8-bit RGB image (`rows` rows) by OpenCV's encoder: libjpeg-turbo with its
+/// defaults, baseline with 4:2:0 chroma (what a webcam's MJPEG stream holds), at `quality`.
+pub(crate) fn encode_jpeg(rows: u32, rgb: &[u8], quality: u8) -> opencv::Result<Vec<u8>> {
+    let flat = Mat::from_slice(rgb)?;
+    let image = flat.reshape(3, rows as i32)?;
+    let mut bgr = Mat::default();
+    opencv::imgproc::cvt_color_def(&image, &mut bgr, opencv::imgproc::COLOR_RGB2BGR)?;
+    let mut out = Vector::<u8>::new();
+    let params = Vector::from_slice(&[opencv::imgcodecs::IMWRITE_JPEG_QUALITY, i32::from(quality)]);
+    opencv::imgcodecs::imencode(".jpg", &bgr, &mut out, &params)?;
+    Ok(out.to_vec())
+}
+
+/// Decodes an image file's bytes, copied into an OpenCV buffer by the caller, with `flags`
+/// `IMREAD_COLOR` or `IMREAD_GRAYSCALE`. A JPEG cut short (no end-of-image marker after its
+/// last scan: a copy or a capture that stopped mid-file) is refused, where libjpeg would
+/// decode it silently with grey rows.
 ///
 /// # Errors
 /// A message saying why the bytes are not a whole image.
 pub(crate) fn decode_image(bytes: &Vector<u8>, flags: i32) -> Result<Mat, String> {
+    let mut image = Mat::default();
+    decode_image_into(bytes, flags, &mut image)?;
+    Ok(image)
+}
+
+/// [`decode_image`] into `image`, whose buffer is reused when it has the size already: a
+/// caller that decodes frame after frame keeps it (fresh 2.7 MB buffers for 720p frames
+/// cost page faults every time).
+///
+/// # Errors
+/// As [`decode_image`].
+pub(crate) fn decode_image_into(
+    bytes: &Vector<u8>,
+    flags: i32,
+    image: &mut Mat,
+) -> Result<(), String> {
     if is_truncated_jpeg(bytes.as_slice()) {
         return Err("a truncated JPEG (no end-of-image marker)".into());
     }
     let unreadable = || "not an image OpenCV can read".to_string();
-    let image = opencv::imgcodecs::imdecode(bytes, flags).map_err(|_| unreadable())?;
+    opencv::imgcodecs::imdecode_to(bytes, flags, image).map_err(|_| unreadable())?;
     if image.empty() {
         return Err(unreadable());
     }
-    Ok(image)
+    Ok(())
 }
 
 /// A JPEG whose last scan (`FF DA`) has no end-of-image marker (`FF D9`) after it. Inside a
 /// scan every `FF` byte is stuffed (`FF 00`), so `FF D9` there can only be the end.
-fn is_truncated_jpeg(bytes: &[u8]) -> bool {
+pub(crate) fn is_truncated_jpeg(bytes: &[u8]) -> bool {
     if !bytes.starts_with(&[0xFF, 0xD8]) {
         return false;
     }

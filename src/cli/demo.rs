@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use handcap::pipeline::demo::{self, DemoConfig};
 
-use super::synth::FormatArg;
+use super::synth::FrameArgs;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -19,16 +19,17 @@ pub struct Args {
     /// sweeps, a short search, 20 inverse targets
     #[arg(long)]
     quick: bool,
-    /// Frame images: jpeg (as webcams stream; the capture is about 130 MB) or png (1.6 GB)
-    #[arg(long, value_enum, default_value = "jpeg")]
-    format: FormatArg,
+    #[command(flatten)]
+    frames: FrameArgs,
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
+    let (format, realism) = a.frames.look();
     let config = DemoConfig {
         seed: a.seed,
         quick: a.quick,
-        format: a.format.format(95),
+        format,
+        realism,
     };
     let done = super::with_session(|s| demo::run(&a.out, config, s))?;
     if let Some((_, total)) = done.summary.timings_s.iter().find(|(k, _)| k == "total") {

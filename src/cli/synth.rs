@@ -9,8 +9,8 @@ use anyhow::{bail, Context};
 use handcap::calib::BoardSpec;
 use handcap::pipeline::synth;
 use handcap::synth::camera::RigConfig;
-use handcap::synth::capture::CaptureConfig;
-use handcap::synth::render::ImageFormat;
+use handcap::synth::capture::{CaptureConfig, Realism};
+use handcap::synth::render::{Chroma, ImageFormat};
 use handcap::synth::{plant::PlantParams, SynthConfig, DEFAULT_NOISE_MM};
 
 #[derive(clap::Args)]
@@ -54,12 +54,28 @@ pub struct Args {
     /// Relative amplitude of a slow exposure drift (0: exposure locked)
     #[arg(long, default_value_t = 0.0)]
     exposure_drift: f64,
-    /// Image files: png (lossless) or jpeg (as webcams stream MJPEG; about 8× smaller)
-    #[arg(long, value_enum, default_value = "png")]
-    format: FormatArg,
-    /// JPEG quality, with --format jpeg
-    #[arg(long, default_value_t = 95, value_parser = clap::value_parser!(u8).range(1..=100))]
+    #[command(flatten)]
+    frames: FrameArgs,
+}
+
+/// How the virtual webcams' frames look and are stored (synth and demo).
+#[derive(clap::Args)]
+pub struct FrameArgs {
+    /// Ideal frames: plain backdrop, matte bead, steady light, no motion blur, nothing passing
+    /// in front of the bead, stored as PNG (unless --format says otherwise). Without it the
+    /// frames are a webcam's in a lab: MJPEG 4:2:0, a cluttered wall, red things in one
+    /// camera, a highlight on the bead, flicker, motion blur, occlusions
+    #[arg(long)]
+    clean: bool,
+    /// Image files: jpeg (as webcams stream MJPEG) or png (lossless); default jpeg, png with --clean
+    #[arg(long, value_enum)]
+    format: Option<FormatArg>,
+    /// JPEG quality (webcams' MJPEG streams are about 85)
+    #[arg(long, default_value_t = 85, value_parser = clap::value_parser!(u8).range(1..=100))]
     jpeg_quality: u8,
+    /// JPEG colour resolution: 420 (half each way, as webcams and OpenCV write) or 444 (full)
+    #[arg(long, value_enum, default_value = "420")]
+    chroma: ChromaArg,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, clap::ValueEnum)]
@@ -68,13 +84,34 @@ pub enum FormatArg {
     Jpeg,
 }
 
-impl FormatArg {
-    /// The image format, with `quality` for JPEG.
-    pub fn format(self, quality: u8) -> ImageFormat {
-        match self {
-            FormatArg::Png => ImageFormat::Png,
-            FormatArg::Jpeg => ImageFormat::Jpeg { quality },
-        }
+#[derive(Clone, Copy, Debug, PartialEq, clap::ValueEnum)]
+pub enum ChromaArg {
+    #[value(name = "420")]
+    Half,
+    #[value(name = "444")]
+    Full,
+}
+
+impl FrameArgs {
+    /// The image format and the scene's realism.
+    pub fn look(&self) -> (ImageFormat, Realism) {
+        let format = match self.format {
+            Some(FormatArg::Png) => ImageFormat::Png,
+            None if self.clean => ImageFormat::Png,
+            _ => ImageFormat::Jpeg {
+                quality: self.jpeg_quality,
+                chroma: match self.chroma {
+                    ChromaArg::Half => Chroma::Half,
+                    ChromaArg::Full => Chroma::Full,
+                },
+            },
+        };
+        let realism = if self.clean {
+            Realism::CLEAN
+        } else {
+            Realism::LAB
+        };
+        (format, realism)
     }
 }
 
@@ -108,6 +145,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             ..PlantParams::default()
         },
     };
+    let (format, realism) = a.frames.look();
     let capture_config = (!a.no_images).then(|| CaptureConfig {
         rig: RigConfig {
             baseline_mm: a.baseline_mm,
@@ -121,7 +159,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             square_mm: a.square_mm,
         },
         exposure_drift: a.exposure_drift,
-        format: a.format.format(a.jpeg_quality),
+        format,
+        realism,
         ..CaptureConfig::default()
     });
     let done = super::with_session(|s| synth::run(&a.out, &config, capture_config.as_ref(), s))

@@ -104,16 +104,38 @@ pub fn print_summary(done: &Triangulated) {
         "reprojection of used pairs: median {:.3} px, 95 % {:.3} px, max {:.3} px",
         s.reproj_px[0], s.reproj_px[1], s.reproj_px[2]
     );
+    let [l, r] = s.residual_px;
+    println!(
+        "epipolar residual by camera: left median {:.3} px (95 % {:.3}), right median {:.3} px (95 % {:.3}){}",
+        l[0],
+        l[1],
+        r[0],
+        r[1],
+        if l[0].max(r[0]) > 2.0 * l[0].min(r[0]) + 0.02 {
+            " - uneven: one camera's detections are biased (lighting, background, JPEG colour); see the detections figure"
+        } else {
+            ""
+        }
+    );
+    if s.centroid_only[0] + s.centroid_only[1] > 0 {
+        println!(
+            "  marker placed by its colour centroid only (the sub-pixel fit did not settle) in {} left, {} right used frames",
+            s.centroid_only[0], s.centroid_only[1]
+        );
+    }
     println!(
         "hand origin: {} pairs over {} zero-pressure steps, spread {:.4} mm",
         s.origin.pairs, s.origin.zero_steps, s.origin.spread_mm
     );
     println!(
-        "steps: {} logged, {} rows ({} flagged), {} without a tip",
+        "steps: {} logged, {} rows ({} flagged), {} without a tip; spread of a step's pairs: median {:.4} mm, 95 % {:.4} mm, max {:.4} mm",
         s.steps_logged,
         s.rows,
         s.rows_flagged,
-        s.steps_without_tip.len()
+        s.steps_without_tip.len(),
+        s.step_spread_mm[0],
+        s.step_spread_mm[1],
+        s.step_spread_mm[2],
     );
     for r in t.rows.iter().filter(|r| !r.flags.is_empty()).take(10) {
         println!(

@@ -34,7 +34,7 @@ use crate::model::Errors;
 use crate::provenance::Provenance;
 use crate::search::aco_paper::AcoPaper;
 use crate::search::Method;
-use crate::synth::capture::CaptureConfig;
+use crate::synth::capture::{CaptureConfig, Realism};
 use crate::synth::plant::Plant;
 use crate::synth::render::ImageFormat;
 use crate::synth::SynthConfig;
@@ -50,6 +50,8 @@ pub struct DemoConfig {
     pub quick: bool,
     /// How the frames are stored.
     pub format: ImageFormat,
+    /// What the virtual lab adds to ideal frames.
+    pub realism: Realism,
 }
 
 /// The sizes of a run.
@@ -219,6 +221,7 @@ pub fn run(
         views: plan.views,
         window_s: plan.window_s,
         format: config.format,
+        realism: config.realism,
         ..CaptureConfig::default()
     };
     let synthesized = super::synth::run(&capture, &synth_config, Some(&capture_config), session)?;

@@ -19,8 +19,9 @@
 //!   (`view,rx,ry,rz,tx_mm,ty_mm,tz_mm`, Rodrigues vector, board frame as OpenCV's object
 //!   points); `truth/tips.csv`: per step `step,phase,P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm` (hand
 //!   frame, settled) and `left_x_mm,left_y_mm,left_z_mm` (left camera frame);
-//!   `truth/frames.csv`: per frame `frame,camera,exposure_s,step,x_mm,y_mm,z_mm,u_px,v_px`, the
-//!   tip at the moment of exposure (still settling early in a step) and its projection.
+//!   `truth/frames.csv`: per frame `frame,camera,exposure_s,step,x_mm,y_mm,z_mm,u_px,v_px,
+//!   occluded`, the tip at the middle of the exposure (still settling early in a step), its
+//!   projection, and 1 where something hides the bead.
 //! - `manifest.json`: configuration, counts, provenance.
 //!
 //! # Timing
@@ -49,8 +50,9 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::camera::{Camera, Rig, RigConfig};
+use super::clutter;
 use super::plant::{Plant, Pressures};
-use super::render::{Board, Finger, ImageFormat, Lighting, View};
+use super::render::{Board, Finger, ImageFormat, Lighting, Surroundings, View};
 use super::{protocol, SynthConfig, SynthError};
 use crate::calib::BoardSpec;
 use crate::fsio;
@@ -74,6 +76,47 @@ pub struct CaptureConfig {
     /// Relative amplitude of a slow exposure drift (0 = locked exposure).
     pub exposure_drift: f64,
     pub format: ImageFormat,
+    /// What makes the frames as hard as a real webcam's.
+    pub realism: Realism,
+}
+
+/// What a real lab adds to the ideal frames; [`Realism::CLEAN`] turns all of it off.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Realism {
+    /// A cluttered wall behind the finger (posters, print, shelves, cables) instead of a plain
+    /// grey backdrop.
+    pub clutter: bool,
+    /// A red cable and a red push-pin in the right camera's view (never near the finger).
+    pub red_distractors: bool,
+    /// Strength of a room lamp's highlight on the bead (0: matte).
+    pub specular: f64,
+    /// Relative amplitude of the lights' 100 Hz flicker (each frame catches another phase).
+    pub flicker: f64,
+    /// Exposure time (s): the finger moves during it while a step settles (motion blur).
+    pub exposure_s: f64,
+    /// Share of frames in which something passes between a camera and the bead.
+    pub occluded: f64,
+}
+
+impl Realism {
+    /// A webcam in a lab.
+    pub const LAB: Realism = Realism {
+        clutter: true,
+        red_distractors: true,
+        specular: 0.8,
+        flicker: 0.03,
+        exposure_s: 0.012,
+        occluded: 0.01,
+    };
+    /// Ideal frames: plain backdrop, matte bead, steady light, instant exposure.
+    pub const CLEAN: Realism = Realism {
+        clutter: false,
+        red_distractors: false,
+        specular: 0.0,
+        flicker: 0.0,
+        exposure_s: 0.0,
+        occluded: 0.0,
+    };
 }
 
 impl Default for CaptureConfig {
@@ -87,7 +130,8 @@ impl Default for CaptureConfig {
             fps: 30.0,
             settle_tau_s: 0.02,
             exposure_drift: 0.0,
-            format: ImageFormat::Png,
+            format: ImageFormat::WEBCAM,
+            realism: Realism::LAB,
         }
     }
 }
@@ -113,8 +157,8 @@ enum Shot {
     Frame {
         camera: Side,
         index: usize,
+        /// Middle of the exposure.
         exposure_s: f64,
-        pressures: Pressures,
     },
 }
 
@@ -209,15 +253,32 @@ pub fn write_capture(
             camera: f.camera,
             index: f.index,
             exposure_s: f.exposure_s,
-            pressures: pressure_at(config, &steps, f.exposure_s),
         });
     }
     let all_boards: Vec<&Board> = boards.iter().chain(std::iter::once(&reference)).collect();
-    let views = [
-        View::new(rig.left.clone(), Lighting::from_seed(synth.seed)),
-        View::new(rig.right.clone(), Lighting::from_seed(synth.seed ^ 1)),
-    ];
-    let truth_rows = truth_frames(&rig, &plant, config, &steps, &frames)?;
+    let realism = &config.realism;
+    let view = |camera: &Camera, side: Side| {
+        let lighting = Lighting::from_seed(synth.seed ^ side as u64);
+        let wall = realism.clutter.then(|| {
+            let base = plant.centre_line([0.0; 3]).map(|line| line[0]);
+            let keep = workspace_box(camera, tips.iter().chain(base.as_ref().ok()));
+            let red = realism.red_distractors && side == Side::Right;
+            clutter::wall(
+                camera.width as usize,
+                camera.height as usize,
+                synth.seed ^ (side as u64 + 1) << 8,
+                red,
+                keep,
+            )
+        });
+        let surroundings = Surroundings {
+            wall,
+            specular: realism.specular,
+        };
+        View::new(camera.clone(), lighting, surroundings)
+    };
+    let views = [view(&rig.left, Side::Left), view(&rig.right, Side::Right)];
+    let truth_rows = truth_frames(&rig, &plant, synth.seed, config, &steps, &frames)?;
     write_text(&dir.join("truth/frames.csv"), &truth_rows)?;
 
     let ext = config.format.extension();
@@ -244,18 +305,25 @@ pub fn write_capture(
                     camera,
                     index,
                     exposure_s,
-                    pressures,
                 } => {
                     let view = &views[*camera as usize];
-                    let line = plant.centre_line(*pressures)?;
-                    let finger = Finger::from_centre_line(&line, 4);
+                    let poses = finger_poses(config, &plant, &steps, &view.camera, *exposure_s)?;
+                    let mut canvas = view.finger(&poses);
+                    if let Some(angle) = occluder(synth.seed, config, *camera, *index) {
+                        let tip = plant.tip(pressure_at(config, &steps, *exposure_s))?;
+                        if let Some(through) = view.camera.project(&Point3::from(tip)) {
+                            view.occlude(&mut canvas, through, angle);
+                        }
+                    }
                     let path = dir.join(format!("frames/{}_{index:05}.{ext}", camera.name()));
-                    (*camera, path, view.finger(&finger), *exposure_s)
+                    (*camera, path, canvas, *exposure_s)
                 }
             };
-            let gain = 1.0
-                + config.exposure_drift
-                    * (2.0 * std::f64::consts::PI * time / 20.0 + side as u8 as f64).sin();
+            // A slow drift of the auto-exposure and the lights' 100 Hz flicker.
+            let phase = side as u8 as f64;
+            let gain = (1.0
+                + config.exposure_drift * (std::f64::consts::TAU * time / 20.0 + phase).sin())
+                * (1.0 + realism.flicker * (std::f64::consts::TAU * 100.0 * time + phase).sin());
             let (w, h) = (canvas.width as u32, canvas.height as u32);
             let rgb = canvas.develop(gain, synth.seed, id as u64);
             let bytes = config.format.encode(w, h, &rgb);
@@ -453,6 +521,55 @@ fn camera_frames(c: &CaptureConfig, steps: usize, rng: &mut ChaCha8Rng) -> Vec<F
     out
 }
 
+/// The finger during the exposure centred on `t`: one pose when it moves less than 0.02 px
+/// in the image meanwhile, else four, evenly spread over the exposure (motion blur).
+fn finger_poses(
+    c: &CaptureConfig,
+    plant: &Plant,
+    steps: &[(&str, Pressures)],
+    camera: &Camera,
+    t: f64,
+) -> Result<Vec<Finger>, SynthError> {
+    let pose = |t: f64| -> Result<Finger, SynthError> {
+        let line = plant.centre_line(pressure_at(c, steps, t))?;
+        Ok(Finger::from_centre_line(&line, 4))
+    };
+    let half = c.realism.exposure_s / 2.0;
+    let (start, end) = (pose(t - half)?, pose(t + half)?);
+    let moved = match (camera.project(&start.tip), camera.project(&end.tip)) {
+        (Some(a), Some(b)) => (a[0] - b[0]).hypot(a[1] - b[1]),
+        _ => 0.0,
+    };
+    if moved < 0.02 {
+        return Ok(vec![pose(t)?]);
+    }
+    (0..4)
+        .map(|k| pose(t - half + c.realism.exposure_s * (k as f64 + 0.5) / 4.0))
+        .collect()
+}
+
+/// The angle of the rod hiding the bead in this frame, for a share `realism.occluded` of the
+/// frames (drawn from the seed, the camera and the frame).
+fn occluder(seed: u64, c: &CaptureConfig, camera: Side, index: usize) -> Option<f64> {
+    let key = seed ^ 0x4f43_434c ^ (camera as u64) << 40 ^ index as u64;
+    let mut rng = ChaCha8Rng::seed_from_u64(key);
+    (rng.random::<f64>() < c.realism.occluded).then(|| rng.random_range(0.0..std::f64::consts::TAU))
+}
+
+/// The pixel box [u0, v0, u1, v1] of the points' images.
+fn workspace_box<'a>(camera: &Camera, points: impl Iterator<Item = &'a [f64; 3]>) -> [f64; 4] {
+    let mut b = [
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    ];
+    for [u, v] in points.filter_map(|p| camera.project(&Point3::from(*p))) {
+        b = [b[0].min(u), b[1].min(v), b[2].max(u), b[3].max(v)];
+    }
+    b
+}
+
 /// The muscles' pressures at time `t` (first-order response to each command).
 fn pressure_at(c: &CaptureConfig, steps: &[(&str, Pressures)], t: f64) -> Pressures {
     let k = ((t / c.step_s).floor().max(0.0) as usize).min(steps.len() - 1);
@@ -543,11 +660,12 @@ fn frames_csv(frames: &[FrameRecord]) -> String {
 fn truth_frames(
     rig: &Rig,
     plant: &Plant,
+    seed: u64,
     c: &CaptureConfig,
     steps: &[(&str, Pressures)],
     frames: &[FrameRecord],
 ) -> Result<String, SynthError> {
-    let mut out = String::from("frame,camera,exposure_s,step,x_mm,y_mm,z_mm,u_px,v_px\n");
+    let mut out = String::from("frame,camera,exposure_s,step,x_mm,y_mm,z_mm,u_px,v_px,occluded\n");
     for f in frames {
         let tip = plant.tip(pressure_at(c, steps, f.exposure_s))?;
         let cam = match f.camera {
@@ -557,8 +675,9 @@ fn truth_frames(
         let [u, v] = cam
             .project(&Point3::from(tip))
             .unwrap_or([f64::NAN, f64::NAN]);
+        let occluded = occluder(seed, c, f.camera, f.index).is_some();
         out += &format!(
-            "{},{},{:.6},{},{},{},{},{},{}\n",
+            "{},{},{:.6},{},{},{},{},{},{},{}\n",
             f.index,
             f.camera.name(),
             f.exposure_s,
@@ -567,7 +686,8 @@ fn truth_frames(
             tip[1],
             tip[2],
             u,
-            v
+            v,
+            u8::from(occluded)
         );
     }
     Ok(out)

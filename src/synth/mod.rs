@@ -14,6 +14,7 @@
 
 pub mod camera;
 pub mod capture;
+pub mod clutter;
 pub mod plant;
 pub mod render;
 pub mod scene;

@@ -65,14 +65,10 @@ impl Canvas {
     pub fn develop(mut self, gain: f64, seed: u64, image: u64) -> Vec<u8> {
         let w = self.width;
         if let Some(rect) = self.detail {
-            self.blur(rect);
+            self.blur(rect, BLUR_SIGMA_PX);
         }
         let key = splitmix(seed ^ splitmix(image));
         let gain = gain as f32;
-        // Noise standard deviation by intensity level.
-        let sd: Vec<f32> = (0..256)
-            .map(|level| (READ_NOISE_DN * READ_NOISE_DN + SHOT_NOISE_DN * level as f32).sqrt())
-            .collect();
         let mut out = vec![0u8; self.rgb.len()];
         out.par_chunks_mut(3 * w)
             .zip(self.rgb.par_chunks(3 * w))
@@ -87,8 +83,9 @@ impl Canvas {
                     let noise = pixel_noise(key, first + x as u64);
                     for c in 0..3 {
                         let signal = v[c] * gain;
-                        let level = signal.clamp(0.0, 255.0) as usize;
-                        let noisy = signal + sd[level] * noise[c];
+                        let variance = READ_NOISE_DN * READ_NOISE_DN
+                            + SHOT_NOISE_DN * signal.clamp(0.0, 255.0);
+                        let noisy = signal + variance.sqrt() * noise[c];
                         o[c] = (noisy.clamp(0.0, 255.0) + 0.5) as u8;
                     }
                 }
@@ -96,26 +93,32 @@ impl Canvas {
         out
     }
 
-    /// Separable Gaussian blur (σ = 0.7 px, radius 2) of a rectangle, reading up to two pixels
-    /// beyond it (clamped at the image's edges).
-    fn blur(&mut self, (x0, y0, x1, y1): Rect) {
-        let weights: [f32; 5] = {
-            let w = [-2.0f64, -1.0, 0.0, 1.0, 2.0]
-                .map(|d| (-(d * d) / (2.0 * BLUR_SIGMA_PX * BLUR_SIGMA_PX)).exp());
+    /// Separable Gaussian blur (σ = `sigma` px, out to the nearest whole pixel to 3σ) of a
+    /// rectangle, reading that far beyond it (clamped at the image's edges).
+    fn blur(&mut self, (x0, y0, x1, y1): Rect, sigma: f64) {
+        let r = (3.0 * sigma).round() as usize;
+        let weights: Vec<f32> = {
+            let w: Vec<f64> = (0..=2 * r)
+                .map(|k| {
+                    let d = k as f64 - r as f64;
+                    (-(d * d) / (2.0 * sigma * sigma)).exp()
+                })
+                .collect();
             let sum: f64 = w.iter().sum();
-            w.map(|v| (v / sum) as f32)
+            w.iter().map(|v| (v / sum) as f32).collect()
         };
         let (w, h) = (self.width, self.height);
-        let (ya, yb) = (y0.saturating_sub(2), (y1 + 2).min(h - 1));
-        let at = |x: usize, d: usize, max: usize| (x + d).saturating_sub(2).min(max - 1);
+        let (ya, yb) = (y0.saturating_sub(r), (y1 + r).min(h - 1));
+        let at = |x: usize, d: usize, max: usize| (x + d).saturating_sub(r).min(max - 1);
         // Horizontal pass over the rows the vertical pass will read.
         let src = &self.rgb;
+        let weights = &weights;
         let horizontal: Vec<f32> = (ya..=yb)
             .into_par_iter()
             .flat_map_iter(|y| {
                 (x0..=x1).flat_map(move |x| {
                     (0..3).map(move |c| {
-                        (0..5)
+                        (0..=2 * r)
                             .map(|k| weights[k] * src[3 * (y * w + at(x, k, w)) + c])
                             .sum::<f32>()
                     })
@@ -129,7 +132,7 @@ impl Canvas {
             .for_each(|(dy, row)| {
                 let y = y0 + dy;
                 for k in 0..span {
-                    row[3 * x0 + k] = (0..5)
+                    row[3 * x0 + k] = (0..=2 * r)
                         .map(|t| {
                             let yy = at(y, t, h).clamp(ya, yb);
                             weights[t] * horizontal[(yy - ya) * span + k]
@@ -140,17 +143,37 @@ impl Canvas {
     }
 }
 
-/// A camera prepared for rendering: its rays at every pixel corner and its illumination field.
+/// A camera prepared for rendering: its rays at every pixel corner, its illumination field and
+/// what it sees behind the finger.
 pub struct View {
     pub camera: Camera,
     /// Normalised undistorted (x, y) at pixel corners, (width + 1) × (height + 1), row-major.
     corners: Vec<[f64; 2]>,
     /// Illumination (0-255 for a white surface) at pixel centres.
     light: Vec<f32>,
-    /// The background alone, RGB.
+    /// The background alone, RGB, as the camera sees it.
     backdrop: Vec<f32>,
     eye: Point3<f64>,
+    specular: f64,
 }
+
+/// What a view shows besides the finger and the boards, and how the bead shines.
+#[derive(Clone, Debug, Default)]
+pub struct Surroundings {
+    /// Albedo image (RGB, 0-1, row-major) of the wall behind the finger
+    /// ([`super::clutter::wall`]); `None`: a plain grey backdrop.
+    pub wall: Option<Vec<f64>>,
+    /// Strength of the highlight a room lamp makes on the bead (0: matte).
+    pub specular: f64,
+}
+
+/// Direction towards the room lamp that makes the bead's highlight (hand frame: above, in
+/// front of the finger and to the right; the cameras look up at the finger from below).
+const LAMP: [f64; 3] = [0.35, -0.75, 0.55];
+/// Blinn-Phong exponent of the bead's highlight.
+const SHININESS: i32 = 40;
+/// Defocus of the wall (σ, px): it stands far behind the finger the cameras focus on.
+const WALL_BLUR_PX: f64 = 3.5;
 
 /// Parameters of the illumination field (drawn from the seed).
 #[derive(Clone, Copy, Debug)]
@@ -186,7 +209,7 @@ impl Lighting {
 }
 
 impl View {
-    pub fn new(camera: Camera, lighting: Lighting) -> Self {
+    pub fn new(camera: Camera, lighting: Lighting, surroundings: Surroundings) -> Self {
         let (w, h) = (camera.width as usize, camera.height as usize);
         let corners: Vec<[f64; 2]> = (0..(w + 1) * (h + 1))
             .into_par_iter()
@@ -202,17 +225,31 @@ impl View {
                 lighting.at((i as f64 + 0.5) / w as f64, (j as f64 + 0.5) / h as f64) as f32
             })
             .collect();
-        let backdrop = light
-            .iter()
-            .flat_map(|&l| BACKDROP.map(|c| (c * f64::from(l)) as f32))
-            .collect();
+        let albedo = |k: usize, c: usize| match &surroundings.wall {
+            Some(wall) => wall[3 * k + c],
+            None => BACKDROP[c],
+        };
+        let mut backdrop = Canvas {
+            width: w,
+            height: h,
+            rgb: (0..3 * w * h)
+                .map(|i| (albedo(i / 3, i % 3) * f64::from(light[i / 3])) as f32)
+                .collect(),
+            detail: None,
+        };
+        if surroundings.wall.is_some() {
+            // The finger's own defocus is added where it is drawn; the 0.7 px on top of the
+            // wall's 1.5 px there is a 10 % wider blur of an already soft wall.
+            backdrop.blur((0, 0, w - 1, h - 1), WALL_BLUR_PX);
+        }
         let eye = camera.pose.centre();
         View {
             camera,
             corners,
             light,
-            backdrop,
+            backdrop: backdrop.rgb,
             eye,
+            specular: surroundings.specular,
         }
     }
 
@@ -317,18 +354,26 @@ impl View {
         canvas
     }
 
-    /// The finger (tube along its axis, bead at its tip) over the background.
-    pub fn finger(&self, finger: &Finger) -> Canvas {
+    /// The finger (tube along its axis, bead at its tip) over the background, moving through
+    /// `poses` during the exposure: sample k of a pixel's S × S sees pose k mod `poses.len()`
+    /// (motion blur; one pose for a still finger).
+    pub fn finger(&self, poses: &[Finger]) -> Canvas {
         let mut canvas = self.backdrop();
-        // Pixel boxes of every piece (capsules, then the bead): a sample tests only the pieces
-        // whose box holds its pixel.
-        let mut boxes: Vec<Option<[f64; 4]>> = finger
-            .axis
-            .windows(2)
-            .map(|s| self.pixel_box(s, FINGER_RADIUS_MM))
+        // Per pose, pixel boxes of every piece (capsules, then the bead): a sample tests only
+        // the pieces whose box holds its pixel.
+        let boxes: Vec<Vec<Option<[f64; 4]>>> = poses
+            .iter()
+            .map(|finger| {
+                let mut b: Vec<Option<[f64; 4]>> = finger
+                    .axis
+                    .windows(2)
+                    .map(|s| self.pixel_box(s, FINGER_RADIUS_MM))
+                    .collect();
+                b.push(self.pixel_box(&[finger.tip], BEAD_RADIUS_MM));
+                b
+            })
             .collect();
-        boxes.push(self.pixel_box(&[finger.tip], BEAD_RADIUS_MM));
-        let Some(bounds) = boxes.iter().flatten().copied().reduce(|a, b| {
+        let Some(bounds) = boxes.iter().flatten().flatten().copied().reduce(|a, b| {
             [
                 a[0].min(b[0]),
                 a[1].min(b[1]),
@@ -349,54 +394,76 @@ impl View {
             clip(bounds[2], w),
             clip(bounds[3], h),
         );
-        let bead = boxes.len() - 1;
         canvas.detail = Some((x0, y0, x1, y1));
+        let lamp = Vector3::from(LAMP).normalize();
+        let n_poses = poses.len();
         canvas.rgb[3 * w * y0..3 * w * (y1 + 1)]
             .par_chunks_mut(3 * w)
             .enumerate()
             .for_each(|(dj, row)| {
                 let j = y0 + dj;
                 let (top, bottom) = (j as f64 - 0.5, j as f64 + 0.5);
-                let in_row: Vec<(usize, [f64; 4])> = boxes
+                let in_row: Vec<Vec<(usize, [f64; 4])>> = boxes
                     .iter()
-                    .enumerate()
-                    .filter_map(|(k, b)| b.map(|b| (k, b)))
-                    .filter(|(_, b)| b[1] <= bottom && b[3] >= top)
+                    .map(|boxes| {
+                        boxes
+                            .iter()
+                            .enumerate()
+                            .filter_map(|(k, b)| b.map(|b| (k, b)))
+                            .filter(|(_, b)| b[1] <= bottom && b[3] >= top)
+                            .collect()
+                    })
                     .collect();
-                let mut pieces = Vec::with_capacity(in_row.len());
+                let mut pieces: Vec<Vec<usize>> = vec![Vec::new(); n_poses];
                 for i in x0..=x1 {
                     let (left, right) = (i as f64 - 0.5, i as f64 + 0.5);
                     // A piece can be hit inside this pixel only if the pixel's centre ray
                     // passes within its radius plus the pixel's half-diagonal at that depth.
                     let centre = self.ray(i, j, 0.5, 0.5);
-                    let near = |k: usize| {
-                        let (a, b, r) = if k == bead {
-                            (finger.tip, finger.tip, BEAD_RADIUS_MM)
-                        } else {
-                            (finger.axis[k], finger.axis[k + 1], FINGER_RADIUS_MM)
+                    for ((finger, in_row), pieces) in poses.iter().zip(&in_row).zip(&mut pieces) {
+                        let bead = finger.axis.len() - 1;
+                        let near = |k: usize| {
+                            let (a, b, r) = if k == bead {
+                                (finger.tip, finger.tip, BEAD_RADIUS_MM)
+                            } else {
+                                (finger.axis[k], finger.axis[k + 1], FINGER_RADIUS_MM)
+                            };
+                            let (gap, depth) = ray_segment_gap(&self.eye, &centre, &a, &b);
+                            gap <= r + 1.2 * depth.max(0.0) / self.camera.intrinsics.fx()
                         };
-                        let (gap, depth) = ray_segment_gap(&self.eye, &centre, &a, &b);
-                        gap <= r + 1.2 * depth.max(0.0) / self.camera.intrinsics.fx()
-                    };
-                    pieces.clear();
-                    pieces.extend(
-                        in_row
-                            .iter()
-                            .filter(|(_, b)| b[0] <= right && b[2] >= left)
-                            .map(|&(k, _)| k)
-                            .filter(|&k| near(k)),
-                    );
-                    if pieces.is_empty() {
+                        pieces.clear();
+                        pieces.extend(
+                            in_row
+                                .iter()
+                                .filter(|(_, b)| b[0] <= right && b[2] >= left)
+                                .map(|&(k, _)| k)
+                                .filter(|&k| near(k)),
+                        );
+                    }
+                    if pieces.iter().all(Vec::is_empty) {
                         continue;
                     }
                     let mut sum = [0.0; 3];
                     let mut hits = 0;
+                    let mut sample = 0;
                     for_samples(|a, b| {
+                        let pose = sample % n_poses;
+                        sample += 1;
+                        let finger = &poses[pose];
+                        let bead = finger.axis.len() - 1;
                         let d = self.ray(i, j, a, b);
-                        if let Some((normal, albedo)) = finger.hit(&self.eye, &d, &pieces, bead) {
+                        if let Some((normal, albedo)) =
+                            finger.hit(&self.eye, &d, &pieces[pose], bead)
+                        {
                             let shade = AMBIENT + (1.0 - AMBIENT) * (-normal.dot(&d)).max(0.0);
+                            let shine = if albedo == BEAD && self.specular > 0.0 {
+                                let half = (lamp - d).normalize();
+                                self.specular * normal.dot(&half).max(0.0).powi(SHININESS)
+                            } else {
+                                0.0
+                            };
                             for k in 0..3 {
-                                sum[k] += albedo[k] * shade;
+                                sum[k] += albedo[k] * shade + shine;
                             }
                             hits += 1;
                         }
@@ -414,6 +481,65 @@ impl View {
                 }
             });
         canvas
+    }
+
+    /// Something passing between the camera and the bead (a gloved finger, a tool): a dark rod
+    /// 24 px thick from the image's edge to 30 px beyond `through`, at `angle` (radians).
+    pub fn occlude(&self, canvas: &mut Canvas, through: [f64; 2], angle: f64) {
+        const GLOVE: [f64; 3] = [0.22, 0.25, 0.31];
+        const RADIUS_PX: f64 = 12.0;
+        let (w, h) = (self.width(), self.height());
+        let dir = [angle.cos(), angle.sin()];
+        let far = (w + h) as f64;
+        let (a, b) = (
+            [through[0] - 30.0 * dir[0], through[1] - 30.0 * dir[1]],
+            [through[0] + far * dir[0], through[1] + far * dir[1]],
+        );
+        let gap = |x: f64, y: f64| {
+            let t = ((x - a[0]) * dir[0] + (y - a[1]) * dir[1]).clamp(0.0, far + 30.0);
+            (x - a[0] - t * dir[0]).hypot(y - a[1] - t * dir[1])
+        };
+        let clip = |v: f64, max: usize| v.clamp(0.0, max as f64 - 1.0) as usize;
+        let (x0, x1) = (
+            clip(a[0].min(b[0]) - RADIUS_PX - 1.0, w),
+            clip(a[0].max(b[0]) + RADIUS_PX + 1.0, w),
+        );
+        let (y0, y1) = (
+            clip(a[1].min(b[1]) - RADIUS_PX - 1.0, h),
+            clip(a[1].max(b[1]) + RADIUS_PX + 1.0, h),
+        );
+        let mut drawn: Option<Rect> = None;
+        for j in y0..=y1 {
+            for i in x0..=x1 {
+                if gap(i as f64, j as f64) > RADIUS_PX + 1.0 {
+                    continue;
+                }
+                let mut cover = 0;
+                for_samples(|sa, sb| {
+                    cover +=
+                        usize::from(gap(i as f64 - 0.5 + sa, j as f64 - 0.5 + sb) <= RADIUS_PX);
+                });
+                if cover == 0 {
+                    continue;
+                }
+                let share = cover as f64 / (SUPERSAMPLING * SUPERSAMPLING) as f64;
+                let light = f64::from(self.light[j * w + i]);
+                let px = &mut canvas.rgb[3 * (j * w + i)..3 * (j * w + i) + 3];
+                for (px, glove) in px.iter_mut().zip(GLOVE) {
+                    *px = (share * glove * light + (1.0 - share) * f64::from(*px)) as f32;
+                }
+                drawn = Some(match drawn {
+                    None => (i, j, i, j),
+                    Some(r) => (r.0.min(i), r.1.min(j), r.2.max(i), r.3.max(j)),
+                });
+            }
+        }
+        if let Some(d) = drawn {
+            canvas.detail = Some(match canvas.detail {
+                None => d,
+                Some(r) => (r.0.min(d.0), r.1.min(d.1), r.2.max(d.2), r.3.max(d.3)),
+            });
+        }
     }
 
     /// A pixel box [u0, v0, u1, v1] holding the image of the points swollen by `radius`; `None`
@@ -448,13 +574,31 @@ impl View {
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum ImageFormat {
-    /// Lossless (the default).
+    /// Lossless.
     Png,
     /// Baseline JPEG at a quality of 1-100, as webcams stream MJPEG.
-    Jpeg { quality: u8 },
+    Jpeg { quality: u8, chroma: Chroma },
+}
+
+/// Resolution of a JPEG's colour planes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub enum Chroma {
+    /// 4:2:0, half the resolution both ways: what USB webcams' MJPEG streams and most cameras
+    /// write (OpenCV's encoder, libjpeg-turbo).
+    #[serde(rename = "4:2:0")]
+    Half,
+    /// 4:4:4, full resolution (the `image` crate's encoder).
+    #[serde(rename = "4:4:4")]
+    Full,
 }
 
 impl ImageFormat {
+    /// What a webcam streams: MJPEG 4:2:0 at quality 85.
+    pub const WEBCAM: ImageFormat = ImageFormat::Jpeg {
+        quality: 85,
+        chroma: Chroma::Half,
+    };
+
     /// File extension, without the dot.
     pub fn extension(self) -> &'static str {
         match self {
@@ -467,7 +611,15 @@ impl ImageFormat {
     pub fn encode(self, width: u32, height: u32, rgb: &[u8]) -> Vec<u8> {
         match self {
             ImageFormat::Png => encode_png(width, height, rgb),
-            ImageFormat::Jpeg { quality } => {
+            ImageFormat::Jpeg {
+                quality,
+                chroma: Chroma::Half,
+            } => crate::cv::encode_jpeg(height, rgb, quality.clamp(1, 100))
+                .expect("OpenCV encodes an in-memory RGB image"),
+            ImageFormat::Jpeg {
+                quality,
+                chroma: Chroma::Full,
+            } => {
                 let mut out = Vec::new();
                 image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, quality.clamp(1, 100))
                     .encode(rgb, width, height, image::ColorType::Rgb8)
@@ -508,7 +660,7 @@ fn for_samples(mut f: impl FnMut(f64, f64)) {
     }
 }
 
-fn splitmix(mut z: u64) -> u64 {
+pub(super) fn splitmix(mut z: u64) -> u64 {
     z = z.wrapping_add(0x9e37_79b9_7f4a_7c15);
     z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
@@ -516,7 +668,7 @@ fn splitmix(mut z: u64) -> u64 {
 }
 
 /// A uniform number in [0, 1) from a key and a counter.
-fn uniform(key: u64, k: u64) -> f64 {
+pub(super) fn uniform(key: u64, k: u64) -> f64 {
     (splitmix(key ^ splitmix(k)) >> 11) as f64 / (1u64 << 53) as f64
 }
 
@@ -541,7 +693,11 @@ mod tests {
     #[test]
     fn interpolated_rays_match_exact_undistortion() {
         let rig = RigConfig::default().build(3);
-        let view = View::new(rig.left.clone(), Lighting::from_seed(3));
+        let view = View::new(
+            rig.left.clone(),
+            Lighting::from_seed(3),
+            Surroundings::default(),
+        );
         let mut worst = 0.0f64;
         for &(i, j) in &[(0, 0), (1279, 719), (640, 360), (30, 700), (1200, 15)] {
             for &(a, b) in &[(0.125, 0.125), (0.625, 0.875), (0.375, 0.5)] {

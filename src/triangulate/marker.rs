@@ -16,6 +16,7 @@
 //!    elongation at most `max_elongation`, and it does not touch the border. Several candidates
 //!    are left to the epipolar constraint; none means the marker is missing from the frame.
 
+use super::subpixel::{self, ChromaSampling};
 use crate::stats::upper_median_by;
 use std::collections::HashSet;
 
@@ -27,6 +28,8 @@ pub struct RgbImage {
     pub width: usize,
     pub height: usize,
     pub data: Vec<u8>,
+    /// How finely the file stored the colour (JPEG 4:2:0: one sample per 2 × 2 pixels).
+    pub chroma: ChromaSampling,
 }
 
 impl RgbImage {
@@ -93,8 +96,11 @@ impl Default for MarkerOptions {
 /// A red region that passed the limits.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Blob {
-    /// Centroid (x, y) in pixels, OpenCV's convention (pixel centres at integers).
+    /// Centre (x, y) in pixels, OpenCV's convention (pixel centres at integers): fitted
+    /// ([`subpixel::refine`]), or the core's centroid when the fit did not settle.
     pub centre_px: [f64; 2],
+    /// Whether `centre_px` is the fitted centre.
+    pub fitted: bool,
     pub area_px: usize,
     /// Peak redness R − grey (8-bit levels).
     pub peak: f64,
@@ -176,8 +182,20 @@ pub fn find_markers(image: &RgbImage, options: &MarkerOptions) -> Markers {
         }
     }
     out.blobs.sort_by(|a, b| b.peak.total_cmp(&a.peak));
+    for b in out.blobs.iter_mut().take(MAX_CANDIDATES) {
+        // The core is the bead's image above half its peak: for a Gaussian of width s, a
+        // disc of radius 1.177 s.
+        let sigma = (b.area_px as f64 / std::f64::consts::PI).sqrt() / 1.177;
+        if let Some(c) = subpixel::refine(w, h, &image.data, &image.chroma, b.centre_px, sigma) {
+            (b.centre_px, b.fitted) = (c, true);
+        }
+    }
     out
 }
+
+/// Candidates per image that are placed to a fraction of a pixel and tried against each
+/// other's epipolar lines (the reddest first).
+pub const MAX_CANDIDATES: usize = 4;
 
 /// The least 2R − G − B of a marker pixel: far above the frame's own redness noise.
 fn seed_threshold(image: &RgbImage, options: &MarkerOptions) -> i32 {
@@ -234,6 +252,7 @@ fn measure(image: &RgbImage, region: &[usize]) -> Option<Blob> {
     };
     Some(Blob {
         centre_px: [cx, cy],
+        fitted: false,
         area_px: area,
         peak: f64::from(peak) / 3.0,
         elongation,
@@ -277,6 +296,7 @@ mod tests {
             width: w,
             height: h,
             data,
+            chroma: ChromaSampling::FULL,
         }
     }
 

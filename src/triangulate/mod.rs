@@ -32,6 +32,7 @@ pub mod marker;
 pub mod options;
 pub mod output;
 pub mod pairing;
+pub mod subpixel;
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -149,6 +150,8 @@ pub struct PairRecord {
     pub reprojected_px: Option<[[f64; 2]; 2]>,
     /// The larger of the two reprojection errors (px).
     pub reproj_px: Option<f64>,
+    /// Whether each chosen centre is the sub-pixel fit's (else the region's centroid).
+    pub fitted: [bool; 2],
 }
 
 /// A frame by camera, number and timestamp.
@@ -220,6 +223,17 @@ pub struct Summary {
     pub steps_without_tip: Vec<usize>,
     /// Reprojection error of the used pairs (px): median, 95th percentile, largest.
     pub reproj_px: [f64; 3],
+    /// Per camera, the used pairs' distance from the detected centre to the tip's reprojection
+    /// (px): median, 95th percentile, largest. With the optimal (Hartley-Sturm) correction this
+    /// is each camera's share of the epipolar residual: a detector biased in one camera, or
+    /// by the scene behind it, shows as an uneven split.
+    pub residual_px: [[f64; 3]; 2],
+    /// Used pairs per camera whose centre came from the region's centroid because the
+    /// sub-pixel fit did not settle (`subpixel::refine`).
+    pub centroid_only: PerCamera,
+    /// The rows' spread (largest distance of a step's pairs from their median, mm): median,
+    /// 95th percentile, largest.
+    pub step_spread_mm: [f64; 3],
     pub origin: Origin,
     pub interrupted: bool,
 }
@@ -264,9 +278,9 @@ pub fn triangulate(
     let results: Vec<Result<FrameResult, TriangulateError>> = paths
         .par_iter()
         .map_init(
-            || (marker::RgbImage::default(), Vec::new()),
-            |(image, file), path| {
-                let result = examine(path.as_deref(), rig, options, interrupt, image, file);
+            || (marker::RgbImage::default(), frames::Buffers::default()),
+            |(image, buffers), path| {
+                let result = examine(path.as_deref(), rig, options, interrupt, image, buffers);
                 progress(done.fetch_add(1, Ordering::SeqCst) + 1, paths.len());
                 result
             },
@@ -303,6 +317,7 @@ pub fn triangulate(
                 point_left_mm: None,
                 reprojected_px: None,
                 reproj_px: None,
+                fitted: [false; 2],
             };
             match pairing::place(log, records[l].time_s, records[r].time_s, options.settle_s) {
                 Placement::Step(k) => record.step = Some(k),
@@ -334,13 +349,16 @@ pub fn triangulate(
             counts.join(", ")
         )));
     }
-    let mut errors: Vec<f64> = used.iter().filter_map(|p| p.reproj_px).collect();
-    errors.sort_by(f64::total_cmp);
-    summary.reproj_px = [
-        errors[errors.len() / 2],
-        errors[((errors.len() - 1) as f64 * 0.95).round() as usize],
-        errors[errors.len() - 1],
-    ];
+    summary.reproj_px = median_95_max(used.iter().filter_map(|p| p.reproj_px).collect());
+    let dist = |p: [f64; 2], q: [f64; 2]| (p[0] - q[0]).hypot(p[1] - q[1]);
+    for cam in 0..2 {
+        summary.residual_px[cam] = median_95_max(
+            used.iter()
+                .filter_map(|p| Some(dist(p.centres_px?[cam], p.reprojected_px?[cam])))
+                .collect(),
+        );
+        summary.centroid_only[cam] = used.iter().filter(|p| !p.fitted[cam]).count();
+    }
 
     // 4. Each step's pairs, their spread (in the left camera: distances do not depend on the
     //    frame), and whether its row is doubtful; before the origin, which doubtful rows must
@@ -403,6 +421,14 @@ pub fn triangulate(
             .sqrt(),
     };
     let hand_from_left = HandFromLeft::new(r_hand, -(r_hand * origin));
+    summary.step_spread_mm = median_95_max(
+        by_step
+            .iter()
+            .zip(&spreads)
+            .filter(|(pairs, _)| !pairs.is_empty())
+            .map(|(_, &s)| s)
+            .collect(),
+    );
 
     // 6. One row per step.
     let mut rows = Vec::new();
@@ -457,7 +483,7 @@ fn examine(
     options: &TriangulateOptions,
     interrupt: &AtomicBool,
     image: &mut marker::RgbImage,
-    file: &mut Vec<u8>,
+    buffers: &mut frames::Buffers,
 ) -> Result<FrameResult, TriangulateError> {
     if interrupt.load(Ordering::SeqCst) {
         return Ok(FrameResult::Skipped);
@@ -465,7 +491,7 @@ fn examine(
     let Some(path) = path else {
         return Ok(FrameResult::NoFile);
     };
-    if let Err(why) = frames::decode_into(path, image, file) {
+    if let Err(why) = frames::decode_into(path, image, buffers) {
         return Ok(FrameResult::Unreadable(why));
     }
     let [cw, ch] = rig.image_size;
@@ -514,9 +540,6 @@ fn count_frames(records: &[FrameRecord], results: &[FrameResult], c: &mut FrameC
     }
 }
 
-/// Candidates per image that are tried against each other (the reddest first).
-const MAX_CANDIDATES: usize = 4;
-
 /// Triangulates a pair's candidates and keeps the one consistent combination, if there is one.
 fn locate(
     rig: &StereoRig,
@@ -548,7 +571,7 @@ fn locate(
     let centres = |m: &Markers| -> Vec<[f64; 2]> {
         m.blobs
             .iter()
-            .take(MAX_CANDIDATES)
+            .take(marker::MAX_CANDIDATES)
             .map(|b| b.centre_px)
             .collect()
     };
@@ -593,6 +616,7 @@ fn locate(
                 PairStatus::Used
             };
             record.centres_px = Some([cl[i], cr[j]]);
+            record.fitted = [l.blobs[i].fitted, r.blobs[j].fitted];
             record.point_left_mm = Some(points[*k]);
             record.reprojected_px = Some([pl[*k], pr[*k]]);
             record.reproj_px = Some(*err);
@@ -606,6 +630,16 @@ fn locate(
         record.reproj_px = Some(dist(pl[0], cl[0]).max(dist(pr[0], cr[0])));
     }
     Ok(())
+}
+
+/// Median, 95th percentile and largest of `values` (zeros for none).
+fn median_95_max(mut values: Vec<f64>) -> [f64; 3] {
+    if values.is_empty() {
+        return [0.0; 3];
+    }
+    values.sort_by(f64::total_cmp);
+    let at = |q: f64| values[((values.len() - 1) as f64 * q).round() as usize];
+    [values[values.len() / 2], at(0.95), values[values.len() - 1]]
 }
 
 /// The largest distance of a point from the points' median (mm); 0 for no points.

@@ -59,7 +59,10 @@ fn synth_writes_the_capture_layout_and_refuses_bad_settings() {
         "--sweep-step-kpa",
         "250",
     ];
-    let out = handcap_ok(d, &[&["synth", "--out", "cap"], &small[..]].concat());
+    let out = handcap_ok(
+        d,
+        &[&["synth", "--out", "cap", "--clean"], &small[..]].concat(),
+    );
     assert!(out.contains("3 board pairs"), "{out}");
     for file in [
         "train.csv",

@@ -1,5 +1,7 @@
 //! Helpers shared by the integration tests.
 
+use handcap::synth::capture::Realism;
+use handcap::synth::render::ImageFormat;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
@@ -89,14 +91,28 @@ impl Lcg {
     }
 }
 
-/// A small rendered capture in `dir`: `views` board pairs + the reference, 14 pressure steps.
+/// A small rendered capture of ideal frames (PNG, `handcap synth --clean`) in `dir`: `views`
+/// board pairs + the reference, 14 pressure steps.
 pub fn small_capture(dir: &Path, seed: u64, views: usize) {
     capture(dir, seed, views, 250.0, 125.0);
 }
 
-/// A rendered capture in `dir`: `views` board pairs + the reference, the training grid and the
-/// two sweeps at the given pressure steps.
+/// A rendered capture of ideal frames in `dir`: `views` board pairs + the reference, the
+/// training grid and the two sweeps at the given pressure steps.
 pub fn capture(dir: &Path, seed: u64, views: usize, grid_step_kpa: f64, sweep_step_kpa: f64) {
+    let clean = (ImageFormat::Png, Realism::CLEAN);
+    capture_as(dir, seed, views, [grid_step_kpa, sweep_step_kpa], clean);
+}
+
+/// [`capture`] with the frames' format and realism (`handcap synth`'s default: a webcam's MJPEG
+/// in a lab).
+pub fn capture_as(
+    dir: &Path,
+    seed: u64,
+    views: usize,
+    [grid_step_kpa, sweep_step_kpa]: [f64; 2],
+    (format, realism): (ImageFormat, Realism),
+) {
     let synth = handcap::synth::SynthConfig {
         seed,
         grid_step_kpa,
@@ -105,6 +121,8 @@ pub fn capture(dir: &Path, seed: u64, views: usize, grid_step_kpa: f64, sweep_st
     };
     let config = handcap::synth::capture::CaptureConfig {
         views,
+        format,
+        realism,
         ..handcap::synth::capture::CaptureConfig::default()
     };
     let provenance = handcap::provenance::Provenance::new(vec!["test".into()], Some(seed));

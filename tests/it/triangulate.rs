@@ -5,6 +5,9 @@
 
 use std::path::Path;
 
+use handcap::synth::capture::Realism;
+use handcap::synth::render::{Chroma, ImageFormat};
+
 use nalgebra::Vector3;
 
 use handcap::calib::file::read_calibration;
@@ -13,7 +16,7 @@ use handcap::synth::render::encode_png;
 use handcap::triangulate::frames::decode;
 
 use crate::common::{
-    capture, csv_rows, handcap_err, handcap_ok, handcap_usage, small_capture, tempdir,
+    capture, capture_as, csv_rows, handcap_err, handcap_ok, handcap_usage, small_capture, tempdir,
     tip_rms_against_truth,
 };
 
@@ -89,12 +92,12 @@ fn tips_match_the_truth_in_the_hand_frame_and_the_dataset_feeds_the_model() {
     let (rms, n) = tip_rms_against_truth(&d.join("out/dataset.csv"), &truth, |_| true);
     println!("tip RMS error {rms:.4} mm over {n} steps");
     assert_eq!(n, 39);
-    assert!(rms <= 0.1, "tip RMS error {rms} mm");
+    assert!(rms <= 0.03, "tip RMS error {rms} mm");
     for (phase, rows) in [("train", 27), ("sweep_a", 6), ("sweep_b", 6)] {
         let file = d.join(format!("out/dataset_{phase}.csv"));
         let (rms, n) = tip_rms_against_truth(&file, &truth, |_| true);
         assert_eq!(n, rows, "{phase}");
-        assert!(rms <= 0.1, "{phase}: tip RMS error {rms} mm");
+        assert!(rms <= 0.03, "{phase}: tip RMS error {rms} mm");
     }
     for file in [
         "dataset_pairs.csv",
@@ -326,4 +329,149 @@ fn triangulate_errors_are_one_line_and_name_the_file() {
     let msg = handcap_usage(d, &a);
     assert!(msg.contains("would replace the input"), "{msg}");
     assert!(!d.join("x.csv").exists(), "nothing is written on failure");
+}
+
+/// Triangulated tips by step (hand frame, mm) of `dir/out`.
+fn tips_by_step(out: &Path) -> std::collections::BTreeMap<String, [f64; 3]> {
+    csv_rows(out)
+        .into_iter()
+        .map(|r| {
+            let v = |k: &str| r[k].parse::<f64>().unwrap();
+            (r["step"].clone(), [v("x_mm"), v("y_mm"), v("z_mm")])
+        })
+        .collect()
+}
+
+/// The RMS and the largest distance between two runs' tips of the same steps (mm); both have
+/// every step.
+fn moves(a: &Path, b: &Path) -> [f64; 2] {
+    let (a, b) = (tips_by_step(a), tips_by_step(b));
+    assert_eq!(a.len(), b.len());
+    let d: Vec<f64> = a
+        .iter()
+        .map(|(step, p)| {
+            let q = b[step];
+            ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt()
+        })
+        .collect();
+    let rms = (d.iter().map(|v| v * v).sum::<f64>() / d.len() as f64).sqrt();
+    [rms, d.iter().copied().fold(0.0, f64::max)]
+}
+
+#[test]
+fn a_webcam_in_a_lab_gives_every_step_and_the_tip_to_a_twentieth_of_a_millimetre() {
+    // `handcap synth`'s default frames: MJPEG 4:2:0 at quality 85, a cluttered wall, a red
+    // cable and push-pin in the right camera, a highlight on the bead, flicker, motion blur,
+    // something passing in front of the bead in 1 % of the frames. 39 steps, 234 frames.
+    let dir = tempdir();
+    let d = dir.path();
+    let lab = (ImageFormat::WEBCAM, Realism::LAB);
+    capture_as(d, 32, 3, [125.0, 50.0], lab);
+    let out = triangulate_with_truth(d, "out/dataset.csv");
+    assert!(
+        out.contains("39 rows") && out.contains("0 without a tip"),
+        "{out}"
+    );
+    let truth = d.join("truth/tips.csv");
+    let (rms, n) = tip_rms_against_truth(&d.join("out/dataset.csv"), &truth, |_| true);
+    println!("{out}\ntip RMS error {rms:.4} mm over {n} steps");
+    // Seeds 31-33 measure 0.031, 0.047, 0.052 mm (the thresholded centroid: 0.06-0.10).
+    assert!(rms <= 0.06, "tip RMS error {rms} mm");
+    // The red things in the right camera never make a row: every row is the bead.
+    let truth_rows = tips_by_step(&truth);
+    for (step, p) in tips_by_step(&d.join("out/dataset.csv")) {
+        let t = truth_rows[&step];
+        let e = ((p[0] - t[0]).powi(2) + (p[1] - t[1]).powi(2) + (p[2] - t[2]).powi(2)).sqrt();
+        assert!(e < 0.2, "step {step}: {e} mm from the truth");
+    }
+    // A frame where the bead is hidden is never used: its marker is missing (left), or only
+    // the push-pin is left and fails the epipolar test (right).
+    let hidden: Vec<(String, String)> = csv_rows(&d.join("truth/frames.csv"))
+        .into_iter()
+        .filter(|r| r["occluded"] == "1")
+        .map(|r| (r["camera"].clone(), r["frame"].clone()))
+        .collect();
+    assert!(!hidden.is_empty(), "the capture hides the bead in no frame");
+    let pairs = csv_rows(&d.join("out/dataset_pairs.csv"));
+    for (camera, frame) in &hidden {
+        for p in pairs
+            .iter()
+            .filter(|p| &p[&format!("{camera}_frame")] == frame)
+        {
+            assert!(
+                !["used", "resolved"].contains(&p["status"].as_str()),
+                "hidden {camera} frame {frame} was used: {p:?}"
+            );
+        }
+    }
+    let s = summary(&d.join("out/dataset_summary.json"));
+    assert!(
+        s["frames"]["marker_missing"][0].as_u64().unwrap() >= 1,
+        "{s}"
+    );
+}
+
+#[test]
+fn png_and_both_jpeg_chromas_give_the_same_tips() {
+    // The same steps rendered alike, stored as PNG, JPEG 4:4:4 and JPEG 4:2:0: the colour's
+    // resolution alone does not move the tips. At quality 95, so that the comparison is about
+    // the halving, not the quantisation (at quality 85, whose error the lab test above
+    // bounds, 4:2:0 moves them 0.030 mm RMS, 0.047 mm at most, 4:4:4 0.015 and 0.030).
+    let jpeg = |chroma| ImageFormat::Jpeg {
+        quality: 95,
+        chroma,
+    };
+    let formats = [ImageFormat::Png, jpeg(Chroma::Full), jpeg(Chroma::Half)];
+    let dirs: Vec<_> = formats
+        .iter()
+        .map(|&format| {
+            let dir = tempdir();
+            capture_as(dir.path(), 34, 3, [250.0, 125.0], (format, Realism::CLEAN));
+            triangulate_with_truth(dir.path(), "out/dataset.csv");
+            dir
+        })
+        .collect();
+    let run = |k: usize| dirs[k].path().join("out/dataset.csv");
+    let found: Vec<[f64; 2]> = (1..3).map(|k| moves(&run(0), &run(k))).collect();
+    println!(
+        "tips' moves from the PNG's (RMS, max mm): 4:4:4 {:?}, 4:2:0 {:?}",
+        found[0], found[1]
+    );
+    for (k, [rms, max]) in found.iter().enumerate() {
+        // Measured: 4:4:4 0.003 mm RMS, 0.007 at most; 4:2:0 0.018 and 0.033.
+        assert!(
+            *rms < 0.02 && *max < 0.04,
+            "{:?}: {rms} mm RMS, {max} max",
+            formats[k + 1]
+        );
+    }
+}
+
+#[test]
+fn a_highlight_on_the_bead_does_not_move_the_tip() {
+    let runs: Vec<_> = [0.0, Realism::LAB.specular]
+        .iter()
+        .map(|&specular| {
+            let dir = tempdir();
+            let realism = Realism {
+                specular,
+                ..Realism::CLEAN
+            };
+            capture_as(
+                dir.path(),
+                35,
+                3,
+                [250.0, 125.0],
+                (ImageFormat::Png, realism),
+            );
+            triangulate_with_truth(dir.path(), "out/dataset.csv");
+            dir
+        })
+        .collect();
+    let [rms, max] = moves(
+        &runs[0].path().join("out/dataset.csv"),
+        &runs[1].path().join("out/dataset.csv"),
+    );
+    println!("the highlight moves the tip by {rms:.4} mm RMS, {max:.4} mm at most");
+    assert!(max < 0.02, "{max} mm");
 }

@@ -1,0 +1,465 @@
+//! The marker's centre to a small fraction of a pixel on the frames webcams give: MJPEG with
+//! 4:2:0 chroma at quality ~85.
+//!
+//! The region finder ([`super::marker`]) gates the marker by colour and gives the centroid of
+//! its redness above half the peak. On JPEG frames that centroid errs by ~0.2 px, a bias that
+//! stays put while the bead does (so more frames per step do not help) and moves when it moves:
+//! redness 2R − G − B is pure chroma (3.518 Cr − 1.428 Cb), and a JPEG stores chroma at half
+//! resolution (4:2:0) and quantises it coarsely. Measured on our renders, it is the
+//! quantisation more than the halving: 4:2:0 at quality 100 places the bead to 0.04 px, at 85
+//! to 0.14 px across the baseline (u), and 0.1 px in u is 0.045 mm in depth on this rig.
+//! Luma, full-resolution and finely quantised, does not place the bead by itself either: on one
+//! side the bead meets the pale finger, elsewhere a wall of any brightness, and a highlight
+//! sits on it; centroids of luma contrast, luma edge circles and luma disc fits with a
+//! background per sector were all measured worse than the fit below on the realistic capture.
+//!
+//! The fit: over the chroma samples within 12 px of the centroid, the stored redness is
+//! modelled as what the encoder stored of
+//!
+//!   r(x) = A · exp(−|x − c|² / 2s²) + b₀ + b₁ (x − c₀ₓ) + b₂ (y − c₀ᵧ) + k · Y(x),
+//!
+//! a Gaussian bead on a tilted background plus the full-resolution luma Y (which carries the
+//! sharp edges of the finger and the wall, and of the bead), each term averaged over the
+//! chroma's 2 × 2 blocks. The stored samples are recovered from the decoded pixels by undoing
+//! libjpeg's interpolation (least squares over an 80 px region, exact away from its edges),
+//! and the residuals are weighed by the quantisation noise the file's own chroma table implies
+//! (each 8 × 8 block's coefficients are rounded to their steps q: uniform noise of variance
+//! q²/12 per coefficient, so the coarse high frequencies count little): generalised least
+//! squares. A, b and k are solved linearly for each (c, s), and (c, s) by Levenberg-Marquardt.
+//! The Gaussian is symmetric about c, as the bead's image is. PNG frames have no sampling and
+//! no quantisation: the same fit with unit weights on the pixels.
+
+use std::cell::RefCell;
+use std::rc::Rc;
+use std::sync::OnceLock;
+
+use nalgebra::{DMatrix, DVector, Matrix3, SMatrix, SVector, Vector3};
+
+/// How a file stored an image's colour: pixels per chroma sample across and down (1 × 1 for
+/// PNG and JPEG 4:4:4, 2 × 2 for 4:2:0, 2 × 1 for 4:2:2), and for a JPEG the chroma's
+/// quantisation steps (row-major 8 × 8, DC first).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ChromaSampling {
+    pub block: [usize; 2],
+    pub steps: Option<[f64; 64]>,
+}
+
+impl Default for ChromaSampling {
+    fn default() -> Self {
+        ChromaSampling::FULL
+    }
+}
+
+/// JPEG's zig-zag order: the natural (row-major) index of each stored coefficient.
+const ZIGZAG: [usize; 64] = [
+    0, 1, 8, 16, 9, 2, 3, 10, 17, 24, 32, 25, 18, 11, 4, 5, 12, 19, 26, 33, 40, 48, 41, 34, 27, 20,
+    13, 6, 7, 14, 21, 28, 35, 42, 49, 56, 57, 50, 43, 36, 29, 22, 15, 23, 30, 37, 44, 51, 58, 59,
+    52, 45, 38, 31, 39, 46, 53, 60, 61, 54, 47, 55, 62, 63,
+];
+
+impl ChromaSampling {
+    /// Full-resolution, unquantised colour (PNG).
+    pub const FULL: ChromaSampling = ChromaSampling {
+        block: [1, 1],
+        steps: None,
+    };
+
+    /// From a JPEG file's header: the frame header's sampling factors (luma's over the
+    /// chroma's) and the quantisation table of the first chroma component. [`Self::FULL`]
+    /// when the bytes are not a colour baseline or progressive JPEG.
+    pub fn of_jpeg(bytes: &[u8]) -> ChromaSampling {
+        Self::parse(bytes).unwrap_or(ChromaSampling::FULL)
+    }
+
+    fn parse(bytes: &[u8]) -> Option<ChromaSampling> {
+        if !bytes.starts_with(&[0xff, 0xd8]) {
+            return None;
+        }
+        let mut tables: [Option<[f64; 64]>; 4] = [None; 4];
+        let mut i = 2;
+        loop {
+            let (marker, len) = (*bytes.get(i + 1)?, bytes.get(i + 2..i + 4)?);
+            if bytes[i] != 0xff {
+                return None;
+            }
+            let len = usize::from(len[0]) << 8 | usize::from(len[1]);
+            let body = bytes.get(i + 4..i + 2 + len)?;
+            match marker {
+                // Quantisation tables: precision and id, then 64 steps in zig-zag order.
+                0xdb => {
+                    let mut t = body;
+                    while let Some((&pq_tq, rest)) = t.split_first() {
+                        let wide = pq_tq >> 4 == 1;
+                        let size = if wide { 128 } else { 64 };
+                        let raw = rest.get(..size)?;
+                        let mut steps = [0.0; 64];
+                        for (k, &at) in ZIGZAG.iter().enumerate() {
+                            steps[at] = if wide {
+                                f64::from(u16::from(raw[2 * k]) << 8 | u16::from(raw[2 * k + 1]))
+                            } else {
+                                f64::from(raw[k])
+                            };
+                        }
+                        *tables.get_mut(usize::from(pq_tq & 15))? = Some(steps);
+                        t = &rest[size..];
+                    }
+                }
+                0xc0..=0xc2 => {
+                    let n = usize::from(*body.get(5)?);
+                    if n < 3 {
+                        return None;
+                    }
+                    let factor = |k: usize| -> Option<(usize, usize, usize)> {
+                        let c = body.get(6 + 3 * k..9 + 3 * k)?;
+                        Some((
+                            usize::from(c[1] >> 4),
+                            usize::from(c[1] & 15),
+                            usize::from(c[2]),
+                        ))
+                    };
+                    let ((lh, lv, _), (ch, cv, tq)) = (factor(0)?, factor(1)?);
+                    if ch == 0 || cv == 0 || lh % ch != 0 || lv % cv != 0 {
+                        return None;
+                    }
+                    return Some(ChromaSampling {
+                        block: [lh / ch, lv / cv],
+                        steps: *tables.get(tq)?,
+                    });
+                }
+                _ => {}
+            }
+            i += 2 + len;
+        }
+    }
+}
+
+/// Side of the square of pixels the chroma planes are recovered over (a multiple of 16, so of
+/// every block and coding unit); the bead sits in its middle.
+const REGION: usize = 80;
+/// Half-side of the window (px) whose chroma samples are fitted.
+const HALF_WINDOW: usize = 12;
+
+/// The bead's centre fitted near `start` (the thresholded centroid) with starting width
+/// `sigma` (px), or `None` when the region leaves the image or the fit does not settle on a
+/// bead (diverged, moved more than 1.5 px, a width outside 0.4-3 × the start, or no red bump).
+pub fn refine(
+    width: usize,
+    height: usize,
+    rgb: &[u8],
+    sampling: &ChromaSampling,
+    start: [f64; 2],
+    sigma: f64,
+) -> Option<[f64; 2]> {
+    let [bx, by] = sampling.block;
+    if !matches!(bx, 1 | 2) || !matches!(by, 1 | 2) {
+        return None;
+    }
+    // The region: aligned to 16 px, the start near its middle.
+    let origin = |c: f64, size: usize| -> Option<usize> {
+        let o = (c.round() as i64 - (REGION / 2) as i64).max(0) as usize / 16 * 16;
+        (o + REGION <= size).then_some(o)
+    };
+    let (x0, y0) = (origin(start[0], width)?, origin(start[1], height)?);
+    let n = REGION;
+    let (mut red, mut luma) = (DMatrix::zeros(n, n), DMatrix::zeros(n, n));
+    for j in 0..n {
+        for i in 0..n {
+            let p = &rgb[3 * ((y0 + j) * width + x0 + i)..][..3];
+            let [r, g, b] = [p[0], p[1], p[2]].map(f64::from);
+            red[(j, i)] = 2.0 * r - g - b;
+            luma[(j, i)] = 0.299 * r + 0.587 * g + 0.114 * b;
+        }
+    }
+    let plane = Plane::new(sampling, [x0 as f64, y0 as f64], start);
+    let observed = plane.white_samples(&plane.recover(&red));
+    // The terms that do not move with (c, s).
+    let (lx, ly) = (plane.local[0], plane.local[1]);
+    let fixed = [
+        plane.white(|_, _| 1.0),
+        plane.white(|_, i| i as f64 - lx),
+        plane.white(|j, _| j as f64 - ly),
+        plane.white(|j, i| luma[(j, i)]),
+    ];
+    let rows = observed.len();
+    let residual = |p: &Vector3<f64>| -> Option<(DVector<f64>, f64)> {
+        let (cx, cy, s) = (p[0], p[1], p[2]);
+        let bump = plane.white(|j, i| {
+            let (dx, dy) = (i as f64 - cx, j as f64 - cy);
+            (-(dx * dx + dy * dy) / (2.0 * s * s)).exp()
+        });
+        let column = |k: usize, c: usize| if c == 0 { bump[k] } else { fixed[c - 1][k] };
+        let mut ata = SMatrix::<f64, 5, 5>::zeros();
+        let mut atb = SVector::<f64, 5>::zeros();
+        for k in 0..rows {
+            let a = SVector::<f64, 5>::from_fn(|c, _| column(k, c));
+            ata += a * a.transpose();
+            atb += a * observed[k];
+        }
+        let coef = ata.cholesky()?.solve(&atb);
+        let r = DVector::from_fn(rows, |k, _| {
+            (0..5).map(|c| column(k, c) * coef[c]).sum::<f64>() - observed[k]
+        });
+        Some((r, coef[0]))
+    };
+    let local = plane.local;
+    let mut p = Vector3::new(local[0], local[1], sigma);
+    let (mut r, _) = residual(&p)?;
+    let mut cost = r.norm_squared();
+    let mut lambda = 1e-3;
+    for _ in 0..50 {
+        // Forward-difference Jacobian of the residuals.
+        let h = 1e-4;
+        let mut jac = DMatrix::<f64>::zeros(rows, 3);
+        for q in 0..3 {
+            let mut pq = p;
+            pq[q] += h;
+            let (rq, _) = residual(&pq)?;
+            jac.set_column(q, &((rq - &r) / h));
+        }
+        let jtj: Matrix3<f64> = (jac.transpose() * &jac).fixed_view::<3, 3>(0, 0).into();
+        let jtr: Vector3<f64> = (jac.transpose() * &r).fixed_view::<3, 1>(0, 0).into();
+        let mut improved = false;
+        while lambda < 1e8 {
+            let damped = jtj + Matrix3::from_diagonal(&jtj.diagonal()) * lambda;
+            let Some(step) = damped.cholesky().map(|c| c.solve(&-jtr)) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let trial = p + step;
+            if let Some((rt, _)) = residual(&trial).filter(|_| trial[2] > 0.2) {
+                let ct = rt.norm_squared();
+                if ct < cost {
+                    (p, r, cost) = (trial, rt, ct);
+                    lambda = (lambda / 10.0).max(1e-9);
+                    improved = step.norm() >= 1e-4;
+                    break;
+                }
+            }
+            lambda *= 10.0;
+        }
+        if !improved {
+            break;
+        }
+    }
+    let moved = (p[0] - local[0]).hypot(p[1] - local[1]);
+    let amplitude = residual(&p)?.1;
+    (moved <= 1.5 && p[2] >= 0.4 * sigma && p[2] <= 3.0 * sigma && amplitude > 0.0)
+        .then(|| [p[0] + x0 as f64, p[1] + y0 as f64])
+}
+
+/// Chroma samples of one 8 × 8 block in the window, with the inverse of the Cholesky factor of
+/// their quantisation noise's covariance (`None`: no quantisation, unit weights).
+type Group = (Vec<(usize, usize)>, Option<DMatrix<f64>>);
+
+/// The chroma plane of a region as the file stored it, and the fit's window in it.
+struct Plane {
+    block: [usize; 2],
+    /// The start in region pixels.
+    local: [f64; 2],
+    /// Per axis, what recovers the stored samples from the decoded pixels (the
+    /// pseudo-inverse of the decoder's interpolation; the identity at full resolution).
+    recover: [&'static DMatrix<f64>; 2],
+    /// The window's samples, grouped by 8 × 8 block of the stored plane.
+    groups: Vec<Group>,
+    /// Samples in the window.
+    size: usize,
+}
+
+impl Plane {
+    fn new(sampling: &ChromaSampling, origin: [f64; 2], start: [f64; 2]) -> Plane {
+        let block = sampling.block;
+        let local = [start[0] - origin[0], start[1] - origin[1]];
+        let recover = block.map(|b| if b == 2 { halved() } else { identity() });
+        // The window: samples whose pixels lie within HALF_WINDOW of the start.
+        let span = |axis: usize| {
+            let b = block[axis] as f64;
+            let lo = ((local[axis] - HALF_WINDOW as f64) / b).floor().max(0.0) as usize;
+            let hi = (((local[axis] + HALF_WINDOW as f64) / b).ceil() as usize)
+                .min(REGION / block[axis]);
+            lo..hi
+        };
+        let mut grouped: std::collections::BTreeMap<(usize, usize), Vec<(usize, usize)>> =
+            std::collections::BTreeMap::new();
+        for j in span(1) {
+            for i in span(0) {
+                grouped.entry((j / 8, i / 8)).or_default().push((j, i));
+            }
+        }
+        let covariance = sampling.steps.map(|q| block_covariance(&q));
+        let groups: Vec<Group> = grouped
+            .into_values()
+            .map(|samples| {
+                let whitening = covariance.as_ref().and_then(|cov| {
+                    let at: Vec<usize> = samples.iter().map(|(j, i)| (j % 8) * 8 + i % 8).collect();
+                    let sub = DMatrix::from_fn(at.len(), at.len(), |a, b| cov[(at[a], at[b])]);
+                    let l = sub.cholesky()?.l();
+                    l.try_inverse()
+                });
+                (samples, whitening)
+            })
+            .collect();
+        let size = groups.iter().map(|(g, _)| g.len()).sum();
+        Plane {
+            block,
+            local,
+            recover,
+            groups,
+            size,
+        }
+    }
+
+    /// The stored chroma samples behind decoded pixels.
+    fn recover(&self, pixels: &DMatrix<f64>) -> DMatrix<f64> {
+        self.recover[1] * pixels * self.recover[0].transpose()
+    }
+
+    /// What the encoder stores of the window of a full-resolution plane (`pixel(row,
+    /// column)` in region pixels): the mean over each sample's block, each 8 × 8 group of
+    /// samples whitened by its quantisation noise.
+    fn white(&self, pixel: impl Fn(usize, usize) -> f64) -> DVector<f64> {
+        let [bx, by] = self.block;
+        self.whiten(|j, i| {
+            let mut sum = 0.0;
+            for dj in 0..by {
+                for di in 0..bx {
+                    sum += pixel(by * j + dj, bx * i + di);
+                }
+            }
+            sum / (bx * by) as f64
+        })
+    }
+
+    /// The window of stored samples, whitened as [`Self::white`] does.
+    fn white_samples(&self, samples: &DMatrix<f64>) -> DVector<f64> {
+        self.whiten(|j, i| samples[(j, i)])
+    }
+
+    fn whiten(&self, sample: impl Fn(usize, usize) -> f64) -> DVector<f64> {
+        let mut out = Vec::with_capacity(self.size);
+        for (group, whitening) in &self.groups {
+            let v = DVector::from_iterator(group.len(), group.iter().map(|&(j, i)| sample(j, i)));
+            match whitening {
+                Some(w) => out.extend((w * v).iter()),
+                None => out.extend(v.iter()),
+            }
+        }
+        DVector::from_vec(out)
+    }
+}
+
+/// The covariance of the quantisation noise of an 8 × 8 block's samples (row-major) for the
+/// steps `q`: the stored coefficients are the block's 2-D DCT, rounding each to its step adds
+/// uniform noise of variance q²/12, so the samples' covariance is Pᵀ diag(q²/12) P. A file's
+/// tables rarely change, so each thread keeps the last one.
+fn block_covariance(q: &[f64; 64]) -> Rc<DMatrix<f64>> {
+    type Last = RefCell<Option<([f64; 64], Rc<DMatrix<f64>>)>>;
+    thread_local! {
+        static LAST: Last = const { RefCell::new(None) };
+    }
+    LAST.with_borrow_mut(|last| {
+        if let Some((_, cov)) = last.as_ref().filter(|(steps, _)| steps == q) {
+            return cov.clone();
+        }
+        let p = dct8();
+        let p2 = p.kronecker(&p);
+        let noise = DVector::from_iterator(64, q.iter().map(|v| v * v / 12.0));
+        let cov = Rc::new(p2.transpose() * DMatrix::from_diagonal(&noise) * p2);
+        *last = Some((*q, cov.clone()));
+        cov
+    })
+}
+
+/// The orthonormal 8-point DCT-II, as JPEG codes blocks.
+fn dct8() -> DMatrix<f64> {
+    DMatrix::from_fn(8, 8, |u, x| {
+        let scale = if u == 0 {
+            (1.0f64 / 8.0).sqrt()
+        } else {
+            (2.0f64 / 8.0).sqrt()
+        };
+        scale * ((2 * x + 1) as f64 * u as f64 * std::f64::consts::PI / 16.0).cos()
+    })
+}
+
+fn identity() -> &'static DMatrix<f64> {
+    static I: OnceLock<DMatrix<f64>> = OnceLock::new();
+    I.get_or_init(|| DMatrix::identity(REGION, REGION))
+}
+
+/// The pseudo-inverse of libjpeg's interpolation of a halved axis over `REGION` pixels: sample
+/// b gives pixel 2b 3/4 of itself and 1/4 of sample b − 1, pixel 2b + 1 3/4 of itself and 1/4
+/// of sample b + 1 (edges repeated).
+fn halved() -> &'static DMatrix<f64> {
+    static H: OnceLock<DMatrix<f64>> = OnceLock::new();
+    H.get_or_init(|| {
+        let m = REGION / 2;
+        let mut up = DMatrix::<f64>::zeros(REGION, m);
+        for b in 0..m {
+            up[(2 * b, b)] += 0.75;
+            up[(2 * b, b.saturating_sub(1))] += 0.25;
+            up[(2 * b + 1, b)] += 0.75;
+            up[(2 * b + 1, (b + 1).min(m - 1))] += 0.25;
+        }
+        up.pseudo_inverse(1e-12)
+            .expect("the interpolation has full column rank")
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn recovering_the_stored_samples_undoes_libjpegs_interpolation() {
+        // Samples → interpolated pixels (as the decoder does) → recovered samples.
+        let m = REGION / 2;
+        let samples: Vec<f64> = (0..m).map(|b| ((b * 37) % 11) as f64 - 5.0).collect();
+        let pixels: Vec<f64> = (0..REGION)
+            .map(|x| {
+                let b = x / 2;
+                let other = if x % 2 == 0 {
+                    b.saturating_sub(1)
+                } else {
+                    (b + 1).min(m - 1)
+                };
+                0.75 * samples[b] + 0.25 * samples[other]
+            })
+            .collect();
+        let back = halved() * DVector::from_vec(pixels);
+        for b in 0..m {
+            assert!(
+                (back[b] - samples[b]).abs() < 1e-9,
+                "{b}: {} vs {}",
+                back[b],
+                samples[b]
+            );
+        }
+    }
+
+    #[test]
+    fn jpeg_headers_give_the_chroma_sampling_and_steps() {
+        let rgb: Vec<u8> = (0..3 * 64 * 48).map(|k| (k * 7 % 251) as u8).collect();
+        let half = ChromaSampling::of_jpeg(&crate::cv::encode_jpeg(48, &rgb, 85).unwrap());
+        assert_eq!(half.block, [2, 2]);
+        // libjpeg's chroma table at quality 85: the standard one (DC 17, then 18, 24, 47,
+        // 99 …) scaled by 30 %.
+        let steps = half.steps.expect("a chroma table");
+        assert_eq!(
+            (steps[0], steps[1], steps[8], steps[63]),
+            (5.0, 5.0, 5.0, 30.0)
+        );
+        let mut full = Vec::new();
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut full, 85)
+            .encode(&rgb, 64, 48, image::ColorType::Rgb8)
+            .unwrap();
+        assert_eq!(ChromaSampling::of_jpeg(&full).block, [1, 1]);
+        assert_eq!(
+            ChromaSampling::of_jpeg(b"\x89PNG...."),
+            ChromaSampling::FULL
+        );
+        assert_eq!(
+            ChromaSampling::of_jpeg(&[0xff, 0xd8, 0xff]),
+            ChromaSampling::FULL
+        );
+    }
+}
