@@ -104,18 +104,9 @@ pub fn print_summary(done: &Triangulated) {
         "reprojection of used pairs: median {:.3} px, 95 % {:.3} px, max {:.3} px",
         s.reproj_px[0], s.reproj_px[1], s.reproj_px[2]
     );
-    let [l, r] = s.residual_px;
+    let [mean, sd, p95] = s.epipolar_px;
     println!(
-        "epipolar residual by camera: left median {:.3} px (95 % {:.3}), right median {:.3} px (95 % {:.3}){}",
-        l[0],
-        l[1],
-        r[0],
-        r[1],
-        if l[0].max(r[0]) > 2.0 * l[0].min(r[0]) + 0.02 {
-            " - uneven: one camera's detections are biased (lighting, background, JPEG colour); see the detections figure"
-        } else {
-            ""
-        }
+        "epipolar residual of the used pairs: mean {mean:+.3} px, sd {sd:.3} px, 95 % within {p95:.3} px (a mean away from 0 or a wide spread: a biased detection or a drifted calibration)"
     );
     if s.centroid_only[0] + s.centroid_only[1] > 0 {
         println!(
