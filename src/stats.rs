@@ -3,7 +3,7 @@
 //! [`median`] is the textbook median: the middle value, or the mean of the two middle values of
 //! an even count. [`upper_median`] is the upper of the two middle values (`v[n / 2]` of the
 //! sorted values): always one of the data, which a robust threshold or a reference element
-//! needs. Both return `None` for no values.
+//! needs. Both return `None` for no values, as do [`quantiles`] (nearest rank) for summaries.
 
 use std::cmp::Ordering;
 
@@ -41,6 +41,17 @@ pub fn median(values: &mut [f64]) -> Option<f64> {
         .max_by(f64::total_cmp)
         .expect("n ≥ 2");
     Some((lower + upper) / 2.0)
+}
+
+/// The values at fractions `q` of the sorted values (nearest rank: position round((n − 1) q),
+/// so 0.5 gives the upper median and 1 the largest). Sorts `values`; `None` for no values.
+pub fn quantiles<const N: usize>(values: &mut [f64], q: [f64; N]) -> Option<[f64; N]> {
+    if values.is_empty() {
+        return None;
+    }
+    values.sort_by(f64::total_cmp);
+    let last = (values.len() - 1) as f64;
+    Some(q.map(|q| values[(last * q).round() as usize]))
 }
 
 /// The per-coordinate [`median`] of points; the origin for no points.

@@ -477,16 +477,16 @@ fn feedforward(
 
 fn inverse_stats(model: &str, rows: &[PlannedTarget]) -> InverseCheck {
     let mut e: Vec<f64> = rows.iter().map(|r| r.plant_error).collect();
-    e.sort_by(f64::total_cmp);
-    let at = |q: f64| e[((e.len() - 1) as f64 * q).round() as usize];
+    let [median_mm, p90_mm, max_mm] =
+        crate::stats::quantiles(&mut e, [0.5, 0.9, 1.0]).expect("targets were planned");
     InverseCheck {
         model: model.to_string(),
         targets: rows.len(),
         reached_by_model: rows.iter().filter(|r| r.solution.reached).count(),
         mean_mm: e.iter().sum::<f64>() / e.len() as f64,
-        median_mm: at(0.5),
-        p90_mm: at(0.9),
-        max_mm: at(1.0),
+        median_mm,
+        p90_mm,
+        max_mm,
     }
 }
 

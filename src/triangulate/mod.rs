@@ -664,12 +664,7 @@ fn epipolar_residuals(
 
 /// Median, 95th percentile and largest of `values` (zeros for none).
 fn median_95_max(mut values: Vec<f64>) -> [f64; 3] {
-    if values.is_empty() {
-        return [0.0; 3];
-    }
-    values.sort_by(f64::total_cmp);
-    let at = |q: f64| values[((values.len() - 1) as f64 * q).round() as usize];
-    [values[values.len() / 2], at(0.95), values[values.len() - 1]]
+    crate::stats::quantiles(&mut values, [0.5, 0.95, 1.0]).unwrap_or([0.0; 3])
 }
 
 /// The largest distance of a point from the points' median (mm); 0 for no points.

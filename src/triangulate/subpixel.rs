@@ -209,7 +209,7 @@ pub fn refine(
     };
     let local = plane.local;
     let mut p = Vector3::new(local[0], local[1], sigma);
-    let (mut r, _) = residual(&p)?;
+    let (mut r, mut amplitude) = residual(&p)?;
     let mut cost = r.norm_squared();
     let mut lambda = 1e-3;
     for _ in 0..50 {
@@ -224,7 +224,8 @@ pub fn refine(
         }
         let jtj: Matrix3<f64> = (jac.transpose() * &jac).fixed_view::<3, 3>(0, 0).into();
         let jtr: Vector3<f64> = (jac.transpose() * &r).fixed_view::<3, 1>(0, 0).into();
-        let mut improved = false;
+        // Go on while a step is taken and still moves the parameters.
+        let mut go_on = false;
         while lambda < 1e8 {
             let damped = jtj + Matrix3::from_diagonal(&jtj.diagonal()) * lambda;
             let Some(step) = damped.cholesky().map(|c| c.solve(&-jtr)) else {
@@ -232,23 +233,22 @@ pub fn refine(
                 continue;
             };
             let trial = p + step;
-            if let Some((rt, _)) = residual(&trial).filter(|_| trial[2] > 0.2) {
+            if let Some((rt, at)) = residual(&trial).filter(|_| trial[2] > 0.2) {
                 let ct = rt.norm_squared();
                 if ct < cost {
-                    (p, r, cost) = (trial, rt, ct);
+                    (p, r, cost, amplitude) = (trial, rt, ct, at);
                     lambda = (lambda / 10.0).max(1e-9);
-                    improved = step.norm() >= 1e-4;
+                    go_on = step.norm() >= 1e-4;
                     break;
                 }
             }
             lambda *= 10.0;
         }
-        if !improved {
+        if !go_on {
             break;
         }
     }
     let moved = (p[0] - local[0]).hypot(p[1] - local[1]);
-    let amplitude = residual(&p)?.1;
     (moved <= 1.5 && p[2] >= 0.4 * sigma && p[2] <= 3.0 * sigma && amplitude > 0.0)
         .then(|| [p[0] + x0 as f64, p[1] + y0 as f64])
 }

@@ -156,6 +156,17 @@ pub fn csv_rows(path: &Path) -> Vec<std::collections::HashMap<String, String>> {
         .collect()
 }
 
+/// The tips (`x_mm,y_mm,z_mm`) of a dataset or of `truth/tips.csv`, by their `step` column.
+pub fn tips_by_step(path: &Path) -> std::collections::HashMap<String, [f64; 3]> {
+    csv_rows(path)
+        .into_iter()
+        .map(|r| {
+            let v = |k: &str| r[k].parse::<f64>().unwrap();
+            (r["step"].clone(), [v("x_mm"), v("y_mm"), v("z_mm")])
+        })
+        .collect()
+}
+
 /// RMS Euclidean distance (mm) between the dataset's tips and the truth's (`truth/tips.csv`),
 /// matched by the `step` column; rows `keep` rejects are left out. Returns (RMS, rows).
 pub fn tip_rms_against_truth(
@@ -163,13 +174,7 @@ pub fn tip_rms_against_truth(
     truth: &Path,
     keep: impl Fn(&std::collections::HashMap<String, String>) -> bool,
 ) -> (f64, usize) {
-    let truth: std::collections::HashMap<String, [f64; 3]> = csv_rows(truth)
-        .into_iter()
-        .map(|r| {
-            let v = |k: &str| r[k].parse::<f64>().unwrap();
-            (r["step"].clone(), [v("x_mm"), v("y_mm"), v("z_mm")])
-        })
-        .collect();
+    let truth = tips_by_step(truth);
     let (mut sum, mut n) = (0.0, 0);
     for row in csv_rows(dataset).iter().filter(|r| keep(r)) {
         let t = truth[&row["step"]];

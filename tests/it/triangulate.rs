@@ -17,7 +17,7 @@ use handcap::triangulate::frames::decode;
 
 use crate::common::{
     capture, capture_as, csv_rows, handcap_err, handcap_ok, handcap_usage, small_capture, tempdir,
-    tip_rms_against_truth,
+    tip_rms_against_truth, tips_by_step,
 };
 
 /// Paints a disc of `rgb` (radius `r` px, anti-aliased) into a frame, in place.
@@ -329,17 +329,6 @@ fn triangulate_errors_are_one_line_and_name_the_file() {
     let msg = handcap_usage(d, &a);
     assert!(msg.contains("would replace the input"), "{msg}");
     assert!(!d.join("x.csv").exists(), "nothing is written on failure");
-}
-
-/// Triangulated tips by step (hand frame, mm) of `dir/out`.
-fn tips_by_step(out: &Path) -> std::collections::BTreeMap<String, [f64; 3]> {
-    csv_rows(out)
-        .into_iter()
-        .map(|r| {
-            let v = |k: &str| r[k].parse::<f64>().unwrap();
-            (r["step"].clone(), [v("x_mm"), v("y_mm"), v("z_mm")])
-        })
-        .collect()
 }
 
 /// The RMS and the largest distance between two runs' tips of the same steps (mm); both have
