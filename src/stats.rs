@@ -3,7 +3,8 @@
 //! [`median`] is the textbook median: the middle value, or the mean of the two middle values of
 //! an even count. [`upper_median`] is the upper of the two middle values (`v[n / 2]` of the
 //! sorted values): always one of the data, which a robust threshold or a reference element
-//! needs. Both return `None` for no values, as do [`quantiles`] (nearest rank) for summaries.
+//! needs. Both return `None` for no values, as do [`quantiles`] (nearest rank) for summaries
+//! and [`mean_sd`].
 
 use std::cmp::Ordering;
 
@@ -52,6 +53,17 @@ pub fn quantiles<const N: usize>(values: &mut [f64], q: [f64; N]) -> Option<[f64
     values.sort_by(f64::total_cmp);
     let last = (values.len() - 1) as f64;
     Some(q.map(|q| values[(last * q).round() as usize]))
+}
+
+/// Mean and standard deviation (population: divided by n) of `values`; `None` for none.
+pub fn mean_sd(values: &[f64]) -> Option<(f64, f64)> {
+    if values.is_empty() {
+        return None;
+    }
+    let n = values.len() as f64;
+    let mean = values.iter().sum::<f64>() / n;
+    let var = values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n;
+    Some((mean, var.sqrt()))
 }
 
 /// The per-coordinate [`median`] of points; the origin for no points.

@@ -1,4 +1,4 @@
-//! The calibration's checks: epipolar distance, coverage, the boards triangulated back,
+//! The calibration's checks: epipolar distance, the boards triangulated back,
 //! rectification, and the hand frame's axes from the reference pair.
 
 use nalgebra::{Matrix3, Rotation3, Vector3};
@@ -7,6 +7,7 @@ use opencv::core::{self, Mat, Size};
 
 use super::{BoardCheck, BoardSpec, CalibError, StereoFit};
 use crate::cv::{fixed, mat, points};
+use crate::geometry::{CamFromBoard, Intrinsics};
 use crate::stereo::Side;
 
 /// Corners as `f64`.
@@ -38,17 +39,6 @@ pub(super) fn epipolar_error(
         }
     }
     Ok(sum / n as f64)
-}
-
-/// Share of an 8 × 6 grid of image cells that hold at least one corner.
-pub(super) fn coverage(size: [i32; 2], views: &[&[[f32; 2]]]) -> f64 {
-    let mut cells = [[false; 8]; 6];
-    for c in views.iter().flat_map(|v| v.iter()) {
-        let i = ((c[0] / size[0] as f32) * 8.0).clamp(0.0, 7.0) as usize;
-        let j = ((c[1] / size[1] as f32) * 6.0).clamp(0.0, 5.0) as usize;
-        cells[j][i] = true;
-    }
-    cells.iter().flatten().filter(|&&c| c).count() as f64 / 48.0
 }
 
 /// Triangulates every used board and compares it with the printed one.
@@ -83,8 +73,7 @@ pub(super) fn board_check(
         plane_sq += eig.eigenvalues.min();
         plane_n += n;
     }
-    let mean = steps.iter().sum::<f64>() / steps.len() as f64;
-    let sd = (steps.iter().map(|s| (s - mean).powi(2)).sum::<f64>() / steps.len() as f64).sqrt();
+    let (mean, sd) = crate::stats::mean_sd(&steps).expect("boards have corners");
     Ok(BoardCheck {
         neighbour_mean_squares: mean,
         neighbour_sd_squares: sd,
@@ -141,22 +130,35 @@ pub(super) fn hand_axes(
     if corners[board.cols - 1][0] < corners[0][0] {
         ordered.reverse();
     }
+    let left_from_board = board_pose(board, &rig.cams.left, &ordered)?.rotation;
+    // Board axes in the hand frame: x → x, y → −z, z → +y.
+    let hand_from_board = Rotation3::from_matrix_unchecked(Matrix3::new(
+        1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, -1.0, 0.0,
+    ));
+    Ok(hand_from_board * left_from_board.inverse())
+}
+
+/// The board's pose in a camera from its corners (`solvePnP`, iterative).
+pub(super) fn board_pose(
+    board: &BoardSpec,
+    camera: &Intrinsics,
+    corners: &[[f32; 2]],
+) -> Result<CamFromBoard, CalibError> {
     let (mut rvec, mut tvec) = (Mat::default(), Mat::default());
     calib3d::solve_pnp(
         &board.object_points(),
-        &points(&ordered),
-        &mat(3, &rig.cams.left.k)?,
-        &mat(1, &rig.cams.left.dist)?,
+        &points(corners),
+        &mat(3, &camera.k)?,
+        &mat(1, &camera.dist)?,
         &mut rvec,
         &mut tvec,
         false,
         calib3d::SOLVEPNP_ITERATIVE,
     )?;
-    let mut rot = Mat::default();
-    calib3d::rodrigues(&rvec, &mut rot, &mut core::no_array())?;
-    let left_from_board = Matrix3::from_row_slice(&fixed::<9>(&rot)?);
-    // Board axes in the hand frame: x → x, y → −z, z → +y.
-    let hand_from_board = Matrix3::new(1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, -1.0, 0.0);
-    let hand_from_left = hand_from_board * left_from_board.transpose();
-    Ok(Rotation3::from_matrix_unchecked(hand_from_left))
+    let mut rotation = Mat::default();
+    calib3d::rodrigues(&rvec, &mut rotation, &mut core::no_array())?;
+    Ok(CamFromBoard::new(
+        Rotation3::from_matrix_unchecked(Matrix3::from_row_slice(&fixed::<9>(&rotation)?)),
+        Vector3::from(fixed::<3>(&tvec)?),
+    ))
 }

@@ -17,9 +17,14 @@
 //! | `views_used`, `views_rejected` | | pair names |
 //! | `board_cols`, `board_rows`, `square_mm`, `detector`, `coverage` | | the board and how it was seen |
 //! | `board_neighbour_squares`, `board_planarity_rms_mm` | | the boards triangulated back |
+//! | `coverage_cells_left`, `coverage_cells_right`, `tilt_sd_deg`, `advice` | | where the corners fell (8 × 6 cells, `#` seen), the boards' tilt spread about the left camera's x and y, what to capture next ([`super::guidance`]) |
+//! | `baseline_mm` | | \|T\| |
+//! | `K1_sd`, `D1_sd`, `K2_sd`, `D2_sd`, `T_sd`, `baseline_sd_mm`, `R_sd_deg`, `corner_sd_px` | | standard deviations beside each value ([`super::uncertainty`]; none for fixed intrinsics), `uncertainty` says how |
+//! | `tip_sd_at_mm`, `tip_sd_at`, `tip_sd_mm`, `tip_move_sd_mm`, `tip_sd_marker_mm` | 3 × 1 | the tip's deviations at the finger: position and a 10 mm move from the calibration, and from 0.1 px of marker noise |
+//! | `bootstrap_K1_sd` … `bootstrap_R_sd_deg` | | the same by `--bootstrap N` |
 //! | `R_hand` | 3 × 3 | hand from left camera axes: p_hand = R_hand · p_left + t_hand |
 //! | `t_hand` | 3 × 1 | the hand frame's translation (mm), where the origin is known (truth, `dataset_hand.yml`) |
-//! | `hand_axes`, `handcap_version`, `command`, `seed` | text | provenance |
+//! | `hand_axes`, `handcap_version`, `command`, `seed` (of `--bootstrap`) | text | provenance |
 //!
 //! `board.yml`: `inner_corners_cols`, `inner_corners_rows`, `square_mm`.
 //!
@@ -122,19 +127,109 @@ pub fn calibration_yaml(cal: &StereoCalibration, provenance: &Provenance) -> Str
         .int("board_rows", cal.board.rows as i64)
         .real("square_mm", cal.board.square_mm)
         .string("detector", cal.detector.name())
-        .reals("coverage", &cal.coverage)
+        .reals("coverage", &cal.guidance.coverage())
+        .strings("coverage_cells_left", &cal.guidance.map(0))
+        .strings("coverage_cells_right", &cal.guidance.map(1))
+        .reals("tilt_sd_deg", &cal.guidance.tilt_sd_deg)
+        .strings("advice", &cal.guidance.advice)
         .real(
             "board_neighbour_squares",
             cal.board_check.neighbour_mean_squares,
         )
-        .real("board_planarity_rms_mm", cal.board_check.planarity_rms_mm);
+        .real("board_planarity_rms_mm", cal.board_check.planarity_rms_mm)
+        .real("baseline_mm", cal.rig.right_from_left.translation.norm());
+    for (key, rows, cols, data) in uncertainty_values(cal) {
+        match data.as_slice() {
+            [x] => fs.real(&key, *x),
+            _ => fs.matrix(&key, rows, cols, &data),
+        };
+    }
+    if let Some(u) = &cal.uncertainty {
+        fs.string("tip_sd_at", &u.at);
+    }
+    fs.string("uncertainty", uncertainty_note(cal));
     if let Some(axes) = &cal.hand_axes {
         fs.matrix("R_hand", 3, 3, &rotation_rows(axes));
     }
     fs.string("hand_axes", &cal.hand_axes_note)
         .string("handcap_version", &provenance.handcap_version)
         .string("command", &provenance.command.join(" "));
+    if let Some(seed) = provenance.seed {
+        fs.int("seed", seed as i64);
+    }
     fs.text().to_string()
+}
+
+/// How the `*_sd` keys were found, or why there are none.
+pub fn uncertainty_note(cal: &StereoCalibration) -> &'static str {
+    match &cal.uncertainty {
+        Some(_) => "standard deviations (_sd) from the covariance of the joint reprojection problem, sigma^2 (J^T J)^-1 at the solution (handcap::calib::uncertainty); R_sd_deg about the left camera's x, y, z; at tip_sd_at_mm along the left camera's x, y, z: the tip's position (tip_sd_mm) and a 10 mm move of it (tip_move_sd_mm) from the calibration, its position from 0.1 px of marker noise in each image (tip_sd_marker_mm)",
+        None => "no standard deviations: the problem has no unique solution or a fixed camera's distortion goes beyond k1, k2, p1, p2, k3",
+    }
+}
+
+/// The standard deviations as (key, rows, cols, values), for the YAML and the JSON alike:
+/// `K1_sd` (a 3 × 3 matrix with each deviation where its value is in `K1`), `D1_sd`, the same
+/// for the right camera (only for solved intrinsics), `T_sd`, `baseline_sd_mm`, `R_sd_deg`,
+/// `corner_sd_px`, `tip_sd_at_mm`, `tip_sd_mm`, `tip_move_sd_mm`, `tip_sd_marker_mm`; the
+/// bootstrap's, when there is one, as `bootstrap_K1_sd` … `bootstrap_R_sd_deg`.
+fn uncertainty_values(cal: &StereoCalibration) -> Vec<(String, usize, usize, Vec<f64>)> {
+    let mut out = Vec::new();
+    if let Some(u) = &cal.uncertainty {
+        parameter_values("", &u.parameters, &mut out);
+        for (key, rows, values) in [
+            ("corner_sd_px", 1, vec![u.corner_sd_px]),
+            ("tip_sd_at_mm", 3, u.at_mm.to_vec()),
+            ("tip_sd_mm", 3, u.tip.position.to_vec()),
+            ("tip_move_sd_mm", 3, u.tip.displacement.to_vec()),
+            ("tip_sd_marker_mm", 3, u.tip.marker.to_vec()),
+        ] {
+            out.push((key.to_string(), rows, 1, values));
+        }
+    }
+    if let Some(b) = &cal.bootstrap {
+        parameter_values("bootstrap_", &b.parameters, &mut out);
+    }
+    out
+}
+
+fn parameter_values(
+    prefix: &str,
+    sd: &super::uncertainty::ParameterSd,
+    out: &mut Vec<(String, usize, usize, Vec<f64>)>,
+) {
+    for (c, [k, d]) in [["K1_sd", "D1_sd"], ["K2_sd", "D2_sd"]]
+        .into_iter()
+        .enumerate()
+    {
+        if let Some([fx, fy, cx, cy, dist @ ..]) = sd.intrinsics[c] {
+            out.push((
+                prefix.to_string() + k,
+                3,
+                3,
+                vec![fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 0.0],
+            ));
+            out.push((prefix.to_string() + d, 1, 5, dist.to_vec()));
+        }
+    }
+    out.push((
+        prefix.to_string() + "T_sd",
+        3,
+        1,
+        sd.translation_mm.to_vec(),
+    ));
+    out.push((
+        prefix.to_string() + "baseline_sd_mm",
+        1,
+        1,
+        vec![sd.baseline_mm],
+    ));
+    out.push((
+        prefix.to_string() + "R_sd_deg",
+        3,
+        1,
+        sd.rotation_deg.to_vec(),
+    ));
 }
 
 /// Where [`anipose_toml`] is written beside the calibration file `out`: `OUT.toml`.
@@ -178,6 +273,15 @@ pub fn calibration_json(cal: &StereoCalibration) -> String {
     if let Some(axes) = &cal.hand_axes {
         doc["R_hand"] = serde_json::json!(rows(&rotation_rows(axes), 3));
     }
+    for (key, r, cols, data) in uncertainty_values(cal) {
+        doc[&key] = match (r, cols) {
+            (1, 1) => serde_json::json!(data[0]),
+            (1, _) | (_, 1) => serde_json::json!(data),
+            _ => serde_json::json!(rows(&data, cols)),
+        };
+    }
+    doc["uncertainty"] = serde_json::json!(uncertainty_note(cal));
+    doc["advice"] = serde_json::json!(cal.guidance.advice);
     let mut text = serde_json::to_string_pretty(&doc).expect("numbers and strings serialise");
     text.push('\n');
     text

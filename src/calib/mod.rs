@@ -31,8 +31,10 @@ mod checks;
 pub mod detect;
 pub mod figures;
 pub mod file;
-use checks::{board_check, coverage, epipolar_error, hand_axes, rectify};
+pub mod guidance;
+use checks::{board_check, board_pose, epipolar_error, hand_axes, rectify};
 pub mod pairs;
+pub mod uncertainty;
 
 use std::path::{Path, PathBuf};
 
@@ -141,6 +143,16 @@ impl BoardSpec {
         Ok(())
     }
 
+    /// The centre of the inner corners, in the board's frame (mm).
+    pub fn centre(&self) -> nalgebra::Point3<f64> {
+        let s = self.square_mm;
+        nalgebra::Point3::new(
+            (self.cols - 1) as f64 * s / 2.0,
+            (self.rows - 1) as f64 * s / 2.0,
+            0.0,
+        )
+    }
+
     /// Object points of the inner corners (mm), row by row.
     fn object_points(&self) -> Vector<Point3f> {
         let s = self.square_mm as f32;
@@ -172,6 +184,10 @@ pub struct CalibOptions {
     /// Intrinsics of the left and right camera fixed instead of solved (see [`stereo`]).
     #[serde(skip)]
     pub intrinsics: [Option<KnownIntrinsics>; 2],
+    /// Recalibrations on pairs drawn with replacement, for [`Bootstrap`] (0: none) …
+    pub bootstrap: usize,
+    /// … and the seed of the draws.
+    pub seed: u64,
 }
 
 impl Default for CalibOptions {
@@ -181,6 +197,8 @@ impl Default for CalibOptions {
             reject_factor: 3.0,
             reject_floor_px: 0.25,
             intrinsics: [None, None],
+            bootstrap: 0,
+            seed: 1,
         }
     }
 }
@@ -225,9 +243,14 @@ pub struct StereoCalibration {
     pub q: [f64; 16],
     pub rms_px: f64,
     pub epipolar_px: f64,
-    /// Share of an 8 × 6 grid of image cells holding corners (left, right).
-    pub coverage: [f64; 2],
     pub board_check: BoardCheck,
+    /// The parameters' standard deviations and the tip's (`None` when they cannot be had:
+    /// [`uncertainty::estimate`]).
+    pub uncertainty: Option<uncertainty::Uncertainty>,
+    /// The same deviations by a bootstrap over the pairs, when asked for.
+    pub bootstrap: Option<Bootstrap>,
+    /// Coverage, tilt, and what to capture next.
+    pub guidance: guidance::Guidance,
     pub pairs: Vec<PairReport>,
     /// Images without a partner, skipped.
     pub unpaired: Vec<PathBuf>,
@@ -249,7 +272,19 @@ impl StereoCalibration {
 /// Corners of one image: its size and the corners if the board was found.
 type Found = ([i32; 2], Option<Vec<[f32; 2]>>);
 
+/// The cameras' standard deviations by a bootstrap over the pairs: the rig calibrated again
+/// `rounds` times, each on as many pairs as were used, drawn from them with replacement; the
+/// deviations are the spread of those calibrations (rotations about the left camera's axes,
+/// from the calibration's own).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Bootstrap {
+    pub rounds: usize,
+    pub seed: u64,
+    pub parameters: uncertainty::ParameterSd,
+}
+
 /// A pair in the calibration: its index among the reports, left and right corners.
+#[derive(Clone)]
 struct Usable {
     report: usize,
     left: Vec<[f32; 2]>,
@@ -411,26 +446,50 @@ pub fn calibrate(
     let right: Vec<&[[f32; 2]]> = usable.iter().map(|u| u.right.as_slice()).collect();
     let epipolar_px = epipolar_error(&rig, &left, &right)?;
     let board_check = board_check(board, &rig, &left, &right)?;
-    let coverage = [coverage(size, &left), coverage(size, &right)];
     let (r1, r2, p1, p2, q) = rectify(&rig, size)?;
 
     // The reference pair's images follow the others' in `found`.
-    let (hand_axes, hand_axes_note) = match &listing.reference {
-        Some(reference) => match &found[2 * listing.pairs.len()].1 {
-            Some(corners) => (
-                Some(hand_axes(board, &rig, corners)?),
-                format!(
-                    "from the reference pair {}: board x = hand x, board y = hand -z, board z = hand +y",
-                    reference.left.display()
-                ),
+    let reference = listing
+        .reference
+        .as_ref()
+        .map(|pair| (pair, &found[2 * listing.pairs.len()].1));
+    let (hand_axes, hand_axes_note) = match reference {
+        Some((pair, Some(corners))) => (
+            Some(hand_axes(board, &rig, corners)?),
+            format!(
+                "from the reference pair {}: board x = hand x, board y = hand -z, board z = hand +y",
+                pair.left.display()
             ),
-            None => (
-                None,
-                format!("the board was not found in {}", reference.left.display()),
-            ),
-        },
+        ),
+        Some((pair, None)) => (
+            None,
+            format!("the board was not found in {}", pair.left.display()),
+        ),
         None => (None, "no reference pair (left_ref/right_ref)".into()),
     };
+
+    // How sure all this is, at the finger's distance: the reference board's centre (the
+    // finger's base), else the median of the boards' centres.
+    let poses = uncertainty::board_poses(board, &rig.cams, &left, &right)?;
+    let centre = |pose: &CamFromBoard| pose.apply(&board.centre()).coords;
+    let at = match reference {
+        Some((_, Some(corners))) => (
+            centre(&board_pose(board, &rig.cams.left, corners)?),
+            "the reference board's centre".to_string(),
+        ),
+        _ => (
+            crate::stats::median_point(&poses.iter().map(centre).collect::<Vec<_>>()),
+            "the median of the boards' centres (no reference pair)".to_string(),
+        ),
+    };
+    // Known intrinsics fix both cameras' (see [`stereo`]).
+    let solved = options.intrinsics.iter().all(Option::is_none);
+    let free = [solved, solved];
+    let uncertainty = uncertainty::estimate(board, &rig.cams, free, &left, &right, &poses, at)?;
+    let bootstrap = (options.bootstrap > 0)
+        .then(|| bootstrap(board, size, &usable, options, &rig.cams))
+        .transpose()?;
+    let guidance = guidance::advise(&rig.cams, &left, &right, &poses, uncertainty.as_ref());
 
     Ok(StereoCalibration {
         board: *board,
@@ -445,8 +504,10 @@ pub fn calibrate(
         q,
         rms_px: rig.rms,
         epipolar_px,
-        coverage,
         board_check,
+        uncertainty,
+        bootstrap,
+        guidance,
         pairs: reports,
         unpaired: listing.unpaired.clone(),
         hand_axes,
@@ -558,6 +619,62 @@ fn order_right_like_left(
     }
     let reversed: Vec<[f32; 2]> = right.iter().rev().copied().collect();
     agrees(&reversed).then_some((reversed, true))
+}
+
+/// [`Bootstrap`]: `options.bootstrap` recalibrations of `usable` drawn with replacement,
+/// their spread about `rig`.
+fn bootstrap(
+    board: &BoardSpec,
+    size: [i32; 2],
+    usable: &[Usable],
+    options: &CalibOptions,
+    rig: &StereoRig,
+) -> Result<Bootstrap, CalibError> {
+    use rand::{Rng, SeedableRng};
+    let fits: Vec<StereoRig> = (0..options.bootstrap)
+        .into_par_iter()
+        .map(|round| {
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(options.seed);
+            rng.set_stream(round as u64);
+            let drawn: Vec<Usable> = (0..usable.len())
+                .map(|_| usable[rng.random_range(0..usable.len())].clone())
+                .collect();
+            Ok(stereo(board, size, &drawn, &options.intrinsics)?.cams)
+        })
+        .collect::<Result<_, CalibError>>()?;
+    let sd = |value: &dyn Fn(&StereoRig) -> f64| {
+        let values: Vec<f64> = fits.iter().map(value).collect();
+        crate::stats::mean_sd(&values).map_or(0.0, |(_, sd)| sd)
+    };
+    let camera = |c: usize| -> [f64; 9] {
+        std::array::from_fn(|i| {
+            sd(&|fit: &StereoRig| {
+                let cam = [&fit.left, &fit.right][c];
+                const K: [usize; 4] = [0, 4, 2, 5];
+                if i < 4 {
+                    cam.k[K[i]]
+                } else {
+                    cam.dist.get(i - 4).copied().unwrap_or(0.0)
+                }
+            })
+        })
+    };
+    let solved = options.intrinsics.iter().all(Option::is_none);
+    let turn = |fit: &StereoRig| {
+        (rig.right_from_left.rotation.inverse() * fit.right_from_left.rotation).scaled_axis()
+    };
+    Ok(Bootstrap {
+        rounds: options.bootstrap,
+        seed: options.seed,
+        parameters: uncertainty::ParameterSd {
+            intrinsics: [solved.then(|| camera(0)), solved.then(|| camera(1))],
+            translation_mm: std::array::from_fn(|a| {
+                sd(&|fit: &StereoRig| fit.right_from_left.translation[a])
+            }),
+            baseline_mm: sd(&|fit: &StereoRig| fit.right_from_left.translation.norm()),
+            rotation_deg: std::array::from_fn(|a| sd(&|fit: &StereoRig| turn(fit)[a].to_degrees())),
+        },
+    })
 }
 
 /// The OpenCV results of one stereo calibration.

@@ -5,6 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::bail;
 
+use handcap::calib::uncertainty::{self, ParameterSd};
 use handcap::calib::{file, CalibOptions};
 use handcap::pipeline::calibrate::{self, Calibrated};
 
@@ -31,6 +32,13 @@ pub struct Args {
     /// solved; `-` for a camera to solve (e.g. `--intrinsics left.yml,-`)
     #[arg(long, value_delimiter = ',', num_args = 1)]
     intrinsics: Vec<PathBuf>,
+    /// Also find the standard deviations by recalibrating N times on the pairs drawn with
+    /// replacement (a check of the covariance's, about N × 0.1 s)
+    #[arg(long, default_value_t = 0)]
+    bootstrap: usize,
+    /// Seed of the bootstrap's draws
+    #[arg(long, default_value_t = CalibOptions::default().seed)]
+    seed: u64,
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
@@ -52,6 +60,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let options = CalibOptions {
         min_pairs: a.min_pairs,
         intrinsics,
+        bootstrap: a.bootstrap,
+        seed: a.seed,
         ..CalibOptions::default()
     };
     let done = super::with_session(|s| {
@@ -96,21 +106,81 @@ pub fn print_summary(done: &Calibrated) {
             _ => {}
         }
     }
+    let baseline = c.rig.right_from_left.translation.norm();
     println!(
-        "RMS {:.3} px, epipolar {:.3} px, baseline {:.2} mm, f {:.1}/{:.1} px",
+        "RMS {:.3} px, epipolar {:.3} px, baseline {baseline:.2} mm, f {:.1}/{:.1} px",
         c.rms_px,
         c.epipolar_px,
-        c.rig.right_from_left.translation.norm(),
         c.rig.left.fx(),
         c.rig.right.fx()
     );
+    let parameters = |sd: &ParameterSd| {
+        let camera = |sd: Option<[f64; 9]>| match sd {
+            Some(sd) => format!(
+                "fx ±{:.2} fy ±{:.2} cx ±{:.2} cy ±{:.2} px",
+                sd[0], sd[1], sd[2], sd[3]
+            ),
+            None => "fixed".into(),
+        };
+        let [rx, ry, rz] = sd.rotation_deg;
+        format!(
+            "left {}; right {}; baseline ±{:.3} mm ({:.3} %), rotation ±{rx:.3}/{ry:.3}/{rz:.3}° about x/y/z",
+            camera(sd.intrinsics[0]),
+            camera(sd.intrinsics[1]),
+            sd.baseline_mm,
+            100.0 * sd.baseline_mm / baseline
+        )
+    };
+    match &c.uncertainty {
+        Some(u) => {
+            println!(
+                "1 sd (covariance of the fit, corners ±{:.3} px): {}",
+                u.corner_sd_px,
+                parameters(&u.parameters)
+            );
+            let t = &u.tip;
+            let axes = |v: [f64; 3]| format!("±{:.3}/{:.3}/{:.3} mm", v[0], v[1], v[2]);
+            println!(
+                "tip at {} ({:.0} mm away), x/y/depth: position {} and a {} mm move {} from the calibration; {} per {} px of marker noise",
+                u.at,
+                nalgebra::Vector3::from(u.at_mm).norm(),
+                axes(t.position),
+                uncertainty::DISPLACEMENT_MM,
+                axes(t.displacement),
+                axes(t.marker),
+                uncertainty::MARKER_NOISE_PX
+            );
+        }
+        None => println!("{}", file::uncertainty_note(c)),
+    }
+    if let Some(b) = &c.bootstrap {
+        println!(
+            "1 sd (bootstrap, {} rounds, seed {}): {}",
+            b.rounds,
+            b.seed,
+            parameters(&b.parameters)
+        );
+    }
+    let g = &c.guidance;
+    let coverage = g.coverage();
     println!(
-        "coverage {:.0} % / {:.0} % of the image; boards triangulate to {:.4} ± {:.4} squares, {:.3} mm off-plane RMS",
-        100.0 * c.coverage[0],
-        100.0 * c.coverage[1],
+        "coverage {:.0} % / {:.0} % of the image (left / right, # = corners seen); board tilt sd {:.0}° about x, {:.0}° about y",
+        100.0 * coverage[0],
+        100.0 * coverage[1],
+        g.tilt_sd_deg[0],
+        g.tilt_sd_deg[1]
+    );
+    for (l, r) in g.map(0).iter().zip(g.map(1)) {
+        println!("  {l}  {r}");
+    }
+    println!(
+        "boards triangulate to {:.4} ± {:.4} squares, {:.3} mm off-plane RMS",
         c.board_check.neighbour_mean_squares,
         c.board_check.neighbour_sd_squares,
         c.board_check.planarity_rms_mm
     );
     println!("hand axes: {}", c.hand_axes_note);
+    for a in &g.advice {
+        println!("advice: {a}");
+    }
 }

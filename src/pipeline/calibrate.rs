@@ -116,7 +116,8 @@ pub fn run(
     let result = calib::calibrate(dir, board, options, &session.counter(Task::Detect));
     session.emit(super::Event::Finished(Task::Detect));
     let calibration = result?;
-    let yaml = file::calibration_yaml(&calibration, &session.provenance(None));
+    let seed = (options.bootstrap > 0).then_some(options.seed);
+    let yaml = file::calibration_yaml(&calibration, &session.provenance(seed));
     fsio::write_bytes(out, yaml.as_bytes()).map_err(io_error(out))?;
     let toml = file::toml_path(out);
     fsio::write_bytes(&toml, file::anipose_toml(&calibration).as_bytes())

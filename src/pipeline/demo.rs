@@ -124,6 +124,11 @@ pub struct CalibrationCheck {
     pub baseline_error_pct: f64,
     pub rotation_error_deg: f64,
     pub hand_axes_error_deg: Option<f64>,
+    /// The calibration's own standard deviation of the baseline (%), and of the tip.
+    pub baseline_sd_pct: Option<f64>,
+    pub tip_sd: Option<crate::calib::uncertainty::PointSd>,
+    /// What the calibration advises capturing next.
+    pub advice: Vec<String>,
 }
 
 /// Triangulated tips against the truth, per phase.
@@ -532,6 +537,12 @@ fn check_calibration(cal: &StereoCalibration, truth: &CalibrationFile) -> Calibr
             .hand_axes
             .zip(truth.r_hand)
             .map(|(g, w)| (g.inverse() * w).angle().to_degrees()),
+        baseline_sd_pct: cal
+            .uncertainty
+            .as_ref()
+            .map(|u| 100.0 * u.parameters.baseline_mm / gt.norm()),
+        tip_sd: cal.uncertainty.as_ref().map(|u| u.tip),
+        advice: cal.guidance.advice.clone(),
     }
 }
 

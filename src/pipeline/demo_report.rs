@@ -70,6 +70,17 @@ pub(super) fn page(
             c.pairs_used, c.rms_px, c.epipolar_px, c.intrinsics_error_pct, c.baseline_error_pct, c.rotation_error_deg,
             c.hand_axes_error_deg.map_or("(no reference pair)".into(), |d| format!("{d:.4}°"))
         ))
+        .paragraph(&match (c.baseline_sd_pct, &c.tip_sd) {
+            (Some(b), Some(t)) => {
+                let axes = |v: [f64; 3]| format!("±{:.3} / {:.3} / {:.3} mm", v[0], v[1], v[2]);
+                format!(
+                    "How sure the calibration says it is (1 sd, from the covariance of its fit): baseline ±{b:.3} %. At the reference board (the finger's base), along x / y / depth: a tip's position {}, a 10 mm move of it {}; 0.1 px of marker noise in each image moves it {}. {}",
+                    axes(t.position), axes(t.displacement), axes(t.marker),
+                    if c.advice.is_empty() { "Nothing more to capture.".to_string() } else { format!("Advice: {}.", c.advice.join("; ")) }
+                )
+            }
+            _ => "The calibration reports no standard deviations.".into(),
+        })
         .figure(&out.join("calib_pairs.svg"), "Reprojection error of each chessboard pair (left and right image).")
         .figure(&out.join("calib_rectified.png"), "A pair rectified with the calibration: corresponding points lie on the same horizontal line.");
 

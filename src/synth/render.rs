@@ -718,8 +718,7 @@ mod tests {
             let n: Vec<f64> = (0..20000)
                 .map(|k| f64::from(pixel_noise(42, k)[c]))
                 .collect();
-            let mean = n.iter().sum::<f64>() / n.len() as f64;
-            let sd = (n.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n.len() as f64).sqrt();
+            let (mean, sd) = crate::stats::mean_sd(&n).unwrap();
             assert!(mean.abs() < 0.03 && (sd - 1.0).abs() < 0.03, "{mean} {sd}");
         }
         // Channels are independent of each other.

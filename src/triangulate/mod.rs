@@ -652,9 +652,7 @@ fn epipolar_residuals(
             (line[0] * r[0] + line[1] * r[1] + line[2]) / line[0].hypot(line[1])
         })
         .collect();
-    let n = d.len() as f64;
-    let mean = d.iter().sum::<f64>() / n;
-    let sd = (d.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n).sqrt();
+    let (mean, sd) = crate::stats::mean_sd(&d).unwrap_or_default();
     Ok([
         mean,
         sd,

@@ -8,8 +8,8 @@ use opencv::imgcodecs;
 use opencv::prelude::*;
 
 use crate::common::{
-    handcap, handcap_err, handcap_ok, handcap_usage, read_rig, small_capture, tempdir,
-    tip_rms_against_truth, YamlRig,
+    capture_with, handcap, handcap_err, handcap_ok, handcap_usage, read_rig, small_capture,
+    tempdir, tip_rms_against_truth, YamlRig,
 };
 
 fn at(m: &opencv::core::Mat, r: i32, c: i32) -> f64 {
@@ -190,9 +190,31 @@ fn calibrates_the_synthetic_rig_within_tolerance_and_rejects_a_corrupted_pair() 
         "views_rejected:",
         "R_hand:",
         "command:",
+        "K1_sd:",
+        "D2_sd:",
+        "T_sd:",
+        "baseline_sd_mm:",
+        "R_sd_deg:",
+        "tip_sd_mm:",
+        "tip_move_sd_mm:",
+        "tip_sd_marker_mm:",
+        "coverage_cells_left:",
+        "tilt_sd_deg:",
+        "advice:",
     ] {
         assert!(yaml.contains(key), "{key} missing");
     }
+    // The deviations are said, and so is what to capture next: these ten boards leave image
+    // corners empty.
+    assert!(out.contains("1 sd (covariance of the fit"), "{out}");
+    assert!(
+        out.contains("advice: no board reached the image's"),
+        "{out}"
+    );
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("cal.json")).unwrap()).unwrap();
+    assert!(json["K1_sd"][0][0].as_f64().unwrap() > 0.0);
+    assert!(json["baseline_sd_mm"].as_f64().unwrap() > 0.0);
 
     // The calibration, its hand axes included, puts the triangulated tip where the truth is.
     handcap_ok(
@@ -463,8 +485,14 @@ fn known_intrinsics_are_kept_and_the_pose_is_at_least_as_close() {
         read_rig(&d.join("free.yml")),
         read_rig(&d.join("fixed.yml")),
     );
-    // Fixed means fixed: the files' values, not refined.
+    // Fixed means fixed: the files' values, not refined, and no deviations for them.
     assert_eq!(mat(&fixed.k1), mat(&truth.k1));
+    let text = std::fs::read_to_string(d.join("fixed.yml")).unwrap();
+    assert!(
+        !text.contains("K1_sd:") && !text.contains("K2_sd:"),
+        "{text}"
+    );
+    assert!(text.contains("baseline_sd_mm:"), "{text}");
     assert_eq!(mat(&fixed.d2), mat(&truth.d2));
     let off = |rig: &YamlRig| (rig.t - truth.t).norm();
     assert!(
@@ -525,4 +553,176 @@ fn known_intrinsics_are_kept_and_the_pose_is_at_least_as_close() {
     }
     let msg = handcap_usage(d, &["calibrate", "calib", "--intrinsics", "left.yml"]);
     assert!(msg.contains("LEFT,RIGHT"), "{msg}");
+}
+
+/// Renders only what calibrating needs, ideal PNG frames: `views` board pairs and the
+/// reference, with as few finger frames as a capture can have (one per step, 14 steps).
+fn board_capture(dir: &Path, seed: u64, views: usize) {
+    let synth = handcap::synth::SynthConfig {
+        seed,
+        grid_step_kpa: 250.0,
+        sweep_step_kpa: 125.0,
+        ..handcap::synth::SynthConfig::default()
+    };
+    let config = handcap::synth::capture::CaptureConfig {
+        views,
+        window_s: [0.10, 0.12],
+        format: handcap::synth::render::ImageFormat::Png,
+        realism: handcap::synth::capture::Realism::CLEAN,
+        ..handcap::synth::capture::CaptureConfig::default()
+    };
+    capture_with(dir, &synth, &config);
+}
+
+/// Seeds the deviation test renders; 20 for the figures in the README (`SEEDS=20`).
+const DEVIATION_SEEDS: u64 = 8;
+
+#[test]
+fn reported_deviations_match_the_spread_over_seeds() {
+    use handcap::calib::{calibrate, file, CalibOptions};
+    use nalgebra::Vector3;
+    let seeds: u64 = std::env::var("SEEDS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(DEVIATION_SEEDS);
+    // Per quantity: the errors against the truth, and the deviations reported.
+    let names = [
+        "fx left",
+        "fy left",
+        "cx left",
+        "cy left",
+        "fx right",
+        "cx right",
+        "baseline",
+        "rotation x",
+        "rotation y",
+        "rotation z",
+        "tip x",
+        "tip y",
+        "tip depth",
+        "move x",
+        "move y",
+        "move depth",
+    ];
+    let mut errors = vec![Vec::new(); names.len()];
+    let mut reported = vec![Vec::new(); names.len()];
+    for seed in 0..seeds {
+        let dir = tempdir();
+        let d = dir.path();
+        board_capture(d, 100 + seed, 10);
+        let board = file::read_board(&d.join("calib/board.yml")).unwrap();
+        // The first capture is also bootstrapped, to check the two estimates against each other.
+        let options = CalibOptions {
+            bootstrap: if seed == 0 { 60 } else { 0 },
+            ..CalibOptions::default()
+        };
+        let cal = calibrate(&d.join("calib"), &board, &options, &|_, _| {}).unwrap();
+        if let (Some(b), Some(u)) = (&cal.bootstrap, &cal.uncertainty) {
+            let (b, u) = (&b.parameters, &u.parameters);
+            let pairs = [
+                (
+                    "fx left",
+                    b.intrinsics[0].unwrap()[0],
+                    u.intrinsics[0].unwrap()[0],
+                ),
+                (
+                    "fy left",
+                    b.intrinsics[0].unwrap()[1],
+                    u.intrinsics[0].unwrap()[1],
+                ),
+                (
+                    "fx right",
+                    b.intrinsics[1].unwrap()[0],
+                    u.intrinsics[1].unwrap()[0],
+                ),
+                ("baseline", b.baseline_mm, u.baseline_mm),
+                (
+                    "rotation",
+                    nalgebra::Vector3::from(b.rotation_deg).norm(),
+                    nalgebra::Vector3::from(u.rotation_deg).norm(),
+                ),
+            ];
+            for (name, boot, cov) in pairs {
+                println!("bootstrap {name}: {boot:.5} against {cov:.5} from the covariance");
+                assert!(
+                    (0.5..=2.0).contains(&(boot / cov)),
+                    "{name}: bootstrap {boot} against covariance {cov}"
+                );
+            }
+        }
+        let truth = file::read_calibration(&d.join("truth/rig.yml")).unwrap();
+        let (est, tru) = (&cal.rig, &truth.rig);
+        let u = cal.uncertainty.as_ref().expect("deviations");
+        let [l, r] = [
+            u.parameters.intrinsics[0].unwrap(),
+            u.parameters.intrinsics[1].unwrap(),
+        ];
+        let rotation =
+            (tru.right_from_left.rotation.inverse() * est.right_from_left.rotation).scaled_axis();
+        // The tip at rest (the hand frame's origin) and 10 mm moves of it, in the true left
+        // camera's frame, seen by the true cameras and triangulated with the calibration.
+        let hand = truth.r_hand.unwrap();
+        let tip = -(hand.inverse() * truth.t_hand.unwrap());
+        let located = |p: Vector3<f64>| {
+            let p = nalgebra::Point3::from(p);
+            let left = tru.left.pixel(&p).unwrap();
+            let right = tru.right.pixel(&tru.right_from_left.apply(&p)).unwrap();
+            est.triangulate(&[left], &[right]).unwrap()[0] - p.coords
+        };
+        let at_tip = located(tip);
+        let sd = u.point_sd(est, &tip).unwrap();
+        let moved: Vec<Vector3<f64>> = (0..3)
+            .map(|k| {
+                let mut away = tip;
+                away[k] += handcap::calib::uncertainty::DISPLACEMENT_MM;
+                located(away) - at_tip
+            })
+            .collect();
+        let values = [
+            (est.left.fx() - tru.left.fx(), l[0]),
+            (est.left.fy() - tru.left.fy(), l[1]),
+            (est.left.cx() - tru.left.cx(), l[2]),
+            (est.left.cy() - tru.left.cy(), l[3]),
+            (est.right.fx() - tru.right.fx(), r[0]),
+            (est.right.cx() - tru.right.cx(), r[2]),
+            (
+                est.right_from_left.translation.norm() - tru.right_from_left.translation.norm(),
+                u.parameters.baseline_mm,
+            ),
+            (rotation.x.to_degrees(), u.parameters.rotation_deg[0]),
+            (rotation.y.to_degrees(), u.parameters.rotation_deg[1]),
+            (rotation.z.to_degrees(), u.parameters.rotation_deg[2]),
+            (at_tip.x, sd.position[0]),
+            (at_tip.y, sd.position[1]),
+            (at_tip.z, sd.position[2]),
+        ];
+        for (k, (e, s)) in values.into_iter().enumerate() {
+            errors[k].push(e);
+            reported[k].push(s);
+        }
+        // The moves: the largest over the three directions, as reported.
+        for axis in 0..3 {
+            let k = values.len() + axis;
+            errors[k].push(
+                moved
+                    .iter()
+                    .map(|m| m[axis])
+                    .fold(0.0, |a: f64, b| a.max(b.abs())),
+            );
+            reported[k].push(sd.displacement[axis]);
+        }
+    }
+    let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt();
+    let mut table = String::new();
+    let mut off = Vec::new();
+    for (k, name) in names.iter().enumerate() {
+        let (measured, predicted) = (rms(&errors[k]), rms(&reported[k]));
+        let ratio = measured / predicted;
+        table += &format!("{name:>12}: error RMS {measured:.5}, reported sd RMS {predicted:.5}, ratio {ratio:.2}\n");
+        if !(0.5..=2.0).contains(&ratio) {
+            off.push(*name);
+        }
+    }
+    println!("over {seeds} seeds\n{table}");
+    assert!(off.is_empty(), "not within a factor of 2: {off:?}\n{table}");
 }

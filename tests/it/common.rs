@@ -125,17 +125,26 @@ pub fn capture_as(
         realism,
         ..handcap::synth::capture::CaptureConfig::default()
     };
-    let provenance = handcap::provenance::Provenance::new(vec!["test".into()], Some(seed));
+    capture_with(dir, &synth, &config);
+}
+
+/// Renders the capture `synth` and `config` describe in `dir`, whole.
+pub fn capture_with(
+    dir: &Path,
+    synth: &handcap::synth::SynthConfig,
+    config: &handcap::synth::capture::CaptureConfig,
+) {
+    let provenance = handcap::provenance::Provenance::new(vec!["test".into()], Some(synth.seed));
     let summary = handcap::synth::capture::write_capture(
         dir,
-        &synth,
-        &config,
+        synth,
+        config,
         &provenance,
         &|_, _| {},
         &std::sync::atomic::AtomicBool::new(false),
     )
     .expect("capture");
-    assert_eq!(summary.board_pairs, views);
+    assert_eq!(summary.board_pairs, config.views);
     assert!(!summary.interrupted);
 }
 
