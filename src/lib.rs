@@ -41,3 +41,4 @@ pub mod stats;
 pub mod stereo;
 pub mod synth;
 pub mod triangulate;
+pub mod video;

@@ -54,6 +54,10 @@ pub struct Args {
     /// Relative amplitude of a slow exposure drift (0: exposure locked)
     #[arg(long, default_value_t = 0.0)]
     exposure_drift: f64,
+    /// The finger's frames as two Motion-JPEG videos, frames/left.avi and frames/right.avi
+    /// (frame numbers in frames.csv are positions in them), as a lab records with OBS or ffmpeg
+    #[arg(long)]
+    video: bool,
     #[command(flatten)]
     frames: FrameArgs,
 }
@@ -160,6 +164,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         },
         exposure_drift: a.exposure_drift,
         format,
+        video: a.video,
         realism,
         ..CaptureConfig::default()
     });

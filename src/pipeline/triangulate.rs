@@ -50,6 +50,7 @@ fn check_outputs(
     let inputs: Vec<&Path> = [calib, pressures, index.as_path()]
         .into_iter()
         .chain(listed.paths.iter().flatten().map(PathBuf::as_path))
+        .chain(listed.videos.iter().flatten().map(PathBuf::as_path))
         .collect();
     let mut planned = vec![Output::new(out, "--out")];
     if let Some(col) = log.extra_columns.iter().position(|c| c == "phase") {

@@ -40,7 +40,7 @@
 //! board z = hand +y, away from the cameras). From it, `calibrate` recovers the hand frame's
 //! axes in the left camera; the origin (the tip at zero pressure) comes from the frames.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use nalgebra::{Matrix3, Point3, Rotation3, Unit, Vector3};
@@ -76,6 +76,9 @@ pub struct CaptureConfig {
     /// Relative amplitude of a slow exposure drift (0 = locked exposure).
     pub exposure_drift: f64,
     pub format: ImageFormat,
+    /// The finger's frames as one Motion-JPEG video per camera (`frames/left.avi`,
+    /// `right.avi`; frame numbers are positions in them) instead of images.
+    pub video: bool,
     /// What makes the frames as hard as a real webcam's.
     pub realism: Realism,
 }
@@ -131,6 +134,7 @@ impl Default for CaptureConfig {
             settle_tau_s: 0.02,
             exposure_drift: 0.0,
             format: ImageFormat::WEBCAM,
+            video: false,
             realism: Realism::LAB,
         }
     }
@@ -161,6 +165,16 @@ enum Shot {
         exposure_s: f64,
     },
 }
+
+/// A shot rendered as the camera delivers it (8-bit RGB), and where its image file goes.
+struct Rendered {
+    path: PathBuf,
+    size: [u32; 2],
+    rgb: Vec<u8>,
+}
+
+/// Renders shot `id`.
+type RenderShot<'a> = dyn Fn(usize, &Shot) -> Result<Rendered, SynthError> + Sync + 'a;
 
 /// One camera frame kept by the capture computer.
 struct FrameRecord {
@@ -284,58 +298,80 @@ pub fn write_capture(
     let ext = config.format.extension();
     let total = shots.len();
     let done = std::sync::atomic::AtomicUsize::new(0);
-    let written: Vec<Result<bool, SynthError>> = shots
+    let render = |id: usize, shot: &Shot| -> Result<Rendered, SynthError> {
+        let (side, path, canvas, time) = match shot {
+            Shot::Board {
+                camera,
+                name,
+                board,
+            } => {
+                let view = &views[*camera as usize];
+                let path = dir.join(format!("calib/{}_{name}.{ext}", camera.name()));
+                (*camera, path, view.board(all_boards[*board]), 0.0)
+            }
+            Shot::Frame {
+                camera,
+                index,
+                exposure_s,
+            } => {
+                let view = &views[*camera as usize];
+                let poses = finger_poses(config, &plant, &steps, &view.camera, *exposure_s)?;
+                let mut canvas = view.finger(&poses);
+                if let Some(angle) = occluder(synth.seed, config, *camera, *index) {
+                    let tip = plant.tip(pressure_at(config, &steps, *exposure_s))?;
+                    if let Some(through) = view.camera.project(&Point3::from(tip)) {
+                        view.occlude(&mut canvas, through, angle);
+                    }
+                }
+                let path = dir.join(format!("frames/{}_{index:05}.{ext}", camera.name()));
+                (*camera, path, canvas, *exposure_s)
+            }
+        };
+        // A slow drift of the auto-exposure and the lights' 100 Hz flicker.
+        let phase = side as u8 as f64;
+        let gain = (1.0
+            + config.exposure_drift * (std::f64::consts::TAU * time / 20.0 + phase).sin())
+            * (1.0 + realism.flicker * (std::f64::consts::TAU * 100.0 * time + phase).sin());
+        let size = [canvas.width as u32, canvas.height as u32];
+        let rgb = canvas.develop(gain, synth.seed, id as u64);
+        Ok(Rendered { path, size, rgb })
+    };
+    let counted = || progress(done.fetch_add(1, Ordering::SeqCst) + 1, total);
+    // Images: each shot rendered, encoded and written on its own; with `video`, the finger's
+    // frames go to each camera's video instead, in order, rendered a chunk at a time.
+    let boards_only = if config.video {
+        2 * all_boards.len()
+    } else {
+        total
+    };
+    let written: Vec<Result<bool, SynthError>> = shots[..boards_only]
         .par_iter()
         .enumerate()
         .map(|(id, shot)| {
             if interrupt.load(Ordering::SeqCst) {
                 return Ok(false);
             }
-            let (side, path, canvas, time) = match shot {
-                Shot::Board {
-                    camera,
-                    name,
-                    board,
-                } => {
-                    let view = &views[*camera as usize];
-                    let path = dir.join(format!("calib/{}_{name}.{ext}", camera.name()));
-                    (*camera, path, view.board(all_boards[*board]), 0.0)
-                }
-                Shot::Frame {
-                    camera,
-                    index,
-                    exposure_s,
-                } => {
-                    let view = &views[*camera as usize];
-                    let poses = finger_poses(config, &plant, &steps, &view.camera, *exposure_s)?;
-                    let mut canvas = view.finger(&poses);
-                    if let Some(angle) = occluder(synth.seed, config, *camera, *index) {
-                        let tip = plant.tip(pressure_at(config, &steps, *exposure_s))?;
-                        if let Some(through) = view.camera.project(&Point3::from(tip)) {
-                            view.occlude(&mut canvas, through, angle);
-                        }
-                    }
-                    let path = dir.join(format!("frames/{}_{index:05}.{ext}", camera.name()));
-                    (*camera, path, canvas, *exposure_s)
-                }
-            };
-            // A slow drift of the auto-exposure and the lights' 100 Hz flicker.
-            let phase = side as u8 as f64;
-            let gain = (1.0
-                + config.exposure_drift * (std::f64::consts::TAU * time / 20.0 + phase).sin())
-                * (1.0 + realism.flicker * (std::f64::consts::TAU * 100.0 * time + phase).sin());
-            let (w, h) = (canvas.width as u32, canvas.height as u32);
-            let rgb = canvas.develop(gain, synth.seed, id as u64);
-            let bytes = config.format.encode(w, h, &rgb);
+            let Rendered { path, size, rgb } = render(id, shot)?;
+            let bytes = config.format.encode(size[0], size[1], &rgb);
             fsio::write_bytes(&path, &bytes).map_err(io_err(&path))?;
-            let n = done.fetch_add(1, Ordering::SeqCst) + 1;
-            progress(n, total);
+            counted();
             Ok(true)
         })
         .collect();
     let mut complete = true;
     for w in written {
         complete &= w?;
+    }
+    if config.video && complete {
+        complete = write_videos(
+            dir,
+            config,
+            &shots,
+            boards_only,
+            &render,
+            &counted,
+            interrupt,
+        )?;
     }
     Ok(CaptureSummary {
         board_pairs: boards.len(),
@@ -344,6 +380,54 @@ pub fn write_capture(
         right_frames: frames.iter().filter(|f| f.camera == Side::Right).count(),
         interrupted: !complete,
     })
+}
+
+/// The finger's frames (`shots[first..]`) as `frames/left.avi` and `frames/right.avi`,
+/// Motion-JPEG at the format's quality; `false` when interrupted (no video is then left).
+fn write_videos(
+    dir: &Path,
+    config: &CaptureConfig,
+    shots: &[Shot],
+    first: usize,
+    render: &RenderShot,
+    counted: &(dyn Fn() + Sync),
+    interrupt: &AtomicBool,
+) -> Result<bool, SynthError> {
+    let quality = match config.format {
+        ImageFormat::Jpeg { quality, .. } => quality,
+        ImageFormat::Png => 95,
+    };
+    let size = [config.rig.width, config.rig.height];
+    for camera in [Side::Left, Side::Right] {
+        let path = dir.join(format!("frames/{}.avi", camera.name()));
+        let failed = |why: String| SynthError::Write {
+            path: path.clone(),
+            source: std::io::Error::other(why),
+        };
+        let mut writer =
+            crate::video::MjpegWriter::create(&path, config.fps, size, quality).map_err(failed)?;
+        let mine: Vec<(usize, &Shot)> = shots
+            .iter()
+            .enumerate()
+            .skip(first)
+            .filter(|(_, s)| matches!(s, Shot::Frame { camera: c, .. } if *c == camera))
+            .collect();
+        for chunk in mine.chunks(32) {
+            if interrupt.load(Ordering::SeqCst) {
+                return Ok(false);
+            }
+            let frames = chunk
+                .par_iter()
+                .map(|&(id, shot)| render(id, shot).map(|r| r.rgb))
+                .collect::<Result<Vec<_>, _>>()?;
+            for rgb in frames {
+                writer.write(&rgb).map_err(|e| failed(e.message))?;
+                counted();
+            }
+        }
+        writer.finish().map_err(failed)?;
+    }
+    Ok(true)
 }
 
 impl CaptureConfig {

@@ -1,6 +1,7 @@
 //! The frames of a capture: `frames.csv` (`frame,camera,time_s`) and the images it names,
-//! `left_NNNNN.png` / `right_NNNNN.png` (or `.jpg`), as `synth` writes them and a capture script
-//! should.
+//! `left_NNNNN.png` / `right_NNNNN.png` (or `.jpg`), as `synth` and `capture` write them; or,
+//! instead of images, one video per camera, `left.<avi|mkv|mp4|mov>` and `right.<…>`, where a
+//! frame's number is its position in its camera's video ([`crate::video`]).
 
 use std::collections::HashSet;
 use std::path::{Path, PathBuf};
@@ -89,26 +90,152 @@ pub fn frame_path(dir: &Path, f: &FrameRecord) -> Option<PathBuf> {
         .find(|p| p.is_file())
 }
 
-/// A session's frames: the records of `frames.csv` and each one's image file (`None` when
-/// there is none), read once for the output check and the run.
+/// A session's frames: the records of `frames.csv` and where each one's image is, read once
+/// for the output check and the run.
 #[derive(Clone, Debug)]
 pub struct FrameList {
     pub records: Vec<FrameRecord>,
+    /// Each record's image file (`None` when there is none); all `None` for videos.
     pub paths: Vec<Option<PathBuf>>,
+    /// The left and right camera's videos, when the frames are in videos.
+    pub videos: Option<[PathBuf; 2]>,
 }
 
 impl FrameList {
-    /// Reads `dir/frames.csv` and finds each frame's image.
+    /// Reads `dir/frames.csv` and finds each frame's image, or the two videos.
     ///
     /// # Errors
-    /// As [`read_frame_list`], and [`TriangulateError::NoImages`] when no frame has an image.
+    /// As [`read_frame_list`], and [`TriangulateError::NoImages`] when no frame has an image
+    /// and there are no videos.
     pub fn read(dir: &Path) -> Result<Self, TriangulateError> {
         let records = read_frame_list(dir)?;
         let paths: Vec<Option<PathBuf>> = records.iter().map(|f| frame_path(dir, f)).collect();
-        if paths.iter().all(Option::is_none) {
-            return Err(TriangulateError::NoImages(dir.to_path_buf()));
+        if paths.iter().any(Option::is_some) {
+            return Ok(FrameList {
+                records,
+                paths,
+                videos: None,
+            });
         }
-        Ok(FrameList { records, paths })
+        match (
+            crate::video::find(dir, "left"),
+            crate::video::find(dir, "right"),
+        ) {
+            (Some(left), Some(right)) => Ok(FrameList {
+                records,
+                paths,
+                videos: Some([left, right]),
+            }),
+            _ => Err(TriangulateError::NoImages(dir.to_path_buf())),
+        }
+    }
+
+    /// The order to read the records in: as listed for images; for videos, each camera's
+    /// frames by number (a video is read once, front to back).
+    pub fn reading_order(&self) -> Vec<usize> {
+        let mut order: Vec<usize> = (0..self.records.len()).collect();
+        if self.videos.is_some() {
+            order.sort_by_key(|&i| (self.records[i].camera as u8, self.records[i].index));
+        }
+        order
+    }
+
+    /// A reader of the frames' data, in [`FrameList::reading_order`].
+    ///
+    /// # Errors
+    /// A video that cannot be opened.
+    pub fn reader(&self) -> Result<FrameReader<'_>, TriangulateError> {
+        let videos = match &self.videos {
+            Some([left, right]) => {
+                let open = |path: &PathBuf| {
+                    crate::video::VideoReader::open(path).map_err(|why| TriangulateError::Video {
+                        path: path.clone(),
+                        message: format!(
+                            "{why}; give a video FFmpeg reads, or the frames as images"
+                        ),
+                    })
+                };
+                Some([open(left)?, open(right)?])
+            }
+            None => None,
+        };
+        Ok(FrameReader { list: self, videos })
+    }
+}
+
+/// One frame's data, as [`FrameReader::read`] gives it to a worker.
+pub enum FrameData<'a> {
+    /// An image file to read.
+    File(&'a Path),
+    /// No image for this record.
+    Missing,
+    /// A frame out of a video.
+    Video(crate::video::Frame),
+}
+
+/// Hands out each record's frame: image files by path, video frames read in order.
+pub struct FrameReader<'a> {
+    list: &'a FrameList,
+    videos: Option<[crate::video::VideoReader; 2]>,
+}
+
+impl<'a> FrameReader<'a> {
+    /// Record `i`'s frame; for videos, records must come in [`FrameList::reading_order`].
+    ///
+    /// # Errors
+    /// [`TriangulateError::Video`] when the video ends before the frame (`frames.csv` lists more
+    /// frames than the video has) or cannot be read.
+    pub fn read(&mut self, i: usize) -> Result<FrameData<'a>, TriangulateError> {
+        let list: &'a FrameList = self.list;
+        let Some(videos) = &mut self.videos else {
+            return Ok(list.paths[i]
+                .as_deref()
+                .map_or(FrameData::Missing, FrameData::File));
+        };
+        let record = &list.records[i];
+        let side = record.camera as usize;
+        let path = &list.videos.as_ref().expect("videos")[side];
+        let video = &mut videos[side];
+        let failed = |e: opencv::Error| TriangulateError::Video {
+            path: path.clone(),
+            message: e.message,
+        };
+        let short = |video: &crate::video::VideoReader| {
+            TriangulateError::Video {
+            path: path.clone(),
+            message: format!(
+                "the video ends after {} frames but frames.csv line {} lists {} frame {}; give the frames.csv of this recording",
+                video.position,
+                record.line,
+                record.camera.name(),
+                record.index
+            ),
+        }
+        };
+        while video.position < record.index {
+            if !video.skip().map_err(failed)? {
+                return Err(short(video));
+            }
+        }
+        match video.next_frame().map_err(failed)? {
+            Some(frame) => Ok(FrameData::Video(frame)),
+            None => Err(short(video)),
+        }
+    }
+}
+
+impl FrameData<'_> {
+    /// How a message names the frame.
+    pub fn name(&self, list: &FrameList, i: usize) -> PathBuf {
+        match (self, &list.videos) {
+            (FrameData::File(path), _) => path.to_path_buf(),
+            (_, Some(videos)) => PathBuf::from(format!(
+                "{} frame {}",
+                videos[list.records[i].camera as usize].display(),
+                list.records[i].index
+            )),
+            _ => PathBuf::from(format!("frames.csv line {}", list.records[i].line)),
+        }
     }
 }
 
@@ -143,16 +270,47 @@ pub fn decode_into(path: &Path, image: &mut RgbImage, buffers: &mut Buffers) -> 
     std::fs::File::open(path)
         .and_then(|mut f| f.read_to_end(file))
         .map_err(|e| e.to_string())?;
-    if file.starts_with(b"\x89PNG") {
+    decode_bytes(file, image, &mut buffers.bgr)
+}
+
+/// A frame's data decoded into `image`.
+///
+/// # Errors
+/// A message saying why it is not an image.
+pub fn decode_frame(
+    data: &FrameData,
+    image: &mut RgbImage,
+    buffers: &mut Buffers,
+) -> Result<(), String> {
+    match data {
+        FrameData::File(path) => decode_into(path, image, buffers),
+        FrameData::Missing => Err("no image".into()),
+        FrameData::Video(crate::video::Frame::Encoded(bytes)) => {
+            decode_bytes(bytes, image, &mut buffers.bgr)
+        }
+        FrameData::Video(crate::video::Frame::Decoded(bgr)) => {
+            image.chroma = ChromaSampling::FULL;
+            bgr_to_rgb(bgr, image)
+        }
+    }
+}
+
+/// An encoded image: PNG by the `png` crate, JPEG by zune-jpeg, anything else by OpenCV.
+fn decode_bytes(
+    bytes: &[u8],
+    image: &mut RgbImage,
+    bgr: &mut opencv::core::Mat,
+) -> Result<(), String> {
+    if bytes.starts_with(b"\x89PNG") {
         image.chroma = ChromaSampling::FULL;
-        decode_png(file, image)
-    } else if file.starts_with(&[0xff, 0xd8]) {
-        decode_jpeg(file, image)?;
-        image.chroma = ChromaSampling::of_jpeg(file);
+        decode_png(bytes, image)
+    } else if bytes.starts_with(&[0xff, 0xd8]) {
+        decode_jpeg(bytes, image)?;
+        image.chroma = ChromaSampling::of_jpeg(bytes);
         Ok(())
     } else {
         image.chroma = ChromaSampling::FULL;
-        decode_opencv(file, &mut buffers.bgr, image)
+        decode_opencv(bytes, bgr, image)
     }
 }
 
@@ -208,16 +366,25 @@ fn decode_opencv(
     bgr: &mut opencv::core::Mat,
     image: &mut RgbImage,
 ) -> Result<(), String> {
-    let not_image = |_| "not an image OpenCV can read".to_string();
     let buf = Vector::<u8>::from_slice(bytes);
     // Camera frames carry no orientation to apply, and OpenCV's search for one (EXIF) read
     // the whole file byte by byte: a third of the decoding time of a 720p JPEG.
     let flags = imgcodecs::IMREAD_COLOR | imgcodecs::IMREAD_IGNORE_ORIENTATION;
     crate::cv::decode_image_into(&buf, flags, bgr)?;
+    bgr_to_rgb(bgr, image)
+}
+
+/// An OpenCV BGR image into `image`'s RGB.
+fn bgr_to_rgb(bgr: &opencv::core::Mat, image: &mut RgbImage) -> Result<(), String> {
+    let not_image = |_| "not an 8-bit colour image".to_string();
     (image.width, image.height) = (bgr.cols() as usize, bgr.rows() as usize);
-    if !bgr.is_continuous() {
-        *bgr = bgr.try_clone().map_err(not_image)?;
-    }
+    let continuous;
+    let bgr = if bgr.is_continuous() {
+        bgr
+    } else {
+        continuous = bgr.try_clone().map_err(not_image)?;
+        &continuous
+    };
     let src = bgr.data_bytes().map_err(not_image)?;
     image.data.resize(src.len(), 0);
     for (d, s) in image.data.chunks_exact_mut(3).zip(src.chunks_exact(3)) {

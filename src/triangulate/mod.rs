@@ -34,7 +34,7 @@ pub mod output;
 pub mod pairing;
 pub mod subpixel;
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 use nalgebra::Vector3;
@@ -72,6 +72,8 @@ pub enum TriangulateError {
     NothingUsed(String),
     #[error(transparent)]
     Stereo(#[from] crate::stereo::StereoError),
+    #[error("{path}: {message}")]
+    Video { path: PathBuf, message: String },
     #[error("OpenCV: {0}")]
     OpenCv(#[from] opencv::Error),
     #[error("writing {path}: {message}")]
@@ -274,20 +276,34 @@ pub fn triangulate(
     let rig = &calibration.rig;
     let (records, paths) = (&frames.records, &frames.paths);
 
-    // 1. Markers in every frame.
+    // 1. Markers in every frame: handed out in order (a video is read front to back) a chunk
+    // at a time, examined in parallel.
     let done = AtomicUsize::new(0);
-    let results: Vec<Result<FrameResult, TriangulateError>> = paths
-        .par_iter()
-        .map_init(
-            || (marker::RgbImage::default(), frames::Buffers::default()),
-            |(image, buffers), path| {
-                let result = examine(path.as_deref(), rig, options, interrupt, image, buffers);
-                progress(done.fetch_add(1, Ordering::SeqCst) + 1, paths.len());
-                result
-            },
-        )
-        .collect();
-    let results = results.into_iter().collect::<Result<Vec<_>, _>>()?;
+    let mut results: Vec<FrameResult> = vec![FrameResult::Skipped; records.len()];
+    let mut reader = frames.reader()?;
+    for chunk in frames.reading_order().chunks(256) {
+        if interrupt.load(Ordering::SeqCst) {
+            break;
+        }
+        let data = chunk
+            .iter()
+            .map(|&i| Ok((i, reader.read(i)?)))
+            .collect::<Result<Vec<_>, TriangulateError>>()?;
+        let examined: Vec<(usize, Result<FrameResult, TriangulateError>)> = data
+            .into_par_iter()
+            .map_init(
+                || (marker::RgbImage::default(), frames::Buffers::default()),
+                |(image, buffers), (i, data)| {
+                    let result = examine(&data, frames, i, rig, options, interrupt, image, buffers);
+                    progress(done.fetch_add(1, Ordering::SeqCst) + 1, records.len());
+                    (i, result)
+                },
+            )
+            .collect();
+        for (i, result) in examined {
+            results[i] = result?;
+        }
+    }
     let mut summary = Summary {
         interrupted: interrupt.load(Ordering::SeqCst),
         steps_logged: log.steps.len(),
@@ -472,9 +488,12 @@ pub fn triangulate(
     })
 }
 
-/// Decodes one frame (into the worker's buffers) and finds its marker candidates.
+/// Decodes record `i`'s frame (into the worker's buffers) and finds its marker candidates.
+#[allow(clippy::too_many_arguments)]
 fn examine(
-    path: Option<&Path>,
+    data: &frames::FrameData,
+    list: &FrameList,
+    i: usize,
     rig: &StereoRig,
     options: &TriangulateOptions,
     interrupt: &AtomicBool,
@@ -484,16 +503,16 @@ fn examine(
     if interrupt.load(Ordering::SeqCst) {
         return Ok(FrameResult::Skipped);
     }
-    let Some(path) = path else {
+    if let frames::FrameData::Missing = data {
         return Ok(FrameResult::NoFile);
-    };
-    if let Err(why) = frames::decode_into(path, image, buffers) {
+    }
+    if let Err(why) = frames::decode_frame(data, image, buffers) {
         return Ok(FrameResult::Unreadable(why));
     }
     let [cw, ch] = rig.image_size;
     if (image.width, image.height) != (cw as usize, ch as usize) {
         return Err(TriangulateError::WrongSize {
-            frame: path.to_path_buf(),
+            frame: data.name(list, i),
             width: image.width,
             height: image.height,
             cw,

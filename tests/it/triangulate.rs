@@ -16,8 +16,8 @@ use handcap::synth::render::encode_png;
 use handcap::triangulate::frames::decode;
 
 use crate::common::{
-    capture, capture_as, csv_rows, handcap_err, handcap_ok, handcap_usage, small_capture, tempdir,
-    tip_rms_against_truth, tips_by_step,
+    capture, capture_as, capture_with, csv_rows, handcap_err, handcap_ok, handcap_usage,
+    small_capture, tempdir, tip_rms_against_truth, tips_by_step,
 };
 
 /// Paints a disc of `rgb` (radius `r` px, anti-aliased) into a frame, in place.
@@ -463,4 +463,64 @@ fn a_highlight_on_the_bead_does_not_move_the_tip() {
     );
     println!("the highlight moves the tip by {rms:.4} mm RMS, {max:.4} mm at most");
     assert!(max < 0.02, "{max} mm");
+}
+
+#[test]
+fn recorded_as_videos_the_capture_gives_the_same_tips() {
+    // The lab capture of seed 32 as images and as two Motion-JPEG videos (`synth --video`):
+    // libjpeg's quantisation tables in both, the frames read raw from the videos.
+    let (images, videos) = (tempdir(), tempdir());
+    capture_as(
+        images.path(),
+        32,
+        3,
+        [125.0, 50.0],
+        (ImageFormat::WEBCAM, Realism::LAB),
+    );
+    let synth = handcap::synth::SynthConfig {
+        seed: 32,
+        grid_step_kpa: 125.0,
+        sweep_step_kpa: 50.0,
+        ..handcap::synth::SynthConfig::default()
+    };
+    let config = handcap::synth::capture::CaptureConfig {
+        views: 3,
+        video: true,
+        ..handcap::synth::capture::CaptureConfig::default()
+    };
+    let v = videos.path();
+    capture_with(v, &synth, &config);
+    assert!(v.join("frames/left.avi").is_file() && v.join("frames/right.avi").is_file());
+    assert!(!v.join("frames/left_00000.jpg").exists());
+    let mut rms = Vec::new();
+    for d in [images.path(), v] {
+        let out = triangulate_with_truth(d, "out/dataset.csv");
+        assert!(out.contains("39 rows"), "{out}");
+        let truth = d.join("truth/tips.csv");
+        rms.push(tip_rms_against_truth(&d.join("out/dataset.csv"), &truth, |_| true).0);
+    }
+    println!("tip RMS: images {:.4} mm, videos {:.4} mm", rms[0], rms[1]);
+    assert!((rms[0] - rms[1]).abs() <= 0.01, "{rms:?}");
+
+    // frames.csv listing a frame the video does not have: one line naming both.
+    let index = v.join("frames/frames.csv");
+    let mut text = std::fs::read_to_string(&index).unwrap();
+    text.push_str("9999,left,99.0\n");
+    std::fs::write(&index, text).unwrap();
+    let msg = handcap_err(
+        v,
+        &[
+            "triangulate",
+            "frames",
+            "--calib",
+            "truth/rig.yml",
+            "--out",
+            "x/d.csv",
+        ],
+    );
+    assert!(
+        msg.contains("left.avi") && msg.contains("lists left frame 9999") && msg.contains("line "),
+        "{msg}"
+    );
+    assert!(!v.join("x/d.csv").exists());
 }
