@@ -25,6 +25,7 @@
 pub const DEFAULT_SEED: u64 = 2020;
 
 pub mod calib;
+pub mod capture;
 mod cv;
 pub mod data;
 pub mod fsio;

@@ -2,10 +2,12 @@
 //! prints the result ([`handcap::pipeline`] does the work). Nothing below this module prints.
 
 mod calibrate;
+mod capture;
 mod demo;
 mod inverse;
 mod model;
 mod predict;
+mod protocol;
 mod synth;
 mod triangulate;
 
@@ -44,6 +46,10 @@ enum Command {
     Inverse(inverse::Args),
     /// The whole pipeline on the built-in virtual micro-hand, with a report
     Demo(demo::Args),
+    /// Two cameras → frames + frames.csv on one clock, optionally driving a pressure protocol
+    Capture(capture::Args),
+    /// The paper's pressure protocol → protocol.csv, for `capture --protocol`
+    Protocol(protocol::Args),
 }
 
 /// An error in how the command was called (exit 2, as clap's own).
@@ -110,6 +116,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Predict(a) => predict::run(a),
         Command::Inverse(a) => inverse::run(a),
         Command::Demo(a) => demo::run(a),
+        Command::Capture(a) => capture::run(a),
+        Command::Protocol(a) => protocol::run(a),
     }
 }
 

@@ -20,6 +20,8 @@ fn help_lists_every_subcommand() {
         "predict",
         "inverse",
         "demo",
+        "capture",
+        "protocol",
     ] {
         assert!(help.contains(cmd), "{cmd} missing from --help");
     }

@@ -2,6 +2,7 @@
 
 mod bad_input;
 mod calibrate;
+mod capture;
 mod cli;
 mod common;
 mod contract;

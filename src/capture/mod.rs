@@ -1,0 +1,584 @@
+//! `handcap capture`: two cameras filmed on their own threads, every frame stamped with one
+//! clock at grab time and written in the layout `triangulate` reads; optionally a pressure
+//! protocol driven by the lab's own command, logged on the same clock.
+//!
+//! # The clock
+//! `time_s` in `frames.csv` and `pressures.csv` is seconds since the session began on the
+//! host's monotonic clock (Linux `CLOCK_MONOTONIC`: Python's `time.monotonic()`, C's
+//! `clock_gettime(CLOCK_MONOTONIC)`). `capture.json` records that clock's reading at the start
+//! (`start_monotonic_s`) and the wall-clock time (`start_unix_s`), so a program that logs the
+//! regulator itself writes `time.monotonic() - start_monotonic_s`.
+//!
+//! # Cameras
+//! Each `--left`/`--right` is a device index (`0`), a device path (`/dev/video2`), a video file
+//! (played at its own frame rate, standing in for a camera), or anything else OpenCV opens (a
+//! URL, a GStreamer pipeline). Devices are asked for MJPG at the size and rate given and for
+//! fixed exposure, white balance and focus; what the backend refuses is said. Frames are kept
+//! as they come: a camera's (or a Motion-JPEG file's) JPEG bytes as `.jpg` without re-encoding,
+//! anything else decoded and written losslessly as `.png`.
+//!
+//! # Ending
+//! The protocol's end, `--duration`, Ctrl-C, or a camera that stops delivering (for
+//! [`STALL_S`], or its stream ends): every frame finished by then is written and listed, the
+//! logs are complete, and `capture.json` says how it ended.
+
+pub mod protocol;
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use opencv::core::{Mat, Vector};
+use opencv::prelude::*;
+use opencv::videoio::{self, VideoCapture};
+use serde::Serialize;
+
+use crate::fsio;
+use crate::stereo::Side;
+
+/// A camera that delivers nothing for this long has stopped (s).
+pub const STALL_S: f64 = 2.0;
+
+/// Errors of capturing.
+#[derive(Debug, thiserror::Error)]
+pub enum CaptureError {
+    #[error("cannot open the {side} camera {camera:?}: {why}; cameras found: {found}")]
+    NotOpened {
+        side: &'static str,
+        camera: String,
+        why: String,
+        found: String,
+    },
+    #[error("{0} already holds a capture (frames/frames.csv); choose another --out")]
+    Exists(PathBuf),
+    #[error(transparent)]
+    Protocol(#[from] crate::data::DataError),
+    #[error("writing {path}: {source}")]
+    Write {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("OpenCV: {0}")]
+    OpenCv(#[from] opencv::Error),
+}
+
+/// What a session does.
+#[derive(Clone, Debug)]
+pub struct CaptureOptions {
+    /// The left and right camera (see the module docs).
+    pub sources: [String; 2],
+    pub width: u32,
+    pub height: u32,
+    pub fps: f64,
+    /// Steps to drive, and the command that sets each step's pressures.
+    pub protocol: Option<(Vec<protocol::Step>, String)>,
+    /// Stop after this long (s).
+    pub duration_s: Option<f64>,
+}
+
+/// How a session ended.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Ending {
+    ProtocolDone,
+    Duration,
+    Interrupted,
+    /// A camera stopped delivering at `time_s`, after `frames` frames.
+    CameraStopped {
+        side: Side,
+        time_s: f64,
+        frames: usize,
+    },
+    /// The pressure command failed at a step.
+    CommandFailed {
+        step: usize,
+        message: String,
+    },
+}
+
+/// Live and final figures of a session.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Stats {
+    pub frames: [usize; 2],
+    /// Frames per second over the session, each camera.
+    pub fps: [f64; 2],
+    /// Gaps longer than 1.5 frame periods in each camera's times.
+    pub drops: [usize; 2],
+    /// Median |left − right| time of nearest frames (ms).
+    pub skew_ms: f64,
+    pub steps_done: usize,
+}
+
+/// What a session did and wrote.
+#[derive(Clone, Debug, Serialize)]
+pub struct CaptureSummary {
+    pub ending: Ending,
+    pub stats: Stats,
+    /// Per camera: the settings the backend refused.
+    pub refused: [Vec<String>; 2],
+    pub start_monotonic_s: f64,
+    pub start_unix_s: f64,
+}
+
+/// The session's clock: seconds since it began, on the host's monotonic clock.
+struct Clock {
+    start: Instant,
+}
+
+impl Clock {
+    fn now_s(&self) -> f64 {
+        self.start.elapsed().as_secs_f64()
+    }
+}
+
+/// The host's `CLOCK_MONOTONIC` (s).
+fn monotonic_s() -> f64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: `ts` is a valid timespec to write into; CLOCK_MONOTONIC always exists on Linux.
+    unsafe {
+        libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts);
+    }
+    ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
+}
+
+/// An opened camera.
+struct Camera {
+    capture: VideoCapture,
+    /// A file's frame period: frames are handed out at its rate, as a camera would.
+    pace_s: Option<f64>,
+    refused: Vec<String>,
+}
+
+/// The video devices on this machine, for the message when a camera does not open.
+fn devices() -> String {
+    let mut found: Vec<String> = std::fs::read_dir("/dev")
+        .map(|d| {
+            d.flatten()
+                .map(|e| e.path().display().to_string())
+                .filter(|p| p.starts_with("/dev/video"))
+                .collect()
+        })
+        .unwrap_or_default();
+    found.sort();
+    if found.is_empty() {
+        "none (no /dev/video*)".into()
+    } else {
+        found.join(", ")
+    }
+}
+
+fn open_camera(side: Side, source: &str, o: &CaptureOptions) -> Result<Camera, CaptureError> {
+    let not_opened = |why: String| CaptureError::NotOpened {
+        side: side.name(),
+        camera: source.to_string(),
+        why,
+        found: devices(),
+    };
+    let file = Path::new(source).is_file();
+    let opened = if let Ok(index) = source.parse::<i32>() {
+        VideoCapture::new(index, videoio::CAP_ANY)
+    } else if file {
+        VideoCapture::from_file(source, videoio::CAP_FFMPEG)
+    } else {
+        VideoCapture::from_file(source, videoio::CAP_ANY)
+    };
+    let mut capture = opened.map_err(|e| not_opened(e.message))?;
+    if !capture.is_opened().unwrap_or(false) {
+        return Err(not_opened("OpenCV cannot open it".into()));
+    }
+    let mut refused = Vec::new();
+    let pace_s = if file {
+        // A Motion-JPEG file's frames raw, as a camera's MJPEG would come.
+        let fourcc = capture.get(videoio::CAP_PROP_FOURCC)? as u32;
+        if &fourcc.to_le_bytes() == b"MJPG" {
+            capture.set(videoio::CAP_PROP_FORMAT, -1.0)?;
+        }
+        let fps = capture.get(videoio::CAP_PROP_FPS)?;
+        Some(1.0 / if fps > 0.0 { fps } else { o.fps })
+    } else {
+        let mjpg = f64::from(opencv::videoio::VideoWriter::fourcc('M', 'J', 'P', 'G')?);
+        let settings = [
+            ("MJPG", videoio::CAP_PROP_FOURCC, mjpg),
+            ("width", videoio::CAP_PROP_FRAME_WIDTH, f64::from(o.width)),
+            (
+                "height",
+                videoio::CAP_PROP_FRAME_HEIGHT,
+                f64::from(o.height),
+            ),
+            ("frame rate", videoio::CAP_PROP_FPS, o.fps),
+            // V4L2: 1 is manual exposure.
+            ("fixed exposure", videoio::CAP_PROP_AUTO_EXPOSURE, 1.0),
+            ("fixed white balance", videoio::CAP_PROP_AUTO_WB, 0.0),
+            ("fixed focus", videoio::CAP_PROP_AUTOFOCUS, 0.0),
+            // The MJPEG bytes as the camera sent them.
+            ("raw frames", videoio::CAP_PROP_CONVERT_RGB, 0.0),
+        ];
+        for (name, prop, value) in settings {
+            if !capture.set(prop, value).unwrap_or(false) {
+                refused.push(name.to_string());
+            }
+        }
+        None
+    };
+    Ok(Camera {
+        capture,
+        pace_s,
+        refused,
+    })
+}
+
+/// A frame as grabbed: its camera, number, time, and file bytes with their extension.
+struct Grabbed {
+    side: Side,
+    index: usize,
+    time_s: f64,
+    bytes: Vec<u8>,
+    extension: &'static str,
+}
+
+/// Why a camera's thread ended.
+enum CameraEnd {
+    Stopped,
+    Failed { time_s: f64, frames: usize },
+}
+
+/// The frame a camera just grabbed, as file bytes: JPEG as it came, else PNG.
+fn retrieve(capture: &mut VideoCapture, mat: &mut Mat) -> opencv::Result<(Vec<u8>, &'static str)> {
+    capture.retrieve(mat, 0)?;
+    let bytes = mat.data_bytes()?;
+    if mat.rows() == 1 && bytes.starts_with(&[0xff, 0xd8]) {
+        return Ok((bytes.to_vec(), "jpg"));
+    }
+    let mut png = Vector::<u8>::new();
+    opencv::imgcodecs::imencode(".png", mat, &mut png, &Vector::new())?;
+    Ok((png.to_vec(), "png"))
+}
+
+fn film(
+    side: Side,
+    mut camera: Camera,
+    clock: &Clock,
+    tx: &mpsc::Sender<Grabbed>,
+    stop: &AtomicBool,
+) -> CameraEnd {
+    let mut mat = Mat::default();
+    let mut index = 0;
+    while !stop.load(Ordering::SeqCst) {
+        if let Some(period) = camera.pace_s {
+            let due = index as f64 * period;
+            let wait = due - clock.now_s();
+            if wait > 0.0 {
+                std::thread::sleep(Duration::from_secs_f64(wait));
+            }
+        }
+        let grabbed = camera.capture.grab().unwrap_or(false);
+        let time_s = clock.now_s();
+        let frame = grabbed
+            .then(|| retrieve(&mut camera.capture, &mut mat).ok())
+            .flatten();
+        let Some((bytes, extension)) = frame else {
+            return CameraEnd::Failed {
+                time_s,
+                frames: index,
+            };
+        };
+        let sent = tx.send(Grabbed {
+            side,
+            index,
+            time_s,
+            bytes,
+            extension,
+        });
+        if sent.is_err() {
+            break;
+        }
+        index += 1;
+    }
+    CameraEnd::Stopped
+}
+
+/// Runs the protocol: each step's command, logged, then held. Returns how it ended.
+fn drive(
+    steps: &[protocol::Step],
+    template: &str,
+    clock: &Clock,
+    log: &std::sync::Mutex<Vec<(f64, protocol::Step)>>,
+    stop: &AtomicBool,
+) -> Option<Ending> {
+    for step in steps {
+        if stop.load(Ordering::SeqCst) {
+            return None;
+        }
+        let command = protocol::command_for(template, step);
+        let time_s = clock.now_s();
+        let output = std::process::Command::new("sh")
+            .arg("-c")
+            .arg(&command)
+            .output();
+        let failed = match output {
+            Ok(o) if o.status.success() => None,
+            Ok(o) => Some(format!(
+                "`{command}` exited with {}: {}",
+                o.status,
+                String::from_utf8_lossy(&o.stderr).trim()
+            )),
+            Err(e) => Some(format!("`{command}` could not run: {e}")),
+        };
+        if let Some(message) = failed {
+            return Some(Ending::CommandFailed {
+                step: step.step,
+                message,
+            });
+        }
+        log.lock().expect("log").push((time_s, step.clone()));
+        let wait = time_s + step.hold_s - clock.now_s();
+        if wait > 0.0 {
+            std::thread::sleep(Duration::from_secs_f64(wait));
+        }
+    }
+    Some(Ending::ProtocolDone)
+}
+
+/// The session's files: written whole each time (temp file, then rename), so that an
+/// interruption leaves them consistent with the images.
+fn frames_csv(rows: &[(Side, usize, f64)]) -> String {
+    let mut out = String::from("frame,camera,time_s\n");
+    for (side, index, time_s) in rows {
+        out += &format!("{index},{},{time_s:.6}\n", side.name());
+    }
+    out
+}
+
+fn pressures_csv(log: &[(f64, protocol::Step)]) -> String {
+    let mut out = String::from("time_s,P1_kpa,P2_kpa,P3_kpa,step,phase\n");
+    for (time_s, s) in log {
+        let [p1, p2, p3] = s.pressures;
+        out += &format!("{time_s:.6},{p1},{p2},{p3},{},{}\n", s.step, s.phase);
+    }
+    out
+}
+
+/// Figures of one camera's times: frames per second, and gaps over 1.5 periods.
+fn rate_and_drops(times: &[f64]) -> (f64, usize) {
+    if times.len() < 2 {
+        return (0.0, 0);
+    }
+    let mut gaps: Vec<f64> = times.windows(2).map(|w| w[1] - w[0]).collect();
+    let fps = (times.len() - 1) as f64 / (times[times.len() - 1] - times[0]).max(1e-9);
+    let median = crate::stats::median(&mut gaps.clone()).unwrap_or(0.0);
+    gaps.retain(|g| *g > 1.5 * median);
+    (fps, gaps.len())
+}
+
+/// Median distance (ms) from each left time to the nearest right time.
+fn skew_ms(left: &[f64], right: &[f64]) -> f64 {
+    if left.is_empty() || right.is_empty() {
+        return 0.0;
+    }
+    let mut d: Vec<f64> = left
+        .iter()
+        .map(|t| {
+            let k = right.partition_point(|r| r < t);
+            let near = [k.checked_sub(1), Some(k)]
+                .into_iter()
+                .flatten()
+                .filter_map(|k| right.get(k))
+                .map(|r| (r - t).abs())
+                .fold(f64::INFINITY, f64::min);
+            1e3 * near
+        })
+        .collect();
+    crate::stats::median(&mut d).unwrap_or(0.0)
+}
+
+fn stats(rows: &[(Side, usize, f64)], steps_done: usize) -> Stats {
+    let times =
+        |side: Side| -> Vec<f64> { rows.iter().filter(|r| r.0 == side).map(|r| r.2).collect() };
+    let (l, r) = (times(Side::Left), times(Side::Right));
+    let ((fl, dl), (fr, dr)) = (rate_and_drops(&l), rate_and_drops(&r));
+    Stats {
+        frames: [l.len(), r.len()],
+        fps: [fl, fr],
+        drops: [dl, dr],
+        skew_ms: skew_ms(&l, &r),
+        steps_done,
+    }
+}
+
+/// Films a session into `out` (`frames/`, `frames/frames.csv`, `pressures.csv` when a protocol
+/// runs, `capture.json`); `live(stats)` about once a second; `interrupt` is Ctrl-C.
+///
+/// # Errors
+/// [`CaptureError`]: a camera that does not open, `out` holding a capture, a file that cannot
+/// be written. A camera that stops or a failing command end the session normally, said in
+/// [`CaptureSummary::ending`].
+pub fn capture(
+    out: &Path,
+    options: &CaptureOptions,
+    live: &(dyn Fn(&Stats) + Sync),
+    interrupt: &AtomicBool,
+) -> Result<CaptureSummary, CaptureError> {
+    let frames_dir = out.join("frames");
+    if frames_dir.join("frames.csv").exists() {
+        return Err(CaptureError::Exists(out.to_path_buf()));
+    }
+    // The backends' own warnings (GStreamer trying a file name as a pipeline, …) would bury
+    // handcap's one line; what failed is said there.
+    let _ = opencv::core::set_log_level(opencv::core::LogLevel::LOG_LEVEL_SILENT);
+    let cameras = [
+        open_camera(Side::Left, &options.sources[0], options)?,
+        open_camera(Side::Right, &options.sources[1], options)?,
+    ];
+    std::fs::create_dir_all(&frames_dir).map_err(|source| CaptureError::Write {
+        path: frames_dir.clone(),
+        source,
+    })?;
+    let refused = [cameras[0].refused.clone(), cameras[1].refused.clone()];
+    let write = |path: &Path, text: &str| {
+        fsio::write_bytes(path, text.as_bytes()).map_err(|source| CaptureError::Write {
+            path: path.to_path_buf(),
+            source,
+        })
+    };
+
+    let start_unix_s = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0.0, |d| d.as_secs_f64());
+    let start_monotonic_s = monotonic_s();
+    let clock = Clock {
+        start: Instant::now(),
+    };
+    let stop = AtomicBool::new(false);
+    let log = std::sync::Mutex::new(Vec::new());
+    let (tx, rx) = mpsc::channel::<Grabbed>();
+    let mut rows: Vec<(Side, usize, f64)> = Vec::new();
+    let mut ending = None;
+    let mut failure = None;
+    std::thread::scope(|scope| {
+        let mut filming = Vec::new();
+        for (side, camera) in [Side::Left, Side::Right].into_iter().zip(cameras) {
+            let tx = tx.clone();
+            let (clock, stop) = (&clock, &stop);
+            filming.push((
+                side,
+                scope.spawn(move || film(side, camera, clock, &tx, stop)),
+            ));
+        }
+        drop(tx);
+        let driving = options.protocol.as_ref().map(|(steps, template)| {
+            let (clock, stop, log) = (&clock, &stop, &log);
+            scope.spawn(move || drive(steps, template, clock, log, stop))
+        });
+        let mut last_shown = 0.0;
+        // The first frame may take a while longer: a device warms up.
+        let mut last_seen = [STALL_S; 2];
+        let store = |frame: &Grabbed| -> Result<(), CaptureError> {
+            let name = format!(
+                "{}_{:05}.{}",
+                frame.side.name(),
+                frame.index,
+                frame.extension
+            );
+            let path = frames_dir.join(name);
+            fsio::write_bytes(&path, &frame.bytes)
+                .map_err(|source| CaptureError::Write { path, source })
+        };
+        loop {
+            match rx.recv_timeout(Duration::from_millis(100)) {
+                Ok(frame) => {
+                    if let Err(e) = store(&frame) {
+                        failure = Some(e);
+                        stop.store(true, Ordering::SeqCst);
+                        continue;
+                    }
+                    last_seen[frame.side as usize] = frame.time_s;
+                    rows.push((frame.side, frame.index, frame.time_s));
+                }
+                Err(mpsc::RecvTimeoutError::Disconnected) => {
+                    // Both cameras ended: the protocol stops too.
+                    stop.store(true, Ordering::SeqCst);
+                    break;
+                }
+                Err(mpsc::RecvTimeoutError::Timeout) => {}
+            }
+            let now = clock.now_s();
+            if !stop.load(Ordering::SeqCst) {
+                let stalled = [Side::Left, Side::Right]
+                    .into_iter()
+                    .find(|s| now - last_seen[*s as usize] > STALL_S);
+                ending = if interrupt.load(Ordering::SeqCst) {
+                    Some(Ending::Interrupted)
+                } else if options.duration_s.is_some_and(|d| now >= d) {
+                    Some(Ending::Duration)
+                } else if let Some(side) = stalled {
+                    Some(Ending::CameraStopped {
+                        side,
+                        time_s: last_seen[side as usize],
+                        frames: rows.iter().filter(|r| r.0 == side).count(),
+                    })
+                } else if driving.as_ref().is_some_and(|d| d.is_finished()) {
+                    Some(Ending::ProtocolDone)
+                } else {
+                    None
+                };
+                // A camera whose stream ended says so when joined.
+                if ending.is_some() || filming.iter().any(|(_, t)| t.is_finished()) {
+                    stop.store(true, Ordering::SeqCst);
+                }
+            }
+            if now - last_shown >= 1.0 && failure.is_none() {
+                last_shown = now;
+                live(&stats(&rows, log.lock().expect("log").len()));
+                if let Err(e) = write(&frames_dir.join("frames.csv"), &frames_csv(&rows)) {
+                    failure = Some(e);
+                    stop.store(true, Ordering::SeqCst);
+                }
+            }
+        }
+        for (side, thread) in filming {
+            if let Ok(CameraEnd::Failed { time_s, frames }) = thread.join() {
+                ending.get_or_insert(Ending::CameraStopped {
+                    side,
+                    time_s,
+                    frames,
+                });
+            }
+        }
+        if let Some(driving) = driving {
+            if let Ok(Some(e @ Ending::CommandFailed { .. })) = driving.join() {
+                ending = Some(e);
+            }
+        }
+    });
+    if let Some(e) = failure {
+        return Err(e);
+    }
+    rows.sort_by_key(|r| (r.0 as u8, r.1));
+    write(&frames_dir.join("frames.csv"), &frames_csv(&rows))?;
+    let log = log.into_inner().expect("log");
+    if options.protocol.is_some() {
+        write(&out.join("pressures.csv"), &pressures_csv(&log))?;
+    }
+    let summary = CaptureSummary {
+        ending: ending.unwrap_or(Ending::Interrupted),
+        stats: stats(&rows, log.len()),
+        refused,
+        start_monotonic_s,
+        start_unix_s,
+    };
+    let json = serde_json::json!({
+        "sources": options.sources,
+        "requested": {"width": options.width, "height": options.height, "fps": options.fps},
+        "clock": "time_s = CLOCK_MONOTONIC seconds - start_monotonic_s (Python: time.monotonic() - start_monotonic_s)",
+        "summary": summary,
+    });
+    write(
+        &out.join("capture.json"),
+        &(serde_json::to_string_pretty(&json).expect("serialisable") + "\n"),
+    )?;
+    Ok(summary)
+}

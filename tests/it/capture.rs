@@ -1,0 +1,256 @@
+//! `handcap capture` with two video files standing in for the cameras, and `handcap protocol`.
+
+use std::collections::HashSet;
+use std::path::Path;
+
+use crate::common::{capture_with, csv_rows, handcap, handcap_err, handcap_ok, tempdir};
+
+/// Two Motion-JPEG videos of a small synthetic session (`synth --video`): 14 steps, 42 frames
+/// (1.4 s at 30 fps) per camera, in `dir/cams/frames/`.
+fn cameras(dir: &Path) {
+    let synth = handcap::synth::SynthConfig {
+        seed: 5,
+        grid_step_kpa: 250.0,
+        sweep_step_kpa: 125.0,
+        ..handcap::synth::SynthConfig::default()
+    };
+    let config = handcap::synth::capture::CaptureConfig {
+        views: 3,
+        video: true,
+        realism: handcap::synth::capture::Realism::CLEAN,
+        ..handcap::synth::capture::CaptureConfig::default()
+    };
+    capture_with(&dir.join("cams"), &synth, &config);
+}
+
+/// `handcap protocol` into `out`: 12 steps (a 250 kPa grid and sweeps), each held `hold_s`;
+/// returns its output.
+fn protocol(d: &Path, out: &str, hold_s: &str) -> String {
+    let args = [
+        "protocol",
+        "--out",
+        out,
+        "--grid-step-kpa",
+        "250",
+        "--sweep-step-kpa",
+        "250",
+        "--hold-s",
+        hold_s,
+    ];
+    handcap_ok(d, &args)
+}
+
+/// `capture` from the two videos into `out`, driving `protocol` through `command`.
+fn session_args<'a>(out: &'a str, protocol: &'a str, command: &'a str) -> [&'a str; 11] {
+    [
+        "capture",
+        "--left",
+        "cams/frames/left.avi",
+        "--right",
+        "cams/frames/right.avi",
+        "--out",
+        out,
+        "--protocol",
+        protocol,
+        "--set-pressure",
+        command,
+    ]
+}
+
+/// A `--set-pressure` script that records what it was told, one line per call.
+fn recorder(dir: &Path) -> String {
+    let script = dir.join("regulator.sh");
+    std::fs::write(
+        &script,
+        "#!/bin/sh\necho \"$@\" >> \"$(dirname \"$0\")/told.txt\"\n",
+    )
+    .unwrap();
+    format!("sh {} {{p1}} {{p2}} {{p3}} {{step}}", script.display())
+}
+
+/// Every frame listed is there, every image is listed, times rise with the frame number.
+fn assert_consistent(session: &Path) -> [usize; 2] {
+    let rows = csv_rows(&session.join("frames/frames.csv"));
+    let mut listed = HashSet::new();
+    let mut count = [0; 2];
+    for (k, camera) in ["left", "right"].iter().enumerate() {
+        let mine: Vec<_> = rows.iter().filter(|r| &r["camera"] == camera).collect();
+        count[k] = mine.len();
+        for (i, r) in mine.iter().enumerate() {
+            assert_eq!(
+                r["frame"].parse::<usize>().unwrap(),
+                i,
+                "{camera} frames numbered in order"
+            );
+            let name = format!("{camera}_{:05}.jpg", i);
+            assert!(
+                session.join("frames").join(&name).is_file(),
+                "{name} listed, missing"
+            );
+            listed.insert(name);
+        }
+        let times: Vec<f64> = mine.iter().map(|r| r["time_s"].parse().unwrap()).collect();
+        assert!(
+            times.windows(2).all(|w| w[1] > w[0]),
+            "{camera} times not rising"
+        );
+    }
+    for entry in std::fs::read_dir(session.join("frames")).unwrap() {
+        let name = entry.unwrap().file_name().to_string_lossy().to_string();
+        assert!(
+            name == "frames.csv" || listed.contains(&name),
+            "{name} written, not listed"
+        );
+    }
+    count
+}
+
+#[test]
+fn capture_films_both_cameras_and_drives_the_protocol_on_one_clock() {
+    let dir = tempdir();
+    let d = dir.path();
+    cameras(d);
+    let out = protocol(d, "p.csv", "0.05");
+    assert!(out.contains("12 steps"), "{out}");
+    let command = recorder(d);
+    let args = session_args("s", "p.csv", &command);
+    let out = handcap_ok(d, &args);
+    assert!(out.contains("step 12/12"), "{out}");
+    let s = d.join("s");
+    let [l, r] = assert_consistent(&s);
+    assert!(l >= 10 && r >= 10, "{l} left, {r} right frames");
+    // The frames are the videos' JPEGs, not re-encoded.
+    let first = std::fs::read(s.join("frames/left_00000.jpg")).unwrap();
+    let video = std::fs::read(d.join("cams/frames/left.avi")).unwrap();
+    assert!(video.windows(first.len()).any(|w| w == first.as_slice()));
+    // The command ran once per step, with the protocol's pressures, in order, logged with
+    // rising times on the frames' clock.
+    let protocol = csv_rows(&d.join("p.csv"));
+    let told = std::fs::read_to_string(d.join("told.txt")).unwrap();
+    let log = csv_rows(&s.join("pressures.csv"));
+    assert_eq!(told.lines().count(), 12);
+    assert_eq!(log.len(), 12);
+    for ((p, t), l) in protocol.iter().zip(told.lines()).zip(&log) {
+        let want = format!(
+            "{} {} {} {}",
+            p["P1_kpa"], p["P2_kpa"], p["P3_kpa"], p["step"]
+        );
+        assert_eq!(t, want);
+        for k in ["P1_kpa", "P2_kpa", "P3_kpa", "step", "phase"] {
+            assert_eq!(l[k], p[k], "{k}");
+        }
+    }
+    let times: Vec<f64> = log.iter().map(|r| r["time_s"].parse().unwrap()).collect();
+    assert!(times.windows(2).all(|w| w[1] - w[0] >= 0.045), "{times:?}");
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(s.join("capture.json")).unwrap()).unwrap();
+    assert_eq!(json["summary"]["ending"], "protocol_done");
+    assert!(json["summary"]["start_monotonic_s"].as_f64().unwrap() > 0.0);
+    // The session is kept: a second capture into it is refused.
+    let msg = handcap_err(d, &args);
+    assert!(msg.contains("already holds a capture"), "{msg}");
+}
+
+#[test]
+fn capture_refuses_bad_protocols_and_cameras_and_keeps_what_a_stopped_camera_gave() {
+    let dir = tempdir();
+    let d = dir.path();
+    cameras(d);
+    let command = recorder(d);
+    let run = |out: &str, protocol: &str| handcap(d, &session_args(out, protocol, &command));
+    std::fs::write(
+        d.join("high.csv"),
+        "step,phase,P1_kpa,P2_kpa,P3_kpa,hold_s\n0,train,0,0,0,0.1\n1,train,100,320,0,0.1\n",
+    )
+    .unwrap();
+    let out = run("high", "high.csv");
+    assert_eq!(out.status.code(), Some(1));
+    let msg = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        msg.contains("high.csv line 3: P2_kpa 320 is outside 0-300 kPa")
+            && msg.lines().count() == 1,
+        "{msg}"
+    );
+    assert!(!d.join("high").exists() && !d.join("told.txt").exists());
+
+    // A camera that does not open: named, and the devices listed.
+    let msg = handcap_err(
+        d,
+        &[
+            "capture",
+            "--left",
+            "cams/frames/left.avi",
+            "--right",
+            "nowhere.avi",
+            "--out",
+            "x",
+            "--duration-s",
+            "1",
+        ],
+    );
+    assert!(
+        msg.contains("cannot open the right camera \"nowhere.avi\"")
+            && msg.contains("cameras found"),
+        "{msg}"
+    );
+    assert!(!d.join("x").exists());
+
+    // The videos end (1.4 s) long before the protocol (12 × 0.5 s): said, and kept.
+    protocol(d, "slow.csv", "0.5");
+    let out = run("stopped", "slow.csv");
+    assert_eq!(out.status.code(), Some(1));
+    let msg = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        msg.contains("camera stopped delivering at 1.") && msg.contains("kept and listed"),
+        "{msg}"
+    );
+    let s = d.join("stopped");
+    assert_eq!(assert_consistent(&s), [42, 42]);
+    let steps = csv_rows(&s.join("pressures.csv")).len();
+    assert!((2..12).contains(&steps), "{steps} steps logged");
+}
+
+#[test]
+fn ctrl_c_ends_a_capture_with_every_frame_kept_and_listed() {
+    let dir = tempdir();
+    let d = dir.path();
+    cameras(d);
+    protocol(d, "p.csv", "1");
+    let command = recorder(d);
+    let child = std::process::Command::new(env!("CARGO_BIN_EXE_handcap"))
+        .args(session_args("s", "p.csv", &command))
+        .current_dir(d)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(900));
+    // SAFETY: sending SIGINT to our own child process.
+    unsafe {
+        libc::kill(child.id() as i32, libc::SIGINT);
+    }
+    let out = child.wait_with_output().unwrap();
+    assert_eq!(
+        out.status.code(),
+        Some(130),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let s = d.join("s");
+    let [l, r] = assert_consistent(&s);
+    assert!(
+        (10..42).contains(&l) && (10..42).contains(&r),
+        "{l} left, {r} right frames"
+    );
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(s.join("capture.json")).unwrap()).unwrap();
+    assert_eq!(json["summary"]["ending"], "interrupted");
+    // The steps commanded so far are logged, no more.
+    let logged = csv_rows(&s.join("pressures.csv")).len();
+    let told = std::fs::read_to_string(d.join("told.txt"))
+        .unwrap()
+        .lines()
+        .count();
+    assert_eq!(logged, told);
+    assert!((1..=2).contains(&logged), "{logged}");
+}
