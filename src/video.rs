@@ -100,6 +100,29 @@ impl VideoReader {
     }
 }
 
+/// Each frame's timestamp in a video (s from its start: the container's presentation times,
+/// or the frame number over the rate where it keeps none).
+///
+/// # Errors
+/// A message saying why the video cannot be read.
+pub fn timestamps(path: &Path) -> Result<Vec<f64>, String> {
+    let open = || VideoCapture::from_file(path.to_string_lossy().as_ref(), videoio::CAP_FFMPEG);
+    let mut capture = open().map_err(|e| e.message)?;
+    if !capture.is_opened().unwrap_or(false) {
+        return Err("not a video FFmpeg can read".into());
+    }
+    let mut times = Vec::new();
+    while capture.grab().map_err(|e| e.message)? {
+        times.push(
+            capture
+                .get(videoio::CAP_PROP_POS_MSEC)
+                .map_err(|e| e.message)?
+                / 1e3,
+        );
+    }
+    Ok(times)
+}
+
 /// Writes frames (8-bit RGB, one size) as a Motion-JPEG AVI, OpenCV's own writer (no FFmpeg
 /// needed), 4:2:0 at a JPEG `quality` (1-100, libjpeg's meaning; see [`opencv_mjpeg_quality`]);
 /// into a temporary file renamed when finished, so that an

@@ -54,6 +54,9 @@ pub struct Args {
     /// Relative amplitude of a slow exposure drift (0: exposure locked)
     #[arg(long, default_value_t = 0.0)]
     exposure_drift: f64,
+    /// How far the right camera's timestamps drift ahead of the left's over the session (ms)
+    #[arg(long, default_value_t = 0.0, value_parser = super::finite)]
+    clock_drift_ms: f64,
     /// The finger's frames as two Motion-JPEG videos, frames/left.avi and frames/right.avi
     /// (frame numbers in frames.csv are positions in them), as a lab records with OBS or ffmpeg
     #[arg(long)]
@@ -165,6 +168,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         exposure_drift: a.exposure_drift,
         format,
         video: a.video,
+        clock_drift_s: a.clock_drift_ms / 1e3,
         realism,
         ..CaptureConfig::default()
     });

@@ -43,6 +43,10 @@ pub struct Args {
     /// Marker area limits (pixels above half its peak redness): MIN,MAX
     #[arg(long, value_delimiter = ',', num_args = 1..=2, default_values_t = [TriangulateOptions::default().marker.min_area_px, TriangulateOptions::default().marker.max_area_px])]
     marker_area_px: Vec<usize>,
+    /// For FRAMES holding left.<video> and right.<video> without frames.csv: when each video's
+    /// first frame was taken, on the pressure log's clock (s); LEFT,RIGHT or one time for both
+    #[arg(long, value_delimiter = ',', num_args = 1..=2, value_parser = super::finite)]
+    video_start_s: Vec<f64>,
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
@@ -60,6 +64,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         usage!("--marker-area-px takes two numbers, MIN,MAX");
     };
     (options.marker.min_area_px, options.marker.max_area_px) = (min, max);
+    options.video_start_s = match a.video_start_s[..] {
+        [] => None,
+        [both] => Some([both; 2]),
+        [left, right] => Some([left, right]),
+        _ => usage!("--video-start-s takes LEFT,RIGHT or one time"),
+    };
     let done = super::with_session(|s| {
         triangulate::run(&a.frames, &a.calib, &pressures, &options, &a.out, s)
     })?;
@@ -112,6 +122,17 @@ pub fn print_summary(done: &Triangulated) {
         println!(
             "  marker placed by its colour centroid only (the sub-pixel fit did not settle) in {} left, {} right used frames",
             s.centroid_only[0], s.centroid_only[1]
+        );
+    }
+    let c = &s.clock;
+    println!(
+        "clock: a pair's frames {:.1} ms apart (median, 95 % within {:.1}), drift {:+.1} ms over the session; frame periods {:.1}/{:.1} ms; frames dropped within steps {}/{}",
+        c.skew_ms[0], c.skew_ms[1], c.drift_ms, c.period_ms[0], c.period_ms[1], c.dropped[0], c.dropped[1]
+    );
+    if !c.settling_only.is_empty() {
+        println!(
+            "  {} steps were filmed only while settling (no frame later than --settle-s after the command): hold each step longer",
+            c.settling_only.len()
         );
     }
     println!(

@@ -93,7 +93,15 @@ pub(super) fn page(
             tri.summary.pairs.iter().filter(|(k, _)| **k == "used" || **k == "resolved").map(|(_, v)| v).sum::<usize>(),
             tri.summary.reproj_px[0], tri.summary.reproj_px[2]
         ))
-        .figure(&out.join("triangulated/dataset_detections.png"), "Detected tip (green cross) and the triangulated tip reprojected (magenta circle), left and right crops, and where the crop lies in the left frame.");
+        .figure(&out.join("triangulated/dataset_detections.png"), "Detected tip (green cross) and the triangulated tip reprojected (magenta circle), left and right crops, and where the crop lies in the left frame.")
+        .paragraph(&{
+            let c = &tri.summary.clock;
+            format!(
+                "The clock, from the timestamps alone: a pair's frames {:.1} ms apart (median; 95 % within {:.1} ms), drifting {:+.1} ms over the session; frame periods {:.1} / {:.1} ms; frames dropped within steps {} / {}; steps filmed only while settling: {}.",
+                c.skew_ms[0], c.skew_ms[1], c.drift_ms, c.period_ms[0], c.period_ms[1], c.dropped[0], c.dropped[1], c.settling_only.len()
+            )
+        })
+        .figure(&out.join("triangulated/dataset_clock.svg"), "Right − left time of each frame pair over the session (unwrapped across frame periods) and the straight line of its drift.");
 
     page.section("triangulation", "Triangulated tip against the truth")
         .paragraph("Each row of the dataset is the median of a pressure step's frame pairs, in the hand frame (axes from the reference pair, origin from the zero-pressure steps). Error: Euclidean distance from the settled tip the virtual plant reports.")

@@ -96,7 +96,7 @@ pub fn run(
     options.check().map_err(PipelineError::Usage)?;
     let calibration = read_calibration(calib)?;
     let log = pairing::read_pressure_log(pressures)?;
-    let listed = FrameList::read(frames)?;
+    let listed = FrameList::read(frames, options.video_start_s)?;
     check_outputs(frames, &listed, calib, pressures, &log, out)?;
     let result = triangulate::triangulate(
         &listed,
@@ -109,7 +109,9 @@ pub fn run(
     session.emit(super::Event::Finished(Task::Frames));
     let triangulation = result?;
     let mut provenance = session.provenance(None);
-    for input in [calib, pressures, &frames.join("frames.csv")] {
+    let index = frames.join("frames.csv");
+    let listed_by = Some(index.as_path()).filter(|p| p.exists());
+    for input in [calib, pressures].into_iter().chain(listed_by) {
         provenance = provenance.with_input(input).map_err(io_error(input))?;
     }
     let written = triangulation.write(out, &provenance)?;

@@ -76,6 +76,9 @@ pub struct CaptureConfig {
     /// Relative amplitude of a slow exposure drift (0 = locked exposure).
     pub exposure_drift: f64,
     pub format: ImageFormat,
+    /// How far the right camera's timestamps run ahead of the left's by the session's end
+    /// (s), growing evenly from 0: a USB latency that creeps up on one camera.
+    pub clock_drift_s: f64,
     /// The finger's frames as one Motion-JPEG video per camera (`frames/left.avi`,
     /// `right.avi`; frame numbers are positions in them) instead of images.
     pub video: bool,
@@ -134,6 +137,7 @@ impl Default for CaptureConfig {
             settle_tau_s: 0.02,
             exposure_drift: 0.0,
             format: ImageFormat::WEBCAM,
+            clock_drift_s: 0.0,
             video: false,
             realism: Realism::LAB,
         }
@@ -450,6 +454,9 @@ impl CaptureConfig {
         {
             return bad("the capture window must lie inside a step and the frame rate be positive");
         }
+        if c.clock_drift_s.is_nan() || c.clock_drift_s.abs() >= 1.0 {
+            return bad("the clock drift must lie within ±1 s");
+        }
         if !(c.exposure_drift >= 0.0 && c.exposure_drift < 0.5) {
             return bad("exposure drift must lie in [0, 0.5)");
         }
@@ -584,7 +591,12 @@ fn camera_frames(c: &CaptureConfig, steps: usize, rng: &mut ChaCha8Rng) -> Vec<F
             if exposure_s >= end {
                 break;
             }
-            let stamp_s = exposure_s + clock.offset_s + rng.random_range(-0.002..0.002);
+            let drift = if side == Side::Right {
+                c.clock_drift_s * exposure_s / end
+            } else {
+                0.0
+            };
+            let stamp_s = exposure_s + clock.offset_s + rng.random_range(-0.002..0.002) + drift;
             let step = (stamp_s / c.step_s).floor();
             if step < 0.0 || step as usize >= steps {
                 continue;

@@ -102,12 +102,53 @@ pub struct FrameList {
 }
 
 impl FrameList {
-    /// Reads `dir/frames.csv` and finds each frame's image, or the two videos.
+    /// Reads `dir/frames.csv` and finds each frame's image, or the two videos; for two videos
+    /// without `frames.csv`, their own timestamps after `video_start_s` (left, right; s on the
+    /// log's clock).
     ///
     /// # Errors
-    /// As [`read_frame_list`], and [`TriangulateError::NoImages`] when no frame has an image
-    /// and there are no videos.
-    pub fn read(dir: &Path) -> Result<Self, TriangulateError> {
+    /// As [`read_frame_list`], [`TriangulateError::NoImages`] when no frame has an image
+    /// and there are no videos, [`TriangulateError::Video`] for videos without `frames.csv`
+    /// nor start times, or with both.
+    pub fn read(dir: &Path, video_start_s: Option<[f64; 2]>) -> Result<Self, TriangulateError> {
+        let listed = dir.join("frames.csv").exists();
+        let videos = (
+            crate::video::find(dir, "left"),
+            crate::video::find(dir, "right"),
+        );
+        if let (Some(left), Some(right)) = videos {
+            let video_error = |path: &Path, message: String| TriangulateError::Video {
+                path: path.to_path_buf(),
+                message,
+            };
+            match (listed, video_start_s) {
+                (false, Some(start)) => {
+                    let mut records = Vec::new();
+                    for (side, path) in [(Side::Left, &left), (Side::Right, &right)] {
+                        let times =
+                            crate::video::timestamps(path).map_err(|why| video_error(path, why))?;
+                        records.extend(times.iter().enumerate().map(|(index, t)| FrameRecord {
+                            camera: side,
+                            index,
+                            time_s: start[side as usize] + t,
+                            line: 0,
+                        }));
+                    }
+                    return Ok(FrameList {
+                        paths: vec![None; records.len()],
+                        records,
+                        videos: Some([left, right]),
+                    });
+                }
+                (false, None) => {
+                    return Err(video_error(dir, "videos but no frames.csv: give --video-start-s LEFT,RIGHT (when each video's first frame was taken, on the pressure log's clock) to time the frames by the videos' own timestamps".into()));
+                }
+                (true, Some(_)) => {
+                    return Err(video_error(dir, "--video-start-s is for videos without frames.csv, and this folder has one: drop the flag".into()));
+                }
+                (true, None) => {}
+            }
+        }
         let records = read_frame_list(dir)?;
         let paths: Vec<Option<PathBuf>> = records.iter().map(|f| frame_path(dir, f)).collect();
         if paths.iter().any(Option::is_some) {

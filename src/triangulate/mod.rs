@@ -27,6 +27,7 @@
 //!    `reproj_px` (largest reprojection error) and `dt_ms` (largest left/right time
 //!    difference).
 
+pub mod clock;
 pub mod frames;
 pub mod marker;
 pub mod options;
@@ -237,6 +238,8 @@ pub struct Summary {
     /// The rows' spread (largest distance of a step's pairs from their median, mm): median,
     /// 95th percentile, largest.
     pub step_spread_mm: [f64; 3],
+    /// What the timestamps say: skew, drift, dropped frames, steps filmed while settling.
+    pub clock: clock::ClockCheck,
     pub origin: Origin,
     pub interrupted: bool,
 }
@@ -313,6 +316,7 @@ pub fn triangulate(
 
     // 2-3. Pairs, their steps and their tips.
     let pairing = pairing::pair_frames(records, options.max_dt_s);
+    summary.clock = clock::check(records, &pairing.pairs, log, options.settle_s);
     summary.pairs_formed = pairing.pairs.len();
     summary.unpaired = pairing.unpaired;
     let frame_ref = |i: usize| FrameRef {

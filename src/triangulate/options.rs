@@ -22,6 +22,9 @@ pub struct TriangulateOptions {
     pub max_spread_mm: f64,
     /// A step is at zero pressure when all three are at most this (kPa).
     pub zero_kpa: f64,
+    /// For videos without `frames.csv`: when each video's first frame was taken on the log's
+    /// clock (s); the frames' times are then the videos' own timestamps after it.
+    pub video_start_s: Option<[f64; 2]>,
 }
 
 impl TriangulateOptions {
@@ -68,6 +71,11 @@ impl TriangulateOptions {
                 self.zero_kpa >= 0.0 && self.zero_kpa.is_finite(),
                 format!("zero pressure threshold {} kPa: must be ≥ 0", self.zero_kpa),
             ),
+            (
+                self.video_start_s
+                    .is_none_or(|s| s.iter().all(|t| t.is_finite())),
+                "--video-start-s: give finite times (s)".to_string(),
+            ),
         ];
         match rules.into_iter().find(|(ok, _)| !ok) {
             Some((_, why)) => Err(why),
@@ -87,6 +95,7 @@ impl Default for TriangulateOptions {
             min_frames: 2,
             max_spread_mm: 0.5,
             zero_kpa: 1.0,
+            video_start_s: None,
         }
     }
 }

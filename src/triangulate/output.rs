@@ -49,13 +49,17 @@ const PAIRS: &str = "_pairs.csv";
 const HAND: &str = "_hand.yml";
 const SUMMARY: &str = "_summary.json";
 const DETECTIONS: &str = "_detections.png";
+/// The clock figure's stem: `_clock.png` and `_clock.svg`.
+const CLOCK: &str = "_clock";
 
 /// The files beside `OUT` and what each is (the per-phase files are [`phase_path`]).
-pub const BESIDE: [(&str, &str); 4] = [
+pub const BESIDE: [(&str, &str); 6] = [
     (PAIRS, "the pairs table"),
     (HAND, "the hand frame"),
     (SUMMARY, "the summary"),
     (DETECTIONS, "the detection figure"),
+    ("_clock.png", "the clock figure"),
+    ("_clock.svg", "the clock figure"),
 ];
 
 fn write_err(path: &Path) -> impl Fn(String) -> TriangulateError + '_ {
@@ -188,6 +192,10 @@ impl Triangulation {
         if self.write_detections(&path)? {
             written.push(path);
         }
+        let stem = beside(out, CLOCK);
+        if self.write_clock(&stem)? {
+            written.extend(crate::plot::line_plot_files(&stem));
+        }
         // The summary last, listing every file of this run (itself included), so that the
         // next run into the same place removes what it does not write again.
         written.push(summary.clone());
@@ -253,6 +261,48 @@ impl Triangulation {
         let mut png = Vector::<u8>::new();
         imgcodecs::imencode(".png", &sheet, &mut png, &Vector::new())?;
         fsio::write_bytes(path, png.as_slice()).map_err(|e| write_err(path)(e.to_string()))?;
+        Ok(true)
+    }
+}
+
+impl Triangulation {
+    /// The clock figure: each pair's right − left time against the session's (unwrapped, as
+    /// the drift is measured), and the straight line of the drift. `false` without pairs.
+    fn write_clock(&self, stem: &Path) -> Result<bool, TriangulateError> {
+        let c = &self.summary.clock;
+        let (Some(first), Some(last)) = (c.series.first(), c.series.last()) else {
+            return Ok(false);
+        };
+        let mean = c.series.iter().map(|p| p.1).sum::<f64>() / c.series.len() as f64;
+        let middle = (first.0 + last.0) / 2.0;
+        let line = |t: f64| mean + c.drift_ms * (t - middle) / (last.0 - first.0).max(1e-9);
+        let plot = crate::plot::LinePlot {
+            title: format!(
+                "Left/right clock: |skew| median {:.1} ms, drift {:+.1} ms over the session",
+                c.skew_ms[0], c.drift_ms
+            ),
+            x_label: "session time (s)".into(),
+            y_label: "right − left time of a pair (ms)".into(),
+            series: vec![
+                crate::plot::Series {
+                    label: "pairs".into(),
+                    points: c.series.clone(),
+                    mark: crate::plot::Mark::Points,
+                    colour: crate::plot::BLACK_INDEX,
+                },
+                crate::plot::Series {
+                    label: "drift".into(),
+                    points: vec![(first.0, line(first.0)), (last.0, line(last.0))],
+                    mark: crate::plot::Mark::Line,
+                    colour: 0,
+                },
+            ],
+            log_y: false,
+        };
+        crate::plot::write_line_plot(stem, &plot).map_err(|e| TriangulateError::Write {
+            path: stem.to_path_buf(),
+            message: e.to_string(),
+        })?;
         Ok(true)
     }
 }

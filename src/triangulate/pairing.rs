@@ -195,10 +195,10 @@ pub fn place(log: &PressureLog, a: f64, b: f64, settle_s: f64) -> Placement {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
 
-    fn frame(camera: Side, index: usize, time_s: f64) -> FrameRecord {
+    pub(in crate::triangulate) fn frame(camera: Side, index: usize, time_s: f64) -> FrameRecord {
         FrameRecord {
             camera,
             index,

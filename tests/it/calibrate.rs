@@ -8,8 +8,8 @@ use opencv::imgcodecs;
 use opencv::prelude::*;
 
 use crate::common::{
-    capture_with, handcap, handcap_err, handcap_ok, handcap_usage, read_rig, small_capture,
-    tempdir, tip_rms_against_truth, YamlRig,
+    capture_with, handcap, handcap_err, handcap_ok, handcap_usage, read_rig, session,
+    small_capture, tempdir, tip_rms_against_truth, YamlRig,
 };
 
 fn at(m: &opencv::core::Mat, r: i32, c: i32) -> f64 {
@@ -558,12 +558,7 @@ fn known_intrinsics_are_kept_and_the_pose_is_at_least_as_close() {
 /// Renders only what calibrating needs, ideal PNG frames: `views` board pairs and the
 /// reference, with as few finger frames as a capture can have (one per step, 14 steps).
 fn board_capture(dir: &Path, seed: u64, views: usize) {
-    let synth = handcap::synth::SynthConfig {
-        seed,
-        grid_step_kpa: 250.0,
-        sweep_step_kpa: 125.0,
-        ..handcap::synth::SynthConfig::default()
-    };
+    let synth = session(seed, [250.0, 125.0]);
     let config = handcap::synth::capture::CaptureConfig {
         views,
         window_s: [0.10, 0.12],

@@ -3,17 +3,12 @@
 use std::collections::HashSet;
 use std::path::Path;
 
-use crate::common::{capture_with, csv_rows, handcap, handcap_err, handcap_ok, tempdir};
+use crate::common::{capture_with, csv_rows, handcap, handcap_err, handcap_ok, session, tempdir};
 
 /// Two Motion-JPEG videos of a small synthetic session (`synth --video`): 14 steps, 42 frames
 /// (1.4 s at 30 fps) per camera, in `dir/cams/frames/`.
 fn cameras(dir: &Path) {
-    let synth = handcap::synth::SynthConfig {
-        seed: 5,
-        grid_step_kpa: 250.0,
-        sweep_step_kpa: 125.0,
-        ..handcap::synth::SynthConfig::default()
-    };
+    let synth = session(5, [250.0, 125.0]);
     let config = handcap::synth::capture::CaptureConfig {
         views: 3,
         video: true,

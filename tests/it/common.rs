@@ -113,19 +113,30 @@ pub fn capture_as(
     [grid_step_kpa, sweep_step_kpa]: [f64; 2],
     (format, realism): (ImageFormat, Realism),
 ) {
-    let synth = handcap::synth::SynthConfig {
-        seed,
-        grid_step_kpa,
-        sweep_step_kpa,
-        ..handcap::synth::SynthConfig::default()
-    };
     let config = handcap::synth::capture::CaptureConfig {
         views,
         format,
         realism,
         ..handcap::synth::capture::CaptureConfig::default()
     };
-    capture_with(dir, &synth, &config);
+    capture_with(
+        dir,
+        &session(seed, [grid_step_kpa, sweep_step_kpa]),
+        &config,
+    );
+}
+
+/// The virtual session of `seed`: the training grid and both sweeps at the given steps (kPa).
+pub fn session(
+    seed: u64,
+    [grid_step_kpa, sweep_step_kpa]: [f64; 2],
+) -> handcap::synth::SynthConfig {
+    handcap::synth::SynthConfig {
+        seed,
+        grid_step_kpa,
+        sweep_step_kpa,
+        ..handcap::synth::SynthConfig::default()
+    }
 }
 
 /// Renders the capture `synth` and `config` describe in `dir`, whole.

@@ -16,7 +16,7 @@ use handcap::synth::render::encode_png;
 use handcap::triangulate::frames::decode;
 
 use crate::common::{
-    capture, capture_as, capture_with, csv_rows, handcap_err, handcap_ok, handcap_usage,
+    capture, capture_as, capture_with, csv_rows, handcap_err, handcap_ok, handcap_usage, session,
     small_capture, tempdir, tip_rms_against_truth, tips_by_step,
 };
 
@@ -58,17 +58,21 @@ fn truth_frame(d: &Path, camera: &str, frame: usize) -> (usize, [f64; 2]) {
     (row["step"].parse().unwrap(), [v("u_px"), v("v_px")])
 }
 
-/// `handcap triangulate frames` with the true rig as the calibration; returns stdout.
-fn triangulate_with_truth(d: &Path, out: &str) -> String {
-    let args = [
+/// `handcap triangulate frames` with the true rig as the calibration, into `out`.
+fn truth_args(out: &str) -> [&str; 6] {
+    [
         "triangulate",
         "frames",
         "--calib",
         "truth/rig.yml",
         "--out",
         out,
-    ];
-    handcap_ok(d, &args)
+    ]
+}
+
+/// [`truth_args`] run; returns stdout.
+fn triangulate_with_truth(d: &Path, out: &str) -> String {
+    handcap_ok(d, &truth_args(out))
 }
 
 fn summary(path: &Path) -> serde_json::Value {
@@ -477,12 +481,7 @@ fn recorded_as_videos_the_capture_gives_the_same_tips() {
         [125.0, 50.0],
         (ImageFormat::WEBCAM, Realism::LAB),
     );
-    let synth = handcap::synth::SynthConfig {
-        seed: 32,
-        grid_step_kpa: 125.0,
-        sweep_step_kpa: 50.0,
-        ..handcap::synth::SynthConfig::default()
-    };
+    let synth = session(32, [125.0, 50.0]);
     let config = handcap::synth::capture::CaptureConfig {
         views: 3,
         video: true,
@@ -507,20 +506,86 @@ fn recorded_as_videos_the_capture_gives_the_same_tips() {
     let mut text = std::fs::read_to_string(&index).unwrap();
     text.push_str("9999,left,99.0\n");
     std::fs::write(&index, text).unwrap();
-    let msg = handcap_err(
-        v,
-        &[
-            "triangulate",
-            "frames",
-            "--calib",
-            "truth/rig.yml",
-            "--out",
-            "x/d.csv",
-        ],
-    );
+    let msg = handcap_err(v, &truth_args("x/d.csv"));
     assert!(
         msg.contains("left.avi") && msg.contains("lists left frame 9999") && msg.contains("line "),
         "{msg}"
     );
     assert!(!v.join("x/d.csv").exists());
+}
+
+#[test]
+fn the_clock_check_finds_a_drift_injected_into_one_camera() {
+    // The same capture twice, the second with the right camera's timestamps running 20 ms
+    // ahead by the session's end (more than half a frame period: the pairing changes partner
+    // on the way, and the drift must be unwrapped).
+    let mut drift = Vec::new();
+    for injected in [0.0, 0.020] {
+        let dir = tempdir();
+        let d = dir.path();
+        let synth = session(7, [125.0, 50.0]);
+        let config = handcap::synth::capture::CaptureConfig {
+            views: 3,
+            clock_drift_s: injected,
+            format: ImageFormat::Png,
+            realism: Realism::CLEAN,
+            ..handcap::synth::capture::CaptureConfig::default()
+        };
+        capture_with(d, &synth, &config);
+        let out = triangulate_with_truth(d, "out/dataset.csv");
+        assert!(out.contains("clock: a pair's frames"), "{out}");
+        assert!(d.join("out/dataset_clock.svg").is_file());
+        let s = summary(&d.join("out/dataset_summary.json"));
+        let clock = &s["clock"];
+        assert_eq!(clock["dropped"], serde_json::json!([0, 0]), "{clock}");
+        for p in clock["period_ms"].as_array().unwrap() {
+            assert!((p.as_f64().unwrap() - 33.33).abs() < 0.5, "{clock}");
+        }
+        drift.push(clock["drift_ms"].as_f64().unwrap());
+    }
+    println!(
+        "drift found: {:.2} ms without, {:.2} ms with 20 ms injected",
+        drift[0], drift[1]
+    );
+    assert!(drift[0].abs() < 2.0, "{drift:?}");
+    assert!((drift[1] - 20.0).abs() < 2.0, "{drift:?}");
+}
+
+#[test]
+fn videos_without_frames_csv_are_timed_by_their_own_timestamps() {
+    // Filmed continuously (every frame of every step kept, as a recording is), 12 steps: the
+    // same session timed by frames.csv and by the videos' timestamps after each video's start.
+    let dir = tempdir();
+    let d = dir.path();
+    let synth = session(3, [250.0, 250.0]);
+    let config = handcap::synth::capture::CaptureConfig {
+        views: 3,
+        window_s: [0.0, 0.3],
+        video: true,
+        realism: Realism::CLEAN,
+        ..handcap::synth::capture::CaptureConfig::default()
+    };
+    capture_with(d, &synth, &config);
+    triangulate_with_truth(d, "listed/dataset.csv");
+    let rows = csv_rows(&d.join("frames/frames.csv"));
+    let first =
+        |camera: &str| rows.iter().find(|r| r["camera"] == camera).unwrap()["time_s"].clone();
+    let start = format!("{},{}", first("left"), first("right"));
+    std::fs::remove_file(d.join("frames/frames.csv")).unwrap();
+    let args = truth_args("timed/dataset.csv");
+    let msg = handcap_err(d, &args);
+    assert!(msg.contains("no frames.csv: give --video-start-s"), "{msg}");
+    let mut with_start = args.to_vec();
+    with_start.extend(["--video-start-s", start.as_str()]);
+    let out = handcap_ok(d, &with_start);
+    assert!(out.contains("12 rows"), "{out}");
+    let truth = d.join("truth/tips.csv");
+    let listed = tip_rms_against_truth(&d.join("listed/dataset.csv"), &truth, |_| true);
+    let timed = tip_rms_against_truth(&d.join("timed/dataset.csv"), &truth, |_| true);
+    println!(
+        "tip RMS: {:.4} mm by frames.csv, {:.4} mm by the videos' timestamps",
+        listed.0, timed.0
+    );
+    assert_eq!(listed.1, timed.1);
+    assert!((listed.0 - timed.0).abs() < 0.005, "{listed:?} {timed:?}");
 }

@@ -1,0 +1,188 @@
+//! The session's clock, checked from the timestamps alone: how far apart the two frames of a
+//! pair were taken, whether that drifts over the session, frames a camera dropped, and steps
+//! filmed only while the finger was still moving.
+//!
+//! - Skew: right − left time of each pair (the pairing takes each camera's nearest frame), its
+//!   size's median and 95th percentile. Free-running webcams run at slightly different rates,
+//!   so the difference walks; USB latency that grows on one camera moves it too.
+//! - Drift: a straight line through the differences against the session's time, times the
+//!   session's length. A difference that walks past half a frame period makes the pairing take
+//!   the next frame and the difference jump by a period; the differences are unwrapped across
+//!   such jumps first, so a drift of several periods is measured whole.
+//! - Dropped: within a step each camera should deliver every frame; a gap over 1.5 periods
+//!   between two frames of one step counts the frames that are missing from it (gaps between
+//!   steps are not counted: a capture may film only around its steps).
+//! - Settling only: steps with pairs, but all within `settle_s` of the command: no row comes
+//!   from them; hold each step longer.
+
+use serde::Serialize;
+
+use super::frames::FrameRecord;
+use super::pairing::{place, Placement, PressureLog};
+use crate::stereo::Side;
+
+/// What the timestamps say (module docs).
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct ClockCheck {
+    /// |right − left| of the pairs (ms): median, 95th percentile.
+    pub skew_ms: [f64; 2],
+    /// Change of right − left over the session (ms), unwrapped.
+    pub drift_ms: f64,
+    /// Each camera's frame period: the median interval between frames of one step (ms).
+    pub period_ms: [f64; 2],
+    /// Frames missing within steps, per camera.
+    pub dropped: [usize; 2],
+    /// Log rows (0-based) filmed only while settling.
+    pub settling_only: Vec<usize>,
+    /// Per pair: session time (s) and right − left unwrapped (ms), for the figure.
+    #[serde(skip)]
+    pub series: Vec<(f64, f64)>,
+}
+
+/// The step a time falls in (`None` before the first command or after the last step).
+fn step_of(log: &PressureLog, t: f64) -> Option<usize> {
+    let k = log
+        .steps
+        .partition_point(|s| s.time_s <= t)
+        .checked_sub(1)?;
+    (t < log.end_s(k)).then_some(k)
+}
+
+/// Checks the clock of `frames` paired as `pairs` against `log`.
+pub fn check(
+    frames: &[FrameRecord],
+    pairs: &[(usize, usize)],
+    log: &PressureLog,
+    settle_s: f64,
+) -> ClockCheck {
+    let mut c = ClockCheck::default();
+    // Periods and drops, per camera, from frames of one step.
+    for (side, cam) in [Side::Left, Side::Right].into_iter().zip(0..) {
+        let mut times: Vec<(f64, Option<usize>)> = frames
+            .iter()
+            .filter(|f| f.camera == side)
+            .map(|f| (f.time_s, step_of(log, f.time_s)))
+            .collect();
+        times.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let gaps: Vec<f64> = times
+            .windows(2)
+            .filter(|w| w[0].1.is_some() && w[0].1 == w[1].1)
+            .map(|w| w[1].0 - w[0].0)
+            .collect();
+        let period = crate::stats::median(&mut gaps.clone()).unwrap_or(0.0);
+        c.period_ms[cam] = 1e3 * period;
+        if period > 0.0 {
+            c.dropped[cam] = gaps
+                .iter()
+                .filter(|&&g| g > 1.5 * period)
+                .map(|g| (g / period).round() as usize - 1)
+                .sum();
+        }
+    }
+    // Skew and drift from the pairs, in time order.
+    let mut diffs: Vec<(f64, f64)> = pairs
+        .iter()
+        .map(|&(l, r)| {
+            let (tl, tr) = (frames[l].time_s, frames[r].time_s);
+            ((tl + tr) / 2.0, tr - tl)
+        })
+        .collect();
+    diffs.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut sizes: Vec<f64> = diffs.iter().map(|d| 1e3 * d.1.abs()).collect();
+    if let Some([median, p95]) = crate::stats::quantiles(&mut sizes, [0.5, 0.95]) {
+        c.skew_ms = [median, p95];
+    }
+    let period = 1e-3 * (c.period_ms[0] + c.period_ms[1]) / 2.0;
+    let mut previous: Option<f64> = None;
+    for (t, d) in &diffs {
+        let unwrapped = match previous {
+            Some(p) if period > 0.0 => d - ((d - p) / period).round() * period,
+            _ => *d,
+        };
+        previous = Some(unwrapped);
+        c.series.push((*t, 1e3 * unwrapped));
+    }
+    if c.series.len() >= 2 {
+        let n = c.series.len() as f64;
+        let (mt, md) = c
+            .series
+            .iter()
+            .fold((0.0, 0.0), |(a, b), (t, d)| (a + t / n, b + d / n));
+        let (sxy, sxx) = c.series.iter().fold((0.0, 0.0), |(a, b), (t, d)| {
+            (a + (t - mt) * (d - md), b + (t - mt).powi(2))
+        });
+        let span = c.series[c.series.len() - 1].0 - c.series[0].0;
+        if sxx > 0.0 {
+            c.drift_ms = sxy / sxx * span;
+        }
+    }
+    // Steps whose every pair was settling.
+    let mut settling = vec![false; log.steps.len()];
+    let mut placed = vec![false; log.steps.len()];
+    for &(l, r) in pairs {
+        let (a, b) = (frames[l].time_s, frames[r].time_s);
+        match place(log, a, b, settle_s) {
+            Placement::Step(k) => placed[k] = true,
+            Placement::Settling => {
+                if let Some(k) = step_of(log, a.min(b)) {
+                    settling[k] = true;
+                }
+            }
+            _ => {}
+        }
+    }
+    c.settling_only = (0..log.steps.len())
+        .filter(|&k| settling[k] && !placed[k])
+        .collect();
+    c
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::triangulate::pairing::tests::frame;
+    use crate::triangulate::pairing::{pair_frames, LogStep};
+
+    fn log(times: &[f64]) -> PressureLog {
+        PressureLog {
+            path: "log.csv".into(),
+            steps: times
+                .iter()
+                .map(|&time_s| LogStep {
+                    time_s,
+                    pressures_kpa: [0.0; 3],
+                    extra: Vec::new(),
+                })
+                .collect(),
+            extra_columns: Vec::new(),
+            median_step_s: 1.0,
+        }
+    }
+
+    #[test]
+    fn a_drift_of_several_periods_and_the_dropped_frames_are_found() {
+        // 30 fps for 10 s, one step a second; the right clock runs 80 ms (2.4 periods) ahead by
+        // the end; the left camera drops frames 100-102, the right camera frame 200.
+        let mut frames = Vec::new();
+        for k in 0..300 {
+            let t = 0.01 + k as f64 / 30.0;
+            if !(100..=102).contains(&k) {
+                frames.push(frame(Side::Left, k, t));
+            }
+            if k != 200 {
+                frames.push(frame(Side::Right, k, t + 0.005 + 0.080 * t / 10.0));
+            }
+        }
+        let log = log(&(0..10).map(f64::from).collect::<Vec<_>>());
+        let pairing = pair_frames(&frames, 0.02);
+        let c = check(&frames, &pairing.pairs, &log, 0.05);
+        assert!((c.drift_ms - 80.0).abs() < 1.0, "{c:?}");
+        assert_eq!(c.dropped, [3, 1]);
+        assert!((c.period_ms[0] - 33.333).abs() < 0.01, "{:?}", c.period_ms);
+        assert!(c.skew_ms[1] <= 16.7, "{:?}", c.skew_ms);
+        assert!(c.settling_only.is_empty());
+        // Held for less than the settling time, a step gives no row: said.
+        let c = check(&frames, &pairing.pairs, &log, 1.5);
+        assert_eq!(c.settling_only.len(), 10);
+    }
+}
