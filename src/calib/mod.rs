@@ -35,6 +35,7 @@ pub mod guidance;
 use checks::{board_check, board_pose, epipolar_error, hand_axes, rectify};
 pub mod pairs;
 pub mod uncertainty;
+pub mod video;
 
 use std::path::{Path, PathBuf};
 
@@ -188,6 +189,10 @@ pub struct CalibOptions {
     pub bootstrap: usize,
     /// … and the seed of the draws.
     pub seed: u64,
+    /// For videos without `frames.csv`: each video's first frame on one clock (s).
+    pub video_start_s: Option<[f64; 2]>,
+    /// Most pairs picked from videos ([`video`]).
+    pub max_video_pairs: usize,
 }
 
 impl Default for CalibOptions {
@@ -199,6 +204,8 @@ impl Default for CalibOptions {
             intrinsics: [None, None],
             bootstrap: 0,
             seed: 1,
+            video_start_s: None,
+            max_video_pairs: 25,
         }
     }
 }

@@ -50,8 +50,8 @@ pub enum CaptureError {
         why: String,
         found: String,
     },
-    #[error("{0} already holds a capture (frames/frames.csv); choose another --out")]
-    Exists(PathBuf),
+    #[error("{0} already holds {1}; choose another --out")]
+    Exists(PathBuf, &'static str),
     #[error(transparent)]
     Protocol(#[from] crate::data::DataError),
     #[error("writing {path}: {source}")]
@@ -75,6 +75,18 @@ pub struct CaptureOptions {
     pub protocol: Option<(Vec<protocol::Step>, String)>,
     /// Stop after this long (s).
     pub duration_s: Option<f64>,
+    /// Instead of the finger's frames: chessboard pairs for `calibrate` ([`calibration`]).
+    pub calibration: Option<BoardPairs>,
+}
+
+/// What a calibration capture collects: still pairs of `board` where it stands somewhere new,
+/// `pairs` of them into `OUT/calib/left_NN.jpg`, `right_NN.jpg`; or, as the `reference`, one
+/// still pair as `left_ref`, `right_ref` (the board at the finger's base).
+#[derive(Clone, Debug)]
+pub struct BoardPairs {
+    pub board: crate::calib::BoardSpec,
+    pub pairs: usize,
+    pub reference: bool,
 }
 
 /// How a session ended.
@@ -90,6 +102,8 @@ pub enum Ending {
         time_s: f64,
         frames: usize,
     },
+    /// A calibration capture has its pairs.
+    PairsTaken,
     /// The pressure command failed at a step.
     CommandFailed {
         step: usize,
@@ -108,6 +122,9 @@ pub struct Stats {
     /// Median |left − right| time of nearest frames (ms).
     pub skew_ms: f64,
     pub steps_done: usize,
+    /// A calibration capture's pairs taken, and why the last candidate was not.
+    pub board_pairs: usize,
+    pub board_refused: String,
 }
 
 /// What a session did and wrote.
@@ -395,7 +412,11 @@ fn skew_ms(left: &[f64], right: &[f64]) -> f64 {
     crate::stats::median(&mut d).unwrap_or(0.0)
 }
 
-fn stats(rows: &[(Side, usize, f64)], steps_done: usize) -> Stats {
+fn stats(
+    rows: &[(Side, usize, f64)],
+    steps_done: usize,
+    judge: Option<&calibration::Judge>,
+) -> Stats {
     let times =
         |side: Side| -> Vec<f64> { rows.iter().filter(|r| r.0 == side).map(|r| r.2).collect() };
     let (l, r) = (times(Side::Left), times(Side::Right));
@@ -406,6 +427,8 @@ fn stats(rows: &[(Side, usize, f64)], steps_done: usize) -> Stats {
         drops: [dl, dr],
         skew_ms: skew_ms(&l, &r),
         steps_done,
+        board_pairs: judge.map_or(0, |j| j.taken),
+        board_refused: judge.map_or_else(String::new, |j| j.refused.clone()),
     }
 }
 
@@ -423,8 +446,21 @@ pub fn capture(
     interrupt: &AtomicBool,
 ) -> Result<CaptureSummary, CaptureError> {
     let frames_dir = out.join("frames");
-    if frames_dir.join("frames.csv").exists() {
-        return Err(CaptureError::Exists(out.to_path_buf()));
+    let taken = |name: &str| {
+        ["jpg", "png"]
+            .iter()
+            .any(|ext| out.join(format!("calib/left_{name}.{ext}")).exists())
+    };
+    let exists = match &options.calibration {
+        None => frames_dir
+            .join("frames.csv")
+            .exists()
+            .then_some("a capture (frames/frames.csv)"),
+        Some(c) if c.reference => taken("ref").then_some("a reference pair (calib/left_ref)"),
+        Some(_) => taken("00").then_some("calibration pairs (calib/left_00)"),
+    };
+    if let Some(what) = exists {
+        return Err(CaptureError::Exists(out.to_path_buf(), what));
     }
     // The backends' own warnings (GStreamer trying a file name as a pipeline, …) would bury
     // handcap's one line; what failed is said there.
@@ -433,10 +469,12 @@ pub fn capture(
         open_camera(Side::Left, &options.sources[0], options)?,
         open_camera(Side::Right, &options.sources[1], options)?,
     ];
-    std::fs::create_dir_all(&frames_dir).map_err(|source| CaptureError::Write {
-        path: frames_dir.clone(),
-        source,
-    })?;
+    if options.calibration.is_none() {
+        std::fs::create_dir_all(&frames_dir).map_err(|source| CaptureError::Write {
+            path: frames_dir.clone(),
+            source,
+        })?;
+    }
     let refused = [cameras[0].refused.clone(), cameras[1].refused.clone()];
     let write = |path: &Path, text: &str| {
         fsio::write_bytes(path, text.as_bytes()).map_err(|source| CaptureError::Write {
@@ -452,6 +490,11 @@ pub fn capture(
     let clock = Clock {
         start: Instant::now(),
     };
+    let mut judge = options
+        .calibration
+        .clone()
+        .map(|spec| calibration::Judge::new(spec, out))
+        .transpose()?;
     let stop = AtomicBool::new(false);
     let log = std::sync::Mutex::new(Vec::new());
     let (tx, rx) = mpsc::channel::<Grabbed>();
@@ -476,6 +519,8 @@ pub fn capture(
         let mut last_shown = 0.0;
         // The first frame may take a while longer: a device warms up.
         let mut last_seen = [STALL_S; 2];
+        let mut latest: [Option<Grabbed>; 2] = [None, None];
+        let mut last_look = 0.0;
         let store = |frame: &Grabbed| -> Result<(), CaptureError> {
             let name = format!(
                 "{}_{:05}.{}",
@@ -490,13 +535,17 @@ pub fn capture(
         loop {
             match rx.recv_timeout(Duration::from_millis(100)) {
                 Ok(frame) => {
-                    if let Err(e) = store(&frame) {
+                    last_seen[frame.side as usize] = frame.time_s;
+                    if judge.is_some() {
+                        // A calibration capture keeps only each camera's latest frame.
+                        let side = frame.side as usize;
+                        latest[side] = Some(frame);
+                    } else if let Err(e) = store(&frame) {
                         failure = Some(e);
                         stop.store(true, Ordering::SeqCst);
-                        continue;
+                    } else {
+                        rows.push((frame.side, frame.index, frame.time_s));
                     }
-                    last_seen[frame.side as usize] = frame.time_s;
-                    rows.push((frame.side, frame.index, frame.time_s));
                 }
                 Err(mpsc::RecvTimeoutError::Disconnected) => {
                     // Both cameras ended: the protocol stops too.
@@ -506,6 +555,19 @@ pub fn capture(
                 Err(mpsc::RecvTimeoutError::Timeout) => {}
             }
             let now = clock.now_s();
+            if let (Some(judge), [Some(l), Some(r)]) = (judge.as_mut(), &latest) {
+                if now - last_look >= calibration::BOARD_EVERY_S && !stop.load(Ordering::SeqCst) {
+                    last_look = now;
+                    if let Err(e) = judge.look(l, r) {
+                        failure = Some(e);
+                        stop.store(true, Ordering::SeqCst);
+                    }
+                    if judge.done() {
+                        ending = Some(Ending::PairsTaken);
+                        stop.store(true, Ordering::SeqCst);
+                    }
+                }
+            }
             if !stop.load(Ordering::SeqCst) {
                 let stalled = [Side::Left, Side::Right]
                     .into_iter()
@@ -532,8 +594,13 @@ pub fn capture(
             }
             if now - last_shown >= 1.0 && failure.is_none() {
                 last_shown = now;
-                live(&stats(&rows, log.lock().expect("log").len()));
-                if let Err(e) = write(&frames_dir.join("frames.csv"), &frames_csv(&rows)) {
+                live(&stats(
+                    &rows,
+                    log.lock().expect("log").len(),
+                    judge.as_ref(),
+                ));
+                let listed = judge.is_none().then(|| frames_dir.join("frames.csv"));
+                if let Some(Err(e)) = listed.map(|path| write(&path, &frames_csv(&rows))) {
                     failure = Some(e);
                     stop.store(true, Ordering::SeqCst);
                 }
@@ -558,14 +625,16 @@ pub fn capture(
         return Err(e);
     }
     rows.sort_by_key(|r| (r.0 as u8, r.1));
-    write(&frames_dir.join("frames.csv"), &frames_csv(&rows))?;
+    if judge.is_none() {
+        write(&frames_dir.join("frames.csv"), &frames_csv(&rows))?;
+    }
     let log = log.into_inner().expect("log");
     if options.protocol.is_some() {
         write(&out.join("pressures.csv"), &pressures_csv(&log))?;
     }
     let summary = CaptureSummary {
         ending: ending.unwrap_or(Ending::Interrupted),
-        stats: stats(&rows, log.len()),
+        stats: stats(&rows, log.len(), judge.as_ref()),
         refused,
         start_monotonic_s,
         start_unix_s,
@@ -581,4 +650,125 @@ pub fn capture(
         &(serde_json::to_string_pretty(&json).expect("serialisable") + "\n"),
     )?;
     Ok(summary)
+}
+
+/// A calibration capture's judge: every [`BOARD_EVERY_S`] the latest frame of each camera is
+/// searched for the board; a pair is taken when both show it, it stood still since the
+/// previous search (no corner moved over [`crate::calib::video::STILL_PX`]) and it stands
+/// somewhere new ([`crate::calib::video::new_place`]).
+pub mod calibration {
+    use super::*;
+    use crate::calib::detect::{find_corners, Detector};
+    use crate::calib::video::{footprint, new_place, STILL_PX};
+
+    /// How often the latest frames are searched for the board (s).
+    pub const BOARD_EVERY_S: f64 = 0.2;
+
+    /// The pairs taken so far and where their boards stood.
+    pub struct Judge {
+        pub spec: BoardPairs,
+        dir: PathBuf,
+        previous: Option<[Vec<[f32; 2]>; 2]>,
+        places: Vec<[f64; 6]>,
+        pub taken: usize,
+        pub refused: String,
+    }
+
+    fn corners(spec: &BoardPairs, bytes: &[u8]) -> Option<(Vec<[f32; 2]>, [i32; 2])> {
+        let gray = crate::cv::decode_image(
+            &Vector::from_slice(bytes),
+            opencv::imgcodecs::IMREAD_GRAYSCALE,
+        )
+        .ok()?;
+        let (cols, rows) = (spec.board.cols as i32, spec.board.rows as i32);
+        let found = find_corners(&gray, cols, rows, Detector::SectorBased).ok()??;
+        Some((found, [gray.cols(), gray.rows()]))
+    }
+
+    impl Judge {
+        /// # Errors
+        /// The `calib` folder or its board file cannot be written.
+        pub fn new(spec: BoardPairs, out: &Path) -> Result<Self, CaptureError> {
+            let dir = out.join("calib");
+            std::fs::create_dir_all(&dir).map_err(|source| CaptureError::Write {
+                path: dir.clone(),
+                source,
+            })?;
+            let board = dir.join(crate::calib::file::BOARD_FILE);
+            fsio::write_bytes(
+                &board,
+                crate::calib::file::board_yaml(&spec.board).as_bytes(),
+            )
+            .map_err(|source| CaptureError::Write {
+                path: board,
+                source,
+            })?;
+            Ok(Judge {
+                spec,
+                dir,
+                previous: None,
+                places: Vec::new(),
+                taken: 0,
+                refused: String::new(),
+            })
+        }
+
+        pub fn done(&self) -> bool {
+            self.taken
+                >= if self.spec.reference {
+                    1
+                } else {
+                    self.spec.pairs
+                }
+        }
+
+        /// Looks at the latest left and right frames; takes them when they qualify.
+        ///
+        /// # Errors
+        /// A pair's file cannot be written.
+        pub(super) fn look(&mut self, left: &Grabbed, right: &Grabbed) -> Result<(), CaptureError> {
+            let (l, r) = (
+                corners(&self.spec, &left.bytes),
+                corners(&self.spec, &right.bytes),
+            );
+            let previous = self.previous.take();
+            let (Some((l, size)), Some((r, _))) = (l, r) else {
+                self.refused = "the board is not seen whole in both cameras".into();
+                return Ok(());
+            };
+            self.previous = Some([l.clone(), r.clone()]);
+            let moved = previous.map_or(f64::INFINITY, |[pl, pr]| {
+                pl.iter()
+                    .zip(&l)
+                    .chain(pr.iter().zip(&r))
+                    .map(|(p, q)| f64::from(p[0] - q[0]).hypot(f64::from(p[1] - q[1])))
+                    .fold(0.0, f64::max)
+            });
+            if moved > STILL_PX {
+                self.refused = "the board is moving: hold it still".into();
+                return Ok(());
+            }
+            let place = footprint(&self.spec.board, &l, size);
+            if !self.spec.reference && !new_place(&place, &self.places) {
+                self.refused = "the board stands where a pair was taken: move or tilt it".into();
+                return Ok(());
+            }
+            let name = if self.spec.reference {
+                "ref".to_string()
+            } else {
+                format!("{:02}", self.taken)
+            };
+            for frame in [left, right] {
+                let path =
+                    self.dir
+                        .join(format!("{}_{name}.{}", frame.side.name(), frame.extension));
+                fsio::write_bytes(&path, &frame.bytes)
+                    .map_err(|source| CaptureError::Write { path, source })?;
+            }
+            self.places.push(place);
+            self.taken += 1;
+            self.refused.clear();
+            Ok(())
+        }
+    }
 }

@@ -39,6 +39,13 @@ pub struct Args {
     /// Seed of the bootstrap's draws
     #[arg(long, default_value_t = CalibOptions::default().seed)]
     seed: u64,
+    /// For DIR holding left.<video> and right.<video> without frames.csv: when each video's
+    /// first frame was taken, on one clock (s); LEFT,RIGHT or one time for both
+    #[arg(long, value_delimiter = ',', num_args = 1..=2, value_parser = super::finite)]
+    video_start_s: Vec<f64>,
+    /// Most board pairs picked from videos
+    #[arg(long, default_value_t = CalibOptions::default().max_video_pairs)]
+    max_video_pairs: usize,
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
@@ -62,6 +69,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         intrinsics,
         bootstrap: a.bootstrap,
         seed: a.seed,
+        video_start_s: super::triangulate::video_start(&a.video_start_s)?,
+        max_video_pairs: a.max_video_pairs,
         ..CalibOptions::default()
     };
     let done = super::with_session(|s| {

@@ -38,6 +38,23 @@ pub struct Args {
     /// Stop after this many seconds (default: the protocol's end, or Ctrl-C)
     #[arg(long, value_parser = super::finite)]
     duration_s: Option<f64>,
+    /// Chessboard pairs for `calibrate` instead of the finger's frames: a pair is taken when
+    /// the board is seen whole in both cameras, still, somewhere new (OUT/calib/left_NN.jpg, …)
+    #[arg(long, conflicts_with_all = ["protocol", "set_pressure"])]
+    calib: bool,
+    /// With --calib: how many pairs
+    #[arg(long, default_value_t = 20, requires = "calib")]
+    pairs: usize,
+    /// With --calib: one still pair of the board standing at the finger's base, as
+    /// OUT/calib/left_ref, right_ref (run after the pairs)
+    #[arg(long, requires = "calib")]
+    reference: bool,
+    /// With --calib: the board's inner corners COLSxROWS (default: calib/board.yml's 9x6)
+    #[arg(long, value_parser = super::synth::parse_board, requires = "calib")]
+    board: Option<(usize, usize)>,
+    /// With --calib: the printed square's side, mm (default: calib/board.yml's)
+    #[arg(long, requires = "calib")]
+    square_mm: Option<f64>,
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
@@ -48,8 +65,27 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         (Some(path), Some(command)) => Some((protocol::read(path)?, command.clone())),
         _ => None,
     };
-    if protocol.is_none() && a.duration_s.is_none() {
+    if protocol.is_none() && a.duration_s.is_none() && !a.calib {
         println!("filming until Ctrl-C (no --protocol, no --duration-s); log the regulator on the clock capture.json describes");
+    }
+    let calibration = a.calib.then(|| {
+        let default = handcap::calib::file::default_board();
+        let (cols, rows) = a.board.unwrap_or((default.cols, default.rows));
+        capture::BoardPairs {
+            board: handcap::calib::BoardSpec {
+                cols,
+                rows,
+                square_mm: a.square_mm.unwrap_or(default.square_mm),
+            },
+            pairs: a.pairs,
+            reference: a.reference,
+        }
+    });
+    if let Some(c) = &calibration {
+        c.board.check()?;
+        if c.pairs == 0 {
+            super::usage!("--pairs must be at least 1");
+        }
     }
     let options = CaptureOptions {
         sources: [a.left.clone(), a.right.clone()],
@@ -58,12 +94,29 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         fps: a.fps,
         protocol,
         duration_s: a.duration_s,
+        calibration,
     };
     let bar = ProgressBar::new_spinner()
         .with_style(ProgressStyle::with_template("{spinner} {elapsed} {msg}").expect("template"));
     let steps = options.protocol.as_ref().map_or(0, |(s, _)| s.len());
+    let wanted = options
+        .calibration
+        .as_ref()
+        .map(|c| if c.reference { 1 } else { c.pairs });
+    let say = |s: &Stats| match wanted {
+        Some(n) => format!(
+            "board pairs {}/{n}{}",
+            s.board_pairs,
+            if s.board_refused.is_empty() {
+                String::new()
+            } else {
+                format!(" ({})", s.board_refused)
+            }
+        ),
+        None => line(s, steps),
+    };
     let live = |s: &Stats| {
-        bar.set_message(line(s, steps));
+        bar.set_message(say(s));
         bar.tick();
     };
     let summary = capture::capture(&a.out, &options, &live, super::interrupt_flag())?;
@@ -73,17 +126,25 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             println!("{side} camera: the backend refused {}", refused.join(", "));
         }
     }
-    println!("{}", line(&summary.stats, steps));
-    println!(
-        "wrote {out}/frames/ ({} left, {} right frames), {out}/frames/frames.csv{}, {out}/capture.json",
-        summary.stats.frames[0],
-        summary.stats.frames[1],
-        if steps > 0 { format!(", {out}/pressures.csv", out = a.out.display()) } else { String::new() },
-        out = a.out.display()
-    );
+    println!("{}", say(&summary.stats));
+    if wanted.is_some() {
+        println!(
+            "wrote {out}/calib/ ({} pairs and board.yml), {out}/capture.json; then: handcap calibrate {out}/calib",
+            summary.stats.board_pairs,
+            out = a.out.display()
+        );
+    } else {
+        println!(
+            "wrote {out}/frames/ ({} left, {} right frames), {out}/frames/frames.csv{}, {out}/capture.json",
+            summary.stats.frames[0],
+            summary.stats.frames[1],
+            if steps > 0 { format!(", {out}/pressures.csv", out = a.out.display()) } else { String::new() },
+            out = a.out.display()
+        );
+    }
     let kept = "every frame before it is kept and listed";
     match &summary.ending {
-        Ending::ProtocolDone | Ending::Duration => Ok(()),
+        Ending::ProtocolDone | Ending::Duration | Ending::PairsTaken => Ok(()),
         Ending::Interrupted => {
             Err(super::Interrupted(format!("interrupted: {kept} in {}", a.out.display())).into())
         }

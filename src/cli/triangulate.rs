@@ -64,12 +64,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         usage!("--marker-area-px takes two numbers, MIN,MAX");
     };
     (options.marker.min_area_px, options.marker.max_area_px) = (min, max);
-    options.video_start_s = match a.video_start_s[..] {
-        [] => None,
-        [both] => Some([both; 2]),
-        [left, right] => Some([left, right]),
-        _ => usage!("--video-start-s takes LEFT,RIGHT or one time"),
-    };
+    options.video_start_s = video_start(&a.video_start_s)?;
     let done = super::with_session(|s| {
         triangulate::run(&a.frames, &a.calib, &pressures, &options, &a.out, s)
     })?;
@@ -80,6 +75,16 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         return Err(super::Interrupted("interrupted: the dataset holds the frames examined before Ctrl-C; run again for all of them".into()).into());
     }
     Ok(())
+}
+
+/// `--video-start-s`: LEFT,RIGHT, or one time for both.
+pub fn video_start(values: &[f64]) -> anyhow::Result<Option<[f64; 2]>> {
+    Ok(match values {
+        [] => None,
+        [both] => Some([*both; 2]),
+        [left, right] => Some([*left, *right]),
+        _ => usage!("--video-start-s takes LEFT,RIGHT or one time"),
+    })
 }
 
 pub fn print_summary(done: &Triangulated) {

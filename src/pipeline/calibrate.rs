@@ -10,6 +10,8 @@ use crate::fsio;
 /// What the stage did and wrote.
 pub struct Calibrated {
     pub calibration: StereoCalibration,
+    /// The pairs picked from videos, when the folder held videos.
+    pub picked: Option<calib::video::Picked>,
     /// The calibration file first, then the figures.
     pub written: Vec<PathBuf>,
 }
@@ -87,6 +89,8 @@ pub fn run(
     out: &Path,
     session: &Session,
 ) -> Result<Calibrated, PipelineError> {
+    let picked = pick_from_videos(dir, board, options, out, session)?;
+    let dir = picked.as_ref().map_or(dir, |p| p.dir.as_path());
     let listing = calib::pairs::list_pairs(dir).map_err(io_error(dir))?;
     let board_file = dir.join(file::BOARD_FILE);
     let images = listing
@@ -129,6 +133,66 @@ pub fn run(
     written.extend(calibration.write_figures(out)?);
     Ok(Calibrated {
         calibration,
+        picked,
         written,
     })
+}
+
+/// The folder the pairs picked from videos go to: `OUT_frames/` beside the calibration file.
+pub fn video_pairs_dir(out: &Path) -> PathBuf {
+    let stem = out
+        .file_stem()
+        .map_or_else(|| "calib".into(), |s| s.to_string_lossy().into_owned());
+    out.with_file_name(format!("{stem}_frames"))
+}
+
+/// When `dir` holds `left.<video>` and `right.<video>`: still, diverse board pairs picked from
+/// them ([`calib::video`]) into [`video_pairs_dir`], with `dir`'s board file and reference pair.
+fn pick_from_videos(
+    dir: &Path,
+    board: &BoardSpec,
+    options: &CalibOptions,
+    out: &Path,
+    session: &Session,
+) -> Result<Option<calib::video::Picked>, PipelineError> {
+    use crate::triangulate::frames::FrameList;
+    if crate::video::find(dir, "left").is_none() || crate::video::find(dir, "right").is_none() {
+        return Ok(None);
+    }
+    let frames = FrameList::read(dir, options.video_start_s)?;
+    let to = video_pairs_dir(out);
+    if to.exists() {
+        return Err(PipelineError::Usage(format!(
+            "{} exists (pairs picked by an earlier run): remove it, or calibrate from it directly",
+            to.display()
+        )));
+    }
+    let picked = calib::video::pick_pairs(
+        &frames,
+        board,
+        options.max_video_pairs,
+        &to,
+        &session.counter(Task::Detect),
+    );
+    session.emit(super::Event::Finished(Task::Detect));
+    let picked = picked?;
+    let listing = calib::pairs::list_pairs(dir).map_err(io_error(dir))?;
+    let copies = listing
+        .reference
+        .iter()
+        .flat_map(|p| [p.left.clone(), p.right.clone()])
+        .chain(Some(dir.join(file::BOARD_FILE)).filter(|p| p.exists()));
+    for from in copies {
+        let name = from.file_name().expect("a file");
+        std::fs::copy(&from, to.join(name)).map_err(io_error(&to.join(name)))?;
+    }
+    session.emit(super::Event::Note(format!(
+        "videos: {} frame pairs searched, the board in both images in {}, still in {}; {} picked into {}",
+        picked.searched,
+        picked.seen,
+        picked.still,
+        picked.frames.len(),
+        picked.dir.display()
+    )));
+    Ok(Some(picked))
 }

@@ -8,7 +8,7 @@ use opencv::imgcodecs;
 use opencv::prelude::*;
 
 use crate::common::{
-    capture_with, handcap, handcap_err, handcap_ok, handcap_usage, read_rig, session,
+    board_videos, capture_with, handcap, handcap_err, handcap_ok, handcap_usage, read_rig, session,
     small_capture, tempdir, tip_rms_against_truth, YamlRig,
 };
 
@@ -720,4 +720,30 @@ fn reported_deviations_match_the_spread_over_seeds() {
     }
     println!("over {seeds} seeds\n{table}");
     assert!(off.is_empty(), "not within a factor of 2: {off:?}\n{table}");
+}
+
+#[test]
+fn calibrates_from_two_videos_of_the_board() {
+    let dir = tempdir();
+    let d = dir.path();
+    // Each board held 0.4 s.
+    board_videos(d, 12);
+    let out = handcap_ok(d, &["calibrate", "vids", "--out", "vcal.yml"]);
+    println!("{out}");
+    let picked: usize = out
+        .split(" picked into")
+        .next()
+        .and_then(|s| s.rsplit(' ').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("{out}"));
+    assert!((8..=10).contains(&picked), "{out}");
+    assert!(d.join("vcal_frames/left_00.png").is_file());
+    assert!(out.contains("hand axes: from the reference pair"), "{out}");
+    assert_close(
+        &read_rig(&d.join("truth/rig.yml")),
+        &read_rig(&d.join("vcal.yml")),
+    );
+    // Run again, the picked pairs would be overwritten: refused.
+    let msg = handcap_usage(d, &["calibrate", "vids", "--out", "vcal.yml"]);
+    assert!(msg.contains("vcal_frames exists"), "{msg}");
 }

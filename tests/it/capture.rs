@@ -3,7 +3,9 @@
 use std::collections::HashSet;
 use std::path::Path;
 
-use crate::common::{capture_with, csv_rows, handcap, handcap_err, handcap_ok, session, tempdir};
+use crate::common::{
+    board_videos, capture_with, csv_rows, handcap, handcap_err, handcap_ok, session, tempdir,
+};
 
 /// Two Motion-JPEG videos of a small synthetic session (`synth --video`): 14 steps, 42 frames
 /// (1.4 s at 30 fps) per camera, in `dir/cams/frames/`.
@@ -248,4 +250,50 @@ fn ctrl_c_ends_a_capture_with_every_frame_kept_and_listed() {
         .count();
     assert_eq!(logged, told);
     assert!((1..=2).contains(&logged), "{logged}");
+}
+
+#[test]
+fn a_calibration_capture_takes_still_new_board_pairs_then_the_reference() {
+    // The two board videos as cameras: ten boards, each held still for 0.8 s.
+    let dir = tempdir();
+    let d = dir.path();
+    board_videos(d, 24);
+    let cams = [
+        "--left",
+        "vids/left.avi",
+        "--right",
+        "vids/right.avi",
+        "--out",
+        "s",
+        "--calib",
+    ];
+    let mut args = vec!["capture"];
+    args.extend(cams);
+    args.extend(["--pairs", "7"]);
+    let out = handcap_ok(d, &args);
+    assert!(out.contains("board pairs 7/7"), "{out}");
+    for k in 0..7 {
+        for side in ["left", "right"] {
+            let jpeg = std::fs::read(d.join(format!("s/calib/{side}_{k:02}.jpg"))).unwrap();
+            assert!(jpeg.starts_with(&[0xff, 0xd8]), "{side} {k}");
+        }
+    }
+    assert!(!d.join("s/calib/left_07.jpg").exists() && !d.join("s/frames").exists());
+    // The reference pair: the first still pair.
+    let mut args = vec!["capture"];
+    args.extend(cams);
+    args.push("--reference");
+    handcap_ok(d, &args);
+    assert!(d.join("s/calib/left_ref.jpg").is_file() && d.join("s/calib/right_ref.jpg").is_file());
+    // What was taken calibrates, with the hand axes.
+    let out = handcap_ok(d, &["calibrate", "s/calib", "--out", "cal.yml"]);
+    assert!(
+        out.contains("7 pairs used") && out.contains("hand axes: from the reference pair"),
+        "{out}"
+    );
+    // Taken pairs are never overwritten.
+    let mut args = vec!["capture"];
+    args.extend(cams);
+    let msg = handcap_err(d, &args);
+    assert!(msg.contains("already holds calibration pairs"), "{msg}");
 }

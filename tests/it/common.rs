@@ -251,3 +251,33 @@ pub fn read_rig(path: &Path) -> YamlRig {
         r_hand: (!hand.empty()).then(|| rotation(&hand)),
     }
 }
+
+/// `small_capture(dir, 21, 10)` and its ten boards as two videos in `dir/vids` (`left.avi`,
+/// `right.avi`, `frames.csv`, with `board.yml` and the reference pair beside them), each board
+/// held still for `hold` frames (at 30 fps) and then moved on.
+pub fn board_videos(dir: &Path, hold: usize) {
+    small_capture(dir, 21, 10);
+    let vids = dir.join("vids");
+    std::fs::create_dir(&vids).unwrap();
+    let mut index = String::from("frame,camera,time_s\n");
+    for side in ["left", "right"] {
+        let path = vids.join(format!("{side}.avi"));
+        let mut video = handcap::video::MjpegWriter::create(&path, 30.0, [1280, 720], 95).unwrap();
+        for k in 0..10 {
+            let image =
+                handcap::triangulate::frames::decode(&dir.join(format!("calib/{side}_{k:02}.png")))
+                    .unwrap();
+            for _ in 0..hold {
+                video.write(&image.data).unwrap();
+            }
+        }
+        video.finish().unwrap();
+        for f in 0..10 * hold {
+            index += &format!("{f},{side},{:.6}\n", f as f64 / 30.0);
+        }
+    }
+    std::fs::write(vids.join("frames.csv"), index).unwrap();
+    for file in ["board.yml", "left_ref.png", "right_ref.png"] {
+        std::fs::copy(dir.join("calib").join(file), vids.join(file)).unwrap();
+    }
+}
