@@ -131,8 +131,8 @@ pub fn print_summary(done: &Triangulated) {
     }
     let c = &s.clock;
     println!(
-        "clock: a pair's frames {:.1} ms apart (median, 95 % within {:.1}), drift {:+.1} ms over the session; frame periods {:.1}/{:.1} ms; frames dropped within steps {}/{}",
-        c.skew_ms[0], c.skew_ms[1], c.drift_ms, c.period_ms[0], c.period_ms[1], c.dropped[0], c.dropped[1]
+        "clock: a pair's frames {:.1} ms apart (median, 95 % within {:.1}), drift {:+.1} ms over the session; frame periods {}; frames dropped within steps {}/{}",
+        c.skew_ms[0], c.skew_ms[1], c.drift_ms, c.periods(), c.dropped[0], c.dropped[1]
     );
     if !c.settling_only.is_empty() {
         println!(

@@ -97,8 +97,8 @@ pub(super) fn page(
         .paragraph(&{
             let c = &tri.summary.clock;
             format!(
-                "The clock, from the timestamps alone: a pair's frames {:.1} ms apart (median; 95 % within {:.1} ms), drifting {:+.1} ms over the session; frame periods {:.1} / {:.1} ms; frames dropped within steps {} / {}; steps filmed only while settling: {}.",
-                c.skew_ms[0], c.skew_ms[1], c.drift_ms, c.period_ms[0], c.period_ms[1], c.dropped[0], c.dropped[1], c.settling_only.len()
+                "The clock, from the timestamps alone: a pair's frames {:.1} ms apart (median; 95 % within {:.1} ms), drifting {:+.1} ms over the session (the virtual webcams run free, their rates within ±50 ppm of each other); frame periods {}; frames dropped within steps {} / {}; steps filmed only while settling: {}.",
+                c.skew_ms[0], c.skew_ms[1], c.drift_ms, c.periods(), c.dropped[0], c.dropped[1], c.settling_only.len()
             )
         })
         .figure(&out.join("triangulated/dataset_clock.svg"), "Right − left time of each frame pair over the session (unwrapped across frame periods) and the straight line of its drift.");

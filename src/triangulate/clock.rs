@@ -28,7 +28,8 @@ pub struct ClockCheck {
     pub skew_ms: [f64; 2],
     /// Change of right − left over the session (ms), unwrapped.
     pub drift_ms: f64,
-    /// Each camera's frame period: the median interval between frames of one step (ms).
+    /// Each camera's frame period: the median interval between frames of one step (ms; 0 when
+    /// no step has two of its frames).
     pub period_ms: [f64; 2],
     /// Frames missing within steps, per camera.
     pub dropped: [usize; 2],
@@ -37,6 +38,20 @@ pub struct ClockCheck {
     /// Per pair: session time (s) and right − left unwrapped (ms), for the figure.
     #[serde(skip)]
     pub series: Vec<(f64, f64)>,
+}
+
+impl ClockCheck {
+    /// The frame periods as text: `33.3/33.4 ms`, `—` for a camera with one frame per step.
+    pub fn periods(&self) -> String {
+        let one = |p: f64| {
+            if p > 0.0 {
+                format!("{p:.1}")
+            } else {
+                "—".into()
+            }
+        };
+        format!("{}/{} ms", one(self.period_ms[0]), one(self.period_ms[1]))
+    }
 }
 
 /// The step a time falls in (`None` before the first command or after the last step).
@@ -92,7 +107,10 @@ pub fn check(
     if let Some([median, p95]) = crate::stats::quantiles(&mut sizes, [0.5, 0.95]) {
         c.skew_ms = [median, p95];
     }
-    let period = 1e-3 * (c.period_ms[0] + c.period_ms[1]) / 2.0;
+    // The frame period the differences wrap by: the cameras' measured ones (none when no step
+    // has two frames of a camera: then nothing is unwrapped).
+    let known: Vec<f64> = c.period_ms.iter().copied().filter(|p| *p > 0.0).collect();
+    let period = 1e-3 * known.iter().sum::<f64>() / known.len().max(1) as f64;
     let mut previous: Option<f64> = None;
     for (t, d) in &diffs {
         let unwrapped = match previous {
