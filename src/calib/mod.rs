@@ -94,6 +94,13 @@ pub enum CalibError {
     },
     #[error("board: {0}")]
     BadBoard(String),
+    #[error("{left} and its right video: no still board pair in {searched} frame pairs searched (the board whole in both images in {seen}, still in {still}); film the whole board in both cameras, holding it still for half a second at each pose")]
+    NoVideoPairs {
+        left: PathBuf,
+        searched: usize,
+        seen: usize,
+        still: usize,
+    },
     #[error("{path}: intrinsics of {fw}×{fh} images, but the calibration images are {w}×{h}; give the file of this camera at this resolution")]
     IntrinsicsSize {
         path: PathBuf,

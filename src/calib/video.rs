@@ -54,19 +54,16 @@ fn failed(path: &Path) -> impl Fn(String) -> CalibError + '_ {
     }
 }
 
-/// A video frame in grey.
+/// A video frame in grey, decoded as `triangulate` decodes it.
 fn gray(frame: Frame) -> Result<Mat, String> {
-    match frame {
-        Frame::Encoded(bytes) => crate::cv::decode_image(
-            &opencv::core::Vector::from_slice(&bytes),
-            opencv::imgcodecs::IMREAD_GRAYSCALE,
-        ),
-        Frame::Decoded(bgr) => {
-            let mut g = Mat::default();
-            imgproc::cvt_color_def(&bgr, &mut g, imgproc::COLOR_BGR2GRAY).map_err(|e| e.message)?;
-            Ok(g)
-        }
-    }
+    use crate::triangulate::frames::{decode_frame, Buffers, FrameData};
+    let mut rgb = crate::triangulate::marker::RgbImage::default();
+    decode_frame(&FrameData::Video(frame), &mut rgb, &mut Buffers::default())?;
+    let flat = Mat::from_slice(&rgb.data).map_err(|e| e.message)?;
+    let image = flat.reshape(3, rgb.height as i32).map_err(|e| e.message)?;
+    let mut g = Mat::default();
+    imgproc::cvt_color_def(&image, &mut g, imgproc::COLOR_RGB2GRAY).map_err(|e| e.message)?;
+    Ok(g)
 }
 
 /// Frame `index` of a video read front to back (`None` past its end).
@@ -213,6 +210,14 @@ pub fn pick_pairs(
             places.push(place);
             picked.push(*k);
         }
+    }
+    if picked.is_empty() {
+        return Err(CalibError::NoVideoPairs {
+            left: left_path,
+            searched: searched.len(),
+            seen,
+            still: still.len(),
+        });
     }
     std::fs::create_dir_all(out_dir).map_err(|e| CalibError::Write {
         path: out_dir.to_path_buf(),

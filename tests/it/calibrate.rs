@@ -746,4 +746,31 @@ fn calibrates_from_two_videos_of_the_board() {
     // Run again, the picked pairs would be overwritten: refused.
     let msg = handcap_usage(d, &["calibrate", "vids", "--out", "vcal.yml"]);
     assert!(msg.contains("vcal_frames exists"), "{msg}");
+
+    // Videos without a board (grey frames, timed by their own timestamps): one line, and no
+    // folder of pairs left behind.
+    let blank = d.join("blank");
+    std::fs::create_dir(&blank).unwrap();
+    for side in ["left", "right"] {
+        let path = blank.join(format!("{side}.avi"));
+        let mut video = handcap::video::MjpegWriter::create(&path, 30.0, [640, 480], 85).unwrap();
+        for _ in 0..30 {
+            video.write(&vec![128u8; 640 * 480 * 3]).unwrap();
+        }
+        video.finish().unwrap();
+    }
+    let args = [
+        "calibrate",
+        "blank",
+        "--out",
+        "b.yml",
+        "--video-start-s",
+        "0",
+    ];
+    let msg = handcap_err(d, &args);
+    assert!(
+        msg.contains("no still board pair in 5 frame pairs searched"),
+        "{msg}"
+    );
+    assert!(!d.join("b_frames").exists() && !d.join("b.yml").exists());
 }
