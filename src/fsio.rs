@@ -1,7 +1,7 @@
 //! File output that never leaves a half-written file and never replaces an input.
 
 use std::io::{self, BufWriter, Write};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// Writes a file through `fill` into a temporary file beside `path`, then renames it over `path`.
 ///
@@ -96,4 +96,13 @@ pub fn file_names(paths: &[std::path::PathBuf]) -> Vec<String> {
         .filter_map(|p| p.file_name())
         .map(|n| n.to_string_lossy().into_owned())
         .collect()
+}
+
+/// A file beside `path` named after it: its name without the extension (`fallback` when it has
+/// none), then `suffix`. `dataset.csv` + `_pairs.csv` → `dataset_pairs.csv`.
+pub fn beside(path: &Path, fallback: &str, suffix: &str) -> PathBuf {
+    let stem = path
+        .file_stem()
+        .map_or_else(|| fallback.into(), |s| s.to_string_lossy().into_owned());
+    path.with_file_name(format!("{stem}{suffix}"))
 }

@@ -24,6 +24,15 @@ pub fn find(dir: &Path, stem: &str) -> Option<PathBuf> {
         .find(|p| p.is_file())
 }
 
+/// Has a Motion-JPEG file (FFmpeg's reader) hand out each frame's JPEG bytes undecoded;
+/// `false` for other codecs, whose frames OpenCV decodes.
+pub fn read_raw_if_jpeg(capture: &mut VideoCapture) -> bool {
+    let fourcc = capture.get(videoio::CAP_PROP_FOURCC).unwrap_or(0.0) as u32;
+    let codec: String = fourcc.to_le_bytes().iter().map(|&b| b as char).collect();
+    matches!(codec.as_str(), "MJPG" | "mjpg" | "MJPA" | "AVRn" | "jpeg")
+        && capture.set(videoio::CAP_PROP_FORMAT, -1.0).unwrap_or(false)
+}
+
 /// One frame as it came out of the video.
 pub enum Frame {
     /// An encoded frame (a JPEG for Motion-JPEG).
@@ -57,10 +66,7 @@ impl VideoReader {
             return Err("not a video FFmpeg can read".into());
         }
         let get = |c: &VideoCapture, prop| c.get(prop).unwrap_or(0.0);
-        let fourcc = get(&capture, videoio::CAP_PROP_FOURCC) as u32;
-        let codec: String = fourcc.to_le_bytes().iter().map(|&b| b as char).collect();
-        let raw = matches!(codec.as_str(), "MJPG" | "mjpg" | "MJPA" | "AVRn" | "jpeg")
-            && capture.set(videoio::CAP_PROP_FORMAT, -1.0).unwrap_or(false);
+        let raw = read_raw_if_jpeg(&mut capture);
         Ok(VideoReader {
             frame_count: get(&capture, videoio::CAP_PROP_FRAME_COUNT).max(0.0) as usize,
             fps: get(&capture, videoio::CAP_PROP_FPS),
@@ -85,6 +91,20 @@ impl VideoReader {
         } else {
             Frame::Decoded(mat)
         }))
+    }
+
+    /// Frame `index`, skipping the frames before it undecoded; `None` past the end. Frames
+    /// come front to back: an index already passed is not read again.
+    ///
+    /// # Errors
+    /// An OpenCV failure.
+    pub fn frame(&mut self, index: usize) -> opencv::Result<Option<Frame>> {
+        while self.position < index {
+            if !self.skip()? {
+                return Ok(None);
+            }
+        }
+        self.next_frame()
     }
 
     /// Skips the next frame without decoding it; `false` at the end.

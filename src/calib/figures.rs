@@ -128,8 +128,5 @@ pub fn figure_paths(stem: &Path) -> [PathBuf; 3] {
 
 /// `STEM_pairs` (the per-pair error plot's stem) and `STEM_rectified.png`.
 fn stems(stem: &Path) -> [PathBuf; 2] {
-    let name = stem
-        .file_stem()
-        .map_or_else(|| "calib".into(), |s| s.to_string_lossy().into_owned());
-    ["_pairs", "_rectified.png"].map(|suffix| stem.with_file_name(format!("{name}{suffix}")))
+    ["_pairs", "_rectified.png"].map(|suffix| crate::fsio::beside(stem, "calib", suffix))
 }

@@ -662,15 +662,7 @@ fn bootstrap(
     };
     let camera = |c: usize| -> [f64; 9] {
         std::array::from_fn(|i| {
-            sd(&|fit: &StereoRig| {
-                let cam = [&fit.left, &fit.right][c];
-                const K: [usize; 4] = [0, 4, 2, 5];
-                if i < 4 {
-                    cam.k[K[i]]
-                } else {
-                    cam.dist.get(i - 4).copied().unwrap_or(0.0)
-                }
-            })
+            sd(&|fit: &StereoRig| uncertainty::intrinsic([&fit.left, &fit.right][c], i))
         })
     };
     let solved = options.intrinsics.iter().all(Option::is_none);

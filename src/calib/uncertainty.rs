@@ -40,6 +40,26 @@ use crate::stereo::StereoRig;
 /// The intrinsic parameters, in the order of [`ParameterSd::intrinsics`].
 pub const INTRINSIC_NAMES: [&str; 9] = ["fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"];
 
+/// Where fx, fy, cx, cy sit in the row-major camera matrix.
+const IN_K: [usize; 4] = [0, 4, 2, 5];
+
+/// Intrinsic parameter `i` (in [`INTRINSIC_NAMES`]' order) of a camera whose distortion has
+/// at least five coefficients.
+fn intrinsic_mut(camera: &mut Intrinsics, i: usize) -> &mut f64 {
+    match i {
+        0..4 => &mut camera.k[IN_K[i]],
+        _ => &mut camera.dist[i - 4],
+    }
+}
+
+/// Intrinsic parameter `i` of a camera, zero for a distortion coefficient it does not have.
+pub(super) fn intrinsic(camera: &Intrinsics, i: usize) -> f64 {
+    match i {
+        0..4 => camera.k[IN_K[i]],
+        _ => camera.dist.get(i - 4).copied().unwrap_or(0.0),
+    }
+}
+
 /// Pixels of marker noise the frame-to-frame tip deviation is given for.
 pub const MARKER_NOISE_PX: f64 = 0.1;
 
@@ -87,9 +107,7 @@ impl Params {
     fn new(rig: &StereoRig, free: [bool; 2]) -> Self {
         let five = |c: &Intrinsics| Intrinsics {
             k: c.k,
-            dist: (0..5)
-                .map(|i| c.dist.get(i).copied().unwrap_or(0.0))
-                .collect(),
+            dist: (4..9).map(|i| intrinsic(c, i)).collect(),
         };
         Params {
             cameras: [five(&rig.left), five(&rig.right)],
@@ -135,13 +153,7 @@ impl Params {
     fn moved(&self, j: usize, h: f64) -> Params {
         let mut p = self.clone();
         match self.locate(j) {
-            Slot::Intrinsic(c, i) => {
-                const K: [usize; 4] = [0, 4, 2, 5];
-                match i {
-                    0..4 => p.cameras[c].k[K[i]] += h,
-                    _ => p.cameras[c].dist[i - 4] += h,
-                }
-            }
+            Slot::Intrinsic(c, i) => *intrinsic_mut(&mut p.cameras[c], i) += h,
             Slot::Rotation(a) => {
                 let mut w = Vector3::zeros();
                 w[a] = h;
@@ -265,10 +277,12 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
 
+/// The board's corners (mm) exactly as OpenCV calibrated with them.
 fn object_points(board: &BoardSpec) -> Vec<Point3<f64>> {
-    let s = board.square_mm;
-    (0..board.rows)
-        .flat_map(|j| (0..board.cols).map(move |i| Point3::new(i as f64 * s, j as f64 * s, 0.0)))
+    board
+        .object_points()
+        .iter()
+        .map(|p| Point3::new(f64::from(p.x), f64::from(p.y), f64::from(p.z)))
         .collect()
 }
 

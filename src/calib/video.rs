@@ -69,12 +69,7 @@ fn gray(frame: Frame) -> Result<Mat, String> {
 /// Frame `index` of a video read front to back (`None` past its end).
 fn frame_at(video: &mut VideoReader, index: usize, path: &Path) -> Result<Option<Mat>, CalibError> {
     let err = failed(path);
-    while video.position < index {
-        if !video.skip().map_err(|e| err(e.message))? {
-            return Ok(None);
-        }
-    }
-    match video.next_frame().map_err(|e| err(e.message))? {
+    match video.frame(index).map_err(|e| err(e.message))? {
         Some(f) => gray(f).map(Some).map_err(err),
         None => Ok(None),
     }

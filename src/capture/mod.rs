@@ -210,10 +210,7 @@ fn open_camera(side: Side, source: &str, o: &CaptureOptions) -> Result<Camera, C
     let mut refused = Vec::new();
     let pace_s = if file {
         // A Motion-JPEG file's frames raw, as a camera's MJPEG would come.
-        let fourcc = capture.get(videoio::CAP_PROP_FOURCC)? as u32;
-        if &fourcc.to_le_bytes() == b"MJPG" {
-            capture.set(videoio::CAP_PROP_FORMAT, -1.0)?;
-        }
+        crate::video::read_raw_if_jpeg(&mut capture);
         let fps = capture.get(videoio::CAP_PROP_FPS)?;
         Some(1.0 / if fps > 0.0 { fps } else { o.fps })
     } else {

@@ -140,10 +140,7 @@ pub fn run(
 
 /// The folder the pairs picked from videos go to: `OUT_frames/` beside the calibration file.
 pub fn video_pairs_dir(out: &Path) -> PathBuf {
-    let stem = out
-        .file_stem()
-        .map_or_else(|| "calib".into(), |s| s.to_string_lossy().into_owned());
-    out.with_file_name(format!("{stem}_frames"))
+    fsio::beside(out, "calib", "_frames")
 }
 
 /// When `dir` holds `left.<video>` and `right.<video>`: still, diverse board pairs picked from

@@ -253,12 +253,7 @@ impl<'a> FrameReader<'a> {
             ),
         }
         };
-        while video.position < record.index {
-            if !video.skip().map_err(failed)? {
-                return Err(short(video));
-            }
-        }
-        match video.next_frame().map_err(failed)? {
+        match video.frame(record.index).map_err(failed)? {
             Some(frame) => Ok(FrameData::Video(frame)),
             None => Err(short(video)),
         }

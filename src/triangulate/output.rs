@@ -24,10 +24,7 @@ use crate::provenance::Provenance;
 
 /// `OUT` with `suffix` in place of its extension: `dataset.csv` + `_pairs.csv`.
 pub fn beside(out: &Path, suffix: &str) -> PathBuf {
-    let stem = out
-        .file_stem()
-        .map_or_else(|| "dataset".into(), |s| s.to_string_lossy().into_owned());
-    out.with_file_name(format!("{stem}{suffix}"))
+    fsio::beside(out, "dataset", suffix)
 }
 
 /// `OUT_<phase>.csv`, the phase's characters outside `[A-Za-z0-9-]` replaced by `_`.
