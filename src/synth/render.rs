@@ -73,21 +73,16 @@ impl Canvas {
         out.par_chunks_mut(3 * w)
             .zip(self.rgb.par_chunks(3 * w))
             .enumerate()
-            .for_each(|(row, (out, values))| {
+            .for_each_init(Vec::new, |noise, (row, (out, values))| {
                 let first = (row * w) as u64;
-                for (x, (o, v)) in out
-                    .chunks_exact_mut(3)
-                    .zip(values.chunks_exact(3))
-                    .enumerate()
-                {
-                    let noise = pixel_noise(key, first + x as u64);
-                    for c in 0..3 {
-                        let signal = v[c] * gain;
-                        let variance = READ_NOISE_DN * READ_NOISE_DN
-                            + SHOT_NOISE_DN * signal.clamp(0.0, 255.0);
-                        let noisy = signal + variance.sqrt() * noise[c];
-                        o[c] = (noisy.clamp(0.0, 255.0) + 0.5) as u8;
-                    }
+                noise.clear();
+                noise.extend((0..w as u64).flat_map(|x| pixel_noise(key, first + x)));
+                // One pass the compiler can vectorise.
+                for ((o, &v), &n) in out.iter_mut().zip(values).zip(noise.iter()) {
+                    let signal = v * gain;
+                    let variance =
+                        READ_NOISE_DN * READ_NOISE_DN + SHOT_NOISE_DN * signal.clamp(0.0, 255.0);
+                    *o = ((signal + variance.sqrt() * n).clamp(0.0, 255.0) + 0.5) as u8;
                 }
             });
         out
@@ -113,19 +108,22 @@ impl Canvas {
         // Horizontal pass over the rows the vertical pass will read.
         let src = &self.rgb;
         let weights = &weights;
-        let horizontal: Vec<f32> = (ya..=yb)
-            .into_par_iter()
-            .flat_map_iter(|y| {
-                (x0..=x1).flat_map(move |x| {
-                    (0..3).map(move |c| {
-                        (0..=2 * r)
-                            .map(|k| weights[k] * src[3 * (y * w + at(x, k, w)) + c])
-                            .sum::<f32>()
-                    })
-                })
-            })
-            .collect();
         let span = 3 * (x1 - x0 + 1);
+        let mut horizontal = vec![0f32; (yb - ya + 1) * span];
+        horizontal
+            .par_chunks_mut(span)
+            .enumerate()
+            .for_each(|(dy, out)| {
+                let row = &src[3 * w * (ya + dy)..3 * w * (ya + dy + 1)];
+                for (x, out) in (x0..=x1).zip(out.chunks_exact_mut(3)) {
+                    for (k, weight) in weights.iter().enumerate() {
+                        let p = &row[3 * at(x, k, w)..][..3];
+                        for c in 0..3 {
+                            out[c] += weight * p[c];
+                        }
+                    }
+                }
+            });
         self.rgb[3 * w * y0..3 * w * (y1 + 1)]
             .par_chunks_mut(3 * w)
             .enumerate()
@@ -418,18 +416,24 @@ impl View {
                 for i in x0..=x1 {
                     let (left, right) = (i as f64 - 0.5, i as f64 + 0.5);
                     // A piece can be hit inside this pixel only if the pixel's centre ray
-                    // passes within its radius plus the pixel's half-diagonal at that depth.
+                    // passes within its radius plus the pixel's half-diagonal at that depth;
+                    // every ray through the pixel hits it if the centre ray passes within its
+                    // radius minus that.
                     let centre = self.ray(i, j, 0.5, 0.5);
+                    let mut covered = n_poses == 1;
                     for ((finger, in_row), pieces) in poses.iter().zip(&in_row).zip(&mut pieces) {
                         let bead = finger.axis.len() - 1;
-                        let near = |k: usize| {
+                        let mut inside = false;
+                        let mut near = |k: usize| {
                             let (a, b, r) = if k == bead {
                                 (finger.tip, finger.tip, BEAD_RADIUS_MM)
                             } else {
                                 (finger.axis[k], finger.axis[k + 1], FINGER_RADIUS_MM)
                             };
                             let (gap, depth) = ray_segment_gap(&self.eye, &centre, &a, &b);
-                            gap <= r + 1.2 * depth.max(0.0) / self.camera.intrinsics.fx()
+                            let margin = 1.2 * depth.max(0.0) / self.camera.intrinsics.fx();
+                            inside |= k != bead && gap <= r - margin;
+                            gap <= r + margin
                         };
                         pieces.clear();
                         pieces.extend(
@@ -439,40 +443,55 @@ impl View {
                                 .map(|&(k, _)| k)
                                 .filter(|&k| near(k)),
                         );
+                        covered &= inside && !pieces.contains(&bead);
                     }
                     if pieces.iter().all(Vec::is_empty) {
                         continue;
                     }
-                    let mut sum = [0.0; 3];
-                    let mut hits = 0;
-                    let mut sample = 0;
-                    for_samples(|a, b| {
-                        let pose = sample % n_poses;
-                        sample += 1;
+                    // What one ray sees of the finger (tube or bead), shaded.
+                    let surface = |pose: usize, d: &Vector3<f64>| {
                         let finger = &poses[pose];
                         let bead = finger.axis.len() - 1;
-                        let d = self.ray(i, j, a, b);
-                        if let Some((normal, albedo)) =
-                            finger.hit(&self.eye, &d, &pieces[pose], bead)
-                        {
-                            let shade = AMBIENT + (1.0 - AMBIENT) * (-normal.dot(&d)).max(0.0);
-                            let shine = if albedo == BEAD && self.specular > 0.0 {
-                                let half = (lamp - d).normalize();
-                                self.specular * normal.dot(&half).max(0.0).powi(SHININESS)
-                            } else {
-                                0.0
-                            };
-                            for k in 0..3 {
-                                sum[k] += albedo[k] * shade + shine;
-                            }
-                            hits += 1;
+                        let (normal, albedo) = finger.hit(&self.eye, d, &pieces[pose], bead)?;
+                        let shade = AMBIENT + (1.0 - AMBIENT) * (-normal.dot(d)).max(0.0);
+                        let shine = if albedo == BEAD && self.specular > 0.0 {
+                            let half = (lamp - d).normalize();
+                            self.specular * normal.dot(&half).max(0.0).powi(SHININESS)
+                        } else {
+                            0.0
+                        };
+                        Some(albedo.map(|a| a * shade + shine))
+                    };
+                    let mut sum = [0.0; 3];
+                    let mut hits = 0;
+                    if covered {
+                        // Inside the tube's silhouette, away from the bead: the shading varies
+                        // slowly, so the centre ray stands for the pixel's samples.
+                        if let Some(colour) = surface(0, &centre) {
+                            (sum, hits) = (colour, 1);
                         }
-                    });
+                    } else {
+                        let mut sample = 0;
+                        for_samples(|a, b| {
+                            let pose = sample % n_poses;
+                            sample += 1;
+                            if let Some(colour) = surface(pose, &self.ray(i, j, a, b)) {
+                                for k in 0..3 {
+                                    sum[k] += colour[k];
+                                }
+                                hits += 1;
+                            }
+                        });
+                    }
                     if hits == 0 {
                         continue;
                     }
                     let light = f64::from(self.light[j * w + i]);
-                    let share = hits as f64 / (SUPERSAMPLING * SUPERSAMPLING) as f64;
+                    let share = if covered {
+                        1.0
+                    } else {
+                        hits as f64 / (SUPERSAMPLING * SUPERSAMPLING) as f64
+                    };
                     for k in 0..3 {
                         let surface = sum[k] / hits as f64 * light;
                         let px = &mut row[3 * i + k];

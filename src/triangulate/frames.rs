@@ -332,7 +332,7 @@ pub fn decode_frame(
 }
 
 /// An encoded image: PNG by the `png` crate, JPEG by zune-jpeg, anything else by OpenCV.
-fn decode_bytes(
+pub(crate) fn decode_bytes(
     bytes: &[u8],
     image: &mut RgbImage,
     bgr: &mut opencv::core::Mat,

@@ -368,8 +368,9 @@ fn a_webcam_in_a_lab_gives_every_step_and_the_tip_to_a_twentieth_of_a_millimetre
     let truth = d.join("truth/tips.csv");
     let (rms, n) = tip_rms_against_truth(&d.join("out/dataset.csv"), &truth, |_| true);
     println!("{out}\ntip RMS error {rms:.4} mm over {n} steps");
-    // Seeds 31-33 measure 0.033, 0.047, 0.050 mm (the thresholded centroid: 0.092-0.125).
-    assert!(rms <= 0.06, "tip RMS error {rms} mm");
+    // Seeds 31-35 measure 0.031, 0.043, 0.048, 0.044, 0.049 mm (the thresholded centroid:
+    // 0.124, 0.098, 0.106, 0.260, 0.140).
+    assert!(rms <= 0.05, "tip RMS error {rms} mm");
     // The red things in the right camera never make a row: every row is the bead.
     let truth_rows = tips_by_step(&truth);
     for (step, p) in tips_by_step(&d.join("out/dataset.csv")) {
@@ -409,7 +410,7 @@ fn png_and_both_jpeg_chromas_give_the_same_tips() {
     // The same steps rendered alike, stored as PNG, JPEG 4:4:4 and JPEG 4:2:0: the colour's
     // resolution alone does not move the tips. At quality 95, so that the comparison is about
     // the halving, not the quantisation (at quality 85, whose error the lab test above
-    // bounds, 4:2:0 moves them 0.030 mm RMS, 0.047 mm at most, 4:4:4 0.015 and 0.030).
+    // bounds, 4:2:0 moves them 0.038 mm RMS, 0.063 mm at most, 4:4:4 0.015 and 0.030).
     let jpeg = |chroma| ImageFormat::Jpeg {
         quality: 95,
         chroma,
@@ -431,7 +432,7 @@ fn png_and_both_jpeg_chromas_give_the_same_tips() {
         found[0], found[1]
     );
     for (k, [rms, max]) in found.iter().enumerate() {
-        // Measured: 4:4:4 0.003 mm RMS, 0.007 at most; 4:2:0 0.018 and 0.050.
+        // Measured: 4:4:4 0.004 mm RMS, 0.007 at most; 4:2:0 0.017 and 0.043.
         assert!(
             *rms < 0.02 && *max < 0.06,
             "{:?}: {rms} mm RMS, {max} max",
