@@ -183,10 +183,9 @@ pub fn find_markers(image: &RgbImage, options: &MarkerOptions) -> Markers {
     }
     out.blobs.sort_by(|a, b| b.peak.total_cmp(&a.peak));
     for b in out.blobs.iter_mut().take(MAX_CANDIDATES) {
-        // The core is the bead's image above half its peak: for a Gaussian of width s, a
-        // disc of radius 1.177 s.
-        let sigma = (b.area_px as f64 / std::f64::consts::PI).sqrt() / 1.177;
-        if let Some(c) = subpixel::refine(w, h, &image.data, &image.chroma, b.centre_px, sigma) {
+        // The core is the bead's image above half its peak: the disc, where its edge is sharp.
+        let radius = (b.area_px as f64 / std::f64::consts::PI).sqrt();
+        if let Some(c) = subpixel::refine(w, h, &image.data, &image.chroma, b.centre_px, radius) {
             (b.centre_px, b.fitted) = (c, true);
         }
     }
