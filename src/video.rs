@@ -27,10 +27,21 @@ pub fn find(dir: &Path, stem: &str) -> Option<PathBuf> {
 /// Has a Motion-JPEG file (FFmpeg's reader) hand out each frame's JPEG bytes undecoded;
 /// `false` for other codecs, whose frames OpenCV decodes.
 pub fn read_raw_if_jpeg(capture: &mut VideoCapture) -> bool {
+    matches!(
+        codec(capture).as_str(),
+        "MJPG" | "mjpg" | "MJPA" | "AVRn" | "jpeg"
+    ) && capture.set(videoio::CAP_PROP_FORMAT, -1.0).unwrap_or(false)
+}
+
+/// The codec's four-character code, as FFmpeg names it (`H264`, `MJPG`, …).
+fn codec(capture: &VideoCapture) -> String {
     let fourcc = capture.get(videoio::CAP_PROP_FOURCC).unwrap_or(0.0) as u32;
-    let codec: String = fourcc.to_le_bytes().iter().map(|&b| b as char).collect();
-    matches!(codec.as_str(), "MJPG" | "mjpg" | "MJPA" | "AVRn" | "jpeg")
-        && capture.set(videoio::CAP_PROP_FORMAT, -1.0).unwrap_or(false)
+    fourcc
+        .to_le_bytes()
+        .iter()
+        .map(|&b| b as char)
+        .filter(|c| !c.is_control())
+        .collect()
 }
 
 /// One frame as it came out of the video.
@@ -44,7 +55,10 @@ pub enum Frame {
 /// A video's frames in order.
 pub struct VideoReader {
     capture: VideoCapture,
-    raw: bool,
+    /// Whether frames come as their JPEG bytes (Motion-JPEG) rather than decoded by OpenCV.
+    pub raw: bool,
+    /// The codec's four-character code.
+    pub codec: String,
     /// Frames read so far.
     pub position: usize,
     /// What the container says it holds (0 when it does not say).
@@ -68,6 +82,7 @@ impl VideoReader {
         let get = |c: &VideoCapture, prop| c.get(prop).unwrap_or(0.0);
         let raw = read_raw_if_jpeg(&mut capture);
         Ok(VideoReader {
+            codec: codec(&capture),
             frame_count: get(&capture, videoio::CAP_PROP_FRAME_COUNT).max(0.0) as usize,
             fps: get(&capture, videoio::CAP_PROP_FPS),
             capture,

@@ -221,6 +221,18 @@ pub struct FrameReader<'a> {
 }
 
 impl<'a> FrameReader<'a> {
+    /// Per camera, the codec of a video whose frames OpenCV decodes (not Motion-JPEG): the
+    /// marker's fit gets them without knowing how their colour was sampled.
+    pub fn decoded_codecs(&self) -> [Option<String>; 2] {
+        let videos = self.videos.as_ref();
+        [0, 1].map(|k| {
+            videos
+                .map(|v| &v[k])
+                .filter(|v| !v.raw)
+                .map(|v| v.codec.clone())
+        })
+    }
+
     /// Record `i`'s frame; for videos, records must come in [`FrameList::reading_order`].
     ///
     /// # Errors

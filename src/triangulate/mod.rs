@@ -235,6 +235,9 @@ pub struct Summary {
     /// Used pairs per camera whose centre came from the region's centroid because the
     /// sub-pixel fit did not settle (`subpixel::refine`).
     pub centroid_only: PerCamera,
+    /// Per camera, the codec of a video that OpenCV decoded (not Motion-JPEG, so the fit
+    /// cannot undo its colour's sampling and quantisation).
+    pub decoded_video: [Option<String>; 2],
     /// The rows' spread (largest distance of a step's pairs from their median, mm): median,
     /// 95th percentile, largest.
     pub step_spread_mm: [f64; 3],
@@ -284,6 +287,7 @@ pub fn triangulate(
     let done = AtomicUsize::new(0);
     let mut results: Vec<FrameResult> = vec![FrameResult::Skipped; records.len()];
     let mut reader = frames.reader()?;
+    let decoded_video = reader.decoded_codecs();
     for chunk in frames.reading_order().chunks(256) {
         if interrupt.load(Ordering::SeqCst) {
             break;
@@ -310,6 +314,7 @@ pub fn triangulate(
     let mut summary = Summary {
         interrupted: interrupt.load(Ordering::SeqCst),
         steps_logged: log.steps.len(),
+        decoded_video,
         ..Summary::default()
     };
     count_frames(records, &results, &mut summary.frames);

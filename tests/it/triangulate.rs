@@ -502,6 +502,42 @@ fn recorded_as_videos_the_capture_gives_the_same_tips() {
     println!("tip RMS: images {:.4} mm, videos {:.4} mm", rms[0], rms[1]);
     assert!((rms[0] - rms[1]).abs() <= 0.01, "{rms:?}");
 
+    // The same videos copied as MPEG-4 (a recorder's codec): OpenCV decodes the frames, and
+    // triangulate says the fit gets them without their colour's sampling.
+    let m = tempdir();
+    let m = m.path();
+    std::fs::create_dir_all(m.join("frames")).unwrap();
+    std::fs::create_dir_all(m.join("truth")).unwrap();
+    for file in [
+        "pressures.csv",
+        "frames/frames.csv",
+        "truth/rig.yml",
+        "truth/tips.csv",
+    ] {
+        std::fs::copy(v.join(file), m.join(file)).unwrap();
+    }
+    for side in ["left", "right"] {
+        mpeg4_copy(
+            &v.join(format!("frames/{side}.avi")),
+            &m.join(format!("frames/{side}.mp4")),
+        );
+    }
+    let out = triangulate_with_truth(m, "out/dataset.csv");
+    assert!(
+        out.contains("39 rows") && out.contains("videos not Motion-JPEG (left mp4v, right mp4v)"),
+        "{out}"
+    );
+    let s = summary(&m.join("out/dataset_summary.json"));
+    assert_eq!(s["decoded_video"], serde_json::json!(["mp4v", "mp4v"]));
+    let (mpeg4, _) = tip_rms_against_truth(
+        &m.join("out/dataset.csv"),
+        &m.join("truth/tips.csv"),
+        |_| true,
+    );
+    println!("tip RMS from the MPEG-4 copies: {mpeg4:.4} mm");
+    // Measured: 0.117 mm (0.105 from MPEG-4 copies of the same capture's JPEG images).
+    assert!(mpeg4 < 0.2, "{mpeg4} mm");
+
     // frames.csv listing a frame the video does not have: one line naming both.
     let index = v.join("frames/frames.csv");
     let mut text = std::fs::read_to_string(&index).unwrap();
@@ -513,6 +549,32 @@ fn recorded_as_videos_the_capture_gives_the_same_tips() {
         "{msg}"
     );
     assert!(!v.join("x/d.csv").exists());
+}
+
+/// Re-encodes a video as MPEG-4 Part 2 (FFmpeg's `mp4v`, through OpenCV).
+fn mpeg4_copy(from: &Path, to: &Path) {
+    use opencv::prelude::*;
+    use opencv::videoio::{VideoCapture, VideoWriter, CAP_FFMPEG};
+    let mut input = VideoCapture::from_file(from.to_str().unwrap(), CAP_FFMPEG).unwrap();
+    let mut frame = opencv::core::Mat::default();
+    let mut output: Option<VideoWriter> = None;
+    while input.read(&mut frame).unwrap() && !frame.empty() {
+        let writer = output.get_or_insert_with(|| {
+            let fourcc = VideoWriter::fourcc('m', 'p', '4', 'v').unwrap();
+            let size = frame.size().unwrap();
+            VideoWriter::new_with_backend(
+                to.to_str().unwrap(),
+                CAP_FFMPEG,
+                fourcc,
+                30.0,
+                size,
+                true,
+            )
+            .unwrap()
+        });
+        writer.write(&frame).unwrap();
+    }
+    output.expect("frames").release().unwrap();
 }
 
 #[test]
