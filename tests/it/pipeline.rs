@@ -137,6 +137,21 @@ fn the_quick_demo_runs_end_to_end_and_its_numbers_hold_against_the_truth() {
         (all["rms_mm"].as_f64().unwrap() - rms).abs() < 1e-4,
         "{all} vs {rms}"
     );
+    // The error every row shares (the rest position's own, mostly) is reported, and the
+    // lab's occlusions (recorded) cost no step with three frames per camera and step.
+    let shared: Vec<f64> = all["mean_mm"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    assert!(
+        shared.iter().map(|v| v * v).sum::<f64>().sqrt() <= rms,
+        "{shared:?}"
+    );
+    assert_eq!(summary["realism"]["occluded"].as_f64(), Some(0.01));
+    let html = std::fs::read_to_string(demo.join("report/index.html")).unwrap();
+    assert!(html.contains("Every step has a tip."));
 
     // Even the quick model beats the previous model with default constants on the sweeps.
     let score = |model: &str, test: &str| {
@@ -184,7 +199,6 @@ fn the_quick_demo_runs_end_to_end_and_its_numbers_hold_against_the_truth() {
     assert!((inverse["mean_mm"].as_f64().unwrap() - mean(&rows, "plant_error_mm")).abs() < 1e-3);
 
     // One self-contained page with every section.
-    let html = std::fs::read_to_string(demo.join("report/index.html")).unwrap();
     for id in [
         "summary",
         "calibration",
