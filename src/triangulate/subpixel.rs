@@ -330,7 +330,7 @@ impl Plane {
         let block = sampling.block;
         let local = [start[0] - origin[0], start[1] - origin[1]];
         let recover = block.map(|b| if b == 2 { halved() } else { identity() });
-        // The window: samples whose pixels lie within HALF_WINDOW of the start.
+        // The window: samples whose pixels lie within `half_window` of the start.
         let span = |axis: usize| {
             let b = block[axis] as f64;
             let lo = ((local[axis] - half_window) / b).floor().max(0.0) as usize;
@@ -590,6 +590,7 @@ mod tests {
         let size = [192, 160];
         for (radius, quality, limit) in cases {
             for tube in [false, true] {
+                let case = format!("radius {radius} px, tube {tube}, quality {quality}");
                 let mut square = [0.0; 2];
                 for k in 0..24u64 {
                     let c = [
@@ -605,14 +606,12 @@ mod tests {
                     assert_eq!(image.chroma.block, [2, 2]);
                     let found = find_markers(&image, &MarkerOptions::default());
                     let b = &found.blobs[0];
-                    let case = format!("radius {radius} px, tube {tube}, quality {quality}");
                     assert!(b.fitted, "{case}, bead at {c:?}: not fitted");
                     for a in 0..2 {
                         square[a] += (b.centre_px[a] - c[a]).powi(2) / 24.0;
                     }
                 }
                 let rms = square.map(f64::sqrt);
-                let case = format!("radius {radius} px, tube {tube}, quality {quality}");
                 println!("{case}: RMS {rms:.3?} px");
                 assert!(rms[0] <= limit && rms[1] <= limit, "{case}: RMS {rms:?} px");
             }
