@@ -145,6 +145,14 @@ impl Columns {
     }
 
     /// The names joined by commas, as on a command line.
+    /// The listed rows, in the listed order.
+    pub fn select_rows(&self, rows: &[usize]) -> Columns {
+        Columns::new(
+            self.names.clone(),
+            rows.iter().flat_map(|&i| self.row(i).to_vec()).collect(),
+        )
+    }
+
     pub fn names_list(&self) -> String {
         self.names.join(",")
     }

@@ -9,10 +9,9 @@ use super::usage;
 
 use handcap::data::{self, Columns};
 use handcap::hand::MAX_PRESSURE_KPA;
-use handcap::model::file::{ModelFile, StoredModel};
+use handcap::model::file::ModelFile;
 use handcap::model::inverse::{self, InverseOptions, InverseSolution};
-use handcap::model::msvr::Msvr;
-use handcap::model::Predict;
+use handcap::model::Differentiable;
 use handcap::pipeline::outputs::{self, Output};
 
 #[derive(clap::Args)]
@@ -44,7 +43,7 @@ pub struct Args {
     reach: f64,
 }
 
-fn options(model: &Msvr, a: &Args) -> anyhow::Result<InverseOptions> {
+fn options(model: &dyn Differentiable, a: &Args) -> anyhow::Result<InverseOptions> {
     if !(a.max_kpa > 0.0 && a.max_kpa <= MAX_PRESSURE_KPA) {
         usage!(
             "--max-kpa {} must lie in (0, {MAX_PRESSURE_KPA}]: the regulator caps the supply",
@@ -72,7 +71,7 @@ fn describe(names: &[String], values: &[f64]) -> String {
 
 pub fn run(a: Args) -> anyhow::Result<()> {
     let file = ModelFile::load(&a.model)?;
-    let StoredModel::Msvr(model) = &file.model;
+    let model = file.model.differentiable();
     let options = options(model, &a)?;
     match (&a.target, &a.targets) {
         (Some(target), None) => {
@@ -120,7 +119,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
 }
 
 /// The box, e.g. "P1_kpa 0-250, P2_kpa 0-250, P3_kpa 0-250".
-fn bounds(model: &Msvr, o: &InverseOptions) -> String {
+fn bounds(model: &dyn Differentiable, o: &InverseOptions) -> String {
     model
         .inputs()
         .iter()
@@ -132,7 +131,7 @@ fn bounds(model: &Msvr, o: &InverseOptions) -> String {
 
 fn write_solutions(
     out: &std::path::Path,
-    model: &Msvr,
+    model: &dyn Differentiable,
     targets: &Columns,
     solutions: &[InverseSolution],
 ) -> anyhow::Result<()> {

@@ -8,6 +8,7 @@ use super::usage;
 use handcap::data::{HAND_INPUTS, HAND_OUTPUTS};
 use handcap::model::msvr::fitness::FitnessKind;
 use handcap::model::msvr::folds::FoldsBy;
+use handcap::model::msvr::tune::BasisChoice;
 use handcap::model::msvr::{Loss, MsvrParams, DEFAULT_MAX_ITER, DEFAULT_TOL};
 use handcap::pipeline::fit::{self, FitJob, FitOutcome, Selection};
 use handcap::report;
@@ -128,10 +129,15 @@ pub struct Args {
     /// Directory for metrics.csv, history.csv, fit.json, report.md and the figures
     #[arg(long)]
     report: Option<PathBuf>,
-    /// Keep at most N training rows, evenly spaced through the file (the MSVR holds an n × n
-    /// kernel: 10 000 rows take about 5 GB)
+    /// Keep at most N training rows, evenly spaced through the file (rows are never dropped
+    /// otherwise: a reduced basis fits any number)
     #[arg(long, value_parser = clap::value_parser!(u64).range(10..))]
     max_rows: Option<u64>,
+    /// The kernel's expansion: exact (a kernel at every row; n × n memory), M (a reduced basis
+    /// of M centres picked by k-means++; O(n M²) time), or auto (exact up to 2000 rows, else a
+    /// reduced basis grown while the cross-validated error falls)
+    #[arg(long, default_value = "auto", value_parser = clap::value_parser!(BasisChoice))]
+    basis: BasisChoice,
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
@@ -192,6 +198,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         out: a.out,
         report: a.report,
         max_rows: a.max_rows.map(|n| n as usize),
+        basis: a.basis,
     };
     let outcome = super::with_session(|s| fit::run(&job, s))?;
     print_summary(&outcome);
@@ -237,13 +244,23 @@ pub fn print_summary(outcome: &FitOutcome) {
             println!("  interrupted: the model uses the best parameters found so far");
         }
     }
-    let (p, f) = (&r.params, &r.fit);
+    let f = &r.fit;
+    let settings: Vec<String> = r
+        .spec
+        .settings()
+        .iter()
+        .skip(1)
+        .map(|(name, value)| format!("{name} = {value}"))
+        .collect();
     println!(
-        "MSVR on {}: {} rows, C = {}, ε = {}, σ = {}, {} loss",
-        r.training_file, f.rows, p.c, p.epsilon, p.sigma, p.loss
+        "{} on {}: {} rows, {}",
+        r.spec.settings()[0].1,
+        r.training_file,
+        f.rows,
+        settings.join(", ")
     );
     println!(
-        "  {} iterations, objective {:.6e}, {} support vectors, {} ({:?})",
+        "  {} iterations, objective {:.6e}, {} terms, {} ({:?})",
         f.iterations,
         f.objective,
         f.support_vectors,

@@ -3,8 +3,7 @@
 use std::path::PathBuf;
 
 use handcap::data;
-use handcap::model::file::{ModelFile, StoredModel};
-use handcap::model::Predict;
+use handcap::model::file::ModelFile;
 use handcap::pipeline::outputs::{self, Output};
 
 #[derive(clap::Args)]
@@ -21,18 +20,17 @@ pub struct Args {
 pub fn run(a: Args) -> anyhow::Result<()> {
     outputs::check(&[&a.model, &a.inputs], &[Output::new(&a.out, "--out")])?;
     let file = ModelFile::load(&a.model)?;
-    let StoredModel::Msvr(model) = &file.model;
+    let model = file.model.predictor();
     let x = data::read_columns(&a.inputs, model.inputs())?;
-    let outside = model.scaler.outside(&x);
-    if let Some((j, v)) = outside.farthest {
-        let s = &model.scaler;
+    let outside = model.outside(&x);
+    if let (Some((j, v)), Some((min, max))) = (outside.farthest, model.training_range()) {
         eprintln!(
             "warning: {} of {} rows lie outside the training range (farthest: {} = {v}, trained on {}-{}); far from its data an RBF model flattens to a constant, so those predictions are guesses",
             outside.rows,
             x.rows(),
-            model.inputs[j],
-            s.min[j],
-            s.max[j]
+            model.inputs()[j],
+            min[j],
+            max[j]
         );
     }
     let y = model.predict(&x)?;

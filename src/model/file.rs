@@ -14,8 +14,8 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::fsio;
-use crate::model::msvr::tune::SearchSummary;
-use crate::model::msvr::Msvr;
+use crate::model::msvr::tune::{BasisDecision, SearchSummary};
+pub use crate::model::StoredModel;
 use crate::provenance::Provenance;
 
 /// The `format` field of every model file.
@@ -44,13 +44,6 @@ pub enum ModelFileError {
     },
 }
 
-/// The kinds of model a file can hold.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", content = "model", rename_all = "snake_case")]
-pub enum StoredModel {
-    Msvr(Msvr),
-}
-
 /// A model with what made it.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ModelFile {
@@ -61,16 +54,25 @@ pub struct ModelFile {
     /// The search that chose the hyper-parameters; absent when they were given.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub search: Option<SearchSummary>,
+    /// The basis and why it was chosen; absent in files written before the reduced basis.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub basis: Option<BasisDecision>,
     pub provenance: Provenance,
 }
 
 impl ModelFile {
-    pub fn new(model: StoredModel, search: Option<SearchSummary>, provenance: Provenance) -> Self {
+    pub fn new(
+        model: StoredModel,
+        search: Option<SearchSummary>,
+        basis: Option<BasisDecision>,
+        provenance: Provenance,
+    ) -> Self {
         ModelFile {
             format: FORMAT.to_string(),
             version: VERSION,
             model,
             search,
+            basis,
             provenance,
         }
     }

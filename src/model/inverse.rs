@@ -5,7 +5,7 @@
 //! 1. Starts: the model on a grid of `grid` values per input over the box; the `starts` best
 //!    grid points (the nearest tips) start a local search each.
 //! 2. Local search: projected Levenberg-Marquardt with the model's analytic Jacobian
-//!    ([`Msvr::predict_with_jacobian`]). An input at a bound whose gradient points outwards is
+//!    ([`Differentiable::predict_with_jacobian`]). An input at a bound whose gradient points outwards is
 //!    held there; the others take the damped Gauss-Newton step, clipped to the box. A step that
 //!    lowers the error is taken and the damping relaxed, otherwise the damping grows.
 //! 3. The best local result. The target counts as reached when the model's tip is within
@@ -15,8 +15,7 @@
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 
-use super::msvr::Msvr;
-use super::Predict;
+use super::{Differentiable, Predict};
 
 /// Settings of the inverse search.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -37,8 +36,17 @@ pub struct InverseOptions {
 impl InverseOptions {
     /// The box a model can be trusted in: its training range, intersected with `[lo, hi]` for
     /// the inputs `cap` selects (e.g. the pressures, within 0 and the regulator's limit).
-    pub fn within_training_range(model: &Msvr, cap: impl Fn(&str) -> Option<(f64, f64)>) -> Self {
-        let (mut lower, mut upper) = (model.scaler.min.clone(), model.scaler.max.clone());
+    ///
+    /// # Panics
+    /// If the model does not know its training range.
+    pub fn within_training_range(
+        model: &dyn Predict,
+        cap: impl Fn(&str) -> Option<(f64, f64)>,
+    ) -> Self {
+        let (min, max) = model
+            .training_range()
+            .expect("a model the inverse solves knows its training range");
+        let (mut lower, mut upper) = (min.to_vec(), max.to_vec());
         for (j, name) in model.inputs().iter().enumerate() {
             if let Some((lo, hi)) = cap(name) {
                 lower[j] = lower[j].max(lo);
@@ -85,7 +93,7 @@ pub enum InverseError {
 /// # Errors
 /// [`InverseError`] for a target of the wrong size or an empty box.
 pub fn solve(
-    model: &Msvr,
+    model: &dyn Differentiable,
     target: &[f64],
     options: &InverseOptions,
 ) -> Result<InverseSolution, InverseError> {
@@ -169,7 +177,7 @@ pub struct PlannedTarget {
 /// [`InverseError`] as [`solve`]; a plant failure is the closure's to report (it returns
 /// `None`, and the row is skipped).
 pub fn feedforward_check(
-    model: &Msvr,
+    model: &dyn Differentiable,
     plant: impl Fn(&[f64]) -> Option<Vec<f64>> + Sync,
     source_inputs: &[Vec<f64>],
     options: &InverseOptions,
@@ -205,7 +213,7 @@ pub fn feedforward_check(
 
 /// Projected Levenberg-Marquardt from `x`; returns (squared error, inputs).
 fn local_search(
-    model: &Msvr,
+    model: &dyn Differentiable,
     target: &[f64],
     mut x: Vec<f64>,
     o: &InverseOptions,
@@ -279,7 +287,7 @@ fn local_search(
 mod tests {
     use super::*;
     use crate::data::{Columns, Dataset};
-    use crate::model::msvr::MsvrParams;
+    use crate::model::msvr::{Msvr, MsvrParams};
 
     /// An MSVR of a smooth 3 → 3 map on a 6³ grid over [0, 250]³.
     fn model() -> (Msvr, impl Fn(&[f64]) -> [f64; 3]) {

@@ -8,6 +8,9 @@ pub mod file;
 pub mod inverse;
 pub mod msvr;
 pub mod previous;
+pub mod spec;
+
+pub use spec::{ModelSpec, StoredModel};
 
 use rayon::prelude::*;
 
@@ -32,6 +35,37 @@ pub trait Predict: Sync {
     fn outputs(&self) -> &[String];
     /// Predicts one sample: `x.len() == inputs().len()`, `out.len() == outputs().len()`.
     fn predict_row(&self, x: &[f64], out: &mut [f64]);
+
+    /// Each input's training minimum and maximum, where the model knows them.
+    fn training_range(&self) -> Option<(&[f64], &[f64])> {
+        None
+    }
+
+    /// The rows of `x` (the model's inputs) outside the training range by more than 1 % of it,
+    /// and the farthest value: (column, value), measured in training ranges.
+    fn outside(&self, x: &Columns) -> Outside {
+        let mut out = Outside::default();
+        let Some((min, max)) = self.training_range() else {
+            return out;
+        };
+        let mut farthest = 0.0;
+        for row in x.iter_rows() {
+            let mut outside = false;
+            for (j, &v) in row.iter().enumerate() {
+                let s = (v - min[j]) / (max[j] - min[j]);
+                let beyond = (-s).max(s - 1.0);
+                if beyond > 0.01 {
+                    outside = true;
+                    if beyond > farthest {
+                        farthest = beyond;
+                        out.farthest = Some((j, v));
+                    }
+                }
+            }
+            out.rows += usize::from(outside);
+        }
+        out
+    }
 
     /// Predicts every row of `x`, in parallel.
     ///
@@ -60,6 +94,20 @@ pub trait Predict: Sync {
         }
         Ok(Columns::new(self.outputs().to_vec(), values))
     }
+}
+
+/// A model whose outputs have an analytic Jacobian with respect to its inputs.
+pub trait Differentiable: Predict {
+    /// The outputs at `x` into `out` and ∂outᵢ/∂xⱼ into `jacobian` (`q × d`, row-major).
+    fn predict_with_jacobian(&self, x: &[f64], out: &mut [f64], jacobian: &mut [f64]);
+}
+
+/// Inputs outside a model's training range ([`Predict::outside`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Outside {
+    pub rows: usize,
+    /// The farthest value: its column and the value.
+    pub farthest: Option<(usize, f64)>,
 }
 
 /// Prediction errors on one dataset, in the outputs' units (mm for the micro-hand).

@@ -30,7 +30,9 @@ use crate::model::file::{ModelFile, StoredModel};
 use crate::model::inverse::{self, InverseOptions, PlannedTarget};
 use crate::model::msvr::fitness::FitnessKind;
 use crate::model::msvr::folds::FoldsBy;
-use crate::model::msvr::{Msvr, MsvrParams};
+use crate::model::msvr::tune::BasisChoice;
+use crate::model::msvr::MsvrParams;
+use crate::model::Differentiable;
 use crate::model::Errors;
 use crate::provenance::Provenance;
 use crate::search::aco_paper::AcoPaper;
@@ -362,8 +364,8 @@ pub fn run(
     let sources: Vec<Vec<f64>> = (0..plan.targets)
         .map(|_| (0..3).map(|_| rng.random_range(0.0..=250.0)).collect())
         .collect();
-    let msvr = load_msvr(&out.join("model.json"))?;
-    let planned = feedforward(&msvr, &plant, &sources)?;
+    let model = load_model(&out.join("model.json"))?;
+    let planned = feedforward(model.differentiable(), &plant, &sources)?;
     write_inverse_csv(&out.join("inverse_check.csv"), &planned)?;
     let mut inverse = vec![inverse_stats(
         &format!(
@@ -376,13 +378,13 @@ pub fn run(
         // The same check with the same parameters fitted on the coarse grid alone: what the
         // training grid's spacing costs.
         let data = data::read_dataset(coarse, &names(&HAND_INPUTS), &names(&HAND_OUTPUTS))?;
-        let sparse = msvr.params.check()?.fit(&data)?;
+        let sparse = model.spec().fit(&data)?;
         inverse.push(inverse_stats(
             &format!(
                 "MSVR from the triangulated frames, {step} kPa grid only ({} rows)",
                 data.rows()
             ),
-            &feedforward(&sparse, &plant, &sources)?,
+            &feedforward(sparse.differentiable(), &plant, &sources)?,
         ));
     }
     for c in &inverse {
@@ -445,6 +447,7 @@ fn job(
         out,
         report: Some(report),
         max_rows: None,
+        basis: BasisChoice::Auto,
     }
 }
 
@@ -472,13 +475,12 @@ fn coarse_rows(from: &Path, step_kpa: f64, to: &Path) -> Result<PathBuf, Pipelin
     Ok(to.to_path_buf())
 }
 
-fn load_msvr(path: &Path) -> Result<Msvr, PipelineError> {
-    let StoredModel::Msvr(m) = ModelFile::load(path)?.model;
-    Ok(m)
+fn load_model(path: &Path) -> Result<StoredModel, PipelineError> {
+    Ok(ModelFile::load(path)?.model)
 }
 
 fn feedforward(
-    model: &Msvr,
+    model: &dyn Differentiable,
     plant: &Plant,
     sources: &[Vec<f64>],
 ) -> Result<Vec<PlannedTarget>, PipelineError> {

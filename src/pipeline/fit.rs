@@ -7,13 +7,13 @@ use std::time::Instant;
 use super::outputs::{self, Output};
 use super::{io_error, Event, PipelineError, Session};
 use crate::data::{self, HAND_INPUTS, HAND_OUTPUTS};
-use crate::model::file::{ModelFile, StoredModel};
+use crate::model::file::ModelFile;
 use crate::model::msvr::fitness::{Counters, FitnessKind};
 use crate::model::msvr::folds::{self, FoldsBy};
-use crate::model::msvr::tune::{self, SearchSummary};
+use crate::model::msvr::tune::{self, BasisChoice, SearchSummary};
 use crate::model::msvr::{self, MsvrParams, MIN_FIT_ROWS};
 use crate::model::previous::{self, PreviousModel};
-use crate::model::{self, Predict};
+use crate::model::{self, ModelSpec};
 use crate::report::{self, Comparison, ModelReport, NamedModel, PreviousSummary, TestResult};
 use crate::search::{IterationRecord, Method, Observer, Search};
 
@@ -47,6 +47,8 @@ pub struct FitJob {
     pub report: Option<PathBuf>,
     /// Rows kept at most from the training (and search) data, evenly spaced; `None` keeps all.
     pub max_rows: Option<usize>,
+    /// The expansion: exact, a reduced basis, or chosen from the data.
+    pub basis: BasisChoice,
 }
 
 /// What a run produced.
@@ -55,6 +57,9 @@ pub struct FitOutcome {
     /// The search, its work counters and its time (s), when there was one.
     pub search: Option<(SearchSummary, Counters, f64)>,
 }
+
+/// Folds of `--basis auto`'s cross-validation when no search gives them.
+const AUTO_FOLDS: usize = 5;
 
 /// Reports each search iteration as an [`Event::Iteration`].
 struct Iterations<'a> {
@@ -122,7 +127,14 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
     };
     let train = keep(data::read_dataset(&job.data, &job.inputs, &job.outputs)?);
     train.check_fittable(MIN_FIT_ROWS)?;
-    msvr::check_memory(train.rows())?;
+    let seed = match job.selection {
+        Selection::Fixed => None,
+        Selection::Search { seed, .. } => Some(seed),
+    };
+    let initial = tune::initial_basis(job.basis, train.rows(), seed.unwrap_or(crate::DEFAULT_SEED))
+        .map_err(|e| PipelineError::Usage(e.to_string()))?;
+    msvr::check_memory(train.rows(), initial.basis)?;
+    let solver = job.params.basis(initial.basis);
     // Every test file is read before the search: a bad one must not cost the search.
     let test_data = job
         .tests
@@ -135,8 +147,22 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
         })
         .collect::<Result<Vec<_>, PipelineError>>()?;
 
-    let (params, search, history) = match &job.selection {
-        Selection::Fixed => (job.params, None, None),
+    let (params, search, history, basis) = match &job.selection {
+        Selection::Fixed => {
+            let basis = if job.basis == BasisChoice::Auto {
+                let plan = folds::plan(
+                    &FoldsBy::Auto,
+                    &train,
+                    &other_columns(&job.data, &FoldsBy::Auto, job)?,
+                    AUTO_FOLDS,
+                )?;
+                let fitness = FitnessKind::Cv { folds: AUTO_FOLDS };
+                tune::grow_basis(initial, &train, fitness, &plan, &solver, session.interrupt)?
+            } else {
+                initial
+            };
+            (solver.basis(basis.basis), None, None, basis)
+        }
         Selection::Search {
             method,
             budget,
@@ -167,6 +193,10 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
             if matches!(fitness, FitnessKind::Cv { .. }) {
                 session.emit(Event::Note(format!("folds: {}", plan.choice)));
             }
+            session.emit(Event::Note(format!(
+                "basis: {} ({})",
+                initial.basis, initial.reason
+            )));
             let method = &method.with_budget(budget.unwrap_or(tune::budget_for(scored.rows())));
             let started = Instant::now();
             let mut observer = Iterations {
@@ -179,23 +209,42 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
                 *fitness,
                 *seed,
                 &plan,
-                &job.params,
+                &solver,
                 &mut observer,
                 session.interrupt,
             )?;
             session.emit(Event::Searched(&summary));
-            let params = tune::solver_for(method, &job.params).with_hyper(summary.best);
+            let params = tune::solver_for(method, &solver).with_hyper(summary.best);
+            let basis = if job.basis == BasisChoice::Auto {
+                tune::grow_basis(
+                    initial,
+                    &scored,
+                    *fitness,
+                    &plan,
+                    &params,
+                    session.interrupt,
+                )?
+            } else {
+                initial
+            };
             let seconds = started.elapsed().as_secs_f64();
             (
-                params,
+                params.basis(basis.basis),
                 Some((summary, counters, seconds)),
                 Some(result.history),
+                basis,
             )
         }
     };
+    if !basis.tried.is_empty() {
+        session.emit(Event::Note(format!(
+            "basis: {} ({})",
+            basis.basis, basis.reason
+        )));
+    }
 
-    let msvr = params.check()?.fit(&train)?;
-    let train_errors = model::evaluate(&msvr, &train)?;
+    let fitted = ModelSpec::Msvr(params).fit(&train)?;
+    let train_errors = model::evaluate(fitted.predictor(), &train)?;
 
     // The previous physics model describes the micro-hand only.
     let is_hand = train.inputs.names == HAND_INPUTS && train.outputs.names == HAND_OUTPUTS;
@@ -208,7 +257,7 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
     };
     let mut models = vec![NamedModel {
         name: "msvr",
-        model: &msvr,
+        model: fitted.predictor(),
     }];
     if let Some((default, calibrated, _)) = &previous {
         for m in [default, calibrated] {
@@ -229,20 +278,17 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
         }
     }
 
-    let seed = match job.selection {
-        Selection::Fixed => None,
-        Selection::Search { seed, .. } => Some(seed),
-    };
     let mut provenance = session.provenance(seed);
     for path in &inputs {
         provenance = provenance.with_input(path).map_err(io_error(path))?;
     }
     let report = ModelReport {
         training_file: file_name(&job.data),
-        inputs: msvr.inputs().to_vec(),
-        outputs: msvr.outputs().to_vec(),
-        params: msvr.params,
-        fit: msvr.fit.clone(),
+        inputs: fitted.predictor().inputs().to_vec(),
+        outputs: fitted.predictor().outputs().to_vec(),
+        spec: fitted.spec(),
+        fit: fitted.diagnostics().clone(),
+        basis: basis.clone(),
         search: search.as_ref().map(|(s, _, _)| s.clone()),
         train_errors,
         previous: previous.as_ref().map(|(d, c, cal)| PreviousSummary {
@@ -262,7 +308,7 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
         };
         report::write_model_report(dir, &report, history.as_deref(), &comparison)
     });
-    ModelFile::new(StoredModel::Msvr(msvr), report.search.clone(), provenance).save(&job.out)?;
+    ModelFile::new(fitted, report.search.clone(), Some(basis), provenance).save(&job.out)?;
     if let Some(Err(e)) = reported {
         return Err(PipelineError::Partial {
             source: Box::new(e.into()),

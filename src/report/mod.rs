@@ -13,10 +13,10 @@ use serde::Serialize;
 
 use crate::data::{format_number, Columns, Dataset};
 use crate::fsio;
-use crate::model::msvr::tune::SearchSummary;
-use crate::model::msvr::{FitDiagnostics, MsvrParams};
+use crate::model::msvr::tune::{BasisDecision, SearchSummary};
+use crate::model::msvr::FitDiagnostics;
 use crate::model::previous::{Calibration, PreviousParams};
-use crate::model::{Errors, Predict};
+use crate::model::{Errors, ModelSpec, Predict};
 use crate::provenance::Provenance;
 use crate::search::IterationRecord;
 
@@ -50,8 +50,10 @@ pub struct ModelReport {
     pub training_file: String,
     pub inputs: Vec<String>,
     pub outputs: Vec<String>,
-    pub params: MsvrParams,
+    pub spec: ModelSpec,
     pub fit: FitDiagnostics,
+    /// The basis and why it was chosen.
+    pub basis: BasisDecision,
     /// The search that chose the parameters, if any.
     pub search: Option<SearchSummary>,
     /// Errors on the training data itself (not a measure of generalisation).
@@ -554,18 +556,19 @@ fn markdown(r: &ModelReport, sweeps: &[SweepFigures]) -> String {
         );
     }
     let _ = writeln!(s, "## Fit\n");
+    let settings = r.spec.settings();
+    let head: Vec<&str> = settings.iter().map(|(name, _)| *name).collect();
     let _ = writeln!(
         s,
-        "| C | ε | σ | loss | rows | iterations | objective | support vectors | converged | stop |"
+        "| {} | rows | iterations | objective | terms | converged | stop |",
+        head.join(" | ")
     );
-    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(s, "|{}", "---|".repeat(settings.len() + 6));
+    let values: Vec<&str> = settings.iter().map(|(_, v)| v.as_str()).collect();
     let _ = writeln!(
         s,
-        "| {} | {} | {} | {} | {} | {} | {:.6e} | {} | {} | {:?} |\n",
-        r.params.c,
-        r.params.epsilon,
-        r.params.sigma,
-        r.params.loss,
+        "| {} | {} | {} | {:.6e} | {} | {} | {:?} |\n",
+        values.join(" | "),
         r.fit.rows,
         r.fit.iterations,
         r.fit.objective,
@@ -573,6 +576,19 @@ fn markdown(r: &ModelReport, sweeps: &[SweepFigures]) -> String {
         r.fit.converged,
         r.fit.stop
     );
+    let _ = writeln!(
+        s,
+        "Basis: {} ({}). Terms are the kernel's centres: support vectors of an exact fit, the kept centres of a reduced one.\n",
+        r.basis.basis, r.basis.reason
+    );
+    if !r.basis.tried.is_empty() {
+        let _ = writeln!(s, "| centres | kept at σ | cross-validated fitness |");
+        let _ = writeln!(s, "|---|---|---|");
+        for t in &r.basis.tried {
+            let _ = writeln!(s, "| {} | {} | {:.5} |", t.centres, t.kept, t.fitness);
+        }
+        s.push('\n');
+    }
     let _ = writeln!(
         s,
         "Training error (the data the model was fitted on, not a test): MAE {:.4}, mean Euclidean {:.4}.\n",

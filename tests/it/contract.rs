@@ -4,8 +4,9 @@
 
 use handcap::data::{Columns, Dataset};
 use handcap::model::file::{ModelFile, StoredModel};
-use handcap::model::msvr::MsvrParams;
+use handcap::model::msvr::{Basis, MsvrParams};
 use handcap::model::previous::{self, PreviousModel};
+use handcap::model::ModelSpec;
 use handcap::model::{ModelError, Predict};
 use handcap::provenance::Provenance;
 use handcap::search::aco_paper::PAPER_TABLE2;
@@ -37,10 +38,16 @@ pub fn check_regressor(
     if let Some(stored) = stored {
         let dir = tempdir();
         let path = dir.path().join("model.json");
-        ModelFile::new(stored, None, Provenance::new(vec!["contract".into()], None))
-            .save(&path)
-            .unwrap();
-        let StoredModel::Msvr(loaded) = ModelFile::load(&path).unwrap().model;
+        ModelFile::new(
+            stored,
+            None,
+            None,
+            Provenance::new(vec!["contract".into()], None),
+        )
+        .save(&path)
+        .unwrap();
+        let loaded = ModelFile::load(&path).unwrap().model;
+        let loaded = loaded.predictor();
         assert_eq!(
             loaded.predict(&train.inputs).unwrap(),
             model.predict(&train.inputs).unwrap(),
@@ -163,6 +170,26 @@ fn msvr_passes_the_contract() {
         &|data| {
             let model = params.fit(data).map_err(|e| e.to_string())?;
             Ok((Box::new(model.clone()), Some(StoredModel::Msvr(model))))
+        },
+        Kind::Learner,
+        &train,
+    );
+}
+
+#[test]
+fn reduced_basis_msvr_passes_the_contract() {
+    let train = training_data();
+    let spec = ModelSpec::Msvr(MsvrParams::default().with_hyper(PAPER_TABLE2).basis(
+        Basis::Reduced {
+            centres: 40,
+            seed: 5,
+        },
+    ));
+    check_regressor(
+        &|data| {
+            let stored = spec.fit(data).map_err(|e| e.to_string())?;
+            let StoredModel::Msvr(model) = &stored;
+            Ok((Box::new(model.clone()), Some(stored)))
         },
         Kind::Learner,
         &train,

@@ -1,6 +1,7 @@
 //! Integration tests: one binary, a module per area.
 
 mod bad_input;
+mod basis;
 mod calibrate;
 mod capture;
 mod cli;

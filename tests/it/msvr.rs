@@ -461,6 +461,7 @@ fn save_load_predicts_identically() {
     let file = ModelFile::new(
         StoredModel::Msvr(model.clone()),
         None,
+        None,
         Provenance::new(vec!["test".into()], None),
     );
     file.save(&path).unwrap();

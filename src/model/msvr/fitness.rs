@@ -37,9 +37,11 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use super::basis::{self, NystromMap};
+use super::kernel::{self, rbf_from_squared};
+use super::reduced::{self, FeatureRows, ReducedProblem};
+use super::{Basis, MinMaxScaler, MsvrParams};
 use crate::data::{Columns, Dataset};
-use crate::model::msvr::kernel::rbf_from_squared;
-use crate::model::msvr::{MinMaxScaler, MsvrParams};
 use crate::search::Hyper;
 
 /// How candidates are scored.
@@ -72,13 +74,21 @@ pub enum FitnessError {
     },
 }
 
-/// One fold: the targets of its training and held-out rows, and the squared distances among
-/// its training rows and from its held-out rows to them.
+/// One fold: its training and held-out rows and their targets; for the exact basis also the
+/// squared distances among its training rows and from its held-out rows to them.
 struct Fold {
+    train: Vec<usize>,
+    held_out: Vec<usize>,
     y_train: Mat<f64>,
     y_held_out: Mat<f64>,
-    d2_train: Mat<f64>,
-    d2_held_out: Mat<f64>,
+    d2: Option<(Mat<f64>, Mat<f64>)>,
+}
+
+/// What every fold needs of one σ: the exact basis's kernels (training, held-out to training),
+/// or the reduced basis's map and the features of every row.
+enum PerSigma {
+    Exact(Vec<(Mat<f64>, Mat<f64>)>),
+    Reduced { features: Mat<f64> },
 }
 
 /// The fold of every row. Groups (every row its own group when `groups` is `None`) are shuffled
@@ -125,9 +135,6 @@ fn assign_folds(
     Ok(fold_of)
 }
 
-/// Per fold: the kernel among its training rows and from its held-out rows to them.
-type FoldKernels = Arc<Vec<(Mat<f64>, Mat<f64>)>>;
-
 /// Counters of the work done, for the search report.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
 pub struct Counters {
@@ -151,8 +158,10 @@ pub struct Fitness {
     held_out_values: usize,
     /// Solver controls (tol, max_iter) of every fit.
     solver: MsvrParams,
+    /// The scaled inputs and the centres k-means++ chose among them (reduced basis only).
+    reduced: Option<(Columns, Columns)>,
     memo: Mutex<HashMap<[u64; 3], f64>>,
-    kernels: Mutex<HashMap<u64, FoldKernels>>,
+    kernels: Mutex<HashMap<u64, Arc<PerSigma>>>,
     kernel_cache_entries: usize,
     evaluations: AtomicUsize,
     fits: AtomicUsize,
@@ -192,36 +201,46 @@ impl Fitness {
                     .collect()
             }
         };
+        let exact = solver.basis == Basis::Exact;
         let folds: Vec<Fold> = splits
             .into_par_iter()
             .map(|(train, held_out)| {
-                let pick = |rows: &[usize]| {
-                    Columns::new(
-                        scaled.names.clone(),
-                        rows.iter().flat_map(|&i| scaled.row(i).to_vec()).collect(),
-                    )
-                };
                 let targets = |rows: &[usize]| {
                     Mat::from_fn(rows.len(), data.outputs.width(), |r, j| {
                         data.outputs.row(rows[r])[j]
                     })
                 };
-                let (tr, ho) = (pick(&train), pick(&held_out));
+                let d2 = exact.then(|| {
+                    let (tr, ho) = (scaled.select_rows(&train), scaled.select_rows(&held_out));
+                    (
+                        kernel::squared_distances(&tr, &tr),
+                        kernel::squared_distances(&ho, &tr),
+                    )
+                });
                 Fold {
                     y_train: targets(&train),
                     y_held_out: targets(&held_out),
-                    d2_train: crate::model::msvr::kernel::squared_distances(&tr, &tr),
-                    d2_held_out: crate::model::msvr::kernel::squared_distances(&ho, &tr),
+                    train,
+                    held_out,
+                    d2,
                 }
             })
             .collect();
-        let per_sigma: usize = folds
-            .iter()
-            .map(|f| {
-                8 * (f.d2_train.nrows() * f.d2_train.ncols()
-                    + f.d2_held_out.nrows() * f.d2_held_out.ncols())
-            })
-            .sum();
+        let per_sigma: usize = match solver.basis {
+            Basis::Exact => folds
+                .iter()
+                .map(|f| 8 * (f.train.len() + f.held_out.len()) * f.train.len())
+                .sum(),
+            Basis::Reduced { centres, .. } => 8 * n * centres.min(n),
+        };
+        let reduced = match solver.basis {
+            Basis::Exact => None,
+            Basis::Reduced { centres, seed } => {
+                let chosen = basis::kmeans_pp(&scaled, centres, seed);
+                let centres = scaled.select_rows(&chosen);
+                Some((scaled, centres))
+            }
+        };
         let held_out_values = folds
             .iter()
             .map(|f| f.y_held_out.nrows() * f.y_held_out.ncols())
@@ -234,6 +253,7 @@ impl Fitness {
                 tol: solver.tol.max(SEARCH_TOL),
                 ..*solver
             },
+            reduced,
             memo: Mutex::new(HashMap::new()),
             kernels: Mutex::new(HashMap::new()),
             kernel_cache_entries: (KERNEL_CACHE_BYTES / per_sigma.max(1)).max(1),
@@ -301,35 +321,65 @@ impl Fitness {
     /// MAE over every held-out prediction for one tuple, or a lower bound of it that is at
     /// least `bar` once one is reached (racing).
     fn score(&self, h: &Hyper, bar: f64) -> f64 {
-        let kernels = self.fold_kernels(h.sigma);
+        let per_sigma = self.per_sigma(h.sigma);
         let Ok(params) = self.solver.with_hyper(*h).check() else {
             return f64::INFINITY;
         };
         let all = self.held_out_values as f64;
         let mut abs_sum = 0.0;
-        for (k, (fold, (k_train, k_held_out))) in self.folds.iter().zip(kernels.iter()).enumerate()
-        {
+        for (k, fold) in self.folds.iter().enumerate() {
             if k > 0 && abs_sum / all >= bar {
                 self.raced.fetch_add(1, Ordering::Relaxed);
                 return abs_sum / all;
             }
             self.fits.fetch_add(1, Ordering::Relaxed);
-            let Ok(sol) = params.solve(k_train.as_ref(), fold.y_train.as_ref(), Par::Seq) else {
-                return f64::INFINITY;
+            let (pred, bias) = match &*per_sigma {
+                PerSigma::Exact(kernels) => {
+                    let (k_train, k_held_out) = &kernels[k];
+                    let Ok(sol) = params.solve(k_train.as_ref(), fold.y_train.as_ref(), Par::Seq)
+                    else {
+                        return f64::INFINITY;
+                    };
+                    (k_held_out * &sol.beta, sol.bias)
+                }
+                PerSigma::Reduced { features } => {
+                    let problem = ReducedProblem {
+                        features: FeatureRows::Stored {
+                            all: features.as_ref(),
+                            rows: Some(&fold.train),
+                        },
+                        targets: fold.y_train.as_ref(),
+                        tube: params.params().tube(),
+                    };
+                    let p = params.params();
+                    let Ok(sol) = reduced::solve(&problem, p.tol, p.max_iter, Par::Seq) else {
+                        return f64::INFINITY;
+                    };
+                    let held_out = Mat::from_fn(fold.held_out.len(), features.ncols(), |r, j| {
+                        features[(fold.held_out[r], j)]
+                    });
+                    (&held_out * &sol.w, sol.bias)
+                }
             };
-            let pred = k_held_out * &sol.beta;
             let y = &fold.y_held_out;
             for r in 0..y.nrows() {
                 for j in 0..y.ncols() {
-                    abs_sum += (y[(r, j)] - pred[(r, j)] - sol.bias[j]).abs();
+                    abs_sum += (y[(r, j)] - pred[(r, j)] - bias[j]).abs();
                 }
             }
         }
         abs_sum / all
     }
 
-    /// The kernels of every fold for σ, from the cache or computed (and cached).
-    fn fold_kernels(&self, sigma: f64) -> FoldKernels {
+    /// Centres a reduced basis keeps at σ (0 for the exact basis).
+    pub fn kept_centres(&self, sigma: f64) -> usize {
+        self.reduced
+            .as_ref()
+            .map_or(0, |(_, centres)| NystromMap::new(centres, sigma).width())
+    }
+
+    /// What the folds need of σ, from the cache or computed (and cached).
+    fn per_sigma(&self, sigma: f64) -> Arc<PerSigma> {
         if let Some(k) = self
             .kernels
             .lock()
@@ -339,17 +389,26 @@ impl Fitness {
             self.kernel_hits.fetch_add(1, Ordering::Relaxed);
             return Arc::clone(k);
         }
-        let computed: FoldKernels = Arc::new(
-            self.folds
-                .iter()
-                .map(|f| {
-                    (
-                        rbf_from_squared(f.d2_train.as_ref(), sigma),
-                        rbf_from_squared(f.d2_held_out.as_ref(), sigma),
-                    )
-                })
-                .collect(),
-        );
+        let computed = Arc::new(match &self.reduced {
+            None => PerSigma::Exact(
+                self.folds
+                    .iter()
+                    .map(|f| {
+                        let (d2_train, d2_held_out) = f.d2.as_ref().expect("exact folds");
+                        (
+                            rbf_from_squared(d2_train.as_ref(), sigma),
+                            rbf_from_squared(d2_held_out.as_ref(), sigma),
+                        )
+                    })
+                    .collect(),
+            ),
+            Some((scaled, centres)) => {
+                let map = NystromMap::new(centres, sigma);
+                PerSigma::Reduced {
+                    features: map.features(scaled),
+                }
+            }
+        });
         let mut cache = self.kernels.lock().expect("kernel lock");
         if cache.len() >= self.kernel_cache_entries {
             cache.clear();

@@ -1,15 +1,8 @@
 //! The MSVR training problem on a given kernel matrix, solved by iteratively reweighted least
 //! squares (IRWLS) with an exact line search on the true objective.
 //!
-//! Minimises F(β, b) = ½ tr(βᵀKβ) + C Σᵢ L(uᵢ), uᵢ = ‖yᵢ − (Kβ)ᵢ − b‖₂, with the [`Loss`]
-//! - quadratic (the paper's, Sánchez-Fernández et al. 2004, eqs. 11-12): L(u) = 0 for u ≤ ε and
-//!   (u − ε)² above;
-//! - robust: the same up to u = ε + δ, δ = [`ROBUST_ZONE`] ε, and linear beyond with the slope
-//!   it has there, L(u) = δ (2(u − ε) − δ) (Huber's loss outside the tube). A row far from the
-//!   others' surface — a transient caught mid-move, a marker lost for a frame, hysteresis — pulls
-//!   the fit with a force capped at 2Cδ instead of one growing with its distance. Measured on a
-//!   real tendon arm's time series (`notes/realdata.md`), the quadratic loss was pulled to twice
-//!   the held-out error of scikit-learn's (linear-loss) SVR; the robust loss ends below it.
+//! Minimises F(β, b) = ½ tr(βᵀKβ) + C Σᵢ L(uᵢ), uᵢ = ‖yᵢ − (Kβ)ᵢ − b‖₂, with the tube's
+//! [`Loss`] ([`super::tube`]: the paper's quadratic or the robust one).
 //!
 //! Each iteration:
 //! 1. the strict support set S = {i : uᵢ > ε} (a sample on the tube's edge is not in S, so
@@ -64,36 +57,8 @@ use faer::reborrow::{IntoConst, ReborrowMut};
 use faer::{Accum, Col, Mat, MatRef, Par};
 use serde::{Deserialize, Serialize};
 
-/// Smallest line-search step tried before concluding that no step lowers F.
-const MIN_STEP: f64 = 1.0 / (1u64 << 40) as f64;
-/// Longest step along the line, in units of the IRWLS step.
-const MAX_STEP: f64 = 4.0;
-
-/// Width of the robust loss's quadratic zone beyond the tube, in units of ε: the tube and the
-/// zone both follow the noise's scale, so the search's ε sets both. Measured: 3, 10 and 30 give
-/// 16.9, 13.8 and 14.9 mm on the tendon arm and 4.02, 3.86 and 4.16 mm on the soft trunk
-/// (ACO_R, 120 candidates, held-out rows).
-pub const ROBUST_ZONE: f64 = 10.0;
-
-/// The loss of a residual norm outside the tube (see the module docs).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Loss {
-    /// (u − ε)²: the paper's.
-    #[default]
-    Quadratic,
-    /// Quadratic for [`ROBUST_ZONE`] ε beyond the tube, linear further out.
-    Robust,
-}
-
-impl std::fmt::Display for Loss {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
-            Loss::Quadratic => "quadratic",
-            Loss::Robust => "robust",
-        })
-    }
-}
+use super::tube::{row_norm, Tube};
+pub use super::tube::{Loss, ROBUST_ZONE};
 
 /// Why the solver stopped.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -432,44 +397,13 @@ pub fn solve(
 }
 
 impl Problem<'_> {
-    /// Width δ of the quadratic zone beyond the tube (∞ for the quadratic loss).
-    fn zone(&self) -> f64 {
-        match self.loss {
-            Loss::Quadratic => f64::INFINITY,
-            Loss::Robust => ROBUST_ZONE * self.epsilon,
+    /// The loss of this problem's tube.
+    pub fn tube(&self) -> Tube {
+        Tube {
+            c: self.c,
+            epsilon: self.epsilon,
+            loss: self.loss,
         }
-    }
-
-    /// The loss of a residual norm.
-    fn loss(&self, u: f64) -> f64 {
-        let (excess, zone) = (u - self.epsilon, self.zone());
-        if excess <= 0.0 {
-            0.0
-        } else if excess <= zone {
-            excess * excess
-        } else {
-            zone * (2.0 * excess - zone)
-        }
-    }
-
-    /// A row's part in the step (step 2), `None` inside the tube: its inverse weight 1/aᵢ and
-    /// the share of its residual its target is pulled in by (y'ᵢ = yᵢ − shrink · rᵢ). In the
-    /// quadratic zone 1/(2C) and ε/uᵢ (the target at the tube's edge), in the robust loss's
-    /// linear part uᵢ/(2Cδ) and 0 (the target itself).
-    fn step_row(&self, u: f64) -> Option<(f64, f64)> {
-        let (excess, zone) = (u - self.epsilon, self.zone());
-        (excess > 0.0).then(|| {
-            if excess > zone {
-                (u / (2.0 * self.c * zone), 0.0)
-            } else {
-                (0.5 / self.c, self.epsilon / u)
-            }
-        })
-    }
-
-    /// L′(u) / u: the loss's pull on a residual vector per unit of its length.
-    fn pull(&self, u: f64) -> f64 {
-        2.0 * (u - self.epsilon).min(self.zone()) / u
     }
 
     /// F at β, b given Kβ.
@@ -479,7 +413,7 @@ impl Problem<'_> {
 
     /// F from β, Kβ and the residuals they leave.
     fn objective_with(&self, beta: MatRef<f64>, k_beta: MatRef<f64>, resid: MatRef<f64>) -> f64 {
-        0.5 * frobenius_dot(beta, k_beta) + self.c * self.loss_sum(resid)
+        0.5 * frobenius_dot(beta, k_beta) + self.tube().data_term(resid)
     }
 
     fn residuals(&self, k_beta: MatRef<f64>, bias: &[f64]) -> Mat<f64> {
@@ -487,12 +421,6 @@ impl Problem<'_> {
         Mat::from_fn(y.nrows(), y.ncols(), |i, j| {
             y[(i, j)] - k_beta[(i, j)] - bias[j]
         })
-    }
-
-    fn loss_sum(&self, resid: MatRef<f64>) -> f64 {
-        (0..resid.nrows())
-            .map(|i| self.loss(row_norm(resid, i)))
-            .sum()
     }
 
     fn iterate(&self, beta: Mat<f64>, bias: Vec<f64>, par: Par) -> Iterate {
@@ -525,7 +453,7 @@ impl Problem<'_> {
     ) -> Result<(Mat<f64>, Vec<f64>), NotPositiveDefinite> {
         let (n, q) = self.targets.shape();
         let rows: Vec<Option<(f64, f64)>> = (0..n)
-            .map(|i| self.step_row(row_norm(it.resid.as_ref(), i)))
+            .map(|i| self.tube().step_row(row_norm(it.resid.as_ref(), i)))
             .collect();
         let support: Vec<(usize, f64)> = rows
             .iter()
@@ -589,31 +517,9 @@ impl Problem<'_> {
         let q1 = frobenius_dot(delta.as_ref(), it.k_beta.as_ref());
         let q2 = frobenius_dot(delta.as_ref(), k_delta.as_ref());
         let g = Mat::from_fn(n, q, |i, j| k_delta[(i, j)] + bias_delta[j]);
-        // F(t) and F'(t) along the line; F is convex in t.
-        let along = |t: f64| {
-            let (mut loss, mut slope) = (0.0, q1 + t * q2);
-            for i in 0..n {
-                let e = |j: usize| it.resid[(i, j)] - t * g[(i, j)];
-                let u = (0..q).map(|j| e(j) * e(j)).sum::<f64>().sqrt();
-                loss += self.loss(u);
-                if u > self.epsilon {
-                    slope -= self.c * self.pull(u) * (0..q).map(|j| e(j) * g[(i, j)]).sum::<f64>();
-                }
-            }
-            (0.5 * (q0 + t * (2.0 * q1 + t * q2)) + self.c * loss, slope)
-        };
-        let mut t = minimise_convex(|t| along(t).1, MAX_STEP);
-        let objective = loop {
-            let f = along(t).0;
-            if f <= it.objective {
-                break f;
-            }
-            // Only rounding can make the minimiser worse than t = 0: back off towards it.
-            t *= 0.5;
-            if t.is_nan() || t < MIN_STEP {
-                return None;
-            }
-        };
+        let (t, objective) =
+            self.tube()
+                .step_along(it.resid.as_ref(), g.as_ref(), [q0, q1, q2], it.objective)?;
         if t == 1.0 {
             it.beta = beta_star;
             it.bias = bias_star;
@@ -631,64 +537,12 @@ impl Problem<'_> {
     }
 }
 
-/// The minimiser on [0, hi] of a convex function given its non-decreasing derivative `slope`:
-/// 0 if the function does not fall at 0, hi if it still falls at hi, else the root of the slope
-/// by regula falsi with the Illinois modification (bisection when a secant leaves the bracket),
-/// to a relative width of 1e-6.
-fn minimise_convex(slope: impl Fn(f64) -> f64, hi: f64) -> f64 {
-    let (mut a, mut b) = (0.0, hi);
-    let (mut fa, mut fb) = (slope(a), slope(b));
-    if fa.is_nan() || fa >= 0.0 {
-        return 0.0;
-    }
-    if fb <= 0.0 {
-        return b;
-    }
-    let mut moved_b_last = None;
-    for _ in 0..200 {
-        if b - a <= 1e-6 * b {
-            break;
-        }
-        let secant = (a * fb - b * fa) / (fb - fa);
-        let t = if secant > a && secant < b {
-            secant
-        } else {
-            0.5 * (a + b)
-        };
-        let ft = slope(t);
-        if ft == 0.0 {
-            return t;
-        }
-        let moved_b = ft > 0.0;
-        if moved_b {
-            (b, fb) = (t, ft);
-        } else {
-            (a, fa) = (t, ft);
-        }
-        // Illinois: an end kept twice in a row has its slope halved, so it moves next time.
-        match (moved_b_last, moved_b) {
-            (Some(true), true) => fa *= 0.5,
-            (Some(false), false) => fb *= 0.5,
-            _ => {}
-        }
-        moved_b_last = Some(moved_b);
-    }
-    0.5 * (a + b)
-}
-
 /// Column `j` of a matrix with contiguous columns, as a slice.
 fn column(m: MatRef<'_, f64>, j: usize) -> &[f64] {
     m.col(j)
         .try_as_col_major()
         .expect("contiguous columns")
         .as_slice()
-}
-
-fn row_norm(m: MatRef<f64>, i: usize) -> f64 {
-    (0..m.ncols())
-        .map(|j| m[(i, j)] * m[(i, j)])
-        .sum::<f64>()
-        .sqrt()
 }
 
 /// Σᵢⱼ aᵢⱼ bᵢⱼ.
@@ -702,24 +556,4 @@ fn frobenius_dot(a: MatRef<f64>, b: MatRef<f64>) -> f64 {
                 .sum::<f64>()
         })
         .sum()
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn minimise_convex_finds_the_minimum_and_the_ends() {
-        // F = (t − 1.3)²: slope 2(t − 1.3).
-        let t = minimise_convex(|t| 2.0 * (t - 1.3), 4.0);
-        assert!((t - 1.3).abs() < 1e-5, "{t}");
-        assert_eq!(minimise_convex(|t| t - 9.0, 4.0), 4.0);
-        assert_eq!(minimise_convex(|t| t + 1.0, 4.0), 0.0);
-        // A slope that is exactly zero at the secant point (a linear slope) ends there at once:
-        // regression for a stall that kept the bracket's far end and returned its midpoint.
-        assert_eq!(minimise_convex(|t| t - 1.0, 4.0), 1.0);
-        // A kinked convex function: slope jumps from −1 to +3 at 0.7.
-        let t = minimise_convex(|t| if t < 0.7 { -1.0 } else { 3.0 }, 4.0);
-        assert!((t - 0.7).abs() < 1e-5, "{t}");
-    }
 }

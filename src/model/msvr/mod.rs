@@ -23,21 +23,24 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
+pub mod basis;
 pub mod fitness;
 pub mod folds;
 pub mod irwls;
 pub mod kernel;
+pub mod reduced;
+pub mod tube;
 pub mod tune;
 
 use faer::{Mat, MatRef, Par};
 use serde::{Deserialize, Serialize};
 
 use crate::data::{Columns, DataError, Dataset};
-use crate::model::Predict;
+use crate::model::{Differentiable, Predict};
 use crate::search::aco_paper::PAPER_TABLE2;
 use crate::search::{Hyper, InvalidParam};
-pub use irwls::{Loss, ROBUST_ZONE};
 use irwls::{NotPositiveDefinite, Problem, SolverOptions, StopReason};
+pub use tube::{Loss, ROBUST_ZONE};
 
 /// Default relative tolerance on the objective's decrease.
 pub const DEFAULT_TOL: f64 = 1e-8;
@@ -57,19 +60,29 @@ pub enum MsvrError {
     Solver(#[from] NotPositiveDefinite),
     #[error("the fit with C = {c}, ε = {epsilon}, σ = {sigma} gave non-finite numbers; choose other parameters or rescale the data")]
     NonFinite { c: f64, epsilon: f64, sigma: f64 },
-    #[error("{rows} rows need about {need_gb:.1} GB for the n × n kernel and its solve, and {available_gb:.1} GB are available; keep fewer rows (`handcap model --max-rows N` keeps N evenly spaced ones)")]
+    #[error("{rows} rows with the {basis} basis need about {need_gb:.1} GB, and {available_gb:.1} GB are available; use a reduced basis of fewer centres (`--basis auto` or `--basis M`)")]
     TooLarge {
         rows: usize,
+        basis: Basis,
         need_gb: f64,
         available_gb: f64,
     },
 }
 
-/// Bytes a fit on `rows` rows holds at once: the n × n kernel, the IRWLS system and its
-/// Cholesky factor, and room for a second fit running beside it (cross-validation), about
-/// six n × n matrices of f64.
-pub fn fit_bytes(rows: usize) -> f64 {
-    6.0 * 8.0 * (rows as f64).powi(2)
+/// Bytes a fit on `rows` rows holds at once. Exact: the n × n kernel, the IRWLS system and
+/// its Cholesky factor, and room for a second fit running beside it (cross-validation), about
+/// six n × n matrices of f64. Reduced: the features (stored up to [`STORED_FEATURE_BYTES`]), the
+/// centres' kernel and factors (a few m × m), and the targets, predictions and residuals of
+/// every row (a few n × 8).
+pub fn fit_bytes(rows: usize, basis: Basis) -> f64 {
+    let n = rows as f64;
+    match basis {
+        Basis::Exact => 6.0 * 8.0 * n * n,
+        Basis::Reduced { centres, .. } => {
+            let m = centres.min(rows) as f64;
+            (8.0 * n * m).min(STORED_FEATURE_BYTES as f64) + 8.0 * 6.0 * m * m + 8.0 * 48.0 * n
+        }
+    }
 }
 
 /// Refuses a fit that would not fit in memory: [`fit_bytes`] against the memory the system
@@ -77,14 +90,15 @@ pub fn fit_bytes(rows: usize) -> f64 {
 ///
 /// # Errors
 /// [`MsvrError::TooLarge`].
-pub fn check_memory(rows: usize) -> Result<(), MsvrError> {
+pub fn check_memory(rows: usize, basis: Basis) -> Result<(), MsvrError> {
     let Some(available) = available_bytes() else {
         return Ok(());
     };
-    let need = fit_bytes(rows);
+    let need = fit_bytes(rows, basis);
     if need > available {
         return Err(MsvrError::TooLarge {
             rows,
+            basis,
             need_gb: need / 1e9,
             available_gb: available / 1e9,
         });
@@ -92,7 +106,8 @@ pub fn check_memory(rows: usize) -> Result<(), MsvrError> {
     Ok(())
 }
 
-fn available_bytes() -> Option<f64> {
+/// The memory the system says is available, in bytes (`None` where it cannot be read).
+pub fn available_bytes() -> Option<f64> {
     let text = std::fs::read_to_string("/proc/meminfo").ok()?;
     let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
     let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
@@ -115,6 +130,10 @@ pub struct MsvrParams {
     /// The loss outside the tube (model files written before it existed: the paper's).
     #[serde(default)]
     pub loss: Loss,
+    /// The expansion: a kernel at every training row, or at a reduced basis of centres (model
+    /// files written before it existed: exact).
+    #[serde(default)]
+    pub basis: Basis,
     /// [`irwls::SolverOptions::factor_updates`] (on by default; a solver detail, not written).
     #[serde(skip, default = "factor_updates_default")]
     pub factor_updates: bool,
@@ -141,8 +160,14 @@ impl MsvrParams {
             tol: DEFAULT_TOL,
             max_iter: DEFAULT_MAX_ITER,
             loss: Loss::Quadratic,
+            basis: Basis::Exact,
             factor_updates: true,
         }
+    }
+
+    /// Sets the expansion (default [`Basis::Exact`]).
+    pub fn basis(self, basis: Basis) -> Self {
+        MsvrParams { basis, ..self }
     }
 
     /// Sets the relative tolerance (default [`DEFAULT_TOL`]).
@@ -158,6 +183,15 @@ impl MsvrParams {
     /// Sets the iteration cap (default [`DEFAULT_MAX_ITER`]).
     pub fn max_iter(self, max_iter: usize) -> Self {
         MsvrParams { max_iter, ..self }
+    }
+
+    /// The tube of these parameters (C, ε, loss).
+    pub fn tube(&self) -> tube::Tube {
+        tube::Tube {
+            c: self.c,
+            epsilon: self.epsilon,
+            loss: self.loss,
+        }
     }
 
     /// The (C, ε, σ) of these parameters.
@@ -198,6 +232,9 @@ impl MsvrParams {
         }
         if self.max_iter == 0 {
             return bad("max_iter", 0.0, "must be at least 1");
+        }
+        if let Basis::Reduced { centres: 0, .. } = self.basis {
+            return bad("centres", 0.0, "a reduced basis needs at least 1 centre");
         }
         if self.loss == Loss::Robust && self.epsilon <= 0.0 {
             return bad(
@@ -261,17 +298,80 @@ impl ValidMsvrParams {
     /// As [`ValidMsvrParams::fit`].
     pub fn fit_with(&self, data: &Dataset, par: Par) -> Result<Msvr, MsvrError> {
         data.check_fittable(MIN_FIT_ROWS)?;
-        check_memory(data.rows())?;
+        check_memory(data.rows(), self.0.basis)?;
         let p = &self.0;
         let scaler = MinMaxScaler::fit(&data.inputs);
         let scaled = scaler.transform(&data.inputs);
-        let k = kernel::rbf(&scaled, &scaled, p.sigma);
         let y = to_mat(&data.outputs);
-        let solution = self.solve(k.as_ref(), y.as_ref(), par)?;
-        let beta = &solution.beta;
-        let finite = solution.objective.is_finite()
-            && solution.bias.iter().all(|b| b.is_finite())
-            && (0..beta.nrows()).all(|i| (0..beta.ncols()).all(|j| beta[(i, j)].is_finite()));
+        let expansion = match p.basis {
+            Basis::Exact => {
+                let k = kernel::rbf(&scaled, &scaled, p.sigma);
+                let solution = self.solve(k.as_ref(), y.as_ref(), par)?;
+                let sv_rows: Vec<usize> = (0..solution.beta.nrows())
+                    .filter(|&i| solution.beta.row(i).iter().any(|&b| b != 0.0))
+                    .collect();
+                Expansion {
+                    centres: sv_rows.iter().map(|&i| scaled.row(i).to_vec()).collect(),
+                    coefficients: sv_rows
+                        .iter()
+                        .map(|&i| solution.beta.row(i).iter().copied().collect())
+                        .collect(),
+                    bias: solution.bias,
+                    objective: solution.objective,
+                    iterations: solution.iterations,
+                    stop: solution.stop,
+                    basis: None,
+                }
+            }
+            Basis::Reduced { centres, seed } => {
+                let chosen = basis::kmeans_pp(&scaled, centres, seed);
+                let map = basis::NystromMap::new(&scaled.select_rows(&chosen), p.sigma);
+                let stored;
+                let features = if data.rows() * map.width() * 8 <= STORED_FEATURE_BYTES {
+                    stored = map.features(&scaled);
+                    reduced::FeatureRows::Stored {
+                        all: stored.as_ref(),
+                        rows: None,
+                    }
+                } else {
+                    reduced::FeatureRows::Streamed {
+                        map: &map,
+                        x: &scaled,
+                        rows: None,
+                    }
+                };
+                let problem = reduced::ReducedProblem {
+                    features,
+                    targets: y.as_ref(),
+                    tube: p.tube(),
+                };
+                let solution = reduced::solve(&problem, p.tol, p.max_iter, par)?;
+                let beta = map.coefficients(solution.w.as_ref());
+                Expansion {
+                    centres: map.centres.iter_rows().map(<[f64]>::to_vec).collect(),
+                    coefficients: (0..beta.nrows())
+                        .map(|i| beta.row(i).iter().copied().collect())
+                        .collect(),
+                    bias: solution.bias,
+                    objective: solution.objective,
+                    iterations: solution.iterations,
+                    stop: solution.stop,
+                    basis: Some(BasisFit {
+                        requested: centres,
+                        chosen: chosen.len(),
+                        kept: map.width(),
+                        outside_tube: solution.outside,
+                    }),
+                }
+            }
+        };
+        let finite = expansion.objective.is_finite()
+            && expansion.bias.iter().all(|b| b.is_finite())
+            && expansion
+                .coefficients
+                .iter()
+                .flatten()
+                .all(|b| b.is_finite());
         if !finite {
             return Err(MsvrError::NonFinite {
                 c: p.c,
@@ -279,31 +379,75 @@ impl ValidMsvrParams {
                 sigma: p.sigma,
             });
         }
-        let sv_rows: Vec<usize> = (0..beta.nrows())
-            .filter(|&i| (0..beta.ncols()).any(|j| beta[(i, j)] != 0.0))
-            .collect();
         let fit = FitDiagnostics {
             rows: data.rows(),
-            iterations: solution.iterations,
-            objective: solution.objective,
-            support_vectors: sv_rows.len(),
-            converged: solution.stop.converged(),
-            stop: solution.stop,
+            iterations: expansion.iterations,
+            objective: expansion.objective,
+            support_vectors: expansion.centres.len(),
+            converged: expansion.stop.converged(),
+            stop: expansion.stop,
+            basis: expansion.basis,
         };
         Ok(Msvr::from_repr(MsvrRepr {
             inputs: data.inputs.names.clone(),
             outputs: data.outputs.names.clone(),
             params: *p,
             scaler,
-            support_vectors: sv_rows.iter().map(|&i| scaled.row(i).to_vec()).collect(),
-            coefficients: sv_rows
-                .iter()
-                .map(|&i| (0..beta.ncols()).map(|j| beta[(i, j)]).collect())
-                .collect(),
-            bias: solution.bias,
+            support_vectors: expansion.centres,
+            coefficients: expansion.coefficients,
+            bias: expansion.bias,
             fit,
         }))
     }
+}
+
+/// What either solver leaves: the kernel's centres (scaled inputs) with their coefficients.
+struct Expansion {
+    centres: Vec<Vec<f64>>,
+    coefficients: Vec<Vec<f64>>,
+    bias: Vec<f64>,
+    objective: f64,
+    iterations: usize,
+    stop: StopReason,
+    basis: Option<BasisFit>,
+}
+
+/// Features of a reduced fit are stored when they take at most this many bytes, else computed
+/// block by block at every pass.
+pub const STORED_FEATURE_BYTES: usize = 1 << 30;
+
+/// The expansion a fit uses.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum Basis {
+    /// A kernel at every training row: the n × n kernel (the paper's MSVR).
+    #[default]
+    Exact,
+    /// A kernel at up to `centres` centres picked by k-means++ with `seed` ([`basis`]), fitted by
+    /// [`reduced`]: O(n m²) time, O(m²) memory.
+    Reduced { centres: usize, seed: u64 },
+}
+
+impl std::fmt::Display for Basis {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Basis::Exact => f.write_str("exact"),
+            Basis::Reduced { centres, .. } => write!(f, "{centres} centres"),
+        }
+    }
+}
+
+/// What a reduced fit did with its basis.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct BasisFit {
+    /// Centres asked for.
+    pub requested: usize,
+    /// Centres k-means++ found (fewer when the rows have fewer distinct points).
+    pub chosen: usize,
+    /// Centres kept by the pivoted Cholesky at this σ (the model's terms).
+    pub kept: usize,
+    /// Training rows outside the tube at the optimum.
+    pub outside_tube: usize,
 }
 
 /// How the fit went.
@@ -316,14 +460,9 @@ pub struct FitDiagnostics {
     pub support_vectors: usize,
     pub converged: bool,
     pub stop: StopReason,
-}
-
-/// Inputs outside a model's training range ([`MinMaxScaler::outside`]).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Outside {
-    pub rows: usize,
-    /// The farthest value: its column and the value.
-    pub farthest: Option<(usize, f64)>,
+    /// The reduced basis's figures (absent for an exact fit).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub basis: Option<BasisFit>,
 }
 
 /// Per-column min-max scaling to [0, 1], with the training minimum and maximum.
@@ -347,29 +486,6 @@ impl MinMaxScaler {
             }
         }
         MinMaxScaler { min, max }
-    }
-
-    /// The rows of `x` (same columns) outside the training range by more than 1 % of it, and
-    /// the farthest value: (column, value), measured in training ranges.
-    pub fn outside(&self, x: &Columns) -> Outside {
-        let mut out = Outside::default();
-        let mut farthest = 0.0;
-        for row in x.iter_rows() {
-            let mut outside = false;
-            for (j, &v) in row.iter().enumerate() {
-                let s = self.scale(j, v);
-                let beyond = (-s).max(s - 1.0);
-                if beyond > 0.01 {
-                    outside = true;
-                    if beyond > farthest {
-                        farthest = beyond;
-                        out.farthest = Some((j, v));
-                    }
-                }
-            }
-            out.rows += usize::from(outside);
-        }
-        out
     }
 
     pub fn scale(&self, j: usize, v: f64) -> f64 {
@@ -422,11 +538,11 @@ impl Msvr {
     pub fn support_vector_count(&self) -> usize {
         self.coefficients.len() / self.outputs.len()
     }
+}
 
-    /// The outputs at `x` (raw input units) into `out`, and their analytic derivatives with
-    /// respect to the raw inputs into `jacobian` (`q × d`, row-major):
+impl Differentiable for Msvr {
     /// ∂f/∂xⱼ = Σᵢ βᵢ k(sᵢ, s) (sᵢⱼ − sⱼ) / (σ² (maxⱼ − minⱼ)), s the scaled inputs.
-    pub fn predict_with_jacobian(&self, x: &[f64], out: &mut [f64], jacobian: &mut [f64]) {
+    fn predict_with_jacobian(&self, x: &[f64], out: &mut [f64], jacobian: &mut [f64]) {
         let (d, q) = (self.inputs.len(), self.outputs.len());
         assert_eq!(jacobian.len(), q * d, "a q × d Jacobian");
         let sigma2 = self.params.sigma * self.params.sigma;
@@ -467,6 +583,10 @@ impl Predict for Msvr {
 
     fn outputs(&self) -> &[String] {
         &self.outputs
+    }
+
+    fn training_range(&self) -> Option<(&[f64], &[f64])> {
+        Some((&self.scaler.min, &self.scaler.max))
     }
 
     fn predict_row(&self, x: &[f64], out: &mut [f64]) {

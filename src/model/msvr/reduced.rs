@@ -1,0 +1,306 @@
+//! MSVR on a reduced basis ([`super::basis`]): the same tube, loss and IRWLS as [`super::irwls`],
+//! on the Nyström features of m centres, for any number of rows.
+//!
+//! Minimises F(w, b) = ½‖w‖² + C Σᵢ L(uᵢ), uᵢ = ‖yᵢ − Φᵢw − b‖₂, Φ the n × r features, which is
+//! exact MSVR's objective with β restricted to the centres (β = L⁻ᵀ w, ½‖w‖² = ½ tr(βᵀK_mmβ)).
+//! Each iteration:
+//! 1. every row's part from [`Tube::step_row`]: weight aᵢ (0 inside the tube) and its pulled-in
+//!    target y'ᵢ, as in the exact solver (so the same fixed point: F's optimum);
+//! 2. the weighted least-squares step in the primal, with Φ̃ = [Φ 1] and R = diag(1, …, 1, 0):
+//!    (R + Φ̃ᵀ A Φ̃) [w*; b*ᵀ] = Φ̃ᵀ A Y', an (r + 1)² system whatever n. Its matrix is built from
+//!    the rows that are not in the loss's quadratic zone when they are fewer than the support:
+//!    Φ̃ᵀAΦ̃ = 2C G − Σ_{i not quadratic} (2C − aᵢ) φ̃ᵢφ̃ᵢᵀ, with G = Φ̃ᵀΦ̃ computed once per fit
+//!    (an ε-tube holding few rows, or few far rows in the robust loss, makes an iteration cost
+//!    O(k r²) for those k rows instead of O(n r²));
+//! 3. the exact line search along (w, b) → (w*, b*) ([`Tube::step_along`]), so F never rises;
+//! 4. the exact solver's stopping rule.
+//!
+//! Features are taken block by block ([`FeatureRows`]): stored once per σ (what a search's folds
+//! share), or computed from the centres on demand, so a fit holds O(r²) plus O(nq) numbers.
+
+use faer::linalg::matmul::matmul;
+use faer::linalg::solvers::Solve;
+use faer::reborrow::{IntoConst, ReborrowMut};
+use faer::{Accum, Mat, MatMut, MatRef, Par, Side};
+
+use super::basis::NystromMap;
+use super::irwls::{NotPositiveDefinite, StopReason};
+use super::tube::{row_norm, Tube};
+use crate::data::Columns;
+
+/// Rows per block of features.
+const BLOCK: usize = 2048;
+
+/// The feature rows of a reduced problem.
+#[derive(Clone, Copy)]
+pub enum FeatureRows<'a> {
+    /// Stored features (n × r, or more rows of which `rows` lists the problem's).
+    Stored {
+        all: MatRef<'a, f64>,
+        rows: Option<&'a [usize]>,
+    },
+    /// Computed from the map for each block of the scaled inputs' rows.
+    Streamed {
+        map: &'a NystromMap,
+        x: &'a Columns,
+        rows: Option<&'a [usize]>,
+    },
+}
+
+impl FeatureRows<'_> {
+    pub fn nrows(&self) -> usize {
+        match *self {
+            FeatureRows::Stored { all, rows } => rows.map_or(all.nrows(), <[usize]>::len),
+            FeatureRows::Streamed { x, rows, .. } => rows.map_or(x.rows(), <[usize]>::len),
+        }
+    }
+
+    pub fn width(&self) -> usize {
+        match *self {
+            FeatureRows::Stored { all, .. } => all.ncols(),
+            FeatureRows::Streamed { map, .. } => map.width(),
+        }
+    }
+
+    /// The features of the listed problem rows into `out` (rows.len() × r).
+    fn gather(&self, listed: &[usize], mut out: MatMut<f64>) {
+        let source = |i: usize, rows: Option<&[usize]>| rows.map_or(i, |r| r[i]);
+        match *self {
+            FeatureRows::Stored { all, rows } => {
+                for (a, &i) in listed.iter().enumerate() {
+                    out.rb_mut().row_mut(a).copy_from(all.row(source(i, rows)));
+                }
+            }
+            FeatureRows::Streamed { map, x, rows } => {
+                let mapped: Vec<usize> = listed.iter().map(|&i| source(i, rows)).collect();
+                map.features_into(x, &mapped, out);
+            }
+        }
+    }
+
+    /// Σᵢ cᵢ φ̃ᵢ φ̃ᵢᵀ over the listed rows (cᵢ ≥ 0), added into `out` ((r + 1)²) with `sign`.
+    fn add_weighted_gram(
+        &self,
+        listed: &[(usize, f64)],
+        sign: f64,
+        mut out: MatMut<f64>,
+        par: Par,
+    ) {
+        let r = self.width();
+        let mut block = Mat::<f64>::zeros(BLOCK.min(listed.len()), r + 1);
+        for chunk in listed.chunks(BLOCK) {
+            let rows: Vec<usize> = chunk.iter().map(|&(i, _)| i).collect();
+            let mut b = block.as_mut().submatrix_mut(0, 0, chunk.len(), r + 1);
+            self.gather(&rows, b.rb_mut().submatrix_mut(0, 0, chunk.len(), r));
+            for (a, &(_, c)) in chunk.iter().enumerate() {
+                let s = c.sqrt();
+                for j in 0..r {
+                    b[(a, j)] *= s;
+                }
+                b[(a, r)] = s;
+            }
+            let b = b.into_const();
+            matmul(out.rb_mut(), Accum::Add, b.transpose(), b, sign, par);
+        }
+    }
+
+    /// Φ w for every row (n × q).
+    fn times(&self, w: MatRef<f64>, par: Par) -> Mat<f64> {
+        let (n, r) = (self.nrows(), self.width());
+        let mut out = Mat::zeros(n, w.ncols());
+        let mut block = Mat::<f64>::zeros(BLOCK.min(n), r);
+        for start in (0..n).step_by(BLOCK) {
+            let len = BLOCK.min(n - start);
+            let rows: Vec<usize> = (start..start + len).collect();
+            let mut b = block.as_mut().submatrix_mut(0, 0, len, r);
+            self.gather(&rows, b.rb_mut());
+            matmul(
+                out.as_mut().submatrix_mut(start, 0, len, w.ncols()),
+                Accum::Replace,
+                b.into_const(),
+                w,
+                1.0,
+                par,
+            );
+        }
+        out
+    }
+}
+
+/// A reduced training problem.
+#[derive(Clone, Copy)]
+pub struct ReducedProblem<'a> {
+    pub features: FeatureRows<'a>,
+    /// Targets Y (n × q).
+    pub targets: MatRef<'a, f64>,
+    pub tube: Tube,
+}
+
+/// The reduced solver's result.
+#[derive(Clone, Debug)]
+pub struct ReducedSolution {
+    /// Feature weights w (r × q).
+    pub w: Mat<f64>,
+    pub bias: Vec<f64>,
+    pub objective: f64,
+    pub iterations: usize,
+    pub stop: StopReason,
+    /// Rows outside the tube at the end (the exact model's support vectors would be these).
+    pub outside: usize,
+}
+
+/// Solves from w = 0, b = mean(Y).
+///
+/// # Errors
+/// [`NotPositiveDefinite`] when a step system cannot be factored (C beyond what f64 resolves).
+pub fn solve(
+    problem: &ReducedProblem,
+    tol: f64,
+    max_iter: usize,
+    par: Par,
+) -> Result<ReducedSolution, NotPositiveDefinite> {
+    let (n, q) = problem.targets.shape();
+    let (r, tube, y) = (problem.features.width(), problem.tube, problem.targets);
+    assert_eq!(
+        problem.features.nrows(),
+        n,
+        "one feature row per target row"
+    );
+    let all: Vec<(usize, f64)> = (0..n).map(|i| (i, 1.0)).collect();
+    let mut gram = Mat::<f64>::zeros(r + 1, r + 1);
+    problem
+        .features
+        .add_weighted_gram(&all, 1.0, gram.as_mut(), par);
+
+    let mut w = Mat::<f64>::zeros(r, q);
+    let mut bias: Vec<f64> = (0..q)
+        .map(|j| y.col(j).iter().sum::<f64>() / n as f64)
+        .collect();
+    let mut f = Mat::<f64>::zeros(n, q);
+    let residuals =
+        |f: &Mat<f64>, bias: &[f64]| Mat::from_fn(n, q, |i, j| y[(i, j)] - f[(i, j)] - bias[j]);
+    let mut resid = residuals(&f, &bias);
+    let mut objective = tube.data_term(resid.as_ref());
+    let quadratic_weight = 2.0 * tube.c;
+    let mut iterations = 0;
+    let stop = loop {
+        if iterations == max_iter {
+            break StopReason::IterationCap;
+        }
+        iterations += 1;
+        // 1. Each row's weight and pulled-in target.
+        let parts: Vec<Option<(f64, f64)>> = (0..n)
+            .map(|i| tube.step_row(row_norm(resid.as_ref(), i)))
+            .collect();
+        let support: Vec<(usize, f64)> = parts
+            .iter()
+            .enumerate()
+            .filter_map(|(i, p)| p.map(|(inv, _)| (i, 1.0 / inv)))
+            .collect();
+        // 2. The step target.
+        let (w_star, bias_star) = if support.is_empty() {
+            (Mat::zeros(r, q), bias.clone())
+        } else {
+            let not_quadratic: Vec<(usize, f64)> = parts
+                .iter()
+                .enumerate()
+                .filter_map(|(i, p)| {
+                    let a = p.map_or(0.0, |(inv, _)| 1.0 / inv);
+                    (a != quadratic_weight).then_some((i, quadratic_weight - a))
+                })
+                .collect();
+            let mut system = Mat::<f64>::zeros(r + 1, r + 1);
+            if not_quadratic.len() < support.len() {
+                system.copy_from(&gram);
+                system *= faer::Scale(quadratic_weight);
+                problem
+                    .features
+                    .add_weighted_gram(&not_quadratic, -1.0, system.as_mut(), par);
+            } else {
+                problem
+                    .features
+                    .add_weighted_gram(&support, 1.0, system.as_mut(), par);
+            }
+            for j in 0..r {
+                system[(j, j)] += 1.0;
+            }
+            // Right-hand side Φ̃ᵀ A Y' over the support, block by block.
+            let mut rhs = Mat::<f64>::zeros(r + 1, q);
+            let mut block = Mat::<f64>::zeros(BLOCK.min(support.len()), r);
+            for chunk in support.chunks(BLOCK) {
+                let rows: Vec<usize> = chunk.iter().map(|&(i, _)| i).collect();
+                let mut b = block.as_mut().submatrix_mut(0, 0, chunk.len(), r);
+                problem.features.gather(&rows, b.rb_mut());
+                let targets = Mat::from_fn(chunk.len(), q, |a, j| {
+                    let (i, weight) = chunk[a];
+                    let (_, shrink) = parts[i].expect("support rows have a part");
+                    weight * (y[(i, j)] - shrink * resid[(i, j)])
+                });
+                matmul(
+                    rhs.as_mut().submatrix_mut(0, 0, r, q),
+                    Accum::Add,
+                    b.into_const().transpose(),
+                    targets.as_ref(),
+                    1.0,
+                    par,
+                );
+                for j in 0..q {
+                    rhs[(r, j)] += targets.col(j).iter().sum::<f64>();
+                }
+            }
+            let llt = system.llt(Side::Lower).map_err(|_| NotPositiveDefinite {
+                pivot: 0,
+                size: r + 1,
+            })?;
+            let solution = llt.solve(&rhs);
+            (
+                solution.as_ref().submatrix(0, 0, r, q).to_owned(),
+                (0..q).map(|j| solution[(r, j)]).collect::<Vec<f64>>(),
+            )
+        };
+        // 3. The line search.
+        let f_star = problem.features.times(w_star.as_ref(), par);
+        let delta = &w_star - &w;
+        let g = Mat::from_fn(n, q, |i, j| {
+            f_star[(i, j)] + bias_star[j] - f[(i, j)] - bias[j]
+        });
+        let dot = |a: &Mat<f64>, b: &Mat<f64>| -> f64 {
+            (0..q)
+                .map(|j| {
+                    a.col(j)
+                        .iter()
+                        .zip(b.col(j).iter())
+                        .map(|(x, y)| x * y)
+                        .sum::<f64>()
+                })
+                .sum()
+        };
+        let quad = [dot(&w, &w), dot(&w, &delta), dot(&delta, &delta)];
+        let previous = objective;
+        let Some((t, reached)) = tube.step_along(resid.as_ref(), g.as_ref(), quad, objective)
+        else {
+            break StopReason::NoDescent;
+        };
+        w += faer::Scale(t) * &delta;
+        for (j, b) in bias.iter_mut().enumerate() {
+            *b += t * (bias_star[j] - *b);
+        }
+        f = Mat::from_fn(n, q, |i, j| f[(i, j)] + t * (f_star[(i, j)] - f[(i, j)]));
+        resid = residuals(&f, &bias);
+        objective = reached;
+        if previous - objective <= tol * previous {
+            break StopReason::Tolerance;
+        }
+    };
+    let outside = (0..n)
+        .filter(|&i| row_norm(resid.as_ref(), i) > tube.epsilon)
+        .count();
+    Ok(ReducedSolution {
+        w,
+        bias,
+        objective,
+        iterations,
+        stop,
+        outside,
+    })
+}
