@@ -150,14 +150,16 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
     let (params, search, history, basis) = match &job.selection {
         Selection::Fixed => {
             let basis = if job.basis == BasisChoice::Auto {
+                // Scored as a search scores: on at most SEARCH_ROWS evenly spaced rows.
+                let scored = train.subsample(tune::SEARCH_ROWS);
                 let plan = folds::plan(
                     &FoldsBy::Auto,
-                    &train,
-                    &other_columns(&job.data, &FoldsBy::Auto, job)?,
+                    &scored,
+                    &other_columns(&job.data, &FoldsBy::Auto, job, scored.rows())?,
                     AUTO_FOLDS,
                 )?;
                 let fitness = FitnessKind::Cv { folds: AUTO_FOLDS };
-                tune::grow_basis(initial, &train, fitness, &plan, &solver, session.interrupt)?
+                tune::grow_basis(initial, &scored, fitness, &plan, &solver, session.interrupt)?
             } else {
                 initial
             };
@@ -173,6 +175,14 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
         } => {
             let scored_on = on.as_deref().unwrap_or(&job.data);
             let scored = match on {
+                None if train.rows() > tune::SEARCH_ROWS => {
+                    session.emit(Event::Note(format!(
+                        "search: candidates scored on {} evenly spaced rows of {} (the model is fitted on all of them)",
+                        tune::SEARCH_ROWS,
+                        train.rows()
+                    )));
+                    train.subsample(tune::SEARCH_ROWS)
+                }
                 None => train.clone(),
                 Some(path) => {
                     let d = keep(data::read_dataset(path, &job.inputs, &job.outputs)?);
@@ -187,7 +197,7 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
             let plan = folds::plan(
                 folds_by,
                 &scored,
-                &other_columns(scored_on, folds_by, job)?,
+                &other_columns(scored_on, folds_by, job, scored.rows())?,
                 folds,
             )?;
             if matches!(fitness, FitnessKind::Cv { .. }) {
@@ -320,10 +330,12 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
 
 /// The columns of `path` the fold choice may use, one value per kept row: the named column for
 /// `--folds-by COLUMN`; for `auto`, every numeric column that is neither input nor output.
+/// `rows`: the rows the folds cut (fewer than the file's when the search scores a subsample).
 fn other_columns(
     path: &Path,
     by: &FoldsBy,
     job: &FitJob,
+    rows: usize,
 ) -> Result<Vec<(String, Vec<f64>)>, PipelineError> {
     let names: Vec<String> = match by {
         FoldsBy::Shuffle | FoldsBy::Blocks => return Ok(Vec::new()),
@@ -341,7 +353,14 @@ fn other_columns(
             (Err(e), FoldsBy::Column(_)) => return Err(e.into()),
             (Err(_), _) => continue, // not numeric: not a candidate
         };
-        let kept = data::evenly_spaced(values.len(), job.max_rows.unwrap_or(usize::MAX));
+        // The rows `keep` kept, then those the search scores (as `Dataset::subsample` picks).
+        let mut kept = data::evenly_spaced(values.len(), job.max_rows.unwrap_or(usize::MAX));
+        if rows < kept.len() {
+            kept = data::evenly_spaced(kept.len(), rows)
+                .into_iter()
+                .map(|i| kept[i])
+                .collect();
+        }
         out.push((name, kept.iter().map(|&i| values[i]).collect()));
     }
     Ok(out)

@@ -5,6 +5,7 @@ use faer::Mat;
 
 use handcap::data::{Columns, Dataset};
 use handcap::model::msvr::basis::{kmeans_pp, NystromMap};
+use handcap::model::msvr::fitness::{Fitness, FitnessKind};
 use handcap::model::msvr::reduced::{self, FeatureRows, ReducedProblem};
 use handcap::model::msvr::{Basis, Loss, MinMaxScaler, MsvrParams};
 use handcap::model::{evaluate, ModelSpec};
@@ -109,6 +110,7 @@ fn streamed_features_give_the_stored_fit() {
             features,
             targets: y.as_ref(),
             tube,
+            gram: None,
         };
         reduced::solve(&problem, 1e-10, 500, faer::Par::Seq).unwrap()
     };
@@ -171,6 +173,18 @@ fn model_basis_writes_a_reduced_model_that_predict_reads() {
         dir.path(),
         &["predict", "m.json", "train.csv", "--out", "p.csv"],
     );
+    // `auto` on 300 rows: exact, and the file says why.
+    handcap_ok(
+        dir.path(),
+        &["model", "train.csv", "--search", "none", "--out", "a.json"],
+    );
+    let file: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("a.json")).unwrap()).unwrap();
+    assert_eq!(file["model"]["params"]["basis"]["kind"], "exact");
+    assert!(file["basis"]["reason"]
+        .as_str()
+        .unwrap()
+        .contains("affordable"));
     // More centres than rows: one line saying what would fit, nothing written.
     let err = handcap_usage(
         dir.path(),
@@ -187,4 +201,22 @@ fn model_basis_writes_a_reduced_model_that_predict_reads() {
     );
     assert!(err.contains("--basis 300 or fewer"), "{err}");
     assert!(!dir.path().join("n.json").exists());
+}
+
+#[test]
+fn the_search_scores_a_reduced_basis_as_it_fits() {
+    let data = smooth(7, 400);
+    let solver = params(Basis::Reduced {
+        centres: 60,
+        seed: 2,
+    });
+    let fitness = Fitness::new(&data, FitnessKind::Train, 1, None, &solver).unwrap();
+    let scored = fitness.evaluate(&[solver.hyper()], f64::INFINITY)[0];
+    let model = ModelSpec::Msvr(solver).fit(&data).unwrap();
+    let mae = evaluate(model.predictor(), &data).unwrap().mae;
+    assert!(
+        (scored - mae).abs() <= 1e-3 * mae,
+        "training MAE scored {scored:.6}, fitted {mae:.6}"
+    );
+    assert_eq!(fitness.kept_centres(solver.sigma), 60);
 }

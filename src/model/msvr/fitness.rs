@@ -88,7 +88,12 @@ struct Fold {
 /// or the reduced basis's map and the features of every row.
 enum PerSigma {
     Exact(Vec<(Mat<f64>, Mat<f64>)>),
-    Reduced { features: Mat<f64> },
+    /// Features of every row and each fold's Φ̃ᵀΦ̃ over its training rows (all rows' less the
+    /// held-out rows': two passes over the rows instead of one per fold).
+    Reduced {
+        features: Mat<f64>,
+        grams: Vec<Mat<f64>>,
+    },
 }
 
 /// The fold of every row. Groups (every row its own group when `groups` is `None`) are shuffled
@@ -342,7 +347,7 @@ impl Fitness {
                     };
                     (k_held_out * &sol.beta, sol.bias)
                 }
-                PerSigma::Reduced { features } => {
+                PerSigma::Reduced { features, grams } => {
                     let problem = ReducedProblem {
                         features: FeatureRows::Stored {
                             all: features.as_ref(),
@@ -350,6 +355,7 @@ impl Fitness {
                         },
                         targets: fold.y_train.as_ref(),
                         tube: params.params().tube(),
+                        gram: Some(grams[k].as_ref()),
                     };
                     let p = params.params();
                     let Ok(sol) = reduced::solve(&problem, p.tol, p.max_iter, Par::Seq) else {
@@ -403,10 +409,23 @@ impl Fitness {
                     .collect(),
             ),
             Some((scaled, centres)) => {
-                let map = NystromMap::new(centres, sigma);
-                PerSigma::Reduced {
-                    features: map.features(scaled),
-                }
+                let features = NystromMap::new(centres, sigma).features(scaled);
+                let rows = |rows| FeatureRows::Stored {
+                    all: features.as_ref(),
+                    rows,
+                };
+                let all = rows(None).gram(Par::rayon(0));
+                let grams = self
+                    .folds
+                    .iter()
+                    .map(|f| {
+                        if f.held_out.len() == f.train.len() {
+                            return rows(Some(&f.train)).gram(Par::rayon(0)); // the training fitness
+                        }
+                        &all - rows(Some(&f.held_out)).gram(Par::rayon(0))
+                    })
+                    .collect();
+                PerSigma::Reduced { features, grams }
             }
         });
         let mut cache = self.kernels.lock().expect("kernel lock");

@@ -344,6 +344,7 @@ impl ValidMsvrParams {
                     features,
                     targets: y.as_ref(),
                     tube: p.tube(),
+                    gram: None,
                 };
                 let solution = reduced::solve(&problem, p.tol, p.max_iter, par)?;
                 let beta = map.coefficients(solution.w.as_ref());

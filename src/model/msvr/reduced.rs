@@ -104,6 +104,15 @@ impl FeatureRows<'_> {
         }
     }
 
+    /// Φ̃ᵀΦ̃ ((r + 1)², Φ̃ = [Φ 1]) over the problem's rows.
+    pub fn gram(&self, par: Par) -> Mat<f64> {
+        let r = self.width();
+        let all: Vec<(usize, f64)> = (0..self.nrows()).map(|i| (i, 1.0)).collect();
+        let mut gram = Mat::<f64>::zeros(r + 1, r + 1);
+        self.add_weighted_gram(&all, 1.0, gram.as_mut(), par);
+        gram
+    }
+
     /// Φ w for every row (n × q).
     fn times(&self, w: MatRef<f64>, par: Par) -> Mat<f64> {
         let (n, r) = (self.nrows(), self.width());
@@ -134,6 +143,9 @@ pub struct ReducedProblem<'a> {
     /// Targets Y (n × q).
     pub targets: MatRef<'a, f64>,
     pub tube: Tube,
+    /// Φ̃ᵀΦ̃ over the problem's rows ([`FeatureRows::gram`]) when the caller has it (a search's
+    /// folds share one per σ); computed by the solver otherwise.
+    pub gram: Option<MatRef<'a, f64>>,
 }
 
 /// The reduced solver's result.
@@ -166,11 +178,14 @@ pub fn solve(
         n,
         "one feature row per target row"
     );
-    let all: Vec<(usize, f64)> = (0..n).map(|i| (i, 1.0)).collect();
-    let mut gram = Mat::<f64>::zeros(r + 1, r + 1);
-    problem
-        .features
-        .add_weighted_gram(&all, 1.0, gram.as_mut(), par);
+    let computed;
+    let gram = match problem.gram {
+        Some(g) => g,
+        None => {
+            computed = problem.features.gram(par);
+            computed.as_ref()
+        }
+    };
 
     let mut w = Mat::<f64>::zeros(r, q);
     let mut bias: Vec<f64> = (0..q)
@@ -211,7 +226,7 @@ pub fn solve(
                 .collect();
             let mut system = Mat::<f64>::zeros(r + 1, r + 1);
             if not_quadratic.len() < support.len() {
-                system.copy_from(&gram);
+                system.copy_from(gram);
                 system *= faer::Scale(quadratic_weight);
                 problem
                     .features
