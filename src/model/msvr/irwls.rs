@@ -57,7 +57,7 @@ use faer::reborrow::{IntoConst, ReborrowMut};
 use faer::{Accum, Col, Mat, MatRef, Par};
 use serde::{Deserialize, Serialize};
 
-use super::tube::{row_norm, Tube};
+use super::tube::{frobenius_dot, row_norm, Tube};
 pub use super::tube::{Loss, ROBUST_ZONE};
 
 /// Why the solver stopped.
@@ -543,17 +543,4 @@ fn column(m: MatRef<'_, f64>, j: usize) -> &[f64] {
         .try_as_col_major()
         .expect("contiguous columns")
         .as_slice()
-}
-
-/// Σᵢⱼ aᵢⱼ bᵢⱼ.
-fn frobenius_dot(a: MatRef<f64>, b: MatRef<f64>) -> f64 {
-    (0..a.ncols())
-        .map(|j| {
-            a.col(j)
-                .iter()
-                .zip(b.col(j).iter())
-                .map(|(x, y)| x * y)
-                .sum::<f64>()
-        })
-        .sum()
 }

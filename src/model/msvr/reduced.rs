@@ -25,7 +25,7 @@ use faer::{Accum, Mat, MatMut, MatRef, Par, Side};
 
 use super::basis::NystromMap;
 use super::irwls::{NotPositiveDefinite, StopReason};
-use super::tube::{row_norm, Tube};
+use super::tube::{frobenius_dot, row_norm, Tube};
 use crate::data::Columns;
 
 /// Rows per block of features.
@@ -279,18 +279,11 @@ pub fn solve(
         let g = Mat::from_fn(n, q, |i, j| {
             f_star[(i, j)] + bias_star[j] - f[(i, j)] - bias[j]
         });
-        let dot = |a: &Mat<f64>, b: &Mat<f64>| -> f64 {
-            (0..q)
-                .map(|j| {
-                    a.col(j)
-                        .iter()
-                        .zip(b.col(j).iter())
-                        .map(|(x, y)| x * y)
-                        .sum::<f64>()
-                })
-                .sum()
-        };
-        let quad = [dot(&w, &w), dot(&w, &delta), dot(&delta, &delta)];
+        let quad = [
+            frobenius_dot(w.as_ref(), w.as_ref()),
+            frobenius_dot(w.as_ref(), delta.as_ref()),
+            frobenius_dot(delta.as_ref(), delta.as_ref()),
+        ];
         let previous = objective;
         let Some((t, reached)) = tube.step_along(resid.as_ref(), g.as_ref(), quad, objective)
         else {

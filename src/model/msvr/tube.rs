@@ -146,6 +146,19 @@ impl Tube {
     }
 }
 
+/// Σᵢⱼ aᵢⱼ bᵢⱼ.
+pub fn frobenius_dot(a: MatRef<f64>, b: MatRef<f64>) -> f64 {
+    (0..a.ncols())
+        .map(|j| {
+            a.col(j)
+                .iter()
+                .zip(b.col(j).iter())
+                .map(|(x, y)| x * y)
+                .sum::<f64>()
+        })
+        .sum()
+}
+
 /// ‖row i‖₂.
 pub fn row_norm(m: MatRef<f64>, i: usize) -> f64 {
     (0..m.ncols())
