@@ -11,7 +11,7 @@ use crate::model::file::ModelFile;
 use crate::model::msvr::fitness::{Counters, FitnessKind};
 use crate::model::msvr::folds::{self, FoldsBy};
 use crate::model::msvr::tune::{self, BasisChoice, SearchSummary};
-use crate::model::msvr::{self, MsvrParams, MIN_FIT_ROWS};
+use crate::model::msvr::{self, Basis, MsvrParams, MIN_FIT_ROWS};
 use crate::model::previous::{self, PreviousModel};
 use crate::model::{self, ModelSpec};
 use crate::report::{self, Comparison, ModelReport, NamedModel, PreviousSummary, TestResult};
@@ -134,6 +134,12 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
     let initial = tune::initial_basis(job.basis, train.rows(), seed.unwrap_or(crate::DEFAULT_SEED))
         .map_err(|e| PipelineError::Usage(e.to_string()))?;
     msvr::check_memory(train.rows(), initial.basis)?;
+    session.emit(Event::Note(format!(
+        "basis: {} ({})",
+        initial.basis, initial.reason
+    )));
+    // Only `auto`'s reduced basis grows; exact and a given size are used as they are.
+    let grows = job.basis == BasisChoice::Auto && initial.basis != Basis::Exact;
     let solver = job.params.basis(initial.basis);
     // Every test file is read before the search: a bad one must not cost the search.
     let test_data = job
@@ -149,7 +155,7 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
 
     let (params, search, history, basis) = match &job.selection {
         Selection::Fixed => {
-            let basis = if job.basis == BasisChoice::Auto {
+            let basis = if grows {
                 // Scored as a search scores: on at most SEARCH_ROWS evenly spaced rows.
                 let scored = train.subsample(tune::SEARCH_ROWS);
                 let plan = folds::plan(
@@ -203,10 +209,6 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
             if matches!(fitness, FitnessKind::Cv { .. }) {
                 session.emit(Event::Note(format!("folds: {}", plan.choice)));
             }
-            session.emit(Event::Note(format!(
-                "basis: {} ({})",
-                initial.basis, initial.reason
-            )));
             let method = &method.with_budget(budget.unwrap_or(tune::budget_for(scored.rows())));
             let started = Instant::now();
             let mut observer = Iterations {
@@ -225,7 +227,7 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
             )?;
             session.emit(Event::Searched(&summary));
             let params = tune::solver_for(method, &solver).with_hyper(summary.best);
-            let basis = if job.basis == BasisChoice::Auto {
+            let basis = if grows {
                 tune::grow_basis(
                     initial,
                     &scored,

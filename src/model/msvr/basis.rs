@@ -20,6 +20,7 @@ use faer::linalg::triangular_solve;
 use faer::{Accum, Mat, MatMut, MatRef, Par};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
 
 use super::kernel;
 use crate::data::Columns;
@@ -46,8 +47,7 @@ pub fn kmeans_pp(x: &Columns, m: usize, seed: u64) -> Vec<usize> {
         }
         let c = x.row(next);
         for (i, d) in d2.iter_mut().enumerate() {
-            let e: f64 = x.row(i).iter().zip(c).map(|(a, b)| (a - b) * (a - b)).sum();
-            *d = d.min(e);
+            *d = d.min(kernel::squared_distance(x.row(i), c));
         }
         let total: f64 = d2.iter().sum();
         if total <= 0.0 {
@@ -144,8 +144,7 @@ impl NystromMap {
         for j in 0..self.width() {
             let c = self.centres.row(j);
             for (a, &i) in rows.iter().enumerate() {
-                let d2: f64 = x.row(i).iter().zip(c).map(|(u, v)| (u - v) * (u - v)).sum();
-                out[(a, j)] = (-gamma * d2).exp();
+                out[(a, j)] = (-gamma * kernel::squared_distance(x.row(i), c)).exp();
             }
         }
         // φᵀ = L⁻¹ kᵀ for each row: solve L Φᵀ = Kᵀ, i.e. Φ Lᵀ = K.
@@ -161,7 +160,6 @@ impl NystromMap {
         let rows: Vec<usize> = (0..x.rows()).collect();
         let mut out = Mat::zeros(x.rows(), self.width());
         let chunk = 1024;
-        use rayon::prelude::*;
         let blocks: Vec<(usize, Mat<f64>)> = rows
             .par_chunks(chunk)
             .enumerate()

@@ -85,7 +85,7 @@ struct Fold {
 }
 
 /// What every fold needs of one σ: the exact basis's kernels (training, held-out to training),
-/// or the reduced basis's map and the features of every row.
+/// or the reduced basis's features of every row and Gram matrices.
 enum PerSigma {
     Exact(Vec<(Mat<f64>, Mat<f64>)>),
     /// Features of every row and each fold's Φ̃ᵀΦ̃ over its training rows (all rows' less the
@@ -377,11 +377,13 @@ impl Fitness {
         abs_sum / all
     }
 
-    /// Centres a reduced basis keeps at σ (0 for the exact basis).
+    /// Centres a reduced basis keeps at σ (0 for the exact basis), from the features the
+    /// folds use (cached when σ was scored).
     pub fn kept_centres(&self, sigma: f64) -> usize {
-        self.reduced
-            .as_ref()
-            .map_or(0, |(_, centres)| NystromMap::new(centres, sigma).width())
+        match &*self.per_sigma(sigma) {
+            PerSigma::Exact(_) => 0,
+            PerSigma::Reduced { features, .. } => features.ncols(),
+        }
     }
 
     /// What the folds need of σ, from the cache or computed (and cached).

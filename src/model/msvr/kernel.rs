@@ -19,7 +19,8 @@ fn fill_by_column(rows: usize, cols: usize, f: impl Fn(usize, &mut [f64]) + Sync
     out
 }
 
-fn squared_distance(a: &[f64], b: &[f64]) -> f64 {
+/// ‖a − b‖².
+pub fn squared_distance(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum()
 }
 

@@ -11,13 +11,12 @@
 
 use std::sync::atomic::AtomicBool;
 
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::fitness::{Counters, Fitness, FitnessError, FitnessKind};
 use super::folds::{FoldChoice, FoldPlan};
-use rayon::prelude::*;
-
-use super::{Basis, MinMaxScaler, MsvrParams};
+use super::{kernel, Basis, MinMaxScaler, MsvrParams};
 use crate::data::Dataset;
 use crate::search::{
     Hyper, Method, Observer, Search, SearchError, SearchResult, SearchSpace, SearchStop,
@@ -75,12 +74,7 @@ pub fn space_for(data: &Dataset) -> SearchSpace {
             let xj = scaled.row(j);
             scaled
                 .iter_rows()
-                .map(|xi| {
-                    xi.iter()
-                        .zip(xj)
-                        .map(|(a, b)| (a - b) * (a - b))
-                        .sum::<f64>()
-                })
+                .map(|xi| kernel::squared_distance(xi, xj))
                 .filter(|&v| v > 0.0)
                 .fold(f64::INFINITY, f64::min)
                 .sqrt()
