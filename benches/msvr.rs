@@ -3,7 +3,8 @@
 //! parameters, with the paper's quadratic loss and the robust one. Targets (DESIGN.md): n = 1000
 //! in ≤ 0.15 s, n = 2000 in ≤ 1 s. And the default search (ACO_R, robust loss, 5 folds, racing)
 //! on 1000 rows × 6 inputs (two virtual hands in series), at 40 candidates to keep the
-//! benchmark short; the default budget for 1000 rows is 120.
+//! benchmark short; the default budget for 1000 rows is 120. The reduced basis: 400 centres at
+//! n = 2000 and 200 centres at n = 20 000.
 //!
 //! Run: `cargo bench --bench msvr`.
 
@@ -19,7 +20,7 @@ use std::sync::atomic::AtomicBool;
 
 use handcap::model::msvr::fitness::FitnessKind;
 use handcap::model::msvr::folds::{self, FoldsBy};
-use handcap::model::msvr::{tune, Loss, MsvrParams};
+use handcap::model::msvr::{tune, Basis, Loss, MsvrParams};
 use handcap::model::Predict;
 use handcap::search::aco_paper::PAPER_TABLE2;
 use handcap::search::aco_r::AcoR;
@@ -88,6 +89,33 @@ fn fit(c: &mut Criterion) {
     group.finish();
 }
 
+/// The reduced basis: 400 centres at n = 2000 (beside the exact fit above) and 200 centres at
+/// n = 20 000, Table 2's parameters, robust loss.
+fn fit_reduced(c: &mut Criterion) {
+    let mut group = c.benchmark_group("msvr_fit_reduced");
+    group.sample_size(10);
+    for (n, centres) in [(2000, 400), (20_000, 200)] {
+        let params = MsvrParams::default()
+            .with_hyper(PAPER_TABLE2)
+            .loss(Loss::Robust)
+            .basis(Basis::Reduced { centres, seed: 1 })
+            .check()
+            .unwrap();
+        let data = random_hand_data(n, 1);
+        let model = params.fit(&data).unwrap();
+        eprintln!(
+            "{centres} centres, n = {n}: {} iterations, {} kept, converged {}",
+            model.fit.iterations, model.fit.support_vectors, model.fit.converged
+        );
+        group.bench_with_input(
+            BenchmarkId::new(format!("{centres}_centres"), n),
+            &data,
+            |b, data| b.iter(|| params.fit(black_box(data)).unwrap()),
+        );
+    }
+    group.finish();
+}
+
 fn search(c: &mut Criterion) {
     let data = random_six_input_data(1000, 4);
     let method = Method::AcoR(AcoR {
@@ -131,5 +159,5 @@ fn predict(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, fit, search, predict);
+criterion_group!(benches, fit, fit_reduced, search, predict);
 criterion_main!(benches);
