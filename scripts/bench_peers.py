@@ -8,9 +8,14 @@ default chose (per-output SVR, unshuffled 5-fold CV as scikit-learn's default). 
 and outputs of |y - y_hat|, handcap's and the paper's measure) and wall time, one table.
 
 Datasets (from ../shared/realdata, never copied into the repository):
-  soft_trunk  6 pressures -> tip; ramps 0-23 for training (every 4th row, file order), 24-29 held out
-  tendon_arm  phase 1, 3 offsets -> tip; first 780 rows for training, last 220 held out
+  soft_trunk  6 pressures -> tip; ramps 0-23 for training (every 4th row, file order), 24-29 held out;
+              a t_s column is added (0.05 s per logged row within each ramp, before decimation)
+  tendon_arm  phase 1, 3 offsets -> tip; first 780 rows for training, last 220 held out; `step`
+              is its clock (one step per settle)
   synthetic   handcap synth: the 50 kPa grid for training, the two sweeps held out
+
+The handcap run "history" is the defaults with the dataset's time column (--time, and
+--group-by for the soft trunk's ramps): input history chosen by cross-validation.
 """
 
 import argparse
@@ -39,19 +44,25 @@ def write(path, header, rows):
 
 
 def splits(work):
-    """Writes the train/test files; returns (name, train, [tests], inputs, outputs)."""
+    """Writes the train/test files; returns (name, train, [tests], inputs, outputs, time args)."""
     out = []
     st = os.path.join(SHARED, "soft_trunk", "soft_trunk_taskspace_clean.csv")
     if os.path.exists(st):
         rows = list(csv.reader(open(st)))
-        header, body = rows[0], rows[1:]
+        header, body = rows[0] + ["t_s"], []
+        logged = {}
+        for r in rows[1:]:
+            k = logged.get(r[0], 0)
+            logged[r[0]] = k + 1
+            body.append(r + [f"{0.05 * k:.2f}"])
         held = {24, 25, 26, 27, 28, 29}
         train = [r for r in body if int(r[0]) not in held][::4]
         test = [r for r in body if int(r[0]) in held]
         write(os.path.join(work, "st_train.csv"), header, train)
         write(os.path.join(work, "st_test.csv"), header, test)
         out.append(("soft_trunk", "st_train.csv", ["st_test.csv"],
-                    [f"p{i}_kPa" for i in range(6)], ["x_mm", "y_mm", "z_mm"]))
+                    [f"p{i}_kPa" for i in range(6)], ["x_mm", "y_mm", "z_mm"],
+                    ["--time", "t_s", "--group-by", "iteration"]))
     ta = os.path.join(SHARED, "tendon_arm", "tendon_soft_arm_3000_joined.csv")
     if os.path.exists(ta):
         rows = list(csv.reader(open(ta)))
@@ -60,11 +71,11 @@ def splits(work):
         write(os.path.join(work, "ta_test.csv"), header, body[780:])
         out.append(("tendon_arm", "ta_train.csv", ["ta_test.csv"],
                     ["act_s0_m0", "act_s0_m1", "act_s0_m2"],
-                    ["SA-up-X_mm", "SA-up-Y_mm", "SA-up-Z_mm"]))
+                    ["SA-up-X_mm", "SA-up-Y_mm", "SA-up-Z_mm"], ["--time", "step"]))
     subprocess.run([HANDCAP, "synth", "--out", os.path.join(work, "syn"), "--no-images"],
                    check=True, stdout=subprocess.DEVNULL)
     out.append(("synthetic", "syn/train.csv", ["syn/sweep_a.csv", "syn/sweep_b.csv"],
-                ["P1_kpa", "P2_kpa", "P3_kpa"], ["x_mm", "y_mm", "z_mm"]))
+                ["P1_kpa", "P2_kpa", "P3_kpa"], ["x_mm", "y_mm", "z_mm"], None))
     return out
 
 
@@ -78,13 +89,15 @@ def mae(y, p):
     return float(np.abs(np.asarray(y) - np.asarray(p)).mean())
 
 
-def run_handcap(work, name, train, tests, inputs, outputs, search, budget):
+def run_handcap(work, name, train, tests, inputs, outputs, search, budget, time_args):
     """Held-out MAE per test, seconds, fold scheme and candidates scored; `search` "default"
-    gives no --search (nor --budget)."""
+    gives no --search (nor --budget), "history" the defaults with `time_args`."""
     model = os.path.join(work, f"{name}_{search}.json")
     args = [HANDCAP, "model", train, "--inputs", ",".join(inputs), "--outputs",
             ",".join(outputs), "--out", model]
-    if search != "default":
+    if search == "history":
+        args += time_args
+    elif search != "default":
         args += ["--search", search]
     if search in ("aco-r", "grid") and budget:
         args += ["--budget", str(budget)]
@@ -103,8 +116,12 @@ def run_handcap(work, name, train, tests, inputs, outputs, search, budget):
         _, p = load(pred, inputs, outputs)
         errors.append(mae(y, p))
     with open(model) as f:
-        searched = json.load(f).get("search", {})
-    return errors, seconds, searched.get("folds", {}).get("scheme", "-"), searched.get("evaluations")
+        written = json.load(f)
+    searched = written.get("search", {})
+    used = (written.get("history") or {}).get("used")
+    kept = used["memory"] if used else None
+    return (errors, seconds, searched.get("folds", {}).get("scheme", "-"),
+            searched.get("evaluations"), kept)
 
 
 def peers(x, y, tests, budget, seed):
@@ -177,8 +194,9 @@ def peers(x, y, tests, budget, seed):
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--work", required=True)
-    ap.add_argument("--searches", default="default,grid,aco-paper",
-                    help="handcap runs: default (no --search), aco-r, grid, aco-paper")
+    ap.add_argument("--searches", default="default,history,grid,aco-paper",
+                    help="handcap runs: default (no --search), history (defaults with the time "
+                         "column), aco-r, grid, aco-paper")
     ap.add_argument("--budget", type=int, default=None,
                     help="for aco-r and grid runs (default: handcap's, from the rows)")
     ap.add_argument("--seed", type=int, default=2020)
@@ -191,14 +209,20 @@ def main():
     shutil.copy2(BUILT, HANDCAP)
     print("| data | method | held-out MAE | time (s) |")
     print("|---|---|---|---|")
-    for name, train, tests, inputs, outputs in splits(a.work):
+    for name, train, tests, inputs, outputs, time_args in splits(a.work):
         if a.only and name not in a.only.split(","):
             continue
         budget = a.budget
         for search in a.searches.split(","):
-            errors, seconds, folds, scored = run_handcap(a.work, name, train, tests, inputs,
-                                                         outputs, search, a.budget)
-            if search == "default":
+            if search == "history" and not time_args:
+                continue
+            errors, seconds, folds, scored, kept = run_handcap(
+                a.work, name, train, tests, inputs, outputs, search, a.budget, time_args)
+            if search == "history":
+                memory = "none kept" if kept is None else (
+                    f"{kept['kind']} {kept.get('tau', kept.get('rows'))}")
+                label = f"handcap, defaults + {' '.join(time_args)} (history: {memory})"
+            elif search == "default":
                 label = f"handcap, defaults ({scored} candidates, folds: {folds})"
                 budget = budget or scored
             else:

@@ -246,9 +246,24 @@ pub fn header(path: &Path) -> Result<Vec<String>, DataError> {
 /// Every [`DataError`] but the fit checks: unreadable or empty file, a chosen column missing or
 /// duplicated in the header, a row of the wrong length, a cell that is not a finite number.
 pub fn read_columns(path: &Path, names: &[String]) -> Result<Columns, DataError> {
-    let mut values = Vec::new();
-    read_selected(path, names, |row| values.extend_from_slice(row))?;
-    Ok(Columns::new(names.to_vec(), values))
+    Ok(read_columns_with_lines(path, names)?.0)
+}
+
+/// [`read_columns`], with the file line of each row kept (the header is line 1; flagged rows
+/// are left out, so lines may skip), for errors found later that must name the line.
+///
+/// # Errors
+/// As [`read_columns`].
+pub fn read_columns_with_lines(
+    path: &Path,
+    names: &[String],
+) -> Result<(Columns, Vec<u64>), DataError> {
+    let (mut values, mut lines) = (Vec::new(), Vec::new());
+    read_selected(path, names, |line, row| {
+        lines.push(line);
+        values.extend_from_slice(row);
+    })?;
+    Ok((Columns::new(names.to_vec(), values), lines))
 }
 
 /// Reads a dataset: `inputs` and `outputs` columns of one CSV file.
@@ -267,7 +282,7 @@ pub fn read_dataset(
         }
     }
     let (mut x, mut y) = (Vec::new(), Vec::new());
-    read_selected(path, &all, |row| {
+    read_selected(path, &all, |_, row| {
         x.extend_from_slice(&row[..inputs.len()]);
         y.extend_from_slice(&row[inputs.len()..]);
     })?;
@@ -278,11 +293,11 @@ pub fn read_dataset(
     })
 }
 
-/// Streams the chosen columns of every data row to `sink`, validated.
+/// Streams the file line and the chosen columns of every data row to `sink`, validated.
 fn read_selected(
     path: &Path,
     names: &[String],
-    mut sink: impl FnMut(&[f64]),
+    mut sink: impl FnMut(u64, &[f64]),
 ) -> Result<(), DataError> {
     let io_err = |source| DataError::Io {
         path: path.to_path_buf(),
@@ -324,7 +339,7 @@ fn read_selected(
         for (slot, (&col, name)) in row.iter_mut().zip(index.iter().zip(names)) {
             *slot = parse_cell(path, line, name, &record[col])?;
         }
-        sink(&row);
+        sink(line, &row);
     }
     Ok(())
 }

@@ -71,7 +71,14 @@ fn describe(names: &[String], values: &[f64]) -> String {
 
 pub fn run(a: Args) -> anyhow::Result<()> {
     let file = ModelFile::load(&a.model)?;
-    let model = file.model.differentiable();
+    let steady = file.steady_state();
+    let model: &dyn Differentiable = &steady;
+    if let Some(h) = file.history() {
+        eprintln!(
+            "note: the model sees the inputs' history ({}); the inputs found hold the tip there once settled (every filter equal to the input)",
+            h.memory
+        );
+    }
     let options = options(model, &a)?;
     match (&a.target, &a.targets) {
         (Some(target), None) => {

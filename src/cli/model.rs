@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use super::usage;
 
 use handcap::data::{HAND_INPUTS, HAND_OUTPUTS};
+use handcap::model::history::HistoryChoice;
 use handcap::model::msvr::fitness::FitnessKind;
 use handcap::model::msvr::folds::FoldsBy;
 use handcap::model::msvr::tune::BasisChoice;
@@ -138,6 +139,16 @@ pub struct Args {
     /// reduced basis grown while the cross-validated error falls)
     #[arg(long, default_value = "auto", value_parser = clap::value_parser!(BasisChoice))]
     basis: BasisChoice,
+    /// Time column (seconds, or any unit; increasing within each --group-by group): the rows
+    /// form time series, and the model may see the inputs' recent history (--history)
+    #[arg(long)]
+    time: Option<String>,
+    /// With --time: none, ema:τ1,τ2,… (exponentially filtered copies of each input, time
+    /// constants in the time column's unit), ema (time constants from the sampling), lags:K
+    /// (the inputs K rows back), or auto (ema from the data, kept only if cross-validation
+    /// says it lowers the error)
+    #[arg(long, default_value = "auto", value_parser = clap::value_parser!(HistoryChoice))]
+    history: HistoryChoice,
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
@@ -149,9 +160,24 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         usage!("--search-on gives the rows a search scores candidates on: use it with a --search");
     }
     let folds_given = a.group_by.is_some() || a.folds_by != FoldsBy::Auto;
-    if folds_given && (a.fitness != FitnessArg::Cv || a.search == SearchKind::None) {
+    let names_runs = a.time.is_some() && a.folds_by == FoldsBy::Auto;
+    if folds_given && !names_runs && (a.fitness != FitnessArg::Cv || a.search == SearchKind::None) {
         usage!("--folds-by and --group-by cut the folds of a cross-validated search: use them with --fitness cv and a --search");
     }
+    if a.time.is_none() && a.history != HistoryChoice::Auto {
+        usage!(
+            "--history {} builds on the rows' times: give --time COLUMN",
+            a.history
+        );
+    }
+    if a.time.is_some() && a.history == HistoryChoice::Auto && a.fitness == FitnessArg::Train {
+        usage!("--history auto compares feature sets by cross-validation: use --fitness cv, or name the history (--history none, ema, lags:K)");
+    }
+    // The runs a time series restarts in: the groups the folds hold out together.
+    let group = a.group_by.clone().or(match &a.folds_by {
+        FoldsBy::Column(c) if a.time.is_some() => Some(c.clone()),
+        _ => None,
+    });
     let method = match a.search {
         SearchKind::None => None,
         SearchKind::AcoPaper => Some(Method::AcoPaper(AcoPaper {
@@ -199,6 +225,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         report: a.report,
         max_rows: a.max_rows.map(|n| n as usize),
         basis: a.basis,
+        time: a.time,
+        group,
+        history: a.history,
     };
     let outcome = super::with_session(|s| fit::run(&job, s))?;
     print_summary(&outcome);

@@ -10,7 +10,8 @@ use handcap::pipeline::outputs::{self, Output};
 pub struct Args {
     /// Model file written by `handcap model`
     model: PathBuf,
-    /// CSV with the model's input columns (other columns are ignored)
+    /// CSV with the model's input columns (other columns are ignored; a model with input
+    /// history also needs its time column, and group column if it has one)
     inputs: PathBuf,
     /// CSV to write: the input columns, then one column per model output
     #[arg(long)]
@@ -21,7 +22,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     outputs::check(&[&a.model, &a.inputs], &[Output::new(&a.out, "--out")])?;
     let file = ModelFile::load(&a.model)?;
     let model = file.model.predictor();
-    let x = data::read_columns(&a.inputs, model.inputs())?;
+    let (given, x) = file.read_inputs(&a.inputs)?;
     let outside = model.outside(&x);
     if let (Some((j, v)), Some((min, max))) = (outside.farthest, model.training_range()) {
         eprintln!(
@@ -34,7 +35,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         );
     }
     let y = model.predict(&x)?;
-    data::write_csv(&a.out, &[&x, &y])?;
+    data::write_csv(&a.out, &[&given, &y])?;
     println!("wrote {} ({} rows)", a.out.display(), x.rows());
     Ok(())
 }

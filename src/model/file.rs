@@ -4,8 +4,13 @@
 //! { "format": "handcap-model", "version": 1, "kind": "msvr",
 //!   "model": { "inputs": [...], "outputs": [...], "params": {...}, "scaler": {...},
 //!              "support_vectors": [[...]], "coefficients": [[...]], "bias": [...], "fit": {...} },
+//!   "history": { "used": { "time": "t_s", "group": "trial", "inputs": [...],
+//!                          "memory": { "kind": "ema", "tau": [0.6, 2.4] } }, "reason": "...", "tried": [...] },
 //!   "provenance": { "handcap_version": "...", "command": [...], "seed": null, "inputs": [...] } }
 //! ```
+//! A model with input history (`history.used`) was fitted on the features
+//! [`History::feature_names`] lists: its `model.inputs`; a file to predict needs the time (and
+//! group) column besides the inputs ([`ModelFile::read_inputs`]).
 //! Numbers are written so they read back to the same `f64`: a saved and reloaded model
 //! predicts bit for bit what the fitted one did.
 
@@ -13,7 +18,9 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+use crate::data::{self, Columns, DataError};
 use crate::fsio;
+use crate::model::history::{History, HistoryDecision, SteadyState};
 use crate::model::msvr::tune::{BasisDecision, SearchSummary};
 pub use crate::model::StoredModel;
 use crate::provenance::Provenance;
@@ -57,6 +64,9 @@ pub struct ModelFile {
     /// The basis and why it was chosen; absent in files written before the reduced basis.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub basis: Option<BasisDecision>,
+    /// The input history and why; absent when no time column was given.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub history: Option<HistoryDecision>,
     pub provenance: Provenance,
 }
 
@@ -65,6 +75,7 @@ impl ModelFile {
         model: StoredModel,
         search: Option<SearchSummary>,
         basis: Option<BasisDecision>,
+        history: Option<HistoryDecision>,
         provenance: Provenance,
     ) -> Self {
         ModelFile {
@@ -73,8 +84,36 @@ impl ModelFile {
             model,
             search,
             basis,
+            history,
             provenance,
         }
+    }
+
+    /// The input history the model was fitted on, if any.
+    pub fn history(&self) -> Option<&History> {
+        self.history.as_ref().and_then(|d| d.used.as_ref())
+    }
+
+    /// The inputs of a CSV file as written there, and as the model takes them (the same, or
+    /// with the history's features built per group in time order).
+    ///
+    /// # Errors
+    /// [`DataError`]: the file's own, or a time (or group) column that a history model needs
+    /// and the file lacks or has out of order.
+    pub fn read_inputs(&self, path: &Path) -> Result<(Columns, Columns), DataError> {
+        match self.history() {
+            None => {
+                let x = data::read_columns(path, self.model.predictor().inputs())?;
+                Ok((x.clone(), x))
+            }
+            Some(h) => h.read_features(path),
+        }
+    }
+
+    /// The map from the present inputs alone, for the inverse: the model itself, or with input
+    /// history its steady state (every filter and lag equal to the input).
+    pub fn steady_state(&self) -> SteadyState<'_> {
+        SteadyState::new(self.model.differentiable(), self.history())
     }
 
     /// Writes the file atomically.

@@ -5,6 +5,7 @@
 //! [`Predict`], so evaluation, reports and the command line treat them alike.
 
 pub mod file;
+pub mod history;
 pub mod inverse;
 pub mod msvr;
 pub mod previous;

@@ -27,6 +27,7 @@ use crate::calib::{CalibOptions, StereoCalibration};
 use crate::data::{self, names, HAND_INPUTS, HAND_OUTPUTS};
 use crate::fsio;
 use crate::model::file::{ModelFile, StoredModel};
+use crate::model::history::HistoryChoice;
 use crate::model::inverse::{self, InverseOptions, PlannedTarget};
 use crate::model::msvr::fitness::FitnessKind;
 use crate::model::msvr::folds::FoldsBy;
@@ -448,6 +449,9 @@ fn job(
         report: Some(report),
         max_rows: None,
         basis: BasisChoice::Auto,
+        time: None,
+        group: None,
+        history: HistoryChoice::None,
     }
 }
 

@@ -6,11 +6,12 @@ use std::time::Instant;
 
 use super::outputs::{self, Output};
 use super::{io_error, Event, PipelineError, Session};
-use crate::data::{self, HAND_INPUTS, HAND_OUTPUTS};
+use crate::data::{self, Columns, HAND_INPUTS, HAND_OUTPUTS};
 use crate::model::file::ModelFile;
+use crate::model::history::{self, History, HistoryChoice, HistoryTrial, Memory, Series};
 use crate::model::msvr::fitness::{Counters, FitnessKind};
-use crate::model::msvr::folds::{self, FoldsBy};
-use crate::model::msvr::tune::{self, BasisChoice, SearchSummary};
+use crate::model::msvr::folds::{self, FoldPlan, FoldsBy};
+use crate::model::msvr::tune::{self, BasisChoice, BasisDecision, SearchSummary};
 use crate::model::msvr::{self, Basis, MsvrParams, MIN_FIT_ROWS};
 use crate::model::previous::{self, PreviousModel};
 use crate::model::{self, ModelSpec};
@@ -49,6 +50,22 @@ pub struct FitJob {
     pub max_rows: Option<usize>,
     /// The expansion: exact, a reduced basis, or chosen from the data.
     pub basis: BasisChoice,
+    /// The time column (seconds, increasing within each group): input history may be used.
+    pub time: Option<String>,
+    /// The column naming the runs of a time series (history restarts in each).
+    pub group: Option<String>,
+    /// What history to try (with `time`).
+    pub history: HistoryChoice,
+}
+
+impl FitJob {
+    /// The rows `--max-rows` keeps.
+    fn keep(&self, d: data::Dataset) -> data::Dataset {
+        match self.max_rows {
+            Some(max) if d.rows() > max => d.subsample(max),
+            _ => d,
+        }
+    }
 }
 
 /// What a run produced.
@@ -76,8 +93,8 @@ impl Observer for Iterations<'_> {
     }
 }
 
-/// Chooses the parameters, fits, scores and writes: the report first (an interrupted search
-/// still leaves its history), the model file last.
+/// Chooses the parameters (and the input history), fits, scores and writes: the report first
+/// (an interrupted search still leaves its history), the model file last.
 ///
 /// # Errors
 /// [`PipelineError`]: bad parameters, unreadable or unusable data, `--out` naming an input, a
@@ -114,140 +131,153 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
             )));
         }
     }
-    let keep = |d: data::Dataset| match job.max_rows {
-        Some(max) if d.rows() > max => {
-            session.emit(Event::Note(format!(
-                "{}: {} rows, {max} evenly spaced ones kept (--max-rows)",
-                d.source.display(),
-                d.rows()
-            )));
-            d.subsample(max)
-        }
-        _ => d,
-    };
-    let train = keep(data::read_dataset(&job.data, &job.inputs, &job.outputs)?);
-    train.check_fittable(MIN_FIT_ROWS)?;
+    let train = Source::read(&job.data, job)?;
+    train.raw.check_fittable(MIN_FIT_ROWS)?;
+    if let Some(max) = job.max_rows.filter(|&max| train.raw.rows() > max) {
+        session.emit(Event::Note(format!(
+            "{}: {} rows, {max} evenly spaced ones kept (--max-rows)",
+            job.data.display(),
+            train.raw.rows()
+        )));
+    }
+    let search_source = search_on.map(|p| Source::read(p, job)).transpose()?;
+    let rows = job
+        .max_rows
+        .map_or(train.raw.rows(), |m| m.min(train.raw.rows()));
+    if search_source.is_none()
+        && rows > tune::SEARCH_ROWS
+        && matches!(job.selection, Selection::Search { .. })
+    {
+        session.emit(Event::Note(format!(
+            "search: candidates scored on {} evenly spaced rows of {rows} (the model is fitted on all of them)",
+            tune::SEARCH_ROWS
+        )));
+    }
+    // Every test file is read before the search: a bad one must not cost the search.
+    let test_sources = job
+        .tests
+        .iter()
+        .map(|path| Source::read(path, job))
+        .collect::<Result<Vec<_>, _>>()?;
+    let candidates = train.histories(job)?;
     let seed = match job.selection {
         Selection::Fixed => None,
         Selection::Search { seed, .. } => Some(seed),
     };
-    let initial = tune::initial_basis(job.basis, train.rows(), seed.unwrap_or(crate::DEFAULT_SEED))
+    let initial = tune::initial_basis(job.basis, rows, seed.unwrap_or(crate::DEFAULT_SEED))
         .map_err(|e| PipelineError::Usage(e.to_string()))?;
-    msvr::check_memory(train.rows(), initial.basis)?;
+    msvr::check_memory(rows, initial.basis)?;
     session.emit(Event::Note(format!(
         "basis: {} ({})",
         initial.basis, initial.reason
     )));
-    // Only `auto`'s reduced basis grows; exact and a given size are used as they are.
-    let grows = job.basis == BasisChoice::Auto && initial.basis != Basis::Exact;
-    let solver = job.params.basis(initial.basis);
-    // Every test file is read before the search: a bad one must not cost the search.
-    let test_data = job
-        .tests
-        .iter()
-        .map(|path| {
-            Ok((
-                file_name(path),
-                data::read_dataset(path, &job.inputs, &job.outputs)?,
-            ))
-        })
-        .collect::<Result<Vec<_>, PipelineError>>()?;
 
-    let (params, search, history, basis) = match &job.selection {
-        Selection::Fixed => {
-            let basis = if grows {
-                // Scored as a search scores: on at most SEARCH_ROWS evenly spaced rows.
-                let scored = train.subsample(tune::SEARCH_ROWS);
-                let plan = folds::plan(
-                    &FoldsBy::Auto,
-                    &scored,
-                    &other_columns(&job.data, &FoldsBy::Auto, job, scored.rows())?,
-                    AUTO_FOLDS,
-                )?;
-                let fitness = FitnessKind::Cv { folds: AUTO_FOLDS };
-                tune::grow_basis(initial, &scored, fitness, &plan, &solver, session.interrupt)?
-            } else {
-                initial
-            };
-            (solver.basis(basis.basis), None, None, basis)
-        }
-        Selection::Search {
-            method,
-            budget,
-            fitness,
-            folds_by,
-            seed,
-            on,
-        } => {
-            let scored_on = on.as_deref().unwrap_or(&job.data);
-            let scored = match on {
-                None if train.rows() > tune::SEARCH_ROWS => {
-                    session.emit(Event::Note(format!(
-                        "search: candidates scored on {} evenly spaced rows of {} (the model is fitted on all of them)",
-                        tune::SEARCH_ROWS,
-                        train.rows()
-                    )));
-                    train.subsample(tune::SEARCH_ROWS)
-                }
-                None => train.clone(),
-                Some(path) => {
-                    let d = keep(data::read_dataset(path, &job.inputs, &job.outputs)?);
-                    d.check_fittable(MIN_FIT_ROWS)?;
-                    d
-                }
-            };
-            let folds = match fitness {
-                FitnessKind::Cv { folds } => *folds,
-                FitnessKind::Train => 2,
-            };
-            let plan = folds::plan(
-                folds_by,
-                &scored,
-                &other_columns(scored_on, folds_by, job, scored.rows())?,
-                folds,
-            )?;
-            if matches!(fitness, FitnessKind::Cv { .. }) {
-                session.emit(Event::Note(format!("folds: {}", plan.choice)));
-            }
-            let method = &method.with_budget(budget.unwrap_or(tune::budget_for(scored.rows())));
-            let started = Instant::now();
-            let mut observer = Iterations {
-                session,
-                cap: method.iteration_cap(),
-            };
-            let (summary, result, counters) = tune::run(
-                method,
-                &scored,
-                *fitness,
-                *seed,
-                &plan,
-                &solver,
-                &mut observer,
-                session.interrupt,
-            )?;
-            session.emit(Event::Searched(&summary));
-            let params = tune::solver_for(method, &solver).with_hyper(summary.best);
-            let basis = if grows {
-                tune::grow_basis(
-                    initial,
-                    &scored,
-                    *fitness,
-                    &plan,
-                    &params,
-                    session.interrupt,
-                )?
-            } else {
-                initial
-            };
-            let seconds = started.elapsed().as_secs_f64();
-            (
-                params.basis(basis.basis),
-                Some((summary, counters, seconds)),
-                Some(result.history),
-                basis,
-            )
-        }
+    let history_for = |memory: Memory| History {
+        time: job.time.clone().unwrap_or_default(),
+        group: job.group.clone(),
+        inputs: job.inputs.clone(),
+        memory,
     };
+    let scoring = |h: Option<&History>| -> Result<Scoring, PipelineError> {
+        let data = job.keep(train.with(h)?);
+        let on = search_source
+            .as_ref()
+            .map(|s| Ok::<_, PipelineError>(job.keep(s.with(h)?)))
+            .transpose()?;
+        Scoring::new(job, &data, on)
+    };
+    let interrupted = || session.interrupt.load(std::sync::atomic::Ordering::Relaxed);
+    let compare = candidates.static_first && !candidates.memories.is_empty();
+    // Compared feature sets are searched on the initial basis; the kept one then grows.
+    let mut tried: Vec<(Option<History>, Chosen, Scoring)> = Vec::new();
+    let mut screened = Vec::new();
+    if candidates.static_first {
+        if compare {
+            session.emit(Event::Note(
+                "input history: none (the present inputs)".into(),
+            ));
+        }
+        let scored = scoring(None)?;
+        let chosen = choose(job, &scored, initial.clone(), (compare, !compare), session)?;
+        tried.push((None, chosen, scored));
+    }
+    // `auto`: the ladder that scores best at the present-input model's parameters is searched.
+    let memory = match (tried.first(), candidates.memories.len()) {
+        (_, 0) => None,
+        (_, 1) => candidates.memories.first().cloned(),
+        (Some((_, reference, _)), _) if !interrupted() => {
+            let mut best: Option<(Memory, f64)> = None;
+            for memory in &candidates.memories {
+                let h = history_for(memory.clone());
+                let copies = 1 + memory.blocks();
+                let params = MsvrParams {
+                    sigma: reference.params.sigma * (copies as f64).sqrt(),
+                    ..reference.params
+                };
+                let fitness = scoring(Some(&h))?.fitness_of(&params)?;
+                session.emit(Event::Note(format!(
+                    "input history: {memory} screened at the present inputs' parameters: {fitness:.5}"
+                )));
+                screened.push(HistoryTrial {
+                    memory: Some(memory.clone()),
+                    fitness,
+                });
+                if best.as_ref().is_none_or(|(_, f)| fitness < *f) {
+                    best = Some((memory.clone(), fitness));
+                }
+            }
+            best.map(|(m, _)| m)
+        }
+        _ => None,
+    };
+    if let Some(memory) = memory.filter(|_| !interrupted() || tried.is_empty()) {
+        let h = history_for(memory);
+        session.emit(Event::Note(format!(
+            "input history: {} ({} model inputs)",
+            h.memory,
+            h.feature_names().len()
+        )));
+        let scored = scoring(Some(&h))?;
+        let chosen = choose(job, &scored, initial.clone(), (compare, !compare), session)?;
+        tried.push((Some(h), chosen, scored));
+    }
+    let decision = job.time.as_ref().map(|_| {
+        history::decide(
+            tried
+                .iter()
+                .map(|(h, c, _)| (h.clone(), c.fitness.unwrap_or(f64::NAN)))
+                .collect(),
+            screened,
+            &format!("--history {}", job.history),
+        )
+    });
+    let kept = decision.as_ref().and_then(|d| d.used.clone());
+    if let Some(d) = &decision {
+        session.emit(Event::Note(format!("input history: {}", d.reason)));
+    }
+    let (mut chosen, scored) = tried
+        .into_iter()
+        .find(|(h, _, _)| *h == kept)
+        .map(|(_, c, s)| (c, s))
+        .expect("the kept history was tried");
+    if compare && grows(job, &chosen.basis) {
+        chosen.basis = tune::grow_basis(
+            chosen.basis,
+            &scored.scored,
+            scored.fitness,
+            &scored.plan,
+            &chosen.params,
+            session.interrupt,
+        )?;
+        chosen.params = chosen.params.basis(chosen.basis.basis);
+    }
+    let Chosen {
+        params,
+        search,
+        iterations,
+        basis,
+        ..
+    } = chosen;
     if !basis.tried.is_empty() {
         session.emit(Event::Note(format!(
             "basis: {} ({})",
@@ -255,6 +285,11 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
         )));
     }
 
+    let train = job.keep(train.with(kept.as_ref())?);
+    let test_data = test_sources
+        .iter()
+        .map(|s| Ok((file_name(&s.raw.source), s.with(kept.as_ref())?)))
+        .collect::<Result<Vec<_>, PipelineError>>()?;
     let fitted = ModelSpec::Msvr(params).fit(&train)?;
     let train_errors = model::evaluate(fitted.predictor(), &train)?;
 
@@ -301,6 +336,7 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
         spec: fitted.spec(),
         fit: fitted.diagnostics().clone(),
         basis: basis.clone(),
+        history: decision.clone(),
         search: search.as_ref().map(|(s, _, _)| s.clone()),
         train_errors,
         previous: previous.as_ref().map(|(d, c, cal)| PreviousSummary {
@@ -318,9 +354,16 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
             models: &models,
             tests: &test_data,
         };
-        report::write_model_report(dir, &report, history.as_deref(), &comparison)
+        report::write_model_report(dir, &report, iterations.as_deref(), &comparison)
     });
-    ModelFile::new(fitted, report.search.clone(), Some(basis), provenance).save(&job.out)?;
+    ModelFile::new(
+        fitted,
+        report.search.clone(),
+        Some(basis),
+        decision,
+        provenance,
+    )
+    .save(&job.out)?;
     if let Some(Err(e)) = reported {
         return Err(PipelineError::Partial {
             source: Box::new(e.into()),
@@ -328,6 +371,286 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
         });
     }
     Ok(FitOutcome { report, search })
+}
+
+/// A data file as read, with its time series when `--time` was given.
+struct Source {
+    raw: data::Dataset,
+    series: Option<(Series, Vec<u64>)>,
+}
+
+impl Source {
+    /// Reads the job's inputs and outputs, and its time (and group) columns, checked for order.
+    fn read(path: &Path, job: &FitJob) -> Result<Source, PipelineError> {
+        let raw = data::read_dataset(path, &job.inputs, &job.outputs)?;
+        let series = match &job.time {
+            None => None,
+            Some(time) => {
+                let (series, lines) = history::read_series(path, time, job.group.as_deref())?;
+                series
+                    .check()
+                    .map_err(|e| history::series_error(path, &lines, e))?;
+                Some((series, lines))
+            }
+        };
+        Ok(Source { raw, series })
+    }
+
+    /// The dataset as a model with `history` sees it.
+    fn with(&self, history: Option<&History>) -> Result<data::Dataset, PipelineError> {
+        match (history, &self.series) {
+            (Some(h), Some((series, lines))) => h
+                .dataset(&self.raw, series)
+                .map_err(|e| history::series_error(&self.raw.source, lines, e).into()),
+            _ => Ok(self.raw.clone()),
+        }
+    }
+
+    /// What `--history` asks to try.
+    fn histories(&self, job: &FitJob) -> Result<Candidates, PipelineError> {
+        let none = Candidates {
+            static_first: true,
+            memories: Vec::new(),
+        };
+        let (Some((series, lines)), true) = (&self.series, job.time.is_some()) else {
+            return Ok(none);
+        };
+        let ladders = || -> Result<Vec<Vec<f64>>, PipelineError> {
+            series
+                .time_constant_ladders()
+                .map_err(|e| history::series_error(&self.raw.source, lines, e).into())
+        };
+        let (static_first, memories) = match &job.history {
+            HistoryChoice::None => return Ok(none),
+            HistoryChoice::Auto => (
+                true,
+                ladders()?
+                    .into_iter()
+                    .map(|tau| Memory::Ema { tau })
+                    .collect(),
+            ),
+            HistoryChoice::Ema(tau) if tau.is_empty() => (
+                false,
+                vec![Memory::Ema {
+                    tau: ladders()?.swap_remove(0),
+                }],
+            ),
+            HistoryChoice::Ema(tau) => (false, vec![Memory::Ema { tau: tau.clone() }]),
+            HistoryChoice::Lags(rows) => (false, vec![Memory::Lags { rows: *rows }]),
+        };
+        // Groups too short for the memory are refused before any search.
+        for memory in &memories {
+            self.with(Some(&History {
+                time: String::new(),
+                group: None,
+                inputs: job.inputs.clone(),
+                memory: memory.clone(),
+            }))?;
+        }
+        Ok(Candidates {
+            static_first,
+            memories,
+        })
+    }
+}
+
+/// The feature sets a run tries.
+struct Candidates {
+    /// The present inputs alone, searched first (and compared with the history).
+    static_first: bool,
+    /// The histories: one to search, or several for `auto` to screen.
+    memories: Vec<Memory>,
+}
+
+/// What one feature set's selection gave.
+struct Chosen {
+    params: MsvrParams,
+    search: Option<(SearchSummary, Counters, f64)>,
+    iterations: Option<Vec<IterationRecord>>,
+    basis: BasisDecision,
+    /// The cross-validated fitness of `params` (the search's best), when known or asked for.
+    fitness: Option<f64>,
+}
+
+/// The rows candidates are scored on and how cross-validation cuts them.
+struct Scoring {
+    scored: data::Dataset,
+    plan: FoldPlan,
+    fitness: FitnessKind,
+}
+
+impl Scoring {
+    /// A search's (on `search_on` when given, else on at most [`tune::SEARCH_ROWS`] evenly
+    /// spaced rows of `train`), or for given parameters `auto`'s 5-fold cross-validation.
+    fn new(
+        job: &FitJob,
+        train: &data::Dataset,
+        search_on: Option<data::Dataset>,
+    ) -> Result<Scoring, PipelineError> {
+        let fixed_by = job.group.clone().map_or(FoldsBy::Auto, FoldsBy::Column);
+        let (by, fitness, file) = match &job.selection {
+            Selection::Fixed => (&fixed_by, FitnessKind::Cv { folds: AUTO_FOLDS }, None),
+            Selection::Search {
+                folds_by,
+                fitness,
+                on,
+                ..
+            } => (folds_by, *fitness, on.as_deref()),
+        };
+        let scored = match search_on {
+            Some(d) => {
+                d.check_fittable(MIN_FIT_ROWS)?;
+                d
+            }
+            None => train.subsample(tune::SEARCH_ROWS),
+        };
+        let folds = match fitness {
+            FitnessKind::Cv { folds } => folds,
+            FitnessKind::Train => 2,
+        };
+        let plan = folds::plan(
+            by,
+            &present(&scored, job.inputs.len()),
+            &other_columns(file.unwrap_or(&job.data), by, job, scored.rows())?,
+            folds,
+        )?;
+        Ok(Scoring {
+            scored,
+            plan,
+            fitness,
+        })
+    }
+
+    /// The cross-validated fitness of `params` itself.
+    fn fitness_of(&self, params: &MsvrParams) -> Result<f64, PipelineError> {
+        Ok(tune::cross_validate(
+            &self.scored,
+            self.fitness,
+            &self.plan,
+            params,
+        )?)
+    }
+}
+
+/// Chooses the parameters on `scoring`'s rows, and with `grow` grows `auto`'s basis. `score`:
+/// also cross-validate given parameters, to compare feature sets.
+fn choose(
+    job: &FitJob,
+    scoring: &Scoring,
+    initial: BasisDecision,
+    (score, grow): (bool, bool),
+    session: &Session,
+) -> Result<Chosen, PipelineError> {
+    let grows = grow && grows(job, &initial);
+    let solver = job.params.basis(initial.basis);
+    let Scoring {
+        scored,
+        plan,
+        fitness,
+    } = scoring;
+    let grow = |basis: BasisDecision, params: &MsvrParams| {
+        if grows {
+            tune::grow_basis(basis, scored, *fitness, plan, params, session.interrupt)
+        } else {
+            Ok(basis)
+        }
+    };
+    match &job.selection {
+        Selection::Fixed => {
+            if !grows && !score {
+                return Ok(Chosen {
+                    params: solver,
+                    search: None,
+                    iterations: None,
+                    basis: initial,
+                    fitness: None,
+                });
+            }
+            let basis = grow(initial, &solver)?;
+            let params = solver.basis(basis.basis);
+            let cv = match grown_fitness(&basis, params.basis) {
+                Some(f) => f,
+                None => scoring.fitness_of(&params)?,
+            };
+            Ok(Chosen {
+                params,
+                search: None,
+                iterations: None,
+                basis,
+                fitness: Some(cv),
+            })
+        }
+        Selection::Search {
+            method,
+            budget,
+            seed,
+            ..
+        } => {
+            if matches!(fitness, FitnessKind::Cv { .. }) {
+                session.emit(Event::Note(format!("folds: {}", plan.choice)));
+            }
+            let method = &method.with_budget(budget.unwrap_or(tune::budget_for(scored.rows())));
+            let started = Instant::now();
+            let mut observer = Iterations {
+                session,
+                cap: method.iteration_cap(),
+            };
+            let (summary, result, counters) = tune::run(
+                method,
+                scored,
+                *fitness,
+                *seed,
+                plan,
+                &solver,
+                &mut observer,
+                session.interrupt,
+            )?;
+            session.emit(Event::Searched(&summary));
+            let params = tune::solver_for(method, &solver).with_hyper(summary.best);
+            let basis = grow(initial, &params)?;
+            let seconds = started.elapsed().as_secs_f64();
+            Ok(Chosen {
+                params: params.basis(basis.basis),
+                fitness: Some(grown_fitness(&basis, basis.basis).unwrap_or(summary.best_fitness)),
+                search: Some((summary, counters, seconds)),
+                iterations: Some(result.history),
+                basis,
+            })
+        }
+    }
+}
+
+/// Whether the basis grows: only `auto`'s reduced basis does; exact and a given size are used
+/// as they are.
+fn grows(job: &FitJob, initial: &BasisDecision) -> bool {
+    job.basis == BasisChoice::Auto && initial.basis != Basis::Exact
+}
+
+/// The cross-validated fitness `auto`'s growth measured for the basis it chose.
+fn grown_fitness(decision: &BasisDecision, chosen: Basis) -> Option<f64> {
+    let Basis::Reduced { centres, .. } = chosen else {
+        return None;
+    };
+    decision
+        .tried
+        .iter()
+        .find(|t| t.centres == centres)
+        .map(|t| t.fitness)
+}
+
+/// The dataset with its first `width` inputs only: the present inputs, which the fold choice
+/// looks at (a history's filtered copies would hide a designed grid).
+fn present(data: &data::Dataset, width: usize) -> data::Dataset {
+    let values = data
+        .inputs
+        .iter_rows()
+        .flat_map(|r| r[..width].to_vec())
+        .collect();
+    data::Dataset {
+        source: data.source.clone(),
+        inputs: Columns::new(data.inputs.names[..width].to_vec(), values),
+        outputs: data.outputs.clone(),
+    }
 }
 
 /// The columns of `path` the fold choice may use, one value per kept row: the named column for

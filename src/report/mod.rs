@@ -13,6 +13,7 @@ use serde::Serialize;
 
 use crate::data::{format_number, Columns, Dataset};
 use crate::fsio;
+use crate::model::history::HistoryDecision;
 use crate::model::msvr::tune::{BasisDecision, SearchSummary};
 use crate::model::msvr::FitDiagnostics;
 use crate::model::previous::{Calibration, PreviousParams};
@@ -54,6 +55,8 @@ pub struct ModelReport {
     pub fit: FitDiagnostics,
     /// The basis and why it was chosen.
     pub basis: BasisDecision,
+    /// The input history and why, when a time column was given.
+    pub history: Option<HistoryDecision>,
     /// The search that chose the parameters, if any.
     pub search: Option<SearchSummary>,
     /// Errors on the training data itself (not a measure of generalisation).
@@ -521,6 +524,56 @@ pub fn errors_table(tests: &[TestResult], outputs: &[String]) -> String {
     out
 }
 
+/// Whether the model sees its inputs' history: what was used, why, and what was compared.
+fn history_section(h: &HistoryDecision) -> String {
+    let mut s = String::new();
+    match &h.used {
+        Some(used) => {
+            let _ = writeln!(
+                s,
+                "Input history: {} on time column `{}`{} ({}). The model's inputs are the present inputs and their history features; `predict` needs the time{} column, and `inverse` uses the steady state (every filter equal to the input).\n",
+                used.memory,
+                used.time,
+                used.group
+                    .as_ref()
+                    .map_or_else(String::new, |g| format!(", restarted in each `{g}`")),
+                h.reason,
+                if used.group.is_some() { " and group" } else { "" }
+            );
+        }
+        None => {
+            let _ = writeln!(s, "Input history: none ({}).\n", h.reason);
+        }
+    }
+    if !h.tried.is_empty() {
+        let _ = writeln!(s, "| inputs | cross-validated fitness |");
+        let _ = writeln!(s, "|---|---|");
+        for t in &h.tried {
+            let name = t
+                .memory
+                .as_ref()
+                .map_or_else(|| "present only".to_string(), |m| format!("present + {m}"));
+            let _ = writeln!(s, "| {name} | {:.5} |", t.fitness);
+        }
+        s.push('\n');
+    }
+    if !h.screened.is_empty() {
+        let _ = writeln!(
+            s,
+            "Time constants screened at the present-input model's parameters (σ widened by √copies); the best was searched:\n"
+        );
+        let _ = writeln!(s, "| history | cross-validated fitness |");
+        let _ = writeln!(s, "|---|---|");
+        for t in &h.screened {
+            if let Some(m) = &t.memory {
+                let _ = writeln!(s, "| {m} | {:.5} |", t.fitness);
+            }
+        }
+        s.push('\n');
+    }
+    s
+}
+
 fn markdown(r: &ModelReport, sweeps: &[SweepFigures]) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "# handcap model report\n");
@@ -588,6 +641,9 @@ fn markdown(r: &ModelReport, sweeps: &[SweepFigures]) -> String {
             let _ = writeln!(s, "| {} | {} | {:.5} |", t.centres, t.kept, t.fitness);
         }
         s.push('\n');
+    }
+    if let Some(h) = &r.history {
+        s += &history_section(h);
     }
     let _ = writeln!(
         s,

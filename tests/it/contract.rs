@@ -42,6 +42,7 @@ pub fn check_regressor(
             stored,
             None,
             None,
+            None,
             Provenance::new(vec!["contract".into()], None),
         )
         .save(&path)

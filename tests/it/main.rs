@@ -10,6 +10,7 @@ mod contract;
 mod data;
 mod fuzz;
 mod geometry;
+mod history;
 mod images;
 mod msvr;
 mod pipeline;

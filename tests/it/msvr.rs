@@ -462,6 +462,7 @@ fn save_load_predicts_identically() {
         StoredModel::Msvr(model.clone()),
         None,
         None,
+        None,
         Provenance::new(vec!["test".into()], None),
     );
     file.save(&path).unwrap();

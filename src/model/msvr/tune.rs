@@ -177,6 +177,27 @@ pub fn run(
     Ok((summary, result, counters))
 }
 
+/// The cross-validated fitness of `params` itself, on the folds of `folds`.
+///
+/// # Errors
+/// [`TuneError`] when the folds cannot be cut.
+pub fn cross_validate(
+    data: &Dataset,
+    fitness: FitnessKind,
+    folds: &FoldPlan,
+    params: &MsvrParams,
+) -> Result<f64, TuneError> {
+    super::check_memory(data.rows(), params.basis)?;
+    let scorer = Fitness::new(
+        data,
+        fitness,
+        crate::DEFAULT_SEED,
+        folds.labels.as_deref(),
+        params,
+    )?;
+    Ok(scorer.evaluate(&[params.hyper()], f64::INFINITY)[0])
+}
+
 /// A search scores its candidates on at most this many evenly spaced rows of the training data
 /// (the model is then fitted on every row): a candidate's five fits on 8000 rows and 200
 /// centres take about a second, so 120 candidates stay within minutes on 2 cores, and
