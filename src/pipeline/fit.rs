@@ -198,7 +198,8 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
             ));
         }
         let scored = scoring(None)?;
-        let chosen = choose(job, &scored, initial.clone(), (compare, !compare), session)?;
+        let pass = if compare { Pass::Reference } else { Pass::Only };
+        let chosen = choose(job, &scored, initial.clone(), pass, session)?;
         tried.push((None, chosen, scored));
     }
     // `auto`: the ladder that scores best at the present-input model's parameters is searched.
@@ -238,7 +239,8 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
             h.feature_names().len()
         )));
         let scored = scoring(Some(&h))?;
-        let chosen = choose(job, &scored, initial.clone(), (compare, !compare), session)?;
+        let pass = if compare { Pass::Compared } else { Pass::Only };
+        let chosen = choose(job, &scored, initial.clone(), pass, session)?;
         tried.push((Some(h), chosen, scored));
     }
     let decision = job.time.as_ref().map(|_| {
@@ -532,16 +534,30 @@ impl Scoring {
     }
 }
 
-/// Chooses the parameters on `scoring`'s rows, and with `grow` grows `auto`'s basis. `score`:
-/// also cross-validate given parameters, to compare feature sets.
+/// What a feature set's selection is for.
+#[derive(Clone, Copy, PartialEq)]
+enum Pass {
+    /// The one feature set: `auto`'s basis grows at the parameters chosen.
+    Only,
+    /// One of several compared by cross-validated fitness (given parameters are scored too);
+    /// the basis grows after the comparison, for the kept set only.
+    Compared,
+    /// The present inputs as `--history auto`'s reference: compared, and searched with half
+    /// the default budget (its parameters also start the screen of time constants).
+    Reference,
+}
+
+/// Chooses the parameters on `scoring`'s rows ([`Pass`]: growing the basis, scoring given
+/// parameters, the budget).
 fn choose(
     job: &FitJob,
     scoring: &Scoring,
     initial: BasisDecision,
-    (score, grow): (bool, bool),
+    pass: Pass,
     session: &Session,
 ) -> Result<Chosen, PipelineError> {
-    let grows = grow && grows(job, &initial);
+    let grows = pass == Pass::Only && grows(job, &initial);
+    let score = pass != Pass::Only;
     let solver = job.params.basis(initial.basis);
     let Scoring {
         scored,
@@ -589,7 +605,11 @@ fn choose(
             if matches!(fitness, FitnessKind::Cv { .. }) {
                 session.emit(Event::Note(format!("folds: {}", plan.choice)));
             }
-            let method = &method.with_budget(budget.unwrap_or(tune::budget_for(scored.rows())));
+            let budget = budget.unwrap_or(match pass {
+                Pass::Reference => tune::budget_for(scored.rows()) / 2,
+                _ => tune::budget_for(scored.rows()),
+            });
+            let method = &method.with_budget(budget);
             let started = Instant::now();
             let mut observer = Iterations {
                 session,
