@@ -135,6 +135,7 @@ fn search(c: &mut Criterion) {
                 1,
                 &plan,
                 &solver,
+                &tune::Pinned::default(),
                 &mut (),
                 &AtomicBool::new(false),
             )

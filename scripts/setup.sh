@@ -7,6 +7,11 @@ set -euo pipefail
 # bindings, and the font the figures are labelled with.
 APT_PACKAGES=(libopencv-dev clang libclang-dev pkg-config fonts-dejavu-core)
 
+# The Python package's tests (python/test.sh) make a venv: Python 3.9 or newer with venv.
+if ! python3 -c 'import sys, venv, ensurepip; sys.exit(sys.version_info < (3, 9))' 2>/dev/null; then
+    APT_PACKAGES+=(python3 python3-venv)
+fi
+
 missing=()
 for pkg in "${APT_PACKAGES[@]}"; do
     if ! dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed"; then

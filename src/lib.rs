@@ -21,24 +21,17 @@
 //! - Every random choice takes an explicit seed, and the same command writes the same bytes.
 //! - Files are written atomically (temporary file, then rename) and never over an input.
 
-/// The seed every command uses when none is given (the paper's year).
-pub const DEFAULT_SEED: u64 = 2020;
+// The modelling core is its own crate (it builds without OpenCV); its modules keep their paths.
+pub use handcap_core::{data, fsio, hand, model, provenance, search, stats, DEFAULT_SEED};
 
 pub mod calib;
 pub mod capture;
 mod cv;
-pub mod data;
-pub mod fsio;
 pub mod geometry;
-pub mod hand;
-pub mod model;
 pub mod opencv_yaml;
 pub mod pipeline;
 pub mod plot;
-pub mod provenance;
 pub mod report;
-pub mod search;
-pub mod stats;
 pub mod stereo;
 pub mod synth;
 pub mod triangulate;

@@ -11,7 +11,7 @@ use crate::model::file::ModelFile;
 use crate::model::history::{self, History, HistoryChoice, HistoryTrial, Memory, Series};
 use crate::model::msvr::fitness::{Counters, FitnessKind};
 use crate::model::msvr::folds::{self, FoldPlan, FoldsBy};
-use crate::model::msvr::tune::{self, BasisChoice, BasisDecision, SearchSummary};
+use crate::model::msvr::tune::{self, BasisChoice, BasisDecision, Pinned, SearchSummary};
 use crate::model::msvr::{self, Basis, MsvrParams, MIN_FIT_ROWS};
 use crate::model::previous::{self, PreviousModel};
 use crate::model::{self, ModelSpec};
@@ -622,6 +622,7 @@ fn choose(
                 *seed,
                 plan,
                 &solver,
+                &Pinned::default(),
                 &mut observer,
                 session.interrupt,
             )?;

@@ -130,8 +130,37 @@ pub fn solver_for(method: &Method, solver: &MsvrParams) -> MsvrParams {
     }
 }
 
-/// Runs `method` on `data` with the given fitness; returns the summary, the full result and
-/// the work counters.
+/// Hyper-parameters held at given values while a search chooses the others (their axis of the
+/// box shrinks to the value; the paper's colony, which has no box, ignores them).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Pinned {
+    pub c: Option<f64>,
+    pub epsilon: Option<f64>,
+    pub sigma: Option<f64>,
+}
+
+impl Pinned {
+    /// `h` with the pinned values exactly (the search's logarithms round them).
+    fn hold(&self, h: Hyper) -> Hyper {
+        Hyper {
+            c: self.c.unwrap_or(h.c),
+            epsilon: self.epsilon.unwrap_or(h.epsilon),
+            sigma: self.sigma.unwrap_or(h.sigma),
+        }
+    }
+
+    fn apply(&self, space: SearchSpace) -> SearchSpace {
+        let pin = |v: Option<f64>, range| v.map_or(range, |v| (v, v));
+        SearchSpace {
+            c: pin(self.c, space.c),
+            epsilon: pin(self.epsilon, space.epsilon),
+            sigma: pin(self.sigma, space.sigma),
+        }
+    }
+}
+
+/// Runs `method` on `data` with the given fitness, the [`Pinned`] hyper-parameters held;
+/// returns the summary, the full result and the work counters.
 ///
 /// # Errors
 /// [`TuneError`]: the method's own, or a fold set-up error.
@@ -143,6 +172,7 @@ pub fn run(
     seed: u64,
     folds: &FoldPlan,
     solver: &MsvrParams,
+    pinned: &Pinned,
     observer: &mut dyn Observer,
     interrupt: &AtomicBool,
 ) -> Result<(SearchSummary, SearchResult, Counters), TuneError> {
@@ -150,14 +180,17 @@ pub fn run(
     let labels = folds.labels.as_deref();
     let scorer = Fitness::new(data, fitness, seed, labels, &solver_for(method, solver))?;
     let objective = |batch: &[Hyper], bar: f64| scorer.evaluate(batch, bar);
-    let space = method.uses_space().then(|| space_for(data));
+    let space = method.uses_space().then(|| pinned.apply(space_for(data)));
     // The paper's colony ignores the box; any box will do for it.
     let searched = space.unwrap_or(SearchSpace {
         c: (1.0, 1.0),
         epsilon: (1.0, 1.0),
         sigma: (1.0, 1.0),
     });
-    let result = method.run(&searched, &objective, observer, interrupt)?;
+    let mut result = method.run(&searched, &objective, observer, interrupt)?;
+    if space.is_some() {
+        result.best = pinned.hold(result.best);
+    }
     let counters = scorer.counters();
     let summary = SearchSummary {
         method: *method,

@@ -5,8 +5,8 @@
 //! as they are, so ε is in output units (mm for the micro-hand). Trained by [`irwls`].
 //!
 //! ```
-//! use handcap::data::{Columns, Dataset};
-//! use handcap::model::{msvr::MsvrParams, Predict};
+//! use handcap_core::data::{Columns, Dataset};
+//! use handcap_core::model::{msvr::MsvrParams, Predict};
 //!
 //! let x: Vec<f64> = (0..20).map(|i| i as f64).collect();
 //! let y: Vec<f64> = x.iter().map(|v| (v / 4.0).sin()).collect();
@@ -538,6 +538,16 @@ impl Msvr {
 
     pub fn support_vector_count(&self) -> usize {
         self.coefficients.len() / self.outputs.len()
+    }
+
+    /// The kernel's centres in scaled input units (`support_vector_count() × d`, row-major).
+    pub fn support_vectors(&self) -> &[f64] {
+        &self.support_vectors
+    }
+
+    /// The centres' coefficients β (`support_vector_count() × q`, row-major).
+    pub fn coefficients(&self) -> &[f64] {
+        &self.coefficients
     }
 }
 

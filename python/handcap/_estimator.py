@@ -1,0 +1,131 @@
+"""The scikit-learn estimator over handcap's core."""
+
+import numpy as np
+from sklearn.base import BaseEstimator, RegressorMixin
+from sklearn.utils.validation import check_is_fitted, validate_data
+
+from . import _core
+
+# The seed when random_state is None: handcap's default (every run is reproducible).
+DEFAULT_SEED = 2020
+
+
+class MSVRRegressor(RegressorMixin, BaseEstimator):
+    """Multi-output support vector regression with one spherical epsilon-tube for all outputs.
+
+    Hyper-parameters left None are chosen inside `fit` by a continuous ant colony (ACO_R) over a
+    box derived from the data, scored by cross-validated MAE (on whole `groups` when given, else
+    on folds the data call for: shuffled for a design, contiguous blocks for a time series).
+
+    Parameters
+    ----------
+    C, epsilon, sigma : float or None
+        Penalty, tube radius (output units) and RBF width (inputs scaled to [0, 1]); None: searched.
+    search : {"aco-r", "none"}
+        "none" requires C, epsilon and sigma.
+    budget : int or None
+        Candidates the search scores (default: from the rows, 400 up to 400 rows, 200 up to 700,
+        120 above).
+    loss : {"robust", "quadratic"}
+        Beyond the tube: quadratic for 10 epsilon then linear ("robust"), or the paper's quadratic.
+    basis : "auto", "exact" or int
+        A kernel at every row ("exact"), a reduced basis of that many centres, or exact up to 2000
+        rows and a grown reduced basis above ("auto").
+    folds : int
+        Cross-validation folds of the search.
+    random_state : int or None
+        Seeds the search and its folds (None: handcap's default seed, 2020).
+    tol, max_iter : solver controls.
+
+    Attributes
+    ----------
+    C_, epsilon_, sigma_ : the hyper-parameters fitted with.
+    support_vectors_ : (n_sv, n_features) the kernel's centres, in inputs scaled to [0, 1].
+    dual_coef_ : (n_sv, n_outputs) their coefficients.
+    intercept_ : (n_outputs,)
+    n_iter_ : int, iterations of the final fit's solver.
+    model_ : handcap.Model, the fitted model (save, inverse).
+    search_ : dict or None, what the search did.
+    """
+
+    def __init__(self, C=None, epsilon=None, sigma=None, search="aco-r", budget=None,
+                 loss="robust", basis="auto", folds=5, random_state=None, tol=1e-8,
+                 max_iter=500):
+        self.C = C
+        self.epsilon = epsilon
+        self.sigma = sigma
+        self.search = search
+        self.budget = budget
+        self.loss = loss
+        self.basis = basis
+        self.folds = folds
+        self.random_state = random_state
+        self.tol = tol
+        self.max_iter = max_iter
+
+    def __sklearn_tags__(self):
+        tags = super().__sklearn_tags__()
+        tags.target_tags.multi_output = True
+        tags.target_tags.single_output = True
+        return tags
+
+    def fit(self, X, y, groups=None):
+        """Fits the model (searching the hyper-parameters left None). `groups`: one label per
+        row; the search holds whole groups out together (runs, trials, ramps)."""
+        X, y = validate_data(self, X, y, multi_output=True, y_numeric=True, dtype=np.float64,
+                             ensure_min_samples=_core.MIN_FIT_ROWS)
+        hyper = (self.C, self.epsilon, self.sigma)
+        if self.search not in ("aco-r", "none"):
+            raise ValueError(f"search {self.search!r}: give 'aco-r' or 'none'")
+        if self.search == "none" and any(h is None for h in hyper):
+            raise ValueError("search='none' uses C, epsilon and sigma as given: set all three")
+        self._single_output = y.ndim == 1
+        Y = y.reshape(-1, 1) if self._single_output else y
+        if groups is not None:
+            groups = np.asarray(groups)
+            if groups.shape != (X.shape[0],):
+                raise ValueError("groups needs one value per row of X")
+            _, groups = np.unique(groups, return_inverse=True)
+            groups = groups.astype(np.float64)
+        seed = DEFAULT_SEED if self.random_state is None else self.random_state
+        if not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise ValueError("random_state must be None or a non-negative int")
+        names = [f"x{j}" for j in range(X.shape[1])]
+        if hasattr(self, "feature_names_in_"):
+            names = [str(n) for n in self.feature_names_in_]
+        self.model_ = _core.fit(
+            np.ascontiguousarray(X), np.ascontiguousarray(Y, dtype=np.float64),
+            input_names=names, output_names=[f"y{j}" for j in range(Y.shape[1])],
+            c=None if self.C is None else float(self.C),
+            epsilon=None if self.epsilon is None else float(self.epsilon),
+            sigma=None if self.sigma is None else float(self.sigma),
+            loss=self.loss, basis=str(self.basis), budget=self.budget, folds=int(self.folds),
+            groups=groups, seed=int(seed), tol=float(self.tol), max_iter=int(self.max_iter))
+        self.C_, self.epsilon_, self.sigma_ = self.model_.hyper
+        self.support_vectors_ = self.model_.support_vectors
+        self.dual_coef_ = self.model_.dual_coef
+        self.intercept_ = self.model_.intercept
+        self.n_iter_ = self.model_.iterations
+        import json
+        search = self.model_.search
+        self.search_ = None if search is None else json.loads(search)
+        return self
+
+    def predict(self, X):
+        """The model's outputs for each row of X: (n,) for a single-output fit, else (n, q)."""
+        check_is_fitted(self)
+        X = validate_data(self, X, reset=False, dtype=np.float64)
+        Y = self.model_.predict(np.ascontiguousarray(X))
+        return Y.ravel() if self._single_output else Y
+
+    def inverse(self, targets, max_kpa=250.0, reach=0.01):
+        """(inputs, achieved, error, reached) for each target row, as `handcap inverse`."""
+        check_is_fitted(self)
+        T = np.asarray(targets, dtype=np.float64)
+        T = T.reshape(-1, 1) if T.ndim == 1 and self._single_output else np.atleast_2d(T)
+        return self.model_.inverse(np.ascontiguousarray(T), max_kpa=max_kpa, reach=reach)
+
+    def save(self, path):
+        """Writes the model file (`handcap predict` and `inverse` read it)."""
+        check_is_fitted(self)
+        self.model_.save(str(path))

@@ -1,0 +1,538 @@
+//! `handcap._core`: handcap's modelling core as a CPython extension. The Python package
+//! (`handcap/`) wraps it in a scikit-learn estimator; this module only converts arrays and
+//! errors and releases the GIL around the work.
+//!
+//! Arrays come in as float64 (the Python side converts; any layout, read-only accepted) and go
+//! out as new C-ordered arrays. Errors of the data or the parameters raise `ValueError` with
+//! the core's words (the same the command line prints); file errors raise `OSError`.
+
+use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
+
+use numpy::ndarray::{Array1, Array2, ArrayView1, ArrayView2};
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
+use pyo3::exceptions::{PyOSError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::PyTuple;
+
+use handcap_core::data::{self, Columns, Dataset};
+use handcap_core::model::file::{ModelFile, ModelFileError};
+use handcap_core::model::history::Series;
+use handcap_core::model::inverse::{self, InverseOptions};
+use handcap_core::model::msvr::fitness::FitnessKind;
+use handcap_core::model::msvr::folds::{self, FoldsBy};
+use handcap_core::model::msvr::tune::{self, BasisChoice, Pinned};
+use handcap_core::model::msvr::{self, Basis, Loss, MsvrParams, MIN_FIT_ROWS};
+use handcap_core::model::{ModelSpec, Predict, StoredModel};
+use handcap_core::provenance::Provenance;
+use handcap_core::search::aco_r::AcoR;
+use handcap_core::search::Method;
+
+fn value_error(e: impl std::fmt::Display) -> PyErr {
+    PyValueError::new_err(e.to_string())
+}
+
+fn file_error(e: ModelFileError) -> PyErr {
+    match e {
+        ModelFileError::Invalid { .. } | ModelFileError::Version { .. } => value_error(e),
+        _ => PyOSError::new_err(e.to_string()),
+    }
+}
+
+/// `x` as a float64 array of `ndim` dimensions (any numeric dtype, layout or writeability).
+fn float_array<'py>(x: &Bound<'py, PyAny>, ndim: usize, what: &str) -> PyResult<Bound<'py, PyAny>> {
+    let py = x.py();
+    let numpy = py.import("numpy")?;
+    let float64 = numpy.getattr("float64")?;
+    let a = numpy.call_method1("asarray", (x, float64))?;
+    let found: usize = a.getattr("ndim")?.extract()?;
+    if found != ndim {
+        return Err(value_error(format!(
+            "{what} must be a {ndim}-D array; got {found} dimensions"
+        )));
+    }
+    Ok(a)
+}
+
+fn array2<'py>(x: &Bound<'py, PyAny>, what: &str) -> PyResult<PyReadonlyArray2<'py, f64>> {
+    float_array(x, 2, what)?.extract()
+}
+
+fn array1<'py>(x: &Bound<'py, PyAny>, what: &str) -> PyResult<PyReadonlyArray1<'py, f64>> {
+    float_array(x, 1, what)?.extract()
+}
+
+fn columns(names: &[String], x: ArrayView2<f64>) -> Columns {
+    Columns::new(names.to_vec(), x.iter().copied().collect())
+}
+
+fn array(c: &Columns) -> Array2<f64> {
+    Array2::from_shape_vec((c.rows(), c.width()), c.values.clone()).expect("rows × width")
+}
+
+/// What `fit` is asked for, owned so the work can run without the GIL.
+struct FitRequest {
+    data: Dataset,
+    groups: Option<Vec<f64>>,
+    pinned: Pinned,
+    loss: Loss,
+    basis: BasisChoice,
+    budget: Option<usize>,
+    folds: usize,
+    seed: u64,
+    tol: f64,
+    max_iter: usize,
+}
+
+/// The search (when a hyper-parameter is left to it), `auto`'s basis and the fit, as
+/// `handcap model` does them on a file: ACO_R over the data's box with the given
+/// hyper-parameters pinned, cross-validated on whole groups when given, else on the folds the
+/// data call for.
+fn fit_request(r: FitRequest) -> Result<ModelFile, String> {
+    let n = r.data.rows();
+    // The core names the file; here there is none.
+    r.data
+        .check_fittable(MIN_FIT_ROWS)
+        .map_err(|e| e.to_string().trim_start_matches("python: ").to_string())?;
+    let initial = tune::initial_basis(r.basis, n, r.seed).map_err(|e| e.to_string())?;
+    msvr::check_memory(n, initial.basis).map_err(|e| e.to_string())?;
+    let grows = r.basis == BasisChoice::Auto && initial.basis != Basis::Exact;
+    let pin = r.pinned;
+    let solver = MsvrParams::new(
+        pin.c.unwrap_or(1.0),
+        pin.epsilon.unwrap_or(0.1),
+        pin.sigma.unwrap_or(1.0),
+    )
+    .loss(r.loss)
+    .tol(r.tol)
+    .max_iter(r.max_iter)
+    .basis(initial.basis);
+    solver.check().map_err(|e| e.to_string())?;
+    let searched = pin.c.is_none() || pin.epsilon.is_none() || pin.sigma.is_none();
+    let never = AtomicBool::new(false);
+    let (params, search, basis) = if !searched && !grows {
+        (solver, None, initial)
+    } else {
+        let kept = data::evenly_spaced(n, tune::SEARCH_ROWS);
+        let scored = r.data.subsample(tune::SEARCH_ROWS);
+        let (by, others) = match &r.groups {
+            Some(g) => (
+                FoldsBy::Column("groups".into()),
+                vec![("groups".to_string(), kept.iter().map(|&i| g[i]).collect())],
+            ),
+            None => (FoldsBy::Auto, Vec::new()),
+        };
+        let folds = r.folds.min(scored.rows());
+        let plan = folds::plan(&by, &scored, &others, folds).map_err(|e| e.to_string())?;
+        let fitness = FitnessKind::Cv { folds };
+        let (params, search) = if searched {
+            let method = Method::AcoR(AcoR {
+                seed: r.seed,
+                ..AcoR::default()
+            })
+            .with_budget(r.budget.unwrap_or(tune::budget_for(scored.rows())));
+            let (summary, _, _) = tune::run(
+                &method,
+                &scored,
+                fitness,
+                r.seed,
+                &plan,
+                &solver,
+                &pin,
+                &mut (),
+                &never,
+            )
+            .map_err(|e| e.to_string())?;
+            let params = tune::solver_for(&method, &solver).with_hyper(summary.best);
+            (params, Some(summary))
+        } else {
+            (solver, None)
+        };
+        let basis = if grows {
+            tune::grow_basis(initial, &scored, fitness, &plan, &params, &never)
+                .map_err(|e| e.to_string())?
+        } else {
+            initial
+        };
+        (params.basis(basis.basis), search, basis)
+    };
+    let stored = ModelSpec::Msvr(params)
+        .fit(&r.data)
+        .map_err(|e| e.to_string())?;
+    let provenance = Provenance::new(
+        vec!["handcap.MSVRRegressor.fit".into()],
+        searched.then_some(r.seed),
+    );
+    Ok(ModelFile::new(
+        stored,
+        search,
+        Some(basis),
+        None,
+        provenance,
+    ))
+}
+
+/// Fits MSVR to `x` (n × d) and `y` (n × q); hyper-parameters left `None` are chosen by the
+/// search. Returns the fitted model.
+#[pyfunction]
+#[pyo3(signature = (x, y, *, input_names, output_names, c=None, epsilon=None, sigma=None,
+    loss="robust", basis="auto", budget=None, folds=5, groups=None, seed=2020,
+    tol=msvr::DEFAULT_TOL, max_iter=msvr::DEFAULT_MAX_ITER))]
+#[allow(clippy::too_many_arguments)]
+fn fit(
+    py: Python<'_>,
+    x: &Bound<'_, PyAny>,
+    y: &Bound<'_, PyAny>,
+    input_names: Vec<String>,
+    output_names: Vec<String>,
+    c: Option<f64>,
+    epsilon: Option<f64>,
+    sigma: Option<f64>,
+    loss: &str,
+    basis: &str,
+    budget: Option<usize>,
+    folds: usize,
+    groups: Option<&Bound<'_, PyAny>>,
+    seed: u64,
+    tol: f64,
+    max_iter: usize,
+) -> PyResult<Model> {
+    let (x, y) = (array2(x, "X")?, array2(y, "y")?);
+    let groups = groups.map(|g| array1(g, "groups")).transpose()?;
+    let (x, y) = (x.as_array(), y.as_array());
+    if x.nrows() != y.nrows() {
+        return Err(value_error(format!(
+            "X has {} rows but y has {}",
+            x.nrows(),
+            y.nrows()
+        )));
+    }
+    if input_names.len() != x.ncols() || output_names.len() != y.ncols() {
+        return Err(value_error("one name per column of X and of y"));
+    }
+    let loss = match loss {
+        "robust" => Loss::Robust,
+        "quadratic" => Loss::Quadratic,
+        other => {
+            return Err(value_error(format!(
+                "loss `{other}`: give \"robust\" or \"quadratic\""
+            )))
+        }
+    };
+    let basis: BasisChoice = basis
+        .parse()
+        .map_err(|e: String| value_error(format!("basis `{basis}`: {e}")))?;
+    let groups = groups.map(|g| g.as_array().to_vec());
+    if groups.as_ref().is_some_and(|g| g.len() != x.nrows()) {
+        return Err(value_error("groups needs one value per row of X"));
+    }
+    let request = FitRequest {
+        data: Dataset {
+            source: PathBuf::from("python"),
+            inputs: columns(&input_names, x),
+            outputs: columns(&output_names, y),
+        },
+        groups,
+        pinned: Pinned { c, epsilon, sigma },
+        loss,
+        basis,
+        budget,
+        folds,
+        seed,
+        tol,
+        max_iter,
+    };
+    let file = py.detach(|| fit_request(request)).map_err(value_error)?;
+    Ok(Model { file })
+}
+
+/// A fitted model: from `fit`, or a model file any `handcap model` run wrote.
+#[pyclass(module = "handcap._core", frozen)]
+struct Model {
+    file: ModelFile,
+}
+
+impl Model {
+    fn msvr(&self) -> &msvr::Msvr {
+        match &self.file.model {
+            StoredModel::Msvr(m) => m,
+        }
+    }
+
+    /// The inputs a caller gives: the present inputs (a history model's features are built).
+    fn given_inputs(&self) -> Vec<String> {
+        match self.file.history() {
+            Some(h) => h.inputs.clone(),
+            None => self.file.model.predictor().inputs().to_vec(),
+        }
+    }
+}
+
+#[pymethods]
+impl Model {
+    /// Reads a model file written by `handcap model` or `Model.save`.
+    #[staticmethod]
+    fn load(path: PathBuf) -> PyResult<Model> {
+        Ok(Model {
+            file: ModelFile::load(&path).map_err(file_error)?,
+        })
+    }
+
+    /// The model from the JSON text of a model file.
+    #[staticmethod]
+    fn from_json(text: &str) -> PyResult<Model> {
+        let file: ModelFile = serde_json::from_str(text).map_err(value_error)?;
+        Ok(Model { file })
+    }
+
+    /// The model file's JSON text.
+    fn to_json(&self) -> String {
+        serde_json::to_string_pretty(&self.file).expect("a model serialises")
+    }
+
+    /// Writes the model file (atomically); `handcap predict` and `inverse` read it.
+    fn save(&self, path: PathBuf) -> PyResult<()> {
+        self.file.save(&path).map_err(file_error)
+    }
+
+    fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyTuple>> {
+        let rebuild = py
+            .import("handcap._core")?
+            .getattr("Model")?
+            .getattr("from_json")?;
+        (rebuild, (self.to_json(),)).into_pyobject(py)
+    }
+
+    /// Predicts `x` (rows × inputs). A model with input history needs each row's `time` (and
+    /// `groups` when it was fitted with groups), rows in time order within each group.
+    #[pyo3(signature = (x, time=None, groups=None))]
+    fn predict<'py>(
+        &self,
+        py: Python<'py>,
+        x: &Bound<'py, PyAny>,
+        time: Option<&Bound<'py, PyAny>>,
+        groups: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Bound<'py, PyArray2<f64>>> {
+        let names = self.given_inputs();
+        let x = array2(x, "X")?;
+        let time = time.map(|t| array1(t, "time")).transpose()?;
+        let groups = groups.map(|g| array1(g, "groups")).transpose()?;
+        let x = x.as_array();
+        if x.ncols() != names.len() {
+            return Err(value_error(format!(
+                "X has {} features, but the model takes {} ({})",
+                x.ncols(),
+                names.len(),
+                names.join(",")
+            )));
+        }
+        let given = columns(&names, x);
+        let series = match (self.file.history(), time) {
+            (None, _) => None,
+            (Some(h), None) => {
+                return Err(value_error(format!(
+                    "the model sees its inputs' history: give time= (its `{}` column){}",
+                    h.time,
+                    h.group
+                        .as_ref()
+                        .map_or_else(String::new, |g| format!(" and groups= (its `{g}`)"))
+                )))
+            }
+            (Some(h), Some(t)) => {
+                if h.group.is_some() && groups.is_none() {
+                    return Err(value_error(format!(
+                        "the model's history restarts in each `{}`: give groups=",
+                        h.group.as_deref().unwrap_or_default()
+                    )));
+                }
+                Some(Series {
+                    time: t.as_array().to_vec(),
+                    group: groups.map(|g| g.as_array().to_vec()),
+                })
+            }
+        };
+        let predicted = py
+            .detach(|| {
+                let features = match (self.file.history(), &series) {
+                    (Some(h), Some(s)) => h.features(&given, s).map_err(|e| e.to_string())?,
+                    _ => given,
+                };
+                self.file
+                    .model
+                    .predictor()
+                    .predict(&features)
+                    .map_err(|e| e.to_string())
+            })
+            .map_err(value_error)?;
+        Ok(array(&predicted).into_pyarray(py))
+    }
+
+    /// The inputs that put the model's outputs at each row of `targets`, within the training
+    /// range and 0-`max_kpa` for `_kpa` inputs (as `handcap inverse`); a history model plans on
+    /// its steady state. Returns (inputs, achieved, error, reached).
+    #[pyo3(signature = (targets, max_kpa=250.0, reach=0.01))]
+    #[allow(clippy::type_complexity)]
+    fn inverse<'py>(
+        &self,
+        py: Python<'py>,
+        targets: &Bound<'py, PyAny>,
+        max_kpa: f64,
+        reach: f64,
+    ) -> PyResult<(
+        Bound<'py, PyArray2<f64>>,
+        Bound<'py, PyArray2<f64>>,
+        Bound<'py, PyArray1<f64>>,
+        Bound<'py, PyArray1<bool>>,
+    )> {
+        if !(max_kpa > 0.0 && max_kpa <= handcap_core::hand::MAX_PRESSURE_KPA) {
+            return Err(value_error(format!(
+                "max_kpa {max_kpa} must lie in (0, {}]: the regulator caps the supply",
+                handcap_core::hand::MAX_PRESSURE_KPA
+            )));
+        }
+        if reach.is_nan() || reach <= 0.0 {
+            return Err(value_error("reach must be positive"));
+        }
+        let steady = self.file.steady_state();
+        let q = steady.outputs().len();
+        let targets = array2(targets, "targets")?;
+        let targets = targets.as_array();
+        if targets.ncols() != q {
+            return Err(value_error(format!(
+                "targets have {} columns, but the model predicts {q} ({})",
+                targets.ncols(),
+                steady.outputs().join(",")
+            )));
+        }
+        let rows: Vec<Vec<f64>> = targets.rows().into_iter().map(|r| r.to_vec()).collect();
+        let solutions = py
+            .detach(|| {
+                let cap = |name: &str| name.ends_with("_kpa").then_some((0.0, max_kpa));
+                let options = InverseOptions {
+                    reach,
+                    ..InverseOptions::within_training_range(&steady, cap)
+                };
+                rows.iter()
+                    .map(|t| inverse::solve(&steady, t, &options))
+                    .collect::<Result<Vec<_>, _>>()
+            })
+            .map_err(value_error)?;
+        let d = steady.inputs().len();
+        let n = solutions.len();
+        let inputs = Array2::from_shape_vec(
+            (n, d),
+            solutions.iter().flat_map(|s| s.inputs.clone()).collect(),
+        )
+        .expect("n × d");
+        let achieved = Array2::from_shape_vec(
+            (n, q),
+            solutions.iter().flat_map(|s| s.achieved.clone()).collect(),
+        )
+        .expect("n × q");
+        let error: Array1<f64> = solutions.iter().map(|s| s.error).collect();
+        let reached: Array1<bool> = solutions.iter().map(|s| s.reached).collect();
+        Ok((
+            inputs.into_pyarray(py),
+            achieved.into_pyarray(py),
+            error.into_pyarray(py),
+            reached.into_pyarray(py),
+        ))
+    }
+
+    /// The input columns a caller gives, in order.
+    #[getter]
+    fn inputs(&self) -> Vec<String> {
+        self.given_inputs()
+    }
+
+    /// The columns the kernel sees (with input history: the inputs and their features).
+    #[getter]
+    fn feature_names(&self) -> Vec<String> {
+        self.file.model.predictor().inputs().to_vec()
+    }
+
+    #[getter]
+    fn outputs(&self) -> Vec<String> {
+        self.file.model.predictor().outputs().to_vec()
+    }
+
+    /// (C, ε, σ) of the fit.
+    #[getter]
+    fn hyper(&self) -> (f64, f64, f64) {
+        let p = self.msvr().params;
+        (p.c, p.epsilon, p.sigma)
+    }
+
+    /// The kernel's centres in scaled inputs (support vectors; a reduced basis's centres).
+    #[getter]
+    fn support_vectors<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        per_centre(
+            py,
+            self.msvr().support_vectors(),
+            self.msvr().support_vector_count(),
+        )
+    }
+
+    /// The centres' coefficients β (n_sv × q).
+    #[getter]
+    fn dual_coef<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        per_centre(
+            py,
+            self.msvr().coefficients(),
+            self.msvr().support_vector_count(),
+        )
+    }
+
+    #[getter]
+    fn intercept<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
+        ArrayView1::from(&self.msvr().bias[..])
+            .to_owned()
+            .into_pyarray(py)
+    }
+
+    /// The search's summary, the basis decision and the history decision as JSON (`None`
+    /// where there was none).
+    #[getter]
+    fn search(&self) -> Option<String> {
+        self.file
+            .search
+            .as_ref()
+            .map(|s| serde_json::to_string(s).expect("serialises"))
+    }
+
+    /// Iterations of the final fit's solver.
+    #[getter]
+    fn iterations(&self) -> usize {
+        self.file.model.diagnostics().iterations
+    }
+
+    #[getter]
+    fn basis(&self) -> String {
+        self.msvr().params.basis.to_string()
+    }
+
+    #[getter]
+    fn history(&self) -> Option<String> {
+        self.file
+            .history
+            .as_ref()
+            .map(|h| serde_json::to_string(h).expect("serialises"))
+    }
+}
+
+/// A row-major block of one row per centre as an array.
+fn per_centre<'py>(py: Python<'py>, values: &[f64], centres: usize) -> Bound<'py, PyArray2<f64>> {
+    let width = values.len() / centres.max(1);
+    ArrayView2::from_shape((centres, width), values)
+        .expect("one row per centre")
+        .to_owned()
+        .into_pyarray(py)
+}
+
+#[pymodule]
+fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(fit, m)?)?;
+    m.add_class::<Model>()?;
+    m.add("MIN_FIT_ROWS", MIN_FIT_ROWS)?;
+    Ok(())
+}

@@ -1,0 +1,203 @@
+"""handcap from Python: scikit-learn's own checks, the estimator inside scikit-learn's tools,
+and the same numbers as the command line both ways (run by python/test.sh)."""
+
+import os
+import pickle
+import subprocess
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from sklearn.base import clone
+from sklearn.model_selection import GridSearchCV, cross_val_score
+from sklearn.pipeline import Pipeline
+from sklearn.preprocessing import StandardScaler
+from sklearn.utils.estimator_checks import check_estimator
+
+import handcap
+
+ROOT = Path(__file__).resolve().parents[2]
+HANDCAP = Path(os.environ.get("HANDCAP_BIN", ROOT / "target" / "release" / "handcap"))
+FIXED = dict(search="none", C=100.0, epsilon=0.05, sigma=0.4)
+
+
+def smooth(n, seed):
+    """n rows of a smooth 3 -> 3 map of pressures in [0, 250] kPa, noise sd 0.03."""
+    rng = np.random.default_rng(seed)
+    x = rng.uniform(0, 250, (n, 3))
+    y = np.c_[10 * np.sin(x[:, 0] / 80), 5 * np.cos(x[:, 1] / 60) - x[:, 0] / 50,
+              0.03 * x.sum(1) + 2 * np.sin(x[:, 2] / 40)]
+    return x, y + rng.normal(0, 0.03, y.shape)
+
+
+def run(*args):
+    if not HANDCAP.exists():
+        pytest.fail(f"{HANDCAP} not built: run `cargo build --release` (or set HANDCAP_BIN)")
+    return subprocess.run([str(HANDCAP), *map(str, args)], check=True, capture_output=True,
+                          text=True)
+
+
+def write_csv(path, x, y, names=("P1_kpa", "P2_kpa", "P3_kpa"), outputs=("x_mm", "y_mm", "z_mm")):
+    frame = pd.DataFrame(np.c_[x, y], columns=[*names, *outputs])
+    frame.to_csv(path, index=False, float_format="%.17g")
+
+
+def test_scikit_learns_check_estimator_passes_every_check():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        results = check_estimator(handcap.MSVRRegressor(), on_fail=None)
+    failed = [(r["check_name"], repr(r["exception"])) for r in results
+              if r["status"] == "failed"]
+    passed = sum(r["status"] == "passed" for r in results)
+    skipped = [r["check_name"] for r in results if r["status"] == "skipped"]
+    print(f"check_estimator: {len(results)} checks, {passed} passed, {len(skipped)} skipped "
+          f"({', '.join(skipped)}), {len(failed)} failed")
+    assert not failed, failed
+    assert passed >= len(results) - 1  # only the array-API check may skip
+
+
+def test_in_scikit_learns_tools():
+    x, y = smooth(120, 1)
+    pipe = Pipeline([("scale", StandardScaler()), ("msvr", handcap.MSVRRegressor(**FIXED))])
+    grid = GridSearchCV(pipe, {"msvr__sigma": [0.2, 0.6], "msvr__C": [10.0, 1000.0]}, cv=3,
+                        scoring="neg_mean_absolute_error").fit(x, y)
+    assert grid.best_estimator_.predict(x).shape == (120, 3)
+    assert -grid.best_score_ < 0.5, grid.best_score_
+    scores = cross_val_score(handcap.MSVRRegressor(**FIXED), x, y, cv=3)
+    assert scores.shape == (3,) and np.all(scores > 0.9), scores
+    fitted = handcap.MSVRRegressor(**FIXED).fit(x, y)
+    assert clone(fitted).get_params() == fitted.get_params()
+    again = pickle.loads(pickle.dumps(fitted))
+    np.testing.assert_array_equal(again.predict(x), fitted.predict(x))
+
+
+def test_the_search_chooses_and_records_what_it_did():
+    x, y = smooth(150, 2)
+    groups = np.repeat(np.arange(10), 15)
+    model = handcap.MSVRRegressor(budget=40, random_state=3).fit(x, y, groups=groups)
+    assert model.search_["folds"]["scheme"] == "groups", model.search_["folds"]
+    assert model.search_["evaluations"] <= 40
+    assert np.abs(model.predict(x) - y).mean() < 0.3
+    # Pinned hyper-parameters stay as given; the others are searched.
+    pinned = handcap.MSVRRegressor(C=50.0, budget=20, random_state=3).fit(x, y)
+    assert pinned.C_ == 50.0 and pinned.epsilon_ != pinned.sigma_
+
+
+def test_inputs_of_any_layout_give_the_same_predictions():
+    x, y = smooth(60, 4)
+    model = handcap.MSVRRegressor(**FIXED).fit(x, y)
+    expected = model.predict(x)
+    readonly = x.copy()
+    readonly.flags.writeable = False
+    for variant in (np.asfortranarray(x), readonly, x.astype(np.float32).astype(np.float64)):
+        np.testing.assert_array_equal(model.predict(variant), model.predict(np.array(variant)))
+    np.testing.assert_array_equal(model.predict(np.asfortranarray(x)), expected)
+    ints = np.rint(x).astype(np.int64)
+    np.testing.assert_array_equal(model.predict(ints), model.predict(ints.astype(np.float64)))
+    # The Model a file loads into takes the same: ints, lists, Fortran order.
+    core = model.model_
+    np.testing.assert_array_equal(core.predict(ints), core.predict(ints.astype(np.float64)))
+    np.testing.assert_array_equal(core.predict(x.tolist()), expected)
+    np.testing.assert_array_equal(core.predict(np.asfortranarray(x)), expected)
+    with pytest.raises(ValueError, match="X must be a 2-D array"):
+        core.predict(x[0])
+
+
+def test_bad_input_raises_value_error():
+    x, y = smooth(30, 5)
+    with pytest.raises(ValueError, match="NaN"):
+        handcap.MSVRRegressor(**FIXED).fit(np.where(x == x[3, 1], np.nan, x), y)
+    model = handcap.MSVRRegressor(**FIXED).fit(x, y)
+    with pytest.raises(ValueError, match="3 features"):
+        model.predict(x[:, :2])
+    constant = x.copy()
+    constant[:, 1] = 7.0
+    with pytest.raises(ValueError, match="is constant"):
+        handcap.MSVRRegressor(**FIXED).fit(constant, y)
+    with pytest.raises(ValueError, match="search='none'"):
+        handcap.MSVRRegressor(search="none").fit(x, y)
+    with pytest.raises(ValueError, match="loss"):
+        handcap.MSVRRegressor(loss="huber", **{k: v for k, v in FIXED.items()}).fit(x, y)
+    with pytest.raises(ValueError, match="targets have 2 columns"):
+        model.model_.inverse(np.zeros((1, 2)))
+    with pytest.raises(OSError):
+        handcap.load("no-such-model.json")
+
+
+def test_a_model_fitted_by_the_command_line_predicts_the_same_in_python(tmp_path):
+    x, y = smooth(200, 6)
+    write_csv(tmp_path / "train.csv", x, y)
+    xt, yt = smooth(50, 7)
+    write_csv(tmp_path / "test.csv", xt, yt)
+    run("model", tmp_path / "train.csv", "--search", "none", "--c", 100, "--epsilon", 0.05,
+        "--sigma", 0.4, "--out", tmp_path / "cli.json")
+    run("predict", tmp_path / "cli.json", tmp_path / "test.csv", "--out", tmp_path / "p.csv")
+    cli = pd.read_csv(tmp_path / "p.csv")[["x_mm", "y_mm", "z_mm"]].to_numpy()
+    model = handcap.load(tmp_path / "cli.json")
+    assert model.inputs == ["P1_kpa", "P2_kpa", "P3_kpa"]
+    np.testing.assert_allclose(model.predict(xt), cli, rtol=1e-12, atol=0)
+    # The inverse: the same pressures both ways.
+    targets = model.predict(xt[:5])
+    pd.DataFrame(targets, columns=["x_mm", "y_mm", "z_mm"]).to_csv(
+        tmp_path / "targets.csv", index=False, float_format="%.17g")
+    run("inverse", tmp_path / "cli.json", "--targets", tmp_path / "targets.csv", "--out",
+        tmp_path / "planned.csv")
+    planned = pd.read_csv(tmp_path / "planned.csv")
+    inputs, _, error, reached = model.inverse(targets)
+    np.testing.assert_allclose(inputs, planned[["P1_kpa", "P2_kpa", "P3_kpa"]].to_numpy(),
+                               rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(reached, planned["reached"].to_numpy() == 1)
+    np.testing.assert_allclose(error, planned["error"].to_numpy(), rtol=1e-12, atol=1e-15)
+    assert reached.sum() >= 4
+
+
+def test_a_model_fitted_in_python_predicts_the_same_from_the_command_line(tmp_path):
+    x, y = smooth(200, 8)
+    model = handcap.MSVRRegressor(**FIXED).fit(pd.DataFrame(x, columns=["P1_kpa", "P2_kpa",
+                                                                        "P3_kpa"]), y)
+    model.save(tmp_path / "py.json")
+    xt, yt = smooth(40, 9)
+    write_csv(tmp_path / "test.csv", xt, yt, outputs=("y0", "y1", "y2"))
+    run("predict", tmp_path / "py.json", tmp_path / "test.csv", "--out", tmp_path / "p.csv")
+    cli = pd.read_csv(tmp_path / "p.csv")[["y0", "y1", "y2"]].to_numpy()
+    np.testing.assert_allclose(cli, model.predict(pd.DataFrame(xt, columns=model.feature_names_in_)),
+                               rtol=1e-12, atol=0)
+    # The command line's fit at the same settings is the same model.
+    write_csv(tmp_path / "train.csv", x, y, outputs=("y0", "y1", "y2"))
+    run("model", tmp_path / "train.csv", "--outputs", "y0,y1,y2", "--search", "none", "--c", 100,
+        "--epsilon", 0.05, "--sigma", 0.4, "--out", tmp_path / "cli.json")
+    np.testing.assert_allclose(handcap.load(tmp_path / "cli.json").predict(xt),
+                               model.predict(pd.DataFrame(xt, columns=model.feature_names_in_)),
+                               rtol=1e-12, atol=0)
+
+
+def test_a_history_model_needs_time_and_groups(tmp_path):
+    rng = np.random.default_rng(10)
+    rows = []
+    for trial in range(6):
+        s = u = rng.uniform(0, 200, 2)
+        for k in range(60):
+            if k % 6 == 0:
+                u = rng.uniform(0, 200, 2)
+            s = s + (1 - np.exp(-0.1 / 0.4)) * (u - s)
+            rows.append([trial, 0.1 * k, *u, 0.1 * s[0] + 3 * np.sin(s[1] / 60),
+                         0.08 * s[1] - 2 * np.cos(s[0] / 70)])
+    frame = pd.DataFrame(rows, columns=["trial", "t_s", "P1_kpa", "P2_kpa", "x_mm", "y_mm"])
+    frame.to_csv(tmp_path / "log.csv", index=False, float_format="%.17g")
+    run("model", tmp_path / "log.csv", "--inputs", "P1_kpa,P2_kpa", "--outputs", "x_mm,y_mm",
+        "--time", "t_s", "--group-by", "trial", "--history", "ema:0.2,0.8", "--search", "none",
+        "--c", 100, "--epsilon", 0.01, "--sigma", 0.8, "--out", tmp_path / "h.json")
+    run("predict", tmp_path / "h.json", tmp_path / "log.csv", "--out", tmp_path / "p.csv")
+    cli = pd.read_csv(tmp_path / "p.csv")[["x_mm", "y_mm"]].to_numpy()
+    model = handcap.load(tmp_path / "h.json")
+    assert model.feature_names[2:] == ["P1_kpa@ema0.2", "P2_kpa@ema0.2", "P1_kpa@ema0.8",
+                                       "P2_kpa@ema0.8"]
+    x = frame[["P1_kpa", "P2_kpa"]].to_numpy()
+    got = model.predict(x, time=frame["t_s"].to_numpy(), groups=frame["trial"].to_numpy(float))
+    np.testing.assert_allclose(got, cli, rtol=1e-12, atol=0)
+    with pytest.raises(ValueError, match="give time="):
+        model.predict(x)
+    with pytest.raises(ValueError, match="repeats the previous row"):
+        model.predict(x[:2], time=np.array([0.0, 0.0]), groups=np.array([1.0, 1.0]))
