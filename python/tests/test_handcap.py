@@ -126,6 +126,20 @@ def test_bad_input_raises_value_error():
         handcap.load("no-such-model.json")
 
 
+def test_model_files_of_another_version_or_kind_raise_value_error(tmp_path):
+    x, y = smooth(30, 11)
+    model = handcap.MSVRRegressor(**FIXED).fit(x, y[:, 0])
+    assert model.predict(x).shape == (30,)  # a 1-D y: one output, 1-D predictions
+    model.save(tmp_path / "m.json")
+    text = (tmp_path / "m.json").read_text()
+    (tmp_path / "newer.json").write_text(text.replace('"version": 1', '"version": 99', 1))
+    with pytest.raises(ValueError, match="model file version 99, this handcap reads version 1"):
+        handcap.load(tmp_path / "newer.json")
+    (tmp_path / "other.json").write_text('{"format": "something-else"}')
+    with pytest.raises(ValueError, match="not a handcap model file"):
+        handcap.load(tmp_path / "other.json")
+
+
 def test_a_model_fitted_by_the_command_line_predicts_the_same_in_python(tmp_path):
     x, y = smooth(200, 6)
     write_csv(tmp_path / "train.csv", x, y)
