@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use super::outputs::{self, Output};
 use super::{io_error, Event, PipelineError, Session};
-use crate::data::{self, Columns, HAND_INPUTS, HAND_OUTPUTS};
+use crate::data::{self, HAND_INPUTS, HAND_OUTPUTS};
 use crate::model::file::ModelFile;
 use crate::model::history::{self, History, HistoryChoice, HistoryTrial, Memory, Series};
 use crate::model::msvr::fitness::{Counters, FitnessKind};
@@ -178,13 +178,19 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
         inputs: job.inputs.clone(),
         memory,
     };
+    // Every feature set is scored on the same rows and folds: those of the present inputs.
+    let present = Scoring::new(
+        job,
+        &job.keep(train.raw.clone()),
+        search_source.as_ref().map(|s| job.keep(s.raw.clone())),
+    )?;
     let scoring = |h: Option<&History>| -> Result<Scoring, PipelineError> {
         let data = job.keep(train.with(h)?);
         let on = search_source
             .as_ref()
             .map(|s| Ok::<_, PipelineError>(job.keep(s.with(h)?)))
             .transpose()?;
-        Scoring::new(job, &data, on)
+        present.with_features(&data, on)
     };
     let interrupted = || session.interrupt.load(std::sync::atomic::Ordering::Relaxed);
     let compare = candidates.static_first && !candidates.memories.is_empty();
@@ -205,9 +211,9 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
     // `auto`: the ladder that scores best at the present-input model's parameters is searched.
     let memory = match (tried.first(), candidates.memories.len()) {
         (_, 0) => None,
-        (_, 1) => candidates.memories.first().cloned(),
+        (_, 1) => candidates.memories.first().cloned().map(|m| (m, None)),
         (Some((_, reference, _)), _) if !interrupted() => {
-            let mut best: Option<(Memory, f64)> = None;
+            let mut best: Option<(Memory, f64, Scoring)> = None;
             for memory in &candidates.memories {
                 let h = history_for(memory.clone());
                 let copies = 1 + memory.blocks();
@@ -215,7 +221,8 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
                     sigma: reference.params.sigma * (copies as f64).sqrt(),
                     ..reference.params
                 };
-                let fitness = scoring(Some(&h))?.fitness_of(&params)?;
+                let scored = scoring(Some(&h))?;
+                let fitness = scored.fitness_of(&params)?;
                 session.emit(Event::Note(format!(
                     "input history: {memory} screened at the present inputs' parameters: {fitness:.5}"
                 )));
@@ -223,22 +230,25 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
                     memory: Some(memory.clone()),
                     fitness,
                 });
-                if best.as_ref().is_none_or(|(_, f)| fitness < *f) {
-                    best = Some((memory.clone(), fitness));
+                if best.as_ref().is_none_or(|(_, f, _)| fitness < *f) {
+                    best = Some((memory.clone(), fitness, scored));
                 }
             }
-            best.map(|(m, _)| m)
+            best.map(|(m, _, scored)| (m, Some(scored)))
         }
         _ => None,
     };
-    if let Some(memory) = memory.filter(|_| !interrupted() || tried.is_empty()) {
+    if let Some((memory, screened_rows)) = memory.filter(|_| !interrupted() || tried.is_empty()) {
         let h = history_for(memory);
         session.emit(Event::Note(format!(
             "input history: {} ({} model inputs)",
             h.memory,
             h.feature_names().len()
         )));
-        let scored = scoring(Some(&h))?;
+        let scored = match screened_rows {
+            Some(scored) => scored,
+            None => scoring(Some(&h))?,
+        };
         let pass = if compare { Pass::Compared } else { Pass::Only };
         let chosen = choose(job, &scored, initial.clone(), pass, session)?;
         tried.push((Some(h), chosen, scored));
@@ -483,7 +493,9 @@ struct Scoring {
 
 impl Scoring {
     /// A search's (on `search_on` when given, else on at most [`tune::SEARCH_ROWS`] evenly
-    /// spaced rows of `train`), or for given parameters `auto`'s 5-fold cross-validation.
+    /// spaced rows of `train`), or for given parameters `auto`'s 5-fold cross-validation; the
+    /// folds are cut from these inputs (the present ones: a history's filtered copies would
+    /// hide a designed grid).
     fn new(
         job: &FitJob,
         train: &data::Dataset,
@@ -499,20 +511,14 @@ impl Scoring {
                 ..
             } => (folds_by, *fitness, on.as_deref()),
         };
-        let scored = match search_on {
-            Some(d) => {
-                d.check_fittable(MIN_FIT_ROWS)?;
-                d
-            }
-            None => train.subsample(tune::SEARCH_ROWS),
-        };
+        let scored = scored_rows(train, search_on)?;
         let folds = match fitness {
             FitnessKind::Cv { folds } => folds,
             FitnessKind::Train => 2,
         };
         let plan = folds::plan(
             by,
-            &present(&scored, job.inputs.len()),
+            &scored,
             &other_columns(file.unwrap_or(&job.data), by, job, scored.rows())?,
             folds,
         )?;
@@ -520,6 +526,20 @@ impl Scoring {
             scored,
             plan,
             fitness,
+        })
+    }
+
+    /// The same rows and folds, with the features of `train` (and `search_on`): the same rows
+    /// as [`Scoring::new`]'s, another set of input columns.
+    fn with_features(
+        &self,
+        train: &data::Dataset,
+        search_on: Option<data::Dataset>,
+    ) -> Result<Scoring, PipelineError> {
+        Ok(Scoring {
+            scored: scored_rows(train, search_on)?,
+            plan: self.plan.clone(),
+            fitness: self.fitness,
         })
     }
 
@@ -659,19 +679,19 @@ fn grown_fitness(decision: &BasisDecision, chosen: Basis) -> Option<f64> {
         .map(|t| t.fitness)
 }
 
-/// The dataset with its first `width` inputs only: the present inputs, which the fold choice
-/// looks at (a history's filtered copies would hide a designed grid).
-fn present(data: &data::Dataset, width: usize) -> data::Dataset {
-    let values = data
-        .inputs
-        .iter_rows()
-        .flat_map(|r| r[..width].to_vec())
-        .collect();
-    data::Dataset {
-        source: data.source.clone(),
-        inputs: Columns::new(data.inputs.names[..width].to_vec(), values),
-        outputs: data.outputs.clone(),
-    }
+/// The rows a search scores: `search_on`'s when given, else at most [`tune::SEARCH_ROWS`]
+/// evenly spaced rows of `train`.
+fn scored_rows(
+    train: &data::Dataset,
+    search_on: Option<data::Dataset>,
+) -> Result<data::Dataset, PipelineError> {
+    Ok(match search_on {
+        Some(d) => {
+            d.check_fittable(MIN_FIT_ROWS)?;
+            d
+        }
+        None => train.subsample(tune::SEARCH_ROWS),
+    })
 }
 
 /// The columns of `path` the fold choice may use, one value per kept row: the named column for
