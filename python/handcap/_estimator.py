@@ -118,6 +118,14 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
         Y = self.model_.predict(np.ascontiguousarray(X))
         return Y.ravel() if self._single_output else Y
 
+    def interval_radius(self, level=0.9):
+        """The conformal interval's radius at `level` (output units): the truth lies within it
+        of the prediction that share of the time (marginal over rows like the held-out ones).
+        Calibrated on the search's held-out folds; a fit with C, epsilon and sigma all given
+        has none (ValueError)."""
+        check_is_fitted(self)
+        return self.model_.interval_radius(level)
+
     def inverse(self, targets, max_kpa=250.0, reach=0.01):
         """(inputs, achieved, error, reached) for each target row, as `handcap inverse`."""
         check_is_fitted(self)

@@ -18,6 +18,7 @@ use pyo3::types::PyTuple;
 use handcap_core::data::{self, Columns, Dataset};
 use handcap_core::model::file::{ModelFile, ModelFileError};
 use handcap_core::model::history::Series;
+use handcap_core::model::interval::Intervals;
 use handcap_core::model::inverse::{self, InverseOptions};
 use handcap_core::model::msvr::fitness::FitnessKind;
 use handcap_core::model::msvr::folds::{self, FoldsBy};
@@ -110,8 +111,9 @@ fn fit_request(r: FitRequest) -> Result<ModelFile, String> {
     solver.check().map_err(|e| e.to_string())?;
     let searched = pin.c.is_none() || pin.epsilon.is_none() || pin.sigma.is_none();
     let never = AtomicBool::new(false);
-    let (params, search, basis) = if !searched && !grows {
-        (solver, None, initial)
+    // With a search (or growth) the held-out rows are there, and calibrate the intervals.
+    let (params, search, basis, intervals) = if !searched && !grows {
+        (solver, None, initial, None)
     } else {
         let kept = data::evenly_spaced(n, tune::SEARCH_ROWS);
         let scored = r.data.subsample(tune::SEARCH_ROWS);
@@ -154,7 +156,16 @@ fn fit_request(r: FitRequest) -> Result<ModelFile, String> {
         } else {
             initial
         };
-        (params.basis(basis.basis), search, basis)
+        let params = params.basis(basis.basis);
+        let predicted = tune::held_out_predictions(&scored, folds, r.seed, &plan, &params)
+            .map_err(|e| e.to_string())?;
+        let intervals = Intervals::calibrate(
+            &scored.outputs,
+            &predicted,
+            plan.labels.as_deref(),
+            plan.choice,
+        );
+        (params, search, basis, Some(intervals))
     };
     let stored = ModelSpec::Msvr(params)
         .fit(&r.data)
@@ -168,6 +179,7 @@ fn fit_request(r: FitRequest) -> Result<ModelFile, String> {
         search,
         Some(basis),
         None,
+        intervals,
         provenance,
     ))
 }
@@ -517,6 +529,14 @@ impl Model {
             .history
             .as_ref()
             .map(|h| serde_json::to_string(h).expect("serialises"))
+    }
+
+    /// The conformal prediction interval's radius at `level` (output units): the truth lies
+    /// within it of the prediction that share of the time, over inputs like the held-out ones.
+    /// Raises ValueError for a level outside (0, 1), too few held-out rows for it, or a model
+    /// fitted without held-out rows (every hyper-parameter given).
+    fn interval_radius(&self, level: f64) -> PyResult<f64> {
+        self.file.interval_radius(level).map_err(value_error)
     }
 }
 

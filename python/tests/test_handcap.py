@@ -85,6 +85,23 @@ def test_the_search_chooses_and_records_what_it_did():
     assert pinned.C_ == 50.0 and pinned.epsilon_ != pinned.sigma_
 
 
+def test_the_interval_radius_covers_fresh_rows_at_its_level():
+    x, y = smooth(300, 12)
+    model = handcap.MSVRRegressor(budget=40, random_state=3).fit(x, y)
+    xf, yf = smooth(2000, 13)
+    error = np.linalg.norm(model.predict(xf) - yf, axis=1)
+    for level in (0.9, 0.95):
+        r = model.interval_radius(level)
+        assert abs((error <= r).mean() - level) < 0.05, (level, r, (error <= r).mean())
+    assert model.interval_radius(0.95) > model.interval_radius(0.9) > 0
+    with pytest.raises(ValueError, match="strictly between 0 and 1"):
+        model.interval_radius(1.5)
+    # Every hyper-parameter given: no held-out rows, no intervals (the command line's
+    # `--search none` scores 5 folds and has them).
+    with pytest.raises(ValueError, match="no prediction intervals"):
+        handcap.MSVRRegressor(**FIXED).fit(x, y).interval_radius(0.9)
+
+
 def test_inputs_of_any_layout_give_the_same_predictions():
     x, y = smooth(60, 4)
     model = handcap.MSVRRegressor(**FIXED).fit(x, y)

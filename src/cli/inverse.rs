@@ -41,6 +41,24 @@ pub struct Args {
     /// A target is reached when the model's output is this close (output units)
     #[arg(long, default_value_t = 0.01)]
     reach: f64,
+    /// The coverage of the interval reported around each planned tip (conformal: the real
+    /// tip lies within the radius this share of the time); 0 leaves it out
+    #[arg(
+        long,
+        value_name = "LEVEL",
+        default_value_t = 0.9,
+        allow_hyphen_values = true,
+        value_parser = interval_level
+    )]
+    interval: f64,
+}
+
+/// `--interval`: a level in (0, 1), or 0 for none.
+fn interval_level(s: &str) -> Result<f64, String> {
+    match super::finite(s)? {
+        0.0 => Ok(0.0),
+        _ => super::level(s),
+    }
 }
 
 fn options(model: &dyn Differentiable, a: &Args) -> anyhow::Result<InverseOptions> {
@@ -80,6 +98,17 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         );
     }
     let options = options(model, &a)?;
+    // The radius at the planned inputs: a conformal radius is the same for every input.
+    let radius = match a.interval {
+        0.0 => None,
+        level => match file.interval_radius(level) {
+            Ok(r) => Some((level, r)),
+            Err(e) => {
+                eprintln!("note: no interval around the planned tips: {e}");
+                None
+            }
+        },
+    };
     match (&a.target, &a.targets) {
         (Some(target), None) => {
             let s = inverse::solve(model, target, &options)?;
@@ -99,6 +128,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 describe(model.outputs(), &s.achieved),
                 s.error
             );
+            if let Some((level, r)) = radius {
+                println!(
+                    "the real tip lies within {r:.4} of it {} % of the time (conformal interval, marginal over inputs like the held-out ones)",
+                    level * 100.0
+                );
+            }
             Ok(())
         }
         (None, Some(path)) => {
@@ -109,7 +144,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 .iter_rows()
                 .map(|t| inverse::solve(model, t, &options))
                 .collect::<Result<_, _>>()?;
-            write_solutions(out, model, &targets, &solutions)?;
+            write_solutions(out, model, &targets, &solutions, radius.map(|(_, r)| r))?;
             let missed = solutions.iter().filter(|s| !s.reached).count();
             let mean = solutions.iter().map(|s| s.error).sum::<f64>() / solutions.len() as f64;
             println!(
@@ -141,6 +176,7 @@ fn write_solutions(
     model: &dyn Differentiable,
     targets: &Columns,
     solutions: &[InverseSolution],
+    radius: Option<f64>,
 ) -> anyhow::Result<()> {
     let inputs = Columns::new(
         model.inputs().to_vec(),
@@ -161,6 +197,9 @@ fn write_solutions(
             .flat_map(|s| [s.error, f64::from(u8::from(s.reached))])
             .collect(),
     );
-    data::write_csv(out, &[targets, &inputs, &achieved, &verdict])
-        .with_context(|| format!("writing {}", out.display()))
+    let interval =
+        radius.map(|r| Columns::new(vec!["interval_radius".into()], vec![r; solutions.len()]));
+    let mut blocks = vec![targets, &inputs, &achieved, &verdict];
+    blocks.extend(&interval);
+    data::write_csv(out, &blocks).with_context(|| format!("writing {}", out.display()))
 }

@@ -106,6 +106,16 @@ pub fn finite(s: &str) -> Result<f64, String> {
     }
 }
 
+/// A coverage level strictly between 0 and 1 (0.9 for 90 %), for `--interval`.
+pub fn level(s: &str) -> Result<f64, String> {
+    match finite(s)? {
+        v if v > 0.0 && v < 1.0 => Ok(v),
+        v => Err(format!(
+            "{v} is not a level in (0, 1); give e.g. 0.9 for a 90 % interval"
+        )),
+    }
+}
+
 /// Runs the chosen subcommand.
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {

@@ -2,7 +2,9 @@
 
 use std::path::PathBuf;
 
-use handcap::data;
+use anyhow::Context;
+
+use handcap::data::{self, Columns};
 use handcap::model::file::ModelFile;
 use handcap::pipeline::outputs::{self, Output};
 
@@ -16,11 +18,20 @@ pub struct Args {
     /// CSV to write: the input columns, then one column per model output
     #[arg(long)]
     out: PathBuf,
+    /// Also write `interval_radius`: the radius (output units) of the sphere around each
+    /// prediction that holds the truth this share of the time (conformal, e.g. 0.9)
+    #[arg(long, value_name = "LEVEL", allow_hyphen_values = true, value_parser = super::level)]
+    interval: Option<f64>,
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
     outputs::check(&[&a.model, &a.inputs], &[Output::new(&a.out, "--out")])?;
     let file = ModelFile::load(&a.model)?;
+    let radius = a
+        .interval
+        .map(|level| file.interval_radius(level))
+        .transpose()
+        .with_context(|| format!("{}: --interval", a.model.display()))?;
     let model = file.model.predictor();
     let (given, x) = file.read_inputs(&a.inputs)?;
     let outside = model.outside(&x);
@@ -35,7 +46,18 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         );
     }
     let y = model.predict(&x)?;
-    data::write_csv(&a.out, &[&given, &y])?;
-    println!("wrote {} ({} rows)", a.out.display(), x.rows());
+    let mut blocks = vec![&given, &y];
+    let interval = radius.map(|r| Columns::new(vec!["interval_radius".into()], vec![r; x.rows()]));
+    blocks.extend(&interval);
+    data::write_csv(&a.out, &blocks)?;
+    match (a.interval, radius) {
+        (Some(level), Some(r)) => println!(
+            "wrote {} ({} rows; {} % interval radius {r:.4}, the same for every row: marginal coverage over rows like the held-out ones)",
+            a.out.display(),
+            x.rows(),
+            level * 100.0
+        ),
+        _ => println!("wrote {} ({} rows)", a.out.display(), x.rows()),
+    }
     Ok(())
 }

@@ -26,7 +26,7 @@ use crate::calib::file::{read_calibration, CalibrationFile};
 use crate::calib::{CalibOptions, StereoCalibration};
 use crate::data::{self, names, HAND_INPUTS, HAND_OUTPUTS};
 use crate::fsio;
-use crate::model::file::{ModelFile, StoredModel};
+use crate::model::file::ModelFile;
 use crate::model::history::HistoryChoice;
 use crate::model::inverse::{self, InverseOptions, PlannedTarget};
 use crate::model::msvr::fitness::FitnessKind;
@@ -36,6 +36,7 @@ use crate::model::msvr::MsvrParams;
 use crate::model::Differentiable;
 use crate::model::Errors;
 use crate::provenance::Provenance;
+use crate::report::IntervalReport;
 use crate::search::aco_paper::AcoPaper;
 use crate::search::Method;
 use crate::synth::capture::{CaptureConfig, Realism};
@@ -166,6 +167,17 @@ pub struct InverseCheck {
     pub median_mm: f64,
     pub p90_mm: f64,
     pub max_mm: f64,
+    /// The model's 90 % interval radius, and the share of planned tips whose plant tip lies
+    /// within it of the model's (when the model has intervals).
+    pub interval: Option<(f64, f64)>,
+}
+
+/// One model's prediction intervals and their coverage on the test files.
+#[derive(Serialize)]
+pub struct IntervalCheck {
+    pub trained_on: String,
+    #[serde(flatten)]
+    pub intervals: IntervalReport,
 }
 
 #[derive(Serialize)]
@@ -178,6 +190,7 @@ pub struct Summary {
     pub calibration: CalibrationCheck,
     pub triangulation: Vec<TipCheck>,
     pub scores: Vec<Score>,
+    pub intervals: Vec<IntervalCheck>,
     pub inverse: Vec<InverseCheck>,
     pub provenance: Provenance,
 }
@@ -350,6 +363,18 @@ pub fn run(
     )?;
     let mut scores = scores_of("triangulated frames", &images);
     scores.extend(scores_of("the plant's data", &plant_data));
+    let intervals = [
+        ("triangulated frames", &images),
+        ("the plant's data", &plant_data),
+    ]
+    .into_iter()
+    .filter_map(|(trained_on, outcome)| {
+        Some(IntervalCheck {
+            trained_on: trained_on.to_string(),
+            intervals: outcome.report.intervals.clone()?,
+        })
+    })
+    .collect();
     timings.push(lap("model"));
 
     // 5. Feed-forward: planned pressures run through the virtual plant.
@@ -365,7 +390,8 @@ pub fn run(
     let sources: Vec<Vec<f64>> = (0..plan.targets)
         .map(|_| (0..3).map(|_| rng.random_range(0.0..=250.0)).collect())
         .collect();
-    let model = load_model(&out.join("model.json"))?;
+    let file = ModelFile::load(&out.join("model.json"))?;
+    let model = &file.model;
     let planned = feedforward(model.differentiable(), &plant, &sources)?;
     write_inverse_csv(&out.join("inverse_check.csv"), &planned)?;
     let mut inverse = vec![inverse_stats(
@@ -374,6 +400,7 @@ pub fn run(
             plan.grid_step_kpa
         ),
         &planned,
+        file.interval_radius(0.9).ok(),
     )];
     if let (Some(step), Some(coarse)) = (plan.search_grid_kpa, &tri_coarse) {
         // The same check with the same parameters fitted on the coarse grid alone: what the
@@ -386,6 +413,7 @@ pub fn run(
                 data.rows()
             ),
             &feedforward(sparse.differentiable(), &plant, &sources)?,
+            None,
         ));
     }
     for c in &inverse {
@@ -407,6 +435,7 @@ pub fn run(
         calibration,
         triangulation,
         scores,
+        intervals,
         inverse,
         provenance,
     };
@@ -479,10 +508,6 @@ fn coarse_rows(from: &Path, step_kpa: f64, to: &Path) -> Result<PathBuf, Pipelin
     Ok(to.to_path_buf())
 }
 
-fn load_model(path: &Path) -> Result<StoredModel, PipelineError> {
-    Ok(ModelFile::load(path)?.model)
-}
-
 fn feedforward(
     model: &dyn Differentiable,
     plant: &Plant,
@@ -497,7 +522,9 @@ fn feedforward(
     )?)
 }
 
-fn inverse_stats(model: &str, rows: &[PlannedTarget]) -> InverseCheck {
+/// `radius`: the model's 90 % interval radius, whose coverage of the plant's tips around the
+/// model's is measured.
+fn inverse_stats(model: &str, rows: &[PlannedTarget], radius: Option<f64>) -> InverseCheck {
     let mut e: Vec<f64> = rows.iter().map(|r| r.plant_error).collect();
     let [median_mm, p90_mm, max_mm] =
         crate::stats::quantiles(&mut e, [0.5, 0.9, 1.0]).expect("targets were planned");
@@ -509,6 +536,21 @@ fn inverse_stats(model: &str, rows: &[PlannedTarget]) -> InverseCheck {
         median_mm,
         p90_mm,
         max_mm,
+        interval: radius.map(|r| {
+            let within = rows
+                .iter()
+                .filter(|t| {
+                    let d2: f64 = t
+                        .plant
+                        .iter()
+                        .zip(&t.solution.achieved)
+                        .map(|(a, b)| (a - b).powi(2))
+                        .sum();
+                    d2.sqrt() <= r
+                })
+                .count();
+            (r, within as f64 / rows.len() as f64)
+        }),
     }
 }
 

@@ -148,11 +148,30 @@ pub(super) fn page(
             &s.scores.iter().map(|x| vec![x.trained_on.clone(), x.model.clone(), x.test.clone(), f4(x.errors.mae), f4(x.errors.euclid), f4(x.errors.max_euclid)]).collect::<Vec<_>>(),
         );
 
+    page.section("intervals", "Prediction intervals")
+        .paragraph("Conformal radii of the tip's Euclidean error, from the training rows held out by the cross-validation's folds: the measured tip lies within the radius of the prediction that share of the time. The guarantee is marginal, over rows exchangeable with the held-out grid points, not for each input: the sweeps run along the edges of the pressure box (P1 = 0), where the model has neighbours on one side only, and with 24-26 rows each their coverage moves by about 6 points from chance alone.")
+        .table(
+            &["trained on", "held-out rows", "90 % radius (mm)", "95 % radius (mm)", "test", "covered at 90 %", "covered at 95 %"],
+            &s.intervals.iter().flat_map(|i| {
+                let radius = |k: usize| i.intervals.held_out.radii.get(k).map_or("-".into(), |r| f4(r.radius));
+                let covered = |t: &crate::report::TestCoverageReport, k: usize| {
+                    t.coverage.pooled.get(k).map_or("-".into(), |(_, c)| format!("{:.1} %", 100.0 * c))
+                };
+                i.intervals.tests.iter().map(move |t| vec![
+                    i.trained_on.clone(), i.intervals.held_out.rows.to_string(), radius(0), radius(1),
+                    t.test.clone(), covered(t, 0), covered(t, 1),
+                ])
+            }).collect::<Vec<_>>(),
+        );
+
     page.section("inverse", "Inverse model: feed-forward on the virtual plant")
         .paragraph("Targets: the plant's tip at random pressures in [0, 250] kPa (so each is reachable). The inverse model plans pressures for each target (bounded Levenberg-Marquardt on the MSVR with its analytic gradient, several starts); the virtual plant runs the planned pressures; the error is the distance of the plant's tip from the target — sensorless feed-forward, measured. It cannot be smaller than the forward model's own error at those pressures, which the training grid's spacing sets: the second row fits the same parameters to the 50 kPa points alone.")
         .table(
-            &["model", "targets", "reached by the model", "mean (mm)", "median (mm)", "90 % (mm)", "max (mm)"],
-            &s.inverse.iter().map(|i| vec![i.model.clone(), i.targets.to_string(), i.reached_by_model.to_string(), f4(i.mean_mm), f4(i.median_mm), f4(i.p90_mm), f4(i.max_mm)]).collect::<Vec<_>>(),
+            &["model", "targets", "reached by the model", "mean (mm)", "median (mm)", "90 % (mm)", "max (mm)", "plant tip within the 90 % interval"],
+            &s.inverse.iter().map(|i| vec![
+                i.model.clone(), i.targets.to_string(), i.reached_by_model.to_string(), f4(i.mean_mm), f4(i.median_mm), f4(i.p90_mm), f4(i.max_mm),
+                i.interval.map_or("-".into(), |(r, c)| format!("{:.1} % (radius {r:.4} mm)", 100.0 * c)),
+            ]).collect::<Vec<_>>(),
         )
         .table(
             &["target x, y, z (mm)", "planned P1, P2, P3 (kPa)", "plant tip x, y, z (mm)", "error (mm)"],
@@ -160,7 +179,7 @@ pub(super) fn page(
                 triple(&r.target, 3), triple(&r.solution.inputs, 1), triple(&r.plant, 3), f4(r.plant_error),
             ]).collect::<Vec<_>>(),
         )
-        .paragraph("All targets: inverse_check.csv.");
+        .paragraph("All targets: inverse_check.csv. The last column: the share of planned tips whose plant tip lies within the model's 90 % interval of the model's own tip there. The interval is calibrated on triangulated tips, so it cannot see what every triangulated row shares (the hand frame's origin, the triangulation table's mean error), nor the inverse's own error; against the plant's truth it covers less than its level.");
 
     page.section("manifest", "Run manifest")
         .table(

@@ -9,13 +9,17 @@ use super::{io_error, Event, PipelineError, Session};
 use crate::data::{self, HAND_INPUTS, HAND_OUTPUTS};
 use crate::model::file::ModelFile;
 use crate::model::history::{self, History, HistoryChoice, HistoryTrial, Memory, Series};
+use crate::model::interval::{Intervals, Radius};
 use crate::model::msvr::fitness::{Counters, FitnessKind};
-use crate::model::msvr::folds::{self, FoldPlan, FoldsBy};
+use crate::model::msvr::folds::{self, FoldPlan, FoldScheme, FoldsBy};
 use crate::model::msvr::tune::{self, BasisChoice, BasisDecision, Pinned, SearchSummary};
 use crate::model::msvr::{self, Basis, MsvrParams, MIN_FIT_ROWS};
 use crate::model::previous::{self, PreviousModel};
 use crate::model::{self, ModelSpec};
-use crate::report::{self, Comparison, ModelReport, NamedModel, PreviousSummary, TestResult};
+use crate::report::{
+    self, Comparison, IntervalReport, ModelReport, NamedModel, PreviousSummary, TestCoverageReport,
+    TestResult,
+};
 use crate::search::{IterationRecord, Method, Observer, Search};
 
 /// How the job chooses its hyper-parameters.
@@ -297,7 +301,42 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
         )));
     }
 
-    let train = job.keep(train.with(kept.as_ref())?);
+    let train_rows = job.keep(train.with(kept.as_ref())?);
+    // Intervals come from the rows the model is fitted on (the scored rows, unless the search
+    // scored another file), cut into the search's kind of folds.
+    let calibration = match search_source {
+        None => scored,
+        Some(_) => Scoring::new(job, &job.keep(train.raw.clone()), None)?
+            .with_features(&train_rows, None)?,
+    };
+    let intervals =
+        calibrate_intervals(&calibration, &params, seed.unwrap_or(crate::DEFAULT_SEED))?;
+    match &intervals {
+        Some(Intervals { held_out: c, .. }) if !c.radii.is_empty() => {
+            session.emit(Event::Note(format!(
+                "prediction intervals: {} from {} held-out rows",
+                radii_text(&c.radii),
+                c.rows
+            )))
+        }
+        Some(Intervals { held_out: c, .. }) => session.emit(Event::Note(format!(
+            "prediction intervals: none ({} held-out rows are too few for a 90 % radius, which needs 9)",
+            c.rows
+        ))),
+        None => session.emit(Event::Note(
+            "prediction intervals: none (--fitness train scores no held-out rows)".into(),
+        )),
+    }
+    // Test rows' groups: the column that names the runs, where a test file has it.
+    let group_column = job
+        .group
+        .clone()
+        .or_else(|| match &calibration.plan.choice.scheme {
+            FoldScheme::Groups { column } => Some(column.clone()),
+            _ => None,
+        });
+
+    let train = train_rows;
     let test_data = test_sources
         .iter()
         .map(|s| Ok((file_name(&s.raw.source), s.with(kept.as_ref())?)))
@@ -327,12 +366,28 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
         }
     }
     let mut tests = Vec::new();
+    let mut coverage = Vec::new();
     for (name, test) in &test_data {
         for m in &models {
             tests.push(TestResult {
                 model: m.name.into(),
                 test: name.clone(),
                 errors: model::evaluate(m.model, test)?,
+            });
+        }
+        if let Some(i) = intervals.as_ref().filter(|i| !i.held_out.radii.is_empty()) {
+            let labels = group_column
+                .as_ref()
+                .and_then(|c| data::read_columns(&test.source, std::slice::from_ref(c)).ok());
+            let predicted = fitted.predictor().predict(&test.inputs)?;
+            coverage.push(TestCoverageReport {
+                test: name.clone(),
+                column: labels.as_ref().and(group_column.clone()),
+                coverage: i.test(
+                    &test.outputs,
+                    &predicted,
+                    labels.as_ref().map(|l| l.values.as_slice()),
+                ),
             });
         }
     }
@@ -357,6 +412,10 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
             calibration: cal.clone(),
         }),
         tests,
+        intervals: intervals.as_ref().map(|i| IntervalReport {
+            held_out: i.held_out.clone(),
+            tests: coverage,
+        }),
         provenance: provenance.clone(),
     };
     // The model is saved even when the report cannot be written (a full disk), and the error
@@ -373,6 +432,7 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
         report.search.clone(),
         Some(basis),
         decision,
+        intervals,
         provenance,
     )
     .save(&job.out)?;
@@ -492,8 +552,9 @@ struct Scoring {
 }
 
 impl Scoring {
-    /// A search's (on `search_on` when given, else on at most [`tune::SEARCH_ROWS`] evenly
-    /// spaced rows of `train`), or for given parameters `auto`'s 5-fold cross-validation; the
+    /// A search's (on `search_on`, the `--search-on` file's rows, when given, else on at most
+    /// [`tune::SEARCH_ROWS`] evenly spaced rows of `train`), or for given parameters `auto`'s
+    /// 5-fold cross-validation; the
     /// folds are cut from these inputs (the present ones: a history's filtered copies would
     /// hide a designed grid).
     fn new(
@@ -511,6 +572,8 @@ impl Scoring {
                 ..
             } => (folds_by, *fitness, on.as_deref()),
         };
+        // The fold columns come from the file the rows are: `--search-on`'s or the training data's.
+        let file = file.filter(|_| search_on.is_some()).unwrap_or(&job.data);
         let scored = scored_rows(train, search_on)?;
         let folds = match fitness {
             FitnessKind::Cv { folds } => folds,
@@ -519,7 +582,7 @@ impl Scoring {
         let plan = folds::plan(
             by,
             &scored,
-            &other_columns(file.unwrap_or(&job.data), by, job, scored.rows())?,
+            &other_columns(file, by, job, scored.rows())?,
             folds,
         )?;
         Ok(Scoring {
@@ -659,6 +722,35 @@ fn choose(
             })
         }
     }
+}
+
+/// Conformal intervals from the held-out residuals of `params` on the scoring's rows and folds
+/// (cut with the search's `seed`); `None` with the training fitness, which holds no rows out.
+fn calibrate_intervals(
+    scoring: &Scoring,
+    params: &MsvrParams,
+    seed: u64,
+) -> Result<Option<Intervals>, PipelineError> {
+    let FitnessKind::Cv { folds } = scoring.fitness else {
+        return Ok(None);
+    };
+    let plan = &scoring.plan;
+    let predicted = tune::held_out_predictions(&scoring.scored, folds, seed, plan, params)?;
+    Ok(Some(Intervals::calibrate(
+        &scoring.scored.outputs,
+        &predicted,
+        plan.labels.as_deref(),
+        plan.choice.clone(),
+    )))
+}
+
+/// "90 %: 1.23, 95 %: 1.87".
+pub(crate) fn radii_text(radii: &[Radius]) -> String {
+    radii
+        .iter()
+        .map(|r| format!("{} %: {:.4}", r.level * 100.0, r.radius))
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 /// Whether the basis grows: only `auto`'s reduced basis does; exact and a given size are used

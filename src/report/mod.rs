@@ -14,6 +14,7 @@ use serde::Serialize;
 use crate::data::{format_number, Columns, Dataset};
 use crate::fsio;
 use crate::model::history::HistoryDecision;
+use crate::model::interval::{Coverage, HeldOut, TestCoverage};
 use crate::model::msvr::tune::{BasisDecision, SearchSummary};
 use crate::model::msvr::FitDiagnostics;
 use crate::model::previous::{Calibration, PreviousParams};
@@ -64,7 +65,28 @@ pub struct ModelReport {
     /// The previous physics model, when the data are the micro-hand's.
     pub previous: Option<PreviousSummary>,
     pub tests: Vec<TestResult>,
+    /// Conformal prediction intervals: their calibration and coverage on the test files.
+    pub intervals: Option<IntervalReport>,
     pub provenance: Provenance,
+}
+
+/// The intervals as the report shows them (the model file also keeps the scores), and their
+/// coverage of each test file.
+#[derive(Clone, Debug, Serialize)]
+pub struct IntervalReport {
+    #[serde(flatten)]
+    pub held_out: HeldOut,
+    pub tests: Vec<TestCoverageReport>,
+}
+
+/// Coverage of one test file.
+#[derive(Clone, Debug, Serialize)]
+pub struct TestCoverageReport {
+    pub test: String,
+    /// The column that names the test file's groups, when it has one.
+    pub column: Option<String>,
+    #[serde(flatten)]
+    pub coverage: TestCoverage,
 }
 
 /// The previous model's two variants as the report shows them.
@@ -574,6 +596,111 @@ fn history_section(h: &HistoryDecision) -> String {
     s
 }
 
+/// A group's label as the data write it (integers without ".0").
+fn group_label(g: Option<f64>) -> String {
+    g.map_or_else(|| "all".into(), format_number)
+}
+
+/// Percent with one decimal.
+fn percent(share: f64) -> String {
+    format!("{:.1} %", share * 100.0)
+}
+
+/// The conformal radii, what they promise, and how they covered each test file and group.
+fn intervals_section(report: &IntervalReport) -> String {
+    let i = &report.held_out;
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "## Prediction intervals
+"
+    );
+    if i.radii.is_empty() {
+        let _ = writeln!(
+            s,
+            "None: {} held-out rows are too few for a 90 % radius (it needs 9).
+",
+            i.rows
+        );
+        return s;
+    }
+    let _ = writeln!(
+        s,
+        "Conformal radii of the tip's Euclidean error ‖y − ŷ‖₂ (output units), from {} held-out rows of the cross-validation ({}): {}. `handcap predict --interval 0.9` writes the radius beside each prediction.
+",
+        i.rows,
+        i.folds,
+        i.radii
+            .iter()
+            .map(|r| format!("{} within {:.4}", percent(r.level), r.radius))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    let _ = writeln!(
+        s,
+        "The guarantee is marginal: over new rows exchangeable with the held-out ones, at least that share falls within the radius. It is not a promise for each input or each run; the radius is the same everywhere, and a run unlike the training runs (another day, a drifted actuator) can fall outside more often. The coverage per group below shows where.
+"
+    );
+    let first = i.radii[0];
+    if !i.groups.is_empty() {
+        let _ = writeln!(
+            s,
+            "Held-out groups at the {} radius ({:.4}):
+",
+            percent(first.level),
+            first.radius
+        );
+        s += &coverage_table(&i.groups);
+    }
+    for t in &report.tests {
+        let pooled = t
+            .coverage
+            .pooled
+            .iter()
+            .map(|(r, c)| {
+                format!(
+                    "{} covered at {} ({:.4})",
+                    percent(*c),
+                    percent(r.level),
+                    r.radius
+                )
+            })
+            .collect::<Vec<_>>()
+            .join("; ");
+        let _ = writeln!(
+            s,
+            "Test `{}`: {pooled}.
+",
+            t.test
+        );
+        if let (Some(column), false) = (&t.column, t.coverage.groups.is_empty()) {
+            let _ = writeln!(
+                s,
+                "Per `{column}` at the {} radius:
+",
+                percent(first.level)
+            );
+            s += &coverage_table(&t.coverage.groups);
+        }
+    }
+    s
+}
+
+fn coverage_table(groups: &[Coverage]) -> String {
+    let mut s = String::from("| group | rows | covered |\n|---|---|---|\n");
+    for g in groups {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} |",
+            group_label(g.group),
+            g.rows,
+            percent(g.covered)
+        );
+    }
+    s.push('\n');
+    s
+}
+
 fn markdown(r: &ModelReport, sweeps: &[SweepFigures]) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "# handcap model report\n");
@@ -661,6 +788,9 @@ fn markdown(r: &ModelReport, sweeps: &[SweepFigures]) -> String {
         );
         s += &errors_table(&r.tests, &r.outputs);
         s.push('\n');
+    }
+    if let Some(i) = &r.intervals {
+        s += &intervals_section(i);
     }
     if !sweeps.is_empty() {
         let _ = writeln!(s, "## Sweeps (the paper's Figures 9-14)\n");

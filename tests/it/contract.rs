@@ -43,6 +43,7 @@ pub fn check_regressor(
             None,
             None,
             None,
+            None,
             Provenance::new(vec!["contract".into()], None),
         )
         .save(&path)

@@ -12,6 +12,7 @@ mod fuzz;
 mod geometry;
 mod history;
 mod images;
+mod interval;
 mod msvr;
 mod pipeline;
 mod search;

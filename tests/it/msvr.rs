@@ -463,6 +463,7 @@ fn save_load_predicts_identically() {
         None,
         None,
         None,
+        None,
         Provenance::new(vec!["test".into()], None),
     );
     file.save(&path).unwrap();

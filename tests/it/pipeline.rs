@@ -35,9 +35,14 @@ fn inverse_finds_pressures_for_reachable_targets_and_says_what_is_out_of_reach()
     let error: f64 = out
         .split("(error ")
         .nth(1)
-        .and_then(|s| s.trim_end().trim_end_matches(')').parse().ok())
+        .and_then(|s| s.split(')').next()?.parse().ok())
         .unwrap_or_else(|| panic!("no error in {out}"));
     assert!(error <= 0.01, "{out}");
+    // With the model's 90 % interval around the planned tip.
+    assert!(
+        out.contains("within") && out.contains("90 % of the time"),
+        "{out}"
+    );
     // 60 mm sideways is out of reach: one line with the nearest point.
     let msg = handcap_err(d, &["inverse", "model.json", "--target", "60,0,0"]);
     assert!(

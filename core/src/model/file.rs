@@ -6,6 +6,9 @@
 //!              "support_vectors": [[...]], "coefficients": [[...]], "bias": [...], "fit": {...} },
 //!   "history": { "used": { "time": "t_s", "group": "trial", "inputs": [...],
 //!                          "memory": { "kind": "ema", "tau": [0.6, 2.4] } }, "reason": "...", "tried": [...] },
+//!   "intervals": { "folds": { "scheme": "groups", ... }, "rows": 780,
+//!                  "radii": [{ "level": 0.9, "radius": 1.2 }, { "level": 0.95, "radius": 1.6 }],
+//!                  "groups": [{ "group": 3, "rows": 40, "covered": 0.85 }, ...], "scores": [...] },
 //!   "provenance": { "handcap_version": "...", "command": [...], "seed": null, "inputs": [...] } }
 //! ```
 //! A model with input history (`history.used`) was fitted on the features
@@ -21,6 +24,7 @@ use serde::{Deserialize, Serialize};
 use crate::data::{self, Columns, DataError};
 use crate::fsio;
 use crate::model::history::{History, HistoryDecision, SteadyState};
+use crate::model::interval::{IntervalError, Intervals};
 use crate::model::msvr::tune::{BasisDecision, SearchSummary};
 pub use crate::model::StoredModel;
 use crate::provenance::Provenance;
@@ -67,6 +71,10 @@ pub struct ModelFile {
     /// The input history and why; absent when no time column was given.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub history: Option<HistoryDecision>,
+    /// Conformal prediction intervals from held-out residuals; absent in files written before
+    /// them, or when the search scored on the training data.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub intervals: Option<Intervals>,
     pub provenance: Provenance,
 }
 
@@ -76,6 +84,7 @@ impl ModelFile {
         search: Option<SearchSummary>,
         basis: Option<BasisDecision>,
         history: Option<HistoryDecision>,
+        intervals: Option<Intervals>,
         provenance: Provenance,
     ) -> Self {
         ModelFile {
@@ -85,7 +94,19 @@ impl ModelFile {
             search,
             basis,
             history,
+            intervals,
             provenance,
+        }
+    }
+
+    /// The prediction interval's radius at `level` (output units).
+    ///
+    /// # Errors
+    /// [`IntervalError`]: a bad level, too few held-out rows for it, or a file without intervals.
+    pub fn interval_radius(&self, level: f64) -> Result<f64, IntervalError> {
+        match &self.intervals {
+            Some(i) => i.radius(level),
+            None => Err(IntervalError::Missing),
         }
     }
 

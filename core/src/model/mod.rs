@@ -6,6 +6,7 @@
 
 pub mod file;
 pub mod history;
+pub mod interval;
 pub mod inverse;
 pub mod msvr;
 pub mod previous;

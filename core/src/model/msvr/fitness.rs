@@ -38,9 +38,10 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::basis::{self, NystromMap};
+use super::irwls::NotPositiveDefinite;
 use super::kernel::{self, rbf_from_squared};
 use super::reduced::{self, FeatureRows, ReducedProblem};
-use super::{Basis, MinMaxScaler, MsvrParams};
+use super::{Basis, MinMaxScaler, MsvrError, MsvrParams, ValidMsvrParams};
 use crate::data::{Columns, Dataset};
 use crate::search::Hyper;
 
@@ -337,35 +338,8 @@ impl Fitness {
                 self.raced.fetch_add(1, Ordering::Relaxed);
                 return abs_sum / all;
             }
-            self.fits.fetch_add(1, Ordering::Relaxed);
-            let (pred, bias) = match &*per_sigma {
-                PerSigma::Exact(kernels) => {
-                    let (k_train, k_held_out) = &kernels[k];
-                    let Ok(sol) = params.solve(k_train.as_ref(), fold.y_train.as_ref(), Par::Seq)
-                    else {
-                        return f64::INFINITY;
-                    };
-                    (k_held_out * &sol.beta, sol.bias)
-                }
-                PerSigma::Reduced { features, grams } => {
-                    let problem = ReducedProblem {
-                        features: FeatureRows::Stored {
-                            all: features.as_ref(),
-                            rows: Some(&fold.train),
-                        },
-                        targets: fold.y_train.as_ref(),
-                        tube: params.params().tube(),
-                        gram: Some(grams[k].as_ref()),
-                    };
-                    let p = params.params();
-                    let Ok(sol) = reduced::solve(&problem, p.tol, p.max_iter, Par::Seq) else {
-                        return f64::INFINITY;
-                    };
-                    let held_out = Mat::from_fn(fold.held_out.len(), features.ncols(), |r, j| {
-                        features[(fold.held_out[r], j)]
-                    });
-                    (&held_out * &sol.w, sol.bias)
-                }
+            let Ok((pred, bias)) = self.fold_prediction(&per_sigma, k, &params) else {
+                return f64::INFINITY;
             };
             let y = &fold.y_held_out;
             for r in 0..y.nrows() {
@@ -375,6 +349,65 @@ impl Fitness {
             }
         }
         abs_sum / all
+    }
+
+    /// Every row's prediction by the model fitted without its fold (rows × outputs, in the
+    /// data's row order): the out-of-fold predictions of one tuple, for conformal intervals.
+    /// With the training fitness a row's "fold" is all rows, itself included.
+    ///
+    /// # Errors
+    /// [`MsvrError`]: the tuple's parameters, or a failed solve.
+    pub fn held_out_predictions(&self, h: &Hyper) -> Result<Mat<f64>, MsvrError> {
+        let per_sigma = self.per_sigma(h.sigma);
+        let params = self.solver.with_hyper(*h).check()?;
+        let rows: usize = self.folds.iter().map(|f| f.held_out.len()).sum();
+        let mut out = Mat::zeros(rows, self.folds[0].y_held_out.ncols());
+        for (k, fold) in self.folds.iter().enumerate() {
+            let (pred, bias) = self.fold_prediction(&per_sigma, k, &params)?;
+            for (r, &row) in fold.held_out.iter().enumerate() {
+                for j in 0..pred.ncols() {
+                    out[(row, j)] = pred[(r, j)] + bias[j];
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// Fold `k`'s held-out predictions by the model fitted on its training rows, and the bias
+    /// they leave out.
+    fn fold_prediction(
+        &self,
+        per_sigma: &PerSigma,
+        k: usize,
+        params: &ValidMsvrParams,
+    ) -> Result<(Mat<f64>, Vec<f64>), NotPositiveDefinite> {
+        let fold = &self.folds[k];
+        self.fits.fetch_add(1, Ordering::Relaxed);
+        let (pred, bias) = match per_sigma {
+            PerSigma::Exact(kernels) => {
+                let (k_train, k_held_out) = &kernels[k];
+                let sol = params.solve(k_train.as_ref(), fold.y_train.as_ref(), Par::Seq)?;
+                (k_held_out * &sol.beta, sol.bias)
+            }
+            PerSigma::Reduced { features, grams } => {
+                let problem = ReducedProblem {
+                    features: FeatureRows::Stored {
+                        all: features.as_ref(),
+                        rows: Some(&fold.train),
+                    },
+                    targets: fold.y_train.as_ref(),
+                    tube: params.params().tube(),
+                    gram: Some(grams[k].as_ref()),
+                };
+                let p = params.params();
+                let sol = reduced::solve(&problem, p.tol, p.max_iter, Par::Seq)?;
+                let held_out = Mat::from_fn(fold.held_out.len(), features.ncols(), |r, j| {
+                    features[(fold.held_out[r], j)]
+                });
+                (&held_out * &sol.w, sol.bias)
+            }
+        };
+        Ok((pred, bias))
     }
 
     /// Centres a reduced basis keeps at σ (0 for the exact basis), from the features the

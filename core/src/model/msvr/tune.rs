@@ -17,7 +17,7 @@ use serde::{Deserialize, Serialize};
 use super::fitness::{Counters, Fitness, FitnessError, FitnessKind};
 use super::folds::{FoldChoice, FoldPlan};
 use super::{kernel, Basis, MinMaxScaler, MsvrParams};
-use crate::data::Dataset;
+use crate::data::{Columns, Dataset};
 use crate::search::{
     Hyper, Method, Observer, Search, SearchError, SearchResult, SearchSpace, SearchStop,
 };
@@ -229,6 +229,37 @@ pub fn cross_validate(
         params,
     )?;
     Ok(scorer.evaluate(&[params.hyper()], f64::INFINITY)[0])
+}
+
+/// Every row's prediction by the model fitted at `params` without the row's fold: the folds of
+/// `folds` (`k` of them, cut with `seed` as a search with that seed cuts them), for the
+/// held-out residuals that conformal intervals are calibrated on.
+///
+/// # Errors
+/// [`TuneError`] when the folds cannot be cut or a fit fails.
+pub fn held_out_predictions(
+    data: &Dataset,
+    k: usize,
+    seed: u64,
+    folds: &FoldPlan,
+    params: &MsvrParams,
+) -> Result<Columns, TuneError> {
+    super::check_memory(data.rows(), params.basis)?;
+    let scorer = Fitness::new(
+        data,
+        FitnessKind::Cv { folds: k },
+        seed,
+        folds.labels.as_deref(),
+        params,
+    )?;
+    let predicted = scorer.held_out_predictions(&params.hyper())?;
+    Ok(Columns::new(
+        data.outputs.names.clone(),
+        (0..predicted.nrows())
+            .flat_map(|r| (0..predicted.ncols()).map(move |j| (r, j)))
+            .map(|(r, j)| predicted[(r, j)])
+            .collect(),
+    ))
 }
 
 /// A search scores its candidates on at most this many evenly spaced rows of the training data

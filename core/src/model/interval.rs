@@ -1,0 +1,293 @@
+//! Prediction intervals by conformal prediction: "the tip lies within r of the prediction, 90 %
+//! of the time".
+//!
+//! The score of a row is its Euclidean error ‖y − ŷ‖₂ in output units, so an interval is a
+//! sphere around the prediction with joint coverage of every output (the natural shape beside
+//! MSVR's spherical ε-tube). The scores are those of held-out rows: each row predicted by the
+//! model fitted without its fold, on the folds the search used (whole groups, contiguous blocks
+//! or shuffled rows), so a time series' near-copies cannot make the radius too small. The radius
+//! at level 1 − α is the ⌈(n + 1)(1 − α)⌉-th smallest of the n scores (split conformal
+//! prediction).
+//!
+//! What the level means: over new rows exchangeable with the held-out ones, at least that share
+//! falls within the radius (marginal coverage, averaged over rows), not that every input gets
+//! it. Held-out scores of cross-validation (cross-conformal prediction) are about as large as
+//! a split's; their worst-case guarantee is 1 − 2α, and in practice they cover 1 − α, since
+//! each fold's model saw fewer rows than the final one. The radius is the same for every input;
+//! coverage per group (a trial, a ramp) shows where it holds less.
+
+use serde::{Deserialize, Serialize};
+
+use super::msvr::folds::FoldChoice;
+use crate::data::Columns;
+
+/// The levels every model file carries radii for.
+pub const LEVELS: [f64; 2] = [0.9, 0.95];
+
+/// Errors of asking for an interval.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum IntervalError {
+    #[error("interval level {level} must lie strictly between 0 and 1 (e.g. 0.9 for 90 %)")]
+    Level { level: f64 },
+    #[error("a {percent} % interval needs at least {needed} held-out rows, and the model has {rows}; ask a lower level or fit on more rows")]
+    TooFewRows {
+        percent: f64,
+        needed: usize,
+        rows: usize,
+    },
+    #[error("the model has no prediction intervals: no held-out rows were scored when it was fitted (parameters given without a search, a training-data fitness, or a handcap before intervals); fit it with a cross-validated search")]
+    Missing,
+}
+
+/// One level's radius.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Radius {
+    pub level: f64,
+    /// In output units.
+    pub radius: f64,
+}
+
+/// Coverage of one set of rows at one radius.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Coverage {
+    /// The group's label (its value in the group column), `None` for all rows pooled.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub group: Option<f64>,
+    pub rows: usize,
+    /// The share of rows whose error is within the radius.
+    pub covered: f64,
+}
+
+/// Coverage of one test file.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TestCoverage {
+    /// Each radius with the share of the file's rows within it.
+    pub pooled: Vec<(Radius, f64)>,
+    /// Coverage of each group at the first radius.
+    pub groups: Vec<Coverage>,
+}
+
+/// What the held-out rows said: the radii and where they hold.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct HeldOut {
+    /// How the held-out rows were cut.
+    pub folds: FoldChoice,
+    /// Held-out rows (the scores' count).
+    pub rows: usize,
+    /// The radii at [`LEVELS`] the rows suffice for.
+    pub radii: Vec<Radius>,
+    /// Coverage of each held-out group (or block) at the first level's radius: where the
+    /// radius holds less than the level.
+    pub groups: Vec<Coverage>,
+}
+
+/// A model's intervals, as the model file keeps them.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Intervals {
+    #[serde(flatten)]
+    pub held_out: HeldOut,
+    /// Every held-out row's ‖y − ŷ‖₂, ascending: any level's radius.
+    pub scores: Vec<f64>,
+}
+
+impl Intervals {
+    /// Calibrates on held-out predictions: `truth` and `held_out` (rows × outputs) of the same
+    /// rows, `labels` each row's group (or block), when there are groups. `radii` holds the
+    /// levels of [`LEVELS`] the rows suffice for (none from fewer than 9 rows).
+    ///
+    /// # Panics
+    /// If the shapes differ.
+    pub fn calibrate(
+        truth: &Columns,
+        held_out: &Columns,
+        labels: Option<&[f64]>,
+        folds: FoldChoice,
+    ) -> Intervals {
+        let norms = scores(truth, held_out);
+        let mut sorted = norms.clone();
+        sorted.sort_by(f64::total_cmp);
+        let radii: Vec<Radius> = LEVELS
+            .iter()
+            .filter_map(|&level| {
+                let radius = radius(&sorted, level).ok()?;
+                Some(Radius { level, radius })
+            })
+            .collect();
+        let groups = match (labels, radii.first()) {
+            (Some(labels), Some(first)) => by_group(&norms, labels, first.radius),
+            _ => Vec::new(),
+        };
+        Intervals {
+            held_out: HeldOut {
+                folds,
+                rows: sorted.len(),
+                radii,
+                groups,
+            },
+            scores: sorted,
+        }
+    }
+
+    /// Coverage of test rows: pooled at each radius of `radii`, and per group (when `labels`
+    /// gives each row's group) at the first.
+    pub fn test(
+        &self,
+        truth: &Columns,
+        predicted: &Columns,
+        labels: Option<&[f64]>,
+    ) -> TestCoverage {
+        let norms = scores(truth, predicted);
+        let radii = &self.held_out.radii;
+        TestCoverage {
+            pooled: radii
+                .iter()
+                .map(|r| (*r, coverage(&norms, r.radius).covered))
+                .collect(),
+            groups: match (labels, radii.first()) {
+                (Some(labels), Some(first)) => by_group(&norms, labels, first.radius),
+                _ => Vec::new(),
+            },
+        }
+    }
+
+    /// The radius at `level`.
+    ///
+    /// # Errors
+    /// [`IntervalError`] for a level outside (0, 1) or too few held-out rows for it.
+    pub fn radius(&self, level: f64) -> Result<f64, IntervalError> {
+        radius(&self.scores, level)
+    }
+}
+
+/// Each row's ‖y − ŷ‖₂.
+///
+/// # Panics
+/// If the shapes differ.
+pub fn scores(truth: &Columns, predicted: &Columns) -> Vec<f64> {
+    assert_eq!(truth.width(), predicted.width(), "output widths differ");
+    assert_eq!(truth.rows(), predicted.rows(), "row counts differ");
+    truth
+        .iter_rows()
+        .zip(predicted.iter_rows())
+        .map(|(t, p)| {
+            t.iter()
+                .zip(p)
+                .map(|(a, b)| (a - b).powi(2))
+                .sum::<f64>()
+                .sqrt()
+        })
+        .collect()
+}
+
+/// The conformal radius at `level` of ascending scores.
+///
+/// # Errors
+/// [`IntervalError`] for a level outside (0, 1), or fewer scores than the level needs (the
+/// ⌈(n + 1)·level⌉-th smallest must exist: 9 rows for 90 %, 19 for 95 %).
+pub fn radius(sorted: &[f64], level: f64) -> Result<f64, IntervalError> {
+    if !(level > 0.0 && level < 1.0) {
+        return Err(IntervalError::Level { level });
+    }
+    let n = sorted.len();
+    let rank = ((n + 1) as f64 * level - 1e-9).ceil() as usize;
+    if rank > n || n == 0 {
+        return Err(IntervalError::TooFewRows {
+            percent: (level * 1000.0).round() / 10.0,
+            needed: (level / (1.0 - level) - 1e-9).ceil() as usize,
+            rows: n,
+        });
+    }
+    Ok(sorted[rank.max(1) - 1])
+}
+
+/// Coverage at `radius` of scores, pooled (`group: None`).
+pub fn coverage(scores: &[f64], radius: f64) -> Coverage {
+    let covered = scores.iter().filter(|&&s| s <= radius).count();
+    Coverage {
+        group: None,
+        rows: scores.len(),
+        covered: covered as f64 / scores.len().max(1) as f64,
+    }
+}
+
+/// Coverage at `radius` of each group of `labels` (one per score), in ascending label order.
+pub fn by_group(scores: &[f64], labels: &[f64], radius: f64) -> Vec<Coverage> {
+    let mut order: Vec<usize> = (0..scores.len()).collect();
+    order.sort_by(|&a, &b| labels[a].total_cmp(&labels[b]));
+    order
+        .chunk_by(|&a, &b| labels[a] == labels[b])
+        .map(|rows| {
+            let group: Vec<f64> = rows.iter().map(|&i| scores[i]).collect();
+            Coverage {
+                group: Some(labels[rows[0]]),
+                ..coverage(&group, radius)
+            }
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_radius_is_the_conformal_rank() {
+        let sorted: Vec<f64> = (1..=19).map(f64::from).collect();
+        // ⌈20 · 0.9⌉ = 18th smallest; ⌈20 · 0.95⌉ = 19th.
+        assert_eq!(radius(&sorted, 0.9), Ok(18.0));
+        assert_eq!(radius(&sorted, 0.95), Ok(19.0));
+        assert_eq!(radius(&sorted, 0.5), Ok(10.0));
+        assert_eq!(radius(&sorted[..9], 0.9), Ok(9.0));
+    }
+
+    #[test]
+    fn too_few_rows_or_a_bad_level_is_an_error_never_a_radius_of_zero() {
+        let ten: Vec<f64> = (1..=10).map(f64::from).collect();
+        assert_eq!(
+            radius(&ten, 0.95),
+            Err(IntervalError::TooFewRows {
+                percent: 95.0,
+                needed: 19,
+                rows: 10
+            })
+        );
+        assert!(radius(&ten[..8], 0.9).is_err());
+        for level in [0.0, 1.0, -0.1, 1.5, f64::NAN] {
+            assert!(matches!(
+                radius(&ten, level),
+                Err(IntervalError::Level { .. })
+            ));
+        }
+        assert!(radius(&[], 0.5).is_err());
+    }
+
+    /// Exchangeable scores: the radius covers a fresh sample at about the level.
+    #[test]
+    fn coverage_of_fresh_exchangeable_rows_is_near_the_level() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let mut draw = |n: usize| -> Vec<f64> {
+            (0..n)
+                .map(|_| (0..3).map(|_| rng.random::<f64>().powi(2)).sum::<f64>())
+                .collect()
+        };
+        let mut calibration = draw(500);
+        calibration.sort_by(f64::total_cmp);
+        let fresh = draw(20_000);
+        for level in LEVELS {
+            let r = radius(&calibration, level).unwrap();
+            let c = coverage(&fresh, r).covered;
+            assert!((c - level).abs() < 0.025, "level {level}: coverage {c}");
+        }
+    }
+
+    #[test]
+    fn groups_are_listed_in_label_order_with_their_coverage() {
+        let scores = [1.0, 5.0, 2.0, 6.0, 3.0];
+        let labels = [2.0, 1.0, 2.0, 1.0, 2.0];
+        let g = by_group(&scores, &labels, 4.0);
+        assert_eq!(g.len(), 2);
+        assert_eq!((g[0].group, g[0].rows, g[0].covered), (Some(1.0), 2, 0.0));
+        assert_eq!((g[1].group, g[1].rows, g[1].covered), (Some(2.0), 3, 1.0));
+    }
+}
