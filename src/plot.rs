@@ -61,6 +61,9 @@ pub struct LinePlot {
     pub series: Vec<Series>,
     /// A logarithmic y axis (points with y ≤ 0 are left out).
     pub log_y: bool,
+    /// Names of the categories at x = 0, 1, 2, …, shown as the x axis's labels instead of
+    /// numbers (empty: a numeric axis).
+    pub x_names: Vec<String>,
 }
 
 fn register_font() -> Result<(), FigureError> {
@@ -155,7 +158,13 @@ where
             shown.push((x, 0.0));
         }
     }
-    let (x0, x1) = padded(shown.iter().map(|p| p.0));
+    let (x0, x1) = if plot.x_names.is_empty() {
+        padded(shown.iter().map(|p| p.0))
+    } else {
+        (-0.6, plot.x_names.len() as f64 - 0.4)
+    };
+    // Room above the data for the legend, which sits in the top right corner.
+    let legend = plot.series.len() > 1;
     let mut builder = ChartBuilder::on(&area);
     builder
         .caption(&plot.title, ("sans-serif", 22))
@@ -163,14 +172,14 @@ where
         .x_label_area_size(45)
         .y_label_area_size(70);
     if plot.log_y {
-        let (lo, hi) = padded(shown.iter().map(|p| p.1.log10()));
+        let (lo, hi) = headroom(padded(shown.iter().map(|p| p.1.log10())), legend);
         let y = (10f64.powf(lo)..10f64.powf(hi)).log_scale();
         let chart = builder
             .build_cartesian_2d(x0..x1, y)
             .map_err(|e| e.to_string())?;
         fill(chart, plot)?;
     } else {
-        let (y0, y1) = padded(shown.iter().map(|p| p.1));
+        let (y0, y1) = headroom(padded(shown.iter().map(|p| p.1)), legend);
         let chart = builder
             .build_cartesian_2d(x0..x1, y0..y1)
             .map_err(|e| e.to_string())?;
@@ -197,13 +206,22 @@ where
     Y: Ranged<ValueType = f64> + ValueFormatter<f64>,
 {
     let e = |err: DrawingAreaErrorKind<DB::ErrorType>| err.to_string();
-    chart
-        .configure_mesh()
-        .x_desc(&plot.x_label)
+    let name = |x: &f64| {
+        let k = x.round();
+        match plot.x_names.get(k as usize) {
+            Some(name) if (x - k).abs() < 1e-6 && k >= 0.0 => name.clone(),
+            _ => String::new(),
+        }
+    };
+    let mut mesh = chart.configure_mesh();
+    mesh.x_desc(&plot.x_label)
         .y_desc(&plot.y_label)
-        .label_style(("sans-serif", 14))
-        .draw()
-        .map_err(e)?;
+        .label_style(("sans-serif", 14));
+    if !plot.x_names.is_empty() {
+        mesh.x_labels(plot.x_names.len().min(30))
+            .x_label_formatter(&name);
+    }
+    mesh.draw().map_err(e)?;
     for s in &plot.series {
         let colour = COLOURS[s.colour % COLOURS.len()];
         let points = s.points.iter().copied().filter(|&p| plot.shows(p));
@@ -226,6 +244,7 @@ where
     if plot.series.len() > 1 {
         chart
             .configure_series_labels()
+            .position(SeriesLabelPosition::UpperRight)
             .background_style(WHITE.mix(0.8))
             .border_style(BLACK)
             .label_font(("sans-serif", 14))
@@ -233,6 +252,16 @@ where
             .map_err(e)?;
     }
     Ok(())
+}
+
+/// `range` raised at the top by a quarter (in its own units: log for a log axis), so a legend
+/// in the top right corner stands above the data.
+fn headroom((lo, hi): (f64, f64), legend: bool) -> (f64, f64) {
+    if legend {
+        (lo, hi + 0.25 * (hi - lo))
+    } else {
+        (lo, hi)
+    }
 }
 
 /// The range of the values with 5 % margins (a unit range around a single value).

@@ -32,13 +32,13 @@ impl StereoCalibration {
             },
             colour: side,
         };
-        let names: Vec<&str> = used.iter().map(|p| p.name.as_str()).collect();
         let plot = LinePlot {
             title: format!("Reprojection error per pair (RMS {:.3} px)", self.rms_px),
-            x_label: format!("pair: {}", names.join(" ")),
+            x_label: "pair".into(),
             y_label: "RMS error (px)".into(),
             series: vec![bars(0, "left", -0.2), bars(1, "right", 0.2)],
             log_y: false,
+            x_names: used.iter().map(|p| p.name.clone()).collect(),
         };
         let [pairs, rectified] = stems(stem);
         figures::write_line_plot(&pairs, &plot)?;

@@ -19,6 +19,7 @@
 //! | `board_neighbour_squares`, `board_planarity_rms_mm` | | the boards triangulated back |
 //! | `coverage_cells_left`, `coverage_cells_right`, `tilt_sd_deg`, `advice` | | where the corners fell (8 × 6 cells, `#` seen), the boards' tilt spread about the left camera's x and y, what to capture next ([`super::guidance`]) |
 //! | `baseline_mm` | | \|T\| |
+//! | `forced` | | only in a calibration written with `--force` although it failed a gate: what failed ([`super::gates`]) |
 //! | `K1_sd`, `D1_sd`, `K2_sd`, `D2_sd`, `T_sd`, `baseline_sd_mm`, `R_sd_deg`, `corner_sd_px` | | standard deviations beside each value ([`super::uncertainty`]; none for fixed intrinsics), `uncertainty` says how |
 //! | `tip_sd_at_mm`, `tip_sd_at`, `tip_sd_mm`, `tip_move_sd_mm`, `tip_sd_marker_mm` | 3 × 1 | the tip's deviations at the finger: position and a 10 mm move from the calibration, and from 0.1 px of marker noise |
 //! | `bootstrap_K1_sd` … `bootstrap_R_sd_deg` | | the same by `--bootstrap N` |
@@ -151,6 +152,9 @@ pub fn calibration_yaml(cal: &StereoCalibration, provenance: &Provenance) -> Str
     if let Some(axes) = &cal.hand_axes {
         fs.matrix("R_hand", 3, 3, &rotation_rows(axes));
     }
+    if !cal.implausible.is_empty() {
+        fs.strings("forced", &cal.implausible);
+    }
     fs.string("hand_axes", &cal.hand_axes_note)
         .string("handcap_version", &provenance.handcap_version)
         .string("command", &provenance.command.join(" "));
@@ -282,6 +286,9 @@ pub fn calibration_json(cal: &StereoCalibration) -> String {
     }
     doc["uncertainty"] = serde_json::json!(uncertainty_note(cal));
     doc["advice"] = serde_json::json!(cal.guidance.advice);
+    if !cal.implausible.is_empty() {
+        doc["forced"] = serde_json::json!(cal.implausible);
+    }
     let mut text = serde_json::to_string_pretty(&doc).expect("numbers and strings serialise");
     text.push('\n');
     text
@@ -685,6 +692,9 @@ impl YamlFile {
         };
         if !path.is_file() {
             return Err(unreadable("no such file".into()));
+        }
+        if std::fs::metadata(path).is_ok_and(|m| m.len() == 0) {
+            return Err(unreadable("the file is empty".into()));
         }
         let name = path
             .to_str()

@@ -11,7 +11,8 @@
 //! - Marker noise: when 0.1 px in each image moves the tip more than 0.1 mm, no calibration
 //!   helps: the cameras are too far or too close together.
 //! - Deviations: above a target (below), the pairs that would bring it there if each new pair
-//!   is like the ones taken (a deviation falls as 1/√pairs): n · ((sd / target)² − 1).
+//!   is like the ones taken (a deviation falls as 1/√pairs): n · ((sd / target)² − 1); beyond
+//!   [`MAX_MORE_PAIRS`] the advice is to take better pairs instead.
 
 use serde::Serialize;
 
@@ -89,9 +90,18 @@ fn tilt_sd(poses: &[CamFromBoard]) -> [f64; 2] {
     })
 }
 
-/// More pairs like the `n` taken that bring `sd` down to `target`.
-fn more_pairs(n: usize, sd: f64, target: f64) -> usize {
-    (n as f64 * ((sd / target).powi(2) - 1.0)).ceil().max(1.0) as usize
+/// Most pairs the advice asks for: beyond, more pairs like these are not the remedy.
+pub const MAX_MORE_PAIRS: usize = 100;
+
+/// "take N more pairs {how} for {goal}": the pairs like the `n` taken that bring `sd` down to
+/// `target`; beyond [`MAX_MORE_PAIRS`], what to do instead.
+fn more_pairs(n: usize, sd: f64, target: f64, how: &str, goal: &str) -> String {
+    let more = (n as f64 * ((sd / target).powi(2) - 1.0)).ceil().max(1.0);
+    if more > MAX_MORE_PAIRS as f64 {
+        format!("more pairs like these will not get it to {goal}: take pairs with the board larger in the image and tilted more, and check that each pair's two images are taken together")
+    } else {
+        format!("take {more} more pairs {how} for {goal}")
+    }
 }
 
 /// Coverage, tilt and advice for a calibration of `rig` from `left`/`right` corners, the boards
@@ -158,11 +168,16 @@ pub fn advise(
                 let relative = sd[0].max(sd[1]) / camera.fx();
                 if relative > FOCAL_TARGET {
                     advice.push(format!(
-                        "the {} camera's focal length is known to ±{:.2} %: take {} more pairs in varied poses for ±{:.2} %",
+                        "the {} camera's focal length is known to ±{:.2} %: {}",
                         ["left", "right"][c],
                         100.0 * relative,
-                        more_pairs(n, relative, FOCAL_TARGET),
-                        100.0 * FOCAL_TARGET
+                        more_pairs(
+                            n,
+                            relative,
+                            FOCAL_TARGET,
+                            "in varied poses",
+                            &format!("±{:.2} %", 100.0 * FOCAL_TARGET)
+                        ),
                     ));
                 }
             }
@@ -170,19 +185,30 @@ pub fn advise(
         let baseline = rig.right_from_left.translation.norm();
         if u.parameters.baseline_mm / baseline > BASELINE_TARGET {
             advice.push(format!(
-                "the baseline is known to ±{:.3} mm ({:.2} %): take {} more pairs in varied poses for ±{:.2} %",
+                "the baseline is known to ±{:.3} mm ({:.2} %): {}",
                 u.parameters.baseline_mm,
                 100.0 * u.parameters.baseline_mm / baseline,
-                more_pairs(n, u.parameters.baseline_mm / baseline, BASELINE_TARGET),
-                100.0 * BASELINE_TARGET
+                more_pairs(
+                    n,
+                    u.parameters.baseline_mm / baseline,
+                    BASELINE_TARGET,
+                    "in varied poses",
+                    &format!("±{:.2} %", 100.0 * BASELINE_TARGET)
+                ),
             ));
         }
         let worst = |v: [f64; 3]| v.iter().copied().fold(0.0, f64::max);
         let moved = worst(u.tip.displacement);
         if moved > TIP_TARGET_MM {
             advice.push(format!(
-                "at the finger the calibration alone leaves a {DISPLACEMENT_MM} mm move of the tip ±{moved:.3} mm uncertain: take {} more pairs near the finger's distance for ±{TIP_TARGET_MM} mm",
-                more_pairs(n, moved, TIP_TARGET_MM)
+                "at the finger the calibration alone leaves a {DISPLACEMENT_MM} mm move of the tip ±{moved:.3} mm uncertain: {}",
+                more_pairs(
+                    n,
+                    moved,
+                    TIP_TARGET_MM,
+                    "near the finger's distance",
+                    &format!("±{TIP_TARGET_MM} mm")
+                )
             ));
         }
         let noise = worst(u.tip.marker);
@@ -253,7 +279,14 @@ mod tests {
     #[test]
     fn deviations_fall_as_one_over_root_pairs() {
         // Twice the target with 10 pairs: 30 more make 40, halving it.
-        assert_eq!(more_pairs(10, 2.0, 1.0), 30);
-        assert_eq!(more_pairs(10, 1.01, 1.0), 1);
+        let more = |sd| more_pairs(10, sd, 1.0, "so", "1");
+        assert_eq!(more(2.0), "take 30 more pairs so for 1");
+        assert_eq!(more(1.01), "take 1 more pairs so for 1");
+        // Far beyond: not a number of pairs but better ones.
+        assert!(
+            more(100.0).contains("will not get it to 1"),
+            "{}",
+            more(100.0)
+        );
     }
 }

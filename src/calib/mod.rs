@@ -31,6 +31,7 @@ mod checks;
 pub mod detect;
 pub mod figures;
 pub mod file;
+pub mod gates;
 pub mod guidance;
 use checks::{board_check, board_pose, epipolar_error, hand_axes, rectify};
 pub mod pairs;
@@ -109,6 +110,8 @@ pub enum CalibError {
         w: i32,
         h: i32,
     },
+    #[error("{dir}: the calibration cannot be right: {problems}. Nothing was written; `--force` writes it anyway, marked as forced")]
+    Implausible { dir: PathBuf, problems: String },
     #[error("OpenCV: {0}")]
     OpenCv(#[from] opencv::Error),
     #[error(transparent)]
@@ -200,6 +203,8 @@ pub struct CalibOptions {
     pub video_start_s: Option<[f64; 2]>,
     /// Most pairs picked from videos ([`video`]).
     pub max_video_pairs: usize,
+    /// Write a calibration that fails a gate ([`gates`]), marked as forced.
+    pub force: bool,
 }
 
 impl Default for CalibOptions {
@@ -213,6 +218,7 @@ impl Default for CalibOptions {
             seed: 1,
             video_start_s: None,
             max_video_pairs: 25,
+            force: false,
         }
     }
 }
@@ -271,6 +277,8 @@ pub struct StereoCalibration {
     /// Left-camera → hand-frame axes (p_hand = R_hand · p_left, up to the origin).
     pub hand_axes: Option<Rotation3<f64>>,
     pub hand_axes_note: String,
+    /// Why the calibration cannot be right ([`gates`]); empty when it passes every gate.
+    pub implausible: Vec<String>,
 }
 
 impl StereoCalibration {
@@ -425,6 +433,35 @@ pub fn calibrate(
         return Err(too_few(&reports, usable.len(), needed));
     }
 
+    // Given intrinsics against these images, before they fix the fit.
+    let mut implausible = Vec::new();
+    if options.intrinsics.iter().any(Option::is_some) {
+        let side = |right: bool| -> Vec<&[[f32; 2]]> {
+            usable
+                .iter()
+                .map(|u| {
+                    if right {
+                        u.right.as_slice()
+                    } else {
+                        u.left.as_slice()
+                    }
+                })
+                .collect()
+        };
+        let (left, right) = (side(false), side(true));
+        let own = |views: &[&[[f32; 2]]]| -> Result<f64, CalibError> {
+            let image: Vector<Vector<Point2f>> = views.iter().map(|v| points(v)).collect();
+            Ok(single_camera(board, size, &image)?.3)
+        };
+        implausible = gates::known_intrinsics(
+            board,
+            size,
+            &options.intrinsics,
+            [&left, &right],
+            [own(&left)?, own(&right)?],
+        )?;
+    }
+
     // Pairs that contradict the rig's geometry, then the worst outlier while there is one.
     for (k, why) in inconsistent_pairs(board, size, &usable)?.into_iter().rev() {
         if usable.len() > needed {
@@ -504,6 +541,19 @@ pub fn calibrate(
         .then(|| bootstrap(board, size, &usable, options, &rig.cams))
         .transpose()?;
     let guidance = guidance::advise(&rig.cams, &left, &right, &poses, uncertainty.as_ref());
+    // A fit from given intrinsics that fail their own gate fails the others through them:
+    // only the cause is said.
+    let mut distances: Vec<f64> = poses.iter().map(|p| centre(p).norm()).collect();
+    let fitted = gates::fitted(
+        board,
+        rig.rms,
+        &board_check,
+        rig.cams.right_from_left.translation.norm(),
+        crate::stats::median(&mut distances).expect("pairs"),
+    );
+    if implausible.is_empty() {
+        implausible = fitted;
+    }
 
     Ok(StereoCalibration {
         board: *board,
@@ -526,6 +576,7 @@ pub fn calibrate(
         unpaired: listing.unpaired.clone(),
         hand_axes,
         hand_axes_note,
+        implausible,
     })
 }
 
@@ -696,16 +747,16 @@ fn criteria() -> Result<TermCriteria, CalibError> {
     Ok(cv::criteria(100, 1e-9)?)
 }
 
-/// One camera calibrated alone: K, distortion, and each view's board pose.
+/// One camera calibrated alone: K, distortion, each view's board pose, and the reprojection RMS (px).
 fn single_camera(
     board: &BoardSpec,
     size: [i32; 2],
     image: &Vector<Vector<Point2f>>,
-) -> Result<(Mat, Mat, Vec<CamFromBoard>), CalibError> {
+) -> Result<(Mat, Mat, Vec<CamFromBoard>, f64), CalibError> {
     let object: Vector<Vector<Point3f>> = image.iter().map(|_| board.object_points()).collect();
     let (mut k, mut d) = (Mat::default(), Mat::default());
     let (mut rv, mut tv) = (Vector::<Mat>::new(), Vector::<Mat>::new());
-    calib3d::calibrate_camera(
+    let rms = calib3d::calibrate_camera(
         &object,
         image,
         Size::new(size[0], size[1]),
@@ -728,7 +779,7 @@ fn single_camera(
             ))
         })
         .collect::<Result<Vec<_>, CalibError>>()?;
-    Ok((k, d, poses))
+    Ok((k, d, poses, rms))
 }
 
 /// Pairs whose own left → right pose disagrees with the others' (median): more than 2° of
@@ -741,8 +792,8 @@ fn inconsistent_pairs(
 ) -> Result<Vec<(usize, String)>, CalibError> {
     let left: Vector<Vector<Point2f>> = usable.iter().map(|u| points(&u.left)).collect();
     let right: Vector<Vector<Point2f>> = usable.iter().map(|u| points(&u.right)).collect();
-    let (_, _, pl) = single_camera(board, size, &left)?;
-    let (_, _, pr) = single_camera(board, size, &right)?;
+    let (_, _, pl, _) = single_camera(board, size, &left)?;
+    let (_, _, pr, _) = single_camera(board, size, &right)?;
     let between: Vec<_> = pl.iter().zip(&pr).map(|(l, r)| relative(l, r)).collect();
     let median = |k: usize| {
         let mut v: Vec<f64> = between.iter().map(|x| x.translation[k]).collect();
@@ -793,7 +844,7 @@ fn stereo(
             cv::mat(3, &k.intrinsics.k)?,
             cv::mat(1, &k.intrinsics.dist)?,
         )),
-        None => single_camera(board, size, image).map(|(k, d, _)| (k, d)),
+        None => single_camera(board, size, image).map(|(k, d, _, _)| (k, d)),
     };
     let (mut k1, mut d1) = camera(&left, &known[0])?;
     let (mut k2, mut d2) = camera(&right, &known[1])?;

@@ -30,7 +30,7 @@ pub struct Args {
     /// LEFT,RIGHT: each camera's intrinsics from an earlier single-camera calibration (OpenCV
     /// YAML: camera_matrix, distortion_coefficients, image_width, image_height), fixed instead of
     /// solved; `-` for a camera to solve (e.g. `--intrinsics left.yml,-`)
-    #[arg(long, value_delimiter = ',', num_args = 1)]
+    #[arg(long, value_delimiter = ',', num_args = 1, allow_hyphen_values = true)]
     intrinsics: Vec<PathBuf>,
     /// Also find the standard deviations by recalibrating N times on the pairs drawn with
     /// replacement (a check of the covariance's, about N × 0.1 s)
@@ -46,6 +46,11 @@ pub struct Args {
     /// Most board pairs picked from videos
     #[arg(long, default_value_t = CalibOptions::default().max_video_pairs)]
     max_video_pairs: usize,
+    /// Write the calibration even when it fails a plausibility gate (RMS, the boards
+    /// triangulated back, the baseline, given intrinsics against the images); the file's
+    /// `forced` key lists what failed
+    #[arg(long)]
+    force: bool,
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
@@ -71,6 +76,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         seed: a.seed,
         video_start_s: super::triangulate::video_start(&a.video_start_s)?,
         max_video_pairs: a.max_video_pairs,
+        force: a.force,
         ..CalibOptions::default()
     };
     let done = super::with_session(|s| {

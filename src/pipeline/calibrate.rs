@@ -120,6 +120,20 @@ pub fn run(
     let result = calib::calibrate(dir, board, options, &session.counter(Task::Detect));
     session.emit(super::Event::Finished(Task::Detect));
     let calibration = result?;
+    if !calibration.implausible.is_empty() {
+        if !options.force {
+            return Err(calib::CalibError::Implausible {
+                dir: dir.to_path_buf(),
+                problems: calibration.implausible.join("; "),
+            }
+            .into());
+        }
+        for problem in &calibration.implausible {
+            session.emit(super::Event::Note(format!(
+                "warning: written with --force although {problem}"
+            )));
+        }
+    }
     let seed = (options.bootstrap > 0).then_some(options.seed);
     let yaml = file::calibration_yaml(&calibration, &session.provenance(seed));
     fsio::write_bytes(out, yaml.as_bytes()).map_err(io_error(out))?;

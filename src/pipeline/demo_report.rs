@@ -66,8 +66,15 @@ pub(super) fn page(
 
     page.section("calibration", "Calibration")
         .paragraph(&format!(
-            "{} chessboard pairs used. Reprojection RMS {:.3} px, mean epipolar distance {:.3} px. Against the true rig: focal lengths and principal points within {:.3} %, baseline within {:.3} %, rotation within {:.4}°, hand axes within {}.",
-            c.pairs_used, c.rms_px, c.epipolar_px, c.intrinsics_error_pct, c.baseline_error_pct, c.rotation_error_deg,
+            "{} chessboard pairs used. Reprojection RMS {:.3} px, mean epipolar distance {:.3} px; the boards triangulate back to {:.4} ± {:.4} squares, {:.3} mm off their plane. {} Against the true rig: focal lengths and principal points within {:.3} %, baseline within {:.3} %, rotation within {:.4}°, hand axes within {}.",
+            c.pairs_used, c.rms_px, c.epipolar_px,
+            cal.board_check.neighbour_mean_squares, cal.board_check.neighbour_sd_squares, cal.board_check.planarity_rms_mm,
+            if cal.implausible.is_empty() {
+                "It passes every gate that refuses a calibration (RMS, the boards triangulated back, the baseline against the boards' distance).".to_string()
+            } else {
+                format!("Written although it fails a gate: {}.", cal.implausible.join("; "))
+            },
+            c.intrinsics_error_pct, c.baseline_error_pct, c.rotation_error_deg,
             c.hand_axes_error_deg.map_or("(no reference pair)".into(), |d| format!("{d:.4}°"))
         ))
         .paragraph(&match (c.baseline_sd_pct, &c.tip_sd) {

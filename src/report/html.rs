@@ -21,6 +21,27 @@ pub fn escape(s: &str) -> String {
         .replace('"', "&quot;")
 }
 
+/// Text as HTML: escaped, with `code` spans (as the command line's messages and notes write
+/// them) set as `<code>`; an unpaired backtick stays as it is.
+pub fn inline(s: &str) -> String {
+    let parts: Vec<&str> = s.split('`').collect();
+    let paired = parts.len() % 2 == 1;
+    let mut out = String::new();
+    for (k, part) in parts.iter().enumerate() {
+        match (k % 2, paired || k + 1 < parts.len()) {
+            (1, true) => {
+                let _ = write!(out, "<code>{}</code>", escape(part));
+            }
+            (1, false) => {
+                out.push('`');
+                out += &escape(part);
+            }
+            _ => out += &escape(part),
+        }
+    }
+    out
+}
+
 impl Page {
     pub fn new(title: &str) -> Self {
         Page {
@@ -36,7 +57,7 @@ impl Page {
     }
 
     pub fn paragraph(&mut self, text: &str) -> &mut Self {
-        let _ = writeln!(self.body, "<p>{}</p>", escape(text));
+        let _ = writeln!(self.body, "<p>{}</p>", inline(text));
         self
     }
 
@@ -55,7 +76,7 @@ impl Page {
                 } else {
                     ""
                 };
-                let _ = write!(self.body, "<td{class}>{}</td>", escape(cell));
+                let _ = write!(self.body, "<td{class}>{}</td>", inline(cell));
             }
             self.body += "</tr>\n";
         }
@@ -168,6 +189,16 @@ mod tests {
         ] {
             assert_eq!(base64(plain.as_bytes()), coded);
         }
+    }
+
+    #[test]
+    fn code_spans_become_code_and_a_lone_backtick_stays() {
+        assert_eq!(
+            inline("with `handcap synth`'s <three>"),
+            "with <code>handcap synth</code>'s &lt;three&gt;"
+        );
+        assert_eq!(inline("a ` b `c` d"), "a <code> b </code>c` d");
+        assert_eq!(inline("plain"), "plain");
     }
 
     #[test]

@@ -352,6 +352,7 @@ fn sweep_figures(dir: &Path, c: &Comparison) -> Result<Vec<SweepFigures>, Report
                 y_label: output.clone(),
                 series,
                 log_y: false,
+                x_names: Vec::new(),
             };
             figures::write_line_plot(&dir.join(&name), &plot)?;
             stems.push(name);
@@ -382,6 +383,7 @@ fn sweep_figures(dir: &Path, c: &Comparison) -> Result<Vec<SweepFigures>, Report
             y_label: "‖measured − model‖ (log scale)".into(),
             series: residual_series,
             log_y: true,
+            x_names: Vec::new(),
         };
         figures::write_line_plot(&dir.join(&name), &plot)?;
         stems.push(name);
@@ -452,6 +454,7 @@ fn convergence_figures(dir: &Path, history: &[IterationRecord]) -> Result<(), Re
                 colour: 0,
             }],
             log_y: false,
+            x_names: Vec::new(),
         };
         figures::write_line_plot(&dir.join(name), &plot)
     };

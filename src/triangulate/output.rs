@@ -295,6 +295,7 @@ impl Triangulation {
                 },
             ],
             log_y: false,
+            x_names: Vec::new(),
         };
         crate::plot::write_line_plot(stem, &plot).map_err(|e| TriangulateError::Write {
             path: stem.to_path_buf(),

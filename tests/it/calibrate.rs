@@ -553,6 +553,95 @@ fn known_intrinsics_are_kept_and_the_pose_is_at_least_as_close() {
     }
     let msg = handcap_usage(d, &["calibrate", "calib", "--intrinsics", "left.yml"]);
     assert!(msg.contains("LEFT,RIGHT"), "{msg}");
+
+    // Given intrinsics are checked against the images: each failure is one line saying what
+    // is wrong, and nothing is written.
+    let mut k = mat(&truth.k1);
+    k[2] = -900.0;
+    intrinsics_file(&d.join("off.yml"), [1280, 720], &k, &mat(&truth.d1));
+    let mut k = mat(&truth.k1);
+    k[0] *= 10.0;
+    k[4] *= 10.0;
+    intrinsics_file(&d.join("zoomed.yml"), [1280, 720], &k, &mat(&truth.d1));
+    std::fs::write(d.join("blank.yml"), "").unwrap();
+    for (given, says) in [
+        ("off.yml,right.yml", "principal point (-900.0"),
+        ("zoomed.yml,right.yml", "reproject at"),
+        ("right.yml,left.yml", "look swapped"),
+        ("blank.yml,-", "the file is empty"),
+    ] {
+        let msg = handcap_err(
+            d,
+            &[
+                "calibrate",
+                "calib",
+                "--intrinsics",
+                given,
+                "--out",
+                "x.yml",
+            ],
+        );
+        assert!(msg.contains(says), "{given}: {msg}");
+        assert!(!d.join("x.yml").exists(), "{given}");
+    }
+    // `-` first, as the help shows.
+    handcap_ok(
+        d,
+        &[
+            "calibrate",
+            "calib",
+            "--intrinsics",
+            "-,right.yml",
+            "--out",
+            "x.yml",
+        ],
+    );
+    assert_eq!(mat(&read_rig(&d.join("x.yml")).k2), mat(&truth.k2));
+}
+
+#[test]
+fn a_calibration_that_cannot_be_right_is_refused_unless_forced() {
+    let dir = tempdir();
+    let d = dir.path();
+    small_capture(d, 29, 9);
+    // One camera a pose late: left_k with right_(k+1), as a camera 400 ms behind gives.
+    let late = d.join("late");
+    std::fs::create_dir(&late).unwrap();
+    std::fs::copy(d.join("calib/board.yml"), late.join("board.yml")).unwrap();
+    for k in 0..8 {
+        std::fs::copy(
+            d.join(format!("calib/left_{k:02}.png")),
+            late.join(format!("left_{k:02}.png")),
+        )
+        .unwrap();
+        std::fs::copy(
+            d.join(format!("calib/right_{:02}.png", k + 1)),
+            late.join(format!("right_{k:02}.png")),
+        )
+        .unwrap();
+    }
+    let msg = handcap_err(d, &["calibrate", "late", "--out", "late.yml"]);
+    assert!(
+        msg.contains("cannot be right") && msg.contains("--force"),
+        "{msg}"
+    );
+    assert!(!d.join("late.yml").exists() && !d.join("late.toml").exists());
+    // Forced: written, with what failed in the file and no absurd number of pairs advised.
+    let out = handcap_ok(d, &["calibrate", "late", "--out", "late.yml", "--force"]);
+    let text = std::fs::read_to_string(d.join("late.yml")).unwrap();
+    assert!(text.contains("forced:"), "{text}");
+    for line in out.lines().filter(|l| l.starts_with("advice:")) {
+        let most = line
+            .split_whitespace()
+            .filter_map(|w| w.parse::<usize>().ok())
+            .max()
+            .unwrap_or(0);
+        assert!(most <= 100, "{line}");
+    }
+    // The true pairs pass every gate and carry no `forced` key.
+    handcap_ok(d, &["calibrate", "calib", "--out", "good.yml"]);
+    let text = std::fs::read_to_string(d.join("good.yml")).unwrap();
+    assert!(!text.contains("forced"), "{text}");
 }
 
 /// Renders only what calibrating needs, ideal PNG frames: `views` board pairs and the
