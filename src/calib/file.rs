@@ -20,6 +20,7 @@
 //! | `coverage_cells_left`, `coverage_cells_right`, `tilt_sd_deg`, `advice` | | where the corners fell (8 × 6 cells, `#` seen), the boards' tilt spread about the left camera's x and y, what to capture next ([`super::guidance`]) |
 //! | `baseline_mm` | | \|T\| |
 //! | `forced` | | only in a calibration written with `--force` although it failed a gate: what failed ([`super::gates`]) |
+//! | `validation_ratio`, `validation_disagreement_mm`, `validation_predicted_mm`, `validation_base_distance_mm`, `validation_warnings` | | with `--validate`: the halves' disagreement against their covariances' prediction ([`super::validate`]) |
 //! | `K1_sd`, `D1_sd`, `K2_sd`, `D2_sd`, `T_sd`, `baseline_sd_mm`, `R_sd_deg`, `corner_sd_px` | | standard deviations beside each value ([`super::uncertainty`]; none for fixed intrinsics), `uncertainty` says how |
 //! | `tip_sd_at_mm`, `tip_sd_at`, `tip_sd_mm`, `tip_move_sd_mm`, `tip_sd_marker_mm` | 3 × 1 | the tip's deviations at the finger: position and a 10 mm move from the calibration, and from 0.1 px of marker noise |
 //! | `bootstrap_K1_sd` … `bootstrap_R_sd_deg` | | the same by `--bootstrap N` |
@@ -155,6 +156,13 @@ pub fn calibration_yaml(cal: &StereoCalibration, provenance: &Provenance) -> Str
     if !cal.implausible.is_empty() {
         fs.strings("forced", &cal.implausible);
     }
+    if let Some(v) = &cal.validation {
+        fs.real("validation_ratio", v.ratio)
+            .reals("validation_disagreement_mm", &v.disagreement_mm)
+            .reals("validation_predicted_mm", &v.predicted_mm)
+            .real("validation_base_distance_mm", v.base_distance_mm)
+            .strings("validation_warnings", &v.warnings);
+    }
     fs.string("hand_axes", &cal.hand_axes_note)
         .string("handcap_version", &provenance.handcap_version)
         .string("command", &provenance.command.join(" "));
@@ -288,6 +296,9 @@ pub fn calibration_json(cal: &StereoCalibration) -> String {
     doc["advice"] = serde_json::json!(cal.guidance.advice);
     if !cal.implausible.is_empty() {
         doc["forced"] = serde_json::json!(cal.implausible);
+    }
+    if let Some(v) = &cal.validation {
+        doc["validation"] = serde_json::json!(v);
     }
     let mut text = serde_json::to_string_pretty(&doc).expect("numbers and strings serialise");
     text.push('\n');

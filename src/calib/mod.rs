@@ -36,6 +36,7 @@ pub mod guidance;
 use checks::{board_check, board_pose, epipolar_error, hand_axes, rectify};
 pub mod pairs;
 pub mod uncertainty;
+pub mod validate;
 pub mod video;
 
 use std::path::{Path, PathBuf};
@@ -205,6 +206,8 @@ pub struct CalibOptions {
     pub max_video_pairs: usize,
     /// Write a calibration that fails a gate ([`gates`]), marked as forced.
     pub force: bool,
+    /// Check the stated uncertainty against two halves of the pairs ([`validate`]).
+    pub validate: bool,
 }
 
 impl Default for CalibOptions {
@@ -219,6 +222,7 @@ impl Default for CalibOptions {
             video_start_s: None,
             max_video_pairs: 25,
             force: false,
+            validate: false,
         }
     }
 }
@@ -279,6 +283,8 @@ pub struct StereoCalibration {
     pub hand_axes_note: String,
     /// Why the calibration cannot be right ([`gates`]); empty when it passes every gate.
     pub implausible: Vec<String>,
+    /// The stated uncertainty checked against two halves of the pairs, when asked for.
+    pub validation: Option<validate::Validation>,
 }
 
 impl StereoCalibration {
@@ -536,7 +542,24 @@ pub fn calibrate(
     // Known intrinsics fix both cameras' (see [`stereo`]).
     let solved = options.intrinsics.iter().all(Option::is_none);
     let free = [solved, solved];
+    let base = at.0;
     let uncertainty = uncertainty::estimate(board, &rig.cams, free, &left, &right, &poses, at)?;
+    let validation = match (&uncertainty, options.validate) {
+        (Some(u), true) => validate::validate(
+            board,
+            size,
+            &usable,
+            &options.intrinsics,
+            &validate::Full {
+                rig: &rig.cams,
+                uncertainty: u,
+                poses: &poses,
+                base,
+            },
+            options.seed,
+        )?,
+        _ => None,
+    };
     let bootstrap = (options.bootstrap > 0)
         .then(|| bootstrap(board, size, &usable, options, &rig.cams))
         .transpose()?;
@@ -577,6 +600,7 @@ pub fn calibrate(
         hand_axes,
         hand_axes_note,
         implausible,
+        validation,
     })
 }
 

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use anyhow::bail;
 
 use handcap::calib::uncertainty::{self, ParameterSd};
-use handcap::calib::{file, CalibOptions};
+use handcap::calib::{file, validate, CalibOptions};
 use handcap::pipeline::calibrate::{self, Calibrated};
 
 use super::synth::parse_board;
@@ -51,6 +51,12 @@ pub struct Args {
     /// `forced` key lists what failed
     #[arg(long)]
     force: bool,
+    /// Check the stated standard deviations: calibrate two halves of the pairs (5 splits) and
+    /// compare their disagreement at the finger's working volume with what their covariances
+    /// predict (a ratio, about 1 when honest), and map the tip's deviation against the
+    /// distance from the boards
+    #[arg(long)]
+    validate: bool,
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
@@ -77,6 +83,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         video_start_s: super::triangulate::video_start(&a.video_start_s)?,
         max_video_pairs: a.max_video_pairs,
         force: a.force,
+        validate: a.validate,
         ..CalibOptions::default()
     };
     let done = super::with_session(|s| {
@@ -194,6 +201,28 @@ pub fn print_summary(done: &Calibrated) {
         c.board_check.neighbour_sd_squares,
         c.board_check.planarity_rms_mm
     );
+    if let Some(v) = &c.validation {
+        let axes = |v: [f64; 3]| format!("{:.4}/{:.4}/{:.4}", v[0], v[1], v[2]);
+        println!(
+            "validation ({} splits into halves of {}/{} pairs): the halves' tips disagree by {} mm RMS (x/y/depth) over ±{} mm around the finger, their covariances predict {} mm: ratio {:.2} (about 1 when the stated deviations are honest)",
+            v.splits,
+            v.half_pairs[0],
+            v.half_pairs[1],
+            axes(v.disagreement_mm),
+            validate::VOLUME_MM,
+            axes(v.predicted_mm),
+            v.ratio
+        );
+        if let (Some(near), Some(far)) = (v.map.first(), v.map.last()) {
+            println!(
+                "  tip position sd {:.4} mm {:.0} mm from the nearest board corner seen, {:.4} mm at {:.0} mm; the finger's base is {:.0} mm from one",
+                near.1, near.0, far.1, far.0, v.base_distance_mm
+            );
+        }
+        for w in &v.warnings {
+            println!("  warning: {w}");
+        }
+    }
     println!("hand axes: {}", c.hand_axes_note);
     for a in &g.advice {
         println!("advice: {a}");

@@ -134,6 +134,8 @@ pub struct CalibrationCheck {
     pub tip_sd: Option<crate::calib::uncertainty::PointSd>,
     /// What the calibration advises capturing next.
     pub advice: Vec<String>,
+    /// Its stated uncertainty checked against two halves of the pairs.
+    pub validation: Option<crate::calib::validate::Validation>,
 }
 
 /// Triangulated tips against the truth, per phase.
@@ -270,7 +272,10 @@ pub fn run(
     let calibrated = super::calibrate::run(
         &calib_dir,
         &board,
-        &CalibOptions::default(),
+        &CalibOptions {
+            validate: true,
+            ..CalibOptions::default()
+        },
         &calib_path,
         session,
     )?;
@@ -602,6 +607,7 @@ fn check_calibration(cal: &StereoCalibration, truth: &CalibrationFile) -> Calibr
             .map(|u| 100.0 * u.parameters.baseline_mm / gt.norm()),
         tip_sd: cal.uncertainty.as_ref().map(|u| u.tip),
         advice: cal.guidance.advice.clone(),
+        validation: cal.validation.clone(),
     }
 }
 

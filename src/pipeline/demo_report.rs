@@ -88,6 +88,17 @@ pub(super) fn page(
             }
             _ => "The calibration reports no standard deviations.".into(),
         })
+        .paragraph(&match &c.validation {
+            Some(v) => format!(
+                "Checked against itself (`calibrate --validate`): the pairs split in halves ({} splits), each calibrated alone; at 27 points within ±{} mm of the finger's base the halves' tips disagree by {:.4} / {:.4} / {:.4} mm RMS (x / y / depth), where their covariances predict {:.4} / {:.4} / {:.4} mm: a ratio of {:.2} (about 1 when the stated deviations are honest; above, they are too small). The finger's base is {:.0} mm from the nearest board corner the calibration saw.{}",
+                v.splits, crate::calib::validate::VOLUME_MM,
+                v.disagreement_mm[0], v.disagreement_mm[1], v.disagreement_mm[2],
+                v.predicted_mm[0], v.predicted_mm[1], v.predicted_mm[2],
+                v.ratio, v.base_distance_mm,
+                v.warnings.iter().map(|w| format!(" Warning: {w}.")).collect::<String>()
+            ),
+            None => "The calibration was not checked against halves of its pairs.".into(),
+        })
         .figure(&out.join("calib_pairs.svg"), "Reprojection error of each chessboard pair (left and right image).")
         .figure(&out.join("calib_rectified.png"), "A pair rectified with the calibration: corresponding points lie on the same horizontal line.");
 

@@ -638,10 +638,22 @@ fn a_calibration_that_cannot_be_right_is_refused_unless_forced() {
             .unwrap_or(0);
         assert!(most <= 100, "{line}");
     }
-    // The true pairs pass every gate and carry no `forced` key.
-    handcap_ok(d, &["calibrate", "calib", "--out", "good.yml"]);
+    // The true pairs pass every gate and carry no `forced` key; their stated deviations hold
+    // against two halves of the pairs (ideal frames: independent corner errors).
+    let out = handcap_ok(
+        d,
+        &["calibrate", "calib", "--out", "good.yml", "--validate"],
+    );
     let text = std::fs::read_to_string(d.join("good.yml")).unwrap();
     assert!(!text.contains("forced"), "{text}");
+    let ratio: f64 = text
+        .lines()
+        .find_map(|l| l.strip_prefix("validation_ratio: "))
+        .unwrap_or_else(|| panic!("no validation_ratio in {text}"))
+        .parse()
+        .unwrap();
+    assert!((0.6..1.8).contains(&ratio), "ratio {ratio}: {out}");
+    assert!(out.contains("validation (5 splits"), "{out}");
 }
 
 /// Renders only what calibrating needs, ideal PNG frames: `views` board pairs and the
