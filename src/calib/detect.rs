@@ -14,7 +14,10 @@ use opencv::core::{self, Mat, Point2f, Size, TermCriteria, Vector};
 use opencv::prelude::*;
 use opencv::{calib3d, imgcodecs, imgproc};
 
-use super::CalibError;
+use rayon::prelude::*;
+
+use super::pairs::ImagePair;
+use super::{BoardSpec, CalibError, Found};
 
 /// Which OpenCV detector found the corners.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
@@ -134,4 +137,72 @@ pub fn find_corners(
         criteria,
     )?;
     Ok(Some(corners.iter().map(|p| [p.x, p.y]).collect()))
+}
+
+pub(super) fn read_all(images: &[&Path]) -> Result<Vec<Mat>, CalibError> {
+    images.par_iter().map(|p| read_gray(p)).collect()
+}
+
+/// One size for all images, and the same in each pair.
+pub(super) fn check_sizes(all: &[&ImagePair], found: &[Found]) -> Result<[i32; 2], CalibError> {
+    let size = found[0].0;
+    for (k, pair) in all.iter().enumerate() {
+        let (l, r) = (found[2 * k].0, found[2 * k + 1].0);
+        if l != r {
+            return Err(CalibError::SizeMismatch {
+                left: pair.left.clone(),
+                right: pair.right.clone(),
+                lw: l[0],
+                lh: l[1],
+                rw: r[0],
+                rh: r[1],
+            });
+        }
+        if l != size {
+            return Err(CalibError::SizeChange(
+                pair.left.clone(),
+                l[0],
+                l[1],
+                size[0],
+                size[1],
+            ));
+        }
+    }
+    Ok(size)
+}
+
+/// Other board sizes that are found in the first few images, as a hint.
+pub(super) fn suggest_board(grays: &[Mat], board: &BoardSpec) -> String {
+    let (c, r) = (board.cols as i32, board.rows as i32);
+    let candidates = [
+        (r, c),
+        (c - 1, r - 1),
+        (c + 1, r + 1),
+        (c - 1, r),
+        (c + 1, r),
+        (c, r - 1),
+        (c, r + 1),
+    ];
+    for (cols, rows) in candidates {
+        if cols < 3 || rows < 3 || cols == rows {
+            continue;
+        }
+        let works = grays.iter().take(4).any(|g| {
+            matches!(
+                find_corners(g, cols, rows, Detector::SectorBased),
+                Ok(Some(_))
+            )
+        });
+        if works {
+            let why = if (cols, rows) == (r, c) {
+                "columns and rows swapped"
+            } else if (cols, rows) == (c - 1, r - 1) {
+                "squares counted instead of inner corners"
+            } else {
+                "a different count"
+            };
+            return format!("; a {cols}x{rows} board is found ({why}): pass --board {cols}x{rows}");
+        }
+    }
+    "; no nearby size (transposed, ±1) is found either: check the images show the whole board with a white border".into()
 }

@@ -27,29 +27,35 @@
 //!    hand frame's axes; the origin (the tip at zero pressure) is found later, by
 //!    `triangulate`.
 
+mod board;
 mod checks;
 pub mod detect;
 pub mod figures;
 pub mod file;
+mod fit;
 pub mod gates;
 pub mod guidance;
-use checks::{board_check, board_pose, epipolar_error, hand_axes, rectify};
 pub mod pairs;
 pub mod uncertainty;
 pub mod validate;
 pub mod video;
 
+pub use board::BoardSpec;
+use checks::{board_check, board_pose, epipolar_error, hand_axes, rectify};
+use detect::{check_sizes, read_all, suggest_board};
+use fit::{bootstrap, single_camera, stereo, StereoFit};
+use pairs::{order_right_like_left, too_few};
+
 use std::path::{Path, PathBuf};
 
-use nalgebra::{Matrix3, Rotation3, Vector3};
-use opencv::calib3d;
-use opencv::core::{self, Mat, Point2f, Point3f, Size, TermCriteria, Vector};
+use nalgebra::Rotation3;
+use opencv::core::{Point2f, Vector};
 use opencv::prelude::*;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::cv::{self, fixed, points, values};
-use crate::geometry::{relative, CamFromBoard, Intrinsics, RightFromLeft};
+use crate::cv::points;
+use crate::geometry::{CamFromBoard, Intrinsics};
 use crate::stereo::StereoRig;
 use detect::Detector;
 use pairs::ImagePair;
@@ -119,61 +125,6 @@ pub enum CalibError {
     Figure(#[from] crate::plot::FigureError),
     #[error("writing {path}: {message}")]
     Write { path: PathBuf, message: String },
-}
-
-/// The printed board: inner corners along a row and down a column, square size.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
-pub struct BoardSpec {
-    pub cols: usize,
-    pub rows: usize,
-    pub square_mm: f64,
-}
-
-impl BoardSpec {
-    /// # Errors
-    /// [`CalibError::BadBoard`] for fewer than 3 corners a side, equal sides (ambiguous
-    /// orientation) or a square size that is not a positive number.
-    pub fn check(&self) -> Result<(), CalibError> {
-        if self.cols < 3 || self.rows < 3 {
-            return Err(CalibError::BadBoard(format!(
-                "{}x{} inner corners: at least 3 along each side",
-                self.cols, self.rows
-            )));
-        }
-        if self.cols == self.rows {
-            return Err(CalibError::BadBoard(format!(
-                "{}x{}: a square board has no orientation; use one with different counts",
-                self.cols, self.rows
-            )));
-        }
-        if !(self.square_mm.is_finite() && self.square_mm > 0.0) {
-            return Err(CalibError::BadBoard(format!(
-                "square size {} mm: give the printed square's side in mm",
-                self.square_mm
-            )));
-        }
-        Ok(())
-    }
-
-    /// The centre of the inner corners, in the board's frame (mm).
-    pub fn centre(&self) -> nalgebra::Point3<f64> {
-        let s = self.square_mm;
-        nalgebra::Point3::new(
-            (self.cols - 1) as f64 * s / 2.0,
-            (self.rows - 1) as f64 * s / 2.0,
-            0.0,
-        )
-    }
-
-    /// Object points of the inner corners (mm), row by row.
-    fn object_points(&self) -> Vector<Point3f> {
-        let s = self.square_mm as f32;
-        (0..self.rows)
-            .flat_map(|j| {
-                (0..self.cols).map(move |i| Point3f::new(i as f32 * s, j as f32 * s, 0.0))
-            })
-            .collect()
-    }
 }
 
 /// A camera's intrinsics known from an earlier calibration (`--intrinsics`), and its file.
@@ -468,33 +419,7 @@ pub fn calibrate(
         )?;
     }
 
-    // Pairs that contradict the rig's geometry, then the worst outlier while there is one.
-    for (k, why) in inconsistent_pairs(board, size, &usable)?.into_iter().rev() {
-        if usable.len() > needed {
-            let dropped = usable.remove(k);
-            reports[dropped.report].rejected = Some(why);
-        }
-    }
-    let mut rig;
-    loop {
-        rig = stereo(board, size, &usable, &options.intrinsics)?;
-        let errors: Vec<f64> = rig.per_view.iter().map(|e| e[0].max(e[1])).collect();
-        let median = crate::stats::upper_median(&mut errors.clone()).expect("pairs");
-        let (worst, &err) = errors
-            .iter()
-            .enumerate()
-            .max_by(|a, b| a.1.total_cmp(b.1))
-            .expect("pairs");
-        let limit = (options.reject_factor * median).max(options.reject_floor_px);
-        if err <= limit || usable.len() <= needed {
-            break;
-        }
-        let dropped = usable.remove(worst);
-        reports[dropped.report].rejected = Some(format!(
-            "outlier: error {err:.3} px > {:.1} × median {median:.3} px",
-            options.reject_factor
-        ));
-    }
+    let rig = fit::without_outliers(board, size, &mut usable, &mut reports, options, needed)?;
     for (u, e) in usable.iter().zip(&rig.per_view) {
         reports[u.report].rms_px = Some(*e);
     }
@@ -601,326 +526,5 @@ pub fn calibrate(
         hand_axes_note,
         implausible,
         validation,
-    })
-}
-
-fn too_few(reports: &[PairReport], found: usize, needed: usize) -> CalibError {
-    let reasons: Vec<String> = reports
-        .iter()
-        .filter_map(|r| r.rejected.as_ref().map(|why| format!("{}: {why}", r.name)))
-        .collect();
-    CalibError::TooFewPairs {
-        found,
-        needed,
-        reasons: if reasons.is_empty() {
-            "capture more pairs".into()
-        } else {
-            format!("{}; capture more pairs", reasons.join("; "))
-        },
-    }
-}
-
-fn read_all(images: &[&Path]) -> Result<Vec<Mat>, CalibError> {
-    images.par_iter().map(|p| detect::read_gray(p)).collect()
-}
-
-/// One size for all images, and the same in each pair.
-fn check_sizes(all: &[&ImagePair], found: &[Found]) -> Result<[i32; 2], CalibError> {
-    let size = found[0].0;
-    for (k, pair) in all.iter().enumerate() {
-        let (l, r) = (found[2 * k].0, found[2 * k + 1].0);
-        if l != r {
-            return Err(CalibError::SizeMismatch {
-                left: pair.left.clone(),
-                right: pair.right.clone(),
-                lw: l[0],
-                lh: l[1],
-                rw: r[0],
-                rh: r[1],
-            });
-        }
-        if l != size {
-            return Err(CalibError::SizeChange(
-                pair.left.clone(),
-                l[0],
-                l[1],
-                size[0],
-                size[1],
-            ));
-        }
-    }
-    Ok(size)
-}
-
-/// Other board sizes that are found in the first few images, as a hint.
-fn suggest_board(grays: &[Mat], board: &BoardSpec) -> String {
-    let (c, r) = (board.cols as i32, board.rows as i32);
-    let candidates = [
-        (r, c),
-        (c - 1, r - 1),
-        (c + 1, r + 1),
-        (c - 1, r),
-        (c + 1, r),
-        (c, r - 1),
-        (c, r + 1),
-    ];
-    for (cols, rows) in candidates {
-        if cols < 3 || rows < 3 || cols == rows {
-            continue;
-        }
-        let works = grays.iter().take(4).any(|g| {
-            matches!(
-                detect::find_corners(g, cols, rows, Detector::SectorBased),
-                Ok(Some(_))
-            )
-        });
-        if works {
-            let why = if (cols, rows) == (r, c) {
-                "columns and rows swapped"
-            } else if (cols, rows) == (c - 1, r - 1) {
-                "squares counted instead of inner corners"
-            } else {
-                "a different count"
-            };
-            return format!("; a {cols}x{rows} board is found ({why}): pass --board {cols}x{rows}");
-        }
-    }
-    "; no nearby size (transposed, ±1) is found either: check the images show the whole board with a white border".into()
-}
-
-/// The right image's corners in the left image's order: as detected, or reversed when they
-/// run the other way (first → last corner and along the first row). `None` when neither order
-/// agrees.
-fn order_right_like_left(
-    board: &BoardSpec,
-    left: &[[f32; 2]],
-    right: &[[f32; 2]],
-) -> Option<(Vec<[f32; 2]>, bool)> {
-    let n = left.len();
-    let dir = |c: &[[f32; 2]], a: usize, b: usize| [c[b][0] - c[a][0], c[b][1] - c[a][1]];
-    let dot = |u: [f32; 2], v: [f32; 2]| u[0] * v[0] + u[1] * v[1];
-    let agrees = |r: &[[f32; 2]]| {
-        dot(dir(left, 0, n - 1), dir(r, 0, n - 1)) > 0.0
-            && dot(dir(left, 0, board.cols - 1), dir(r, 0, board.cols - 1)) > 0.0
-    };
-    if agrees(right) {
-        return Some((right.to_vec(), false));
-    }
-    let reversed: Vec<[f32; 2]> = right.iter().rev().copied().collect();
-    agrees(&reversed).then_some((reversed, true))
-}
-
-/// [`Bootstrap`]: `options.bootstrap` recalibrations of `usable` drawn with replacement,
-/// their spread about `rig`.
-fn bootstrap(
-    board: &BoardSpec,
-    size: [i32; 2],
-    usable: &[Usable],
-    options: &CalibOptions,
-    rig: &StereoRig,
-) -> Result<Bootstrap, CalibError> {
-    use rand::{Rng, SeedableRng};
-    let fits: Vec<StereoRig> = (0..options.bootstrap)
-        .into_par_iter()
-        .map(|round| {
-            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(options.seed);
-            rng.set_stream(round as u64);
-            let drawn: Vec<Usable> = (0..usable.len())
-                .map(|_| usable[rng.random_range(0..usable.len())].clone())
-                .collect();
-            Ok(stereo(board, size, &drawn, &options.intrinsics)?.cams)
-        })
-        .collect::<Result<_, CalibError>>()?;
-    let sd = |value: &dyn Fn(&StereoRig) -> f64| {
-        let values: Vec<f64> = fits.iter().map(value).collect();
-        crate::stats::mean_sd(&values).map_or(0.0, |(_, sd)| sd)
-    };
-    let camera = |c: usize| -> [f64; 9] {
-        std::array::from_fn(|i| {
-            sd(&|fit: &StereoRig| uncertainty::intrinsic([&fit.left, &fit.right][c], i))
-        })
-    };
-    let solved = options.intrinsics.iter().all(Option::is_none);
-    let turn = |fit: &StereoRig| {
-        (rig.right_from_left.rotation.inverse() * fit.right_from_left.rotation).scaled_axis()
-    };
-    Ok(Bootstrap {
-        rounds: options.bootstrap,
-        seed: options.seed,
-        parameters: uncertainty::ParameterSd {
-            intrinsics: [solved.then(|| camera(0)), solved.then(|| camera(1))],
-            translation_mm: std::array::from_fn(|a| {
-                sd(&|fit: &StereoRig| fit.right_from_left.translation[a])
-            }),
-            baseline_mm: sd(&|fit: &StereoRig| fit.right_from_left.translation.norm()),
-            rotation_deg: std::array::from_fn(|a| sd(&|fit: &StereoRig| turn(fit)[a].to_degrees())),
-        },
-    })
-}
-
-/// The OpenCV results of one stereo calibration.
-struct StereoFit {
-    cams: StereoRig,
-    e: [f64; 9],
-    f: [f64; 9],
-    rms: f64,
-    per_view: Vec<[f64; 2]>,
-}
-
-fn criteria() -> Result<TermCriteria, CalibError> {
-    Ok(cv::criteria(100, 1e-9)?)
-}
-
-/// One camera calibrated alone: K, distortion, each view's board pose, and the reprojection RMS (px).
-fn single_camera(
-    board: &BoardSpec,
-    size: [i32; 2],
-    image: &Vector<Vector<Point2f>>,
-) -> Result<(Mat, Mat, Vec<CamFromBoard>, f64), CalibError> {
-    let object: Vector<Vector<Point3f>> = image.iter().map(|_| board.object_points()).collect();
-    let (mut k, mut d) = (Mat::default(), Mat::default());
-    let (mut rv, mut tv) = (Vector::<Mat>::new(), Vector::<Mat>::new());
-    let rms = calib3d::calibrate_camera(
-        &object,
-        image,
-        Size::new(size[0], size[1]),
-        &mut k,
-        &mut d,
-        &mut rv,
-        &mut tv,
-        0,
-        criteria()?,
-    )?;
-    let poses = rv
-        .iter()
-        .zip(tv.iter())
-        .map(|(r, t)| {
-            let mut m = Mat::default();
-            calib3d::rodrigues(&r, &mut m, &mut core::no_array())?;
-            Ok(CamFromBoard::new(
-                Rotation3::from_matrix_unchecked(Matrix3::from_row_slice(&fixed::<9>(&m)?)),
-                Vector3::from_row_slice(&fixed::<3>(&t)?),
-            ))
-        })
-        .collect::<Result<Vec<_>, CalibError>>()?;
-    Ok((k, d, poses, rms))
-}
-
-/// Pairs whose own left → right pose disagrees with the others' (median): more than 2° of
-/// rotation or 10 % of the baseline away. Such a pair (a wrong partner image, a camera that
-/// moved) would pull the joint calibration everywhere, so it goes first.
-fn inconsistent_pairs(
-    board: &BoardSpec,
-    size: [i32; 2],
-    usable: &[Usable],
-) -> Result<Vec<(usize, String)>, CalibError> {
-    let left: Vector<Vector<Point2f>> = usable.iter().map(|u| points(&u.left)).collect();
-    let right: Vector<Vector<Point2f>> = usable.iter().map(|u| points(&u.right)).collect();
-    let (_, _, pl, _) = single_camera(board, size, &left)?;
-    let (_, _, pr, _) = single_camera(board, size, &right)?;
-    let between: Vec<_> = pl.iter().zip(&pr).map(|(l, r)| relative(l, r)).collect();
-    let median = |k: usize| {
-        let mut v: Vec<f64> = between.iter().map(|x| x.translation[k]).collect();
-        crate::stats::upper_median(&mut v).expect("pairs")
-    };
-    let t_med = Vector3::new(median(0), median(1), median(2));
-    // The reference rotation: the pair whose translation is nearest the median.
-    let reference = between
-        .iter()
-        .map(|x| ((x.translation - t_med).norm(), x.rotation))
-        .min_by(|a, b| a.0.total_cmp(&b.0))
-        .map(|(_, rotation)| rotation)
-        .expect("pairs");
-    let mut out = Vec::new();
-    for (k, x) in between.iter().enumerate() {
-        let angle = (x.rotation * reference.inverse()).angle().to_degrees();
-        let off = (x.translation - t_med).norm() / t_med.norm();
-        if angle > 2.0 || off > 0.10 {
-            out.push((
-                k,
-                format!(
-                    "left and right disagree with the other pairs: relative pose {angle:.1}° and {:.0} % of the baseline off (wrong partner image, or a camera moved?)",
-                    100.0 * off
-                ),
-            ));
-        }
-    }
-    Ok(out)
-}
-
-/// The joint calibration: each camera's intrinsics from its own calibration (or as known), then
-/// both cameras and the pose together (`stereoCalibrate`, refining the intrinsics), or, when a
-/// camera's intrinsics are known, the pose alone with both cameras' intrinsics fixed
-/// (`CALIB_FIX_INTRINSIC`: OpenCV fixes both or neither; the other camera keeps its own
-/// calibration's).
-fn stereo(
-    board: &BoardSpec,
-    size: [i32; 2],
-    usable: &[Usable],
-    known: &[Option<KnownIntrinsics>; 2],
-) -> Result<StereoFit, CalibError> {
-    let image_size = Size::new(size[0], size[1]);
-    let object: Vector<Vector<Point3f>> = usable.iter().map(|_| board.object_points()).collect();
-    let left: Vector<Vector<Point2f>> = usable.iter().map(|u| points(&u.left)).collect();
-    let right: Vector<Vector<Point2f>> = usable.iter().map(|u| points(&u.right)).collect();
-    let camera = |image: &Vector<Vector<Point2f>>, known: &Option<KnownIntrinsics>| match known {
-        Some(k) => Ok((
-            cv::mat(3, &k.intrinsics.k)?,
-            cv::mat(1, &k.intrinsics.dist)?,
-        )),
-        None => single_camera(board, size, image).map(|(k, d, _, _)| (k, d)),
-    };
-    let (mut k1, mut d1) = camera(&left, &known[0])?;
-    let (mut k2, mut d2) = camera(&right, &known[1])?;
-    let flags = if known.iter().any(Option::is_some) {
-        calib3d::CALIB_FIX_INTRINSIC
-    } else {
-        calib3d::CALIB_USE_INTRINSIC_GUESS
-    };
-    let (mut r, mut t, mut e, mut f, mut per_view) = (
-        Mat::default(),
-        Mat::default(),
-        Mat::default(),
-        Mat::default(),
-        Mat::default(),
-    );
-    let rms = calib3d::stereo_calibrate_extended(
-        &object,
-        &left,
-        &right,
-        &mut k1,
-        &mut d1,
-        &mut k2,
-        &mut d2,
-        image_size,
-        &mut r,
-        &mut t,
-        &mut e,
-        &mut f,
-        &mut per_view,
-        flags,
-        criteria()?,
-    )?;
-    let errors = values(&per_view)?;
-    Ok(StereoFit {
-        cams: StereoRig {
-            image_size: size,
-            left: Intrinsics {
-                k: fixed(&k1)?,
-                dist: values(&d1)?,
-            },
-            right: Intrinsics {
-                k: fixed(&k2)?,
-                dist: values(&d2)?,
-            },
-            right_from_left: RightFromLeft::new(
-                Rotation3::from_matrix_unchecked(Matrix3::from_row_slice(&fixed::<9>(&r)?)),
-                Vector3::from(fixed::<3>(&t)?),
-            ),
-        },
-        e: fixed(&e)?,
-        f: fixed(&f)?,
-        rms,
-        per_view: errors.chunks(2).map(|c| [c[0], c[1]]).collect(),
     })
 }

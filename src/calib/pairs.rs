@@ -5,6 +5,8 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+use super::{BoardSpec, CalibError, PairReport};
+
 /// One left/right pair of images.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct ImagePair {
@@ -68,6 +70,45 @@ pub fn list_pairs(dir: &Path) -> std::io::Result<PairListing> {
         }
     }
     Ok(listing)
+}
+
+/// The right image's corners in the left image's order: as detected, or reversed when they
+/// run the other way (first → last corner and along the first row). `None` when neither order
+/// agrees.
+pub(super) fn order_right_like_left(
+    board: &BoardSpec,
+    left: &[[f32; 2]],
+    right: &[[f32; 2]],
+) -> Option<(Vec<[f32; 2]>, bool)> {
+    let n = left.len();
+    let dir = |c: &[[f32; 2]], a: usize, b: usize| [c[b][0] - c[a][0], c[b][1] - c[a][1]];
+    let dot = |u: [f32; 2], v: [f32; 2]| u[0] * v[0] + u[1] * v[1];
+    let agrees = |r: &[[f32; 2]]| {
+        dot(dir(left, 0, n - 1), dir(r, 0, n - 1)) > 0.0
+            && dot(dir(left, 0, board.cols - 1), dir(r, 0, board.cols - 1)) > 0.0
+    };
+    if agrees(right) {
+        return Some((right.to_vec(), false));
+    }
+    let reversed: Vec<[f32; 2]> = right.iter().rev().copied().collect();
+    agrees(&reversed).then_some((reversed, true))
+}
+
+/// The error of too few usable pairs, with each rejected pair's reason.
+pub(super) fn too_few(reports: &[PairReport], found: usize, needed: usize) -> CalibError {
+    let reasons: Vec<String> = reports
+        .iter()
+        .filter_map(|r| r.rejected.as_ref().map(|why| format!("{}: {why}", r.name)))
+        .collect();
+    CalibError::TooFewPairs {
+        found,
+        needed,
+        reasons: if reasons.is_empty() {
+            "capture more pairs".into()
+        } else {
+            format!("{}; capture more pairs", reasons.join("; "))
+        },
+    }
 }
 
 #[cfg(test)]
