@@ -1,0 +1,148 @@
+//! Anipose's `calibration.toml`, written and read.
+
+use std::path::Path;
+
+use nalgebra::{Rotation3, Vector3};
+
+use super::{camera_matrix, distortion_coefficients, read_text, CalibrationFile};
+use crate::calib::StereoCalibration;
+use crate::geometry::{relative, CamFromWorld, Intrinsics, RightFromLeft};
+use crate::stereo::{StereoError, StereoRig};
+
+/// The calibration as Anipose/aniposelib's `calibration.toml` (what `CameraGroup.load` reads):
+/// `[cam_0]` (the left camera, `name = "left"`) and `[cam_1]` (`"right"`), each with `size`
+/// [w, h], `matrix` (K, rows), `distortions` (OpenCV's order), `rotation` and `translation`
+/// (Rodrigues vector and translation taking points of the first camera's frame, the world, into
+/// this camera's: the left camera's are zero, the right's are `R`, `T`, mm), then `[metadata]`
+/// with the calibration's reprojection RMS (px) as `error`.
+pub fn anipose_toml(cal: &StereoCalibration) -> String {
+    let list = |v: &[f64]| {
+        let items: Vec<String> = v.iter().map(|x| format!("{x:?}")).collect();
+        format!("[{}]", items.join(", "))
+    };
+    let pose = &cal.rig.right_from_left;
+    let cameras = [
+        ("left", &cal.rig.left, [0.0; 3], [0.0; 3]),
+        (
+            "right",
+            &cal.rig.right,
+            pose.rotation.scaled_axis().into(),
+            pose.translation_array(),
+        ),
+    ];
+    let mut out = String::new();
+    for (k, (name, cam, rotation, translation)) in cameras.iter().enumerate() {
+        let rows: Vec<String> = cam.k.chunks(3).map(list).collect();
+        out += &format!(
+            "[cam_{k}]\nname = \"{name}\"\nsize = [{}, {}]\nmatrix = [{}]\ndistortions = {}\nrotation = {}\ntranslation = {}\n\n",
+            cal.rig.image_size[0],
+            cal.rig.image_size[1],
+            rows.join(", "),
+            list(&cam.dist),
+            list(rotation),
+            list(translation),
+        );
+    }
+    out + &format!("[metadata]\nadjusted = false\nerror = {:?}\n", cal.rms_px)
+}
+
+/// Reads an Anipose/aniposelib `calibration.toml` of two cameras (as [`anipose_toml`] writes
+/// it, or Anipose does): `cam_0` is taken as the left camera and the world, `cam_1` as the right.
+/// The pose between them is [`relative`] of the two cameras' poses (R = R₁ R₀ᵀ, T = t₁ − R t₀). It has no hand frame (`R_hand`): `triangulate` needs the YAML of a calibration
+/// with a reference pair.
+///
+/// # Errors
+/// [`StereoError`] naming the file and the camera or key that is missing or malformed.
+pub fn read_anipose_toml(path: &Path) -> Result<CalibrationFile, StereoError> {
+    let invalid = |message: String| StereoError::Invalid {
+        path: path.to_path_buf(),
+        message,
+    };
+    let text = read_text(path)?;
+    let doc: toml::Table = text
+        .parse()
+        .map_err(|e: toml::de::Error| StereoError::Unreadable {
+            path: path.to_path_buf(),
+            message: format!("not TOML: {}", e.message()),
+        })?;
+    let numbers =
+        |cam: &str, key: &str, v: Option<&toml::Value>| -> Result<Vec<f64>, StereoError> {
+            let bad = || invalid(format!("[{cam}] {key} is missing or not a list of numbers"));
+            let mut out = Vec::new();
+            let mut push = |x: &toml::Value| -> Result<(), StereoError> {
+                let f = x
+                    .as_float()
+                    .or(x.as_integer().map(|i| i as f64))
+                    .ok_or_else(bad)?;
+                if !f.is_finite() {
+                    return Err(bad());
+                }
+                out.push(f);
+                Ok(())
+            };
+            for item in v.and_then(toml::Value::as_array).ok_or_else(bad)? {
+                match item.as_array() {
+                    Some(row) => row.iter().try_for_each(&mut push)?,
+                    None => push(item)?,
+                }
+            }
+            Ok(out)
+        };
+    let cameras: Vec<&str> = ["cam_0", "cam_1"]
+        .into_iter()
+        .filter(|c| doc.get(*c).is_some_and(toml::Value::is_table))
+        .collect();
+    if cameras.len() < 2 || doc.keys().filter(|k| k.starts_with("cam_")).count() != 2 {
+        return Err(invalid(format!(
+            "handcap needs exactly two cameras, [cam_0] (left) and [cam_1] (right); the file has {}",
+            doc.keys().filter(|k| k.starts_with("cam_")).count()
+        )));
+    }
+    // Each camera: intrinsics, size, and its pose in the world (the first camera's frame).
+    type Camera = (Intrinsics, [f64; 2], CamFromWorld);
+    let camera = |cam: &str| -> Result<Camera, StereoError> {
+        let t = &doc[cam];
+        let size = numbers(cam, "size", t.get("size"))?;
+        let k = numbers(cam, "matrix", t.get("matrix"))?;
+        let dist = numbers(cam, "distortions", t.get("distortions"))?;
+        let r = numbers(cam, "rotation", t.get("rotation"))?;
+        let tr = numbers(cam, "translation", t.get("translation"))?;
+        if size.len() != 2 || k.len() != 9 || r.len() != 3 || tr.len() != 3 {
+            return Err(invalid(format!(
+                "[{cam}]: size needs 2 numbers, matrix 3 × 3, rotation and translation 3 each"
+            )));
+        }
+        let intrinsics = Intrinsics {
+            k: camera_matrix(&format!("[{cam}] matrix"), k).map_err(invalid)?,
+            dist: distortion_coefficients(&format!("[{cam}] distortions"), dist)
+                .map_err(invalid)?,
+        };
+        Ok((
+            intrinsics,
+            [size[0], size[1]],
+            CamFromWorld::new(
+                Rotation3::from_scaled_axis(Vector3::new(r[0], r[1], r[2])),
+                Vector3::new(tr[0], tr[1], tr[2]),
+            ),
+        ))
+    };
+    let (left, left_size, left_pose) = camera("cam_0")?;
+    let (right, right_size, right_pose) = camera("cam_1")?;
+    if left_size != right_size {
+        return Err(invalid(format!(
+            "the cameras' sizes differ ({left_size:?} and {right_size:?}); both must capture at the same size"
+        )));
+    }
+    let between = relative(&left_pose, &right_pose);
+    Ok(CalibrationFile {
+        path: path.to_path_buf(),
+        rig: StereoRig {
+            image_size: left_size.map(|v| v as i32),
+            left,
+            right,
+            right_from_left: RightFromLeft::new(between.rotation, between.translation),
+        },
+        r_hand: None,
+        t_hand: None,
+    })
+}

@@ -1,0 +1,90 @@
+//! `board.yml`: the printed board's description, and the built-in default.
+
+use std::path::Path;
+
+use opencv::core;
+use opencv::prelude::*;
+
+use super::reason;
+use crate::calib::{BoardSpec, CalibError};
+use crate::opencv_yaml::FileStorage;
+
+/// The board description's file name inside a calibration directory.
+pub const BOARD_FILE: &str = "board.yml";
+
+/// The repository's `calib/board.yml`: the printed board handcap assumes when a calibration
+/// directory has no `board.yml` and no flags say otherwise.
+pub const DEFAULT_BOARD_YAML: &str = include_str!("../../../calib/board.yml");
+
+/// [`DEFAULT_BOARD_YAML`] read.
+pub fn default_board() -> BoardSpec {
+    read_board_text(DEFAULT_BOARD_YAML).expect("calib/board.yml is a board description")
+}
+
+/// Reads a board description from its text.
+///
+/// # Errors
+/// As [`read_board`].
+pub fn read_board_text(text: &str) -> Result<BoardSpec, CalibError> {
+    let mode = core::FileStorage_Mode::READ as i32 | core::FileStorage_Mode::MEMORY as i32;
+    board_from(text, mode, Path::new("(built-in board.yml)"))
+}
+
+/// `board.yml`: the printed board's inner corners and square size.
+pub fn board_yaml(board: &BoardSpec) -> String {
+    let mut fs = FileStorage::new();
+    fs.int("inner_corners_cols", board.cols as i64)
+        .int("inner_corners_rows", board.rows as i64)
+        .real("square_mm", board.square_mm);
+    fs.text().to_string()
+}
+
+/// Reads `board.yml`.
+///
+/// # Errors
+/// [`CalibError::BadBoard`] naming the file and what is missing.
+pub fn read_board(path: &Path) -> Result<BoardSpec, CalibError> {
+    let bad = |what: String| board_error(path, &what);
+    if !path.is_file() {
+        return Err(bad("no such file".into()));
+    }
+    let name = path
+        .to_str()
+        .ok_or_else(|| bad("the path is not UTF-8".into()))?;
+    board_from(name, core::FileStorage_Mode::READ as i32, path)
+}
+
+/// A board description that cannot be used, and what to do instead.
+fn board_error(path: &Path, what: &str) -> CalibError {
+    CalibError::BadBoard(format!(
+        "{}: {what}; pass --board COLSxROWS --square-mm MM, or write the file (see calib/board.yml)",
+        path.display()
+    ))
+}
+
+/// Reads a board description from a file name or, with the MEMORY flag, the text itself.
+fn board_from(source: &str, mode: i32, path: &Path) -> Result<BoardSpec, CalibError> {
+    let bad = |what: String| board_error(path, &what);
+    let fs = core::FileStorage::new(source, mode, "").map_err(|e| bad(reason(&e)))?;
+    let number = |key: &str| -> Result<f64, CalibError> {
+        let node = fs.get(key).map_err(|e| bad(reason(&e)))?;
+        if node.empty().unwrap_or(true)
+            || !node.is_real().unwrap_or(false) && !node.is_int().unwrap_or(false)
+        {
+            return Err(bad(format!("no number for {key}")));
+        }
+        node.to_f64().map_err(|e| bad(reason(&e)))
+    };
+    let count = |key: &str| -> Result<usize, CalibError> {
+        let v = number(key)?;
+        if v.fract() != 0.0 || v < 0.0 {
+            return Err(bad(format!("{key} is {v}, not a whole number")));
+        }
+        Ok(v as usize)
+    };
+    Ok(BoardSpec {
+        cols: count("inner_corners_cols")?,
+        rows: count("inner_corners_rows")?,
+        square_mm: number("square_mm")?,
+    })
+}

@@ -1,0 +1,112 @@
+//! The calibration as JSON, for tools that read JSON rather than OpenCV YAML.
+
+use std::path::Path;
+
+use super::{
+    camera_matrix, distortion_coefficients, read_text, uncertainty_note, uncertainty_values,
+    CalibrationFile,
+};
+use crate::calib::StereoCalibration;
+use crate::geometry::{rotation_from_rows, rotation_rows, Intrinsics, RightFromLeft};
+use crate::stereo::{StereoError, StereoRig};
+
+/// The cameras and the hand axes as JSON, for tools that read JSON rather than OpenCV YAML
+/// (Python's `json` + `numpy.array`, MATLAB's `jsondecode`, JavaScript): the YAML's keys and
+/// meanings, matrices as lists of rows. What [`read_calibration`] needs (`image_size`, `K1`,
+/// `D1`, `K2`, `D2`, `R`, `T`, `R_hand` when known) and the derived matrices (`E`, `F`,
+/// `R1`, `R2`, `P1`, `P2`, `Q`) and quality (`rms_px`, `epipolar_px`).
+pub fn calibration_json(cal: &StereoCalibration) -> String {
+    let rows =
+        |m: &[f64], cols: usize| -> Vec<Vec<f64>> { m.chunks(cols).map(<[f64]>::to_vec).collect() };
+    let rig = &cal.rig;
+    let mut doc = serde_json::json!({
+        "format": "handcap stereo calibration: the keys of calib.yml, matrices as rows; lengths in mm, image coordinates in px",
+        "image_size": rig.image_size,
+        "K1": rows(&rig.left.k, 3),
+        "D1": rig.left.dist,
+        "K2": rows(&rig.right.k, 3),
+        "D2": rig.right.dist,
+        "R": rows(&rig.right_from_left.rotation_rows(), 3),
+        "T": rig.right_from_left.translation_array(),
+        "E": rows(&cal.e, 3),
+        "F": rows(&cal.f, 3),
+        "R1": rows(&cal.r1, 3),
+        "R2": rows(&cal.r2, 3),
+        "P1": rows(&cal.p1, 4),
+        "P2": rows(&cal.p2, 4),
+        "Q": rows(&cal.q, 4),
+        "rms_px": cal.rms_px,
+        "epipolar_px": cal.epipolar_px,
+    });
+    if let Some(axes) = &cal.hand_axes {
+        doc["R_hand"] = serde_json::json!(rows(&rotation_rows(axes), 3));
+    }
+    for (key, r, cols, data) in uncertainty_values(cal) {
+        doc[&key] = match (r, cols) {
+            (1, 1) => serde_json::json!(data[0]),
+            (1, _) | (_, 1) => serde_json::json!(data),
+            _ => serde_json::json!(rows(&data, cols)),
+        };
+    }
+    doc["uncertainty"] = serde_json::json!(uncertainty_note(cal));
+    doc["advice"] = serde_json::json!(cal.guidance.advice);
+    if !cal.implausible.is_empty() {
+        doc["forced"] = serde_json::json!(cal.implausible);
+    }
+    if let Some(v) = &cal.validation {
+        doc["validation"] = serde_json::json!(v);
+    }
+    let mut text = serde_json::to_string_pretty(&doc).expect("numbers and strings serialise");
+    text.push('\n');
+    text
+}
+
+/// Reads a calibration written by [`calibration_json`].
+///
+/// # Errors
+/// [`StereoError`] naming the file and the key that is missing or malformed.
+pub fn read_calibration_json(path: &Path) -> Result<CalibrationFile, StereoError> {
+    #[derive(serde::Deserialize)]
+    #[allow(non_snake_case)]
+    struct Keys {
+        image_size: [i32; 2],
+        K1: [[f64; 3]; 3],
+        D1: Vec<f64>,
+        K2: [[f64; 3]; 3],
+        D2: Vec<f64>,
+        R: [[f64; 3]; 3],
+        T: [f64; 3],
+        R_hand: Option<[[f64; 3]; 3]>,
+    }
+    let invalid = |message: String| StereoError::Invalid {
+        path: path.to_path_buf(),
+        message,
+    };
+    let text = read_text(path)?;
+    let keys: Keys = serde_json::from_str(&text)
+        .map_err(|e| invalid(format!("not a handcap calibration JSON ({e})")))?;
+    let flat = |m: [[f64; 3]; 3]| -> [f64; 9] { std::array::from_fn(|k| m[k / 3][k % 3]) };
+    let camera = |k: [[f64; 3]; 3], d: Vec<f64>, kn: &str, dn: &str| {
+        Ok::<_, StereoError>(Intrinsics {
+            k: camera_matrix(kn, flat(k).to_vec()).map_err(invalid)?,
+            dist: distortion_coefficients(dn, d).map_err(invalid)?,
+        })
+    };
+    let rotation = |m: [[f64; 3]; 3], name: &str| {
+        rotation_from_rows(&flat(m)).map_err(|e| invalid(format!("{name}: {e}")))
+    };
+    if keys.image_size.iter().any(|&v| v <= 0) || keys.T.iter().any(|v| !v.is_finite()) {
+        return Err(invalid("image_size must be positive and T finite".into()));
+    }
+    Ok(CalibrationFile {
+        path: path.to_path_buf(),
+        rig: StereoRig {
+            image_size: keys.image_size,
+            left: camera(keys.K1, keys.D1, "K1", "D1")?,
+            right: camera(keys.K2, keys.D2, "K2", "D2")?,
+            right_from_left: RightFromLeft::new(rotation(keys.R, "R")?, keys.T.into()),
+        },
+        r_hand: keys.R_hand.map(|m| rotation(m, "R_hand")).transpose()?,
+        t_hand: None,
+    })
+}
