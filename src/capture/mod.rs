@@ -43,12 +43,14 @@ pub const STALL_S: f64 = 2.0;
 /// Errors of capturing.
 #[derive(Debug, thiserror::Error)]
 pub enum CaptureError {
-    #[error("cannot open the {side} camera {camera:?}: {why}; cameras found: {found}")]
+    #[error("cannot open the {side} camera {camera:?}: {why}; {hint}")]
     NotOpened {
         side: &'static str,
+        /// The source, its password hidden ([`redact`]).
         camera: String,
         why: String,
-        found: String,
+        /// What to check: the devices found for a device, the URL for a stream.
+        hint: String,
     },
     #[error("{0} already holds {1}; choose another --out")]
     Exists(PathBuf, &'static str),
@@ -188,12 +190,42 @@ fn devices() -> String {
     }
 }
 
+/// A camera source as it may be written or said: a URL's password replaced by `***`
+/// (`http://user:***@host/…`); anything else as it is.
+pub fn redact(source: &str) -> String {
+    let Some((scheme, rest)) = source.split_once("://") else {
+        return source.to_string();
+    };
+    let authority_end = rest.find(['/', '?', '#']).unwrap_or(rest.len());
+    let (authority, path) = rest.split_at(authority_end);
+    match authority.rsplit_once('@') {
+        Some((credentials, host)) => {
+            let user = credentials.split_once(':').map_or(credentials, |(u, _)| u);
+            let hidden = if credentials.contains(':') {
+                ":***"
+            } else {
+                ""
+            };
+            format!("{scheme}://{user}{hidden}@{host}{path}")
+        }
+        None => source.to_string(),
+    }
+}
+
 fn open_camera(side: Side, source: &str, o: &CaptureOptions) -> Result<Camera, CaptureError> {
+    let device = source.parse::<i32>().is_ok() || source.starts_with("/dev/");
     let not_opened = |why: String| CaptureError::NotOpened {
         side: side.name(),
-        camera: source.to_string(),
+        camera: redact(source),
         why,
-        found: devices(),
+        hint: if device {
+            format!("cameras found: {}", devices())
+        } else if source.contains("://") {
+            "check that the stream plays (e.g. `ffplay URL`) and that the address, port and credentials are right".into()
+        } else {
+            "give a device index (0), a device path (/dev/video0), a video file or a stream URL"
+                .into()
+        },
     };
     let file = Path::new(source).is_file();
     let opened = if let Ok(index) = source.parse::<i32>() {
@@ -637,7 +669,7 @@ pub fn capture(
         start_unix_s,
     };
     let json = serde_json::json!({
-        "sources": options.sources,
+        "sources": options.sources.each_ref().map(|s| redact(s)),
         "requested": {"width": options.width, "height": options.height, "fps": options.fps},
         "clock": "time_s = CLOCK_MONOTONIC seconds - start_monotonic_s (Python: time.monotonic() - start_monotonic_s)",
         "summary": summary,
@@ -766,6 +798,29 @@ pub mod calibration {
             self.taken += 1;
             self.refused.clear();
             Ok(())
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::redact;
+
+    #[test]
+    fn passwords_in_camera_urls_are_hidden_and_nothing_else_changes() {
+        assert_eq!(
+            redact("http://lab:s3cret@10.0.0.7:8080/stream.mjpg?x=1"),
+            "http://lab:***@10.0.0.7:8080/stream.mjpg?x=1"
+        );
+        assert_eq!(
+            redact("rtsp://admin:p@ss@cam/live"),
+            "rtsp://admin:***@cam/live"
+        );
+        assert_eq!(redact("rtsp://admin@cam/live"), "rtsp://admin@cam/live");
+        // An @ after the host belongs to the path, not to credentials.
+        assert_eq!(redact("http://cam/a@b"), "http://cam/a@b");
+        for plain in ["0", "/dev/video2", "left.avi", "http://cam:8080/video"] {
+            assert_eq!(redact(plain), plain);
         }
     }
 }

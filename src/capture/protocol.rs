@@ -9,6 +9,24 @@ use crate::data::{DataError, Table};
 
 pub use crate::hand::MAX_PRESSURE_KPA;
 
+/// The longest a protocol may hold a step (s): an hour. A hold beyond is a typo (or 1e300),
+/// and a session that waits for it never ends.
+pub const MAX_HOLD_S: f64 = 3600.0;
+
+/// Why a hold time is not one, or `None` when it is (positive, finite, at most
+/// [`MAX_HOLD_S`]).
+pub fn bad_hold(hold_s: f64) -> Option<String> {
+    (!(hold_s > 0.0 && hold_s <= MAX_HOLD_S)).then(|| {
+        // 1e300 as written, not as 301 digits.
+        let shown = if hold_s.abs() < 1e6 {
+            hold_s.to_string()
+        } else {
+            format!("{hold_s:e}")
+        };
+        format!("hold_s {shown} must be more than 0 and at most {MAX_HOLD_S} s (an hour)")
+    })
+}
+
 /// One step: the three muscles' pressures, held for `hold_s`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Step {
@@ -85,8 +103,8 @@ pub fn read(path: &Path) -> Result<Vec<Step>, DataError> {
             }
         }
         let hold_s = number(hold, "hold_s")?;
-        if hold_s <= 0.0 {
-            return table.fail(line, format!("hold_s {hold_s} must be positive"));
+        if let Some(why) = bad_hold(hold_s) {
+            return table.fail(line, format!("{why}; correct the protocol"));
         }
         let number_of_step = record[step].trim().parse().map_err(|_| {
             table.bad(

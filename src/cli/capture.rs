@@ -61,6 +61,15 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if !(a.fps > 0.0 && a.width > 0 && a.height > 0) {
         super::usage!("--fps, --width and --height must be positive");
     }
+    if a.left.trim() == a.right.trim() {
+        super::usage!(
+            "--left and --right are the same source ({}); give each camera its own",
+            capture::redact(&a.left)
+        );
+    }
+    if let Some(d) = a.duration_s.filter(|&d| d <= 0.0) {
+        super::usage!("--duration-s {d} must be positive");
+    }
     let protocol = match (&a.protocol, &a.set_pressure) {
         (Some(path), Some(command)) => Some((protocol::read(path)?, command.clone())),
         _ => None,

@@ -23,8 +23,8 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
-    if a.hold_s <= 0.0 {
-        super::usage!("--hold-s must be positive");
+    if let Some(why) = protocol::bad_hold(a.hold_s) {
+        super::usage!("--hold-s: {why}");
     }
     outputs::check(&[], &[Output::new(&a.out, "--out")])?;
     let text = protocol::paper_protocol(a.grid_step_kpa, a.sweep_step_kpa, a.hold_s)?;

@@ -187,10 +187,72 @@ fn capture_refuses_bad_protocols_and_cameras_and_keeps_what_a_stopped_camera_gav
     );
     assert!(
         msg.contains("cannot open the right camera \"nowhere.avi\"")
-            && msg.contains("cameras found"),
+            && msg.contains("give a device index"),
         "{msg}"
     );
     assert!(!d.join("x").exists());
+    // A stream that does not open: its password never said, the stream to check.
+    let out = handcap(
+        d,
+        &[
+            "capture",
+            "--left",
+            "cams/frames/left.avi",
+            "--right",
+            "http://lab:s3cret@127.0.0.1:9/stream.mjpg",
+            "--out",
+            "x",
+            "--duration-s",
+            "1",
+        ],
+    );
+    let msg = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{msg}");
+    assert!(
+        msg.contains("http://lab:***@127.0.0.1:9/stream.mjpg") && !msg.contains("s3cret"),
+        "{msg}"
+    );
+    assert!(!d.join("x").exists());
+    // The same source twice, or a duration that is not one: usage errors.
+    for (right, duration) in [
+        ("cams/frames/left.avi", "1"),
+        ("cams/frames/right.avi", "0"),
+    ] {
+        let out = handcap(
+            d,
+            &[
+                "capture",
+                "--left",
+                "cams/frames/left.avi",
+                "--right",
+                right,
+                "--out",
+                "x",
+                "--duration-s",
+                duration,
+            ],
+        );
+        assert_eq!(out.status.code(), Some(2), "{right} {duration}");
+    }
+    // A hold of 1e300 s is refused where written and where read.
+    assert_eq!(
+        handcap(d, &["protocol", "--out", "long.csv", "--hold-s", "1e300"])
+            .status
+            .code(),
+        Some(2)
+    );
+    std::fs::write(
+        d.join("long.csv"),
+        "step,phase,P1_kpa,P2_kpa,P3_kpa,hold_s\n0,train,0,0,0,1e300\n",
+    )
+    .unwrap();
+    let out = run("long", "long.csv");
+    let msg = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        msg.contains("long.csv line 2: hold_s 1e300 must be more than 0 and at most 3600"),
+        "{msg}"
+    );
+    assert!(!d.join("long").exists());
 
     // The videos end (1.4 s) long before the protocol (12 × 0.5 s): said, and kept.
     protocol(d, "slow.csv", "0.5");
