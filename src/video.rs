@@ -16,12 +16,28 @@ use opencv::videoio::{self, VideoCapture, VideoWriter};
 /// Extensions of the video files handcap looks for (`left.avi`, `right.mp4`, …).
 pub const EXTENSIONS: [&str; 4] = ["avi", "mkv", "mp4", "mov"];
 
-/// `dir/{stem}.<ext>` for the first of [`EXTENSIONS`] that exists.
-pub fn find(dir: &Path, stem: &str) -> Option<PathBuf> {
-    EXTENSIONS
+/// `dir/{stem}.<ext>` for the one of [`EXTENSIONS`] that exists.
+///
+/// # Errors
+/// A message naming the files when more than one exists: which camera's video is meant cannot
+/// be told.
+pub fn find(dir: &Path, stem: &str) -> Result<Option<PathBuf>, String> {
+    let found: Vec<PathBuf> = EXTENSIONS
         .iter()
         .map(|ext| dir.join(format!("{stem}.{ext}")))
-        .find(|p| p.is_file())
+        .filter(|p| p.is_file())
+        .collect();
+    match found.as_slice() {
+        [] => Ok(None),
+        [one] => Ok(Some(one.clone())),
+        many => Err(format!(
+            "{} are all videos of the {stem} camera; keep the one to use",
+            many.iter()
+                .map(|p| p.display().to_string())
+                .collect::<Vec<_>>()
+                .join(" and ")
+        )),
+    }
 }
 
 /// Has a Motion-JPEG file (FFmpeg's reader) hand out each frame's JPEG bytes undecoded;

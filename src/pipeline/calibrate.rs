@@ -166,8 +166,8 @@ fn pick_from_videos(
     out: &Path,
     session: &Session,
 ) -> Result<Option<calib::video::Picked>, PipelineError> {
-    use crate::triangulate::frames::FrameList;
-    if crate::video::find(dir, "left").is_none() || crate::video::find(dir, "right").is_none() {
+    use crate::triangulate::frames::{self, FrameList};
+    if !matches!(frames::videos(dir)?, (Some(_), Some(_))) {
         return Ok(None);
     }
     let frames = FrameList::read(dir, options.video_start_s)?;

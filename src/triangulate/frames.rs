@@ -101,6 +101,20 @@ pub struct FrameList {
     pub videos: Option<[PathBuf; 2]>,
 }
 
+/// The left and the right camera's video in `dir`, where there is one.
+///
+/// # Errors
+/// [`TriangulateError::Video`] when a camera has two (`right.avi` and `right.mp4`).
+pub fn videos(dir: &Path) -> Result<(Option<PathBuf>, Option<PathBuf>), TriangulateError> {
+    let find = |stem| {
+        crate::video::find(dir, stem).map_err(|message| TriangulateError::Video {
+            path: dir.to_path_buf(),
+            message,
+        })
+    };
+    Ok((find("left")?, find("right")?))
+}
+
 impl FrameList {
     /// Reads `dir/frames.csv` and finds each frame's image, or the two videos; for two videos
     /// without `frames.csv`, their own timestamps after `video_start_s` (left, right; s on the
@@ -112,11 +126,8 @@ impl FrameList {
     /// nor start times, or with both.
     pub fn read(dir: &Path, video_start_s: Option<[f64; 2]>) -> Result<Self, TriangulateError> {
         let listed = dir.join("frames.csv").exists();
-        let videos = (
-            crate::video::find(dir, "left"),
-            crate::video::find(dir, "right"),
-        );
-        if let (Some(left), Some(right)) = videos {
+        let videos = videos(dir)?;
+        if let (Some(left), Some(right)) = videos.clone() {
             let video_error = |path: &Path, message: String| TriangulateError::Video {
                 path: path.to_path_buf(),
                 message,
@@ -158,10 +169,7 @@ impl FrameList {
                 videos: None,
             });
         }
-        match (
-            crate::video::find(dir, "left"),
-            crate::video::find(dir, "right"),
-        ) {
+        match videos {
             (Some(left), Some(right)) => Ok(FrameList {
                 records,
                 paths,

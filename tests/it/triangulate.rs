@@ -546,6 +546,16 @@ fn recorded_as_videos_the_capture_gives_the_same_tips() {
         "{msg}"
     );
     assert!(!v.join("x/d.csv").exists());
+
+    // Two videos of one camera: which is meant cannot be told; refused, naming both.
+    std::fs::copy(v.join("frames/right.avi"), v.join("frames/right.mp4")).unwrap();
+    let msg = handcap_err(v, &truth_args("x/d.csv"));
+    assert!(
+        msg.contains("right.avi and")
+            && msg.contains("right.mp4 are all videos of the right camera"),
+        "{msg}"
+    );
+    assert!(!v.join("x/d.csv").exists());
 }
 
 /// Re-encodes a video as MPEG-4 Part 2 (FFmpeg's `mp4v`, through OpenCV).
