@@ -18,7 +18,6 @@ use pyo3::types::PyTuple;
 use handcap_core::data::{self, Columns, Dataset};
 use handcap_core::model::file::{ModelFile, ModelFileError};
 use handcap_core::model::history::Series;
-use handcap_core::model::interval::Intervals;
 use handcap_core::model::inverse::{self, InverseOptions};
 use handcap_core::model::msvr::fitness::FitnessKind;
 use handcap_core::model::msvr::folds::{self, FoldsBy};
@@ -157,14 +156,8 @@ fn fit_request(r: FitRequest) -> Result<ModelFile, String> {
             initial
         };
         let params = params.basis(basis.basis);
-        let predicted = tune::held_out_predictions(&scored, folds, r.seed, &plan, &params)
-            .map_err(|e| e.to_string())?;
-        let intervals = Intervals::calibrate(
-            &scored.outputs,
-            &predicted,
-            plan.labels.as_deref(),
-            plan.choice,
-        );
+        let intervals =
+            tune::intervals(&scored, folds, r.seed, &plan, &params).map_err(|e| e.to_string())?;
         (params, search, basis, Some(intervals))
     };
     let stored = ModelSpec::Msvr(params)

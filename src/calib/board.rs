@@ -58,4 +58,13 @@ impl BoardSpec {
             })
             .collect()
     }
+
+    /// The corners (mm) exactly as OpenCV calibrated with them ([`BoardSpec::object_points`]'s
+    /// `f32` values, widened), for handcap's own geometry.
+    pub(super) fn corners_mm(&self) -> Vec<nalgebra::Point3<f64>> {
+        self.object_points()
+            .iter()
+            .map(|p| nalgebra::Point3::new(f64::from(p.x), f64::from(p.y), f64::from(p.z)))
+            .collect()
+    }
 }

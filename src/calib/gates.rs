@@ -44,13 +44,12 @@ pub(super) fn reprojection_rms(
     camera: &Intrinsics,
     views: &[&[[f32; 2]]],
 ) -> Result<f64, CalibError> {
-    let object = board.object_points();
+    let object = board.corners_mm();
     let (mut sum, mut n) = (0.0, 0usize);
     for corners in views {
         let pose: CamFromBoard = board_pose(board, camera, corners)?;
         for (p, c) in object.iter().zip(corners.iter()) {
-            let p = nalgebra::Point3::new(f64::from(p.x), f64::from(p.y), f64::from(p.z));
-            let Some(px) = camera.pixel(&pose.apply(&p)) else {
+            let Some(px) = camera.pixel(&pose.apply(p)) else {
                 return Ok(f64::INFINITY); // a corner behind the camera
             };
             sum += (px[0] - f64::from(c[0])).powi(2) + (px[1] - f64::from(c[1])).powi(2);

@@ -232,7 +232,7 @@ pub fn board_poses(
     right: &[&[[f32; 2]]],
 ) -> Result<Vec<CamFromBoard>, CalibError> {
     let params = Params::new(rig, [false, false]);
-    let object = object_points(board);
+    let object = board.corners_mm();
     let (mut r0, mut r1) = (Vec::new(), Vec::new());
     left.iter()
         .zip(right)
@@ -277,15 +277,6 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
 
-/// The board's corners (mm) exactly as OpenCV calibrated with them.
-fn object_points(board: &BoardSpec) -> Vec<Point3<f64>> {
-    board
-        .object_points()
-        .iter()
-        .map(|p| Point3::new(f64::from(p.x), f64::from(p.y), f64::from(p.z)))
-        .collect()
-}
-
 /// The calibration's standard deviations (module docs), the tip's at `at` (left camera, mm,
 /// described by `what`). `free` says which cameras' intrinsics were solved. `None` when the
 /// problem has no unique solution (JᵀJ singular) or a fixed camera's distortion is beyond the
@@ -310,7 +301,7 @@ pub fn estimate(
         return Ok(None);
     }
     let params = Params::new(rig, free);
-    let object = object_points(board);
+    let object = board.corners_mm();
     let nc = params.len();
     let n = nc + 6 * poses.len();
     let per_view = 4 * object.len();

@@ -146,18 +146,10 @@ pub(super) fn validate(
     let ratio = (seen.iter().sum::<f64>() / predicted.iter().sum::<f64>()).sqrt();
 
     // The full calibration's deviation over the volume, against the distance from the boards.
+    let on_board = board.corners_mm();
     let corners: Vec<Vector3<f64>> = poses
         .iter()
-        .flat_map(|pose| {
-            board
-                .object_points()
-                .iter()
-                .map(|p| {
-                    let p = Point3::new(f64::from(p.x), f64::from(p.y), f64::from(p.z));
-                    pose.apply(&p).coords
-                })
-                .collect::<Vec<_>>()
-        })
+        .flat_map(|pose| on_board.iter().map(|p| pose.apply(p).coords))
         .collect();
     let nearest = |p: &Vector3<f64>| {
         corners

@@ -368,18 +368,23 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
     let mut tests = Vec::new();
     let mut coverage = Vec::new();
     for (name, test) in &test_data {
+        let mut msvr_predicted = None;
         for m in &models {
+            let (errors, predicted) = model::evaluate_predicting(m.model, test)?;
             tests.push(TestResult {
                 model: m.name.into(),
                 test: name.clone(),
-                errors: model::evaluate(m.model, test)?,
+                errors,
             });
+            if m.name == "msvr" {
+                msvr_predicted = Some(predicted);
+            }
         }
-        if let Some(i) = intervals.as_ref().filter(|i| !i.held_out.radii.is_empty()) {
+        let intervals = intervals.as_ref().filter(|i| !i.held_out.radii.is_empty());
+        if let (Some(i), Some(predicted)) = (intervals, msvr_predicted) {
             let labels = group_column
                 .as_ref()
                 .and_then(|c| data::read_columns(&test.source, std::slice::from_ref(c)).ok());
-            let predicted = fitted.predictor().predict(&test.inputs)?;
             coverage.push(TestCoverageReport {
                 test: name.clone(),
                 column: labels.as_ref().and(group_column.clone()),
@@ -734,14 +739,13 @@ fn calibrate_intervals(
     let FitnessKind::Cv { folds } = scoring.fitness else {
         return Ok(None);
     };
-    let plan = &scoring.plan;
-    let predicted = tune::held_out_predictions(&scoring.scored, folds, seed, plan, params)?;
-    Ok(Some(Intervals::calibrate(
-        &scoring.scored.outputs,
-        &predicted,
-        plan.labels.as_deref(),
-        plan.choice.clone(),
-    )))
+    Ok(Some(tune::intervals(
+        &scoring.scored,
+        folds,
+        seed,
+        &scoring.plan,
+        params,
+    )?))
 }
 
 /// "90 %: 1.23, 95 %: 1.87".

@@ -162,6 +162,17 @@ pub fn errors(truth: &Columns, predicted: &Columns) -> Errors {
 /// # Errors
 /// [`ModelError`] when the dataset's columns are not the model's.
 pub fn evaluate(model: &dyn Predict, data: &Dataset) -> Result<Errors, ModelError> {
+    Ok(evaluate_predicting(model, data)?.0)
+}
+
+/// [`evaluate`], with the predictions it scored (for what else they are measured by).
+///
+/// # Errors
+/// As [`evaluate`].
+pub fn evaluate_predicting(
+    model: &dyn Predict,
+    data: &Dataset,
+) -> Result<(Errors, Columns), ModelError> {
     if data.outputs.names != model.outputs() {
         return Err(ModelError::OutputMismatch {
             expected: model.outputs().join(","),
@@ -169,7 +180,7 @@ pub fn evaluate(model: &dyn Predict, data: &Dataset) -> Result<Errors, ModelErro
         });
     }
     let predicted = model.predict(&data.inputs)?;
-    Ok(errors(&data.outputs, &predicted))
+    Ok((errors(&data.outputs, &predicted), predicted))
 }
 
 #[cfg(test)]

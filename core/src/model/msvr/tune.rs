@@ -18,6 +18,7 @@ use super::fitness::{Counters, Fitness, FitnessError, FitnessKind};
 use super::folds::{FoldChoice, FoldPlan};
 use super::{kernel, Basis, MinMaxScaler, MsvrParams};
 use crate::data::{Columns, Dataset};
+use crate::model::interval::Intervals;
 use crate::search::{
     Hyper, Method, Observer, Search, SearchError, SearchResult, SearchSpace, SearchStop,
 };
@@ -231,19 +232,19 @@ pub fn cross_validate(
     Ok(scorer.evaluate(&[params.hyper()], f64::INFINITY)[0])
 }
 
-/// Every row's prediction by the model fitted at `params` without the row's fold: the folds of
-/// `folds` (`k` of them, cut with `seed` as a search with that seed cuts them), for the
-/// held-out residuals that conformal intervals are calibrated on.
+/// Conformal prediction intervals of `params` on `data`: every row predicted by the model
+/// fitted without the row's fold (the folds of `folds`, `k` of them, cut with `seed` as a
+/// search with that seed cuts them), and the radii of those held-out residuals.
 ///
 /// # Errors
 /// [`TuneError`] when the folds cannot be cut or a fit fails.
-pub fn held_out_predictions(
+pub fn intervals(
     data: &Dataset,
     k: usize,
     seed: u64,
     folds: &FoldPlan,
     params: &MsvrParams,
-) -> Result<Columns, TuneError> {
+) -> Result<Intervals, TuneError> {
     super::check_memory(data.rows(), params.basis)?;
     let scorer = Fitness::new(
         data,
@@ -253,12 +254,18 @@ pub fn held_out_predictions(
         params,
     )?;
     let predicted = scorer.held_out_predictions(&params.hyper())?;
-    Ok(Columns::new(
+    let predicted = Columns::new(
         data.outputs.names.clone(),
         (0..predicted.nrows())
             .flat_map(|r| (0..predicted.ncols()).map(move |j| (r, j)))
             .map(|(r, j)| predicted[(r, j)])
             .collect(),
+    );
+    Ok(Intervals::calibrate(
+        &data.outputs,
+        &predicted,
+        folds.labels.as_deref(),
+        folds.choice.clone(),
     ))
 }
 
