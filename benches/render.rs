@@ -40,6 +40,7 @@ fn bench(c: &mut Criterion) {
             rotation,
             (aim - rotation * Vector3::new(40.0, 25.0, 0.0)).coords,
         ),
+        markers: Default::default(),
     };
     let plant = Plant::default();
     let finger = Finger::from_centre_line(&plant.centre_line([0.0, 120.0, 200.0]).unwrap(), 4);

@@ -5,7 +5,7 @@ use nalgebra::{Matrix3, Rotation3, Vector3};
 use opencv::calib3d;
 use opencv::core::{self, Mat, Size};
 
-use super::{BoardCheck, BoardSpec, CalibError, StereoFit};
+use super::{BoardCheck, BoardSpec, CalibError, PairCorners, StereoFit, View};
 use crate::cv::{fixed, mat, points};
 use crate::geometry::{CamFromBoard, Intrinsics};
 use crate::stereo::Side;
@@ -19,16 +19,12 @@ fn wide(c: &[[f32; 2]]) -> Vec<[f64; 2]> {
 
 /// Mean distance (px) of each undistorted corner from the epipolar line of its partner, both
 /// ways.
-pub(super) fn epipolar_error(
-    rig: &StereoFit,
-    left: &[&[[f32; 2]]],
-    right: &[&[[f32; 2]]],
-) -> Result<f64, CalibError> {
+pub(super) fn epipolar_error(rig: &StereoFit, pairs: &[PairCorners]) -> Result<f64, CalibError> {
     let f = Matrix3::from_row_slice(&rig.f);
     let (mut sum, mut n) = (0.0, 0usize);
-    for (l, r) in left.iter().zip(right) {
-        let ul = rig.cams.undistorted(Side::Left, &wide(l))?;
-        let ur = rig.cams.undistorted(Side::Right, &wide(r))?;
+    for pair in pairs {
+        let ul = rig.cams.undistorted(Side::Left, &wide(&pair.left))?;
+        let ur = rig.cams.undistorted(Side::Right, &wide(&pair.right))?;
         for (a, b) in ul.iter().zip(&ur) {
             let (pa, pb) = (Vector3::new(a[0], a[1], 1.0), Vector3::new(b[0], b[1], 1.0));
             let line_r = f * pa;
@@ -41,25 +37,26 @@ pub(super) fn epipolar_error(
     Ok(sum / n as f64)
 }
 
-/// Triangulates every used board and compares it with the printed one.
+/// Triangulates every used board and compares it with the printed one: the distance between
+/// neighbouring corners both images show, and each board's flatness.
 pub(super) fn board_check(
     board: &BoardSpec,
     rig: &StereoFit,
-    left: &[&[[f32; 2]]],
-    right: &[&[[f32; 2]]],
+    pairs: &[PairCorners],
 ) -> Result<BoardCheck, CalibError> {
     let (mut steps, mut plane_sq, mut plane_n) = (Vec::new(), 0.0, 0usize);
-    for (l, r) in left.iter().zip(right) {
-        let pts = rig.cams.triangulate(&wide(l), &wide(r))?;
-        let n = l.len();
-        for j in 0..board.rows {
-            for i in 0..board.cols {
-                let k = j * board.cols + i;
-                if i + 1 < board.cols {
-                    steps.push((pts[k + 1] - pts[k]).norm() / board.square_mm);
-                }
-                if j + 1 < board.rows {
-                    steps.push((pts[k + board.cols] - pts[k]).norm() / board.square_mm);
+    for pair in pairs {
+        let pts = rig
+            .cams
+            .triangulate(&wide(&pair.left), &wide(&pair.right))?;
+        let n = pts.len();
+        let index = |id: usize| pair.ids.binary_search(&id).ok();
+        for (k, &id) in pair.ids.iter().enumerate() {
+            let (i, _) = board.grid(id);
+            let right = (i + 1 < board.cols).then_some(id + 1);
+            for next in right.into_iter().chain([id + board.cols]) {
+                if let Some(m) = index(next) {
+                    steps.push((pts[m] - pts[k]).norm() / board.square_mm);
                 }
             }
         }
@@ -123,14 +120,15 @@ pub(super) fn rectify(rig: &StereoFit, size: [i32; 2]) -> Result<Rectification, 
 pub(super) fn hand_axes(
     board: &BoardSpec,
     rig: &StereoFit,
-    corners: &[[f32; 2]],
+    view: View,
 ) -> Result<Rotation3<f64>, CalibError> {
-    // Corners in the order that makes the board's x axis point to the image's right.
-    let mut ordered = corners.to_vec();
-    if corners[board.cols - 1][0] < corners[0][0] {
-        ordered.reverse();
+    let mut left_from_board = board_pose(board, &rig.cams.left, view)?.rotation;
+    // The board read so that its x axis points to the image's right: a chessboard's corners
+    // may be found from either end, and a ChArUco board may be laid upside down. Turning it
+    // half round about its normal is reading its corners in reverse.
+    if (left_from_board * Vector3::x()).x < 0.0 {
+        left_from_board *= Rotation3::from_axis_angle(&Vector3::z_axis(), std::f64::consts::PI);
     }
-    let left_from_board = board_pose(board, &rig.cams.left, &ordered)?.rotation;
     // Board axes in the hand frame: x → x, y → −z, z → +y.
     let hand_from_board = Rotation3::from_matrix_unchecked(Matrix3::new(
         1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, -1.0, 0.0,
@@ -142,12 +140,12 @@ pub(super) fn hand_axes(
 pub(super) fn board_pose(
     board: &BoardSpec,
     camera: &Intrinsics,
-    corners: &[[f32; 2]],
+    view: View,
 ) -> Result<CamFromBoard, CalibError> {
     let (mut rvec, mut tvec) = (Mat::default(), Mat::default());
     calib3d::solve_pnp(
-        &board.object_points(),
-        &points(corners),
+        &board.object_points(view.ids),
+        &points(view.px),
         &mat(3, &camera.k)?,
         &mat(1, &camera.dist)?,
         &mut rvec,

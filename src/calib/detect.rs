@@ -1,6 +1,9 @@
-//! Chessboard corners in one image, by OpenCV.
+//! A board's corners in one image, by OpenCV.
 //!
-//! Two detectors, never mixed within one calibration: the sector-based one
+//! A ChArUco board is found by its markers (`detectMarkers`, then `interpolateCornersCharuco`
+//! for the chessboard corners between them, refined again by `corner_sub_pix` in a window that
+//! stays off the markers); any part of it that shows two markers is found. A chessboard has two
+//! detectors, never mixed within one calibration: the sector-based one
 //! (`find_chessboard_corners_sb` with image normalisation, on a half-size copy of images wider
 //! than 1000 px; its corners are refined at full size by `corner_sub_pix` in a 5 × 5 window,
 //! which on the synthetic boards brings them under 0.09 px RMS of the truth, where the detector
@@ -10,9 +13,9 @@
 
 use std::path::Path;
 
-use opencv::core::{self, Mat, Point2f, Size, TermCriteria, Vector};
+use opencv::core::{self, Mat, Point2f, Ptr, Size, TermCriteria, Vector};
 use opencv::prelude::*;
-use opencv::{calib3d, imgcodecs, imgproc};
+use opencv::{aruco, calib3d, imgcodecs, imgproc};
 
 use rayon::prelude::*;
 
@@ -25,6 +28,7 @@ use super::{BoardSpec, CalibError, Found};
 pub enum Detector {
     SectorBased,
     Classic,
+    Charuco,
 }
 
 impl Detector {
@@ -32,8 +36,171 @@ impl Detector {
         match self {
             Detector::SectorBased => "sector-based (findChessboardCornersSB)",
             Detector::Classic => "classic (findChessboardCorners + cornerSubPix)",
+            Detector::Charuco => {
+                "ChArUco (detectMarkers + interpolateCornersCharuco + cornerSubPix)"
+            }
         }
     }
+
+    /// The detector tried first on `board`: the only one for a ChArUco board.
+    pub fn first_for(board: &BoardSpec) -> Self {
+        if board.is_charuco() {
+            Detector::Charuco
+        } else {
+            Detector::SectorBased
+        }
+    }
+}
+
+/// The corners one image shows, each with its id on the board ([`BoardSpec::grid`]), in
+/// ascending id: every corner of a chessboard, or the part of a ChArUco board in view.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Seen {
+    pub ids: Vec<usize>,
+    pub px: Vec<[f32; 2]>,
+}
+
+impl Seen {
+    /// A whole board's corners, in row order.
+    pub fn whole(px: Vec<[f32; 2]>) -> Self {
+        Seen {
+            ids: (0..px.len()).collect(),
+            px,
+        }
+    }
+
+    /// The pixel of corner `id`, if seen.
+    pub fn at(&self, id: usize) -> Option<[f32; 2]> {
+        self.ids.binary_search(&id).ok().map(|k| self.px[k])
+    }
+
+    /// The largest move (px) from `other` of a corner both show; infinite when they share none.
+    pub fn moved_from(&self, other: &Seen) -> f64 {
+        let mut shared = false;
+        let mut most = 0.0f64;
+        for (id, p) in self.ids.iter().zip(&self.px) {
+            if let Some(q) = other.at(*id) {
+                shared = true;
+                most = most.max(f64::from(p[0] - q[0]).hypot(f64::from(p[1] - q[1])));
+            }
+        }
+        if shared {
+            most
+        } else {
+            f64::INFINITY
+        }
+    }
+}
+
+/// The fewest corners a ChArUco view is kept with.
+pub const MIN_CHARUCO_CORNERS: usize = 4;
+
+/// `board`'s corners in `gray` by `detector` (which must be [`Detector::Charuco`] for a
+/// ChArUco board and another for a chessboard); `None` when not found.
+///
+/// # Errors
+/// An OpenCV failure (not "board not found", which is `Ok(None)`).
+pub fn find_board(
+    gray: &Mat,
+    board: &BoardSpec,
+    detector: Detector,
+) -> opencv::Result<Option<Seen>> {
+    match board.charuco()? {
+        Some(charuco) => find_charuco(gray, board, &charuco),
+        None => Ok(
+            find_corners(gray, board.cols as i32, board.rows as i32, detector)?.map(Seen::whole),
+        ),
+    }
+}
+
+/// A ChArUco board's corners in `gray`: its markers, the corners between them, each refined.
+fn find_charuco(
+    gray: &Mat,
+    board: &BoardSpec,
+    charuco: &Ptr<aruco::CharucoBoard>,
+) -> opencv::Result<Option<Seen>> {
+    let crate::calib::Pattern::Charuco {
+        marker_mm,
+        dictionary,
+    } = board.pattern
+    else {
+        return Ok(None);
+    };
+    let mut markers = Vector::<Vector<Point2f>>::new();
+    let mut marker_ids = Vector::<i32>::new();
+    let mut rejected = Vector::<Vector<Point2f>>::new();
+    aruco::detect_markers(
+        gray,
+        &dictionary.opencv()?,
+        &mut markers,
+        &mut marker_ids,
+        &aruco::DetectorParameters::create()?,
+        &mut rejected,
+    )?;
+    if marker_ids.len() < 2 {
+        return Ok(None);
+    }
+    let (mut corners, mut ids) = (Vector::<Point2f>::new(), Vector::<i32>::new());
+    aruco::interpolate_corners_charuco(
+        &markers,
+        &marker_ids,
+        gray,
+        charuco,
+        &mut corners,
+        &mut ids,
+        &core::no_array(),
+        &core::no_array(),
+        2,
+    )?;
+    if ids.len() < MIN_CHARUCO_CORNERS {
+        return Ok(None);
+    }
+    let mut seen: Vec<(usize, [f32; 2])> = ids
+        .iter()
+        .zip(corners.iter())
+        .map(|(id, p)| (id as usize, [p.x, p.y]))
+        .collect();
+    seen.sort_by_key(|s| s.0);
+    let mut seen = Seen {
+        ids: seen.iter().map(|s| s.0).collect(),
+        px: seen.iter().map(|s| s.1).collect(),
+    };
+    // OpenCV refines to 0.1 px; again, to 1e-4, in a window that holds no marker edge: the
+    // gap between a corner and the markers beside it is (square − marker) / 2.
+    let square_px = square_px(board, &seen);
+    let gap_px = square_px * (board.square_mm - marker_mm) / (2.0 * board.square_mm);
+    let half = (gap_px.floor() as i32 - 1).clamp(2, 5);
+    let mut refined: Vector<Point2f> = seen.px.iter().map(|p| Point2f::new(p[0], p[1])).collect();
+    seen.px = refine(gray, &mut refined, half)?;
+    Ok(Some(seen))
+}
+
+/// `corners` refined by `corner_sub_pix` to 1e-4 px in a window of `half` pixels each side.
+fn refine(gray: &Mat, corners: &mut Vector<Point2f>, half: i32) -> opencv::Result<Vec<[f32; 2]>> {
+    let criteria = TermCriteria::new(core::TermCriteria_COUNT + core::TermCriteria_EPS, 50, 1e-4)?;
+    imgproc::corner_sub_pix(
+        gray,
+        corners,
+        Size::new(half, half),
+        Size::new(-1, -1),
+        criteria,
+    )?;
+    Ok(corners.iter().map(|p| [p.x, p.y]).collect())
+}
+
+/// The median distance (px) between seen corners that are neighbours on the board.
+fn square_px(board: &BoardSpec, seen: &Seen) -> f64 {
+    let mut steps: Vec<f64> = Vec::new();
+    for (id, p) in seen.ids.iter().zip(&seen.px) {
+        let (i, _) = board.grid(*id);
+        let right = (i + 1 < board.cols).then_some(id + 1);
+        for next in right.into_iter().chain([id + board.cols]) {
+            if let Some(q) = seen.at(next) {
+                steps.push(f64::from(p[0] - q[0]).hypot(f64::from(p[1] - q[1])));
+            }
+        }
+    }
+    crate::stats::median(&mut steps).unwrap_or(0.0)
 }
 
 /// Reads an image as 8-bit grey.
@@ -78,7 +245,8 @@ pub fn find_corners(
     let size = Size::new(cols, rows);
     let mut corners = Vector::<Point2f>::new();
     let (found, window) = match detector {
-        Detector::SectorBased => {
+        // A chessboard has no markers: the sector-based detector is its first.
+        Detector::SectorBased | Detector::Charuco => {
             // Images wider than 1000 px are searched at half size (4× faster; squares of a
             // board that fills a useful part of a 720p image stay ≥ 15 px) and the corners
             // mapped back; the refinement below works at full size.
@@ -128,15 +296,7 @@ pub fn find_corners(
     if !found || corners.len() != (cols * rows) as usize {
         return Ok(None);
     }
-    let criteria = TermCriteria::new(core::TermCriteria_COUNT + core::TermCriteria_EPS, 50, 1e-4)?;
-    imgproc::corner_sub_pix(
-        gray,
-        &mut corners,
-        Size::new(window, window),
-        Size::new(-1, -1),
-        criteria,
-    )?;
-    Ok(Some(corners.iter().map(|p| [p.x, p.y]).collect()))
+    refine(gray, &mut corners, window).map(Some)
 }
 
 pub(super) fn read_all(images: &[&Path]) -> Result<Vec<Mat>, CalibError> {
@@ -173,6 +333,12 @@ pub(super) fn check_sizes(all: &[&ImagePair], found: &[Found]) -> Result<[i32; 2
 
 /// Other board sizes that are found in the first few images, as a hint.
 pub(super) fn suggest_board(grays: &[Mat], board: &BoardSpec) -> String {
+    if let crate::calib::Pattern::Charuco { dictionary, .. } = board.pattern {
+        return format!(
+            "; no two {} markers side by side were found: check --dictionary and that the images show the board",
+            dictionary.name()
+        );
+    }
     let (c, r) = (board.cols as i32, board.rows as i32);
     let candidates = [
         (r, c),

@@ -7,8 +7,8 @@ use opencv::core::{self, Mat, Point2f, Point3f, Size, TermCriteria, Vector};
 use rayon::prelude::*;
 
 use super::{
-    uncertainty, BoardSpec, Bootstrap, CalibError, CalibOptions, KnownIntrinsics, PairReport,
-    Usable,
+    uncertainty, BoardSpec, Bootstrap, CalibError, CalibOptions, KnownIntrinsics, PairCorners,
+    PairReport, View,
 };
 use crate::cv::{self, fixed, points, values};
 use crate::geometry::{relative, CamFromBoard, Intrinsics, RightFromLeft};
@@ -23,7 +23,7 @@ use crate::stereo::StereoRig;
 pub(super) fn without_outliers(
     board: &BoardSpec,
     size: [i32; 2],
-    usable: &mut Vec<Usable>,
+    usable: &mut Vec<PairCorners>,
     reports: &mut [PairReport],
     options: &CalibOptions,
     needed: usize,
@@ -62,7 +62,7 @@ pub(super) fn without_outliers(
 pub(super) fn bootstrap(
     board: &BoardSpec,
     size: [i32; 2],
-    usable: &[Usable],
+    usable: &[PairCorners],
     options: &CalibOptions,
     rig: &StereoRig,
 ) -> Result<Bootstrap, CalibError> {
@@ -72,7 +72,7 @@ pub(super) fn bootstrap(
         .map(|round| {
             let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(options.seed);
             rng.set_stream(round as u64);
-            let drawn: Vec<Usable> = (0..usable.len())
+            let drawn: Vec<PairCorners> = (0..usable.len())
                 .map(|_| usable[rng.random_range(0..usable.len())].clone())
                 .collect();
             Ok(stereo(board, size, &drawn, &options.intrinsics)?.cams)
@@ -122,14 +122,16 @@ pub(super) fn criteria() -> Result<TermCriteria, CalibError> {
 pub(super) fn single_camera(
     board: &BoardSpec,
     size: [i32; 2],
-    image: &Vector<Vector<Point2f>>,
+    views: &[View],
 ) -> Result<(Mat, Mat, Vec<CamFromBoard>, f64), CalibError> {
-    let object: Vector<Vector<Point3f>> = image.iter().map(|_| board.object_points()).collect();
+    let object: Vector<Vector<Point3f>> =
+        views.iter().map(|v| board.object_points(v.ids)).collect();
+    let image: Vector<Vector<Point2f>> = views.iter().map(|v| points(v.px)).collect();
     let (mut k, mut d) = (Mat::default(), Mat::default());
     let (mut rv, mut tv) = (Vector::<Mat>::new(), Vector::<Mat>::new());
     let rms = calib3d::calibrate_camera(
         &object,
-        image,
+        &image,
         Size::new(size[0], size[1]),
         &mut k,
         &mut d,
@@ -159,12 +161,11 @@ pub(super) fn single_camera(
 fn inconsistent_pairs(
     board: &BoardSpec,
     size: [i32; 2],
-    usable: &[Usable],
+    usable: &[PairCorners],
 ) -> Result<Vec<(usize, String)>, CalibError> {
-    let left: Vector<Vector<Point2f>> = usable.iter().map(|u| points(&u.left)).collect();
-    let right: Vector<Vector<Point2f>> = usable.iter().map(|u| points(&u.right)).collect();
-    let (_, _, pl, _) = single_camera(board, size, &left)?;
-    let (_, _, pr, _) = single_camera(board, size, &right)?;
+    let side = |c: usize| -> Vec<View> { usable.iter().map(|u| u.view(c)).collect() };
+    let (_, _, pl, _) = single_camera(board, size, &side(0))?;
+    let (_, _, pr, _) = single_camera(board, size, &side(1))?;
     let between: Vec<_> = pl.iter().zip(&pr).map(|(l, r)| relative(l, r)).collect();
     let median = |k: usize| {
         let mut v: Vec<f64> = between.iter().map(|x| x.translation[k]).collect();
@@ -203,22 +204,26 @@ fn inconsistent_pairs(
 pub(super) fn stereo(
     board: &BoardSpec,
     size: [i32; 2],
-    usable: &[Usable],
+    usable: &[PairCorners],
     known: &[Option<KnownIntrinsics>; 2],
 ) -> Result<StereoFit, CalibError> {
     let image_size = Size::new(size[0], size[1]);
-    let object: Vector<Vector<Point3f>> = usable.iter().map(|_| board.object_points()).collect();
+    let object: Vector<Vector<Point3f>> =
+        usable.iter().map(|u| board.object_points(&u.ids)).collect();
     let left: Vector<Vector<Point2f>> = usable.iter().map(|u| points(&u.left)).collect();
     let right: Vector<Vector<Point2f>> = usable.iter().map(|u| points(&u.right)).collect();
-    let camera = |image: &Vector<Vector<Point2f>>, known: &Option<KnownIntrinsics>| match known {
+    let camera = |side: usize| match &known[side] {
         Some(k) => Ok((
             cv::mat(3, &k.intrinsics.k)?,
             cv::mat(1, &k.intrinsics.dist)?,
         )),
-        None => single_camera(board, size, image).map(|(k, d, _, _)| (k, d)),
+        None => {
+            let views: Vec<View> = usable.iter().map(|u| u.view(side)).collect();
+            single_camera(board, size, &views).map(|(k, d, _, _)| (k, d))
+        }
     };
-    let (mut k1, mut d1) = camera(&left, &known[0])?;
-    let (mut k2, mut d2) = camera(&right, &known[1])?;
+    let (mut k1, mut d1) = camera(0)?;
+    let (mut k2, mut d2) = camera(1)?;
     let flags = if known.iter().any(Option::is_some) {
         calib3d::CALIB_FIX_INTRINSIC
     } else {

@@ -15,7 +15,7 @@
 //! `forced` key.
 
 use super::checks::board_pose;
-use super::{BoardCheck, BoardSpec, CalibError, KnownIntrinsics};
+use super::{BoardCheck, BoardSpec, CalibError, KnownIntrinsics, View};
 use crate::geometry::{CamFromBoard, Intrinsics};
 
 /// Reprojection RMS above which a calibration is refused (px).
@@ -42,13 +42,12 @@ fn exceeds(value: f64, limit: f64) -> bool {
 pub(super) fn reprojection_rms(
     board: &BoardSpec,
     camera: &Intrinsics,
-    views: &[&[[f32; 2]]],
+    views: &[View],
 ) -> Result<f64, CalibError> {
-    let object = board.corners_mm();
     let (mut sum, mut n) = (0.0, 0usize);
-    for corners in views {
-        let pose: CamFromBoard = board_pose(board, camera, corners)?;
-        for (p, c) in object.iter().zip(corners.iter()) {
+    for view in views {
+        let pose: CamFromBoard = board_pose(board, camera, *view)?;
+        for (p, c) in board.corners_mm(view.ids).iter().zip(view.px) {
             let Some(px) = camera.pixel(&pose.apply(p)) else {
                 return Ok(f64::INFINITY); // a corner behind the camera
             };
@@ -65,7 +64,7 @@ pub(super) fn known_intrinsics(
     board: &BoardSpec,
     size: [i32; 2],
     known: &[Option<KnownIntrinsics>; 2],
-    views: [&[&[[f32; 2]]]; 2],
+    views: [&[View]; 2],
     own_rms: [f64; 2],
 ) -> Result<Vec<String>, CalibError> {
     let mut problems = Vec::new();

@@ -17,6 +17,7 @@
 use serde::Serialize;
 
 use super::uncertainty::{Uncertainty, DISPLACEMENT_MM, MARKER_NOISE_PX};
+use super::PairCorners;
 use crate::geometry::CamFromBoard;
 use crate::stereo::StereoRig;
 
@@ -64,10 +65,10 @@ impl Guidance {
 }
 
 /// The cells of one image holding at least one corner.
-fn cells(size: [i32; 2], views: &[&[[f32; 2]]]) -> [[bool; CELLS[0]]; CELLS[1]] {
+fn cells(size: [i32; 2], pairs: &[PairCorners], side: usize) -> [[bool; CELLS[0]]; CELLS[1]] {
     let mut cells = [[false; CELLS[0]]; CELLS[1]];
     let (nx, ny) = (CELLS[0] as f32, CELLS[1] as f32);
-    for c in views.iter().flat_map(|v| v.iter()) {
+    for c in pairs.iter().flat_map(|p| p.view(side).px) {
         let i = ((c[0] / size[0] as f32) * nx).clamp(0.0, nx - 1.0) as usize;
         let j = ((c[1] / size[1] as f32) * ny).clamp(0.0, ny - 1.0) as usize;
         cells[j][i] = true;
@@ -104,17 +105,16 @@ fn more_pairs(n: usize, sd: f64, target: f64, how: &str, goal: &str) -> String {
     }
 }
 
-/// Coverage, tilt and advice for a calibration of `rig` from `left`/`right` corners, the boards
+/// Coverage, tilt and advice for a calibration of `rig` from the corners of `pairs`, the boards
 /// at `poses` (left camera), with its `uncertainty` when there is one.
 pub fn advise(
     rig: &StereoRig,
-    left: &[&[[f32; 2]]],
-    right: &[&[[f32; 2]]],
+    pairs: &[PairCorners],
     poses: &[CamFromBoard],
     uncertainty: Option<&Uncertainty>,
 ) -> Guidance {
     let size = rig.image_size;
-    let guidance_cells = [cells(size, left), cells(size, right)];
+    let guidance_cells = [cells(size, pairs, 0), cells(size, pairs, 1)];
     let tilt_sd_deg = tilt_sd(poses);
     let n = poses.len();
     let mut advice = Vec::new();
@@ -257,9 +257,14 @@ mod tests {
         let middle: Vec<[f32; 2]> = (0..20)
             .map(|k| [400.0 + 20.0 * k as f32, 300.0 + 5.0 * k as f32])
             .collect();
-        let views = [middle.as_slice()];
+        let pairs = [PairCorners {
+            report: 0,
+            ids: (0..middle.len()).collect(),
+            left: middle.clone(),
+            right: middle,
+        }];
         let poses: Vec<CamFromBoard> = [-20.0, 0.0, 20.0].map(|t| facing(t, 0.0)).to_vec();
-        let g = advise(&rig(), &views, &views, &poses, None);
+        let g = advise(&rig(), &pairs, &poses, None);
         assert!(g.coverage()[0] < 0.2, "{:?}", g.coverage());
         assert_eq!(g.map(0)[0], "........");
         let text = g.advice.join("\n");

@@ -1,19 +1,26 @@
-//! Stereo calibration of two webcams from chessboard pairs, with the quality checks good tools
-//! give. OpenCV does the work (detection, per-camera and stereo calibration, rectification);
-//! this module chooses, checks and reports.
+//! Stereo calibration of two webcams from board pairs (a chessboard, or a ChArUco board seen
+//! whole or in part), with the quality checks good tools give. OpenCV does the work
+//! (detection, per-camera and stereo calibration, rectification); this module chooses, checks
+//! and reports.
 //!
 //! # Steps
 //!
 //! 1. Pairs: `left*`/`right*` files with the same suffix ([`pairs`]); `*_ref` is the reference
 //!    pair (the board at the finger's base).
-//! 2. Corners in every image, in parallel ([`detect`]): the sector-based detector; if it finds
-//!    fewer usable pairs than needed, the classic one for every image instead (never mixed).
-//! 3. Left/right corner order: a board seen by both cameras must run the same way in both
-//!    images (first → last corner, and along the first row); a right image whose corners run
-//!    the other way (the 180° ambiguity of the detector) has them reversed, and the pair says
-//!    so; a pair that still disagrees is rejected.
+//! 2. Corners in every image, in parallel ([`detect`]), each with its id on the board
+//!    ([`BoardSpec::grid`]). A chessboard: the sector-based detector; if it finds fewer usable
+//!    pairs than needed, the classic one for every image instead (never mixed). A ChArUco board:
+//!    its markers, and the corners between them.
+//! 3. Left/right corners matched ([`pairs::match_corners`]). A chessboard seen by both cameras
+//!    must run the same way in both images (first → last corner, and along the first row); a
+//!    right image whose corners run the other way (the 180° ambiguity of the detector) has them
+//!    reversed, and the pair says so; a pair that still disagrees is rejected. A ChArUco
+//!    board's corners are matched by id; a pair with fewer than
+//!    [`pairs::MIN_COMMON_CORNERS`] corners in both images, or all in one line, is rejected
+//!    with the count.
 //! 4. Each camera alone (`calibrate_camera`, 5 distortion coefficients), then both together
-//!    (`stereo_calibrate_extended`, starting from those intrinsics, per-pair errors).
+//!    (`stereo_calibrate_extended`, starting from those intrinsics, per-pair errors); each view
+//!    with the object points of the corners it shows.
 //! 5. Outliers: while the worst pair's error exceeds both `reject_factor` × the median and
 //!    `reject_floor_px`, it is dropped and the rig recalibrated, keeping at least `min_pairs`.
 //! 6. Quality: RMS, mean epipolar distance of the corners (undistorted, both directions),
@@ -22,10 +29,10 @@
 //!    rectification (`stereo_rectify`, zero disparity, α = 0).
 //! 7. The hand frame's axes from the reference pair, when there is one: the board's pose in the
 //!    left camera (`solve_pnp`), read with the board's x along hand x, its y along hand −z (down
-//!    the finger) and its z along hand +y. The corners are taken in the order that makes the
-//!    board's x axis point to the image's right. `R_hand` maps left-camera coordinates to the
-//!    hand frame's axes; the origin (the tip at zero pressure) is found later, by
-//!    `triangulate`.
+//!    the finger) and its z along hand +y; the board is read so that its x axis points to the
+//!    image's right (turned half round about its normal if need be). `R_hand` maps left-camera
+//!    coordinates to the hand frame's axes; the origin (the tip at zero pressure) is found
+//!    later, by `triangulate`.
 
 mod board;
 mod checks;
@@ -36,28 +43,27 @@ mod fit;
 pub mod gates;
 pub mod guidance;
 pub mod pairs;
+pub mod print;
 pub mod uncertainty;
 pub mod validate;
 pub mod video;
 
-pub use board::BoardSpec;
+pub use board::{BoardFlags, BoardSpec, Dictionary, Layout, Marker, Pattern};
 use checks::{board_check, board_pose, epipolar_error, hand_axes, rectify};
 use detect::{check_sizes, read_all, suggest_board};
 use fit::{bootstrap, single_camera, stereo, StereoFit};
-use pairs::{order_right_like_left, too_few};
+use pairs::too_few;
 
 use std::path::{Path, PathBuf};
 
 use nalgebra::Rotation3;
-use opencv::core::{Point2f, Vector};
 use opencv::prelude::*;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::cv::points;
 use crate::geometry::{CamFromBoard, Intrinsics};
 use crate::stereo::StereoRig;
-use detect::Detector;
+use detect::{Detector, Seen};
 use pairs::ImagePair;
 
 /// Errors of calibrating.
@@ -102,7 +108,7 @@ pub enum CalibError {
     },
     #[error("board: {0}")]
     BadBoard(String),
-    #[error("{left} and its right video: no still board pair in {searched} frame pairs searched (the board whole in both images in {seen}, still in {still}); film the whole board in both cameras, holding it still for half a second at each pose")]
+    #[error("{left} and its right video: no still board pair in {searched} frame pairs searched (the board in both images in {seen}, still in {still}); film the whole board in both cameras, holding it still for half a second at each pose")]
     NoVideoPairs {
         left: PathBuf,
         searched: usize,
@@ -249,7 +255,7 @@ impl StereoCalibration {
 }
 
 /// Corners of one image: its size and the corners if the board was found.
-type Found = ([i32; 2], Option<Vec<[f32; 2]>>);
+type Found = ([i32; 2], Option<Seen>);
 
 /// The cameras' standard deviations by a bootstrap over the pairs: the rig calibrated again
 /// `rounds` times, each on as many pairs as were used, drawn from them with replacement; the
@@ -262,12 +268,40 @@ pub struct Bootstrap {
     pub parameters: uncertainty::ParameterSd,
 }
 
-/// A pair in the calibration: its index among the reports, left and right corners.
-#[derive(Clone)]
-struct Usable {
+/// A pair in the calibration: its index among the reports, and the corners both images show,
+/// matched by id (ascending): their ids, left and right pixels.
+#[derive(Clone, Debug)]
+pub struct PairCorners {
     report: usize,
-    left: Vec<[f32; 2]>,
-    right: Vec<[f32; 2]>,
+    pub ids: Vec<usize>,
+    pub left: Vec<[f32; 2]>,
+    pub right: Vec<[f32; 2]>,
+}
+
+impl PairCorners {
+    /// The left (`side` 0) or right (1) image's corners.
+    pub fn view(&self, side: usize) -> View<'_> {
+        View {
+            ids: &self.ids,
+            px: if side == 0 { &self.left } else { &self.right },
+        }
+    }
+}
+
+/// One image's corners: their ids on the board and pixels.
+#[derive(Clone, Copy, Debug)]
+pub struct View<'a> {
+    pub ids: &'a [usize],
+    pub px: &'a [[f32; 2]],
+}
+
+impl<'a> From<&'a Seen> for View<'a> {
+    fn from(seen: &'a Seen) -> Self {
+        View {
+            ids: &seen.ids,
+            px: &seen.px,
+        }
+    }
 }
 
 /// Calibrates the rig from the pairs in `dir`; `progress(done, total)` counts images examined.
@@ -305,8 +339,7 @@ pub fn calibrate(
             .par_iter()
             .map(|gray| {
                 let size = gray.size()?;
-                let corners =
-                    detect::find_corners(gray, board.cols as i32, board.rows as i32, detector)?;
+                let corners = detect::find_board(gray, board, detector)?;
                 let n = done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1;
                 progress(n, grays.len());
                 Ok(([size.width, size.height], corners))
@@ -319,9 +352,9 @@ pub fn calibrate(
             .filter(|p| p[0].1.is_some() && p[1].1.is_some())
             .count()
     };
-    let mut detector = Detector::SectorBased;
+    let mut detector = Detector::first_for(board);
     let mut found = detect_all(detector)?;
-    if complete(&found) < options.min_pairs {
+    if complete(&found) < options.min_pairs && !board.is_charuco() {
         let classic = detect_all(Detector::Classic)?;
         if complete(&classic) > complete(&found) {
             detector = Detector::Classic;
@@ -351,7 +384,7 @@ pub fn calibrate(
 
     // Pairs with the board in both images, in a consistent corner order.
     let mut reports = Vec::new();
-    let mut usable: Vec<Usable> = Vec::new();
+    let mut usable: Vec<PairCorners> = Vec::new();
     for (k, pair) in listing.pairs.iter().enumerate() {
         let mut report = PairReport {
             name: pair.name.clone(),
@@ -362,22 +395,15 @@ pub fn calibrate(
             note: None,
         };
         match (&found[2 * k].1, &found[2 * k + 1].1) {
-            (Some(l), Some(r)) => match order_right_like_left(board, l, r) {
-                Some((right, reversed)) => {
-                    if reversed {
-                        report.note = Some("right corners reversed to match the left".into());
-                    }
-                    usable.push(Usable {
+            (Some(l), Some(r)) => match pairs::match_corners(board, l, r) {
+                Ok((corners, note)) => {
+                    report.note = note;
+                    usable.push(PairCorners {
                         report: reports.len(),
-                        left: l.clone(),
-                        right,
+                        ..corners
                     });
                 }
-                None => {
-                    report.rejected = Some(
-                        "corners run differently in the left and right images (mirrored?)".into(),
-                    )
-                }
+                Err(why) => report.rejected = Some(why),
             },
             (None, None) => report.rejected = Some("board not found in either image".into()),
             (None, _) => report.rejected = Some("board not found in the left image".into()),
@@ -393,22 +419,10 @@ pub fn calibrate(
     // Given intrinsics against these images, before they fix the fit.
     let mut implausible = Vec::new();
     if options.intrinsics.iter().any(Option::is_some) {
-        let side = |right: bool| -> Vec<&[[f32; 2]]> {
-            usable
-                .iter()
-                .map(|u| {
-                    if right {
-                        u.right.as_slice()
-                    } else {
-                        u.left.as_slice()
-                    }
-                })
-                .collect()
-        };
-        let (left, right) = (side(false), side(true));
-        let own = |views: &[&[[f32; 2]]]| -> Result<f64, CalibError> {
-            let image: Vector<Vector<Point2f>> = views.iter().map(|v| points(v)).collect();
-            Ok(single_camera(board, size, &image)?.3)
+        let side = |c: usize| -> Vec<View> { usable.iter().map(|u| u.view(c)).collect() };
+        let (left, right) = (side(0), side(1));
+        let own = |views: &[View]| -> Result<f64, CalibError> {
+            Ok(single_camera(board, size, views)?.3)
         };
         implausible = gates::known_intrinsics(
             board,
@@ -424,10 +438,8 @@ pub fn calibrate(
         reports[u.report].rms_px = Some(*e);
     }
 
-    let left: Vec<&[[f32; 2]]> = usable.iter().map(|u| u.left.as_slice()).collect();
-    let right: Vec<&[[f32; 2]]> = usable.iter().map(|u| u.right.as_slice()).collect();
-    let epipolar_px = epipolar_error(&rig, &left, &right)?;
-    let board_check = board_check(board, &rig, &left, &right)?;
+    let epipolar_px = epipolar_error(&rig, &usable)?;
+    let board_check = board_check(board, &rig, &usable)?;
     let (r1, r2, p1, p2, q) = rectify(&rig, size)?;
 
     // The reference pair's images follow the others' in `found`.
@@ -437,7 +449,7 @@ pub fn calibrate(
         .map(|pair| (pair, &found[2 * listing.pairs.len()].1));
     let (hand_axes, hand_axes_note) = match reference {
         Some((pair, Some(corners))) => (
-            Some(hand_axes(board, &rig, corners)?),
+            Some(hand_axes(board, &rig, corners.into())?),
             format!(
                 "from the reference pair {}: board x = hand x, board y = hand -z, board z = hand +y",
                 pair.left.display()
@@ -452,11 +464,11 @@ pub fn calibrate(
 
     // How sure all this is, at the finger's distance: the reference board's centre (the
     // finger's base), else the median of the boards' centres.
-    let poses = uncertainty::board_poses(board, &rig.cams, &left, &right)?;
+    let poses = uncertainty::board_poses(board, &rig.cams, &usable)?;
     let centre = |pose: &CamFromBoard| pose.apply(&board.centre()).coords;
     let at = match reference {
         Some((_, Some(corners))) => (
-            centre(&board_pose(board, &rig.cams.left, corners)?),
+            centre(&board_pose(board, &rig.cams.left, corners.into())?),
             "the reference board's centre".to_string(),
         ),
         _ => (
@@ -468,7 +480,7 @@ pub fn calibrate(
     let solved = options.intrinsics.iter().all(Option::is_none);
     let free = [solved, solved];
     let base = at.0;
-    let uncertainty = uncertainty::estimate(board, &rig.cams, free, &left, &right, &poses, at)?;
+    let uncertainty = uncertainty::estimate(board, &rig.cams, free, &usable, &poses, at)?;
     let validation = match (&uncertainty, options.validate) {
         (Some(u), true) => validate::validate(
             board,
@@ -488,7 +500,7 @@ pub fn calibrate(
     let bootstrap = (options.bootstrap > 0)
         .then(|| bootstrap(board, size, &usable, options, &rig.cams))
         .transpose()?;
-    let guidance = guidance::advise(&rig.cams, &left, &right, &poses, uncertainty.as_ref());
+    let guidance = guidance::advise(&rig.cams, &usable, &poses, uncertainty.as_ref());
     // A fit from given intrinsics that fail their own gate fails the others through them:
     // only the cause is said.
     let mut distances: Vec<f64> = poses.iter().map(|p| centre(p).norm()).collect();

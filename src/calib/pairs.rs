@@ -5,7 +5,8 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use super::{BoardSpec, CalibError, PairReport};
+use super::detect::Seen;
+use super::{BoardSpec, CalibError, PairCorners, PairReport};
 
 /// One left/right pair of images.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -72,10 +73,82 @@ pub fn list_pairs(dir: &Path) -> std::io::Result<PairListing> {
     Ok(listing)
 }
 
+/// The fewest corners both images of a pair must show, not all in one line of the board.
+pub const MIN_COMMON_CORNERS: usize = 8;
+
+/// The corners both images show, matched by id, and a note on anything done to them; `Err`
+/// with the reason when the pair cannot be used.
+///
+/// A chessboard's corners are all seen or none; the right image's run in the left image's order
+/// as detected, or reversed when they run the other way (the detector's 180° ambiguity; first →
+/// last corner and along the first row must agree). A ChArUco board's ids are its own.
+pub(super) fn match_corners(
+    board: &BoardSpec,
+    left: &Seen,
+    right: &Seen,
+) -> Result<(PairCorners, Option<String>), String> {
+    if !board.is_charuco() {
+        return match order_right_like_left(board, &left.px, &right.px) {
+            Some((right, reversed)) => Ok((
+                PairCorners {
+                    report: 0,
+                    ids: left.ids.clone(),
+                    left: left.px.clone(),
+                    right,
+                },
+                reversed.then(|| "right corners reversed to match the left".into()),
+            )),
+            None => Err("corners run differently in the left and right images (mirrored?)".into()),
+        };
+    }
+    let mut pair = PairCorners {
+        report: 0,
+        ids: Vec::new(),
+        left: Vec::new(),
+        right: Vec::new(),
+    };
+    for (id, l) in left.ids.iter().zip(&left.px) {
+        if let Some(r) = right.at(*id) {
+            pair.ids.push(*id);
+            pair.left.push(*l);
+            pair.right.push(r);
+        }
+    }
+    let n = pair.ids.len();
+    if n < MIN_COMMON_CORNERS {
+        return Err(format!(
+            "only {n} corners seen in both images (left {}, right {}; at least {MIN_COMMON_CORNERS} needed)",
+            left.ids.len(),
+            right.ids.len()
+        ));
+    }
+    if collinear(board, &pair.ids) {
+        return Err(format!(
+            "the {n} corners seen in both images lie in one line of the board"
+        ));
+    }
+    let note = (n < board.corner_count())
+        .then(|| format!("{n} of {} corners in both images", board.corner_count()));
+    Ok((pair, note))
+}
+
+/// Whether the corners `ids` lie on one straight line of the board.
+fn collinear(board: &BoardSpec, ids: &[usize]) -> bool {
+    let at = |id: usize| {
+        let (i, j) = board.grid(id);
+        (i as i64, j as i64)
+    };
+    let (a, b) = (at(ids[0]), at(ids[ids.len() - 1]));
+    ids.iter().all(|&id| {
+        let c = at(id);
+        (b.0 - a.0) * (c.1 - a.1) == (b.1 - a.1) * (c.0 - a.0)
+    })
+}
+
 /// The right image's corners in the left image's order: as detected, or reversed when they
 /// run the other way (first → last corner and along the first row). `None` when neither order
 /// agrees.
-pub(super) fn order_right_like_left(
+fn order_right_like_left(
     board: &BoardSpec,
     left: &[[f32; 2]],
     right: &[[f32; 2]],
@@ -114,6 +187,39 @@ pub(super) fn too_few(reports: &[PairReport], found: usize, needed: usize) -> Ca
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::calib::{Dictionary, Pattern};
+
+    fn seen(ids: impl Iterator<Item = usize>) -> Seen {
+        let ids: Vec<usize> = ids.collect();
+        let px = ids.iter().map(|&id| [id as f32, 2.0 * id as f32]).collect();
+        Seen { ids, px }
+    }
+
+    #[test]
+    fn charuco_corners_are_matched_by_id_and_too_few_are_refused() {
+        let board = BoardSpec {
+            cols: 9,
+            rows: 6,
+            square_mm: 10.0,
+            pattern: Pattern::Charuco {
+                marker_mm: 7.5,
+                dictionary: Dictionary::DEFAULT,
+            },
+        };
+        // Ids 10-29 on the left, 20-39 on the right: 20-29 in both, matched pixel to pixel.
+        let (pair, note) = match_corners(&board, &seen(10..30), &seen(20..40)).unwrap();
+        assert_eq!(pair.ids, (20..30).collect::<Vec<_>>());
+        assert_eq!(pair.left, pair.right);
+        assert_eq!(note.unwrap(), "10 of 54 corners in both images");
+        let why = match_corners(&board, &seen(0..12), &seen(7..20)).unwrap_err();
+        assert_eq!(
+            why,
+            "only 5 corners seen in both images (left 12, right 13; at least 8 needed)"
+        );
+        // One row of the board (9 corners) fixes no plane.
+        let why = match_corners(&board, &seen(9..18), &seen(9..18)).unwrap_err();
+        assert!(why.contains("lie in one line"), "{why}");
+    }
 
     #[test]
     fn pairs_by_suffix_and_lists_the_rest() {

@@ -33,7 +33,7 @@ use nalgebra::{Matrix6, Point3, Rotation3, Vector3, Vector6};
 use serde::Serialize;
 
 use super::checks::board_pose;
-use super::{BoardSpec, CalibError};
+use super::{BoardSpec, CalibError, PairCorners};
 use crate::geometry::{CamFromBoard, Intrinsics, RightFromLeft};
 use crate::stereo::StereoRig;
 
@@ -228,16 +228,16 @@ const POSE_STEP: [f64; 6] = [1e-7, 1e-7, 1e-7, 1e-5, 1e-5, 1e-5];
 pub fn board_poses(
     board: &BoardSpec,
     rig: &StereoRig,
-    left: &[&[[f32; 2]]],
-    right: &[&[[f32; 2]]],
+    pairs: &[PairCorners],
 ) -> Result<Vec<CamFromBoard>, CalibError> {
     let params = Params::new(rig, [false, false]);
-    let object = board.corners_mm();
     let (mut r0, mut r1) = (Vec::new(), Vec::new());
-    left.iter()
-        .zip(right)
-        .map(|(l, r)| {
-            let mut pose = board_pose(board, &rig.left, l)?;
+    pairs
+        .iter()
+        .map(|pair| {
+            let object = board.corners_mm(&pair.ids);
+            let (l, r) = (pair.left.as_slice(), pair.right.as_slice());
+            let mut pose = board_pose(board, &rig.left, pair.view(0))?;
             for _ in 0..10 {
                 params.residuals(&object, &pose, [l, r], &mut r0);
                 let mut jtj = Matrix6::zeros();
@@ -289,8 +289,7 @@ pub fn estimate(
     board: &BoardSpec,
     rig: &StereoRig,
     free: [bool; 2],
-    left: &[&[[f32; 2]]],
-    right: &[&[[f32; 2]]],
+    pairs: &[PairCorners],
     poses: &[CamFromBoard],
     at: (Vector3<f64>, String),
 ) -> Result<Option<Uncertainty>, CalibError> {
@@ -301,20 +300,24 @@ pub fn estimate(
         return Ok(None);
     }
     let params = Params::new(rig, free);
-    let object = board.corners_mm();
     let nc = params.len();
     let n = nc + 6 * poses.len();
-    let per_view = 4 * object.len();
-    let m = per_view * poses.len();
+    // Each view's first residual's row: four per corner both images show.
+    let mut first_row = vec![0];
+    for pair in pairs {
+        first_row.push(first_row.last().expect("row") + 4 * pair.ids.len());
+    }
+    let m = *first_row.last().expect("row");
     if m <= n {
         return Ok(None);
     }
     let mut jacobian = faer::Mat::<f64>::zeros(m, n);
     let (mut base, mut plus, mut minus) = (Vec::new(), Vec::new(), Vec::new());
     let mut rss = 0.0;
-    for (v, pose) in poses.iter().enumerate() {
-        let corners = [left[v], right[v]];
-        let row = v * per_view;
+    for (v, (pose, pair)) in poses.iter().zip(pairs).enumerate() {
+        let object = board.corners_mm(&pair.ids);
+        let corners = [pair.left.as_slice(), pair.right.as_slice()];
+        let row = first_row[v];
         params.residuals(&object, pose, corners, &mut base);
         rss += dot(&base, &base);
         let mut column = |j: usize, plus: &[f64], minus: &[f64], h: f64| {

@@ -20,7 +20,7 @@ use rand::seq::SliceRandom;
 use rand::SeedableRng;
 use serde::Serialize;
 
-use super::{stereo, uncertainty, BoardSpec, CalibError, KnownIntrinsics, Usable};
+use super::{stereo, uncertainty, BoardSpec, CalibError, KnownIntrinsics, PairCorners};
 use crate::geometry::CamFromBoard;
 use crate::stereo::StereoRig;
 
@@ -74,7 +74,7 @@ pub(super) struct Full<'a> {
 pub(super) fn validate(
     board: &BoardSpec,
     size: [i32; 2],
-    usable: &[Usable],
+    usable: &[PairCorners],
     known: &[Option<KnownIntrinsics>; 2],
     full: &Full,
     seed: u64,
@@ -110,7 +110,7 @@ pub(super) fn validate(
     let (mut seen, mut predicted) = ([0.0f64; 3], [0.0f64; 3]);
     let mut count = 0usize;
     for split in 0..SPLITS {
-        let halves: [Vec<Usable>; 2] = if split == 0 {
+        let halves: [Vec<PairCorners>; 2] = if split == 0 {
             [0, 1].map(|h| usable.iter().skip(h).step_by(2).cloned().collect())
         } else {
             order.shuffle(&mut rng);
@@ -120,12 +120,9 @@ pub(super) fn validate(
         let mut fits = Vec::new();
         for half in &halves {
             let rig = stereo(board, size, half, known)?.cams;
-            let left: Vec<&[[f32; 2]]> = half.iter().map(|u| u.left.as_slice()).collect();
-            let right: Vec<&[[f32; 2]]> = half.iter().map(|u| u.right.as_slice()).collect();
-            let poses = uncertainty::board_poses(board, &rig, &left, &right)?;
+            let poses = uncertainty::board_poses(board, &rig, half)?;
             let at = (base, String::new());
-            let Some(u) = uncertainty::estimate(board, &rig, free, &left, &right, &poses, at)?
-            else {
+            let Some(u) = uncertainty::estimate(board, &rig, free, half, &poses, at)? else {
                 return Ok(None);
             };
             fits.push((rig, u));
@@ -146,10 +143,16 @@ pub(super) fn validate(
     let ratio = (seen.iter().sum::<f64>() / predicted.iter().sum::<f64>()).sqrt();
 
     // The full calibration's deviation over the volume, against the distance from the boards.
-    let on_board = board.corners_mm();
     let corners: Vec<Vector3<f64>> = poses
         .iter()
-        .flat_map(|pose| on_board.iter().map(|p| pose.apply(p).coords))
+        .zip(usable)
+        .flat_map(|(pose, pair)| {
+            let on_board = board.corners_mm(&pair.ids);
+            on_board
+                .into_iter()
+                .map(|p| pose.apply(&p).coords)
+                .collect::<Vec<_>>()
+        })
         .collect();
     let nearest = |p: &Vector3<f64>| {
         corners

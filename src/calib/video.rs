@@ -20,7 +20,7 @@ use opencv::imgproc;
 use opencv::prelude::*;
 use rayon::prelude::*;
 
-use super::detect::{find_corners, Detector};
+use super::detect::{find_board, Detector, Seen};
 use super::{BoardSpec, CalibError};
 use crate::triangulate::frames::FrameList;
 use crate::video::{Frame, VideoReader};
@@ -29,7 +29,7 @@ use crate::video::{Frame, VideoReader};
 pub const STILL_PX: f64 = 0.5;
 
 /// A board's corners in the left and the right image.
-type PairCorners = [Vec<[f32; 2]>; 2];
+type BothImages = [Seen; 2];
 
 /// Frame pairs between two searched ones.
 const STRIDE: usize = 6;
@@ -77,11 +77,27 @@ fn frame_at(video: &mut VideoReader, index: usize, path: &Path) -> Result<Option
 
 /// Where the board stands in an image: centre (share of the width and height), size (share of
 /// the diagonal), foreshortening across and down (ratios of opposite sides), turn in the image
-/// (radians, of its first row).
-pub(crate) fn footprint(board: &BoardSpec, c: &[[f32; 2]], size: [i32; 2]) -> [f64; 6] {
-    let p = |i: usize| [f64::from(c[i][0]), f64::from(c[i][1])];
-    let (cols, rows) = (board.cols, board.rows);
-    let [a, b, d, e] = [p(0), p(cols - 1), p((rows - 1) * cols), p(rows * cols - 1)];
+/// (radians, of its first row). Of a part of a board, the part's: its corners nearest the
+/// board's four (the board's own when it is whole).
+pub(crate) fn footprint(board: &BoardSpec, seen: &Seen, size: [i32; 2]) -> [f64; 6] {
+    let extreme = |score: &dyn Fn(f64, f64) -> f64| {
+        let k = (0..seen.ids.len())
+            .max_by(|&a, &b| {
+                let at = |k: usize| {
+                    let (i, j) = board.grid(seen.ids[k]);
+                    score(i as f64, j as f64)
+                };
+                at(a).total_cmp(&at(b)).then(b.cmp(&a))
+            })
+            .expect("a board seen has corners");
+        [f64::from(seen.px[k][0]), f64::from(seen.px[k][1])]
+    };
+    let [a, b, d, e] = [
+        extreme(&|i, j| -(i + j)),
+        extreme(&|i, j| i - j),
+        extreme(&|i, j| j - i),
+        extreme(&|i, j| i + j),
+    ];
     let len = |u: [f64; 2], v: [f64; 2]| (u[0] - v[0]).hypot(u[1] - v[1]);
     let (w, h) = (f64::from(size[0]), f64::from(size[1]));
     let cx = (a[0] + b[0] + d[0] + e[0]) / 4.0 / w;
@@ -136,9 +152,9 @@ pub fn pick_pairs(
             numbers[k + 1][0] == numbers[k][0] + 1 && numbers[k + 1][1] == numbers[k][1] + 1
         })
         .collect();
-    let (cols, rows) = (board.cols as i32, board.rows as i32);
+    let detector = Detector::first_for(board);
     let done = std::sync::atomic::AtomicUsize::new(0);
-    let mut still: Vec<(usize, PairCorners, [i32; 2])> = Vec::new();
+    let mut still: Vec<(usize, BothImages, [i32; 2])> = Vec::new();
     let mut seen = 0;
     for chunk in searched.chunks(16) {
         // Read in order: each searched pair and the next.
@@ -152,18 +168,14 @@ pub fn pick_pairs(
             }
             images.push((k, four));
         }
-        let found: Vec<(usize, Option<[PairCorners; 2]>, [i32; 2])> = images
+        let found: Vec<(usize, Option<[BothImages; 2]>, [i32; 2])> = images
             .into_par_iter()
             .map(|(k, four)| {
                 let size = four
                     .first()
                     .and_then(|p| p.as_ref())
                     .map_or([0, 0], |(l, _)| [l.cols(), l.rows()]);
-                let corners = |m: &Mat| {
-                    find_corners(m, cols, rows, Detector::SectorBased)
-                        .ok()
-                        .flatten()
-                };
+                let corners = |m: &Mat| find_board(m, board, detector).ok().flatten();
                 let mut both = Vec::new();
                 for pair in four.iter().flatten() {
                     match (corners(&pair.0), corners(&pair.1)) {
@@ -176,7 +188,7 @@ pub fn pick_pairs(
                     done.load(std::sync::atomic::Ordering::SeqCst),
                     searched.len(),
                 );
-                let found = <[PairCorners; 2]>::try_from(both).ok();
+                let found = <[BothImages; 2]>::try_from(both).ok();
                 (k, found, size)
             })
             .collect();
@@ -186,8 +198,7 @@ pub fn pick_pairs(
             let moved = now
                 .iter()
                 .zip(&next)
-                .flat_map(|(a, b)| a.iter().zip(b))
-                .map(|(p, q)| f64::from(p[0] - q[0]).hypot(f64::from(p[1] - q[1])))
+                .map(|(a, b)| a.moved_from(b))
                 .fold(0.0, f64::max);
             if moved <= STILL_PX {
                 still.push((k, now, size));

@@ -687,7 +687,7 @@ pub fn capture(
 /// somewhere new ([`crate::calib::video::new_place`]).
 pub mod calibration {
     use super::*;
-    use crate::calib::detect::{find_corners, Detector};
+    use crate::calib::detect::{find_board, Detector, Seen};
     use crate::calib::video::{footprint, new_place, STILL_PX};
 
     /// How often the latest frames are searched for the board (s).
@@ -697,20 +697,19 @@ pub mod calibration {
     pub struct Judge {
         pub spec: BoardPairs,
         dir: PathBuf,
-        previous: Option<[Vec<[f32; 2]>; 2]>,
+        previous: Option<[Seen; 2]>,
         places: Vec<[f64; 6]>,
         pub taken: usize,
         pub refused: String,
     }
 
-    fn corners(spec: &BoardPairs, bytes: &[u8]) -> Option<(Vec<[f32; 2]>, [i32; 2])> {
+    fn corners(spec: &BoardPairs, bytes: &[u8]) -> Option<(Seen, [i32; 2])> {
         let gray = crate::cv::decode_image(
             &Vector::from_slice(bytes),
             opencv::imgcodecs::IMREAD_GRAYSCALE,
         )
         .ok()?;
-        let (cols, rows) = (spec.board.cols as i32, spec.board.rows as i32);
-        let found = find_corners(&gray, cols, rows, Detector::SectorBased).ok()??;
+        let found = find_board(&gray, &spec.board, Detector::first_for(&spec.board)).ok()??;
         Some((found, [gray.cols(), gray.rows()]))
     }
 
@@ -762,17 +761,21 @@ pub mod calibration {
             );
             let previous = self.previous.take();
             let (Some((l, size)), Some((r, _))) = (l, r) else {
-                self.refused = "the board is not seen whole in both cameras".into();
+                self.refused = "the board is not seen in both cameras".into();
                 return Ok(());
             };
-            self.previous = Some([l.clone(), r.clone()]);
-            let moved = previous.map_or(f64::INFINITY, |[pl, pr]| {
-                pl.iter()
-                    .zip(&l)
-                    .chain(pr.iter().zip(&r))
-                    .map(|(p, q)| f64::from(p[0] - q[0]).hypot(f64::from(p[1] - q[1])))
-                    .fold(0.0, f64::max)
-            });
+            let shared = l.ids.iter().filter(|&&id| r.at(id).is_some()).count();
+            if shared < crate::calib::pairs::MIN_COMMON_CORNERS {
+                self.refused = format!(
+                    "only {shared} corners are seen in both cameras: bring more of the board into both"
+                );
+                return Ok(());
+            }
+            let moved = match &previous {
+                Some([pl, pr]) => l.moved_from(pl).max(r.moved_from(pr)),
+                None => f64::INFINITY,
+            };
+            self.previous = Some([l.clone(), r]);
             if moved > STILL_PX {
                 self.refused = "the board is moving: hold it still".into();
                 return Ok(());

@@ -9,18 +9,12 @@ use handcap::calib::uncertainty::{self, ParameterSd};
 use handcap::calib::{file, validate, CalibOptions};
 use handcap::pipeline::calibrate::{self, Calibrated};
 
-use super::synth::parse_board;
-
 #[derive(clap::Args)]
 pub struct Args {
-    /// Directory with left*/right* chessboard images (PNG or JPEG)
+    /// Directory with left*/right* board images (PNG or JPEG), or two videos of the board
     dir: PathBuf,
-    /// Inner corners COLSxROWS (default: DIR/board.yml, as `synth` writes it, else calib/board.yml's 9x6)
-    #[arg(long, value_parser = parse_board)]
-    board: Option<(usize, usize)>,
-    /// Printed square size in mm (default: DIR/board.yml, else calib/board.yml's 10 mm)
-    #[arg(long)]
-    square_mm: Option<f64>,
+    #[command(flatten)]
+    board: super::board::BoardArgs,
     /// Calibration file to write (OpenCV YAML)
     #[arg(long, default_value = "calib.yml")]
     out: PathBuf,
@@ -87,7 +81,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         ..CalibOptions::default()
     };
     let done = super::with_session(|s| {
-        let board = calibrate::board(&a.dir, a.board, a.square_mm, s)?;
+        let board = calibrate::board(&a.dir, &a.board.flags(), s)?;
         calibrate::run(&a.dir, &board, &options, &a.out, s)
     })?;
     print_summary(&done);

@@ -38,8 +38,9 @@ pub struct Args {
     /// Stop after this many seconds (default: the protocol's end, or Ctrl-C)
     #[arg(long, value_parser = super::finite)]
     duration_s: Option<f64>,
-    /// Chessboard pairs for `calibrate` instead of the finger's frames: a pair is taken when
-    /// the board is seen whole in both cameras, still, somewhere new (OUT/calib/left_NN.jpg, …)
+    /// Board pairs for `calibrate` instead of the finger's frames: a pair is taken when the
+    /// board is seen in both cameras (a chessboard whole, a ChArUco board at least in part),
+    /// still, somewhere new (OUT/calib/left_NN.jpg, …)
     #[arg(long, conflicts_with_all = ["protocol", "set_pressure"])]
     calib: bool,
     /// With --calib: how many pairs
@@ -49,12 +50,9 @@ pub struct Args {
     /// OUT/calib/left_ref, right_ref (run after the pairs)
     #[arg(long, requires = "calib")]
     reference: bool,
-    /// With --calib: the board's inner corners COLSxROWS (default: calib/board.yml's 9x6)
-    #[arg(long, value_parser = super::synth::parse_board, requires = "calib")]
-    board: Option<(usize, usize)>,
-    /// With --calib: the printed square's side, mm (default: calib/board.yml's)
-    #[arg(long, requires = "calib")]
-    square_mm: Option<f64>,
+    /// With --calib: the board (default: calib/board.yml's)
+    #[command(flatten)]
+    board: super::board::BoardArgs,
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
@@ -77,19 +75,17 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if protocol.is_none() && a.duration_s.is_none() && !a.calib {
         println!("filming until Ctrl-C (no --protocol, no --duration-s); log the regulator on the clock capture.json describes");
     }
-    let calibration = a.calib.then(|| {
-        let default = handcap::calib::file::default_board();
-        let (cols, rows) = a.board.unwrap_or((default.cols, default.rows));
-        capture::BoardPairs {
-            board: handcap::calib::BoardSpec {
-                cols,
-                rows,
-                square_mm: a.square_mm.unwrap_or(default.square_mm),
-            },
+    if a.board.any() && !a.calib {
+        super::usage!("--board, --square-mm, --marker-mm and --dictionary describe the calibration board: add --calib");
+    }
+    let calibration = match a.board.flags().over(&handcap::calib::file::default_board()) {
+        Ok(board) => a.calib.then_some(capture::BoardPairs {
+            board,
             pairs: a.pairs,
             reference: a.reference,
-        }
-    });
+        }),
+        Err(e) => super::usage!("{e}"),
+    };
     if let Some(c) = &calibration {
         c.board.check()?;
         if c.pairs == 0 {

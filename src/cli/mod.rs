@@ -1,6 +1,7 @@
 //! Command-line front end: one file per subcommand turns arguments into a library call and
 //! prints the result ([`handcap::pipeline`] does the work). Nothing below this module prints.
 
+mod board;
 mod calibrate;
 mod capture;
 mod demo;
@@ -34,7 +35,7 @@ pub struct Cli {
 enum Command {
     /// Virtual micro-hand and stereo rig → images, pressure log, datasets, ground truth
     Synth(synth::Args),
-    /// Stereo calibration from chessboard image pairs → OpenCV YAML
+    /// Stereo calibration from chessboard or ChArUco image pairs → OpenCV YAML
     Calibrate(calibrate::Args),
     /// Red tip in each frame pair → 3-D tip in the hand frame → one dataset row per pressure step
     Triangulate(triangulate::Args),
@@ -50,6 +51,8 @@ enum Command {
     Capture(capture::Args),
     /// The paper's pressure protocol → protocol.csv, for `capture --protocol`
     Protocol(protocol::Args),
+    /// A calibration board to print (chessboard or ChArUco, SVG at true size) and its board.yml
+    Board(board::Args),
 }
 
 /// An error in how the command was called (exit 2, as clap's own).
@@ -128,6 +131,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Demo(a) => demo::run(a),
         Command::Capture(a) => capture::run(a),
         Command::Protocol(a) => protocol::run(a),
+        Command::Board(a) => board::run(a),
     }
 }
 

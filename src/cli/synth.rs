@@ -6,7 +6,6 @@ use std::path::PathBuf;
 
 use anyhow::{bail, Context};
 
-use handcap::calib::BoardSpec;
 use handcap::pipeline::synth;
 use handcap::synth::camera::RigConfig;
 use handcap::synth::capture::{CaptureConfig, Realism};
@@ -36,15 +35,12 @@ pub struct Args {
     /// Pressure step of the two test sweeps (kPa)
     #[arg(long, default_value_t = 10.0)]
     sweep_step_kpa: f64,
-    /// Chessboard pairs to render for calibration
+    /// Board pairs to render for calibration (of a ChArUco board, every other one partly out
+    /// of view)
     #[arg(long, default_value_t = CaptureConfig::default().views)]
     views: usize,
-    /// Chessboard inner corners, COLSxROWS
-    #[arg(long, default_value = "9x6", value_parser = parse_board)]
-    board: (usize, usize),
-    /// Chessboard square size (mm)
-    #[arg(long, default_value_t = CaptureConfig::default().board.square_mm)]
-    square_mm: f64,
+    #[command(flatten)]
+    board: super::board::BoardArgs,
     /// Distance between the two cameras (mm)
     #[arg(long, default_value_t = RigConfig::default().baseline_mm)]
     baseline_mm: f64,
@@ -122,19 +118,6 @@ impl FrameArgs {
     }
 }
 
-/// `9x6` → (9, 6).
-pub fn parse_board(s: &str) -> Result<(usize, usize), String> {
-    let (c, r) = s
-        .split_once(['x', 'X'])
-        .ok_or_else(|| format!("expected COLSxROWS inner corners such as 9x6, got {s:?}"))?;
-    let n = |v: &str| {
-        v.trim()
-            .parse::<usize>()
-            .map_err(|_| format!("expected COLSxROWS inner corners such as 9x6, got {s:?}"))
-    };
-    Ok((n(c)?, n(r)?))
-}
-
 pub fn run(a: Args) -> anyhow::Result<()> {
     if !a.no_images && a.hysteresis_kpa != 0.0 {
         bail!("--hysteresis-kpa applies to the datasets only; add --no-images, or drop it to render images");
@@ -152,6 +135,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             ..PlantParams::default()
         },
     };
+    let board = match a.board.flags().over(&CaptureConfig::default().board) {
+        Ok(board) => board,
+        Err(e) => super::usage!("{e}"),
+    };
+    board.check()?;
     let (format, realism) = a.frames.look();
     let capture_config = (!a.no_images).then(|| CaptureConfig {
         rig: RigConfig {
@@ -160,11 +148,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             ..RigConfig::default()
         },
         views: a.views,
-        board: BoardSpec {
-            cols: a.board.0,
-            rows: a.board.1,
-            square_mm: a.square_mm,
-        },
+        board,
         exposure_drift: a.exposure_drift,
         format,
         video: a.video,

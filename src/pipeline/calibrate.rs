@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 
 use super::outputs::{self, Output};
 use super::{io_error, PipelineError, Session, Task};
-use crate::calib::{self, file, BoardSpec, CalibOptions, StereoCalibration};
+use crate::calib::{self, file, BoardFlags, BoardSpec, CalibOptions, StereoCalibration};
 use crate::fsio;
 
 /// What the stage did and wrote.
@@ -16,65 +16,40 @@ pub struct Calibrated {
     pub written: Vec<PathBuf>,
 }
 
-/// The board: `cols_rows` and `square_mm` as given, the rest from `dir/board.yml`, or, when the
-/// directory has none, from the printed board of the repository's `calib/board.yml` (said in an
+/// The board: what `flags` give, the rest from `dir/board.yml`, or, when the directory has
+/// none, from the printed board of the repository's `calib/board.yml` (said in an
 /// [`super::Event::Note`]). A flag that contradicts `dir/board.yml` is refused: a board read as
 /// 6x9 instead of 9x6 turns the hand frame by 90°.
 ///
 /// # Errors
 /// [`PipelineError::Calib`] when `dir/board.yml` exists but cannot be read;
-/// [`PipelineError::Usage`] when a flag contradicts it.
+/// [`PipelineError::Usage`] when a flag contradicts it, or the flags do not fit together.
 pub fn board(
     dir: &Path,
-    cols_rows: Option<(usize, usize)>,
-    square_mm: Option<f64>,
+    flags: &BoardFlags,
     session: &Session,
 ) -> Result<BoardSpec, PipelineError> {
     let path = dir.join(file::BOARD_FILE);
-    if path.exists() {
+    let base = if path.exists() {
         let written = file::read_board(&path)?;
-        let contradiction = match (cols_rows, square_mm) {
-            (Some((c, r)), _) if (c, r) != (written.cols, written.rows) => {
-                Some(format!("--board {c}x{r}"))
-            }
-            (_, Some(s)) if s != written.square_mm => Some(format!("--square-mm {s}")),
-            _ => None,
-        };
-        if let Some(flag) = contradiction {
+        if let Some(flag) = flags.contradiction(&written) {
             return Err(PipelineError::Usage(format!(
-                "{flag} contradicts {} ({}x{} inner corners, {} mm squares); correct the file or drop the flag",
-                path.display(),
-                written.cols,
-                written.rows,
-                written.square_mm
+                "{flag} contradicts {} ({written}); correct the file or drop the flag",
+                path.display()
             )));
         }
-    }
-    let from_file = match (cols_rows, square_mm) {
-        (Some(_), Some(_)) => None,
-        _ if path.exists() => Some(file::read_board(&path)?),
-        _ => {
-            let b = file::default_board();
+        written
+    } else {
+        let b = file::default_board();
+        if !flags.complete() {
             session.emit(super::Event::Note(format!(
-                "no {} and no --board/--square-mm: assuming the printed board of calib/board.yml ({}x{} inner corners, {} mm squares)",
-                path.display(),
-                b.cols,
-                b.rows,
-                b.square_mm
+                "no {} and no --board/--square-mm: assuming the printed board of calib/board.yml ({b})",
+                path.display()
             )));
-            Some(b)
         }
+        b
     };
-    let (cols, rows) = cols_rows
-        .or(from_file.map(|b| (b.cols, b.rows)))
-        .expect("given or read");
-    Ok(BoardSpec {
-        cols,
-        rows,
-        square_mm: square_mm
-            .or(from_file.map(|b| b.square_mm))
-            .expect("given or read"),
-    })
+    flags.over(&base).map_err(PipelineError::Usage)
 }
 
 /// Calibrates from the pairs in `dir` and writes `out` (OpenCV YAML) and the figures beside it.

@@ -267,7 +267,7 @@ pub fn run(
         format!("calibrate: {} chessboard pairs → calib.yml", plan.views),
     );
     let calib_dir = capture.join("calib");
-    let board = super::calibrate::board(&calib_dir, None, None, session)?;
+    let board = super::calibrate::board(&calib_dir, &Default::default(), session)?;
     let calib_path = out.join("calib.yml");
     let calibrated = super::calibrate::run(
         &calib_dir,

@@ -42,6 +42,7 @@
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 
 use nalgebra::{Matrix3, Point3, Rotation3, Unit, Vector3};
 use rand::{Rng, SeedableRng};
@@ -53,6 +54,7 @@ use super::camera::{Camera, Rig, RigConfig};
 use super::clutter;
 use super::plant::{Plant, Pressures};
 use super::render::{Board, Finger, ImageFormat, Lighting, Surroundings, View};
+use super::scene::Markers;
 use super::{protocol, SynthConfig, SynthError};
 use crate::calib::BoardSpec;
 use crate::fsio;
@@ -214,9 +216,13 @@ pub fn write_capture(
     let plant = Plant::new(synth.plant.clone());
     // Separate streams, so that the board count does not change the clocks.
     let mut rng = ChaCha8Rng::seed_from_u64(synth.seed ^ 0x4341_5054);
-    let boards = board_poses(config, &rig, &mut rng)?;
+    let markers = Arc::new(
+        Markers::of(&config.board)
+            .map_err(|e| SynthError::BadCapture(format!("the board's markers: {e}")))?,
+    );
+    let boards = board_poses(config, &rig, &markers, &mut rng)?;
     let mut rng = ChaCha8Rng::seed_from_u64(synth.seed ^ 0x434c_4f43);
-    let reference = reference_board(config);
+    let reference = reference_board(config, &markers);
 
     // The protocol as one session: steps in order, each commanded at k · step_s.
     let steps: Vec<(&'static str, Pressures)> = protocol(synth)?
@@ -474,7 +480,7 @@ fn write_text(path: &Path, text: &str) -> Result<(), SynthError> {
 }
 
 /// The board at the finger's base that fixes the hand frame's axes (module docs).
-fn reference_board(c: &CaptureConfig) -> Board {
+fn reference_board(c: &CaptureConfig, markers: &Arc<Markers>) -> Board {
     let s = c.board.square_mm;
     let (wide, tall) = ((c.board.cols - 1) as f64 * s, (c.board.rows - 1) as f64 * s);
     // Columns x, y, z of board → hand: x = hand x, y = hand −z, z = hand +y.
@@ -486,14 +492,18 @@ fn reference_board(c: &CaptureConfig) -> Board {
     Board {
         spec: c.board,
         pose: WorldFromBoard::new(rotation, Vector3::new(-wide / 2.0, 5.0, 25.0 + tall / 2.0)),
+        markers: markers.clone(),
     }
 }
 
-/// Random board poses that both cameras see whole: 110-230 mm from the rig, tilted up to 40°,
-/// turned in-plane up to 20°, spread over the images.
+/// Random board poses: 110-230 mm from the rig, tilted up to 40°, turned in-plane up to 20°,
+/// spread over the images. Both cameras see a chessboard whole; of a ChArUco board every other
+/// view is partly out of an image (at least half its corners in both, some out of one),
+/// pushed towards the images' edges where distortion is strongest.
 fn board_poses(
     c: &CaptureConfig,
     rig: &Rig,
+    markers: &Arc<Markers>,
     rng: &mut ChaCha8Rng,
 ) -> Result<Vec<Board>, SynthError> {
     let s = c.board.square_mm;
@@ -510,8 +520,9 @@ fn board_poses(
         if boards.len() == c.views {
             break;
         }
+        let partial = c.board.is_charuco() && boards.len() % 2 == 1;
         let distance = rng.random_range(110.0..230.0);
-        let spread = distance * 0.35;
+        let spread = distance * if partial { 0.6 } else { 0.35 };
         let side = Vector3::x();
         let up = axis.cross(&side).normalize();
         let centre = eye
@@ -535,8 +546,17 @@ fn board_poses(
         let board = Board {
             spec: c.board,
             pose: WorldFromBoard::new(rotation, (centre - rotation * half).coords),
+            markers: markers.clone(),
         };
-        if fully_visible(&board, rig) {
+        let wanted = if partial {
+            partly_visible(&board, rig)
+        } else {
+            facing_both(&board, rig)
+                && [&rig.left, &rig.right]
+                    .iter()
+                    .all(|cam| board.paper_corners().iter().all(|p| inside(cam, p, 15.0)))
+        };
+        if wanted {
             boards.push(board);
         }
     }
@@ -550,16 +570,29 @@ fn board_poses(
     Ok(boards)
 }
 
-/// The whole paper inside both images (15 px margin), seen from its front at under 70°.
-fn fully_visible(board: &Board, rig: &Rig) -> bool {
+/// Both cameras see the board's front at under 70°.
+fn facing_both(board: &Board, rig: &Rig) -> bool {
     let normal = board.pose.rotation * Vector3::z();
     [&rig.left, &rig.right].iter().all(|cam| {
         let view = (Point3::from(board.pose.translation) - cam.pose.centre()).normalize();
-        if view.dot(&normal) < 70f64.to_radians().cos() {
-            return false;
-        }
-        board.paper_corners().iter().all(|p| inside(cam, p, 15.0))
+        view.dot(&normal) >= 70f64.to_radians().cos()
     })
+}
+
+/// At least half the inner corners inside both images (15 px margin), and one outside an
+/// image.
+fn partly_visible(board: &Board, rig: &Rig) -> bool {
+    let corners = board.corners();
+    let cams = [&rig.left, &rig.right];
+    let seen = corners
+        .iter()
+        .filter(|p| cams.iter().all(|cam| inside(cam, p, 15.0)))
+        .count();
+    facing_both(board, rig)
+        && 2 * seen >= corners.len()
+        && cams
+            .iter()
+            .any(|cam| corners.iter().any(|p| !inside(cam, p, 0.0)))
 }
 
 fn inside(cam: &Camera, p: &Point3<f64>, margin: f64) -> bool {
@@ -797,11 +830,7 @@ mod tests {
     fn every_capture_rule_is_checked() {
         let ok = CaptureConfig::default();
         assert!(ok.check().is_ok());
-        let board = |cols, rows, square_mm| BoardSpec {
-            cols,
-            rows,
-            square_mm,
-        };
+        let board = BoardSpec::chessboard;
         let cases = [
             (
                 CaptureConfig {

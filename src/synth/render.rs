@@ -1,5 +1,5 @@
-//! Renders what a webcam of the virtual rig sees: a printed chessboard, or the finger with its
-//! red tip bead, over an unevenly lit background.
+//! Renders what a webcam of the virtual rig sees: a printed board (chessboard or ChArUco), or
+//! the finger with its red tip bead, over an unevenly lit background.
 //!
 //! Every pixel is the mean of S × S samples (S = 4) inside it: anti-aliasing by supersampling.
 //! Each sample's ray comes from inverting the lens distortion exactly (Newton, see
@@ -14,8 +14,8 @@
 //! along the plant's centre line, pale silicone, with a rounded end; a matte red bead of radius
 //! 0.6 mm sits on that end with its centre at the plant's tip, which is the point the pipeline
 //! tracks. Shading is Lambertian under a light at the camera (a ring light), so the bead's image
-//! is symmetric about its centre's projection. The chessboard is printed black on white paper
-//! with a one-square white margin. Paper, finger and background share one illumination field
+//! is symmetric about its centre's projection. The board is printed black on white paper
+//! with a one-square white margin (a ChArUco board's markers bit by bit, as OpenCV lays them). Paper, finger and background share one illumination field
 //! (a horizontal gradient, a soft hot spot and vignetting, drawn from the seed).
 
 use nalgebra::{Point3, Vector3};
@@ -23,6 +23,7 @@ use rayon::prelude::*;
 
 use super::camera::Camera;
 use super::scene::ray_segment_gap;
+use super::scene::Cell;
 pub use super::scene::{Board, Finger};
 
 /// Samples per pixel side.
@@ -284,7 +285,7 @@ impl View {
         }
     }
 
-    /// A chessboard over the background.
+    /// A board over the background.
     pub fn board(&self, board: &Board) -> Canvas {
         let mut canvas = self.backdrop();
         let (w, h) = (self.width(), self.height());
@@ -294,7 +295,7 @@ impl View {
         let (to_cam, origin) = (cam_from_board.rotation, cam_from_board.translation);
         let normal = to_cam * Vector3::z();
         let reach = normal.dot(&origin);
-        let cell_of = |[x, y]: [f64; 2]| -> Option<(i64, i64)> {
+        let cell_of = |[x, y]: [f64; 2]| -> Option<Cell> {
             let ray = Vector3::new(x, y, 1.0);
             let t = reach / normal.dot(&ray);
             if !(t > 0.0 && t.is_finite()) {
@@ -305,8 +306,7 @@ impl View {
         };
         // The cell under every pixel corner. A pixel whose four corners share a cell lies
         // inside it (cells are convex), so only pixels on an edge need their samples.
-        let corners: Vec<Option<(i64, i64)>> =
-            self.corners.par_iter().map(|&c| cell_of(c)).collect();
+        let corners: Vec<Option<Cell>> = self.corners.par_iter().map(|&c| cell_of(c)).collect();
         canvas
             .rgb
             .par_chunks_mut(3 * w)

@@ -1,44 +1,113 @@
-//! The virtual scene's objects and their ray intersections: the printed chessboard and the
-//! finger (a tube along the plant's centre line with a rounded end and the red bead). The
+//! The virtual scene's objects and their ray intersections: the printed board (a chessboard,
+//! or a ChArUco board with its markers bit by bit) and the finger (a tube along the plant's centre line with a rounded end and the red bead). The
 //! renderer ([`super::render`]) shades what these return.
+
+use std::sync::Arc;
 
 use nalgebra::{Point3, Vector3};
 
-use crate::calib::BoardSpec;
+use crate::calib::{BoardSpec, Marker};
 use crate::geometry::WorldFromBoard;
 
 use super::render::{BEAD, BEAD_RADIUS_MM, FINGER_RADIUS_MM, INK, PAPER, SILICONE};
 
-/// A printed chessboard placed in the world.
+/// A printed board placed in the world.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Board {
     pub spec: BoardSpec,
     /// Board frame → world: the origin at the first inner corner, x along a row of corners,
     /// y down the columns, z into the board.
     pub pose: WorldFromBoard,
+    /// A ChArUco board's markers (none for a chessboard), shared by every pose.
+    pub markers: Arc<Markers>,
 }
 
+/// A ChArUco board's markers, by square.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Markers {
+    list: Vec<Marker>,
+    /// The marker in each square of the board (row by row, `cols + 1` a row).
+    at: Vec<Option<usize>>,
+    squares_x: i64,
+}
+
+impl Markers {
+    /// `spec`'s markers where OpenCV places them.
+    ///
+    /// # Errors
+    /// An OpenCV failure.
+    pub fn of(spec: &BoardSpec) -> opencv::Result<Self> {
+        let list = spec.markers()?;
+        let squares_x = spec.cols as i64 + 1;
+        let mut at = vec![None; (spec.cols + 1) * (spec.rows + 1)];
+        for (k, m) in list.iter().enumerate() {
+            // Squares −1 … n − 1 in cells (module docs of [`Board::cell`]).
+            let (x, y) = (m.square.0 + 1, m.square.1 + 1);
+            at[(y * squares_x + x) as usize] = Some(k);
+        }
+        Ok(Markers {
+            list,
+            at,
+            squares_x,
+        })
+    }
+
+    /// What of a marker lies under board point (x, y) mm in square (cx, cy): a bit's index
+    /// (plus 1 000 when white); off the bits, which of the eight rectangles around the marker
+    /// (−2 … −10); −1 in a square without a marker. Each value's region is convex.
+    fn part(&self, cx: i64, cy: i64, x: f64, y: f64) -> i32 {
+        let (sx, sy) = (cx + 1, cy + 1);
+        let marker = (sx >= 0 && sy >= 0 && sx < self.squares_x)
+            .then(|| self.at.get((sy * self.squares_x + sx) as usize).copied())
+            .flatten()
+            .flatten();
+        let Some(m) = marker.map(|k| &self.list[k]) else {
+            return -1;
+        };
+        let [c0, c1, _, c3] = m.corners;
+        let u = (x - c0[0]) / (c1[0] - c0[0]);
+        let v = (y - c0[1]) / (c3[1] - c0[1]);
+        let band = |t: f64| i32::from(t >= 0.0) + i32::from(t >= 1.0);
+        let (bu, bv) = (band(u), band(v));
+        if (bu, bv) != (1, 1) {
+            return -2 - (3 * bv + bu);
+        }
+        let n = m.side;
+        let k = ((v * n as f64) as usize).min(n - 1) * n + ((u * n as f64) as usize).min(n - 1);
+        k as i32 + if m.white[k] { 1000 } else { 0 }
+    }
+}
+
+/// Where a board point lies: its square-sized cell, and what of a marker it falls on
+/// ([`Markers::part`]).
+pub(super) type Cell = (i64, i64, i32);
+
 impl Board {
-    /// The square-sized cell holding board coordinates (mm): cell (0, 0) has the first inner
-    /// corner at its top-left. Squares, margin and paper edge all follow cell boundaries.
-    pub(super) fn cell(&self, x: f64, y: f64) -> (i64, i64) {
+    /// The cell holding board coordinates (mm): cell (0, 0) has the first inner corner at its
+    /// top-left. Squares, margin and paper edge all follow cell boundaries; a ChArUco board's
+    /// markers divide their cells into bits.
+    pub(super) fn cell(&self, x: f64, y: f64) -> Cell {
         let s = self.spec.square_mm;
-        ((x / s).floor() as i64, (y / s).floor() as i64)
+        let (cx, cy) = ((x / s).floor() as i64, (y / s).floor() as i64);
+        (cx, cy, self.markers.part(cx, cy, x, y))
     }
 
     /// Albedo of a cell; `None` off the paper. The squares span cells −1 … n − 1 (n inner
-    /// corners), the one-square white margin around them is paper too.
-    pub(super) fn albedo(&self, (cx, cy): (i64, i64)) -> Option<[f64; 3]> {
+    /// corners), the one-square white margin around them is paper too; a marker's bits are
+    /// ink or paper as the dictionary has them.
+    pub(super) fn albedo(&self, (cx, cy, bit): Cell) -> Option<[f64; 3]> {
         let (cols, rows) = (self.spec.cols as i64, self.spec.rows as i64);
         if !(-2..=cols).contains(&cx) || !(-2..=rows).contains(&cy) {
             return None;
         }
         let on_squares = (-1..cols).contains(&cx) && (-1..rows).contains(&cy);
-        Some(if on_squares && (cx + cy).rem_euclid(2) == 0 {
-            INK
+        let ink = if bit >= 0 {
+            bit < 1000
         } else {
-            PAPER
-        })
+            // Around a marker is its white square.
+            on_squares && bit == -1 && (cx + cy).rem_euclid(2) == 0
+        };
+        Some(if ink { INK } else { PAPER })
     }
 
     /// World positions of the inner corners, row by row (OpenCV's object point order).

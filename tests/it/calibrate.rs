@@ -19,11 +19,17 @@ fn at(m: &opencv::core::Mat, r: i32, c: i32) -> f64 {
 /// Asserts the issue's tolerances: focal lengths and principal points within 0.5 %, baseline
 /// within 0.5 %, rotation within 0.1°; and the hand axes within 0.1°.
 fn assert_close(truth: &YamlRig, got: &YamlRig) {
+    assert_within(truth, got, 0.005, 0.005, 0.1);
+}
+
+/// Asserts focal lengths and principal points within `camera` (relative), the baseline within
+/// `baseline` (relative), the rotation within `rotation_deg`, and the hand axes within 0.1°.
+fn assert_within(truth: &YamlRig, got: &YamlRig, camera: f64, baseline: f64, rotation_deg: f64) {
     for (name, t, g) in [("K1", &truth.k1, &got.k1), ("K2", &truth.k2, &got.k2)] {
         for (r, c) in [(0, 0), (1, 1), (0, 2), (1, 2)] {
             let rel = (at(g, r, c) - at(t, r, c)).abs() / at(t, r, c);
             assert!(
-                rel < 0.005,
+                rel < camera,
                 "{name}({r},{c}): {} vs {}",
                 at(g, r, c),
                 at(t, r, c)
@@ -32,13 +38,13 @@ fn assert_close(truth: &YamlRig, got: &YamlRig) {
     }
     let rel = (got.t.norm() - truth.t.norm()).abs() / truth.t.norm();
     assert!(
-        rel < 0.005,
+        rel < baseline,
         "baseline {} vs {}",
         got.t.norm(),
         truth.t.norm()
     );
     let angle = (got.r.inverse() * truth.r).angle().to_degrees();
-    assert!(angle < 0.1, "rotation off by {angle}°");
+    assert!(angle < rotation_deg, "rotation off by {angle}°");
     let hand = (got.r_hand.unwrap().inverse() * truth.r_hand.unwrap())
         .angle()
         .to_degrees();
@@ -385,6 +391,18 @@ fn the_repository_calib_folder_stays_valid() {
     let board = read_board(&root.join("board.yml")).unwrap();
     assert_eq!((board.cols, board.rows, board.square_mm), (9, 6, 10.0));
     assert_eq!(board, default_board());
+    // The boards to print are the boards described: the chessboard of board.yml, and the
+    // ChArUco board of charuco-10x7.yml (`handcap board` wrote both).
+    let charuco = read_board(&root.join("charuco-10x7.yml")).unwrap();
+    assert_eq!(charuco.layout().to_string(), "charuco:10x7");
+    for (svg, described) in [("chessboard-9x6.svg", board), ("charuco-10x7.svg", charuco)] {
+        let printed = std::fs::read_to_string(root.join(svg)).unwrap();
+        assert_eq!(
+            printed,
+            handcap::calib::print::svg(&described).unwrap(),
+            "{svg} is not the board described; write it again with `handcap board`"
+        );
+    }
     // The commented example reads as a calibration with the hand axes, a rotation.
     let example = root.join("example_calib.yml");
     let cal = read_calibration(&example).unwrap();
@@ -410,23 +428,61 @@ fn the_repository_calib_folder_stays_valid() {
 /// Each rule of a board description refuses its value with a line saying what to give.
 #[test]
 fn every_board_rule_is_checked() {
-    use handcap::calib::BoardSpec;
-    let board = |cols, rows, square_mm| BoardSpec {
-        cols,
-        rows,
-        square_mm,
+    use handcap::calib::{BoardSpec, Dictionary, Layout, Pattern};
+    let board = BoardSpec::chessboard;
+    let charuco = |squares: &str, square_mm, marker_mm, dictionary: &str| {
+        let layout: Layout = squares.parse().unwrap();
+        BoardSpec {
+            cols: layout.cols,
+            rows: layout.rows,
+            square_mm,
+            pattern: Pattern::Charuco {
+                marker_mm,
+                dictionary: dictionary.parse().unwrap(),
+            },
+        }
     };
     assert!(board(9, 6, 10.0).check().is_ok());
+    // A square ChArUco board has an orientation: its markers.
+    assert!(charuco("charuco:7x7", 10.0, 7.0, "DICT_4X4_50")
+        .check()
+        .is_ok());
     for (bad, says) in [
         (board(2, 6, 10.0), "at least 3"),
         (board(9, 2, 10.0), "at least 3"),
         (board(7, 7, 10.0), "no orientation"),
         (board(9, 6, 0.0), "square size"),
         (board(9, 6, f64::NAN), "square size"),
+        (
+            charuco("charuco:10x7", 10.0, 10.0, "DICT_5X5_100"),
+            "smaller than the square",
+        ),
+        (
+            charuco("charuco:10x7", 10.0, -1.0, "DICT_5X5_100"),
+            "marker size",
+        ),
+        // 15 × 12 squares hold 90 markers; DICT_4X4_50 has 50.
+        (
+            charuco("charuco:15x12", 10.0, 7.0, "DICT_4X4_50"),
+            "90 markers but DICT_4X4_50 has only 50",
+        ),
     ] {
         let err = bad.check().unwrap_err().to_string();
         assert!(err.contains(says), "{bad:?}: {err}");
     }
+    let unknown = "DICT_9X9_5".parse::<Dictionary>().unwrap_err();
+    assert!(
+        unknown.contains("unknown ArUco dictionary \"DICT_9X9_5\"; one of DICT_4X4_50"),
+        "{unknown}"
+    );
+    assert!("charuco:1x7"
+        .parse::<Layout>()
+        .unwrap_err()
+        .contains("at least 2 squares"));
+    assert!("charuco:ten"
+        .parse::<Layout>()
+        .unwrap_err()
+        .contains("charuco:SXxSY"));
 }
 
 /// A single-camera calibration file as OpenCV's calibration sample writes it.
@@ -656,12 +712,13 @@ fn a_calibration_that_cannot_be_right_is_refused_unless_forced() {
     assert!(out.contains("validation (5 splits"), "{out}");
 }
 
-/// Renders only what calibrating needs, ideal PNG frames: `views` board pairs and the
+/// Renders only what calibrating needs, ideal PNG frames: `views` pairs of `board` and the
 /// reference, with as few finger frames as a capture can have (one per step, 14 steps).
-fn board_capture(dir: &Path, seed: u64, views: usize) {
+fn board_capture(dir: &Path, seed: u64, views: usize, board: handcap::calib::BoardSpec) {
     let synth = session(seed, [250.0, 125.0]);
     let config = handcap::synth::capture::CaptureConfig {
         views,
+        board,
         window_s: [0.10, 0.12],
         format: handcap::synth::render::ImageFormat::Png,
         realism: handcap::synth::capture::Realism::CLEAN,
@@ -705,7 +762,7 @@ fn reported_deviations_match_the_spread_over_seeds() {
     for seed in 0..seeds {
         let dir = tempdir();
         let d = dir.path();
-        board_capture(d, 100 + seed, 10);
+        board_capture(d, 100 + seed, 10, file::default_board());
         let board = file::read_board(&d.join("calib/board.yml")).unwrap();
         // The first capture is also bootstrapped, to check the two estimates against each other.
         let options = CalibOptions {
@@ -874,4 +931,94 @@ fn calibrates_from_two_videos_of_the_board() {
         "{msg}"
     );
     assert!(!d.join("b_frames").exists() && !d.join("b.yml").exists());
+}
+
+/// A ChArUco board: every other pair partly out of view, all of them used, and the rig as close
+/// to the truth as the issue asks (focal and principal point ≤ 0.15 %, baseline ≤ 0.05 %,
+/// rotation ≤ 0.05°; OpenCV's own Python ChArUco calibration reaches 0.06 %, 0.005 %, 0.03° on
+/// such renders).
+#[test]
+fn calibrates_a_charuco_board_seen_in_part() {
+    let dir = tempdir();
+    let d = dir.path();
+    let board = handcap::calib::BoardSpec {
+        cols: 9,
+        rows: 6,
+        square_mm: 10.0,
+        pattern: handcap::calib::Pattern::Charuco {
+            marker_mm: 7.5,
+            dictionary: handcap::calib::Dictionary::DEFAULT,
+        },
+    };
+    board_capture(d, 31, 12, board);
+    let out = handcap_ok(d, &["calibrate", "calib", "--out", "cal.yml"]);
+    assert!(
+        out.contains("12 pairs used, 0 rejected; detector: ChArUco"),
+        "{out}"
+    );
+    let partial = out.matches("of 54 corners in both images").count();
+    assert!(partial >= 6, "{partial} partial pairs: {out}");
+
+    assert_within(
+        &read_rig(&d.join("truth/rig.yml")),
+        &read_rig(&d.join("cal.yml")),
+        0.0015,
+        0.0005,
+        0.05,
+    );
+    let yaml = std::fs::read_to_string(d.join("cal.yml")).unwrap();
+    assert!(yaml.contains("board: \"charuco:10x7\""), "{yaml}");
+    assert!(yaml.contains("dictionary: \"DICT_5X5_100\""), "{yaml}");
+
+    // The board file and the flags must agree; the markers are the dictionary's.
+    let msg = handcap_usage(d, &["calibrate", "calib", "--dictionary", "DICT_4X4_50"]);
+    assert!(
+        msg.contains("--dictionary DICT_4X4_50 contradicts"),
+        "{msg}"
+    );
+    std::fs::remove_file(d.join("calib/board.yml")).unwrap();
+    let words = |line: &str| {
+        line.split_whitespace()
+            .map(String::from)
+            .collect::<Vec<_>>()
+    };
+    let run = |line: &str, code: i32| {
+        let args = words(line);
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        crate::common::handcap_fails(d, &args, code)
+    };
+    let charuco = "calibrate calib --board charuco:10x7 --square-mm 10";
+    let msg = run(
+        &format!("{charuco} --marker-mm 7.5 --dictionary DICT_4X4_50"),
+        1,
+    );
+    assert!(
+        msg.contains("no two DICT_4X4_50 markers side by side were found: check --dictionary"),
+        "{msg}"
+    );
+    let msg = run(charuco, 2);
+    assert!(msg.contains("needs --marker-mm"), "{msg}");
+    let msg = run("calibrate calib --marker-mm 7.5", 2);
+    assert!(msg.contains("give --board charuco:SXxSY"), "{msg}");
+    // `handcap board` prints the board and describes it for `calibrate`.
+    let printed =
+        words("board --board charuco:10x7 --square-mm 10 --marker-mm 7.5 --out print.svg");
+    handcap_ok(d, &printed.iter().map(String::as_str).collect::<Vec<_>>());
+    let described = handcap::calib::file::read_board(&d.join("print.yml")).unwrap();
+    assert_eq!(described, board);
+    assert!(std::fs::read_to_string(d.join("print.svg"))
+        .unwrap()
+        .starts_with("<svg"));
+    let msg = run(
+        "board --board charuco:15x12 --square-mm 10 --marker-mm 7 --dictionary DICT_4X4_50",
+        1,
+    );
+    assert!(
+        msg.contains("90 markers but DICT_4X4_50 has only 50"),
+        "{msg}"
+    );
+    let unknown = handcap(d, &["calibrate", "calib", "--dictionary", "DICT_9X9_1"]);
+    assert_eq!(unknown.status.code(), Some(2));
+    let said = String::from_utf8_lossy(&unknown.stderr);
+    assert!(said.contains("unknown ArUco dictionary"), "{said}");
 }

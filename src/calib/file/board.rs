@@ -6,7 +6,7 @@ use opencv::core;
 use opencv::prelude::*;
 
 use super::reason;
-use crate::calib::{BoardSpec, CalibError};
+use crate::calib::{BoardSpec, CalibError, Dictionary, Pattern};
 use crate::opencv_yaml::FileStorage;
 
 /// The board description's file name inside a calibration directory.
@@ -30,12 +30,29 @@ pub fn read_board_text(text: &str) -> Result<BoardSpec, CalibError> {
     board_from(text, mode, Path::new("(built-in board.yml)"))
 }
 
-/// `board.yml`: the printed board's inner corners and square size.
+/// `board.yml`: the printed board. A chessboard by its inner corners and square size; a ChArUco
+/// board (`pattern: charuco`) by its squares (OpenCV's convention), their size, the markers'
+/// size and their dictionary.
 pub fn board_yaml(board: &BoardSpec) -> String {
     let mut fs = FileStorage::new();
-    fs.int("inner_corners_cols", board.cols as i64)
-        .int("inner_corners_rows", board.rows as i64)
-        .real("square_mm", board.square_mm);
+    match board.pattern {
+        Pattern::Chessboard => {
+            fs.int("inner_corners_cols", board.cols as i64)
+                .int("inner_corners_rows", board.rows as i64)
+                .real("square_mm", board.square_mm);
+        }
+        Pattern::Charuco {
+            marker_mm,
+            dictionary,
+        } => {
+            fs.string("pattern", "charuco")
+                .int("squares_x", board.cols as i64 + 1)
+                .int("squares_y", board.rows as i64 + 1)
+                .real("square_mm", board.square_mm)
+                .real("marker_mm", marker_mm)
+                .string("dictionary", dictionary.name());
+        }
+    }
     fs.text().to_string()
 }
 
@@ -57,7 +74,7 @@ pub fn read_board(path: &Path) -> Result<BoardSpec, CalibError> {
 /// A board description that cannot be used, and what to do instead.
 fn board_error(path: &Path, what: &str) -> CalibError {
     CalibError::BadBoard(format!(
-        "{}: {what}; pass --board COLSxROWS --square-mm MM, or write the file (see calib/board.yml)",
+        "{}: {what}; pass --board COLSxROWS --square-mm MM (or --board charuco:SXxSY with --marker-mm and --dictionary), or write the file (see calib/board.yml and calib/charuco-board.yml)",
         path.display()
     ))
 }
@@ -82,9 +99,43 @@ fn board_from(source: &str, mode: i32, path: &Path) -> Result<BoardSpec, CalibEr
         }
         Ok(v as usize)
     };
-    Ok(BoardSpec {
-        cols: count("inner_corners_cols")?,
-        rows: count("inner_corners_rows")?,
-        square_mm: number("square_mm")?,
-    })
+    let text = |key: &str| -> Result<Option<String>, CalibError> {
+        let node = fs.get(key).map_err(|e| bad(reason(&e)))?;
+        if node.empty().unwrap_or(true) {
+            return Ok(None);
+        }
+        if !node.is_string().unwrap_or(false) {
+            return Err(bad(format!("{key} is not a text")));
+        }
+        node.to_string().map(Some).map_err(|e| bad(reason(&e)))
+    };
+    match text("pattern")?.as_deref() {
+        None | Some("chessboard") => Ok(BoardSpec::chessboard(
+            count("inner_corners_cols")?,
+            count("inner_corners_rows")?,
+            number("square_mm")?,
+        )),
+        Some("charuco") => {
+            let squares = |key: &str| -> Result<usize, CalibError> {
+                match count(key)? {
+                    0 => Err(bad(format!("{key} is 0"))),
+                    n => Ok(n - 1),
+                }
+            };
+            let dictionary = match text("dictionary")? {
+                Some(name) => name.parse::<Dictionary>().map_err(&bad)?,
+                None => return Err(bad("no dictionary (e.g. DICT_5X5_100)".into())),
+            };
+            Ok(BoardSpec {
+                cols: squares("squares_x")?,
+                rows: squares("squares_y")?,
+                square_mm: number("square_mm")?,
+                pattern: Pattern::Charuco {
+                    marker_mm: number("marker_mm")?,
+                    dictionary,
+                },
+            })
+        }
+        Some(other) => Err(bad(format!("pattern {other:?}: chessboard or charuco"))),
+    }
 }

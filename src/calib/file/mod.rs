@@ -15,7 +15,8 @@
 //! | `R1`, `R2`, `P1`, `P2`, `Q` | | `stereoRectify`'s rectification (α = 0) |
 //! | `rms_px`, `epipolar_px`, `per_view_rms_px` | | reprojection RMS, mean epipolar distance, per pair (left, right) |
 //! | `views_used`, `views_rejected` | | pair names |
-//! | `board_cols`, `board_rows`, `square_mm`, `detector`, `coverage` | | the board and how it was seen |
+//! | `board_cols`, `board_rows`, `square_mm`, `detector`, `coverage` | | the board (inner corners) and how it was seen |
+//! | `board`, `marker_mm`, `dictionary` | text, mm, text | the board as `--board` names it (`9x6`, `charuco:10x7`); a ChArUco board's markers |
 //! | `board_neighbour_squares`, `board_planarity_rms_mm` | | the boards triangulated back |
 //! | `coverage_cells_left`, `coverage_cells_right`, `tilt_sd_deg`, `advice` | | where the corners fell (8 × 6 cells, `#` seen), the boards' tilt spread about the left camera's x and y, what to capture next ([`super::guidance`]) |
 //! | `baseline_mm` | | \|T\| |
@@ -28,7 +29,9 @@
 //! | `t_hand` | 3 × 1 | the hand frame's translation (mm), where the origin is known (truth, `dataset_hand.yml`) |
 //! | `hand_axes`, `handcap_version`, `command`, `seed` (of `--bootstrap`) | text | provenance |
 //!
-//! `board.yml`: `inner_corners_cols`, `inner_corners_rows`, `square_mm`.
+//! `board.yml`: `inner_corners_cols`, `inner_corners_rows`, `square_mm` for a chessboard;
+//! `pattern: charuco`, `squares_x`, `squares_y`, `square_mm`, `marker_mm`, `dictionary` for a
+//! ChArUco board.
 //!
 //! Reading checks what the geometry needs: `R` and `R_hand` must be rotations (orthonormal to
 //! 1e-3, determinant > 0; [`crate::geometry::Transform::from_rows`]), camera matrices must have
