@@ -3,9 +3,9 @@
 # Safe to run twice: it installs only what is missing. Needs root or sudo for apt.
 set -euo pipefail
 
-# OpenCV 4.6 (calibration, triangulation), what the `opencv` crate needs to generate its
-# bindings, and the font the figures are labelled with.
-APT_PACKAGES=(libopencv-dev clang libclang-dev pkg-config fonts-dejavu-core)
+# OpenCV 4.6 (calibration, triangulation; its contrib modules for ChArUco boards), what the
+# `opencv` crate needs to generate its bindings, and the font the figures are labelled with.
+APT_PACKAGES=(libopencv-dev libopencv-contrib-dev clang libclang-dev pkg-config fonts-dejavu-core)
 
 # The Python package's tests (python/test.sh) make a venv: Python 3.9 or newer with venv.
 if ! python3 -c 'import sys, venv, ensurepip; sys.exit(sys.version_info < (3, 9))' 2>/dev/null; then

@@ -8,7 +8,7 @@ use opencv::imgcodecs;
 use opencv::prelude::*;
 
 use crate::common::{
-    board_videos, capture_with, handcap, handcap_err, handcap_ok, handcap_usage, read_rig, session,
+    board_capture, board_videos, handcap, handcap_err, handcap_ok, handcap_usage, read_rig,
     small_capture, tempdir, tip_rms_against_truth, YamlRig,
 };
 
@@ -712,21 +712,6 @@ fn a_calibration_that_cannot_be_right_is_refused_unless_forced() {
     assert!(out.contains("validation (5 splits"), "{out}");
 }
 
-/// Renders only what calibrating needs, ideal PNG frames: `views` pairs of `board` and the
-/// reference, with as few finger frames as a capture can have (one per step, 14 steps).
-fn board_capture(dir: &Path, seed: u64, views: usize, board: handcap::calib::BoardSpec) {
-    let synth = session(seed, [250.0, 125.0]);
-    let config = handcap::synth::capture::CaptureConfig {
-        views,
-        board,
-        window_s: [0.10, 0.12],
-        format: handcap::synth::render::ImageFormat::Png,
-        realism: handcap::synth::capture::Realism::CLEAN,
-        ..handcap::synth::capture::CaptureConfig::default()
-    };
-    capture_with(dir, &synth, &config);
-}
-
 /// Seeds the deviation test renders; 20 for the figures in the README (`SEEDS=20`).
 const DEVIATION_SEEDS: u64 = 8;
 
@@ -885,7 +870,7 @@ fn calibrates_from_two_videos_of_the_board() {
     let dir = tempdir();
     let d = dir.path();
     // Each board held 0.4 s.
-    board_videos(d, 12);
+    board_videos(d, 12, handcap::calib::file::default_board());
     let out = handcap_ok(d, &["calibrate", "vids", "--out", "vcal.yml"]);
     println!("{out}");
     let picked: usize = out
@@ -941,15 +926,7 @@ fn calibrates_from_two_videos_of_the_board() {
 fn calibrates_a_charuco_board_seen_in_part() {
     let dir = tempdir();
     let d = dir.path();
-    let board = handcap::calib::BoardSpec {
-        cols: 9,
-        rows: 6,
-        square_mm: 10.0,
-        pattern: handcap::calib::Pattern::Charuco {
-            marker_mm: 7.5,
-            dictionary: handcap::calib::Dictionary::DEFAULT,
-        },
-    };
+    let board = crate::common::charuco_board();
     board_capture(d, 31, 12, board);
     let out = handcap_ok(d, &["calibrate", "calib", "--out", "cal.yml"]);
     assert!(

@@ -314,21 +314,24 @@ fn ctrl_c_ends_a_capture_with_every_frame_kept_and_listed() {
     assert!((1..=2).contains(&logged), "{logged}");
 }
 
+/// `capture --calib` from the two board videos of [`board_videos`] as cameras, into `s`.
+const VIDEO_CAMERAS: [&str; 7] = [
+    "--left",
+    "vids/left.avi",
+    "--right",
+    "vids/right.avi",
+    "--out",
+    "s",
+    "--calib",
+];
+
 #[test]
 fn a_calibration_capture_takes_still_new_board_pairs_then_the_reference() {
     // The two board videos as cameras: ten boards, each held still for 0.8 s.
     let dir = tempdir();
     let d = dir.path();
-    board_videos(d, 24);
-    let cams = [
-        "--left",
-        "vids/left.avi",
-        "--right",
-        "vids/right.avi",
-        "--out",
-        "s",
-        "--calib",
-    ];
+    board_videos(d, 24, handcap::calib::file::default_board());
+    let cams = VIDEO_CAMERAS;
     let mut args = vec!["capture"];
     args.extend(cams);
     args.extend(["--pairs", "7"]);
@@ -358,4 +361,38 @@ fn a_calibration_capture_takes_still_new_board_pairs_then_the_reference() {
     args.extend(cams);
     let msg = handcap_err(d, &args);
     assert!(msg.contains("already holds calibration pairs"), "{msg}");
+}
+
+/// A ChArUco board is taken in part (every other board of these videos is partly out of view),
+/// and the pairs taken, or picked from the videos by `calibrate`, calibrate.
+#[test]
+fn a_charuco_board_is_taken_in_part_from_cameras_and_videos() {
+    let dir = tempdir();
+    let d = dir.path();
+    let board = crate::common::charuco_board();
+    board_videos(d, 24, board);
+    let mut args = vec!["capture"];
+    args.extend(VIDEO_CAMERAS);
+    args.extend([
+        "--pairs",
+        "8",
+        "--board",
+        "charuco:10x7",
+        "--square-mm",
+        "10",
+    ]);
+    args.extend(["--marker-mm", "7.5"]);
+    let out = handcap_ok(d, &args);
+    assert!(out.contains("board pairs 6/6"), "{out}");
+    let described = handcap::calib::file::read_board(&d.join("s/calib/board.yml")).unwrap();
+    assert_eq!(described, board);
+    let out = handcap_ok(d, &["calibrate", "s/calib", "--out", "cal.yml"]);
+    assert!(out.contains("6 pairs used"), "{out}");
+    assert!(out.contains("of 54 corners in both images"), "{out}");
+    // From the videos themselves.
+    let out = handcap_ok(d, &["calibrate", "vids", "--out", "videos.yml"]);
+    assert!(
+        out.contains("pairs used") && out.contains("of 54 corners in both images"),
+        "{out}"
+    );
 }

@@ -97,6 +97,21 @@ pub fn small_capture(dir: &Path, seed: u64, views: usize) {
     capture(dir, seed, views, 250.0, 125.0);
 }
 
+/// Renders only what calibrating needs, ideal PNG frames: `views` pairs of `board` and the
+/// reference, with as few finger frames as a capture can have (one per step, 14 steps).
+pub fn board_capture(dir: &Path, seed: u64, views: usize, board: handcap::calib::BoardSpec) {
+    let synth = session(seed, [250.0, 125.0]);
+    let config = handcap::synth::capture::CaptureConfig {
+        views,
+        board,
+        window_s: [0.10, 0.12],
+        format: handcap::synth::render::ImageFormat::Png,
+        realism: handcap::synth::capture::Realism::CLEAN,
+        ..handcap::synth::capture::CaptureConfig::default()
+    };
+    capture_with(dir, &synth, &config);
+}
+
 /// A rendered capture of ideal frames in `dir`: `views` board pairs + the reference, the
 /// training grid and the two sweeps at the given pressure steps.
 pub fn capture(dir: &Path, seed: u64, views: usize, grid_step_kpa: f64, sweep_step_kpa: f64) {
@@ -252,11 +267,25 @@ pub fn read_rig(path: &Path) -> YamlRig {
     }
 }
 
-/// `small_capture(dir, 21, 10)` and its ten boards as two videos in `dir/vids` (`left.avi`,
-/// `right.avi`, `frames.csv`, with `board.yml` and the reference pair beside them), each board
-/// held still for `hold` frames (at 30 fps) and then moved on.
-pub fn board_videos(dir: &Path, hold: usize) {
-    small_capture(dir, 21, 10);
+/// The ChArUco board the tests render: 10 × 7 squares of 10 mm (the default chessboard's
+/// 9 × 6 inner corners), 7.5 mm markers of the default dictionary.
+pub fn charuco_board() -> handcap::calib::BoardSpec {
+    handcap::calib::BoardSpec {
+        cols: 9,
+        rows: 6,
+        square_mm: 10.0,
+        pattern: handcap::calib::Pattern::Charuco {
+            marker_mm: 7.5,
+            dictionary: handcap::calib::Dictionary::DEFAULT,
+        },
+    }
+}
+
+/// `board_capture(dir, 21, 10, board)` and its ten boards as two videos in `dir/vids`
+/// (`left.avi`, `right.avi`, `frames.csv`, with `board.yml` and the reference pair beside them),
+/// each board held still for `hold` frames (at 30 fps) and then moved on.
+pub fn board_videos(dir: &Path, hold: usize, board: handcap::calib::BoardSpec) {
+    board_capture(dir, 21, 10, board);
     let vids = dir.join("vids");
     std::fs::create_dir(&vids).unwrap();
     let mut index = String::from("frame,camera,time_s\n");
