@@ -1,6 +1,6 @@
 //! The `handcap` command. Exit codes: 0 success, 1 error (one line on stderr), 2 usage error
-//! (clap's, and options or outputs that do not go together), 130 interrupted by Ctrl-C (what was
-//! finished is kept).
+//! (clap's, and options or outputs that do not go together), 130 interrupted by Ctrl-C, SIGTERM
+//! or SIGHUP (what was finished is kept).
 
 mod cli;
 
@@ -10,6 +10,7 @@ use clap::Parser;
 
 fn main() -> ExitCode {
     restore_sigpipe();
+    quiet_ffmpeg();
     let args = cli::Cli::parse();
     match cli::run(args) {
         Ok(()) => ExitCode::SUCCESS,
@@ -17,6 +18,17 @@ fn main() -> ExitCode {
             eprintln!("handcap: {}", cli::one_line(&e));
             ExitCode::from(cli::exit_code(&e))
         }
+    }
+}
+
+/// Keeps FFmpeg's own log lines (a corrupt JPEG, a stream's HTTP status) off stderr, where they
+/// would bury handcap's one line; handcap says what failed. OpenCV reads this variable when it
+/// first loads FFmpeg; one the user set is left as it is.
+fn quiet_ffmpeg() {
+    const LEVEL: &str = "OPENCV_FFMPEG_LOGLEVEL";
+    if std::env::var_os(LEVEL).is_none() {
+        // AV_LOG_QUIET. Set before any thread starts (nothing else reads the environment yet).
+        std::env::set_var(LEVEL, "-8");
     }
 }
 

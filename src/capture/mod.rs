@@ -18,9 +18,11 @@
 //! anything else decoded and written losslessly as `.png`.
 //!
 //! # Ending
-//! The protocol's end, `--duration`, Ctrl-C, or a camera that stops delivering (for
-//! [`STALL_S`], or its stream ends): every frame finished by then is written and listed, the
-//! logs are complete, and `capture.json` says how it ended.
+//! The protocol's end, `--duration`, Ctrl-C (or SIGTERM, SIGHUP), a camera that stops
+//! delivering (for [`STALL_S`], or its stream ends), a pressure command that fails or runs over
+//! [`COMMAND_TIMEOUT_S`], or a thread of the session that panics: every frame finished by then
+//! is written and listed, the logs are complete, and `capture.json` says how it ended. The
+//! session's files are also rewritten every second while filming ([`Ending::Filming`]).
 
 pub mod protocol;
 
@@ -63,6 +65,12 @@ pub enum CaptureError {
     },
     #[error("OpenCV: {0}")]
     OpenCv(#[from] opencv::Error),
+    #[error("the {thread} thread failed ({message}); what was recorded until then is kept and listed in {}", out.display())]
+    ThreadFailed {
+        thread: String,
+        message: String,
+        out: PathBuf,
+    },
 }
 
 /// What a session does.
@@ -95,6 +103,9 @@ pub struct BoardPairs {
 #[derive(Clone, Debug, PartialEq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Ending {
+    /// Still filming when the session's files were written (they are rewritten every second,
+    /// so a session killed outright keeps what it had).
+    Filming,
     ProtocolDone,
     Duration,
     Interrupted,
@@ -109,6 +120,11 @@ pub enum Ending {
     /// The pressure command failed at a step.
     CommandFailed {
         step: usize,
+        message: String,
+    },
+    /// A thread of the session (a camera's, the protocol's) panicked.
+    ThreadFailed {
+        thread: String,
         message: String,
     },
 }
@@ -361,17 +377,10 @@ fn drive(
         }
         let command = protocol::command_for(template, step);
         let time_s = clock.now_s();
-        let output = std::process::Command::new("sh")
-            .arg("-c")
-            .arg(&command)
-            .output();
-        let failed = match output {
-            Ok(o) if o.status.success() => None,
-            Ok(o) => Some(format!(
-                "`{command}` exited with {}: {}",
-                o.status,
-                String::from_utf8_lossy(&o.stderr).trim()
-            )),
+        let failed = match run_command(&command, stop, COMMAND_TIMEOUT_S) {
+            Ok(CommandEnd::Done) => None,
+            Ok(CommandEnd::Stopped) => return None,
+            Ok(CommandEnd::Failed(why)) => Some(format!("`{command}` {why}")),
             Err(e) => Some(format!("`{command}` could not run: {e}")),
         };
         if let Some(message) = failed {
@@ -387,6 +396,61 @@ fn drive(
         }
     }
     Some(Ending::ProtocolDone)
+}
+
+/// Longest a `--set-pressure` command may run (s): a regulator that does not answer ends the
+/// session instead of holding it.
+pub const COMMAND_TIMEOUT_S: f64 = 10.0;
+
+/// How a pressure command ended.
+enum CommandEnd {
+    Done,
+    /// The session is stopping (Ctrl-C, a signal, a camera lost): the command was killed.
+    Stopped,
+    /// Why it failed: its exit status and error output, or that it timed out.
+    Failed(String),
+}
+
+/// Runs `command` with `sh -c`, waiting at most `timeout_s` and no longer than the session
+/// runs.
+fn run_command(command: &str, stop: &AtomicBool, timeout_s: f64) -> std::io::Result<CommandEnd> {
+    let mut child = std::process::Command::new("sh")
+        .arg("-c")
+        .arg(command)
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()?;
+    let start = Instant::now();
+    loop {
+        if let Some(status) = child.try_wait()? {
+            if status.success() {
+                return Ok(CommandEnd::Done);
+            }
+            let mut error = String::new();
+            if let Some(mut stderr) = child.stderr.take() {
+                use std::io::Read;
+                let _ = stderr.read_to_string(&mut error);
+            }
+            return Ok(CommandEnd::Failed(format!(
+                "exited with {status}: {}",
+                error.trim()
+            )));
+        }
+        let stopping = stop.load(Ordering::SeqCst);
+        if stopping || start.elapsed().as_secs_f64() > timeout_s {
+            let _ = child.kill();
+            let _ = child.wait();
+            return Ok(if stopping {
+                CommandEnd::Stopped
+            } else {
+                CommandEnd::Failed(format!(
+                    "did not finish in {timeout_s} s (killed): check that the regulator answers"
+                ))
+            });
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
 }
 
 /// The session's files: written whole each time (temp file, then rename), so that an
@@ -505,12 +569,7 @@ pub fn capture(
         })?;
     }
     let refused = [cameras[0].refused.clone(), cameras[1].refused.clone()];
-    let write = |path: &Path, text: &str| {
-        fsio::write_bytes(path, text.as_bytes()).map_err(|source| CaptureError::Write {
-            path: path.to_path_buf(),
-            source,
-        })
-    };
+    let session = SessionFiles { out, options };
 
     let start_unix_s = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
@@ -623,30 +682,47 @@ pub fn capture(
             }
             if now - last_shown >= 1.0 && failure.is_none() {
                 last_shown = now;
-                live(&stats(
-                    &rows,
-                    log.lock().expect("log").len(),
-                    judge.as_ref(),
-                ));
-                let listed = judge.is_none().then(|| frames_dir.join("frames.csv"));
-                if let Some(Err(e)) = listed.map(|path| write(&path, &frames_csv(&rows))) {
+                let log = log.lock().expect("log").clone();
+                let so_far = CaptureSummary {
+                    ending: Ending::Filming,
+                    stats: stats(&rows, log.len(), judge.as_ref()),
+                    refused: refused.clone(),
+                    start_monotonic_s,
+                    start_unix_s,
+                };
+                live(&so_far.stats);
+                if let Err(e) = session.write(&rows, &log, &so_far) {
                     failure = Some(e);
                     stop.store(true, Ordering::SeqCst);
                 }
             }
         }
+        let failed = |thread: String, payload: Box<dyn std::any::Any + Send>| {
+            let message = payload
+                .downcast_ref::<&str>()
+                .map(|m| m.to_string())
+                .or_else(|| payload.downcast_ref::<String>().cloned())
+                .unwrap_or_else(|| "a panic".into());
+            Ending::ThreadFailed { thread, message }
+        };
         for (side, thread) in filming {
-            if let Ok(CameraEnd::Failed { time_s, frames }) = thread.join() {
-                ending.get_or_insert(Ending::CameraStopped {
-                    side,
-                    time_s,
-                    frames,
-                });
+            match thread.join() {
+                Ok(CameraEnd::Failed { time_s, frames }) => {
+                    ending.get_or_insert(Ending::CameraStopped {
+                        side,
+                        time_s,
+                        frames,
+                    });
+                }
+                Ok(CameraEnd::Stopped) => {}
+                Err(payload) => ending = Some(failed(format!("{} camera", side.name()), payload)),
             }
         }
         if let Some(driving) = driving {
-            if let Ok(Some(e @ Ending::CommandFailed { .. })) = driving.join() {
-                ending = Some(e);
+            match driving.join() {
+                Ok(Some(e @ Ending::CommandFailed { .. })) => ending = Some(e),
+                Ok(_) => {}
+                Err(payload) => ending = Some(failed("protocol".into(), payload)),
             }
         }
     });
@@ -654,13 +730,7 @@ pub fn capture(
         return Err(e);
     }
     rows.sort_by_key(|r| (r.0 as u8, r.1));
-    if judge.is_none() {
-        write(&frames_dir.join("frames.csv"), &frames_csv(&rows))?;
-    }
     let log = log.into_inner().expect("log");
-    if options.protocol.is_some() {
-        write(&out.join("pressures.csv"), &pressures_csv(&log))?;
-    }
     let summary = CaptureSummary {
         ending: ending.unwrap_or(Ending::Interrupted),
         stats: stats(&rows, log.len(), judge.as_ref()),
@@ -668,17 +738,57 @@ pub fn capture(
         start_monotonic_s,
         start_unix_s,
     };
-    let json = serde_json::json!({
-        "sources": options.sources.each_ref().map(|s| redact(s)),
-        "requested": {"width": options.width, "height": options.height, "fps": options.fps},
-        "clock": "time_s = CLOCK_MONOTONIC seconds - start_monotonic_s (Python: time.monotonic() - start_monotonic_s)",
-        "summary": summary,
-    });
-    write(
-        &out.join("capture.json"),
-        &(serde_json::to_string_pretty(&json).expect("serialisable") + "\n"),
-    )?;
+    session.write(&rows, &log, &summary)?;
+    if let Ending::ThreadFailed { thread, message } = &summary.ending {
+        return Err(CaptureError::ThreadFailed {
+            thread: thread.clone(),
+            message: message.clone(),
+            out: out.to_path_buf(),
+        });
+    }
     Ok(summary)
+}
+
+/// The files that list a session: `frames/frames.csv` (not for a calibration capture),
+/// `pressures.csv` (with a protocol) and `capture.json`; rewritten whole (temp file, then
+/// rename) every second while filming and at the end, so that they always agree with the
+/// images written.
+struct SessionFiles<'a> {
+    out: &'a Path,
+    options: &'a CaptureOptions,
+}
+
+impl SessionFiles<'_> {
+    fn write(
+        &self,
+        rows: &[(Side, usize, f64)],
+        log: &[(f64, protocol::Step)],
+        summary: &CaptureSummary,
+    ) -> Result<(), CaptureError> {
+        let write = |path: &Path, text: &str| {
+            fsio::write_bytes(path, text.as_bytes()).map_err(|source| CaptureError::Write {
+                path: path.to_path_buf(),
+                source,
+            })
+        };
+        if self.options.calibration.is_none() {
+            write(&self.out.join("frames/frames.csv"), &frames_csv(rows))?;
+        }
+        if self.options.protocol.is_some() {
+            write(&self.out.join("pressures.csv"), &pressures_csv(log))?;
+        }
+        let options = self.options;
+        let json = serde_json::json!({
+            "sources": options.sources.each_ref().map(|s| redact(s)),
+            "requested": {"width": options.width, "height": options.height, "fps": options.fps},
+            "clock": "time_s = CLOCK_MONOTONIC seconds - start_monotonic_s (Python: time.monotonic() - start_monotonic_s)",
+            "summary": summary,
+        });
+        write(
+            &self.out.join("capture.json"),
+            &(serde_json::to_string_pretty(&json).expect("serialisable") + "\n"),
+        )
+    }
 }
 
 /// A calibration capture's judge: every [`BOARD_EVERY_S`] the latest frame of each camera is
@@ -807,7 +917,27 @@ pub mod calibration {
 
 #[cfg(test)]
 mod tests {
-    use super::redact;
+    use super::{redact, run_command, AtomicBool, CommandEnd};
+
+    #[test]
+    fn a_pressure_command_is_timed_out_or_stopped_and_its_error_said() {
+        let running = AtomicBool::new(false);
+        let said = |end: CommandEnd| match end {
+            CommandEnd::Failed(why) => why,
+            CommandEnd::Done => "done".into(),
+            CommandEnd::Stopped => "stopped".into(),
+        };
+        assert_eq!(said(run_command("true", &running, 5.0).unwrap()), "done");
+        let why = said(run_command("echo no >&2; exit 3", &running, 5.0).unwrap());
+        assert_eq!(why, "exited with exit status: 3: no");
+        let why = said(run_command("sleep 5", &running, 0.2).unwrap());
+        assert!(why.starts_with("did not finish in 0.2 s (killed)"), "{why}");
+        let stopping = AtomicBool::new(true);
+        assert_eq!(
+            said(run_command("sleep 5", &stopping, 5.0).unwrap()),
+            "stopped"
+        );
+    }
 
     #[test]
     fn passwords_in_camera_urls_are_hidden_and_nothing_else_changes() {

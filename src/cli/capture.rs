@@ -164,6 +164,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         Ending::CommandFailed { step, message } => {
             bail!("--set-pressure failed at step {step}: {message}; {kept}")
         }
+        // Never the end of a session `capture` returns: the first while filming, the second
+        // is returned as an error.
+        Ending::Filming | Ending::ThreadFailed { .. } => {
+            bail!("the session ended unexpectedly; {kept}")
+        }
     }
 }
 

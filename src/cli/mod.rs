@@ -135,8 +135,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     }
 }
 
-/// Ctrl-C sets this; long work (a search, rendering) stops at its next checkpoint and keeps
-/// what it finished.
+/// Ctrl-C, SIGTERM and SIGHUP (a closed terminal, `timeout`, a service stopped) set this; long
+/// work (a search, rendering, filming) stops at its next checkpoint and keeps what it finished.
 fn interrupt_flag() -> &'static AtomicBool {
     static INTERRUPTED: AtomicBool = AtomicBool::new(false);
     static HANDLER: Once = Once::new();

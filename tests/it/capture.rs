@@ -269,49 +269,93 @@ fn capture_refuses_bad_protocols_and_cameras_and_keeps_what_a_stopped_camera_gav
     assert!((2..12).contains(&steps), "{steps} steps logged");
 }
 
+/// Ctrl-C, SIGTERM and SIGHUP (a closed terminal, `timeout`, a stopped service) each end a
+/// session as an interruption: exit 130, every frame kept and listed, the steps commanded so far
+/// logged. A session killed outright still has its files as of the last second, said to be
+/// still filming.
 #[test]
-fn ctrl_c_ends_a_capture_with_every_frame_kept_and_listed() {
+fn signals_end_a_capture_with_every_frame_kept_and_listed() {
     let dir = tempdir();
     let d = dir.path();
     cameras(d);
     protocol(d, "p.csv", "1");
     let command = recorder(d);
-    let child = std::process::Command::new(env!("CARGO_BIN_EXE_handcap"))
-        .args(session_args("s", "p.csv", &command))
-        .current_dir(d)
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    std::thread::sleep(std::time::Duration::from_millis(900));
-    // SAFETY: sending SIGINT to our own child process.
-    unsafe {
-        libc::kill(child.id() as i32, libc::SIGINT);
+    let spawn = |out: &str| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_handcap"))
+            .args(session_args(out, "p.csv", &command))
+            .current_dir(d)
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap()
+    };
+    let send = |child: &std::process::Child, signal: i32| {
+        // SAFETY: sending a signal to our own child process.
+        unsafe {
+            libc::kill(child.id() as i32, signal);
+        }
+    };
+    for (signal, name) in [
+        (libc::SIGINT, "int"),
+        (libc::SIGTERM, "term"),
+        (libc::SIGHUP, "hup"),
+    ] {
+        let _ = std::fs::remove_file(d.join("told.txt"));
+        let child = spawn(name);
+        std::thread::sleep(std::time::Duration::from_millis(900));
+        send(&child, signal);
+        let out = child.wait_with_output().unwrap();
+        assert_eq!(
+            out.status.code(),
+            Some(130),
+            "{name}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let s = d.join(name);
+        let [l, r] = assert_consistent(&s);
+        assert!(
+            (10..42).contains(&l) && (10..42).contains(&r),
+            "{name}: {l} left, {r} right frames"
+        );
+        let json: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(s.join("capture.json")).unwrap())
+                .unwrap();
+        assert_eq!(json["summary"]["ending"], "interrupted", "{name}");
+        // The steps commanded so far are logged, no more.
+        let logged = csv_rows(&s.join("pressures.csv")).len();
+        let told = std::fs::read_to_string(d.join("told.txt"))
+            .unwrap()
+            .lines()
+            .count();
+        assert_eq!(logged, told, "{name}");
+        assert!((1..=2).contains(&logged), "{name}: {logged}");
     }
-    let out = child.wait_with_output().unwrap();
-    assert_eq!(
-        out.status.code(),
-        Some(130),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let s = d.join("s");
-    let [l, r] = assert_consistent(&s);
-    assert!(
-        (10..42).contains(&l) && (10..42).contains(&r),
-        "{l} left, {r} right frames"
-    );
+    // SIGKILL: nothing runs at the end, and the files of the last second are there.
+    let child = spawn("kill");
+    std::thread::sleep(std::time::Duration::from_millis(1300));
+    send(&child, libc::SIGKILL);
+    child.wait_with_output().unwrap();
+    let s = d.join("kill");
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(s.join("capture.json")).unwrap()).unwrap();
-    assert_eq!(json["summary"]["ending"], "interrupted");
-    // The steps commanded so far are logged, no more.
-    let logged = csv_rows(&s.join("pressures.csv")).len();
-    let told = std::fs::read_to_string(d.join("told.txt"))
-        .unwrap()
-        .lines()
-        .count();
-    assert_eq!(logged, told);
-    assert!((1..=2).contains(&logged), "{logged}");
+    assert_eq!(json["summary"]["ending"], "filming");
+    assert!(!csv_rows(&s.join("frames/frames.csv")).is_empty());
+    assert!(!csv_rows(&s.join("pressures.csv")).is_empty());
+}
+
+/// A regulator command that hangs does not hold the session: when the cameras stop, the
+/// command is killed and the session ends, saying why, with nothing logged for it.
+#[test]
+fn a_hung_pressure_command_does_not_hold_the_session() {
+    let dir = tempdir();
+    let d = dir.path();
+    cameras(d);
+    protocol(d, "p.csv", "0.2");
+    let out = handcap(d, &session_args("s", "p.csv", "sleep 60"));
+    assert_eq!(out.status.code(), Some(1));
+    let msg = String::from_utf8_lossy(&out.stderr);
+    assert!(msg.contains("camera stopped delivering"), "{msg}");
+    assert!(csv_rows(&d.join("s/pressures.csv")).is_empty());
 }
 
 /// `capture --calib` from the two board videos of [`board_videos`] as cameras, into `s`.
