@@ -213,11 +213,23 @@ where
             _ => String::new(),
         }
     };
+    let (x_range, y_range) = (chart.x_range(), chart.y_range());
+    let x_digits = digits(x_range.end - x_range.start);
+    let y_digits = if plot.log_y {
+        0
+    } else {
+        digits(y_range.end - y_range.start)
+    };
+    let x_tick = |v: &f64| tick(*v, x_digits);
+    let y_tick = |v: &f64| tick(*v, y_digits);
     let mut mesh = chart.configure_mesh();
     mesh.x_desc(&plot.x_label)
         .y_desc(&plot.y_label)
-        .label_style(("sans-serif", 14));
-    if !plot.x_names.is_empty() {
+        .label_style(("sans-serif", 14))
+        .y_label_formatter(&y_tick);
+    if plot.x_names.is_empty() {
+        mesh.x_label_formatter(&x_tick);
+    } else {
         mesh.x_labels(plot.x_names.len().min(30))
             .x_label_formatter(&name);
     }
@@ -225,6 +237,12 @@ where
     for s in &plot.series {
         let colour = COLOURS[s.colour % COLOURS.len()];
         let points = s.points.iter().copied().filter(|&p| plot.shows(p));
+        // A log axis cannot show zero: the points it leaves out are counted in the legend.
+        let hidden = s.points.len() - s.points.iter().filter(|&&p| plot.shows(p)).count();
+        let label = match hidden {
+            0 => s.label.clone(),
+            n => format!("{} ({n} at or below 0 not drawn)", s.label),
+        };
         let drawn = match s.mark {
             Mark::Line => chart.draw_series(LineSeries::new(points, colour.stroke_width(2))),
             Mark::Points => chart.draw_series(points.map(|p| Circle::new(p, 3, colour.filled()))),
@@ -237,9 +255,22 @@ where
             })),
         }
         .map_err(e)?;
+        // The legend shows each series as it is drawn.
+        let mark = s.mark;
         drawn
-            .label(&s.label)
-            .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], colour.stroke_width(2)));
+            .label(label)
+            .legend(move |(x, y)| -> DynElement<'static, _, _> {
+                match mark {
+                    Mark::Line => {
+                        PathElement::new([(x, y), (x + 20, y)], colour.stroke_width(2)).into_dyn()
+                    }
+                    Mark::Points => Circle::new((x + 10, y), 3, colour.filled()).into_dyn(),
+                    Mark::Bars { .. } => {
+                        Rectangle::new([(x + 4, y - 5), (x + 16, y + 5)], colour.filled())
+                            .into_dyn()
+                    }
+                }
+            });
     }
     if plot.series.len() > 1 {
         chart
@@ -252,6 +283,32 @@ where
             .map_err(e)?;
     }
     Ok(())
+}
+
+/// Decimals that tell an axis's ticks apart: about a tenth of its span's.
+fn digits(span: f64) -> usize {
+    if span > 0.0 && span.is_finite() {
+        (-(span / 10.0).log10()).ceil().clamp(0.0, 6.0) as usize
+    } else {
+        0
+    }
+}
+
+/// A tick label: `digits` decimals, more if the value needs them (up to 6), none for whole
+/// numbers on a whole-number axis ("10", not "10.0").
+fn tick(v: f64, digits: usize) -> String {
+    let exact = (digits..=6)
+        .find(|&d| {
+            let scale = 10f64.powi(d as i32);
+            ((v * scale).round() / scale - v).abs() <= 1e-9 * v.abs().max(1.0)
+        })
+        .unwrap_or(6);
+    let text = format!("{v:.exact$}");
+    if text.starts_with('-') && text[1..].chars().all(|c| c == '0' || c == '.') {
+        text[1..].to_string()
+    } else {
+        text
+    }
 }
 
 /// `range` raised at the top by a quarter (in its own units: log for a log axis), so a legend
@@ -278,4 +335,25 @@ fn padded(values: impl Iterator<Item = f64>) -> (f64, f64) {
         0.5 * lo.abs().max(1e-9)
     };
     (lo - pad, hi + pad)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{digits, tick};
+
+    #[test]
+    fn ticks_have_the_decimals_their_axis_needs() {
+        // An axis of 0-250 kPa, or of 80 iterations: whole numbers.
+        assert_eq!(digits(250.0), 0);
+        assert_eq!(digits(80.0), 0);
+        assert_eq!(tick(10.0, digits(80.0)), "10");
+        // 0-0.12 mm: two decimals on every tick, more where a tick has them.
+        assert_eq!(digits(0.12), 2);
+        assert_eq!(tick(0.1, 2), "0.10");
+        assert_eq!(tick(0.02, 2), "0.02");
+        assert_eq!(tick(0.125, 2), "0.125");
+        // No negative zero.
+        assert_eq!(tick(-1e-12, 1), "0.0");
+        assert_eq!(tick(-0.5, 1), "-0.5");
+    }
 }

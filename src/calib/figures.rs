@@ -6,14 +6,16 @@ use crate::plot::{self as figures, LinePlot, Mark, Series};
 
 use opencv::calib3d;
 use opencv::core::{self, Mat, Size, Vector};
+use opencv::prelude::*;
 
 use super::{CalibError, PairReport, StereoCalibration};
 use crate::cv::mat;
 
 impl StereoCalibration {
     /// Writes `<stem>_pairs.png/.svg` (each used pair's left and right error, as bars) and
-    /// `<stem>_rectified.png` (the first used pair rectified side by side, with horizontal
-    /// lines: a point must lie on the same line in both halves). Returns the files written.
+    /// `<stem>_rectified.png` (the first used pair rectified side by side, a white gap between
+    /// them and each named, with horizontal lines: a point must lie on the same line in both
+    /// halves). Returns the files written.
     ///
     /// # Errors
     /// [`CalibError`] when an image cannot be read or a figure written.
@@ -86,19 +88,43 @@ impl StereoCalibration {
         let (left, right) = (&self.rig.left, &self.rig.right);
         let l = rectified(&pair.left, &left.k, &left.dist, &self.r1, &self.p1)?;
         let r = rectified(&pair.right, &right.k, &right.dist, &self.r2, &self.p2)?;
+        // The two images apart by a white gap, each named, so two boards never read as one.
+        const GAP_PX: i32 = 16;
+        let gap = Mat::new_rows_cols_with_default(
+            size.height,
+            GAP_PX,
+            l.typ(),
+            core::Scalar::all(255.0),
+        )?;
         let mut both = Mat::default();
-        let halves: Vector<Mat> = [l, r].into_iter().collect();
+        let halves: Vector<Mat> = [l, gap, r].into_iter().collect();
         core::hconcat(&halves, &mut both)?;
+        let width = both.cols();
         for y in (20..size.height).step_by(40) {
             imgproc::line(
                 &mut both,
                 core::Point::new(0, y),
-                core::Point::new(2 * size.width - 1, y),
+                core::Point::new(width - 1, y),
                 core::Scalar::new(0.0, 200.0, 0.0, 0.0),
                 1,
                 imgproc::LINE_8,
                 0,
             )?;
+        }
+        for (name, x) in [("left", 12), ("right", size.width + GAP_PX + 12)] {
+            for (colour, thickness) in [(0.0, 6), (255.0, 2)] {
+                imgproc::put_text(
+                    &mut both,
+                    name,
+                    core::Point::new(x, 44),
+                    imgproc::FONT_HERSHEY_SIMPLEX,
+                    1.2,
+                    core::Scalar::all(colour),
+                    thickness,
+                    imgproc::LINE_AA,
+                    false,
+                )?;
+            }
         }
         let write_err = |message: String| CalibError::Write {
             path: path.to_path_buf(),

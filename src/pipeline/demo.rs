@@ -450,7 +450,7 @@ pub fn run(
     let index = out.join("report/index.html");
     let report_dir = out.join("report");
     std::fs::create_dir_all(&report_dir).map_err(io_error(&report_dir))?;
-    super::demo_report::page(out, &summary, tri, cal, &planned)
+    super::demo_report::page(out, &summary, tri, cal, file.search.as_ref(), &planned)
         .write(&index)
         .map_err(io_error(&index))?;
     lap("report");

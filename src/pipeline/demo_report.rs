@@ -3,8 +3,9 @@
 use std::path::Path;
 
 use super::demo::Summary;
-use crate::calib::StereoCalibration;
+use crate::calib::{gates, StereoCalibration};
 use crate::model::inverse::PlannedTarget;
+use crate::model::msvr::tune::SearchSummary;
 use crate::report::html::Page;
 use crate::triangulate::Triangulation;
 
@@ -18,6 +19,7 @@ pub(super) fn page(
     s: &Summary,
     tri: &Triangulation,
     cal: &StereoCalibration,
+    search: Option<&SearchSummary>,
     planned: &[PlannedTarget],
 ) -> Page {
     let mut page = Page::new("handcap demo: the virtual micro-hand, end to end");
@@ -70,7 +72,14 @@ pub(super) fn page(
             c.pairs_used, c.rms_px, c.epipolar_px,
             cal.board_check.neighbour_mean_squares, cal.board_check.neighbour_sd_squares, cal.board_check.planarity_rms_mm,
             if cal.implausible.is_empty() {
-                "It passes every gate that refuses a calibration (RMS, the boards triangulated back, the baseline against the boards' distance).".to_string()
+                format!(
+                    "It passes every gate that refuses a calibration: reprojection RMS at most {} px, the boards triangulated back within {} % of a square apart (sd at most {} %) and flat within {} of a square, a baseline at most {} × the boards' distance.",
+                    gates::MAX_RMS_PX,
+                    100.0 * gates::MAX_SPACING_ERROR,
+                    100.0 * gates::MAX_SPACING_SD,
+                    gates::MAX_PLANARITY_SQUARES,
+                    gates::MAX_BASELINE_DISTANCES
+                )
             } else {
                 format!("Written although it fails a gate: {}.", cal.implausible.join("; "))
             },
@@ -145,18 +154,35 @@ pub(super) fn page(
     let m = out.join("model");
     page.section("aco", "ACO convergence (paper's Figures 7-8)")
         .paragraph("The paper's digit-encoded ant colony choosing (C, ε, σ), each ant scored by 5-fold cross-validated MAE on the triangulated training grid's 50 kPa points (the paper's 216 steps); the model is then fitted on every step of the grid.")
+        .paragraph(&search.map_or("No search ran.".to_string(), |r| format!(
+            "The colony chose C = {:.4}, ε = {:.4} mm, σ = {:.4} (in the scaled inputs), a cross-validated MAE of {:.4} mm, after {} iterations ({} candidates scored; stopped: {}).",
+            r.best.c, r.best.epsilon, r.best.sigma, r.best_fitness, r.iterations, r.evaluations,
+            match r.stop {
+                crate::search::SearchStop::SamePath => "every ant took the same path",
+                crate::search::SearchStop::MaxIterations => "the iteration cap",
+                crate::search::SearchStop::Budget => "the evaluation budget",
+                crate::search::SearchStop::Interrupted => "interrupted",
+            }
+        )))
         .figure(&m.join("fig7_min_mae.svg"), "Figure 7: the best ant's error per iteration.")
         .figure(&m.join("fig8_mean_mae.svg"), "Figure 8: the mean error of the ants per iteration.");
 
     page.section("sweeps", "The two test sweeps (paper's Figures 9-14)")
         .paragraph("Held-out sweeps (never trained on): A, P1 = P2 = 0 with P3 from 0 to 250 kPa; B, P1 = 0 with P2 = P3 from 0 to 250 kPa. Points: triangulated tips; curves: MSVR and the previous physics model (default and calibrated constants).");
-    for sweep in ["dataset_sweep_a", "dataset_sweep_b"] {
-        for axis in ["x_mm", "y_mm", "z_mm", "residuals"] {
+    for (sweep, name) in [
+        ("dataset_sweep_a", "Sweep A"),
+        ("dataset_sweep_b", "Sweep B"),
+    ] {
+        for axis in ["x", "y", "z"] {
             page.figure(
-                &m.join(format!("{sweep}_{axis}.svg")),
-                &format!("{sweep}: {axis}"),
+                &m.join(format!("{sweep}_{axis}_mm.svg")),
+                &format!("{name}: the tip's {axis} (mm), measured and modelled."),
             );
         }
+        page.figure(
+            &m.join(format!("{sweep}_residuals.svg")),
+            &format!("{name}: each model's Euclidean tip error (mm, log scale)."),
+        );
     }
 
     page.section("errors", "Held-out errors")

@@ -137,7 +137,7 @@ pub fn write_model_report(
     if let Some(history) = history {
         let path = dir.join("history.csv");
         fsio::write_bytes(&path, history_csv(history).as_bytes()).map_err(err(&path))?;
-        convergence_figures(dir, history)?;
+        convergence_figures(dir, history, &unit(&report.outputs))?;
         written.push(path);
         for stem in CONVERGENCE {
             written.extend(figures::line_plot_files(&dir.join(stem)));
@@ -380,7 +380,10 @@ fn sweep_figures(dir: &Path, c: &Comparison) -> Result<Vec<SweepFigures>, Report
         let plot = figures::LinePlot {
             title: format!("Euclidean error along {test} ({held})"),
             x_label: format!("{label} (swept)"),
-            y_label: "‖measured − model‖ (log scale)".into(),
+            y_label: format!(
+                "‖measured − model‖ ({}, log scale)",
+                unit(&data.outputs.names)
+            ),
             series: residual_series,
             log_y: true,
             x_names: Vec::new(),
@@ -395,6 +398,23 @@ fn sweep_figures(dir: &Path, c: &Comparison) -> Result<Vec<SweepFigures>, Report
         });
     }
     Ok(written)
+}
+
+/// The outputs' unit, when their names share one (`x_mm`, `y_mm` → `mm`); else "output units".
+fn unit(outputs: &[String]) -> String {
+    let suffix = |name: &String| name.rsplit_once('_').map(|(_, u)| u.to_string());
+    let first = outputs.first().and_then(suffix);
+    match first {
+        Some(u)
+            if !u.is_empty()
+                && u.len() <= 4
+                && u.chars().all(|c| c.is_ascii_alphabetic())
+                && outputs.iter().all(|n| suffix(n).as_ref() == Some(&u)) =>
+        {
+            u
+        }
+        _ => "output units".into(),
+    }
 }
 
 /// The `metrics.csv` text.
@@ -438,12 +458,16 @@ pub fn history_csv(history: &[IterationRecord]) -> String {
 }
 
 /// The paper's Figures 7 and 8: minimum and mean fitness per iteration.
-fn convergence_figures(dir: &Path, history: &[IterationRecord]) -> Result<(), ReportError> {
+fn convergence_figures(
+    dir: &Path,
+    history: &[IterationRecord],
+    unit: &str,
+) -> Result<(), ReportError> {
     let figure = |name: &str, title: &str, label: &str, value: fn(&IterationRecord) -> f64| {
         let plot = figures::LinePlot {
             title: title.to_string(),
             x_label: "iteration".into(),
-            y_label: "MAE".into(),
+            y_label: format!("cross-validated MAE ({unit})"),
             series: vec![figures::Series {
                 label: label.into(),
                 points: history

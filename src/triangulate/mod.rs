@@ -57,6 +57,8 @@ pub enum TriangulateError {
     Input(#[from] crate::data::DataError),
     #[error("{path} has no R_hand: calibrate with a reference pair (left_ref/right_ref, the board at the finger's base) so the hand frame's axes are known")]
     NoHandAxes { path: PathBuf },
+    #[error("{path} is Anipose's camera file, which cannot hold the hand frame; give --calib {yaml}, the calibration `handcap calibrate` wrote beside it")]
+    AniposeFile { path: PathBuf, yaml: PathBuf },
     #[error("{frame} is {width}×{height} but the calibration is for {cw}×{ch}; capture frames at the calibration's size")]
     WrongSize {
         frame: PathBuf,
@@ -274,11 +276,18 @@ pub fn triangulate(
     progress: &(dyn Fn(usize, usize) + Sync),
     interrupt: &AtomicBool,
 ) -> Result<Triangulation, TriangulateError> {
-    let r_hand = calibration
-        .r_hand
-        .ok_or_else(|| TriangulateError::NoHandAxes {
-            path: calibration.path.clone(),
-        })?;
+    let r_hand = calibration.r_hand.ok_or_else(|| {
+        let path = calibration.path.clone();
+        if path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("toml"))
+        {
+            let yaml = path.with_extension("yml");
+            TriangulateError::AniposeFile { path, yaml }
+        } else {
+            TriangulateError::NoHandAxes { path }
+        }
+    })?;
     let rig = &calibration.rig;
     let (records, paths) = (&frames.records, &frames.paths);
 

@@ -179,6 +179,22 @@ fn calibrates_the_synthetic_rig_within_tolerance_and_rejects_a_corrupted_pair() 
         assert!(d.join(figure).is_file(), "{figure} missing");
     }
     anipose_toml_matches_the_yaml(&d.join("cal.toml"), &read_rig(&d.join("cal.yml")));
+    // Anipose's file has no hand frame: triangulate names the file that has.
+    let msg = handcap_err(
+        d,
+        &[
+            "triangulate",
+            "frames",
+            "--calib",
+            "cal.toml",
+            "--out",
+            "t.csv",
+        ],
+    );
+    assert!(
+        msg.contains("cal.toml is Anipose's camera file") && msg.contains("--calib cal.yml"),
+        "{msg}"
+    );
     json_matches_the_yaml(&d.join("cal.json"), &read_rig(&d.join("cal.yml")));
     let yaml = std::fs::read_to_string(d.join("cal.yml")).unwrap();
     for key in [

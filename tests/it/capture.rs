@@ -417,15 +417,9 @@ fn a_charuco_board_is_taken_in_part_from_cameras_and_videos() {
     board_videos(d, 24, board);
     let mut args = vec!["capture"];
     args.extend(VIDEO_CAMERAS);
-    args.extend([
-        "--pairs",
-        "8",
-        "--board",
-        "charuco:10x7",
-        "--square-mm",
-        "10",
-    ]);
-    args.extend(["--marker-mm", "7.5"]);
+    let board_flags = "--board charuco:10x7 --square-mm 10 --marker-mm 7.5";
+    args.extend(["--pairs", "6"]);
+    args.extend(board_flags.split(' '));
     let out = handcap_ok(d, &args);
     assert!(out.contains("board pairs 6/6"), "{out}");
     let described = handcap::calib::file::read_board(&d.join("s/calib/board.yml")).unwrap();
