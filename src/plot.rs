@@ -214,7 +214,14 @@ where
         }
     };
     let (x_range, y_range) = (chart.x_range(), chart.y_range());
-    let x_digits = digits(x_range.end - x_range.start);
+    // Whole-number x data (iterations, steps) get whole-number ticks.
+    let whole_x = plot
+        .series
+        .iter()
+        .flat_map(|s| &s.points)
+        .all(|p| p.0.fract() == 0.0);
+    let x_span = x_range.end - x_range.start;
+    let x_digits = if whole_x { 0 } else { digits(x_span) };
     let y_digits = if plot.log_y {
         0
     } else {
@@ -229,6 +236,10 @@ where
         .y_label_formatter(&y_tick);
     if plot.x_names.is_empty() {
         mesh.x_label_formatter(&x_tick);
+        if whole_x && x_span < 12.0 {
+            // Plotters would put ticks between the whole numbers of a short axis.
+            mesh.x_labels(x_span as usize + 1);
+        }
     } else {
         mesh.x_labels(plot.x_names.len().min(30))
             .x_label_formatter(&name);

@@ -155,7 +155,7 @@ pub(super) fn page(
     page.section("aco", "ACO convergence (paper's Figures 7-8)")
         .paragraph("The paper's digit-encoded ant colony choosing (C, ε, σ), each ant scored by 5-fold cross-validated MAE on the triangulated training grid's 50 kPa points (the paper's 216 steps); the model is then fitted on every step of the grid.")
         .paragraph(&search.map_or("No search ran.".to_string(), |r| format!(
-            "The colony chose C = {:.4}, ε = {:.4} mm, σ = {:.4} (in the scaled inputs), a cross-validated MAE of {:.4} mm, after {} iterations ({} candidates scored; stopped: {}).",
+            "The colony chose C = {:.1}, ε = {:.4} mm, σ = {:.3} (in the scaled inputs), a cross-validated MAE of {:.4} mm, after {} iterations ({} candidates scored; stopped: {}).",
             r.best.c, r.best.epsilon, r.best.sigma, r.best_fitness, r.iterations, r.evaluations,
             match r.stop {
                 crate::search::SearchStop::SamePath => "every ant took the same path",

@@ -428,12 +428,17 @@ fn detection_row(p: &PairRecord) -> opencv::Result<Option<Mat>> {
         core::BORDER_CONSTANT,
         bgr(255.0, 255.0, 255.0),
     )?;
+    // What became of the pair: used (or resolved among candidates), else why it was not.
+    let verdict = if p.status.used() {
+        p.status.name().to_string()
+    } else {
+        format!("rejected ({})", p.status.name().replace('_', " "))
+    };
     let caption = format!(
-        "left {} / right {}  step {}  {}  reprojection {} px",
+        "left {} / right {}  step {}  {verdict}  reprojection {} px",
         p.left.index,
         p.right.index,
         p.step.map_or("-".into(), |k| k.to_string()),
-        p.status.name(),
         p.reproj_px.map_or("-".into(), |e| format!("{e:.2}")),
     );
     imgproc::put_text(
