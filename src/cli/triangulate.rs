@@ -129,6 +129,14 @@ pub fn print_summary(done: &Triangulated) {
             s.centroid_only[0], s.centroid_only[1]
         );
     }
+    for end in s.video_ended.iter().flatten() {
+        println!(
+            "  {} ends after {} frames, before the last {} frames frames.csv lists for it (cut short?): those are counted missing",
+            end.path.display(),
+            end.frames,
+            end.missing
+        );
+    }
     let decoded: Vec<String> = ["left", "right"]
         .iter()
         .zip(&s.decoded_video)

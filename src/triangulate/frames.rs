@@ -208,8 +208,23 @@ impl FrameList {
             }
             None => None,
         };
-        Ok(FrameReader { list: self, videos })
+        Ok(FrameReader {
+            list: self,
+            videos,
+            ended: [None, None],
+        })
     }
+}
+
+/// A video that ended before the last frame `frames.csv` lists for it (a recording cut short,
+/// a file copied while written): its frames are used up to its end, the rest counted missing.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct VideoEnd {
+    pub path: PathBuf,
+    /// Frames the video holds.
+    pub frames: usize,
+    /// Frames `frames.csv` lists after its end.
+    pub missing: usize,
 }
 
 /// One frame's data, as [`FrameReader::read`] gives it to a worker.
@@ -226,6 +241,8 @@ pub enum FrameData<'a> {
 pub struct FrameReader<'a> {
     list: &'a FrameList,
     videos: Option<[crate::video::VideoReader; 2]>,
+    /// Per camera, where its video ended early.
+    ended: [Option<VideoEnd>; 2],
 }
 
 impl<'a> FrameReader<'a> {
@@ -241,11 +258,11 @@ impl<'a> FrameReader<'a> {
         })
     }
 
-    /// Record `i`'s frame; for videos, records must come in [`FrameList::reading_order`].
+    /// Record `i`'s frame; for videos, records must come in [`FrameList::reading_order`]. A
+    /// frame after its video's end is [`FrameData::Missing`] and counted ([`Self::ended`]).
     ///
     /// # Errors
-    /// [`TriangulateError::Video`] when the video ends before the frame (`frames.csv` lists more
-    /// frames than the video has) or cannot be read.
+    /// [`TriangulateError::Video`] when the video cannot be read.
     pub fn read(&mut self, i: usize) -> Result<FrameData<'a>, TriangulateError> {
         let list: &'a FrameList = self.list;
         let Some(videos) = &mut self.videos else {
@@ -257,26 +274,29 @@ impl<'a> FrameReader<'a> {
         let side = record.camera as usize;
         let path = &list.videos.as_ref().expect("videos")[side];
         let video = &mut videos[side];
-        let failed = |e: opencv::Error| TriangulateError::Video {
-            path: path.clone(),
-            message: e.message,
-        };
-        let short = |video: &crate::video::VideoReader| {
-            TriangulateError::Video {
-            path: path.clone(),
-            message: format!(
-                "the video ends after {} frames but frames.csv line {} lists {} frame {}; give the frames.csv of this recording",
-                video.position,
-                record.line,
-                record.camera.name(),
-                record.index
-            ),
-        }
-        };
-        match video.frame(record.index).map_err(failed)? {
+        let frame = video
+            .frame(record.index)
+            .map_err(|e| TriangulateError::Video {
+                path: path.clone(),
+                message: e.message,
+            })?;
+        match frame {
             Some(frame) => Ok(FrameData::Video(frame)),
-            None => Err(short(video)),
+            None => {
+                let end = self.ended[side].get_or_insert_with(|| VideoEnd {
+                    path: path.clone(),
+                    frames: video.position,
+                    missing: 0,
+                });
+                end.missing += 1;
+                Ok(FrameData::Missing)
+            }
         }
+    }
+
+    /// Per camera, where its video ended before the frames listed for it.
+    pub fn ended(&self) -> [Option<VideoEnd>; 2] {
+        self.ended.clone()
     }
 }
 

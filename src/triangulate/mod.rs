@@ -240,6 +240,8 @@ pub struct Summary {
     /// Per camera, the codec of a video that OpenCV decoded (not Motion-JPEG, so the fit
     /// cannot undo its colour's sampling and quantisation).
     pub decoded_video: [Option<String>; 2],
+    /// Per camera, a video that ended before the frames `frames.csv` lists for it.
+    pub video_ended: [Option<frames::VideoEnd>; 2],
     /// The rows' spread (largest distance of a step's pairs from their median, mm): median,
     /// 95th percentile, largest.
     pub step_spread_mm: [f64; 3],
@@ -324,6 +326,7 @@ pub fn triangulate(
         interrupted: interrupt.load(Ordering::SeqCst),
         steps_logged: log.steps.len(),
         decoded_video,
+        video_ended: reader.ended(),
         ..Summary::default()
     };
     count_frames(records, &results, &mut summary.frames);

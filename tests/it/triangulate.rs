@@ -535,17 +535,22 @@ fn recorded_as_videos_the_capture_gives_the_same_tips() {
     // Measured: 0.117 mm (0.105 from MPEG-4 copies of the same capture's JPEG images).
     assert!(mpeg4 < 0.2, "{mpeg4} mm");
 
-    // frames.csv listing a frame the video does not have: one line naming both.
-    let index = v.join("frames/frames.csv");
-    let mut text = std::fs::read_to_string(&index).unwrap();
-    text.push_str("9999,left,99.0\n");
-    std::fs::write(&index, text).unwrap();
-    let msg = handcap_err(v, &truth_args("x/d.csv"));
+    // A video cut short (a recording stopped, a copy made while it was written): its frames
+    // are used up to its end, the rest counted missing and said.
+    let right = v.join("frames/right.avi");
+    let bytes = std::fs::read(&right).unwrap();
+    std::fs::write(&right, &bytes[..bytes.len() * 6 / 10]).unwrap();
+    let out = handcap_ok(v, &truth_args("cut/d.csv"));
     assert!(
-        msg.contains("left.avi") && msg.contains("lists left frame 9999") && msg.contains("line "),
-        "{msg}"
+        out.contains("right.avi ends after") && out.contains("those are counted missing"),
+        "{out}"
     );
-    assert!(!v.join("x/d.csv").exists());
+    let s = summary(&v.join("cut/d_summary.json"));
+    let ended = &s["video_ended"][1];
+    assert!(ended["frames"].as_u64().unwrap() > 0, "{ended}");
+    assert!(ended["missing"].as_u64().unwrap() > 0, "{ended}");
+    assert!(s["video_ended"][0].is_null());
+    std::fs::write(&right, &bytes).unwrap();
 
     // Two videos of one camera: which is meant cannot be told; refused, naming both.
     std::fs::copy(v.join("frames/right.avi"), v.join("frames/right.mp4")).unwrap();
