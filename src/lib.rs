@@ -27,6 +27,7 @@ pub use handcap_core::{data, fsio, hand, model, provenance, search, stats, DEFAU
 pub mod calib;
 pub mod capture;
 mod cv;
+pub mod frame_times;
 pub mod geometry;
 pub mod opencv_yaml;
 pub mod pipeline;

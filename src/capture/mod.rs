@@ -135,7 +135,7 @@ pub struct Stats {
     pub frames: [usize; 2],
     /// Frames per second over the session, each camera.
     pub fps: [f64; 2],
-    /// Gaps longer than 1.5 frame periods in each camera's times.
+    /// Frames each camera dropped ([`crate::frame_times::dropped`]).
     pub drops: [usize; 2],
     /// Median |left − right| time of nearest frames (ms).
     pub skew_ms: f64,
@@ -472,37 +472,15 @@ fn pressures_csv(log: &[(f64, protocol::Step)]) -> String {
     out
 }
 
-/// Figures of one camera's times: frames per second, and gaps over 1.5 periods.
+/// Figures of one camera's times: frames per second, and frames dropped
+/// ([`crate::frame_times`]).
 fn rate_and_drops(times: &[f64]) -> (f64, usize) {
     if times.len() < 2 {
         return (0.0, 0);
     }
-    let mut gaps: Vec<f64> = times.windows(2).map(|w| w[1] - w[0]).collect();
     let fps = (times.len() - 1) as f64 / (times[times.len() - 1] - times[0]).max(1e-9);
-    let median = crate::stats::median(&mut gaps.clone()).unwrap_or(0.0);
-    gaps.retain(|g| *g > 1.5 * median);
-    (fps, gaps.len())
-}
-
-/// Median distance (ms) from each left time to the nearest right time.
-fn skew_ms(left: &[f64], right: &[f64]) -> f64 {
-    if left.is_empty() || right.is_empty() {
-        return 0.0;
-    }
-    let mut d: Vec<f64> = left
-        .iter()
-        .map(|t| {
-            let k = right.partition_point(|r| r < t);
-            let near = [k.checked_sub(1), Some(k)]
-                .into_iter()
-                .flatten()
-                .filter_map(|k| right.get(k))
-                .map(|r| (r - t).abs())
-                .fold(f64::INFINITY, f64::min);
-            1e3 * near
-        })
-        .collect();
-    crate::stats::median(&mut d).unwrap_or(0.0)
+    let period = crate::frame_times::period(times);
+    (fps, crate::frame_times::dropped(times, period))
 }
 
 fn stats(
@@ -518,7 +496,7 @@ fn stats(
         frames: [l.len(), r.len()],
         fps: [fl, fr],
         drops: [dl, dr],
-        skew_ms: skew_ms(&l, &r),
+        skew_ms: 1e3 * crate::frame_times::skew(&l, &r),
         steps_done,
         board_pairs: judge.map_or(0, |j| j.taken),
         board_refused: judge.map_or_else(String::new, |j| j.refused.clone()),

@@ -8,10 +8,12 @@
 //! - Drift: a straight line through the differences against the session's time, times the
 //!   session's length. A difference that walks past half a frame period makes the pairing take
 //!   the next frame and the difference jump by a period; the differences are unwrapped across
-//!   such jumps first, so a drift of several periods is measured whole.
-//! - Dropped: within a step each camera should deliver every frame; a gap over 1.5 periods
-//!   between two frames of one step counts the frames that are missing from it (gaps between
-//!   steps are not counted: a capture may film only around its steps).
+//!   such jumps first (each against the median of the last [`UNWRAP_WINDOW`], so one frame
+//!   stamped half a period off does not shift all later ones), so a drift of several periods is
+//!   measured whole.
+//! - Dropped: within a step each camera should deliver every frame; the frames missing from
+//!   each step's span ([`crate::frame_times::dropped`]: a frame stamped late is no drop; gaps
+//!   between steps are not counted: a capture may film only around its steps).
 //! - Settling only: steps with pairs, but all within `settle_s` of the command: no row comes
 //!   from them; hold each step longer.
 
@@ -63,6 +65,9 @@ fn step_of(log: &PressureLog, t: f64) -> Option<usize> {
     (t < log.end_s(k)).then_some(k)
 }
 
+/// Pairs whose median the next difference is unwrapped against.
+const UNWRAP_WINDOW: usize = 15;
+
 /// Checks the clock of `frames` paired as `pairs` against `log`.
 pub fn check(
     frames: &[FrameRecord],
@@ -79,20 +84,22 @@ pub fn check(
             .map(|f| (f.time_s, step_of(log, f.time_s)))
             .collect();
         times.sort_by(|a, b| a.0.total_cmp(&b.0));
-        let gaps: Vec<f64> = times
-            .windows(2)
-            .filter(|w| w[0].1.is_some() && w[0].1 == w[1].1)
-            .map(|w| w[1].0 - w[0].0)
+        // Each step's frames, in time order.
+        let runs: Vec<Vec<f64>> = times
+            .chunk_by(|a, b| a.1 == b.1)
+            .filter(|run| run[0].1.is_some())
+            .map(|run| run.iter().map(|t| t.0).collect())
             .collect();
-        let period = crate::stats::median(&mut gaps.clone()).unwrap_or(0.0);
+        let mut gaps: Vec<f64> = runs
+            .iter()
+            .flat_map(|run| run.windows(2).map(|w| w[1] - w[0]))
+            .collect();
+        let period = crate::stats::median(&mut gaps).unwrap_or(0.0);
         c.period_ms[cam] = 1e3 * period;
-        if period > 0.0 {
-            c.dropped[cam] = gaps
-                .iter()
-                .filter(|&&g| g > 1.5 * period)
-                .map(|g| (g / period).round() as usize - 1)
-                .sum();
-        }
+        c.dropped[cam] = runs
+            .iter()
+            .map(|run| crate::frame_times::dropped(run, period))
+            .sum();
     }
     // Skew and drift from the pairs, in time order.
     let mut diffs: Vec<(f64, f64)> = pairs
@@ -111,13 +118,20 @@ pub fn check(
     // has two frames of a camera: then nothing is unwrapped).
     let known: Vec<f64> = c.period_ms.iter().copied().filter(|p| *p > 0.0).collect();
     let period = 1e-3 * known.iter().sum::<f64>() / known.len().max(1) as f64;
-    let mut previous: Option<f64> = None;
+    // Each difference is unwrapped against the median of the last few unwrapped ones, not the
+    // last one alone: a single frame stamped half a period off would otherwise move every
+    // later difference by a whole period (a drift where there is none).
+    let mut recent: std::collections::VecDeque<f64> = std::collections::VecDeque::new();
     for (t, d) in &diffs {
-        let unwrapped = match previous {
+        let reference = crate::stats::median(&mut recent.iter().copied().collect::<Vec<_>>());
+        let unwrapped = match reference {
             Some(p) if period > 0.0 => d - ((d - p) / period).round() * period,
             _ => *d,
         };
-        previous = Some(unwrapped);
+        if recent.len() == UNWRAP_WINDOW {
+            recent.pop_front();
+        }
+        recent.push_back(unwrapped);
         c.series.push((*t, 1e3 * unwrapped));
     }
     if c.series.len() >= 2 {
@@ -202,5 +216,31 @@ mod tests {
         // Held for less than the settling time, a step gives no row: said.
         let c = check(&frames, &pairing.pairs, &log, 1.5);
         assert_eq!(c.settling_only.len(), 10);
+    }
+
+    #[test]
+    fn jittery_stamps_make_no_drift_and_no_drops() {
+        // 30 fps for 20 s, the right camera 12 ms after the left, both stamped with up to
+        // ±9 ms of jitter (a busy USB bus): pairs 12 ± 18 ms apart, some of them by more than
+        // half a period from the one before.
+        let mut frames = Vec::new();
+        let mut state = 7u64;
+        let mut uniform = move || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for k in 0..600 {
+            let t = 0.01 + k as f64 / 30.0;
+            let mut stamp = |base: f64| base + 0.018 * (uniform() - 0.5);
+            frames.push(frame(Side::Left, k, stamp(t)));
+            frames.push(frame(Side::Right, k, stamp(t + 0.012)));
+        }
+        let log = log(&(0..20).map(f64::from).collect::<Vec<_>>());
+        let pairing = pair_frames(&frames, 0.04);
+        let c = check(&frames, &pairing.pairs, &log, 0.05);
+        assert!(c.drift_ms.abs() < 3.0, "drift {} ms", c.drift_ms);
+        assert_eq!(c.dropped, [0, 0]);
     }
 }

@@ -379,12 +379,37 @@ pub fn triangulate(
             .iter()
             .map(|(k, v)| format!("{v} {k}"))
             .collect();
+        // Frames too far apart to pair is the cause to say first: it empties every count.
+        let times = |side: Side| -> Vec<f64> {
+            let mut t: Vec<f64> = records
+                .iter()
+                .filter(|r| r.camera == side)
+                .map(|r| r.time_s)
+                .collect();
+            t.sort_by(f64::total_cmp);
+            t
+        };
+        let apart_s = crate::frame_times::skew(&times(Side::Left), &times(Side::Right));
+        let cause = if apart_s > options.max_dt_s {
+            let limit = format!("{:.3}", 1e3 * options.max_dt_s);
+            format!(
+                "; the left and right frames are {:.1} ms apart (median), more than --max-dt-ms {}: raise it to pair them, or check that both cameras are on one clock and neither lags",
+                1e3 * apart_s,
+                limit.trim_end_matches('0').trim_end_matches('.')
+            )
+        } else {
+            String::new()
+        };
+        let what = if counts.is_empty() {
+            "none formed".to_string()
+        } else {
+            counts.join(", ")
+        };
         return Err(TriangulateError::NothingUsed(format!(
-            "{} pairs of {} left and {} right frames: {}",
+            "{} pairs of {} left and {} right frames: {what}{cause}",
             pairs.len(),
             summary.frames.listed[0],
             summary.frames.listed[1],
-            counts.join(", ")
         )));
     }
     summary.reproj_px = median_95_max(used.iter().filter_map(|p| p.reproj_px).collect());

@@ -295,6 +295,15 @@ fn triangulate_errors_are_one_line_and_name_the_file() {
     // Not a calibration file.
     let msg = handcap_err(d, &args("pressures.csv"));
     assert!(msg.contains("pressures.csv"), "{msg}");
+    // Cameras further apart than --max-dt-ms: no pair forms, and that is said, with how far.
+    let mut tight = args("truth/rig.yml");
+    tight.extend(["--max-dt-ms", "0.01"]);
+    let msg = handcap_err(d, &tight);
+    assert!(
+        msg.contains("none formed; the left and right frames are")
+            && msg.contains("ms apart (median), more than --max-dt-ms 0.01: raise it"),
+        "{msg}"
+    );
     // A bad camera name in frames.csv, line 3.
     let list = std::fs::read_to_string(d.join("frames/frames.csv")).unwrap();
     let mut lines: Vec<String> = list.lines().map(String::from).collect();
