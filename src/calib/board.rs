@@ -169,8 +169,9 @@ impl Serialize for Dictionary {
     }
 }
 
-/// One ArUco marker of a ChArUco board: its square (the cell of [`BoardSpec::cell`]), its
-/// corners in the board frame (mm; top-left, top-right, bottom-right, bottom-left of the
+/// One ArUco marker of a ChArUco board: its square ((i, j) along a row and down a column; the
+/// square whose top-left corner is the first inner corner is (0, 0), so the board's squares run
+/// from (−1, −1)), its corners in the board frame (mm; top-left, top-right, bottom-right, bottom-left of the
 /// marker's image) and its bits, `side × side` row by row with the black border, `true` white.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Marker {

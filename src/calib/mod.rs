@@ -150,7 +150,7 @@ pub struct CalibOptions {
     pub reject_factor: f64,
     /// … and this many pixels.
     pub reject_floor_px: f64,
-    /// Intrinsics of the left and right camera fixed instead of solved (see [`stereo`]).
+    /// Intrinsics of the left and right camera fixed instead of solved (see `fit::stereo`).
     #[serde(skip)]
     pub intrinsics: [Option<KnownIntrinsics>; 2],
     /// Recalibrations on pairs drawn with replacement, for [`Bootstrap`] (0: none) …

@@ -82,7 +82,7 @@ pub const MIN_COMMON_CORNERS: usize = 8;
 /// A chessboard's corners are all seen or none; the right image's run in the left image's order
 /// as detected, or reversed when they run the other way (the detector's 180° ambiguity; first →
 /// last corner and along the first row must agree). A ChArUco board's ids are its own.
-pub(super) fn match_corners(
+pub fn match_corners(
     board: &BoardSpec,
     left: &Seen,
     right: &Seen,

@@ -769,10 +769,10 @@ impl SessionFiles<'_> {
     }
 }
 
-/// A calibration capture's judge: every [`BOARD_EVERY_S`] the latest frame of each camera is
+/// A calibration capture's judge: every `BOARD_EVERY_S` the latest frame of each camera is
 /// searched for the board; a pair is taken when both show it, it stood still since the
 /// previous search (no corner moved over [`crate::calib::video::STILL_PX`]) and it stands
-/// somewhere new ([`crate::calib::video::new_place`]).
+/// somewhere new (`crate::calib::video::new_place`).
 pub mod calibration {
     use super::*;
     use crate::calib::detect::{find_board, Detector, Seen};

@@ -3,7 +3,7 @@
 //!
 //! Every pixel is the mean of S × S samples (S = 4) inside it: anti-aliasing by supersampling.
 //! Each sample's ray comes from inverting the lens distortion exactly (Newton, see
-//! [`Camera::undistort`]) at the pixel corners and interpolating bilinearly inside the pixel —
+//! `Camera::undistort`) at the pixel corners and interpolating bilinearly inside the pixel —
 //! the distortion is so smooth that this differs from inverting at every sample by under
 //! 2·10⁻⁴ px (a test checks it). Then, in order: mild defocus (a Gaussian of σ = 0.7 px), the
 //! exposure gain, sensor noise (read noise 0.4 DN plus shot noise, σ² = 0.4² + 0.004·I, drawn

@@ -66,7 +66,7 @@ fn step_of(log: &PressureLog, t: f64) -> Option<usize> {
 }
 
 /// Pairs whose median the next difference is unwrapped against.
-const UNWRAP_WINDOW: usize = 15;
+pub const UNWRAP_WINDOW: usize = 15;
 
 /// Checks the clock of `frames` paired as `pairs` against `log`.
 pub fn check(

@@ -12,7 +12,7 @@ use crate::stereo::{StereoError, StereoRig};
 
 /// The cameras and the hand axes as JSON, for tools that read JSON rather than OpenCV YAML
 /// (Python's `json` + `numpy.array`, MATLAB's `jsondecode`, JavaScript): the YAML's keys and
-/// meanings, matrices as lists of rows. What [`read_calibration`] needs (`image_size`, `K1`,
+/// meanings, matrices as lists of rows. What [`super::read_calibration`] needs (`image_size`, `K1`,
 /// `D1`, `K2`, `D2`, `R`, `T`, `R_hand` when known) and the derived matrices (`E`, `F`,
 /// `R1`, `R2`, `P1`, `P2`, `Q`) and quality (`rms_px`, `epipolar_px`).
 pub fn calibration_json(cal: &StereoCalibration) -> String {
