@@ -114,7 +114,7 @@ pub(super) fn page(
     let f = &tri.summary.frames;
     page.section("detection", "Tip detection")
         .paragraph(&format!(
-            "{} left and {} right frames; marker missing in {} / {}, several candidates in {} / {}. {} frame pairs, {} used; reprojection error of the used pairs: median {:.3} px, largest {:.3} px.",
+            "{} left and {} right frames; (left / right) the marker missing in {} / {}, several red candidates (the epipolar line chooses among them) in {} / {}. {} frame pairs, {} used; reprojection error of the used pairs: median {:.3} px, largest {:.3} px.",
             f.listed[0], f.listed[1], f.marker_missing[0], f.marker_missing[1], f.several_candidates[0], f.several_candidates[1],
             tri.summary.pairs_formed,
             tri.summary.pairs.iter().filter(|(k, _)| **k == "used" || **k == "resolved").map(|(_, v)| v).sum::<usize>(),
@@ -124,7 +124,7 @@ pub(super) fn page(
         .paragraph(&{
             let c = &tri.summary.clock;
             format!(
-                "The clock, from the timestamps alone: a pair's frames {:.1} ms apart (median; 95 % within {:.1} ms), drifting {:+.1} ms over the session (the virtual webcams run free, their rates within ±50 ppm of each other); frame periods {}; frames dropped within steps {} / {}; steps filmed only while settling: {}.",
+                "The clock, from the timestamps alone: a pair's frames {:.1} ms apart (median; 95 % within {:.1} ms), drifting {:+.1} ms over the session (the virtual webcams run free, their rates within ±50 ppm of each other); frame periods {} (left/right; — for a camera with one frame per step); frames dropped within steps {} / {}; steps filmed only while settling: {}.",
                 c.skew_ms[0], c.skew_ms[1], c.drift_ms, c.periods(), c.dropped[0], c.dropped[1], c.settling_only.len()
             )
         })
@@ -135,16 +135,21 @@ pub(super) fn page(
             "Each row of the dataset is the median of a pressure step's frame pairs, in the hand frame (axes from the reference pair, origin from the zero-pressure steps). Error: Euclidean distance from the settled tip the virtual plant reports. The mean error is what every row shares: mostly the rest position's own error, since each tip is measured from it. {}",
             match tri.summary.steps_without_tip.len() {
                 0 => "Every step has a tip.".to_string(),
-                missing => format!(
-                    "{missing} of {} steps have no tip: something passes in front of the bead in {:.0} % of the frames, and this run keeps only {:.1} frames per camera and step (to stay short), so a hidden frame can cost its step; with `handcap synth`'s three none is lost.",
-                    tri.summary.steps_logged,
-                    100.0 * s.realism.occluded,
-                    f.listed[0].min(f.listed[1]) as f64 / tri.summary.steps_logged.max(1) as f64
-                ),
+                missing => {
+                    let kept = (f.listed[0].min(f.listed[1]) as f64
+                        / tri.summary.steps_logged.max(1) as f64)
+                        .round();
+                    format!(
+                        "{missing} of {} steps have no tip: something passes in front of the bead in {:.0} % of the frames, and this run keeps about {kept} {} per camera and step (to stay short), so a hidden frame can cost its step; a full `handcap synth` capture keeps three per step and loses none.",
+                        tri.summary.steps_logged,
+                        100.0 * s.realism.occluded,
+                        if kept == 1.0 { "frame" } else { "frames" }
+                    )
+                }
             }
         ))
         .table(
-            &["phase", "steps", "RMS error (mm)", "largest (mm)", "mean error (mm)"],
+            &["phase", "steps", "RMS error (mm)", "largest (mm)", "mean error x, y, z (mm)"],
             &s.triangulation.iter().map(|t| {
                 let m = t.mean_mm;
                 vec![t.phase.clone(), t.rows.to_string(), f4(t.rms_mm), f4(t.max_mm), format!("{:+.4}, {:+.4}, {:+.4}", m[0], m[1], m[2])]
