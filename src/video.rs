@@ -45,12 +45,12 @@ pub fn find(dir: &Path, stem: &str) -> Result<Option<PathBuf>, String> {
 pub fn read_raw_if_jpeg(capture: &mut VideoCapture) -> bool {
     matches!(
         codec(capture).as_str(),
-        "MJPG" | "mjpg" | "MJPA" | "AVRn" | "jpeg"
+        "MJPG" | "mjpg" | "MJPA" | "AVRn" | "jpeg" | "mjpe"
     ) && capture.set(videoio::CAP_PROP_FORMAT, -1.0).unwrap_or(false)
 }
 
 /// The codec's four-character code, as FFmpeg names it (`H264`, `MJPG`, …).
-fn codec(capture: &VideoCapture) -> String {
+pub(crate) fn codec(capture: &VideoCapture) -> String {
     let fourcc = capture.get(videoio::CAP_PROP_FOURCC).unwrap_or(0.0) as u32;
     fourcc
         .to_le_bytes()

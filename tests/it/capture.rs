@@ -302,7 +302,7 @@ fn signals_end_a_capture_with_every_frame_kept_and_listed() {
     ] {
         let _ = std::fs::remove_file(d.join("told.txt"));
         let child = spawn(name);
-        std::thread::sleep(std::time::Duration::from_millis(900));
+        wait_until_listed(&d.join(name));
         send(&child, signal);
         let out = child.wait_with_output().unwrap();
         assert_eq!(
@@ -332,15 +332,30 @@ fn signals_end_a_capture_with_every_frame_kept_and_listed() {
     }
     // SIGKILL: nothing runs at the end, and the files of the last second are there.
     let child = spawn("kill");
-    std::thread::sleep(std::time::Duration::from_millis(1300));
+    let s = d.join("kill");
+    wait_until_listed(&s);
     send(&child, libc::SIGKILL);
     child.wait_with_output().unwrap();
-    let s = d.join("kill");
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(s.join("capture.json")).unwrap()).unwrap();
     assert_eq!(json["summary"]["ending"], "filming");
     assert!(!csv_rows(&s.join("frames/frames.csv")).is_empty());
     assert!(!csv_rows(&s.join("pressures.csv")).is_empty());
+}
+
+/// Waits (at most 30 s) until the session in `dir` lists a frame and a step: its files are
+/// rewritten every second while it films, so the first listing is its readiness.
+fn wait_until_listed(dir: &Path) {
+    let listed = |file: &str| dir.join(file).is_file() && !csv_rows(&dir.join(file)).is_empty();
+    let start = std::time::Instant::now();
+    while !(listed("frames/frames.csv") && listed("pressures.csv")) {
+        assert!(
+            start.elapsed().as_secs() < 30,
+            "{} lists nothing",
+            dir.display()
+        );
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
 }
 
 /// A regulator command that hangs does not hold the session: when the cameras stop, the
@@ -433,4 +448,99 @@ fn a_charuco_board_is_taken_in_part_from_cameras_and_videos() {
         out.contains("pairs used") && out.contains("of 54 corners in both images"),
         "{out}"
     );
+}
+
+/// Serves `frames` (JPEG files' bytes) as an HTTP multipart Motion-JPEG stream, as IP cameras
+/// and mjpg-streamer do, on a free port of 127.0.0.1, to one client at 30 fps; the stream
+/// closes after the last frame. Returns the stream's URL.
+fn mjpeg_server(frames: Vec<Vec<u8>>) -> String {
+    use std::io::{Read, Write};
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let url = format!("http://{}/stream", listener.local_addr().unwrap());
+    std::thread::spawn(move || {
+        let Ok((mut client, _)) = listener.accept() else {
+            return;
+        };
+        let mut request = [0u8; 1024];
+        let _ = client.read(&mut request);
+        let head =
+            "HTTP/1.0 200 OK\r\nContent-Type: multipart/x-mixed-replace; boundary=frame\r\n\r\n";
+        if client.write_all(head.as_bytes()).is_err() {
+            return;
+        }
+        let start = std::time::Instant::now();
+        for (k, jpeg) in frames.iter().enumerate() {
+            let part = format!(
+                "--frame\r\nContent-Type: image/jpeg\r\nContent-Length: {}\r\n\r\n",
+                jpeg.len()
+            );
+            let sent = client
+                .write_all(part.as_bytes())
+                .and_then(|()| client.write_all(jpeg))
+                .and_then(|()| client.write_all(b"\r\n"));
+            if sent.is_err() {
+                return;
+            }
+            let due = std::time::Duration::from_secs_f64((k + 1) as f64 / 30.0);
+            std::thread::sleep(due.saturating_sub(start.elapsed()));
+        }
+    });
+    url
+}
+
+/// Two HTTP Motion-JPEG streams filmed: every frame is kept as the bytes the server sent (no
+/// decoding and re-encoding on the grab thread), numbered in order.
+#[test]
+fn network_mjpeg_frames_are_kept_as_they_came() {
+    let dir = tempdir();
+    let d = dir.path();
+    // Distinct JPEG frames: a bright square moving across a grey 320×240 image.
+    let frames: Vec<Vec<u8>> = (0..60)
+        .map(|k| {
+            let mut image = opencv::core::Mat::new_rows_cols_with_default(
+                240,
+                320,
+                opencv::core::CV_8UC3,
+                opencv::core::Scalar::all(90.0),
+            )
+            .unwrap();
+            opencv::imgproc::rectangle(
+                &mut image,
+                opencv::core::Rect::new(4 * k, 100, 30, 30),
+                opencv::core::Scalar::new(40.0, 40.0, 220.0, 0.0),
+                -1,
+                opencv::imgproc::LINE_8,
+                0,
+            )
+            .unwrap();
+            let mut jpeg = opencv::core::Vector::<u8>::new();
+            opencv::imgcodecs::imencode(".jpg", &image, &mut jpeg, &opencv::core::Vector::new())
+                .unwrap();
+            opencv::prelude::VectorToVec::to_vec(&jpeg)
+        })
+        .collect();
+    let (left, right) = (mjpeg_server(frames.clone()), mjpeg_server(frames.clone()));
+    let out = handcap_ok(
+        d,
+        &[
+            "capture",
+            "--left",
+            &left,
+            "--right",
+            &right,
+            "--duration-s",
+            "1",
+            "--out",
+            "s",
+        ],
+    );
+    assert!(!out.contains("refused"), "{out}");
+    let [l, r] = assert_consistent(&d.join("s"));
+    assert!(l >= 5 && r >= 5, "{l} left, {r} right frames");
+    for (side, count) in [("left", l), ("right", r)] {
+        for (k, served) in frames.iter().take(count).enumerate() {
+            let kept = std::fs::read(d.join(format!("s/frames/{side}_{k:05}.jpg"))).unwrap();
+            assert!(&kept == served, "{side} frame {k} is not the JPEG served");
+        }
+    }
 }
