@@ -296,9 +296,13 @@ impl BoardSpec {
             .collect()
     }
 
-    /// Every corner's id, in order.
-    pub fn all_ids(&self) -> Vec<usize> {
-        (0..self.corner_count()).collect()
+    /// The corners next to corner `id` along its row and down its column (the one after it
+    /// in each, where the board has one): each pair of neighbours once.
+    pub fn neighbours(&self, id: usize) -> impl Iterator<Item = usize> {
+        let (i, j) = self.grid(id);
+        let right = (i + 1 < self.cols).then_some(id + 1);
+        let below = (j + 1 < self.rows).then_some(id + self.cols);
+        right.into_iter().chain(below)
     }
 
     /// OpenCV's ChArUco board (its unit mm); `None` for a chessboard.

@@ -52,9 +52,7 @@ pub(super) fn board_check(
         let n = pts.len();
         let index = |id: usize| pair.ids.binary_search(&id).ok();
         for (k, &id) in pair.ids.iter().enumerate() {
-            let (i, _) = board.grid(id);
-            let right = (i + 1 < board.cols).then_some(id + 1);
-            for next in right.into_iter().chain([id + board.cols]) {
+            for next in board.neighbours(id) {
                 if let Some(m) = index(next) {
                     steps.push((pts[m] - pts[k]).norm() / board.square_mm);
                 }

@@ -192,9 +192,7 @@ fn refine(gray: &Mat, corners: &mut Vector<Point2f>, half: i32) -> opencv::Resul
 fn square_px(board: &BoardSpec, seen: &Seen) -> f64 {
     let mut steps: Vec<f64> = Vec::new();
     for (id, p) in seen.ids.iter().zip(&seen.px) {
-        let (i, _) = board.grid(*id);
-        let right = (i + 1 < board.cols).then_some(id + 1);
-        for next in right.into_iter().chain([id + board.cols]) {
+        for next in board.neighbours(*id) {
             if let Some(q) = seen.at(next) {
                 steps.push(f64::from(p[0] - q[0]).hypot(f64::from(p[1] - q[1])));
             }

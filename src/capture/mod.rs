@@ -872,11 +872,9 @@ pub mod calibration {
                 self.refused = "the board is not seen in both cameras".into();
                 return Ok(());
             };
-            let shared = l.ids.iter().filter(|&&id| r.at(id).is_some()).count();
-            if shared < crate::calib::pairs::MIN_COMMON_CORNERS {
-                self.refused = format!(
-                    "only {shared} corners are seen in both cameras: bring more of the board into both"
-                );
+            // The rule `calibrate` will hold the pair to.
+            if let Err(why) = crate::calib::pairs::match_corners(&self.spec.board, &l, &r) {
+                self.refused = why;
                 return Ok(());
             }
             let moved = match &previous {
