@@ -53,6 +53,14 @@ pub struct Args {
     /// How far the right camera's timestamps drift ahead of the left's over the session (ms)
     #[arg(long, default_value_t = 0.0, value_parser = super::finite)]
     clock_drift_ms: f64,
+    /// Each camera's delay from exposure to the frame's timestamp (ms): LEFT,RIGHT, or one for
+    /// both
+    #[arg(long, value_delimiter = ',', num_args = 1..=2, value_parser = super::finite)]
+    latency_ms: Vec<f64>,
+    /// Frames are kept when stamped this long after their step's command (ms): START,END;
+    /// 0,300 films the whole step, the finger's motion too
+    #[arg(long, value_delimiter = ',', num_args = 1..=2, value_parser = super::finite)]
+    window_ms: Vec<f64>,
     /// The finger's frames as two Motion-JPEG videos, frames/left.avi and frames/right.avi
     /// (frame numbers in frames.csv are positions in them), as a lab records with OBS or ffmpeg
     #[arg(long)]
@@ -141,6 +149,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     board.check()?;
     let (format, realism) = a.frames.look();
+    let window_s = match a.window_ms[..] {
+        [] => CaptureConfig::default().window_s,
+        [start, end] => [start / 1e3, end / 1e3],
+        _ => super::usage!("--window-ms takes two numbers, START,END (e.g. 0,300)"),
+    };
     let capture_config = (!a.no_images).then(|| CaptureConfig {
         rig: RigConfig {
             baseline_mm: a.baseline_mm,
@@ -153,6 +166,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         format,
         video: a.video,
         clock_drift_s: a.clock_drift_ms / 1e3,
+        latency_s: match a.latency_ms[..] {
+            [both] => [both / 1e3; 2],
+            [left, right] => [left / 1e3, right / 1e3],
+            _ => CaptureConfig::default().latency_s,
+        },
+        window_s,
         realism,
         ..CaptureConfig::default()
     });

@@ -47,6 +47,11 @@ pub struct Args {
     /// first frame was taken, on the pressure log's clock (s); LEFT,RIGHT or one time for both
     #[arg(long, value_delimiter = ',', num_args = 1..=2, value_parser = super::finite)]
     video_start_s: Vec<f64>,
+    /// Each camera's delay from exposure to timestamp, when known (e.g. from filming an LED the
+    /// regulator lights), ms: LEFT,RIGHT or one for both; 0 takes the stamps as they are.
+    /// Default: measured from the tip's motion after each command
+    #[arg(long, value_delimiter = ',', num_args = 1..=2, value_parser = super::finite)]
+    latency_ms: Vec<f64>,
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
@@ -65,6 +70,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     (options.marker.min_area_px, options.marker.max_area_px) = (min, max);
     options.video_start_s = video_start(&a.video_start_s)?;
+    options.latency_s = match a.latency_ms[..] {
+        [] => None,
+        [both] => Some([both / 1e3; 2]),
+        [left, right] => Some([left / 1e3, right / 1e3]),
+        _ => usage!("--latency-ms takes LEFT,RIGHT or one delay for both"),
+    };
     let done = super::with_session(|s| {
         triangulate::run(&a.frames, &a.calib, &pressures, &options, &a.out, s)
     })?;
@@ -147,6 +158,11 @@ pub fn print_summary(done: &Triangulated) {
             "  videos not Motion-JPEG ({}): their frames reach the marker's fit decoded, their colour's sampling unknown (MPEG-4 copies of a lab capture: tip 0.11 mm RMS against 0.04 from its JPEGs); record the webcam's own Motion-JPEG stream (ffmpeg -input_format mjpeg … -c:v copy) for the full accuracy",
             decoded.join(", ")
         );
+    }
+    let mut latency = s.latency.describe().into_iter();
+    println!("{}", latency.next().expect("a first line"));
+    for line in latency {
+        println!("  {line}");
     }
     let c = &s.clock;
     println!(

@@ -128,6 +128,10 @@ pub(super) fn page(
                 c.skew_ms[0], c.skew_ms[1], c.drift_ms, c.periods(), c.dropped[0], c.dropped[1], c.settling_only.len()
             )
         })
+        .paragraph(&format!(
+            "The cameras' {}.",
+            tri.summary.latency.describe().join("; ")
+        ))
         .figure(&out.join("triangulated/dataset_clock.svg"), "Right − left time of each frame pair over the session (unwrapped across frame periods) and the straight line of its drift.");
 
     page.section("triangulation", "Triangulated tip against the truth")

@@ -29,9 +29,11 @@
 //! The regulator commands step k at t_k = k · 0.3 s; each muscle's pressure follows
 //! first-order, p(t) = p_k + (p_{k−1} − p_k) e^{−(t − t_k)/τ}, τ = 20 ms, and the finger follows
 //! its pressures quasi-statically. Each camera exposes at its own 30 fps (±50 ppm) from its own
-//! phase; the capture computer stamps a frame at exposure + the camera's offset (±5 ms) + jitter
-//! (±2 ms), and keeps the frames stamped 100-200 ms into a step: three per camera and step, the
-//! first of them possibly not settled (e^{−5} of the step remains at 100 ms).
+//! phase; the capture computer stamps a frame at exposure + the camera's latency (`latency_s`,
+//! 0 unless asked) + its offset (±5 ms) + jitter (±2 ms), and keeps the frames stamped 100-200
+//! ms into a step (`window_s`): three per camera and step, the first of them possibly not settled
+//! (e^{−5} of the step remains at 100 ms). A window of the whole step films the finger moving
+//! too, as a live capture does.
 //!
 //! # The reference pair and the hand frame
 //!
@@ -81,6 +83,9 @@ pub struct CaptureConfig {
     /// How far the right camera's timestamps run ahead of the left's by the session's end
     /// (s), growing evenly from 0: a USB latency that creeps up on one camera.
     pub clock_drift_s: f64,
+    /// Each camera's delay (left, right) from exposure to the capture computer's stamp (s):
+    /// what a USB or network camera's buffering adds.
+    pub latency_s: [f64; 2],
     /// The finger's frames as one Motion-JPEG video per camera (`frames/left.avi`,
     /// `right.avi`; frame numbers are positions in them) instead of images.
     pub video: bool,
@@ -140,6 +145,7 @@ impl Default for CaptureConfig {
             exposure_drift: 0.0,
             format: ImageFormat::WEBCAM,
             clock_drift_s: 0.0,
+            latency_s: [0.0; 2],
             video: false,
             realism: Realism::LAB,
         }
@@ -463,6 +469,9 @@ impl CaptureConfig {
         if c.clock_drift_s.is_nan() || c.clock_drift_s.abs() >= 1.0 {
             return bad("the clock drift must lie within ±1 s");
         }
+        if !c.latency_s.iter().all(|l| (0.0..2.0).contains(l)) {
+            return bad("each camera's latency must lie in [0, 2) s");
+        }
         if !(c.exposure_drift >= 0.0 && c.exposure_drift < 0.5) {
             return bad("exposure drift must lie in [0, 0.5)");
         }
@@ -629,7 +638,11 @@ fn camera_frames(c: &CaptureConfig, steps: usize, rng: &mut ChaCha8Rng) -> Vec<F
             } else {
                 0.0
             };
-            let stamp_s = exposure_s + clock.offset_s + rng.random_range(-0.002..0.002) + drift;
+            let stamp_s = exposure_s
+                + c.latency_s[side as usize]
+                + clock.offset_s
+                + rng.random_range(-0.002..0.002)
+                + drift;
             let step = (stamp_s / c.step_s).floor();
             if step < 0.0 || step as usize >= steps {
                 continue;

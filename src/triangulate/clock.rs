@@ -74,6 +74,7 @@ pub fn check(
     pairs: &[(usize, usize)],
     log: &PressureLog,
     settle_s: f64,
+    guard_s: f64,
 ) -> ClockCheck {
     let mut c = ClockCheck::default();
     // Periods and drops, per camera, from frames of one step.
@@ -153,7 +154,7 @@ pub fn check(
     let mut placed = vec![false; log.steps.len()];
     for &(l, r) in pairs {
         let (a, b) = (frames[l].time_s, frames[r].time_s);
-        match place(log, a, b, settle_s) {
+        match place(log, a, b, settle_s, guard_s) {
             Placement::Step(k) => placed[k] = true,
             Placement::Settling => {
                 if let Some(k) = step_of(log, a.min(b)) {
@@ -207,14 +208,14 @@ mod tests {
         }
         let log = log(&(0..10).map(f64::from).collect::<Vec<_>>());
         let pairing = pair_frames(&frames, 0.02);
-        let c = check(&frames, &pairing.pairs, &log, 0.05);
+        let c = check(&frames, &pairing.pairs, &log, 0.05, 0.0);
         assert!((c.drift_ms - 80.0).abs() < 1.0, "{c:?}");
         assert_eq!(c.dropped, [3, 1]);
         assert!((c.period_ms[0] - 33.333).abs() < 0.01, "{:?}", c.period_ms);
         assert!(c.skew_ms[1] <= 16.7, "{:?}", c.skew_ms);
         assert!(c.settling_only.is_empty());
         // Held for less than the settling time, a step gives no row: said.
-        let c = check(&frames, &pairing.pairs, &log, 1.5);
+        let c = check(&frames, &pairing.pairs, &log, 1.5, 0.0);
         assert_eq!(c.settling_only.len(), 10);
     }
 
@@ -239,7 +240,7 @@ mod tests {
         }
         let log = log(&(0..20).map(f64::from).collect::<Vec<_>>());
         let pairing = pair_frames(&frames, 0.04);
-        let c = check(&frames, &pairing.pairs, &log, 0.05);
+        let c = check(&frames, &pairing.pairs, &log, 0.05, 0.0);
         assert!(c.drift_ms.abs() < 3.0, "drift {} ms", c.drift_ms);
         assert_eq!(c.dropped, [0, 0]);
     }

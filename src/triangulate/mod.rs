@@ -29,6 +29,7 @@
 
 pub mod clock;
 pub mod frames;
+pub mod latency;
 pub mod marker;
 pub mod options;
 pub mod output;
@@ -247,6 +248,8 @@ pub struct Summary {
     pub step_spread_mm: [f64; 3],
     /// What the timestamps say: skew, drift, dropped frames, steps filmed while settling.
     pub clock: clock::ClockCheck,
+    /// Each camera's delay from the tip's motion, and whether the times were corrected by it.
+    pub latency: latency::Latency,
     pub origin: Origin,
     pub interrupted: bool,
 }
@@ -331,44 +334,69 @@ pub fn triangulate(
     };
     count_frames(records, &results, &mut summary.frames);
 
-    // 2-3. Pairs, their steps and their tips.
-    let pairing = pairing::pair_frames(records, options.max_dt_s);
-    summary.clock = clock::check(records, &pairing.pairs, log, options.settle_s);
+    // 2-3. Pairs, their steps and their tips; then again on the frames' times less each
+    //    camera's delay, when the frames show it.
+    let located = |records: &[FrameRecord], guard_s: f64| {
+        let pairing = pairing::pair_frames(records, options.max_dt_s);
+        let pairs = locate_pairs(
+            records,
+            paths,
+            &pairing.pairs,
+            &results,
+            log,
+            rig,
+            options,
+            guard_s,
+        )?;
+        let clock = clock::check(records, &pairing.pairs, log, options.settle_s, guard_s);
+        Ok::<_, TriangulateError>((pairing, pairs, clock))
+    };
+    let (mut pairing, mut pairs, mut clock) = located(records, 0.0)?;
+    let periods = clock.period_ms.map(|p| p / 1e3);
+    summary.latency = match options.latency_s {
+        Some(s) => latency::Latency::given(s.map(|s| 1e3 * s)),
+        None => latency::measure(records, &results, &pairs, log, periods),
+    };
+    // The cut cannot tell a delay from one a whole step longer when the steps are even; the
+    // pairs can: of the left/right offsets a few steps apart, the one with the most pairs
+    // that agree in 3-D is kept.
+    let mut shifted: Vec<FrameRecord> = Vec::new();
+    if summary.latency.corrected {
+        let mut most = 0;
+        let tries: &[i32] = if summary.latency.given {
+            &[0]
+        } else {
+            &latency::STEPS_APART
+        };
+        for &steps in tries {
+            let candidate = summary.latency.steps_apart(steps, log.median_step_s);
+            let shifts = candidate.shifts_s();
+            let records: Vec<FrameRecord> = records
+                .iter()
+                .map(|r| FrameRecord {
+                    time_s: r.time_s - shifts[r.camera as usize],
+                    ..r.clone()
+                })
+                .collect();
+            let found = located(&records, candidate.guard_s())?;
+            let used = found.1.iter().filter(|p| p.status.used()).count();
+            if used > most || shifted.is_empty() {
+                most = used;
+                (pairing, pairs, clock) = found;
+                shifted = records;
+                summary.latency.cameras = candidate.cameras;
+                summary.latency.steps_apart = steps;
+            }
+        }
+    }
+    let records = if shifted.is_empty() {
+        records
+    } else {
+        &shifted[..]
+    };
+    summary.clock = clock;
     summary.pairs_formed = pairing.pairs.len();
     summary.unpaired = pairing.unpaired;
-    let frame_ref = |i: usize| FrameRef {
-        index: records[i].index,
-        time_s: records[i].time_s,
-        path: paths[i].clone(),
-    };
-    let pairs: Vec<PairRecord> = pairing
-        .pairs
-        .par_iter()
-        .map(|&(l, r)| {
-            let mut record = PairRecord {
-                left: frame_ref(l),
-                right: frame_ref(r),
-                step: None,
-                status: PairStatus::Skipped,
-                candidates: 0,
-                centres_px: None,
-                point_left_mm: None,
-                reprojected_px: None,
-                reproj_px: None,
-                fitted: [false; 2],
-            };
-            match pairing::place(log, records[l].time_s, records[r].time_s, options.settle_s) {
-                Placement::Step(k) => record.step = Some(k),
-                Placement::OutsideLog => record.status = PairStatus::OutsideLog,
-                Placement::Settling => record.status = PairStatus::Settling,
-                Placement::Straddles => record.status = PairStatus::Straddles,
-            }
-            if record.step.is_some() {
-                locate(rig, &results[l], &results[r], options, &mut record)?;
-            }
-            Ok(record)
-        })
-        .collect::<Result<Vec<_>, TriangulateError>>()?;
     for p in &pairs {
         *summary.pairs.entry(p.status.name()).or_default() += 1;
     }
@@ -532,6 +560,54 @@ pub fn triangulate(
         extra_columns: log.extra_columns.clone(),
         options: options.clone(),
     })
+}
+
+/// Each pair of `pairs` (indices into `records`) placed in the log's steps (`guard_s` before
+/// each command, see [`pairing::place`]) and, when in one, its tip located.
+#[allow(clippy::too_many_arguments)]
+fn locate_pairs(
+    records: &[FrameRecord],
+    paths: &[Option<PathBuf>],
+    pairs: &[(usize, usize)],
+    results: &[FrameResult],
+    log: &PressureLog,
+    rig: &StereoRig,
+    options: &TriangulateOptions,
+    guard_s: f64,
+) -> Result<Vec<PairRecord>, TriangulateError> {
+    let frame_ref = |i: usize| FrameRef {
+        index: records[i].index,
+        time_s: records[i].time_s,
+        path: paths[i].clone(),
+    };
+    pairs
+        .par_iter()
+        .map(|&(l, r)| {
+            let mut record = PairRecord {
+                left: frame_ref(l),
+                right: frame_ref(r),
+                step: None,
+                status: PairStatus::Skipped,
+                candidates: 0,
+                centres_px: None,
+                point_left_mm: None,
+                reprojected_px: None,
+                reproj_px: None,
+                fitted: [false; 2],
+            };
+            let (a, b) = (records[l].time_s, records[r].time_s);
+            match pairing::place(log, a, b, options.settle_s, guard_s) {
+                Placement::Step(k) => record.step = Some(k),
+                Placement::OutsideLog => record.status = PairStatus::OutsideLog,
+                Placement::Settling => record.status = PairStatus::Settling,
+                Placement::Straddles => record.status = PairStatus::Straddles,
+            }
+            if record.step.is_some() {
+                locate(rig, &results[l], &results[r], options, &mut record)?;
+            }
+            Ok(record)
+        })
+        .collect()
 }
 
 /// Decodes record `i`'s frame (into the worker's buffers) and finds its marker candidates.

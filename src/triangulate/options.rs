@@ -25,6 +25,9 @@ pub struct TriangulateOptions {
     /// For videos without `frames.csv`: when each video's first frame was taken on the log's
     /// clock (s); the frames' times are then the videos' own timestamps after it.
     pub video_start_s: Option<[f64; 2]>,
+    /// Each camera's delay from exposure to timestamp (s), when known; `None` measures it
+    /// from the tip's motion ([`super::latency`]).
+    pub latency_s: Option<[f64; 2]>,
 }
 
 impl TriangulateOptions {
@@ -76,6 +79,11 @@ impl TriangulateOptions {
                     .is_none_or(|s| s.iter().all(|t| t.is_finite())),
                 "--video-start-s: give finite times (s)".to_string(),
             ),
+            (
+                self.latency_s
+                    .is_none_or(|s| s.iter().all(|t| (0.0..10.0).contains(t))),
+                "--latency-ms: give each camera's delay from 0 up to 10 000 ms".to_string(),
+            ),
         ];
         match rules.into_iter().find(|(ok, _)| !ok) {
             Some((_, why)) => Err(why),
@@ -96,6 +104,7 @@ impl Default for TriangulateOptions {
             max_spread_mm: 0.5,
             zero_kpa: 1.0,
             video_start_s: None,
+            latency_s: None,
         }
     }
 }

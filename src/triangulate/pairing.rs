@@ -7,7 +7,8 @@
 //! - Frames pair by timestamp: a left and a right frame pair when each is the other's nearest
 //!   and they are at most `max_dt_s` apart. A frame without such a partner stays unpaired.
 //! - A pair belongs to the step active at its earlier frame, if its later frame is before the
-//!   next step and its earlier frame at least `settle_s` into the step.
+//!   next step (by a guard, when the times were corrected for the cameras' delays: see
+//!   [`super::latency`]) and its earlier frame at least `settle_s` into the step.
 
 use std::path::{Path, PathBuf};
 
@@ -171,12 +172,14 @@ pub enum Placement {
     OutsideLog,
     /// Earlier than `settle_s` into its step.
     Settling,
-    /// Its frames fall in different steps.
+    /// Its frames fall in different steps, or so near the next command that the tip may
+    /// already move.
     Straddles,
 }
 
-/// The step a pair with timestamps `a`, `b` belongs to.
-pub fn place(log: &PressureLog, a: f64, b: f64, settle_s: f64) -> Placement {
+/// The step a pair with times `a`, `b` belongs to; a pair later than `guard_s` before the next
+/// command straddles (its frames may show the next step's motion).
+pub fn place(log: &PressureLog, a: f64, b: f64, settle_s: f64, guard_s: f64) -> Placement {
     let (first, last) = (a.min(b), a.max(b));
     let k = log.steps.partition_point(|s| s.time_s <= first);
     let Some(k) = k.checked_sub(1) else {
@@ -185,7 +188,7 @@ pub fn place(log: &PressureLog, a: f64, b: f64, settle_s: f64) -> Placement {
     let end = log.end_s(k);
     if first >= end {
         Placement::OutsideLog
-    } else if last >= end {
+    } else if last >= end - guard_s {
         Placement::Straddles
     } else if first - log.steps[k].time_s < settle_s {
         Placement::Settling
@@ -245,11 +248,11 @@ pub(super) mod tests {
             extra_columns: Vec::new(),
             median_step_s: 0.3,
         };
-        assert_eq!(place(&log, 0.12, 0.13, 0.1), Placement::Step(0));
-        assert_eq!(place(&log, 0.35, 0.36, 0.1), Placement::Settling);
-        assert_eq!(place(&log, 0.29, 0.31, 0.1), Placement::Straddles);
-        assert_eq!(place(&log, -0.01, 0.01, 0.1), Placement::OutsideLog);
-        assert_eq!(place(&log, 0.75, 0.76, 0.1), Placement::Step(2));
-        assert_eq!(place(&log, 0.95, 0.96, 0.1), Placement::OutsideLog);
+        assert_eq!(place(&log, 0.12, 0.13, 0.1, 0.0), Placement::Step(0));
+        assert_eq!(place(&log, 0.35, 0.36, 0.1, 0.0), Placement::Settling);
+        assert_eq!(place(&log, 0.29, 0.31, 0.1, 0.0), Placement::Straddles);
+        assert_eq!(place(&log, -0.01, 0.01, 0.1, 0.0), Placement::OutsideLog);
+        assert_eq!(place(&log, 0.75, 0.76, 0.1, 0.0), Placement::Step(2));
+        assert_eq!(place(&log, 0.95, 0.96, 0.1, 0.0), Placement::OutsideLog);
     }
 }

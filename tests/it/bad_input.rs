@@ -385,6 +385,20 @@ fn flags_are_checked_and_suggest_only_what_the_command_has() {
         &words("triangulate frames --calib truth/rig.yml --marker-area-px 10,5"),
     );
     assert!(msg.contains("--marker-area-px 10,5"), "{msg}");
+    // A camera delay below 0, or three of them; a synth window of one number.
+    let msg = handcap_usage(
+        d,
+        &words("triangulate frames --calib truth/rig.yml --latency-ms=-5,20"),
+    );
+    assert!(msg.contains("--latency-ms") && msg.contains("from 0"), "{msg}");
+    let msg = handcap_usage(
+        d,
+        &words("triangulate frames --calib truth/rig.yml --latency-ms 1,2,3"),
+    );
+    assert!(msg.contains("--latency-ms"), "{msg}");
+    let msg = handcap_usage(d, &words("synth --out s --window-ms 100"));
+    assert!(msg.contains("--window-ms takes two numbers"), "{msg}");
+    assert!(!d.join("s").exists());
 }
 
 #[test]

@@ -636,6 +636,97 @@ fn the_clock_check_finds_a_drift_injected_into_one_camera() {
 }
 
 #[test]
+fn a_camera_150_ms_late_is_measured_from_the_motion_and_paired_by_exposure() {
+    // Filmed whole steps (the motion too), as a live capture does, with the left camera 30 ms
+    // and the right 180 ms behind its exposures, in a lab (a red cable and a push-pin in the
+    // right camera's view). The truth of each delay is the latency plus the tip's half-way
+    // time (τ 20 ms: 14 ms) and each camera's offset (±5 ms).
+    let dir = tempdir();
+    let d = dir.path();
+    let synth = session(9, [125.0, 62.5]);
+    let latency = [0.030, 0.180];
+    let config = handcap::synth::capture::CaptureConfig {
+        views: 3,
+        window_s: [0.0, 0.3],
+        latency_s: latency,
+        ..handcap::synth::capture::CaptureConfig::default()
+    };
+    capture_with(d, &synth, &config);
+    let out = triangulate_with_truth(d, "out/dataset.csv");
+    assert!(
+        out.contains("delay from command to the tip half-way"),
+        "{out}"
+    );
+    let s = summary(&d.join("out/dataset_summary.json"));
+    let l = &s["latency"];
+    assert_eq!(l["corrected"], true, "{l}");
+    let delay = |cam: usize| {
+        let c = &l["cameras"][cam];
+        [
+            c["delay_ms"].as_f64().unwrap(),
+            c["within_ms"].as_f64().unwrap(),
+        ]
+    };
+    for (cam, late) in latency.iter().enumerate() {
+        let [ms, within] = delay(cam);
+        let truth = 1e3 * late + 14.0;
+        assert!(
+            (ms - truth).abs() <= 5.0 + 8.0 + within,
+            "camera {cam}: {l}"
+        );
+    }
+    let relative = delay(1)[0] - delay(0)[0];
+    assert!(
+        (relative - 150.0).abs() <= 10.0 + delay(0)[1] + delay(1)[1],
+        "{relative} ms"
+    );
+    // Every step but the last has a row, unflagged (the last may have too few frames: the
+    // right camera's end 180 ms after its exposures), each within 0.5 mm of the truth.
+    let truth = tips_by_step(&d.join("truth/tips.csv"));
+    let rows = csv_rows(&d.join("out/dataset.csv"));
+    assert!(
+        rows.len() + 1 >= truth.len(),
+        "{} rows of {}",
+        rows.len(),
+        truth.len()
+    );
+    let last = (truth.len() - 1).to_string();
+    for row in &rows {
+        assert!(row["flag"].is_empty() || row["step"] == last, "{row:?}");
+        let t = truth[&row["step"]];
+        let v = |k: &str| row[k].parse::<f64>().unwrap();
+        let error =
+            ((v("x_mm") - t[0]).powi(2) + (v("y_mm") - t[1]).powi(2) + (v("z_mm") - t[2]).powi(2))
+                .sqrt();
+        assert!(error < 0.5, "step {}: {error} mm", row["step"]);
+    }
+    let (rms, _) = tip_rms_against_truth(
+        &d.join("out/dataset.csv"),
+        &d.join("truth/tips.csv"),
+        |_| true,
+    );
+    // Taken as stamped, the same frames pair moments 150 ms apart: rows off or flagged.
+    let args: Vec<&str> = truth_args("stamped/dataset.csv")
+        .into_iter()
+        .chain(["--latency-ms", "0"])
+        .collect();
+    let out = handcap_ok(d, &args);
+    assert!(out.contains("times used as stamped"), "{out}");
+    let stamped = csv_rows(&d.join("stamped/dataset.csv"));
+    let flagged = stamped.iter().filter(|r| !r["flag"].is_empty()).count();
+    let (stamped_rms, _) = tip_rms_against_truth(
+        &d.join("stamped/dataset.csv"),
+        &d.join("truth/tips.csv"),
+        |r| r["flag"].is_empty(),
+    );
+    println!("tip RMS {rms:.3} mm with the delays measured; as stamped {stamped_rms:.3} mm, {flagged} rows flagged");
+    assert!(
+        flagged >= 5 || stamped_rms > 3.0 * rms,
+        "{flagged} flagged, {stamped_rms} mm"
+    );
+}
+
+#[test]
 fn videos_without_frames_csv_are_timed_by_their_own_timestamps() {
     // Filmed continuously (every frame of every step kept, as a recording is), 12 steps: the
     // same session timed by frames.csv and by the videos' timestamps after each video's start.
