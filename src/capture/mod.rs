@@ -381,7 +381,7 @@ fn drive(
     steps: &[protocol::Step],
     template: &str,
     clock: &Clock,
-    log: &std::sync::Mutex<Vec<(f64, protocol::Step)>>,
+    log: &std::sync::Mutex<Vec<Commanded>>,
     stop: &AtomicBool,
 ) -> Option<Ending> {
     for step in steps {
@@ -402,7 +402,11 @@ fn drive(
                 message,
             });
         }
-        log.lock().expect("log").push((time_s, step.clone()));
+        log.lock().expect("log").push(Commanded {
+            time_s,
+            end_s: clock.now_s(),
+            step: step.clone(),
+        });
         let wait = time_s + step.hold_s - clock.now_s();
         if wait > 0.0 {
             std::thread::sleep(Duration::from_secs_f64(wait));
@@ -476,11 +480,25 @@ fn frames_csv(rows: &[(Side, usize, f64)]) -> String {
     out
 }
 
-fn pressures_csv(log: &[(f64, protocol::Step)]) -> String {
-    let mut out = String::from("time_s,P1_kpa,P2_kpa,P3_kpa,step,phase\n");
-    for (time_s, s) in log {
-        let [p1, p2, p3] = s.pressures;
-        out += &format!("{time_s:.6},{p1},{p2},{p3},{},{}\n", s.step, s.phase);
+/// A step the regulator was told: when its command started and when it returned.
+#[derive(Clone, Debug)]
+struct Commanded {
+    time_s: f64,
+    end_s: f64,
+    step: protocol::Step,
+}
+
+fn pressures_csv(log: &[Commanded]) -> String {
+    let mut out = format!(
+        "time_s,P1_kpa,P2_kpa,P3_kpa,step,phase,{}\n",
+        crate::triangulate::pairing::COMMAND_END_COLUMN
+    );
+    for c in log {
+        let [p1, p2, p3] = c.step.pressures;
+        out += &format!(
+            "{:.6},{p1},{p2},{p3},{},{},{:.6}\n",
+            c.time_s, c.step.step, c.step.phase, c.end_s
+        );
     }
     out
 }
@@ -760,7 +778,7 @@ impl SessionFiles<'_> {
     fn write(
         &self,
         rows: &[(Side, usize, f64)],
-        log: &[(f64, protocol::Step)],
+        log: &[Commanded],
         summary: &CaptureSummary,
     ) -> Result<(), CaptureError> {
         let write = |path: &Path, text: &str| {

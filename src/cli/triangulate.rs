@@ -169,10 +169,20 @@ pub fn print_summary(done: &Triangulated) {
         "clock: a pair's frames {:.1} ms apart (median, 95 % within {:.1}), drift {:+.1} ms over the session; frame periods {}; frames dropped within steps {}/{}",
         c.skew_ms[0], c.skew_ms[1], c.drift_ms, c.periods(), c.dropped[0], c.dropped[1]
     );
+    if let Some([median, largest]) = c.command_ms {
+        println!(
+            "  the regulator's commands took {median:.0} ms (median), {largest:.0} ms at most; settling counted from their end"
+        );
+    }
     if !c.settling_only.is_empty() {
         println!(
-            "  {} steps were filmed only while settling (no frame later than --settle-s after the command): hold each step longer",
-            c.settling_only.len()
+            "  {} steps were filmed only while settling (no frame later than --settle-s after the command returned): hold each step longer{}",
+            c.settling_only.len(),
+            if c.command_ms.is_some_and(|[_, largest]| largest > 1e3 * t.options.settle_s) {
+                ", or make the regulator's command return sooner"
+            } else {
+                ""
+            }
         );
     }
     println!(

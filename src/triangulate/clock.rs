@@ -14,8 +14,10 @@
 //! - Dropped: within a step each camera should deliver every frame; the frames missing from
 //!   each step's span ([`crate::frame_times::dropped`]: a frame stamped late is no drop; gaps
 //!   between steps are not counted: a capture may film only around its steps).
-//! - Settling only: steps with pairs, but all within `settle_s` of the command: no row comes
-//!   from them; hold each step longer.
+//! - Settling only: steps with pairs, but all within `settle_s` of the command's end: no row
+//!   comes from them; hold each step longer.
+//! - Commands: how long the regulator's commands took, when the log says when they returned
+//!   (settling counts from there).
 
 use serde::Serialize;
 
@@ -37,6 +39,9 @@ pub struct ClockCheck {
     pub dropped: [usize; 2],
     /// Log rows (0-based) filmed only while settling.
     pub settling_only: Vec<usize>,
+    /// How long the regulator's commands took (ms): median, largest; `None` when the log does
+    /// not say when they returned.
+    pub command_ms: Option<[f64; 2]>,
     /// Per pair: session time (s) and right − left unwrapped (ms), for the figure.
     #[serde(skip)]
     pub series: Vec<(f64, f64)>,
@@ -164,6 +169,15 @@ pub fn check(
             _ => {}
         }
     }
+    let mut took: Vec<f64> = log
+        .steps
+        .iter()
+        .map(|s| 1e3 * (s.command_end_s - s.time_s))
+        .collect();
+    if took.iter().any(|&t| t > 0.0) {
+        let largest = took.iter().copied().fold(0.0, f64::max);
+        c.command_ms = crate::stats::median(&mut took).map(|m| [m, largest]);
+    }
     c.settling_only = (0..log.steps.len())
         .filter(|&k| settling[k] && !placed[k])
         .collect();
@@ -183,6 +197,7 @@ mod tests {
                 .iter()
                 .map(|&time_s| LogStep {
                     time_s,
+                    command_end_s: time_s,
                     pressures_kpa: [0.0; 3],
                     extra: Vec::new(),
                 })

@@ -458,6 +458,7 @@ mod tests {
             steps: (0..steps)
                 .map(|k| LogStep {
                     time_s: k as f64 * step_s,
+                    command_end_s: k as f64 * step_s,
                     pressures_kpa: [0.0; 3],
                     extra: Vec::new(),
                 })

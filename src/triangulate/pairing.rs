@@ -8,7 +8,8 @@
 //!   and they are at most `max_dt_s` apart. A frame without such a partner stays unpaired.
 //! - A pair belongs to the step active at its earlier frame, if its later frame is before the
 //!   next step (by a guard, when the times were corrected for the cameras' delays: see
-//!   [`super::latency`]) and its earlier frame at least `settle_s` into the step.
+//!   [`super::latency`]) and its earlier frame at least `settle_s` after the step's command
+//!   returned (`command_end_s`, when the log has it; else its time).
 
 use std::path::{Path, PathBuf};
 
@@ -21,6 +22,9 @@ use crate::stereo::Side;
 #[derive(Clone, Debug, PartialEq)]
 pub struct LogStep {
     pub time_s: f64,
+    /// When the regulator's command returned ([`COMMAND_END_COLUMN`]; `time_s` when the log
+    /// does not say): settling counts from here.
+    pub command_end_s: f64,
     pub pressures_kpa: [f64; 3],
     /// The row's other columns, as written.
     pub extra: Vec<String>,
@@ -48,6 +52,9 @@ impl PressureLog {
 
 /// The pressure columns of a log.
 pub const PRESSURE_COLUMNS: [&str; 3] = ["P1_kpa", "P2_kpa", "P3_kpa"];
+/// The optional column of when each step's command returned (s, the log's clock), as
+/// `handcap capture` writes it.
+pub const COMMAND_END_COLUMN: &str = "command_end_s";
 
 /// Reads the log.
 ///
@@ -63,8 +70,9 @@ pub fn read_pressure_log(path: &Path) -> Result<PressureLog, TriangulateError> {
         table.column(PRESSURE_COLUMNS[2])?,
     ];
     let header = table.header.clone();
+    let end_col = header.iter().position(|h| h == COMMAND_END_COLUMN);
     let extra_idx: Vec<usize> = (0..header.len())
-        .filter(|i| *i != time_col && !p_cols.contains(i))
+        .filter(|i| *i != time_col && !p_cols.contains(i) && Some(*i) != end_col)
         .collect();
     let mut steps: Vec<LogStep> = Vec::new();
     for (line, record) in table.records()? {
@@ -94,8 +102,24 @@ pub fn read_pressure_log(path: &Path) -> Result<PressureLog, TriangulateError> {
                 );
             }
         }
+        let command_end_s = match end_col {
+            Some(col) => {
+                let end = number(col)?;
+                if end < time_s {
+                    return table.fail(
+                        line,
+                        format!(
+                            "{COMMAND_END_COLUMN} {end} is before the command's time_s {time_s}"
+                        ),
+                    );
+                }
+                end
+            }
+            None => time_s,
+        };
         steps.push(LogStep {
             time_s,
+            command_end_s,
             pressures_kpa: [number(p_cols[0])?, number(p_cols[1])?, number(p_cols[2])?],
             extra: extra_idx.iter().map(|&i| record[i].to_string()).collect(),
         });
@@ -170,7 +194,7 @@ pub enum Placement {
     Step(usize),
     /// Before the first command or after the last step.
     OutsideLog,
-    /// Earlier than `settle_s` into its step.
+    /// Earlier than `settle_s` after its step's command returned.
     Settling,
     /// Its frames fall in different steps, or so near the next command that the tip may
     /// already move.
@@ -190,7 +214,7 @@ pub fn place(log: &PressureLog, a: f64, b: f64, settle_s: f64, guard_s: f64) -> 
         Placement::OutsideLog
     } else if last >= end - guard_s {
         Placement::Straddles
-    } else if first - log.steps[k].time_s < settle_s {
+    } else if first - log.steps[k].command_end_s < settle_s {
         Placement::Settling
     } else {
         Placement::Step(k)
@@ -241,6 +265,7 @@ pub(super) mod tests {
             steps: (0..3)
                 .map(|k| LogStep {
                     time_s: 0.3 * k as f64,
+                    command_end_s: 0.3 * k as f64,
                     pressures_kpa: [0.0; 3],
                     extra: Vec::new(),
                 })
@@ -254,5 +279,11 @@ pub(super) mod tests {
         assert_eq!(place(&log, -0.01, 0.01, 0.1, 0.0), Placement::OutsideLog);
         assert_eq!(place(&log, 0.75, 0.76, 0.1, 0.0), Placement::Step(2));
         assert_eq!(place(&log, 0.95, 0.96, 0.1, 0.0), Placement::OutsideLog);
+        // A command that took 0.1 s: settling counts from its end; a guard before the next.
+        let mut slow = log.clone();
+        slow.steps[2].command_end_s = 0.7;
+        assert_eq!(place(&slow, 0.75, 0.76, 0.1, 0.0), Placement::Settling);
+        assert_eq!(place(&slow, 0.81, 0.82, 0.1, 0.0), Placement::Step(2));
+        assert_eq!(place(&log, 0.25, 0.26, 0.1, 0.05), Placement::Straddles);
     }
 }

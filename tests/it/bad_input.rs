@@ -390,7 +390,10 @@ fn flags_are_checked_and_suggest_only_what_the_command_has() {
         d,
         &words("triangulate frames --calib truth/rig.yml --latency-ms=-5,20"),
     );
-    assert!(msg.contains("--latency-ms") && msg.contains("from 0"), "{msg}");
+    assert!(
+        msg.contains("--latency-ms") && msg.contains("from 0"),
+        "{msg}"
+    );
     let msg = handcap_usage(
         d,
         &words("triangulate frames --calib truth/rig.yml --latency-ms 1,2,3"),

@@ -139,6 +139,15 @@ fn capture_films_both_cameras_and_drives_the_protocol_on_one_clock() {
     }
     let times: Vec<f64> = log.iter().map(|r| r["time_s"].parse().unwrap()).collect();
     assert!(times.windows(2).all(|w| w[1] - w[0] >= 0.045), "{times:?}");
+    // Each command's end is logged: after its start, before the next command.
+    let ends: Vec<f64> = log
+        .iter()
+        .map(|r| r["command_end_s"].parse().unwrap())
+        .collect();
+    for (k, end) in ends.iter().enumerate() {
+        assert!(*end >= times[k], "{ends:?}");
+        assert!(times.get(k + 1).is_none_or(|next| end <= next), "{ends:?}");
+    }
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(s.join("capture.json")).unwrap()).unwrap();
     assert_eq!(json["summary"]["ending"], "protocol_done");

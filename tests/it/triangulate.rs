@@ -16,8 +16,8 @@ use handcap::synth::render::encode_png;
 use handcap::triangulate::frames::decode;
 
 use crate::common::{
-    capture, capture_as, capture_with, csv_rows, handcap_err, handcap_ok, handcap_usage, session,
-    small_capture, tempdir, tip_rms_against_truth, tips_by_step,
+    capture, capture_as, capture_with, csv_rows, handcap, handcap_err, handcap_ok, handcap_usage,
+    session, small_capture, tempdir, tip_rms_against_truth, tips_by_step,
 };
 
 /// Paints a disc of `rgb` (radius `r` px, anti-aliased) into a frame, in place.
@@ -325,6 +325,19 @@ fn triangulate_errors_are_one_line_and_name_the_file() {
     let msg = handcap_err(d, &a);
     assert!(
         msg.contains("shuffled.csv line 4") && msg.contains("sort the log by time"),
+        "{msg}"
+    );
+    // A command that returned before it started, line 3.
+    std::fs::write(
+        d.join("backwards.csv"),
+        with_command_end(&log, |i| if i == 2 { -0.01 } else { 0.0 }),
+    )
+    .unwrap();
+    let mut a = args("truth/rig.yml");
+    a.extend(["--pressures", "backwards.csv"]);
+    let msg = handcap_err(d, &a);
+    assert!(
+        msg.contains("backwards.csv line 3") && msg.contains("is before the command's time_s"),
         "{msg}"
     );
     // No zero-pressure step: no origin.
@@ -724,6 +737,71 @@ fn a_camera_150_ms_late_is_measured_from_the_motion_and_paired_by_exposure() {
         flagged >= 5 || stamped_rms > 3.0 * rms,
         "{flagged} flagged, {stamped_rms} mm"
     );
+}
+
+/// The log `log` with a `command_end_s` column: each row's time plus `took_s(line)` (lines
+/// from 1).
+fn with_command_end(log: &str, took_s: impl Fn(usize) -> f64) -> String {
+    log.lines()
+        .enumerate()
+        .map(|(i, l)| match i {
+            0 => format!("{l},command_end_s"),
+            _ => {
+                let t: f64 = l.split(',').next().unwrap().parse().unwrap();
+                format!("{l},{:.6}", t + took_s(i))
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
+        + "\n"
+}
+
+#[test]
+fn settling_counts_from_when_the_regulator_command_returned() {
+    // The capture keeps frames 100-200 ms into each step. Commands that returned at once
+    // change nothing (and are not copied to the dataset); commands that took 150 ms leave
+    // every frame within --settle-s 0.1 of their end: no row, and the cause said.
+    let dir = tempdir();
+    let d = dir.path();
+    small_capture(d, 34, 3);
+    let log = std::fs::read_to_string(d.join("pressures.csv")).unwrap();
+    let run = |name: &str, took_s: f64| {
+        std::fs::write(d.join(name), with_command_end(&log, |_| took_s)).unwrap();
+        let mut a: Vec<String> = truth_args(&format!("{name}.out/dataset.csv"))
+            .iter()
+            .map(|s| s.to_string())
+            .collect();
+        a.extend(["--pressures".into(), name.into()]);
+        handcap(d, &a.iter().map(String::as_str).collect::<Vec<_>>())
+    };
+    let plain = triangulate_with_truth(d, "plain/dataset.csv");
+    let quick = run("quick.csv", 0.0);
+    assert!(quick.status.success());
+    assert_eq!(
+        std::fs::read_to_string(d.join("plain/dataset.csv")).unwrap(),
+        std::fs::read_to_string(d.join("quick.csv.out/dataset.csv")).unwrap(),
+        "{plain}"
+    );
+    let slow = run("slow.csv", 0.15);
+    let said =
+        String::from_utf8_lossy(&slow.stdout).to_string() + &String::from_utf8_lossy(&slow.stderr);
+    assert!(!slow.status.success(), "{said}");
+    assert!(said.contains("settling"), "{said}");
+    assert!(!d.join("slow.csv.out/dataset.csv").exists());
+    // 40 ms: the first frame of each step (100-133 ms after the command) is left out.
+    let some = run("some.csv", 0.04);
+    let said = String::from_utf8_lossy(&some.stdout).to_string();
+    assert!(some.status.success(), "{said}");
+    assert!(
+        said.contains("the regulator's commands took 40 ms (median), 40 ms at most"),
+        "{said}"
+    );
+    let settling = |dir: &str| {
+        summary(&d.join(dir).join("dataset_summary.json"))["pairs"]["settling"]
+            .as_u64()
+            .unwrap_or(0)
+    };
+    assert!(settling("some.csv.out") > settling("plain"), "{said}");
 }
 
 #[test]
