@@ -42,6 +42,9 @@ use crate::stereo::Side;
 
 /// A camera that delivers nothing for this long has stopped (s).
 pub const STALL_S: f64 = 2.0;
+/// Longest a stream may take to open and send its first frame (s): a server that answers with
+/// headers and no frames is refused, not waited on.
+pub const STREAM_OPEN_S: f64 = 5.0;
 
 /// Errors of capturing.
 #[derive(Debug, thiserror::Error)]
@@ -88,6 +91,9 @@ pub struct CaptureOptions {
     pub duration_s: Option<f64>,
     /// Instead of the finger's frames: chessboard pairs for `calibrate` ([`calibration`]).
     pub calibration: Option<BoardPairs>,
+    /// Command run once when a protocol's session ends early (see [`Ending::aborted`]), e.g.
+    /// to vent the regulator.
+    pub on_abort: Option<String>,
 }
 
 /// What a calibration capture collects: still pairs of `board` where it stands somewhere new,
@@ -130,6 +136,20 @@ pub enum Ending {
     },
 }
 
+impl Ending {
+    /// Whether the session ended before its protocol did: stopped by the user or a signal, a
+    /// camera, a failing command or thread.
+    pub fn aborted(&self) -> bool {
+        matches!(
+            self,
+            Ending::Interrupted
+                | Ending::CameraStopped { .. }
+                | Ending::CommandFailed { .. }
+                | Ending::ThreadFailed { .. }
+        )
+    }
+}
+
 /// Live and final figures of a session.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct Stats {
@@ -150,6 +170,9 @@ pub struct Stats {
 #[derive(Clone, Debug, Serialize)]
 pub struct CaptureSummary {
     pub ending: Ending,
+    /// What the `on_abort` command did, when it ran: `done`, or why it failed.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub on_abort: Option<String>,
     pub stats: Stats,
     /// Per camera: the settings the backend refused.
     pub refused: [Vec<String>; 2],
@@ -248,14 +271,29 @@ fn open_camera(side: Side, source: &str, o: &CaptureOptions) -> Result<Camera, C
     let stream = !device && source.contains("://");
     let opened = if let Ok(index) = source.parse::<i32>() {
         VideoCapture::new(index, videoio::CAP_ANY)
-    } else if file || stream {
+    } else if stream {
+        // FFmpeg's own waits are 30 s; a stream gives up within the stall's time instead, so
+        // a stopped server ends the session promptly and Ctrl-C is never kept waiting.
+        let ms = |s: f64| (1e3 * s).round() as i32;
+        let params = opencv::core::Vector::<i32>::from_slice(&[
+            videoio::CAP_PROP_OPEN_TIMEOUT_MSEC,
+            ms(STREAM_OPEN_S),
+            videoio::CAP_PROP_READ_TIMEOUT_MSEC,
+            ms(STALL_S),
+        ]);
+        VideoCapture::from_file_with_params(source, videoio::CAP_FFMPEG, &params)
+    } else if file {
         VideoCapture::from_file(source, videoio::CAP_FFMPEG)
     } else {
         VideoCapture::from_file(source, videoio::CAP_ANY)
     };
     let mut capture = opened.map_err(|e| not_opened(e.message))?;
     if !capture.is_opened().unwrap_or(false) {
-        return Err(not_opened("OpenCV cannot open it".into()));
+        return Err(not_opened(if stream {
+            format!("it did not open and send a frame within {STREAM_OPEN_S} s")
+        } else {
+            "OpenCV cannot open it".into()
+        }));
     }
     let mut refused = Vec::new();
     let pace_s = if file {
@@ -701,6 +739,7 @@ pub fn capture(
                 let log = log.lock().expect("log").clone();
                 let so_far = CaptureSummary {
                     ending: Ending::Filming,
+                    on_abort: None,
                     stats: stats(&rows, log.len(), judge.as_ref()),
                     refused: refused.clone(),
                     start_monotonic_s,
@@ -747,8 +786,22 @@ pub fn capture(
     }
     rows.sort_by_key(|r| (r.0 as u8, r.1));
     let log = log.into_inner().expect("log");
+    let ending = ending.unwrap_or(Ending::Interrupted);
+    // The regulator left at the last step's pressures: the user's command vents it.
+    let on_abort = match (&options.on_abort, &options.protocol) {
+        (Some(command), Some(_)) if ending.aborted() => Some(
+            match run_command(command, &AtomicBool::new(false), COMMAND_TIMEOUT_S) {
+                Ok(CommandEnd::Done) => "done".to_string(),
+                Ok(CommandEnd::Failed(why)) => format!("`{command}` {why}"),
+                Ok(CommandEnd::Stopped) => unreachable!("nothing stops it"),
+                Err(e) => format!("`{command}` could not run: {e}"),
+            },
+        ),
+        _ => None,
+    };
     let summary = CaptureSummary {
-        ending: ending.unwrap_or(Ending::Interrupted),
+        ending,
+        on_abort,
         stats: stats(&rows, log.len(), judge.as_ref()),
         refused,
         start_monotonic_s,

@@ -35,6 +35,11 @@ pub struct Args {
     /// 'python3 regulator.py {p1} {p2} {p3}'; pressures above 300 kPa are refused first
     #[arg(long, requires = "protocol")]
     set_pressure: Option<String>,
+    /// Command run once if the protocol's session ends early (Ctrl-C, a signal, a camera lost,
+    /// a failing command), e.g. 'python3 regulator.py 0 0 0' to vent the muscles; its result
+    /// goes to capture.json
+    #[arg(long, requires = "protocol")]
+    on_abort: Option<String>,
     /// Stop after this many seconds (default: the protocol's end, or Ctrl-C)
     #[arg(long, value_parser = super::finite)]
     duration_s: Option<f64>,
@@ -100,6 +105,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         protocol,
         duration_s: a.duration_s,
         calibration,
+        on_abort: a.on_abort.clone(),
     };
     let bar = ProgressBar::new_spinner()
         .with_style(ProgressStyle::with_template("{spinner} {elapsed} {msg}").expect("template"));
@@ -148,6 +154,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         );
     }
     let kept = "every frame before it is kept and listed";
+    if let Some(result) = &summary.on_abort {
+        eprintln!("ran --on-abort: {result}");
+    }
     match &summary.ending {
         Ending::ProtocolDone | Ending::Duration | Ending::PairsTaken => Ok(()),
         Ending::Interrupted => {

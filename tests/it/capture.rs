@@ -110,8 +110,13 @@ fn capture_films_both_cameras_and_drives_the_protocol_on_one_clock() {
     let out = protocol(d, "p.csv", "0.05");
     assert!(out.contains("12 steps"), "{out}");
     let command = recorder(d);
-    let args = session_args("s", "p.csv", &command);
+    let mut args = session_args("s", "p.csv", &command).to_vec();
+    args.extend(["--on-abort", "touch vented.txt"]);
     let out = handcap_ok(d, &args);
+    assert!(
+        !d.join("vented.txt").exists(),
+        "--on-abort runs only when the protocol does not finish"
+    );
     assert!(out.contains("step 12/12"), "{out}");
     let s = d.join("s");
     let [l, r] = assert_consistent(&s);
@@ -375,11 +380,22 @@ fn a_hung_pressure_command_does_not_hold_the_session() {
     let d = dir.path();
     cameras(d);
     protocol(d, "p.csv", "0.2");
-    let out = handcap(d, &session_args("s", "p.csv", "sleep 60"));
+    // The session ends early, so --on-abort runs once, after the cameras and the command.
+    let mut args = session_args("s", "p.csv", "sleep 60").to_vec();
+    args.extend(["--on-abort", "echo vented >> vented.txt"]);
+    let out = handcap(d, &args);
     assert_eq!(out.status.code(), Some(1));
     let msg = String::from_utf8_lossy(&out.stderr);
     assert!(msg.contains("camera stopped delivering"), "{msg}");
+    assert!(msg.contains("ran --on-abort: done"), "{msg}");
     assert!(csv_rows(&d.join("s/pressures.csv")).is_empty());
+    assert_eq!(
+        std::fs::read_to_string(d.join("vented.txt")).unwrap(),
+        "vented\n"
+    );
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("s/capture.json")).unwrap()).unwrap();
+    assert_eq!(json["summary"]["on_abort"], "done");
 }
 
 /// `capture --calib` from the two board videos of [`board_videos`] as cameras, into `s`.
@@ -460,9 +476,10 @@ fn a_charuco_board_is_taken_in_part_from_cameras_and_videos() {
 }
 
 /// Serves `frames` (JPEG files' bytes) as an HTTP multipart Motion-JPEG stream, as IP cameras
-/// and mjpg-streamer do, on a free port of 127.0.0.1, to one client at 30 fps; the stream
-/// closes after the last frame. Returns the stream's URL.
-fn mjpeg_server(frames: Vec<Vec<u8>>) -> String {
+/// and mjpg-streamer do, on a free port of 127.0.0.1, to one client at 30 fps; after the last
+/// frame the stream closes, or with `stall` stays open and silent for a minute (a camera or
+/// server that hangs). Returns the stream's URL.
+fn mjpeg_server(frames: Vec<Vec<u8>>, stall: bool) -> String {
     use std::io::{Read, Write};
     let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
     let url = format!("http://{}/stream", listener.local_addr().unwrap());
@@ -493,18 +510,16 @@ fn mjpeg_server(frames: Vec<Vec<u8>>) -> String {
             let due = std::time::Duration::from_secs_f64((k + 1) as f64 / 30.0);
             std::thread::sleep(due.saturating_sub(start.elapsed()));
         }
+        if stall {
+            std::thread::sleep(std::time::Duration::from_secs(60));
+        }
     });
     url
 }
 
-/// Two HTTP Motion-JPEG streams filmed: every frame is kept as the bytes the server sent (no
-/// decoding and re-encoding on the grab thread), numbered in order.
-#[test]
-fn network_mjpeg_frames_are_kept_as_they_came() {
-    let dir = tempdir();
-    let d = dir.path();
-    // Distinct JPEG frames: a bright square moving across a grey 320×240 image.
-    let frames: Vec<Vec<u8>> = (0..60)
+/// `n` distinct JPEG frames: a bright square moving across a grey 320×240 image.
+fn moving_square(n: i32) -> Vec<Vec<u8>> {
+    (0..n)
         .map(|k| {
             let mut image = opencv::core::Mat::new_rows_cols_with_default(
                 240,
@@ -515,7 +530,7 @@ fn network_mjpeg_frames_are_kept_as_they_came() {
             .unwrap();
             opencv::imgproc::rectangle(
                 &mut image,
-                opencv::core::Rect::new(4 * k, 100, 30, 30),
+                opencv::core::Rect::new(k % 280, 100, 30, 30),
                 opencv::core::Scalar::new(40.0, 40.0, 220.0, 0.0),
                 -1,
                 opencv::imgproc::LINE_8,
@@ -527,8 +542,20 @@ fn network_mjpeg_frames_are_kept_as_they_came() {
                 .unwrap();
             opencv::prelude::VectorToVec::to_vec(&jpeg)
         })
-        .collect();
-    let (left, right) = (mjpeg_server(frames.clone()), mjpeg_server(frames.clone()));
+        .collect()
+}
+
+/// Two HTTP Motion-JPEG streams filmed: every frame is kept as the bytes the server sent (no
+/// decoding and re-encoding on the grab thread), numbered in order.
+#[test]
+fn network_mjpeg_frames_are_kept_as_they_came() {
+    let dir = tempdir();
+    let d = dir.path();
+    let frames = moving_square(60);
+    let (left, right) = (
+        mjpeg_server(frames.clone(), false),
+        mjpeg_server(frames.clone(), false),
+    );
     let out = handcap_ok(
         d,
         &[
@@ -552,4 +579,60 @@ fn network_mjpeg_frames_are_kept_as_they_came() {
             assert!(&kept == served, "{side} frame {k} is not the JPEG served");
         }
     }
+}
+
+/// A server that answers with headers and never a frame is refused within the open timeout;
+/// one that stops sending mid-session ends the session as a stopped camera, every frame kept,
+/// instead of waiting on FFmpeg's own 30 s.
+#[test]
+fn a_silent_or_stalled_stream_ends_the_session() {
+    let dir = tempdir();
+    let d = dir.path();
+    let args = |left: &str, right: &str| -> Vec<String> {
+        [
+            "capture",
+            "--left",
+            left,
+            "--right",
+            right,
+            "--duration-s",
+            "30",
+            "--out",
+            "s",
+        ]
+        .map(String::from)
+        .to_vec()
+    };
+    let run = |a: &[String]| {
+        let start = std::time::Instant::now();
+        let out = handcap(d, &a.iter().map(String::as_str).collect::<Vec<_>>());
+        (out, start.elapsed().as_secs_f64())
+    };
+    let (silent, live) = (
+        mjpeg_server(Vec::new(), true),
+        mjpeg_server(moving_square(30), false),
+    );
+    let (out, took) = run(&args(&silent, &live));
+    let said = String::from_utf8_lossy(&out.stderr).to_string();
+    assert_eq!(out.status.code(), Some(1), "{said}");
+    assert!(
+        said.contains("cannot open the left camera")
+            && said.contains("did not open and send a frame within 5 s"),
+        "{said}"
+    );
+    println!("silent server refused after {took:.1} s");
+    let (stalling, live) = (
+        mjpeg_server(moving_square(30), true),
+        mjpeg_server(moving_square(600), false),
+    );
+    let (out, took) = run(&args(&stalling, &live));
+    let said =
+        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("s/capture.json")).unwrap()).unwrap();
+    let ending = &json["summary"]["ending"];
+    assert_eq!(ending["camera_stopped"]["side"], "left", "{ending} {said}");
+    let [l, r] = assert_consistent(&d.join("s"));
+    assert!(l >= 20 && r > l, "{l} left, {r} right frames");
+    println!("a stream stalled after 1 s: session ended after {took:.1} s, {l} left and {r} right frames kept");
 }
