@@ -40,6 +40,10 @@ pub struct Args {
     /// Rows whose frame pairs lie further apart are flagged, mm
     #[arg(long, default_value_t = TriangulateOptions::default().max_spread_mm)]
     max_spread_mm: f64,
+    /// The finger's length, mm: a row whose tip lies further than this (+1 mm) from the base
+    /// (this far up the hand's z axis from the rest tip) is flagged `reach`
+    #[arg(long, default_value_t = TriangulateOptions::default().finger_mm)]
+    finger_mm: f64,
     /// Marker area limits (pixels above half its peak redness): MIN,MAX
     #[arg(long, value_delimiter = ',', num_args = 1..=2, default_values_t = [TriangulateOptions::default().marker.min_area_px, TriangulateOptions::default().marker.max_area_px])]
     marker_area_px: Vec<usize>,
@@ -62,6 +66,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         max_reproj_px: a.max_reproj_px,
         correct_matches: !a.no_correct_matches,
         min_frames: a.min_frames,
+        finger_mm: a.finger_mm,
         max_spread_mm: a.max_spread_mm,
         ..TriangulateOptions::default()
     };

@@ -16,9 +16,10 @@
 //!    error; several → ambiguous, rejected. Nothing is guessed.
 //! 4. A step's row is flagged (`flag` column, `;`-separated) when it has fewer than
 //!    `min_frames` pairs (`few_frames`), its pairs disagree by more than `max_spread_mm`
-//!    (`spread`), or its step lasted over 1.5 times the log's median step (`long_step`: a gap
-//!    in the log, so frames of an unlogged step may be in it). `handcap model` leaves flagged
-//!    rows out.
+//!    (`spread`), its step lasted over 1.5 times the log's median step (`long_step`: a gap
+//!    in the log, so frames of an unlogged step may be in it), or (after the hand frame) its
+//!    tip lies further from the finger's base than the finger is long (`reach`: the base
+//!    `finger_mm` up the z axis from the rest tip). `handcap model` leaves flagged rows out.
 //! 5. The hand frame: axes `R_hand` from the calibration (its reference pair), origin the
 //!    median tip over the unflagged zero-pressure steps (all three pressures ≤ `zero_kpa`):
 //!    p_hand = R_hand · (p_left − origin).
@@ -532,10 +533,17 @@ pub fn triangulate(
                     .coords
             })
             .collect();
+        let tip = crate::stats::median_point(&tips);
+        let mut flags = flags;
+        if (tip - Vector3::new(0.0, 0.0, options.finger_mm)).norm()
+            > options.finger_mm + options::REACH_MARGIN_MM
+        {
+            flags.push("reach");
+        }
         rows.push(Row {
             step: k,
             pressures_kpa: log.steps[k].pressures_kpa,
-            tip_mm: crate::stats::median_point(&tips).into(),
+            tip_mm: tip.into(),
             n_frames: tips.len(),
             spread_mm,
             reproj_px: step_pairs

@@ -4,6 +4,10 @@ use serde::Serialize;
 
 use super::marker::MarkerOptions;
 
+/// How far beyond the finger's length a tip may lie from its base before its row is flagged
+/// `reach` (mm): the rest position's own error and the hand axes' tilt.
+pub const REACH_MARGIN_MM: f64 = 1.0;
+
 /// Settings of a run.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct TriangulateOptions {
@@ -22,6 +26,10 @@ pub struct TriangulateOptions {
     pub max_spread_mm: f64,
     /// A step is at zero pressure when all three are at most this (kPa).
     pub zero_kpa: f64,
+    /// The finger's length (mm): its base is this far up the hand frame's z axis from the tip
+    /// at rest, and a tip further than this (plus [`REACH_MARGIN_MM`]) from the base is out of
+    /// its reach, its row flagged.
+    pub finger_mm: f64,
     /// For videos without `frames.csv`: when each video's first frame was taken on the log's
     /// clock (s); the frames' times are then the videos' own timestamps after it.
     pub video_start_s: Option<[f64; 2]>,
@@ -71,6 +79,10 @@ impl TriangulateOptions {
                 "the marker limits must be finite, the elongation at least 1".to_string(),
             ),
             (
+                self.finger_mm > 0.0 && self.finger_mm.is_finite(),
+                format!("--finger-mm {}: must be a positive length", self.finger_mm),
+            ),
+            (
                 self.zero_kpa >= 0.0 && self.zero_kpa.is_finite(),
                 format!("zero pressure threshold {} kPa: must be ≥ 0", self.zero_kpa),
             ),
@@ -103,6 +115,7 @@ impl Default for TriangulateOptions {
             min_frames: 2,
             max_spread_mm: 0.5,
             zero_kpa: 1.0,
+            finger_mm: 50.0,
             video_start_s: None,
             latency_s: None,
         }

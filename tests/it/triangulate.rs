@@ -97,6 +97,22 @@ fn tips_match_the_truth_in_the_hand_frame_and_the_dataset_feeds_the_model() {
     println!("tip RMS error {rms:.4} mm over {n} steps");
     assert_eq!(n, 39);
     assert!(rms <= 0.03, "tip RMS error {rms} mm");
+    // Said to be a 5 mm finger, the rows whose true tip lies over 6 mm from its base (5 mm up
+    // the z axis) are out of reach, and only those.
+    let args: Vec<&str> = truth_args("short/dataset.csv")
+        .into_iter()
+        .chain(["--finger-mm", "5"])
+        .collect();
+    handcap_ok(d, &args);
+    let tips = tips_by_step(&truth);
+    let mut reach = 0;
+    for row in csv_rows(&d.join("short/dataset.csv")) {
+        let t = tips[&row["step"]];
+        let beyond = (t[0].powi(2) + t[1].powi(2) + (t[2] - 5.0).powi(2)).sqrt() > 6.0;
+        assert_eq!(row["flag"] == "reach", beyond, "{row:?} (truth {t:?})");
+        reach += usize::from(beyond);
+    }
+    assert!(reach >= 5, "{reach} rows out of a 5 mm finger's reach");
     for (phase, rows) in [("train", 27), ("sweep_a", 6), ("sweep_b", 6)] {
         let file = d.join(format!("out/dataset_{phase}.csv"));
         let (rms, n) = tip_rms_against_truth(&file, &truth, |_| true);
