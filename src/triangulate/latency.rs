@@ -275,7 +275,6 @@ fn marker_track(
     }
     let most = STATIC_SHARE * frames.len() as f64;
     let fixed = |c: [f64; 2]| seen.get(&cell(c)).is_some_and(|&n| n as f64 >= most);
-    let dist = |a: [f64; 2], b: [f64; 2]| (a[0] - b[0]).hypot(a[1] - b[1]);
     frames
         .into_iter()
         .filter_map(|(t, candidates)| {
@@ -297,7 +296,7 @@ fn marker_track(
                         .map(|j| anchors[j].1)?;
                     moving
                         .into_iter()
-                        .min_by(|a, b| dist(*a, at).total_cmp(&dist(*b, at)))
+                        .min_by(|a, b| distance(*a, at).total_cmp(&distance(*b, at)))
                         .map(|c| (t, c))
                 }
             }
@@ -369,35 +368,21 @@ fn delay(track: &[(f64, [f64; 2])], log: &PressureLog, period_s: f64) -> Result<
 /// `period`, since the frame before did not), the 90th percentile over the steps, at least a
 /// period and at most half a step.
 fn lead(track: &[(f64, [f64; 2])], times: &[f64], log: &PressureLog, d: f64, period: f64) -> f64 {
-    let levels: Vec<Option<[f64; 2]>> = (0..log.steps.len())
-        .map(|k| {
-            let (a, b) = (
-                times.partition_point(|&t| t < log.steps[k].time_s + d),
-                times.partition_point(|&t| t < log.end_s(k) + d),
-            );
-            (a < b).then(|| {
-                let mut xs: Vec<f64> = track[a..b].iter().map(|t| t.1[0]).collect();
-                let mut ys: Vec<f64> = track[a..b].iter().map(|t| t.1[1]).collect();
-                [
-                    crate::stats::median(&mut xs).expect("not empty"),
-                    crate::stats::median(&mut ys).expect("not empty"),
-                ]
-            })
-        })
-        .collect();
+    let levels = segment(track, times, log, d).medians;
     let half_step = log.median_step_s / 2.0;
-    let dist = |a: [f64; 2], b: [f64; 2]| (a[0] - b[0]).hypot(a[1] - b[1]);
     let mut leads: Vec<f64> = (1..log.steps.len())
         .filter_map(|k| {
             let (from, to) = (levels[k - 1]?, levels[k]?);
-            let way = dist(from, to);
+            let way = distance(from, to);
             if way < MIN_MOVE_PX {
                 return None;
             }
             let cut = log.steps[k].time_s + d;
             let a = times.partition_point(|&t| t < cut - half_step);
             let b = times.partition_point(|&t| t < cut + half_step);
-            let first = track[a..b].iter().find(|t| dist(t.1, from) > 0.1 * way)?;
+            let first = track[a..b]
+                .iter()
+                .find(|t| distance(t.1, from) > 0.1 * way)?;
             Some(cut - first.0 + period)
         })
         .collect();
@@ -410,41 +395,51 @@ struct Segmented {
     cost: f64,
     /// Steps whose median moved by [`MIN_MOVE_PX`] or more from the previous step's.
     moves: usize,
+    /// Each step's median centre (`None` for a step without frames).
+    medians: Vec<Option<[f64; 2]>>,
 }
 
+/// `track` (times `times`) cut into the log's steps at delay `d`.
 fn segment(track: &[(f64, [f64; 2])], times: &[f64], log: &PressureLog, d: f64) -> Segmented {
     let mut cost = 0.0;
-    let mut moves = 0;
-    let mut previous: Option<[f64; 2]> = None;
     let (mut xs, mut ys) = (Vec::new(), Vec::new());
-    for k in 0..log.steps.len() {
-        let (from, to) = (log.steps[k].time_s + d, log.end_s(k) + d);
-        let (a, b) = (
-            times.partition_point(|&t| t < from),
-            times.partition_point(|&t| t < to),
-        );
-        if a == b {
-            previous = None;
-            continue;
-        }
-        xs.clear();
-        ys.clear();
-        xs.extend(track[a..b].iter().map(|t| t.1[0]));
-        ys.extend(track[a..b].iter().map(|t| t.1[1]));
-        let m = [
-            crate::stats::median(&mut xs).expect("not empty"),
-            crate::stats::median(&mut ys).expect("not empty"),
-        ];
-        cost += track[a..b]
-            .iter()
-            .map(|t| (t.1[0] - m[0]).abs() + (t.1[1] - m[1]).abs())
-            .sum::<f64>();
-        if previous.is_some_and(|p| (p[0] - m[0]).hypot(p[1] - m[1]) >= MIN_MOVE_PX) {
-            moves += 1;
-        }
-        previous = Some(m);
+    let medians: Vec<Option<[f64; 2]>> = (0..log.steps.len())
+        .map(|k| {
+            let (a, b) = (
+                times.partition_point(|&t| t < log.steps[k].time_s + d),
+                times.partition_point(|&t| t < log.end_s(k) + d),
+            );
+            if a == b {
+                return None;
+            }
+            xs.clear();
+            ys.clear();
+            xs.extend(track[a..b].iter().map(|t| t.1[0]));
+            ys.extend(track[a..b].iter().map(|t| t.1[1]));
+            let m = [
+                crate::stats::median(&mut xs).expect("not empty"),
+                crate::stats::median(&mut ys).expect("not empty"),
+            ];
+            cost += track[a..b]
+                .iter()
+                .map(|t| (t.1[0] - m[0]).abs() + (t.1[1] - m[1]).abs())
+                .sum::<f64>();
+            Some(m)
+        })
+        .collect();
+    let moves = medians
+        .windows(2)
+        .filter(|w| matches!(w, [Some(p), Some(m)] if distance(*p, *m) >= MIN_MOVE_PX))
+        .count();
+    Segmented {
+        cost,
+        moves,
+        medians,
     }
-    Segmented { cost, moves }
+}
+
+fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
+    (a[0] - b[0]).hypot(a[1] - b[1])
 }
 
 #[cfg(test)]
