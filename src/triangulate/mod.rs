@@ -361,16 +361,17 @@ pub fn triangulate(
     // The cut cannot tell a delay from one a whole step longer when the steps are even; the
     // pairs can: of the left/right offsets a few steps apart, the one with the most pairs
     // that agree in 3-D is kept.
-    let mut shifted: Vec<FrameRecord> = Vec::new();
+    let mut shifted: Option<Vec<FrameRecord>> = None;
     if summary.latency.corrected {
-        let mut most = 0;
-        let tries: &[i32] = if summary.latency.given {
+        let measured = summary.latency.clone();
+        let tries: &[i32] = if measured.given {
             &[0]
         } else {
             &latency::STEPS_APART
         };
+        let mut most = 0;
         for &steps in tries {
-            let candidate = summary.latency.steps_apart(steps, log.median_step_s);
+            let candidate = measured.steps_apart(steps, log.median_step_s);
             let shifts = candidate.shifts_s();
             let records: Vec<FrameRecord> = records
                 .iter()
@@ -381,20 +382,15 @@ pub fn triangulate(
                 .collect();
             let found = located(&records, candidate.guard_s())?;
             let used = found.1.iter().filter(|p| p.status.used()).count();
-            if used > most || shifted.is_empty() {
+            if shifted.is_none() || used > most {
                 most = used;
                 (pairing, pairs, clock) = found;
-                shifted = records;
-                summary.latency.cameras = candidate.cameras;
-                summary.latency.steps_apart = steps;
+                shifted = Some(records);
+                summary.latency = candidate;
             }
         }
     }
-    let records = if shifted.is_empty() {
-        records
-    } else {
-        &shifted[..]
-    };
+    let records = shifted.as_deref().unwrap_or(records);
     summary.clock = clock;
     summary.pairs_formed = pairing.pairs.len();
     summary.unpaired = pairing.unpaired;
