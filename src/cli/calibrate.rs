@@ -74,7 +74,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         intrinsics,
         bootstrap: a.bootstrap,
         seed: a.seed,
-        video_start_s: super::triangulate::video_start(&a.video_start_s)?,
+        video_start_s: super::left_right("--video-start-s", &a.video_start_s)?,
         max_video_pairs: a.max_video_pairs,
         force: a.force,
         validate: a.validate,

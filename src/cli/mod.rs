@@ -100,6 +100,19 @@ pub fn one_line(e: &anyhow::Error) -> String {
     line.replace('\n', " ")
 }
 
+/// A LEFT,RIGHT flag's values (one value serves both cameras); `None` when not given.
+///
+/// # Errors
+/// A usage error naming `flag` for more than two values.
+pub fn left_right(flag: &str, values: &[f64]) -> anyhow::Result<Option<[f64; 2]>> {
+    Ok(match *values {
+        [] => None,
+        [both] => Some([both; 2]),
+        [left, right] => Some([left, right]),
+        _ => usage!("{flag} takes LEFT,RIGHT or one value for both"),
+    })
+}
+
 /// A number that is finite (not NaN or infinite), for flags.
 pub fn finite(s: &str) -> Result<f64, String> {
     match s.trim().parse::<f64>() {

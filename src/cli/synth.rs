@@ -154,6 +154,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         [start, end] => [start / 1e3, end / 1e3],
         _ => super::usage!("--window-ms takes two numbers, START,END (e.g. 0,300)"),
     };
+    let latency_s = super::left_right("--latency-ms", &a.latency_ms)?
+        .map_or(CaptureConfig::default().latency_s, |ms| {
+            ms.map(|ms| ms / 1e3)
+        });
     let capture_config = (!a.no_images).then(|| CaptureConfig {
         rig: RigConfig {
             baseline_mm: a.baseline_mm,
@@ -166,11 +170,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         format,
         video: a.video,
         clock_drift_s: a.clock_drift_ms / 1e3,
-        latency_s: match a.latency_ms[..] {
-            [both] => [both / 1e3; 2],
-            [left, right] => [left / 1e3, right / 1e3],
-            _ => CaptureConfig::default().latency_s,
-        },
+        latency_s,
         window_s,
         realism,
         ..CaptureConfig::default()

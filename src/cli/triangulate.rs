@@ -74,13 +74,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         usage!("--marker-area-px takes two numbers, MIN,MAX");
     };
     (options.marker.min_area_px, options.marker.max_area_px) = (min, max);
-    options.video_start_s = video_start(&a.video_start_s)?;
-    options.latency_s = match a.latency_ms[..] {
-        [] => None,
-        [both] => Some([both / 1e3; 2]),
-        [left, right] => Some([left / 1e3, right / 1e3]),
-        _ => usage!("--latency-ms takes LEFT,RIGHT or one delay for both"),
-    };
+    options.video_start_s = super::left_right("--video-start-s", &a.video_start_s)?;
+    options.latency_s =
+        super::left_right("--latency-ms", &a.latency_ms)?.map(|ms| ms.map(|ms| ms / 1e3));
     let done = super::with_session(|s| {
         triangulate::run(&a.frames, &a.calib, &pressures, &options, &a.out, s)
     })?;
@@ -91,16 +87,6 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         return Err(super::Interrupted("interrupted: the dataset holds the frames examined before Ctrl-C; run again for all of them".into()).into());
     }
     Ok(())
-}
-
-/// `--video-start-s`: LEFT,RIGHT, or one time for both.
-pub fn video_start(values: &[f64]) -> anyhow::Result<Option<[f64; 2]>> {
-    Ok(match values {
-        [] => None,
-        [both] => Some([*both; 2]),
-        [left, right] => Some([*left, *right]),
-        _ => usage!("--video-start-s takes LEFT,RIGHT or one time"),
-    })
 }
 
 pub fn print_summary(done: &Triangulated) {

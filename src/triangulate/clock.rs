@@ -40,7 +40,7 @@ pub struct ClockCheck {
     /// Log rows (0-based) filmed only while settling.
     pub settling_only: Vec<usize>,
     /// How long the regulator's commands took (ms): median, largest; `None` when the log does
-    /// not say when they returned.
+    /// not say when they returned, or says every one returned at once.
     pub command_ms: Option<[f64; 2]>,
     /// Per pair: session time (s) and right − left unwrapped (ms), for the figure.
     #[serde(skip)]

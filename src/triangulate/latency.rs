@@ -59,8 +59,9 @@ pub struct Delay {
 /// What the frames say of the cameras' delays.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct Latency {
-    /// Per camera (left, right): the delay, or why it could not be measured.
+    /// Per camera (left, right): the delay; `None` when not measured.
     pub cameras: [Option<Delay>; 2],
+    /// Why a camera's delay was not measured, one line each.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub unmeasured: Vec<String>,
     /// Whether the frames' times were corrected by the delays (both measured): each frame's
@@ -319,30 +320,30 @@ fn delay(track: &[(f64, [f64; 2])], log: &PressureLog, period_s: f64) -> Result<
     }
     let times: Vec<f64> = track.iter().map(|t| t.0).collect();
     let max_ms = (MAX_SHARE_OF_STEP * log.median_step_s * 1e3).floor() as usize;
-    let evaluated: Vec<Segmented> = (0..=max_ms)
+    // (cost, moves) of every delay; each step's medians are dropped as soon as counted.
+    let evaluated: Vec<(f64, usize)> = (0..=max_ms)
         .into_par_iter()
-        .map(|ms| segment(track, &times, log, ms as f64 / 1e3))
+        .map(|ms| {
+            let s = segment(track, &times, log, ms as f64 / 1e3);
+            (s.cost, s.moves)
+        })
         .collect();
-    let best = evaluated
-        .iter()
-        .map(|s| s.cost)
-        .fold(f64::INFINITY, f64::min);
+    let best = evaluated.iter().map(|s| s.0).fold(f64::INFINITY, f64::min);
     let tie = 1e-6 * (1.0 + best);
     let as_good: Vec<usize> = (0..evaluated.len())
-        .filter(|&ms| evaluated[ms].cost <= best + tie)
+        .filter(|&ms| evaluated[ms].0 <= best + tie)
         .collect();
     let (first, last) = (
         as_good[0] as f64,
         *as_good.last().expect("one is best") as f64,
     );
     let d_ms = (first + last) / 2.0;
-    let chosen = &evaluated[as_good[as_good.len() / 2]];
-    let mut costs: Vec<f64> = evaluated.iter().map(|s| s.cost).collect();
+    let moves = evaluated[as_good[as_good.len() / 2]].1;
+    let mut costs: Vec<f64> = evaluated.iter().map(|s| s.0).collect();
     let typical = crate::stats::median(&mut costs).unwrap_or(0.0);
-    if chosen.moves < MIN_MOVES {
+    if moves < MIN_MOVES {
         return Err(format!(
-            "{} steps move the marker by {MIN_MOVE_PX} px or more, fewer than {MIN_MOVES}",
-            chosen.moves
+            "{moves} steps move the marker by {MIN_MOVE_PX} px or more, fewer than {MIN_MOVES}"
         ));
     }
     let period_ms = if period_s > 0.0 {
@@ -358,7 +359,7 @@ fn delay(track: &[(f64, [f64; 2])], log: &PressureLog, period_s: f64) -> Result<
     Ok(Delay {
         delay_ms: d_ms,
         within_ms: (last - first) / 2.0 + 0.5,
-        moves: chosen.moves,
+        moves,
         lead_ms: 1e3 * lead(track, &times, log, d_ms / 1e3, period_ms / 1e3),
     })
 }
