@@ -840,12 +840,8 @@ impl SessionFiles<'_> {
                 source,
             })
         };
-        if self.options.calibration.is_none() {
-            write(&self.out.join("frames/frames.csv"), &frames_csv(rows))?;
-        }
-        if self.options.protocol.is_some() {
-            write(&self.out.join("pressures.csv"), &pressures_csv(log))?;
-        }
+        // capture.json first: it says how to read the others, so a kill between two writes
+        // leaves it beside lists as of this pass or the one before, never lists without it.
         let options = self.options;
         let json = serde_json::json!({
             "sources": options.sources.each_ref().map(|s| redact(s)),
@@ -856,7 +852,14 @@ impl SessionFiles<'_> {
         write(
             &self.out.join("capture.json"),
             &(serde_json::to_string_pretty(&json).expect("serialisable") + "\n"),
-        )
+        )?;
+        if options.calibration.is_none() {
+            write(&self.out.join("frames/frames.csv"), &frames_csv(rows))?;
+        }
+        if options.protocol.is_some() {
+            write(&self.out.join("pressures.csv"), &pressures_csv(log))?;
+        }
+        Ok(())
     }
 }
 
