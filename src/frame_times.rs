@@ -7,11 +7,62 @@
 //! frame stamped late (jitter) lengthens one interval and shortens the next, so it changes
 //! neither the span's count nor the result; counting long intervals instead (over 1.5 periods)
 //! takes such a frame for a drop.
+//!
+//! A frame stamped late (a reader that stalled, a busy machine: the frames waited in a queue
+//! and were stamped when read) shows in the frames queued behind it: they arrive faster than
+//! the camera makes them ([`late`]).
 
-/// The median interval between consecutive `times` (sorted, s); 0 with fewer than two.
+/// The interval between consecutive `times` (sorted, s): the mean of those within half a
+/// median interval of the median (a drop's double interval and a burst's near-zero ones left
+/// out; the mean for precision, which [`late`] needs over seconds); 0 with fewer than two.
 pub fn period(times: &[f64]) -> f64 {
     let mut gaps: Vec<f64> = times.windows(2).map(|w| w[1] - w[0]).collect();
-    crate::stats::median(&mut gaps).unwrap_or(0.0)
+    let Some(median) = crate::stats::median(&mut gaps) else {
+        return 0.0;
+    };
+    let near: Vec<f64> = gaps
+        .into_iter()
+        .filter(|g| (g - median).abs() <= 0.5 * median)
+        .collect();
+    if near.is_empty() {
+        median
+    } else {
+        near.iter().sum::<f64>() / near.len() as f64
+    }
+}
+
+/// How far ahead a burst is looked for (s): a frame queued longer is still found late by this
+/// much at least.
+pub const LATE_WINDOW_S: f64 = 2.0;
+
+/// A frame stamped more than this share of a period late may be paired with the other
+/// camera's wrong exposure: it is late.
+pub const LATE_SHARE: f64 = 0.5;
+
+/// For each of `times` (one camera's, sorted, s): how late it was stamped, at least (s), when
+/// that is over [`LATE_SHARE`] of the [`period`]; `None` when it was stamped on time.
+///
+/// Frames k < j made every `period` s were exposed at least (j − k)·period apart, so when they
+/// arrived closer than that, frame k waited in a queue: its stamp is at least (j − k)·period −
+/// (t_j − t_k) late (the most over every j up to [`LATE_WINDOW_S`] ahead). A dropped frame only
+/// lengthens such spans, so drops never make a frame look late; a queue that never drains (a
+/// constant latency) is the latency's to measure, not this.
+pub fn late(times: &[f64]) -> Vec<Option<f64>> {
+    let period = period(times);
+    if period <= 0.0 {
+        return vec![None; times.len()];
+    }
+    let window = (LATE_WINDOW_S / period).ceil() as usize;
+    (0..times.len())
+        .map(|k| {
+            let waited = times[k + 1..times.len().min(k + window + 1)]
+                .iter()
+                .enumerate()
+                .map(|(n, t)| (n + 1) as f64 * period - (t - times[k]))
+                .fold(0.0, f64::max);
+            (waited > LATE_SHARE * period).then_some(waited)
+        })
+        .collect()
 }
 
 /// Frames missing from a run of `times` (sorted, s) taken every `period` s.
@@ -63,6 +114,51 @@ mod tests {
         assert_eq!(dropped(&times, period(&times)), 3);
         assert_eq!(dropped(&[], p), 0);
         assert_eq!(dropped(&[1.0], 0.0), 0);
+    }
+
+    /// A reader that stalls 0.4 s (12 frames queue) then reads the queue at once: the queued
+    /// frames are found late by what they waited, less the last one's few ms; jitter, drops
+    /// and a slower camera are not.
+    #[test]
+    fn frames_queued_behind_a_stall_are_late_and_jitter_and_drops_are_not() {
+        let p = 1.0 / 30.0;
+        let jitter = |k: usize| 0.004 * (((k * 7919) % 11) as f64 / 10.0 - 0.5);
+        let exposed: Vec<f64> = (0..300).map(|k| k as f64 * p).collect();
+        let mut times: Vec<f64> = exposed
+            .iter()
+            .enumerate()
+            .map(|(k, e)| e + 0.050 + jitter(k))
+            .collect();
+        // Frames 100-111 read 1 ms apart once frame 111 came: the first 11 waited 43-367 ms.
+        let read = exposed[111] + 0.050;
+        for (n, t) in times[100..112].iter_mut().enumerate() {
+            *t = read + 0.001 * n as f64;
+        }
+        // Frames 200-203 dropped.
+        times.drain(200..204);
+        let found = late(&times);
+        for (k, l) in found.iter().enumerate() {
+            let truth = if (100..112).contains(&k) {
+                times[k] - exposed[k] - 0.050
+            } else {
+                0.0
+            };
+            match l {
+                Some(l) => assert!(
+                    (l - truth).abs() < 0.006,
+                    "frame {k}: {l} s late, truly {truth}"
+                ),
+                None => assert!(
+                    truth <= LATE_SHARE * p + 0.006,
+                    "frame {k} missed, {truth} late"
+                ),
+            }
+        }
+        assert_eq!(found.iter().flatten().count(), 11, "{found:?}");
+        // A camera at 15 fps throughout: nothing late.
+        let slow: Vec<f64> = (0..100).map(|k| k as f64 * 2.0 * p + jitter(k)).collect();
+        assert!(late(&slow).iter().all(Option::is_none));
+        assert!(late(&[]).is_empty() && late(&[1.0]) == [None]);
     }
 
     #[test]

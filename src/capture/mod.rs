@@ -158,6 +158,10 @@ pub struct Stats {
     pub fps: [f64; 2],
     /// Frames each camera dropped ([`crate::frame_times::dropped`]).
     pub drops: [usize; 2],
+    /// Frames each camera stamped late ([`crate::frame_times::late`]: they waited in a queue, a
+    /// busy machine or network), and the latest of them (ms).
+    pub late: [usize; 2],
+    pub late_max_ms: [f64; 2],
     /// Median |left − right| time of nearest frames (ms).
     pub skew_ms: f64,
     pub steps_done: usize,
@@ -541,15 +545,25 @@ fn pressures_csv(log: &[Commanded]) -> String {
     out
 }
 
-/// Figures of one camera's times: frames per second, and frames dropped
-/// ([`crate::frame_times`]).
-fn rate_and_drops(times: &[f64]) -> (f64, usize) {
+/// Figures of one camera's times ([`crate::frame_times`]): frames per second, frames
+/// dropped, frames stamped late and the latest (ms).
+fn camera_figures(times: &[f64]) -> (f64, usize, usize, f64) {
     if times.len() < 2 {
-        return (0.0, 0);
+        return (0.0, 0, 0, 0.0);
     }
     let fps = (times.len() - 1) as f64 / (times[times.len() - 1] - times[0]).max(1e-9);
     let period = crate::frame_times::period(times);
-    (fps, crate::frame_times::dropped(times, period))
+    let late: Vec<f64> = crate::frame_times::late(times)
+        .into_iter()
+        .flatten()
+        .collect();
+    let latest = late.iter().copied().fold(0.0, f64::max);
+    (
+        fps,
+        crate::frame_times::dropped(times, period),
+        late.len(),
+        1e3 * latest,
+    )
 }
 
 fn stats(
@@ -560,11 +574,13 @@ fn stats(
     let times =
         |side: Side| -> Vec<f64> { rows.iter().filter(|r| r.0 == side).map(|r| r.2).collect() };
     let (l, r) = (times(Side::Left), times(Side::Right));
-    let ((fl, dl), (fr, dr)) = (rate_and_drops(&l), rate_and_drops(&r));
+    let ((fl, dl, ll, ml), (fr, dr, lr, mr)) = (camera_figures(&l), camera_figures(&r));
     Stats {
         frames: [l.len(), r.len()],
         fps: [fl, fr],
         drops: [dl, dr],
+        late: [ll, lr],
+        late_max_ms: [ml, mr],
         skew_ms: 1e3 * crate::frame_times::skew(&l, &r),
         steps_done,
         board_pairs: judge.map_or(0, |j| j.taken),

@@ -181,15 +181,25 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     }
 }
 
-/// The live line: frames, rates, drops, skew, steps.
+/// The live line: frames, rates, drops, frames stamped late, skew, steps.
 fn line(s: &Stats, steps: usize) -> String {
     let progress = if steps > 0 {
         format!(", step {}/{steps}", s.steps_done)
     } else {
         String::new()
     };
+    let late = if s.late.iter().sum::<usize>() > 0 {
+        format!(
+            ", stamped late {}/{} (up to {:.0} ms: frames queued, the machine or network fell behind; triangulate leaves them out)",
+            s.late[0],
+            s.late[1],
+            s.late_max_ms[0].max(s.late_max_ms[1])
+        )
+    } else {
+        String::new()
+    };
     format!(
-        "left {} frames {:.1} fps, right {} frames {:.1} fps, drops {}/{}, left/right skew {:.1} ms (median){progress}",
+        "left {} frames {:.1} fps, right {} frames {:.1} fps, drops {}/{}{late}, left/right skew {:.1} ms (median){progress}",
         s.frames[0], s.fps[0], s.frames[1], s.fps[1], s.drops[0], s.drops[1], s.skew_ms
     )
 }

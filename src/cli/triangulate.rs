@@ -109,6 +109,12 @@ pub fn print_summary(done: &Triangulated) {
     if let Some(first) = &f.first_unreadable {
         println!("  first unreadable: {first}");
     }
+    if f.stamped_late.iter().sum::<usize>() > 0 {
+        println!(
+            "  stamped late (they arrived faster than the camera makes them: they had waited in a queue, the capture machine or network fell behind), left out of the pairs: {} left, {} right frames, up to {:.0} ms",
+            f.stamped_late[0], f.stamped_late[1], f.late_max_ms
+        );
+    }
     let pairs: Vec<String> = s.pairs.iter().map(|(k, v)| format!("{v} {k}")).collect();
     println!(
         "pairs: {} formed ({} left, {} right frames unpaired): {}",

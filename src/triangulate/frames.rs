@@ -25,6 +25,9 @@ pub struct FrameRecord {
     pub time_s: f64,
     /// Line of `frames.csv`, for messages.
     pub line: u64,
+    /// How late the frame was stamped, at least (s), when it was stamped late: it waited in a
+    /// queue ([`crate::frame_times::late`], set by [`FrameList::read`]). Not paired.
+    pub late_s: Option<f64>,
 }
 
 /// Reads `dir/frames.csv`.
@@ -74,12 +77,27 @@ pub fn read_frame_list(dir: &Path) -> Result<Vec<FrameRecord>, TriangulateError>
             index,
             time_s,
             line,
+            late_s: None,
         });
     }
     if out.is_empty() {
         return table.fail(1, "no frames listed".into());
     }
     Ok(out)
+}
+
+/// Sets each record's [`FrameRecord::late_s`] from its camera's times.
+fn mark_late(records: &mut [FrameRecord]) {
+    for side in [Side::Left, Side::Right] {
+        let mut order: Vec<usize> = (0..records.len())
+            .filter(|&i| records[i].camera == side)
+            .collect();
+        order.sort_by(|&a, &b| records[a].time_s.total_cmp(&records[b].time_s));
+        let times: Vec<f64> = order.iter().map(|&i| records[i].time_s).collect();
+        for (i, late_s) in order.into_iter().zip(crate::frame_times::late(&times)) {
+            records[i].late_s = late_s;
+        }
+    }
 }
 
 /// The image file of a frame: `{camera}_{index:05}` with a PNG or JPEG extension.
@@ -135,6 +153,7 @@ impl FrameList {
             match (listed, video_start_s) {
                 (false, Some(start)) => {
                     let mut records = Vec::new();
+                    // A video's own timestamps are the camera's rhythm: nothing is late.
                     for (side, path) in [(Side::Left, &left), (Side::Right, &right)] {
                         let times =
                             crate::video::timestamps(path).map_err(|why| video_error(path, why))?;
@@ -143,6 +162,7 @@ impl FrameList {
                             index,
                             time_s: start[side as usize] + t,
                             line: 0,
+                            late_s: None,
                         }));
                     }
                     return Ok(FrameList {
@@ -160,7 +180,8 @@ impl FrameList {
                 (true, None) => {}
             }
         }
-        let records = read_frame_list(dir)?;
+        let mut records = read_frame_list(dir)?;
+        mark_late(&mut records);
         let paths: Vec<Option<PathBuf>> = records.iter().map(|f| frame_path(dir, f)).collect();
         if paths.iter().any(Option::is_some) {
             return Ok(FrameList {

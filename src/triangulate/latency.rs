@@ -229,7 +229,8 @@ pub(super) fn measure(
     latency
 }
 
-/// The marker's centre in each of `side`'s frames that shows it: (time, centre), in time order.
+/// The marker's centre in each of `side`'s frames that shows it and was stamped on time: (time,
+/// centre), in time order.
 /// Candidates that stay put all session (seen at one place in [`STATIC_SHARE`] of the frames)
 /// are red things of the room and left out; of several others, the one nearest the nearest
 /// anchor in time is taken.
@@ -242,7 +243,7 @@ fn marker_track(
     let mut frames: Vec<(f64, Vec<[f64; 2]>)> = records
         .iter()
         .zip(results)
-        .filter(|(r, _)| r.camera == side)
+        .filter(|(r, _)| r.camera == side && r.late_s.is_none())
         .filter_map(|(r, result)| match result {
             FrameResult::Markers(m) if !m.blobs.is_empty() => {
                 Some((r.time_s, m.blobs.iter().map(|b| b.centre_px).collect()))

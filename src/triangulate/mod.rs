@@ -200,6 +200,10 @@ pub struct FrameCounts {
     /// Red regions that failed the marker's limits, all frames.
     pub discarded_regions: usize,
     pub skipped: PerCamera,
+    /// Frames stamped late ([`FrameRecord::late_s`]), left out of the pairs, and the latest of
+    /// them (ms).
+    pub stamped_late: PerCamera,
+    pub late_max_ms: f64,
     /// The first unreadable frame and why (`frames.csv` line: reason), for the user to look at.
     pub first_unreadable: Option<String>,
 }
@@ -655,6 +659,10 @@ fn count_frames(records: &[FrameRecord], results: &[FrameResult], c: &mut FrameC
     for (f, r) in records.iter().zip(results) {
         let cam = usize::from(f.camera == Side::Right);
         c.listed[cam] += 1;
+        if let Some(late_s) = f.late_s {
+            c.stamped_late[cam] += 1;
+            c.late_max_ms = c.late_max_ms.max(1e3 * late_s);
+        }
         match r {
             FrameResult::NoFile => c.no_file[cam] += 1,
             FrameResult::Unreadable(why) => {

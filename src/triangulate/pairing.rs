@@ -149,11 +149,12 @@ pub struct Pairing {
 }
 
 /// Pairs each left frame with the right frame nearest in time when that right frame's nearest
-/// left frame is it, and they are at most `max_dt_s` apart. Pairs come in time order.
+/// left frame is it, and they are at most `max_dt_s` apart; frames stamped late take no part.
+/// Pairs come in time order.
 pub fn pair_frames(frames: &[FrameRecord], max_dt_s: f64) -> Pairing {
     let by_time = |side: Side| {
         let mut v: Vec<usize> = (0..frames.len())
-            .filter(|&i| frames[i].camera == side)
+            .filter(|&i| frames[i].camera == side && frames[i].late_s.is_none())
             .collect();
         v.sort_by(|&a, &b| frames[a].time_s.total_cmp(&frames[b].time_s));
         v
@@ -231,6 +232,7 @@ pub(super) mod tests {
             index,
             time_s,
             line: 0,
+            late_s: None,
         }
     }
 

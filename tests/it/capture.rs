@@ -476,10 +476,11 @@ fn a_charuco_board_is_taken_in_part_from_cameras_and_videos() {
 }
 
 /// Serves `frames` (JPEG files' bytes) as an HTTP multipart Motion-JPEG stream, as IP cameras
-/// and mjpg-streamer do, on a free port of 127.0.0.1, to one client at 30 fps; after the last
-/// frame the stream closes, or with `stall` stays open and silent for a minute (a camera or
-/// server that hangs). Returns the stream's URL.
-fn mjpeg_server(frames: Vec<Vec<u8>>, stall: bool) -> String {
+/// and mjpg-streamer do, on a free port of 127.0.0.1, to one client at 30 fps; the frames
+/// numbered in `held` wait and go with the first after them, at once (a network or server that
+/// fell behind); after the last frame the stream closes, or with `stall` stays open and silent
+/// for a minute (a camera or server that hangs). Returns the stream's URL.
+fn mjpeg_server(frames: Vec<Vec<u8>>, held: std::ops::Range<usize>, stall: bool) -> String {
     use std::io::{Read, Write};
     let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
     let url = format!("http://{}/stream", listener.local_addr().unwrap());
@@ -496,6 +497,9 @@ fn mjpeg_server(frames: Vec<Vec<u8>>, stall: bool) -> String {
         }
         let start = std::time::Instant::now();
         for (k, jpeg) in frames.iter().enumerate() {
+            let due = if held.contains(&k) { held.end } else { k };
+            let due = std::time::Duration::from_secs_f64(due as f64 / 30.0);
+            std::thread::sleep(due.saturating_sub(start.elapsed()));
             let part = format!(
                 "--frame\r\nContent-Type: image/jpeg\r\nContent-Length: {}\r\n\r\n",
                 jpeg.len()
@@ -507,8 +511,6 @@ fn mjpeg_server(frames: Vec<Vec<u8>>, stall: bool) -> String {
             if sent.is_err() {
                 return;
             }
-            let due = std::time::Duration::from_secs_f64((k + 1) as f64 / 30.0);
-            std::thread::sleep(due.saturating_sub(start.elapsed()));
         }
         if stall {
             std::thread::sleep(std::time::Duration::from_secs(60));
@@ -546,15 +548,17 @@ fn moving_square(n: i32) -> Vec<Vec<u8>> {
 }
 
 /// Two HTTP Motion-JPEG streams filmed: every frame is kept as the bytes the server sent (no
-/// decoding and re-encoding on the grab thread), numbered in order.
+/// decoding and re-encoding on the grab thread), numbered in order. The left server falls
+/// behind for half a second and then sends what it held at once: those frames are said to be
+/// stamped late, live and in `capture.json`.
 #[test]
 fn network_mjpeg_frames_are_kept_as_they_came() {
     let dir = tempdir();
     let d = dir.path();
     let frames = moving_square(60);
     let (left, right) = (
-        mjpeg_server(frames.clone(), false),
-        mjpeg_server(frames.clone(), false),
+        mjpeg_server(frames.clone(), 15..30, false),
+        mjpeg_server(frames.clone(), 0..0, false),
     );
     let out = handcap_ok(
         d,
@@ -565,14 +569,23 @@ fn network_mjpeg_frames_are_kept_as_they_came() {
             "--right",
             &right,
             "--duration-s",
-            "1",
+            "1.5",
             "--out",
             "s",
         ],
     );
     assert!(!out.contains("refused"), "{out}");
     let [l, r] = assert_consistent(&d.join("s"));
-    assert!(l >= 5 && r >= 5, "{l} left, {r} right frames");
+    assert!(l >= 35 && r >= 35, "{l} left, {r} right frames");
+    // Frames 15-29 waited 500 ms down to 33 ms: each is late by over half a period.
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("s/capture.json")).unwrap()).unwrap();
+    let stats = &json["summary"]["stats"];
+    let late = stats["late"][0].as_u64().unwrap();
+    // (A busy test machine may queue a few more of either camera's frames.)
+    assert!((15..=20).contains(&late), "{stats}");
+    assert!(stats["late_max_ms"][0].as_f64().unwrap() > 350.0, "{stats}");
+    assert!(out.contains(&format!("stamped late {late}/")), "{out}");
     for (side, count) in [("left", l), ("right", r)] {
         for (k, served) in frames.iter().take(count).enumerate() {
             let kept = std::fs::read(d.join(format!("s/frames/{side}_{k:05}.jpg"))).unwrap();
@@ -609,8 +622,8 @@ fn a_silent_or_stalled_stream_ends_the_session() {
         (out, start.elapsed().as_secs_f64())
     };
     let (silent, live) = (
-        mjpeg_server(Vec::new(), true),
-        mjpeg_server(moving_square(30), false),
+        mjpeg_server(Vec::new(), 0..0, true),
+        mjpeg_server(moving_square(30), 0..0, false),
     );
     let (out, took) = run(&args(&silent, &live));
     let said = String::from_utf8_lossy(&out.stderr).to_string();
@@ -622,8 +635,8 @@ fn a_silent_or_stalled_stream_ends_the_session() {
     );
     println!("silent server refused after {took:.1} s");
     let (stalling, live) = (
-        mjpeg_server(moving_square(30), true),
-        mjpeg_server(moving_square(600), false),
+        mjpeg_server(moving_square(30), 0..0, true),
+        mjpeg_server(moving_square(600), 0..0, false),
     );
     let (out, took) = run(&args(&stalling, &live));
     let said =

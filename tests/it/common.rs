@@ -202,22 +202,38 @@ pub fn tips_by_step(path: &Path) -> std::collections::HashMap<String, [f64; 3]> 
         .collect()
 }
 
-/// RMS Euclidean distance (mm) between the dataset's tips and the truth's (`truth/tips.csv`),
-/// matched by the `step` column; rows `keep` rejects are left out. Returns (RMS, rows).
+/// Each kept row's step and Euclidean distance (mm) from the truth's tip (`truth/tips.csv`),
+/// matched by the `step` column; rows `keep` rejects are left out.
+pub fn tip_errors_against_truth(
+    dataset: &Path,
+    truth: &Path,
+    keep: impl Fn(&std::collections::HashMap<String, String>) -> bool,
+) -> Vec<(String, f64)> {
+    let truth = tips_by_step(truth);
+    csv_rows(dataset)
+        .iter()
+        .filter(|r| keep(r))
+        .map(|row| {
+            let t = truth[&row["step"]];
+            let v = |k: &str| row[k].parse::<f64>().unwrap();
+            let error = ((v("x_mm") - t[0]).powi(2)
+                + (v("y_mm") - t[1]).powi(2)
+                + (v("z_mm") - t[2]).powi(2))
+            .sqrt();
+            (row["step"].clone(), error)
+        })
+        .collect()
+}
+
+/// RMS of [`tip_errors_against_truth`] (mm), and the rows.
 pub fn tip_rms_against_truth(
     dataset: &Path,
     truth: &Path,
     keep: impl Fn(&std::collections::HashMap<String, String>) -> bool,
 ) -> (f64, usize) {
-    let truth = tips_by_step(truth);
-    let (mut sum, mut n) = (0.0, 0);
-    for row in csv_rows(dataset).iter().filter(|r| keep(r)) {
-        let t = truth[&row["step"]];
-        let v = |k: &str| row[k].parse::<f64>().unwrap();
-        sum += (v("x_mm") - t[0]).powi(2) + (v("y_mm") - t[1]).powi(2) + (v("z_mm") - t[2]).powi(2);
-        n += 1;
-    }
-    ((sum / n as f64).sqrt(), n)
+    let errors = tip_errors_against_truth(dataset, truth, keep);
+    let sum: f64 = errors.iter().map(|(_, e)| e * e).sum();
+    ((sum / errors.len() as f64).sqrt(), errors.len())
 }
 
 /// A stereo rig read back from OpenCV YAML by OpenCV's own FileStorage.

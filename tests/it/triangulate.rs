@@ -17,7 +17,7 @@ use handcap::triangulate::frames::decode;
 
 use crate::common::{
     capture, capture_as, capture_with, csv_rows, handcap, handcap_err, handcap_ok, handcap_usage,
-    session, small_capture, tempdir, tip_rms_against_truth, tips_by_step,
+    session, small_capture, tempdir, tip_errors_against_truth, tip_rms_against_truth, tips_by_step,
 };
 
 /// Paints a disc of `rgb` (radius `r` px, anti-aliased) into a frame, in place.
@@ -241,6 +241,8 @@ fn faults_are_counted_resolved_or_flagged_never_guessed() {
 
     let out = triangulate_with_truth(d, "dataset.csv");
     println!("{out}");
+    // Gaps between steps and a camera's dropped frames make no frame look late.
+    assert!(!out.contains("stamped late"), "{out}");
     let s = summary(&d.join("dataset_summary.json"));
     assert_eq!(s["frames"]["marker_missing"], serde_json::json!([1, 0]));
     assert_eq!(s["frames"]["several_candidates"], serde_json::json!([1, 4]));
@@ -722,12 +724,14 @@ fn a_camera_150_ms_late_is_measured_from_the_motion_and_paired_by_exposure() {
     let last = (truth.len() - 1).to_string();
     for row in &rows {
         assert!(row["flag"].is_empty() || row["step"] == last, "{row:?}");
-        let t = truth[&row["step"]];
-        let v = |k: &str| row[k].parse::<f64>().unwrap();
-        let error =
-            ((v("x_mm") - t[0]).powi(2) + (v("y_mm") - t[1]).powi(2) + (v("z_mm") - t[2]).powi(2))
-                .sqrt();
-        assert!(error < 0.5, "step {}: {error} mm", row["step"]);
+    }
+    let errors = tip_errors_against_truth(
+        &d.join("out/dataset.csv"),
+        &d.join("truth/tips.csv"),
+        |_| true,
+    );
+    for (step, error) in errors {
+        assert!(error < 0.5, "step {step}: {error} mm");
     }
     let (rms, _) = tip_rms_against_truth(
         &d.join("out/dataset.csv"),
@@ -753,6 +757,74 @@ fn a_camera_150_ms_late_is_measured_from_the_motion_and_paired_by_exposure() {
         flagged >= 5 || stamped_rms > 3.0 * rms,
         "{flagged} flagged, {stamped_rms} mm"
     );
+}
+
+/// A capture machine that stalls 200 ms as every third step begins (a CPU hog, a network
+/// hiccup): both cameras' frames of the tip's motion wait in a queue and are stamped in a burst
+/// at 210 ms, where they look settled. They are found late from their burst, left out of the
+/// pairs and counted; every row stays within 0.5 mm of the truth.
+#[test]
+fn frames_stamped_late_by_a_stalled_machine_are_found_and_left_out() {
+    let dir = tempdir();
+    let d = dir.path();
+    let config = handcap::synth::capture::CaptureConfig {
+        views: 3,
+        window_s: [0.0, 0.3],
+        ..handcap::synth::capture::CaptureConfig::default()
+    };
+    capture_with(d, &session(9, [125.0, 62.5]), &config);
+    let commands: Vec<f64> = csv_rows(&d.join("pressures.csv"))
+        .iter()
+        .map(|r| r["time_s"].parse().unwrap())
+        .collect();
+    let list = d.join("frames/frames.csv");
+    let text = std::fs::read_to_string(&list).unwrap();
+    // Each stalled step's place in its burst, per camera.
+    let mut queued: std::collections::HashMap<(usize, usize), usize> = Default::default();
+    let mut lines: Vec<String> = vec![text.lines().next().unwrap().to_string()];
+    for line in text.lines().skip(1) {
+        let cells: Vec<&str> = line.split(',').collect();
+        let t: f64 = cells[2].parse().unwrap();
+        let cam = usize::from(cells[1] == "right");
+        let k = commands.partition_point(|c| *c <= t).saturating_sub(1);
+        let time = if k % 3 == 1 && t - commands[k] < 0.2 {
+            let place = queued.entry((cam, k)).or_default();
+            *place += 1;
+            commands[k] + 0.21 + 0.001 * *place as f64 + 0.0005 * cam as f64
+        } else {
+            t
+        };
+        lines.push(format!("{},{},{time:.6}", cells[0], cells[1]));
+    }
+    std::fs::write(&list, lines.join("\n") + "\n").unwrap();
+    let out = triangulate_with_truth(d, "out/dataset.csv");
+    assert!(out.contains("stamped late"), "{out}");
+    let s = summary(&d.join("out/dataset_summary.json"));
+    let found = &s["frames"]["stamped_late"];
+    let bursts = queued.len() / 2;
+    for cam in 0..2 {
+        let restamped: usize = queued
+            .iter()
+            .filter(|(k, _)| k.0 == cam)
+            .map(|(_, n)| n)
+            .sum();
+        let n = found[cam].as_u64().unwrap() as usize;
+        // The last of a burst may have waited less than half a period.
+        assert!(
+            n <= restamped && n + bursts >= restamped,
+            "camera {cam}: {n} found late of {restamped} restamped in {bursts} bursts"
+        );
+    }
+    let truth = tips_by_step(&d.join("truth/tips.csv"));
+    let rows = csv_rows(&d.join("out/dataset.csv"));
+    assert!(rows.len() + 1 >= truth.len(), "{} rows", rows.len());
+    let errors =
+        tip_errors_against_truth(&d.join("out/dataset.csv"), &d.join("truth/tips.csv"), |r| {
+            r["flag"].is_empty()
+        });
+    for (step, error) in errors {
+        assert!(error < 0.5, "step {step}: {error} mm");
+    }
 }
 
 /// The log `log` with a `command_end_s` column: each row's time plus `took_s(line)` (lines
