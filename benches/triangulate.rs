@@ -12,14 +12,14 @@ use std::path::{Path, PathBuf};
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use rayon::prelude::*;
 
+use handcap::image::{decode_into, Buffers, RgbImage};
 use handcap::stereo::{Side, StereoRig};
 use handcap::synth::camera::RigConfig;
 use handcap::synth::capture::Realism;
 use handcap::synth::clutter;
 use handcap::synth::plant::Plant;
 use handcap::synth::render::{Finger, ImageFormat, Lighting, Surroundings, View};
-use handcap::triangulate::frames::{decode_into, Buffers};
-use handcap::triangulate::marker::{find_markers, MarkerOptions, RgbImage};
+use handcap::triangulate::marker::{find_markers, MarkerOptions};
 
 /// Reads, decodes and searches both frames, then triangulates and reprojects the tip.
 fn pair(rig: &StereoRig, files: [&Path; 2], image: &mut RgbImage, buf: &mut Buffers) -> f64 {

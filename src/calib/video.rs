@@ -22,7 +22,7 @@ use rayon::prelude::*;
 
 use super::detect::{find_board, Detector, Seen};
 use super::{BoardSpec, CalibError};
-use crate::triangulate::frames::FrameList;
+use crate::session::frames::FrameList;
 use crate::video::{Frame, VideoReader};
 
 /// Most a corner may move between two consecutive frames of a still board (px).
@@ -56,8 +56,9 @@ fn failed(path: &Path) -> impl Fn(String) -> CalibError + '_ {
 
 /// A video frame in grey, decoded as `triangulate` decodes it.
 fn gray(frame: Frame) -> Result<Mat, String> {
-    use crate::triangulate::frames::{decode_frame, Buffers, FrameData};
-    let mut rgb = crate::triangulate::marker::RgbImage::default();
+    use crate::image::{Buffers, RgbImage};
+    use crate::session::frames::{decode_frame, FrameData};
+    let mut rgb = RgbImage::default();
     decode_frame(&FrameData::Video(frame), &mut rgb, &mut Buffers::default())?;
     let flat = Mat::from_slice(&rgb.data).map_err(|e| e.message)?;
     let image = flat.reshape(3, rgb.height as i32).map_err(|e| e.message)?;
@@ -140,7 +141,7 @@ pub fn pick_pairs(
     let [left_path, right_path] = frames.videos.clone().expect("videos");
     let open = |p: &Path| VideoReader::open(p).map_err(failed(p));
     let mut videos = [open(&left_path)?, open(&right_path)?];
-    let pairs = crate::triangulate::pairing::pair_frames(&frames.records, 0.02).pairs;
+    let pairs = crate::session::frames::pair_frames(&frames.records, 0.02).pairs;
     let numbers: Vec<[usize; 2]> = pairs
         .iter()
         .map(|&(l, r)| [frames.records[l].index, frames.records[r].index])

@@ -25,7 +25,7 @@
 //! is written and listed, the logs are complete, and `capture.json` says how it ended. The
 //! session's files are also rewritten every second while filming ([`Ending::Filming`]).
 
-pub mod protocol;
+use crate::session::protocol;
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -38,6 +38,8 @@ use opencv::videoio::{self, VideoCapture};
 use serde::Serialize;
 
 use crate::fsio;
+use crate::session::frames::frames_csv;
+use crate::session::pressures::Logged;
 use crate::stereo::Side;
 
 /// A camera that delivers nothing for this long has stopped (s).
@@ -512,16 +514,6 @@ fn run_command(command: &str, stop: &AtomicBool, timeout_s: f64) -> std::io::Res
     }
 }
 
-/// The session's files: written whole each time (temp file, then rename), so that an
-/// interruption leaves them consistent with the images.
-fn frames_csv(rows: &[(Side, usize, f64)]) -> String {
-    let mut out = String::from("frame,camera,time_s\n");
-    for (side, index, time_s) in rows {
-        out += &format!("{index},{},{time_s:.6}\n", side.name());
-    }
-    out
-}
-
 /// A step the regulator was told: when its command started and when it returned.
 #[derive(Clone, Debug)]
 struct Commanded {
@@ -531,18 +523,13 @@ struct Commanded {
 }
 
 fn pressures_csv(log: &[Commanded]) -> String {
-    let mut out = format!(
-        "time_s,P1_kpa,P2_kpa,P3_kpa,step,phase,{}\n",
-        crate::triangulate::pairing::COMMAND_END_COLUMN
-    );
-    for c in log {
-        let [p1, p2, p3] = c.step.pressures;
-        out += &format!(
-            "{:.6},{p1},{p2},{p3},{},{},{:.6}\n",
-            c.time_s, c.step.step, c.step.phase, c.end_s
-        );
-    }
-    out
+    crate::session::pressures::pressures_csv(log.iter().map(|c| Logged {
+        time_s: c.time_s,
+        command_end_s: Some(c.end_s),
+        pressures_kpa: c.step.pressures,
+        step: c.step.step,
+        phase: &c.step.phase,
+    }))
 }
 
 /// Figures of one camera's times ([`crate::frame_times`]): frames per second, frames
@@ -870,7 +857,10 @@ impl SessionFiles<'_> {
             &(serde_json::to_string_pretty(&json).expect("serialisable") + "\n"),
         )?;
         if options.calibration.is_none() {
-            write(&self.out.join("frames/frames.csv"), &frames_csv(rows))?;
+            write(
+                &self.out.join("frames/frames.csv"),
+                &frames_csv(rows.iter().copied()),
+            )?;
         }
         if options.protocol.is_some() {
             write(&self.out.join("pressures.csv"), &pressures_csv(log))?;

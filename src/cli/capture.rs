@@ -6,7 +6,8 @@ use std::path::PathBuf;
 use anyhow::bail;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use handcap::capture::{self, protocol, CaptureOptions, Ending, Stats};
+use handcap::capture::{self, CaptureOptions, Ending, Stats};
+use handcap::session::protocol;
 
 #[derive(clap::Args)]
 pub struct Args {

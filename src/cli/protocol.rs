@@ -2,9 +2,9 @@
 
 use std::path::PathBuf;
 
-use handcap::capture::protocol;
 use handcap::fsio;
 use handcap::pipeline::outputs::{self, Output};
+use handcap::session::protocol;
 
 #[derive(clap::Args)]
 pub struct Args {

@@ -141,7 +141,7 @@ fn pick_from_videos(
     out: &Path,
     session: &Session,
 ) -> Result<Option<calib::video::Picked>, PipelineError> {
-    use crate::triangulate::frames::{self, FrameList};
+    use crate::session::frames::{self, FrameList};
     if !matches!(frames::videos(dir)?, (Some(_), Some(_))) {
         return Ok(None);
     }

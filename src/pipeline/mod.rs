@@ -121,6 +121,8 @@ pub enum PipelineError {
     #[error(transparent)]
     Triangulate(#[from] crate::triangulate::TriangulateError),
     #[error(transparent)]
+    Session(#[from] crate::session::SessionError),
+    #[error(transparent)]
     Data(#[from] crate::data::DataError),
     #[error(transparent)]
     Msvr(#[from] crate::model::msvr::MsvrError),

@@ -6,8 +6,9 @@ use std::path::{Path, PathBuf};
 use super::outputs::{self, Output};
 use super::{io_error, PipelineError, Session, Task};
 use crate::calib::file::read_calibration;
-use crate::triangulate::frames::FrameList;
-use crate::triangulate::{self, output, pairing, TriangulateOptions, Triangulation};
+use crate::session::frames::FrameList;
+use crate::session::pressures::{read_pressure_log, PressureLog};
+use crate::triangulate::{self, output, TriangulateOptions, Triangulation};
 
 /// What the stage did and wrote.
 pub struct Triangulated {
@@ -43,7 +44,7 @@ fn check_outputs(
     listed: &FrameList,
     calib: &Path,
     pressures: &Path,
-    log: &pairing::PressureLog,
+    log: &PressureLog,
     out: &Path,
 ) -> Result<(), PipelineError> {
     let index = frames.join("frames.csv");
@@ -95,7 +96,7 @@ pub fn run(
     }
     options.check().map_err(PipelineError::Usage)?;
     let calibration = read_calibration(calib)?;
-    let log = pairing::read_pressure_log(pressures)?;
+    let log = read_pressure_log(pressures)?;
     let listed = FrameList::read(frames, options.video_start_s)?;
     check_outputs(frames, &listed, calib, pressures, &log, out)?;
     let result = triangulate::triangulate(

@@ -57,11 +57,12 @@ use super::clutter;
 use super::plant::{Plant, Pressures};
 use super::render::{Board, Finger, ImageFormat, Lighting, Surroundings, View};
 use super::scene::Markers;
-use super::{protocol, SynthConfig, SynthError};
+use super::{SynthConfig, SynthError};
 use crate::calib::BoardSpec;
 use crate::fsio;
 use crate::geometry::WorldFromBoard;
 use crate::opencv_yaml::FileStorage;
+use crate::session::protocol::designed;
 use crate::stereo::Side;
 
 /// How the virtual capture session runs (see the module docs).
@@ -189,7 +190,7 @@ struct Rendered {
 type RenderShot<'a> = dyn Fn(usize, &Shot) -> Result<Rendered, SynthError> + Sync + 'a;
 
 /// One camera frame kept by the capture computer.
-struct FrameRecord {
+struct Filmed {
     camera: Side,
     index: usize,
     exposure_s: f64,
@@ -231,10 +232,11 @@ pub fn write_capture(
     let reference = reference_board(config, &markers);
 
     // The protocol as one session: steps in order, each commanded at k · step_s.
-    let steps: Vec<(&'static str, Pressures)> = protocol(synth)?
-        .into_iter()
-        .flat_map(|(phase, ps)| ps.into_iter().map(move |p| (phase, p)))
-        .collect();
+    let steps: Vec<(&'static str, Pressures)> =
+        designed(synth.grid_step_kpa, synth.sweep_step_kpa)?
+            .into_iter()
+            .flat_map(|(phase, ps)| ps.into_iter().map(move |p| (phase, p)))
+            .collect();
     let frames = camera_frames(config, steps.len(), &mut rng);
 
     for sub in ["calib", "frames", "truth"] {
@@ -256,7 +258,10 @@ pub fn write_capture(
         .map(|(_, p)| plant.tip(*p))
         .collect::<Result<Vec<_>, _>>()?;
     write_text(&dir.join("truth/tips.csv"), &tips_csv(&rig, &steps, &tips))?;
-    write_text(&dir.join("frames/frames.csv"), &frames_csv(&frames))?;
+    write_text(
+        &dir.join("frames/frames.csv"),
+        &crate::session::frames::frames_csv(frames.iter().map(|f| (f.camera, f.index, f.stamp_s))),
+    )?;
 
     // Every image, in a fixed order; each is rendered, encoded and written on its own.
     let mut shots = Vec::new();
@@ -614,7 +619,7 @@ fn inside(cam: &Camera, p: &Point3<f64>, margin: f64) -> bool {
 }
 
 /// The frames each camera keeps: those stamped inside a step's window.
-fn camera_frames(c: &CaptureConfig, steps: usize, rng: &mut ChaCha8Rng) -> Vec<FrameRecord> {
+fn camera_frames(c: &CaptureConfig, steps: usize, rng: &mut ChaCha8Rng) -> Vec<Filmed> {
     let clocks: Vec<Clock> = (0..2)
         .map(|_| Clock {
             phase_s: rng.random_range(0.0..1.0 / c.fps),
@@ -649,7 +654,7 @@ fn camera_frames(c: &CaptureConfig, steps: usize, rng: &mut ChaCha8Rng) -> Vec<F
             }
             let into = stamp_s - step * c.step_s;
             if into >= c.window_s[0] && into < c.window_s[1] {
-                out.push(FrameRecord {
+                out.push(Filmed {
                     camera: side,
                     index,
                     exposure_s,
@@ -764,17 +769,15 @@ fn boards_csv(rig: &Rig, boards: &[Board], reference: &Board) -> String {
 }
 
 fn pressures_csv(c: &CaptureConfig, steps: &[(&str, Pressures)]) -> String {
-    let mut out = String::from("time_s,P1_kpa,P2_kpa,P3_kpa,step,phase\n");
-    for (k, (phase, p)) in steps.iter().enumerate() {
-        out += &format!(
-            "{:.3},{},{},{},{k},{phase}\n",
-            k as f64 * c.step_s,
-            p[0],
-            p[1],
-            p[2]
-        );
-    }
-    out
+    crate::session::pressures::pressures_csv(steps.iter().enumerate().map(|(k, (phase, p))| {
+        crate::session::pressures::Logged {
+            time_s: k as f64 * c.step_s,
+            command_end_s: None,
+            pressures_kpa: *p,
+            step: k,
+            phase,
+        }
+    }))
 }
 
 fn tips_csv(rig: &Rig, steps: &[(&str, Pressures)], tips: &[[f64; 3]]) -> String {
@@ -791,21 +794,13 @@ fn tips_csv(rig: &Rig, steps: &[(&str, Pressures)], tips: &[[f64; 3]]) -> String
     out
 }
 
-fn frames_csv(frames: &[FrameRecord]) -> String {
-    let mut out = String::from("frame,camera,time_s\n");
-    for f in frames {
-        out += &format!("{},{},{:.6}\n", f.index, f.camera.name(), f.stamp_s);
-    }
-    out
-}
-
 fn truth_frames(
     rig: &Rig,
     plant: &Plant,
     seed: u64,
     c: &CaptureConfig,
     steps: &[(&str, Pressures)],
-    frames: &[FrameRecord],
+    frames: &[Filmed],
 ) -> Result<String, SynthError> {
     let mut out = String::from("frame,camera,exposure_s,step,x_mm,y_mm,z_mm,u_px,v_px,occluded\n");
     for f in frames {

@@ -28,13 +28,11 @@ use serde::Serialize;
 
 use crate::data::{self, names, Columns, DataError, HAND_INPUTS, HAND_OUTPUTS};
 use crate::provenance::Provenance;
-use plant::{Plant, PlantError, PlantParams, Pressures};
+use plant::{Plant, PlantError, PlantParams};
 
 /// Default tip measurement noise (mm, standard deviation per coordinate): what two 720p webcams
 /// at 150-200 mm achieve on a sub-pixel centroid (see `notes/stereo.md`).
 pub const DEFAULT_NOISE_MM: f64 = 0.02;
-/// Highest pressure of the protocol (kPa), as in the paper.
-pub const PROTOCOL_MAX_KPA: f64 = 250.0;
 
 /// Errors of generating a synthetic capture.
 #[derive(Debug, thiserror::Error)]
@@ -49,14 +47,8 @@ pub enum SynthError {
     BadHysteresis(f64),
     #[error("capture settings: {0}")]
     BadCapture(String),
-    #[error("--{flag} {step} kPa: the step must divide 0-{PROTOCOL_MAX_KPA} kPa into whole steps")]
-    BadStep { flag: &'static str, step: f64 },
-    #[error("--grid-step-kpa {step} kPa makes a grid of {steps:.3e} steps; at most {MAX_GRID_STEPS} (a step of {min_step} kPa or more)")]
-    GridTooLarge {
-        step: f64,
-        steps: f64,
-        min_step: f64,
-    },
+    #[error(transparent)]
+    Protocol(#[from] crate::session::protocol::ProtocolError),
     #[error("writing {path}: {source}")]
     Write {
         path: PathBuf,
@@ -101,59 +93,10 @@ pub struct Recording {
     pub truth: Columns,
 }
 
-/// The protocol's pressure sequences, in the order they are applied.
-pub fn protocol(config: &SynthConfig) -> Result<Vec<(&'static str, Vec<Pressures>)>, SynthError> {
-    let grid = levels(config.grid_step_kpa, "grid-step-kpa")?;
-    let steps = (grid.len() as f64).powi(3);
-    if steps > MAX_GRID_STEPS as f64 {
-        return Err(SynthError::GridTooLarge {
-            step: config.grid_step_kpa,
-            steps,
-            min_step: 5.0,
-        });
-    }
-    let sweep = levels(config.sweep_step_kpa, "sweep-step-kpa")?;
-    let mut train = Vec::with_capacity(grid.len().pow(3));
-    for &p1 in &grid {
-        for &p2 in &grid {
-            for &p3 in &grid {
-                train.push([p1, p2, p3]);
-            }
-        }
-    }
-    Ok(vec![
-        ("train", train),
-        ("sweep_a", sweep.iter().map(|&p| [0.0, 0.0, p]).collect()),
-        ("sweep_b", sweep.iter().map(|&p| [0.0, p, p]).collect()),
-    ])
-}
-
-/// The largest training grid `synth` records: 51³ steps (5 kPa), 11 hours of a real session at
-/// 0.3 s a step, and what the MSVR's n × n kernel can hold.
-pub const MAX_GRID_STEPS: usize = 51 * 51 * 51;
-
-/// 0, step, 2·step, …, 250 kPa; `flag` names the option in the error.
-fn levels(step_kpa: f64, flag: &'static str) -> Result<Vec<f64>, SynthError> {
-    let count = PROTOCOL_MAX_KPA / step_kpa;
-    if !(step_kpa > 0.0
-        && count.is_finite()
-        && count <= 1e6
-        && (count - count.round()).abs() < 1e-9)
-    {
-        return Err(SynthError::BadStep {
-            flag,
-            step: step_kpa,
-        });
-    }
-    Ok((0..=count.round() as usize)
-        .map(|k| k as f64 * step_kpa)
-        .collect())
-}
-
 /// Runs the protocol on the plant and adds seeded noise. Each recording starts from rest.
 ///
 /// # Errors
-/// [`SynthError::BadNoise`], [`SynthError::BadHysteresis`], [`SynthError::BadStep`], or a plant
+/// [`SynthError::BadNoise`], [`SynthError::BadHysteresis`], [`SynthError::Protocol`], or a plant
 /// error.
 pub fn record(config: &SynthConfig) -> Result<Vec<Recording>, SynthError> {
     if !(config.noise_mm >= 0.0 && config.noise_mm.is_finite()) {
@@ -167,7 +110,7 @@ pub fn record(config: &SynthConfig) -> Result<Vec<Recording>, SynthError> {
     let noise =
         Normal::new(0.0, config.noise_mm).map_err(|_| SynthError::BadNoise(config.noise_mm))?;
     let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
-    protocol(config)?
+    crate::session::protocol::designed(config.grid_step_kpa, config.sweep_step_kpa)?
         .into_iter()
         .map(|(name, steps)| {
             let truth = plant.run(&steps)?;
@@ -252,16 +195,7 @@ pub fn write_manifest(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn protocol_matches_the_paper() {
-        let p = protocol(&SynthConfig::default()).unwrap();
-        assert_eq!(p[0].1.len(), 216);
-        assert_eq!(p[1].1.len(), 26);
-        assert!(p[1].1.iter().all(|s| s[0] == 0.0 && s[1] == 0.0));
-        assert!(p[2].1.iter().all(|s| s[0] == 0.0 && s[1] == s[2]));
-        assert_eq!(p[2].1.last().unwrap(), &[0.0, 250.0, 250.0]);
-    }
+    use crate::session::protocol::ProtocolError;
 
     #[test]
     fn noise_is_seeded_and_of_the_stated_size() {
@@ -292,10 +226,10 @@ mod tests {
             assert!(
                 matches!(
                     record(&config),
-                    Err(SynthError::BadStep {
+                    Err(SynthError::Protocol(ProtocolError::BadStep {
                         flag: "grid-step-kpa",
                         ..
-                    })
+                    }))
                 ),
                 "{step}"
             );

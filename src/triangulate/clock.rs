@@ -21,8 +21,9 @@
 
 use serde::Serialize;
 
-use super::frames::FrameRecord;
-use super::pairing::{place, Placement, PressureLog};
+use super::pairing::{place, Placement};
+use crate::session::frames::FrameRecord;
+use crate::session::pressures::PressureLog;
 use crate::stereo::Side;
 
 /// What the timestamps say (module docs).
@@ -187,8 +188,9 @@ pub fn check(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::triangulate::pairing::tests::frame;
-    use crate::triangulate::pairing::{pair_frames, LogStep};
+    use crate::session::frames::pair_frames;
+    use crate::session::frames::tests::frame;
+    use crate::session::pressures::LogStep;
 
     fn log(times: &[f64]) -> PressureLog {
         PressureLog {

@@ -25,9 +25,9 @@
 use rayon::prelude::*;
 use serde::Serialize;
 
-use super::frames::FrameRecord;
-use super::pairing::PressureLog;
 use super::{FrameResult, PairRecord};
+use crate::session::frames::FrameRecord;
+use crate::session::pressures::PressureLog;
 use crate::stereo::Side;
 
 /// The left/right offsets tried, in whole steps (see [`Latency::steps_apart`]), the likeliest
@@ -447,7 +447,7 @@ fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::triangulate::pairing::LogStep;
+    use crate::session::pressures::LogStep;
 
     fn log(steps: usize, step_s: f64) -> PressureLog {
         PressureLog {

@@ -16,20 +16,11 @@
 //!    elongation at most `max_elongation`, and it does not touch the border. Several candidates
 //!    are left to the epipolar constraint; none means the marker is missing from the frame.
 
-use super::subpixel::{self, ChromaSampling};
+use super::subpixel;
+use crate::image::RgbImage;
 use crate::stats::upper_median_by;
 
 use serde::Serialize;
-
-/// An 8-bit RGB image, row-major.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct RgbImage {
-    pub width: usize,
-    pub height: usize,
-    pub data: Vec<u8>,
-    /// How finely the file stored the colour (JPEG 4:2:0: one sample per 2 × 2 pixels).
-    pub chroma: ChromaSampling,
-}
 
 impl RgbImage {
     /// The redness 2R − G − B of pixel `i` (row-major index).
@@ -265,6 +256,7 @@ fn measure(image: &RgbImage, region: &[usize]) -> Option<Blob> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::image::ChromaSampling;
 
     /// A grey frame with red discs (centre, radius) drawn with 8 × 8 supersampled edges.
     fn frame(discs: &[([f64; 2], f64)], w: usize, h: usize) -> RgbImage {

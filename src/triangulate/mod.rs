@@ -5,8 +5,9 @@
 //!
 //! 1. Every frame listed in `frames.csv` is decoded and searched for the marker, in parallel
 //!    ([`marker`]): zero candidates → the marker is missing from that frame.
-//! 2. Frames pair by timestamp, pairs fall into the log's steps, pairs in a step's settling
-//!    time are skipped ([`pairing`]).
+//! 2. Frames pair by timestamp ([`crate::session::frames::pair_frames`]; frames stamped late
+//!    take no part), pairs fall into the log's steps, pairs in a step's settling time are
+//!    skipped ([`pairing`]).
 //! 3. Each pair's candidates (usually one per image) are undistorted and triangulated by OpenCV
 //!    ([`crate::stereo`]), optionally after Hartley-Sturm correction (`correct_matches`), and
 //!    reprojected into both images with the distortion. A combination is consistent when both
@@ -29,7 +30,6 @@
 //!    difference).
 
 pub mod clock;
-pub mod frames;
 pub mod latency;
 pub mod marker;
 pub mod options;
@@ -46,11 +46,13 @@ use serde::Serialize;
 
 use crate::calib::file::CalibrationFile;
 use crate::geometry::HandFromLeft;
+use crate::image::{Buffers, RgbImage};
+use crate::session::frames::{self, FrameList, FrameRecord};
+use crate::session::pressures::PressureLog;
 use crate::stereo::{Side, StereoRig};
-use frames::{FrameList, FrameRecord};
 use marker::Markers;
 pub use options::TriangulateOptions;
-use pairing::{Placement, PressureLog};
+use pairing::Placement;
 
 /// Errors of triangulating.
 #[derive(Debug, thiserror::Error)]
@@ -69,16 +71,14 @@ pub enum TriangulateError {
         cw: i32,
         ch: i32,
     },
-    #[error("no image of the frames listed in {0}/frames.csv was found (expected left_00000.png, right_00000.png, …)")]
-    NoImages(PathBuf),
     #[error("no tip found in a zero-pressure step ({zero} steps with all pressures ≤ {zero_kpa} kPa in the log): the hand frame's origin is the tip at zero pressure; log and film at least one step at 0, 0, 0 kPa")]
     NoOrigin { zero: usize, zero_kpa: f64 },
     #[error("no frame pair gave a tip position: {0}")]
     NothingUsed(String),
     #[error(transparent)]
     Stereo(#[from] crate::stereo::StereoError),
-    #[error("{path}: {message}")]
-    Video { path: PathBuf, message: String },
+    #[error(transparent)]
+    Session(#[from] crate::session::SessionError),
     #[error("OpenCV: {0}")]
     OpenCv(#[from] opencv::Error),
     #[error("writing {path}: {message}")]
@@ -318,7 +318,7 @@ pub fn triangulate(
         let examined: Vec<(usize, Result<FrameResult, TriangulateError>)> = data
             .into_par_iter()
             .map_init(
-                || (marker::RgbImage::default(), frames::Buffers::default()),
+                || (RgbImage::default(), Buffers::default()),
                 |(image, buffers), (i, data)| {
                     let result = examine(&data, frames, i, rig, options, interrupt, image, buffers);
                     progress(done.fetch_add(1, Ordering::SeqCst) + 1, records.len());
@@ -342,7 +342,7 @@ pub fn triangulate(
     // 2-3. Pairs, their steps and their tips; then again on the frames' times less each
     //    camera's delay, when the frames show it.
     let located = |records: &[FrameRecord], guard_s: f64| {
-        let pairing = pairing::pair_frames(records, options.max_dt_s);
+        let pairing = frames::pair_frames(records, options.max_dt_s);
         let pairs = locate_pairs(
             records,
             paths,
@@ -627,8 +627,8 @@ fn examine(
     rig: &StereoRig,
     options: &TriangulateOptions,
     interrupt: &AtomicBool,
-    image: &mut marker::RgbImage,
-    buffers: &mut frames::Buffers,
+    image: &mut RgbImage,
+    buffers: &mut Buffers,
 ) -> Result<FrameResult, TriangulateError> {
     if interrupt.load(Ordering::SeqCst) {
         return Ok(FrameResult::Skipped);

@@ -48,103 +48,7 @@ use std::sync::OnceLock;
 
 use nalgebra::{DMatrix, DVector, Matrix4, Vector4};
 
-/// How a file stored an image's colour: pixels per chroma sample across and down (1 × 1 for
-/// PNG and JPEG 4:4:4, 2 × 2 for 4:2:0, 2 × 1 for 4:2:2), and for a JPEG the chroma's
-/// quantisation steps (row-major 8 × 8, DC first).
-#[derive(Clone, Debug, PartialEq)]
-pub struct ChromaSampling {
-    pub block: [usize; 2],
-    pub steps: Option<[f64; 64]>,
-}
-
-impl Default for ChromaSampling {
-    fn default() -> Self {
-        ChromaSampling::FULL
-    }
-}
-
-/// JPEG's zig-zag order: the natural (row-major) index of each stored coefficient.
-const ZIGZAG: [usize; 64] = [
-    0, 1, 8, 16, 9, 2, 3, 10, 17, 24, 32, 25, 18, 11, 4, 5, 12, 19, 26, 33, 40, 48, 41, 34, 27, 20,
-    13, 6, 7, 14, 21, 28, 35, 42, 49, 56, 57, 50, 43, 36, 29, 22, 15, 23, 30, 37, 44, 51, 58, 59,
-    52, 45, 38, 31, 39, 46, 53, 60, 61, 54, 47, 55, 62, 63,
-];
-
-impl ChromaSampling {
-    /// Full-resolution, unquantised colour (PNG).
-    pub const FULL: ChromaSampling = ChromaSampling {
-        block: [1, 1],
-        steps: None,
-    };
-
-    /// From a JPEG file's header: the frame header's sampling factors (luma's over the
-    /// chroma's) and the quantisation table of the first chroma component. [`Self::FULL`]
-    /// when the bytes are not a colour baseline or progressive JPEG.
-    pub fn of_jpeg(bytes: &[u8]) -> ChromaSampling {
-        Self::parse(bytes).unwrap_or(ChromaSampling::FULL)
-    }
-
-    fn parse(bytes: &[u8]) -> Option<ChromaSampling> {
-        if !bytes.starts_with(&[0xff, 0xd8]) {
-            return None;
-        }
-        let mut tables: [Option<[f64; 64]>; 4] = [None; 4];
-        let mut i = 2;
-        loop {
-            let (marker, len) = (*bytes.get(i + 1)?, bytes.get(i + 2..i + 4)?);
-            if bytes[i] != 0xff {
-                return None;
-            }
-            let len = usize::from(len[0]) << 8 | usize::from(len[1]);
-            let body = bytes.get(i + 4..i + 2 + len)?;
-            match marker {
-                // Quantisation tables: precision and id, then 64 steps in zig-zag order.
-                0xdb => {
-                    let mut t = body;
-                    while let Some((&pq_tq, rest)) = t.split_first() {
-                        let wide = pq_tq >> 4 == 1;
-                        let size = if wide { 128 } else { 64 };
-                        let raw = rest.get(..size)?;
-                        let mut steps = [0.0; 64];
-                        for (k, &at) in ZIGZAG.iter().enumerate() {
-                            steps[at] = if wide {
-                                f64::from(u16::from(raw[2 * k]) << 8 | u16::from(raw[2 * k + 1]))
-                            } else {
-                                f64::from(raw[k])
-                            };
-                        }
-                        *tables.get_mut(usize::from(pq_tq & 15))? = Some(steps);
-                        t = &rest[size..];
-                    }
-                }
-                0xc0..=0xc2 => {
-                    let n = usize::from(*body.get(5)?);
-                    if n < 3 {
-                        return None;
-                    }
-                    let factor = |k: usize| -> Option<(usize, usize, usize)> {
-                        let c = body.get(6 + 3 * k..9 + 3 * k)?;
-                        Some((
-                            usize::from(c[1] >> 4),
-                            usize::from(c[1] & 15),
-                            usize::from(c[2]),
-                        ))
-                    };
-                    let ((lh, lv, _), (ch, cv, tq)) = (factor(0)?, factor(1)?);
-                    if ch == 0 || cv == 0 || lh % ch != 0 || lv % cv != 0 {
-                        return None;
-                    }
-                    return Some(ChromaSampling {
-                        block: [lh / ch, lv / cv],
-                        steps: *tables.get(tq)?,
-                    });
-                }
-                _ => {}
-            }
-            i += 2 + len;
-        }
-    }
-}
+use crate::image::ChromaSampling;
 
 /// Side of the square of pixels the chroma planes are recovered over (a multiple of 16, so of
 /// every block and coding unit); the bead sits in its middle.
@@ -507,7 +411,8 @@ fn halved() -> &'static DMatrix<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::triangulate::marker::{find_markers, MarkerOptions, RgbImage};
+    use crate::image::RgbImage;
+    use crate::triangulate::marker::{find_markers, MarkerOptions};
     use rand::{Rng, SeedableRng};
 
     /// A grey wall (RGB 150, 155, 165) with a red bead (180, 22, 20) of radius `rb` px at
@@ -601,8 +506,7 @@ mod tests {
                     let jpeg = crate::cv::encode_jpeg(size[1] as u32, &rgb, quality).unwrap();
                     let mut image = RgbImage::default();
                     let mut scratch = opencv::core::Mat::default();
-                    crate::triangulate::frames::decode_bytes(&jpeg, &mut image, &mut scratch)
-                        .unwrap();
+                    crate::image::decode_bytes(&jpeg, &mut image, &mut scratch).unwrap();
                     assert_eq!(image.chroma.block, [2, 2]);
                     let found = find_markers(&image, &MarkerOptions::default());
                     let b = &found.blobs[0];

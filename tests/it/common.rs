@@ -310,8 +310,7 @@ pub fn board_videos(dir: &Path, hold: usize, board: handcap::calib::BoardSpec) {
         let mut video = handcap::video::MjpegWriter::create(&path, 30.0, [1280, 720], 95).unwrap();
         for k in 0..10 {
             let image =
-                handcap::triangulate::frames::decode(&dir.join(format!("calib/{side}_{k:02}.png")))
-                    .unwrap();
+                handcap::image::decode(&dir.join(format!("calib/{side}_{k:02}.png"))).unwrap();
             for _ in 0..hold {
                 video.write(&image.data).unwrap();
             }

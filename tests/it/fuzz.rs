@@ -13,8 +13,8 @@ use proptest::prelude::*;
 use handcap::calib::file::{read_board, read_calibration};
 use handcap::data::read_dataset;
 use handcap::model::file::ModelFile;
-use handcap::triangulate::frames::read_frame_list;
-use handcap::triangulate::pairing::read_pressure_log;
+use handcap::session::frames::read_frame_list;
+use handcap::session::pressures::read_pressure_log;
 
 const CSV: &str = "P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm\n0,0,0,0,0,0\n50,0,0,0.12,-1.5,0.3\n\
                    100,50,0,\"0.5\",-2.25,1e-3\n150,100,50,1.5,-3,0.9\n";

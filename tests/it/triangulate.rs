@@ -11,9 +11,9 @@ use handcap::synth::render::{Chroma, ImageFormat};
 use nalgebra::Vector3;
 
 use handcap::calib::file::read_calibration;
+use handcap::image::decode;
 use handcap::stereo::Side;
 use handcap::synth::render::encode_png;
-use handcap::triangulate::frames::decode;
 
 use crate::common::{
     capture, capture_as, capture_with, csv_rows, handcap, handcap_err, handcap_ok, handcap_usage,

@@ -1,19 +1,16 @@
 //! The frames of a capture: `frames.csv` (`frame,camera,time_s`) and the images it names,
 //! `left_NNNNN.png` / `right_NNNNN.png` (or `.jpg`), as `synth` and `capture` write them; or,
 //! instead of images, one video per camera, `left.<avi|mkv|mp4|mov>` and `right.<…>`, where a
-//! frame's number is its position in its camera's video ([`crate::video`]).
+//! frame's number is its position in its camera's video ([`crate::video`]). `capture` and
+//! `synth` write `frames.csv` ([`frames_csv`]); `triangulate` and `calibrate` read it, and pair
+//! the left and right frames by time ([`pair_frames`]).
 
 use std::collections::HashSet;
 use std::path::{Path, PathBuf};
 
-use opencv::core::Vector;
-use opencv::imgcodecs;
-use opencv::prelude::*;
-
-use super::marker::RgbImage;
-use super::subpixel::ChromaSampling;
-use super::TriangulateError;
+use super::SessionError;
 use crate::data::Table;
+use crate::image::{bgr_to_rgb, decode_bytes, decode_into, Buffers, ChromaSampling, RgbImage};
 use crate::stereo::Side;
 
 /// One row of `frames.csv`.
@@ -35,7 +32,7 @@ pub struct FrameRecord {
 /// # Errors
 /// [`DataError::Input`](crate::data::DataError::Input) naming the file and line: unreadable file, missing column, a
 /// camera other than `left`/`right`, a bad number, a frame listed twice.
-pub fn read_frame_list(dir: &Path) -> Result<Vec<FrameRecord>, TriangulateError> {
+pub fn read_frame_list(dir: &Path) -> Result<Vec<FrameRecord>, SessionError> {
     let mut table = Table::open(&dir.join("frames.csv"), "frame,camera,time_s")?;
     let (c_frame, c_camera, c_time) = (
         table.column("frame")?,
@@ -86,6 +83,15 @@ pub fn read_frame_list(dir: &Path) -> Result<Vec<FrameRecord>, TriangulateError>
     Ok(out)
 }
 
+/// `frames.csv` of `rows` (camera, frame number, time in s), in the order given.
+pub fn frames_csv(rows: impl IntoIterator<Item = (Side, usize, f64)>) -> String {
+    let mut out = String::from("frame,camera,time_s\n");
+    for (side, index, time_s) in rows {
+        out += &format!("{index},{},{time_s:.6}\n", side.name());
+    }
+    out
+}
+
 /// Sets each record's [`FrameRecord::late_s`] from its camera's times.
 fn mark_late(records: &mut [FrameRecord]) {
     for side in [Side::Left, Side::Right] {
@@ -122,10 +128,10 @@ pub struct FrameList {
 /// The left and the right camera's video in `dir`, where there is one.
 ///
 /// # Errors
-/// [`TriangulateError::Video`] when a camera has two (`right.avi` and `right.mp4`).
-pub fn videos(dir: &Path) -> Result<(Option<PathBuf>, Option<PathBuf>), TriangulateError> {
+/// [`SessionError::Video`] when a camera has two (`right.avi` and `right.mp4`).
+pub fn videos(dir: &Path) -> Result<(Option<PathBuf>, Option<PathBuf>), SessionError> {
     let find = |stem| {
-        crate::video::find(dir, stem).map_err(|message| TriangulateError::Video {
+        crate::video::find(dir, stem).map_err(|message| SessionError::Video {
             path: dir.to_path_buf(),
             message,
         })
@@ -139,14 +145,14 @@ impl FrameList {
     /// log's clock).
     ///
     /// # Errors
-    /// As [`read_frame_list`], [`TriangulateError::NoImages`] when no frame has an image
-    /// and there are no videos, [`TriangulateError::Video`] for videos without `frames.csv`
+    /// As [`read_frame_list`], [`SessionError::NoImages`] when no frame has an image
+    /// and there are no videos, [`SessionError::Video`] for videos without `frames.csv`
     /// nor start times, or with both.
-    pub fn read(dir: &Path, video_start_s: Option<[f64; 2]>) -> Result<Self, TriangulateError> {
+    pub fn read(dir: &Path, video_start_s: Option<[f64; 2]>) -> Result<Self, SessionError> {
         let listed = dir.join("frames.csv").exists();
         let videos = videos(dir)?;
         if let (Some(left), Some(right)) = videos.clone() {
-            let video_error = |path: &Path, message: String| TriangulateError::Video {
+            let video_error = |path: &Path, message: String| SessionError::Video {
                 path: path.to_path_buf(),
                 message,
             };
@@ -196,7 +202,7 @@ impl FrameList {
                 paths,
                 videos: Some([left, right]),
             }),
-            _ => Err(TriangulateError::NoImages(dir.to_path_buf())),
+            _ => Err(SessionError::NoImages(dir.to_path_buf())),
         }
     }
 
@@ -214,11 +220,11 @@ impl FrameList {
     ///
     /// # Errors
     /// A video that cannot be opened.
-    pub fn reader(&self) -> Result<FrameReader<'_>, TriangulateError> {
+    pub fn reader(&self) -> Result<FrameReader<'_>, SessionError> {
         let videos = match &self.videos {
             Some([left, right]) => {
                 let open = |path: &PathBuf| {
-                    crate::video::VideoReader::open(path).map_err(|why| TriangulateError::Video {
+                    crate::video::VideoReader::open(path).map_err(|why| SessionError::Video {
                         path: path.clone(),
                         message: format!(
                             "{why}; give a video FFmpeg reads, or the frames as images"
@@ -283,8 +289,8 @@ impl<'a> FrameReader<'a> {
     /// frame after its video's end is [`FrameData::Missing`] and counted ([`Self::ended`]).
     ///
     /// # Errors
-    /// [`TriangulateError::Video`] when the video cannot be read.
-    pub fn read(&mut self, i: usize) -> Result<FrameData<'a>, TriangulateError> {
+    /// [`SessionError::Video`] when the video cannot be read.
+    pub fn read(&mut self, i: usize) -> Result<FrameData<'a>, SessionError> {
         let list: &'a FrameList = self.list;
         let Some(videos) = &mut self.videos else {
             return Ok(list.paths[i]
@@ -295,12 +301,10 @@ impl<'a> FrameReader<'a> {
         let side = record.camera as usize;
         let path = &list.videos.as_ref().expect("videos")[side];
         let video = &mut videos[side];
-        let frame = video
-            .frame(record.index)
-            .map_err(|e| TriangulateError::Video {
-                path: path.clone(),
-                message: e.message,
-            })?;
+        let frame = video.frame(record.index).map_err(|e| SessionError::Video {
+            path: path.clone(),
+            message: e.message,
+        })?;
         match frame {
             Some(frame) => Ok(FrameData::Video(frame)),
             None => {
@@ -336,40 +340,6 @@ impl FrameData<'_> {
     }
 }
 
-/// Decodes a PNG (with the `png` crate: the fastest decoder here) or any other format OpenCV
-/// reads (JPEG through libjpeg) into 8-bit RGB.
-///
-/// # Errors
-/// A message saying why the file is not an image.
-pub fn decode(path: &Path) -> Result<RgbImage, String> {
-    let mut image = RgbImage::default();
-    decode_into(path, &mut image, &mut Buffers::default())?;
-    Ok(image)
-}
-
-/// What decoding a frame needs besides the image itself, kept from frame to frame: a 1280 ×
-/// 720 frame is 2.7 MB, and fresh buffers cost page faults every time (the file's bytes, and
-/// OpenCV's decoded BGR image: reusing it halved the time of decoding a JPEG).
-#[derive(Default)]
-pub struct Buffers {
-    file: Vec<u8>,
-    bgr: opencv::core::Mat,
-}
-
-/// [`decode`] into `image`, reusing its buffer and `buffers` from frame to frame.
-///
-/// # Errors
-/// A message saying why the file is not an image.
-pub fn decode_into(path: &Path, image: &mut RgbImage, buffers: &mut Buffers) -> Result<(), String> {
-    use std::io::Read;
-    let file = &mut buffers.file;
-    file.clear();
-    std::fs::File::open(path)
-        .and_then(|mut f| f.read_to_end(file))
-        .map_err(|e| e.to_string())?;
-    decode_bytes(file, image, &mut buffers.bgr)
-}
-
 /// A frame's data decoded into `image`.
 ///
 /// # Errors
@@ -392,100 +362,90 @@ pub fn decode_frame(
     }
 }
 
-/// An encoded image: PNG by the `png` crate, JPEG by zune-jpeg, anything else by OpenCV.
-pub(crate) fn decode_bytes(
-    bytes: &[u8],
-    image: &mut RgbImage,
-    bgr: &mut opencv::core::Mat,
-) -> Result<(), String> {
-    if bytes.starts_with(b"\x89PNG") {
-        image.chroma = ChromaSampling::FULL;
-        decode_png(bytes, image)
-    } else if bytes.starts_with(&[0xff, 0xd8]) {
-        decode_jpeg(bytes, image)?;
-        image.chroma = ChromaSampling::of_jpeg(bytes);
-        Ok(())
-    } else {
-        image.chroma = ChromaSampling::FULL;
-        decode_opencv(bytes, bgr, image)
-    }
+/// Left and right frames paired by time: indices into the frame list.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Pairing {
+    pub pairs: Vec<(usize, usize)>,
+    /// Frames of each camera with no partner (left, right).
+    pub unpaired: [usize; 2],
 }
 
-fn decode_png(bytes: &[u8], image: &mut RgbImage) -> Result<(), String> {
-    let mut decoder = png::Decoder::new(std::io::Cursor::new(bytes));
-    decoder.set_transformations(png::Transformations::EXPAND | png::Transformations::STRIP_16);
-    let mut reader = decoder.read_info().map_err(|e| e.to_string())?;
-    let buf = &mut image.data;
-    buf.resize(reader.output_buffer_size(), 0);
-    let info = reader.next_frame(buf).map_err(|e| e.to_string())?;
-    buf.truncate(info.buffer_size());
-    (image.width, image.height) = (info.width as usize, info.height as usize);
-    let expanded: Vec<u8> = match info.color_type {
-        png::ColorType::Rgb => return Ok(()),
-        png::ColorType::Rgba => buf
-            .chunks_exact(4)
-            .flat_map(|p| [p[0], p[1], p[2]])
-            .collect(),
-        png::ColorType::Grayscale => buf.iter().flat_map(|&g| [g, g, g]).collect(),
-        png::ColorType::GrayscaleAlpha => buf
-            .chunks_exact(2)
-            .flat_map(|p| [p[0], p[0], p[0]])
-            .collect(),
-        png::ColorType::Indexed => return Err("indexed PNG left unexpanded".into()),
+/// Pairs each left frame with the right frame nearest in time when that right frame's nearest
+/// left frame is it, and they are at most `max_dt_s` apart; frames stamped late take no part.
+/// Pairs come in time order.
+pub fn pair_frames(frames: &[FrameRecord], max_dt_s: f64) -> Pairing {
+    let by_time = |side: Side| {
+        let mut v: Vec<usize> = (0..frames.len())
+            .filter(|&i| frames[i].camera == side && frames[i].late_s.is_none())
+            .collect();
+        v.sort_by(|&a, &b| frames[a].time_s.total_cmp(&frames[b].time_s));
+        v
     };
-    *buf = expanded;
-    Ok(())
-}
-
-/// JPEG with zune-jpeg, straight to RGB: 3 × faster than OpenCV's decoder here, which has
-/// libjpeg write RGB and then swaps every pixel to BGR byte by byte (40 % of triangulating a
-/// webcam capture), and us swap them back. Its colour interpolation is libjpeg's (3/4 of the
-/// nearer chroma sample, 1/4 of the farther), which the sub-pixel fit models.
-fn decode_jpeg(bytes: &[u8], image: &mut RgbImage) -> Result<(), String> {
-    use zune_core::colorspace::ColorSpace;
-    use zune_core::options::DecoderOptions;
-    if crate::cv::is_truncated_jpeg(bytes) {
-        return Err("a truncated JPEG (no end-of-image marker)".into());
-    }
-    let options = DecoderOptions::default().jpeg_set_out_colorspace(ColorSpace::RGB);
-    let mut decoder = zune_jpeg::JpegDecoder::new_with_options(bytes, options);
-    let not_jpeg =
-        |e: zune_jpeg::errors::DecodeErrors| format!("not a JPEG that can be read ({e})");
-    decoder.decode_headers().map_err(not_jpeg)?;
-    let info = decoder.info().ok_or("a JPEG without a frame header")?;
-    (image.width, image.height) = (usize::from(info.width), usize::from(info.height));
-    image.data.resize(3 * image.width * image.height, 0);
-    decoder.decode_into(&mut image.data).map_err(not_jpeg)
-}
-
-fn decode_opencv(
-    bytes: &[u8],
-    bgr: &mut opencv::core::Mat,
-    image: &mut RgbImage,
-) -> Result<(), String> {
-    let buf = Vector::<u8>::from_slice(bytes);
-    // Camera frames carry no orientation to apply, and OpenCV's search for one (EXIF) read
-    // the whole file byte by byte: a third of the decoding time of a 720p JPEG.
-    let flags = imgcodecs::IMREAD_COLOR | imgcodecs::IMREAD_IGNORE_ORIENTATION;
-    crate::cv::decode_image_into(&buf, flags, bgr)?;
-    bgr_to_rgb(bgr, image)
-}
-
-/// An OpenCV BGR image into `image`'s RGB.
-fn bgr_to_rgb(bgr: &opencv::core::Mat, image: &mut RgbImage) -> Result<(), String> {
-    let not_image = |_| "not an 8-bit colour image".to_string();
-    (image.width, image.height) = (bgr.cols() as usize, bgr.rows() as usize);
-    let continuous;
-    let bgr = if bgr.is_continuous() {
-        bgr
-    } else {
-        continuous = bgr.try_clone().map_err(not_image)?;
-        &continuous
+    let (left, right) = (by_time(Side::Left), by_time(Side::Right));
+    let nearest = |to: f64, among: &[usize]| -> Option<usize> {
+        let k = among.partition_point(|&i| frames[i].time_s < to);
+        [k.checked_sub(1), Some(k)]
+            .into_iter()
+            .flatten()
+            .filter(|&j| j < among.len())
+            .min_by(|&a, &b| {
+                (frames[among[a]].time_s - to)
+                    .abs()
+                    .total_cmp(&(frames[among[b]].time_s - to).abs())
+            })
     };
-    let src = bgr.data_bytes().map_err(not_image)?;
-    image.data.resize(src.len(), 0);
-    for (d, s) in image.data.chunks_exact_mut(3).zip(src.chunks_exact(3)) {
-        d.copy_from_slice(&[s[2], s[1], s[0]]);
+    let mut pairs = Vec::new();
+    for &l in &left {
+        let Some(r) = nearest(frames[l].time_s, &right) else {
+            continue;
+        };
+        let r = right[r];
+        let back = nearest(frames[r].time_s, &left).map(|k| left[k]);
+        if back == Some(l) && (frames[l].time_s - frames[r].time_s).abs() <= max_dt_s {
+            pairs.push((l, r));
+        }
     }
-    Ok(())
+    Pairing {
+        unpaired: [left.len() - pairs.len(), right.len() - pairs.len()],
+        pairs,
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+
+    pub(crate) fn frame(camera: Side, index: usize, time_s: f64) -> FrameRecord {
+        FrameRecord {
+            camera,
+            index,
+            time_s,
+            line: 0,
+            late_s: None,
+        }
+    }
+
+    #[test]
+    fn frames_pair_with_their_mutual_nearest_within_the_tolerance() {
+        let f = vec![
+            frame(Side::Left, 0, 0.100),
+            frame(Side::Left, 1, 0.133),
+            frame(Side::Left, 2, 0.166),
+            frame(Side::Left, 3, 0.500), // its right partner was dropped
+            frame(Side::Right, 0, 0.108),
+            frame(Side::Right, 1, 0.141),
+            frame(Side::Right, 2, 0.175),
+            frame(Side::Right, 3, 0.540), // 40 ms from the nearest left frame
+        ];
+        let p = pair_frames(&f, 0.02);
+        assert_eq!(p.pairs, vec![(0, 4), (1, 5), (2, 6)]);
+        assert_eq!(p.unpaired, [1, 1]);
+        // Two left frames near one right frame: only the nearer pairs.
+        let f = vec![
+            frame(Side::Left, 0, 0.100),
+            frame(Side::Left, 1, 0.104),
+            frame(Side::Right, 0, 0.103),
+        ];
+        assert_eq!(pair_frames(&f, 0.02).pairs, vec![(1, 2)]);
+    }
 }

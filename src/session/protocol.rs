@@ -1,6 +1,7 @@
-//! The pressure protocol a capture session drives: `protocol.csv`
-//! (`step,phase,P1_kpa,P2_kpa,P3_kpa,hold_s`), the paper's by default (the training grid and
-//! the two sweeps, [`crate::synth::protocol`]), and the lab's command that sets the pressures.
+//! The pressure protocol a session drives: the paper's design (the training grid and the two
+//! sweeps, [`designed`]), which `synth` runs on the virtual hand; `protocol.csv`
+//! (`step,phase,P1_kpa,P2_kpa,P3_kpa,hold_s`), which `capture` drives; and the lab's command
+//! that sets the pressures.
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -8,6 +9,76 @@ use std::path::Path;
 use crate::data::{DataError, Table};
 
 pub use crate::hand::MAX_PRESSURE_KPA;
+
+/// Highest pressure of the paper's protocol (kPa).
+pub const PROTOCOL_MAX_KPA: f64 = 250.0;
+
+/// A protocol's design that is not one.
+#[derive(Debug, thiserror::Error)]
+pub enum ProtocolError {
+    #[error("--{flag} {step} kPa: the step must divide 0-{PROTOCOL_MAX_KPA} kPa into whole steps")]
+    BadStep { flag: &'static str, step: f64 },
+    #[error("--grid-step-kpa {step} kPa makes a grid of {steps:.3e} steps; at most {MAX_GRID_STEPS} (a step of {min_step} kPa or more)")]
+    GridTooLarge {
+        step: f64,
+        steps: f64,
+        min_step: f64,
+    },
+}
+
+/// A named sequence of pressure steps (kPa): `train`, `sweep_a`, `sweep_b`.
+pub type Phase = (&'static str, Vec<[f64; 3]>);
+
+/// The paper's protocol: the training grid (every combination of 0, `grid_step_kpa`, …, 250
+/// kPa) and the two sweeps (P3, then P2 = P3, every `sweep_step_kpa`), as named pressure
+/// sequences in the order they are applied.
+pub fn designed(grid_step_kpa: f64, sweep_step_kpa: f64) -> Result<Vec<Phase>, ProtocolError> {
+    let grid = levels(grid_step_kpa, "grid-step-kpa")?;
+    let steps = (grid.len() as f64).powi(3);
+    if steps > MAX_GRID_STEPS as f64 {
+        return Err(ProtocolError::GridTooLarge {
+            step: grid_step_kpa,
+            steps,
+            min_step: 5.0,
+        });
+    }
+    let sweep = levels(sweep_step_kpa, "sweep-step-kpa")?;
+    let mut train = Vec::with_capacity(grid.len().pow(3));
+    for &p1 in &grid {
+        for &p2 in &grid {
+            for &p3 in &grid {
+                train.push([p1, p2, p3]);
+            }
+        }
+    }
+    Ok(vec![
+        ("train", train),
+        ("sweep_a", sweep.iter().map(|&p| [0.0, 0.0, p]).collect()),
+        ("sweep_b", sweep.iter().map(|&p| [0.0, p, p]).collect()),
+    ])
+}
+
+/// The largest training grid: 51³ steps (5 kPa), 11 hours of a real session at
+/// 0.3 s a step, and what the MSVR's n × n kernel can hold.
+pub const MAX_GRID_STEPS: usize = 51 * 51 * 51;
+
+/// 0, step, 2·step, …, 250 kPa; `flag` names the option in the error.
+fn levels(step_kpa: f64, flag: &'static str) -> Result<Vec<f64>, ProtocolError> {
+    let count = PROTOCOL_MAX_KPA / step_kpa;
+    if !(step_kpa > 0.0
+        && count.is_finite()
+        && count <= 1e6
+        && (count - count.round()).abs() < 1e-9)
+    {
+        return Err(ProtocolError::BadStep {
+            flag,
+            step: step_kpa,
+        });
+    }
+    Ok((0..=count.round() as usize)
+        .map(|k| k as f64 * step_kpa)
+        .collect())
+}
 
 /// The longest a protocol may hold a step (s): an hour. A hold beyond is a typo (or 1e300),
 /// and a session that waits for it never ends.
@@ -42,20 +113,15 @@ pub struct Step {
 /// held `hold_s`, as `protocol.csv` text.
 ///
 /// # Errors
-/// A grid or sweep step `synth` refuses.
+/// A grid or sweep step [`designed`] refuses.
 pub fn paper_protocol(
     grid_step_kpa: f64,
     sweep_step_kpa: f64,
     hold_s: f64,
-) -> Result<String, crate::synth::SynthError> {
-    let config = crate::synth::SynthConfig {
-        grid_step_kpa,
-        sweep_step_kpa,
-        ..crate::synth::SynthConfig::default()
-    };
+) -> Result<String, ProtocolError> {
     let mut out = String::from("step,phase,P1_kpa,P2_kpa,P3_kpa,hold_s\n");
     let mut step = 0;
-    for (phase, pressures) in crate::synth::protocol(&config)? {
+    for (phase, pressures) in designed(grid_step_kpa, sweep_step_kpa)? {
         for [p1, p2, p3] in pressures {
             let _ = writeln!(out, "{step},{phase},{p1},{p2},{p3},{hold_s}");
             step += 1;
@@ -150,6 +216,16 @@ pub fn command_for(template: &str, step: &Step) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_design_is_the_papers() {
+        let p = designed(50.0, 10.0).unwrap();
+        assert_eq!(p[0].1.len(), 216);
+        assert_eq!(p[1].1.len(), 26);
+        assert!(p[1].1.iter().all(|s| s[0] == 0.0 && s[1] == 0.0));
+        assert!(p[2].1.iter().all(|s| s[0] == 0.0 && s[1] == s[2]));
+        assert_eq!(p[2].1.last().unwrap(), &[0.0, 250.0, 250.0]);
+    }
 
     #[test]
     fn the_paper_protocol_reads_back_and_fills_the_command() {

@@ -1,0 +1,167 @@
+//! The regulator's log, `pressures.csv`: one row per commanded step, `time_s` (when the
+//! command was given, on the capture computer's clock), `P1_kpa,P2_kpa,P3_kpa`, optionally
+//! `command_end_s` (when the command returned), and any other columns (e.g. `step`, `phase`),
+//! which are copied to the dataset. A step lasts until the next row; the last one lasts the
+//! log's median step. `capture` and `synth` write it ([`pressures_csv`]), `triangulate` reads
+//! it ([`read_pressure_log`]).
+
+use std::path::{Path, PathBuf};
+
+use super::SessionError;
+use crate::data::Table;
+
+/// One commanded step of the log.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LogStep {
+    pub time_s: f64,
+    /// When the regulator's command returned ([`COMMAND_END_COLUMN`]; `time_s` when the log
+    /// does not say): settling counts from here.
+    pub command_end_s: f64,
+    pub pressures_kpa: [f64; 3],
+    /// The row's other columns, as written.
+    pub extra: Vec<String>,
+}
+
+/// The regulator's log.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PressureLog {
+    pub path: PathBuf,
+    pub steps: Vec<LogStep>,
+    /// Names of the other columns, in order.
+    pub extra_columns: Vec<String>,
+    /// The median time between consecutive steps (s).
+    pub median_step_s: f64,
+}
+
+impl PressureLog {
+    /// When step `k` ends: the next command, or the median step after the last one.
+    pub fn end_s(&self, k: usize) -> f64 {
+        self.steps
+            .get(k + 1)
+            .map_or(self.steps[k].time_s + self.median_step_s, |s| s.time_s)
+    }
+}
+
+/// The pressure columns of a log.
+pub const PRESSURE_COLUMNS: [&str; 3] = ["P1_kpa", "P2_kpa", "P3_kpa"];
+/// The optional column of when each step's command returned (s, the log's clock), as
+/// `handcap capture` writes it.
+pub const COMMAND_END_COLUMN: &str = "command_end_s";
+
+/// Reads the log.
+///
+/// # Errors
+/// [`DataError::Input`](crate::data::DataError::Input) naming the file and line: a missing column, a bad number, times
+/// that do not increase, fewer than two steps.
+pub fn read_pressure_log(path: &Path) -> Result<PressureLog, SessionError> {
+    let mut table = Table::open(path, "time_s,P1_kpa,P2_kpa,P3_kpa")?;
+    let time_col = table.column("time_s")?;
+    let p_cols = [
+        table.column(PRESSURE_COLUMNS[0])?,
+        table.column(PRESSURE_COLUMNS[1])?,
+        table.column(PRESSURE_COLUMNS[2])?,
+    ];
+    let header = table.header.clone();
+    let end_col = header.iter().position(|h| h == COMMAND_END_COLUMN);
+    let extra_idx: Vec<usize> = (0..header.len())
+        .filter(|i| *i != time_col && !p_cols.contains(i) && Some(*i) != end_col)
+        .collect();
+    let mut steps: Vec<LogStep> = Vec::new();
+    for (line, record) in table.records()? {
+        let number = |col: usize| -> Result<f64, SessionError> {
+            record[col]
+                .parse::<f64>()
+                .ok()
+                .filter(|v| v.is_finite())
+                .ok_or_else(|| {
+                    table
+                        .bad(
+                            line,
+                            format!("{} {:?} is not a number", &header[col], &record[col]),
+                        )
+                        .into()
+                })
+        };
+        let time_s = number(time_col)?;
+        if let Some(prev) = steps.last() {
+            if time_s <= prev.time_s {
+                return table.fail(
+                    line,
+                    format!(
+                        "time_s {time_s} is not after the previous row's {}; sort the log by time",
+                        prev.time_s
+                    ),
+                );
+            }
+        }
+        let command_end_s = match end_col {
+            Some(col) => {
+                let end = number(col)?;
+                if end < time_s {
+                    return table.fail(
+                        line,
+                        format!(
+                            "{COMMAND_END_COLUMN} {end} is before the command's time_s {time_s}"
+                        ),
+                    );
+                }
+                end
+            }
+            None => time_s,
+        };
+        steps.push(LogStep {
+            time_s,
+            command_end_s,
+            pressures_kpa: [number(p_cols[0])?, number(p_cols[1])?, number(p_cols[2])?],
+            extra: extra_idx.iter().map(|&i| record[i].to_string()).collect(),
+        });
+    }
+    if steps.len() < 2 {
+        return table.fail(0, "fewer than two steps logged".into());
+    }
+    let mut gaps: Vec<f64> = steps
+        .windows(2)
+        .map(|w| w[1].time_s - w[0].time_s)
+        .collect();
+    let median_step_s = crate::stats::upper_median(&mut gaps).expect("two steps or more");
+    Ok(PressureLog {
+        path: path.to_path_buf(),
+        steps,
+        extra_columns: extra_idx.iter().map(|&i| header[i].to_string()).collect(),
+        median_step_s,
+    })
+}
+
+/// One row of the log as written: `phase` and `step` go in their columns, `command_end_s` when
+/// the command's return was recorded.
+pub struct Logged<'a> {
+    pub time_s: f64,
+    pub command_end_s: Option<f64>,
+    pub pressures_kpa: [f64; 3],
+    pub step: usize,
+    pub phase: &'a str,
+}
+
+/// `pressures.csv` of `rows`; the `command_end_s` column when the first row has it.
+pub fn pressures_csv<'a>(rows: impl IntoIterator<Item = Logged<'a>>) -> String {
+    let mut rows = rows.into_iter().peekable();
+    let with_end = rows.peek().is_some_and(|r| r.command_end_s.is_some());
+    let mut out = format!(
+        "time_s,{},step,phase{}\n",
+        PRESSURE_COLUMNS.join(","),
+        if with_end {
+            format!(",{COMMAND_END_COLUMN}")
+        } else {
+            String::new()
+        }
+    );
+    for r in rows {
+        let [p1, p2, p3] = r.pressures_kpa;
+        out += &format!("{:.6},{p1},{p2},{p3},{},{}", r.time_s, r.step, r.phase);
+        if let Some(end) = r.command_end_s.filter(|_| with_end) {
+            out += &format!(",{end:.6}");
+        }
+        out += "\n";
+    }
+    out
+}
