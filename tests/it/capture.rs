@@ -4,7 +4,8 @@ use std::collections::HashSet;
 use std::path::Path;
 
 use crate::common::{
-    board_videos, capture_with, csv_rows, handcap, handcap_err, handcap_ok, session, tempdir,
+    board_videos, capture_with, csv_rows, handcap, handcap_err, handcap_ok, mjpeg_server, session,
+    tempdir, Part,
 };
 
 /// Two Motion-JPEG videos of a small synthetic session (`synth --video`): 14 steps, 42 frames
@@ -475,48 +476,25 @@ fn a_charuco_board_is_taken_in_part_from_cameras_and_videos() {
     );
 }
 
-/// Serves `frames` (JPEG files' bytes) as an HTTP multipart Motion-JPEG stream, as IP cameras
-/// and mjpg-streamer do, on a free port of 127.0.0.1, to one client at 30 fps; the frames
-/// numbered in `held` wait and go with the first after them, at once (a network or server that
-/// fell behind); after the last frame the stream closes, or with `stall` stays open and silent
-/// for a minute (a camera or server that hangs). Returns the stream's URL.
-fn mjpeg_server(frames: Vec<Vec<u8>>, held: std::ops::Range<usize>, stall: bool) -> String {
-    use std::io::{Read, Write};
-    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
-    let url = format!("http://{}/stream", listener.local_addr().unwrap());
-    std::thread::spawn(move || {
-        let Ok((mut client, _)) = listener.accept() else {
-            return;
-        };
-        let mut request = [0u8; 1024];
-        let _ = client.read(&mut request);
-        let head =
-            "HTTP/1.0 200 OK\r\nContent-Type: multipart/x-mixed-replace; boundary=frame\r\n\r\n";
-        if client.write_all(head.as_bytes()).is_err() {
-            return;
-        }
-        let start = std::time::Instant::now();
-        for (k, jpeg) in frames.iter().enumerate() {
-            let due = if held.contains(&k) { held.end } else { k };
-            let due = std::time::Duration::from_secs_f64(due as f64 / 30.0);
-            std::thread::sleep(due.saturating_sub(start.elapsed()));
-            let part = format!(
-                "--frame\r\nContent-Type: image/jpeg\r\nContent-Length: {}\r\n\r\n",
-                jpeg.len()
-            );
-            let sent = client
-                .write_all(part.as_bytes())
-                .and_then(|()| client.write_all(jpeg))
-                .and_then(|()| client.write_all(b"\r\n"));
-            if sent.is_err() {
-                return;
+/// Serves `frames` (JPEG files' bytes) at 30 fps ([`mjpeg_server`]); the frames numbered in
+/// `held` wait and go with the first after them, at once (a network or server that fell
+/// behind); after the last frame the stream closes, or with `stall` stays open and silent for a
+/// minute (a camera or server that hangs). Returns the stream's URL.
+fn served(frames: Vec<Vec<u8>>, held: std::ops::Range<usize>, stall: bool) -> String {
+    let mut start = None;
+    mjpeg_server(move |n| {
+        let start = *start.get_or_insert_with(std::time::Instant::now);
+        let Some(jpeg) = frames.get(n) else {
+            if stall {
+                std::thread::sleep(std::time::Duration::from_secs(60));
             }
-        }
-        if stall {
-            std::thread::sleep(std::time::Duration::from_secs(60));
-        }
-    });
-    url
+            return Part::End;
+        };
+        let due = if held.contains(&n) { held.end } else { n };
+        let due = std::time::Duration::from_secs_f64(due as f64 / 30.0);
+        std::thread::sleep(due.saturating_sub(start.elapsed()));
+        Part::Frame(jpeg.clone())
+    })
 }
 
 /// `n` distinct JPEG frames: a bright square moving across a grey 320×240 image.
@@ -557,8 +535,8 @@ fn network_mjpeg_frames_are_kept_as_they_came() {
     let d = dir.path();
     let frames = moving_square(60);
     let (left, right) = (
-        mjpeg_server(frames.clone(), 15..30, false),
-        mjpeg_server(frames.clone(), 0..0, false),
+        served(frames.clone(), 15..30, false),
+        served(frames.clone(), 0..0, false),
     );
     let out = handcap_ok(
         d,
@@ -622,8 +600,8 @@ fn a_silent_or_stalled_stream_ends_the_session() {
         (out, start.elapsed().as_secs_f64())
     };
     let (silent, live) = (
-        mjpeg_server(Vec::new(), 0..0, true),
-        mjpeg_server(moving_square(30), 0..0, false),
+        served(Vec::new(), 0..0, true),
+        served(moving_square(30), 0..0, false),
     );
     let (out, took) = run(&args(&silent, &live));
     let said = String::from_utf8_lossy(&out.stderr).to_string();
@@ -635,8 +613,8 @@ fn a_silent_or_stalled_stream_ends_the_session() {
     );
     println!("silent server refused after {took:.1} s");
     let (stalling, live) = (
-        mjpeg_server(moving_square(30), 0..0, true),
-        mjpeg_server(moving_square(600), 0..0, false),
+        served(moving_square(30), 0..0, true),
+        served(moving_square(600), 0..0, false),
     );
     let (out, took) = run(&args(&stalling, &live));
     let said =

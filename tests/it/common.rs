@@ -325,3 +325,53 @@ pub fn board_videos(dir: &Path, hold: usize, board: handcap::calib::BoardSpec) {
         std::fs::copy(dir.join("calib").join(file), vids.join(file)).unwrap();
     }
 }
+
+/// What an in-test Motion-JPEG server sends next.
+pub enum Part {
+    Frame(Vec<u8>),
+    /// Nothing for this number (a frame lost).
+    Skip,
+    /// The stream closes.
+    End,
+}
+
+/// Serves an HTTP multipart Motion-JPEG stream, as IP cameras and mjpg-streamer do, on a free
+/// port of 127.0.0.1 to one client: part n is what `next(n)` gives when it returns (it waits
+/// as the camera would), until it says [`Part::End`] or the client goes. Returns the stream's
+/// URL.
+pub fn mjpeg_server(mut next: impl FnMut(usize) -> Part + Send + 'static) -> String {
+    use std::io::{Read, Write};
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let url = format!("http://{}/stream", listener.local_addr().unwrap());
+    std::thread::spawn(move || {
+        let Ok((mut client, _)) = listener.accept() else {
+            return;
+        };
+        let mut request = [0u8; 1024];
+        let _ = client.read(&mut request);
+        let head =
+            "HTTP/1.0 200 OK\r\nContent-Type: multipart/x-mixed-replace; boundary=frame\r\n\r\n";
+        if client.write_all(head.as_bytes()).is_err() {
+            return;
+        }
+        for n in 0.. {
+            let jpeg = match next(n) {
+                Part::Frame(jpeg) => jpeg,
+                Part::Skip => continue,
+                Part::End => return,
+            };
+            let part = format!(
+                "--frame\r\nContent-Type: image/jpeg\r\nContent-Length: {}\r\n\r\n",
+                jpeg.len()
+            );
+            let sent = client
+                .write_all(part.as_bytes())
+                .and_then(|()| client.write_all(&jpeg))
+                .and_then(|()| client.write_all(b"\r\n"));
+            if sent.is_err() {
+                return;
+            }
+        }
+    });
+    url
+}

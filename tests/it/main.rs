@@ -13,6 +13,7 @@ mod geometry;
 mod history;
 mod images;
 mod interval;
+mod live;
 mod msvr;
 mod pipeline;
 mod search;
