@@ -24,6 +24,7 @@
 // The modelling core is its own crate (it builds without OpenCV); its modules keep their paths.
 pub use handcap_core::{data, fsio, hand, model, provenance, search, stats, DEFAULT_SEED};
 
+pub mod base64;
 pub mod calib;
 pub mod capture;
 mod cv;

@@ -26,6 +26,8 @@
 //! session's files are also rewritten every second while filming ([`Ending::Filming`]).
 
 use crate::session::protocol;
+pub mod url;
+use url::redact;
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -54,7 +56,7 @@ pub enum CaptureError {
     #[error("cannot open the {side} camera {camera:?}: {why}; {hint}")]
     NotOpened {
         side: &'static str,
-        /// The source, its password hidden ([`redact`]).
+        /// The source, its password hidden ([`url::redact`]).
         camera: String,
         why: String,
         /// What to check: the devices found for a device, the URL for a stream.
@@ -236,28 +238,6 @@ fn devices() -> String {
     }
 }
 
-/// A camera source as it may be written or said: a URL's password replaced by `***`
-/// (`http://user:***@host/…`); anything else as it is.
-pub fn redact(source: &str) -> String {
-    let Some((scheme, rest)) = source.split_once("://") else {
-        return source.to_string();
-    };
-    let authority_end = rest.find(['/', '?', '#']).unwrap_or(rest.len());
-    let (authority, path) = rest.split_at(authority_end);
-    match authority.rsplit_once('@') {
-        Some((credentials, host)) => {
-            let user = credentials.split_once(':').map_or(credentials, |(u, _)| u);
-            let hidden = if credentials.contains(':') {
-                ":***"
-            } else {
-                ""
-            };
-            format!("{scheme}://{user}{hidden}@{host}{path}")
-        }
-        None => source.to_string(),
-    }
-}
-
 fn open_camera(side: Side, source: &str, o: &CaptureOptions) -> Result<Camera, CaptureError> {
     let device = source.parse::<i32>().is_ok() || source.starts_with("/dev/");
     let not_opened = |why: String| CaptureError::NotOpened {
@@ -275,6 +255,7 @@ fn open_camera(side: Side, source: &str, o: &CaptureOptions) -> Result<Camera, C
     };
     let file = Path::new(source).is_file();
     let stream = !device && source.contains("://");
+    let opening = Instant::now();
     let opened = if let Ok(index) = source.parse::<i32>() {
         VideoCapture::new(index, videoio::CAP_ANY)
     } else if stream {
@@ -296,7 +277,13 @@ fn open_camera(side: Side, source: &str, o: &CaptureOptions) -> Result<Camera, C
     let mut capture = opened.map_err(|e| not_opened(e.message))?;
     if !capture.is_opened().unwrap_or(false) {
         return Err(not_opened(if stream {
-            format!("it did not open and send a frame within {STREAM_OPEN_S} s")
+            let waited = opening.elapsed().as_secs_f64() >= STREAM_OPEN_S - 0.5;
+            let answer = url::answer(source).map_or(String::new(), |a| format!("; {a}"));
+            if waited {
+                format!("it did not open and send a frame within {STREAM_OPEN_S} s{answer}")
+            } else {
+                format!("it did not open{answer}")
+            }
         } else {
             "OpenCV cannot open it".into()
         }));
@@ -993,7 +980,7 @@ pub mod calibration {
 
 #[cfg(test)]
 mod tests {
-    use super::{redact, run_command, AtomicBool, CommandEnd};
+    use super::{run_command, AtomicBool, CommandEnd};
 
     #[test]
     fn a_pressure_command_is_timed_out_or_stopped_and_its_error_said() {
@@ -1013,23 +1000,5 @@ mod tests {
             said(run_command("sleep 5", &stopping, 5.0).unwrap()),
             "stopped"
         );
-    }
-
-    #[test]
-    fn passwords_in_camera_urls_are_hidden_and_nothing_else_changes() {
-        assert_eq!(
-            redact("http://lab:s3cret@10.0.0.7:8080/stream.mjpg?x=1"),
-            "http://lab:***@10.0.0.7:8080/stream.mjpg?x=1"
-        );
-        assert_eq!(
-            redact("rtsp://admin:p@ss@cam/live"),
-            "rtsp://admin:***@cam/live"
-        );
-        assert_eq!(redact("rtsp://admin@cam/live"), "rtsp://admin@cam/live");
-        // An @ after the host belongs to the path, not to credentials.
-        assert_eq!(redact("http://cam/a@b"), "http://cam/a@b");
-        for plain in ["0", "/dev/video2", "left.avi", "http://cam:8080/video"] {
-            assert_eq!(redact(plain), plain);
-        }
     }
 }

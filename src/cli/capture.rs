@@ -68,7 +68,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if a.left.trim() == a.right.trim() {
         super::usage!(
             "--left and --right are the same source ({}); give each camera its own",
-            capture::redact(&a.left)
+            capture::url::redact(&a.left)
         );
     }
     if let Some(d) = a.duration_s.filter(|&d| d <= 0.0) {

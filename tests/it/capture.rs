@@ -497,6 +497,76 @@ fn served(frames: Vec<Vec<u8>>, held: std::ops::Range<usize>, stall: bool) -> St
     })
 }
 
+/// A camera URL that does not open says what its server answered: a wrong path (404), wrong
+/// credentials (401: the password never shown), a web page instead of a stream, nothing
+/// listening.
+#[test]
+fn url_failures_say_what_the_server_answers() {
+    use std::io::{Read, Write};
+    let dir = tempdir();
+    let d = dir.path();
+    // Answers every request with `head` and closes.
+    let answering = |head: &'static str| {
+        let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let address = listener.local_addr().unwrap();
+        std::thread::spawn(move || {
+            for mut client in listener.incoming().flatten() {
+                let mut request = [0u8; 2048];
+                let _ = client.read(&mut request);
+                let _ = client.write_all(head.as_bytes());
+            }
+        });
+        address
+    };
+    let live = served(moving_square(300), 0..0, false);
+    let refused = |left: &str| {
+        let out = handcap(
+            d,
+            &[
+                "capture",
+                "--left",
+                left,
+                "--right",
+                &live,
+                "--duration-s",
+                "1",
+                "--out",
+                "s",
+            ],
+        );
+        assert_eq!(out.status.code(), Some(1));
+        String::from_utf8_lossy(&out.stderr).to_string()
+    };
+    let missing = answering("HTTP/1.0 404 Not Found\r\nContent-Type: text/html\r\n\r\nno");
+    let said = refused(&format!("http://{missing}/video"));
+    assert!(
+        said.contains("the server answers 404 Not Found (text/html)"),
+        "{said}"
+    );
+    let locked = answering("HTTP/1.0 401 Unauthorized\r\nWWW-Authenticate: Basic\r\n\r\n");
+    let said = refused(&format!("http://lab:s3cret@{locked}/video"));
+    assert!(
+        said.contains("the server answers 401 Unauthorized"),
+        "{said}"
+    );
+    assert!(
+        !said.contains("s3cret") && said.contains("lab:***@"),
+        "{said}"
+    );
+    let page = answering("HTTP/1.0 200 OK\r\nContent-Type: text/html\r\n\r\n<html></html>");
+    let said = refused(&format!("http://{page}/"));
+    assert!(
+        said.contains("the server answers 200 OK (text/html)"),
+        "{said}"
+    );
+    let closed = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap();
+    let said = refused(&format!("http://{closed}/video"));
+    assert!(said.contains("connection refused"), "{said}");
+}
+
 /// `n` distinct JPEG frames: a bright square moving across a grey 320×240 image.
 fn moving_square(n: i32) -> Vec<Vec<u8>> {
     (0..n)

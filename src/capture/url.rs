@@ -1,0 +1,174 @@
+//! Camera URLs: their parts, shown without the password, and what an HTTP camera's server
+//! answers when OpenCV cannot open its stream (FFmpeg does not say: a wrong path, wrong
+//! credentials and a page that is not a stream all end in "cannot open").
+
+use std::io::{Read, Write};
+use std::time::Duration;
+
+/// How long the server's answer is waited for (s).
+pub const ANSWER_S: f64 = 2.0;
+
+/// A URL's parts: `scheme://[user[:password]@]host[:port][/path…]`.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Url<'a> {
+    pub scheme: &'a str,
+    pub user: Option<&'a str>,
+    pub password: Option<&'a str>,
+    /// Host and port, as written.
+    pub authority: &'a str,
+    /// From the first `/`, `?` or `#` on (`""` when none).
+    pub path: &'a str,
+}
+
+impl<'a> Url<'a> {
+    /// The parts of `source`, or `None` when it is no URL (a device, a file).
+    pub fn parse(source: &'a str) -> Option<Self> {
+        let (scheme, rest) = source.split_once("://")?;
+        let end = rest.find(['/', '?', '#']).unwrap_or(rest.len());
+        let (authority, path) = rest.split_at(end);
+        let (credentials, authority) = match authority.rsplit_once('@') {
+            Some((c, a)) => (Some(c), a),
+            None => (None, authority),
+        };
+        let (user, password) = match credentials.map(|c| c.split_once(':')) {
+            Some(Some((u, p))) => (Some(u), Some(p)),
+            Some(None) => (credentials, None),
+            None => (None, None),
+        };
+        Some(Url {
+            scheme,
+            user,
+            password,
+            authority,
+            path,
+        })
+    }
+}
+
+/// `source` as it may be shown and written: a URL's password as `***`.
+pub fn redact(source: &str) -> String {
+    match Url::parse(source) {
+        Some(u) if u.password.is_some() => format!(
+            "{}://{}:***@{}{}",
+            u.scheme,
+            u.user.unwrap_or(""),
+            u.authority,
+            u.path
+        ),
+        _ => source.to_string(),
+    }
+}
+
+/// What the server of an `http://` camera URL answers a GET of its path (with its credentials,
+/// as HTTP basic authentication): its status line and content type, or why there is no answer.
+/// `None` for other schemes.
+pub fn answer(source: &str) -> Option<String> {
+    let url = Url::parse(source).filter(|u| u.scheme.eq_ignore_ascii_case("http"))?;
+    let address = if url.authority.contains(':') {
+        url.authority.to_string()
+    } else {
+        format!("{}:80", url.authority)
+    };
+    let wait = Duration::from_secs_f64(ANSWER_S);
+    let resolved = match std::net::ToSocketAddrs::to_socket_addrs(&address) {
+        Ok(mut a) => a.next(),
+        Err(e) => return Some(format!("{} cannot be resolved ({e})", url.authority)),
+    };
+    let Some(resolved) = resolved else {
+        return Some(format!("{} cannot be resolved", url.authority));
+    };
+    let mut stream = match std::net::TcpStream::connect_timeout(&resolved, wait) {
+        Ok(s) => s,
+        Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => {
+            return Some(format!(
+                "nothing listens at {} (connection refused)",
+                url.authority
+            ))
+        }
+        Err(e) => return Some(format!("{} cannot be reached ({e})", url.authority)),
+    };
+    let path = if url.path.starts_with('/') {
+        url.path
+    } else {
+        "/"
+    };
+    let auth = match url.user {
+        Some(user) => format!(
+            "Authorization: Basic {}\r\n",
+            crate::base64::base64(format!("{user}:{}", url.password.unwrap_or("")).as_bytes())
+        ),
+        None => String::new(),
+    };
+    let request = format!(
+        "GET {path} HTTP/1.0\r\nHost: {}\r\n{auth}\r\n",
+        url.authority
+    );
+    let _ = stream.set_read_timeout(Some(wait));
+    if stream.write_all(request.as_bytes()).is_err() {
+        return Some(format!("{} closed the connection", url.authority));
+    }
+    // The head: up to the blank line, or what came within the wait.
+    let mut head = Vec::new();
+    let mut buf = [0u8; 512];
+    while !head.windows(4).any(|w| w == b"\r\n\r\n") && head.len() < 8192 {
+        match stream.read(&mut buf) {
+            Ok(0) | Err(_) => break,
+            Ok(n) => head.extend_from_slice(&buf[..n]),
+        }
+    }
+    let head = String::from_utf8_lossy(&head);
+    let mut lines = head.lines();
+    let Some(status) = lines.next().filter(|l| l.starts_with("HTTP/")) else {
+        return Some(format!(
+            "{} gave no HTTP answer within {ANSWER_S} s",
+            url.authority
+        ));
+    };
+    let status = status.split_once(' ').map_or(status, |(_, s)| s).trim();
+    let content = lines
+        .filter_map(|l| l.split_once(':'))
+        .find(|(k, _)| k.trim().eq_ignore_ascii_case("content-type"))
+        .map(|(_, v)| v.trim().to_string());
+    Some(match content {
+        Some(c) => format!("the server answers {status} ({c})"),
+        None => format!("the server answers {status}"),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn urls_split_into_their_parts() {
+        let u = Url::parse("http://admin:s3cr:et@10.0.0.5:8080/video?x=1").unwrap();
+        assert_eq!(
+            (u.user, u.password, u.authority, u.path),
+            (
+                Some("admin"),
+                Some("s3cr:et"),
+                "10.0.0.5:8080",
+                "/video?x=1"
+            )
+        );
+        assert!(Url::parse("0").is_none());
+    }
+
+    #[test]
+    fn passwords_in_camera_urls_are_hidden_and_nothing_else_changes() {
+        assert_eq!(
+            redact("http://lab:s3cret@10.0.0.7:8080/stream.mjpg?x=1"),
+            "http://lab:***@10.0.0.7:8080/stream.mjpg?x=1"
+        );
+        assert_eq!(
+            redact("rtsp://admin:p@ss@cam/live"),
+            "rtsp://admin:***@cam/live"
+        );
+        assert_eq!(redact("rtsp://admin@cam/live"), "rtsp://admin@cam/live");
+        // An @ after the host belongs to the path, not to credentials.
+        assert_eq!(redact("http://cam/a@b"), "http://cam/a@b");
+        for plain in ["0", "/dev/video2", "left.avi", "http://cam:8080/video"] {
+            assert_eq!(redact(plain), plain);
+        }
+    }
+}
