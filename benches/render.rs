@@ -12,7 +12,8 @@ use nalgebra::{Point3, Rotation3, Vector3};
 use handcap::geometry::WorldFromBoard;
 use handcap::synth::camera::RigConfig;
 use handcap::synth::plant::Plant;
-use handcap::synth::render::{encode_png, Board, Finger, Lighting, Surroundings, View};
+use handcap::synth::render::{encode_png, Lighting, Surroundings, View};
+use handcap::synth::scene::{Board, Finger};
 
 fn bench(c: &mut Criterion) {
     let rig = RigConfig::default().build(2020);

@@ -18,7 +18,8 @@ use handcap::synth::camera::RigConfig;
 use handcap::synth::capture::Realism;
 use handcap::synth::clutter;
 use handcap::synth::plant::Plant;
-use handcap::synth::render::{Finger, ImageFormat, Lighting, Surroundings, View};
+use handcap::synth::render::{ImageFormat, Lighting, Surroundings, View};
+use handcap::synth::scene::Finger;
 use handcap::triangulate::marker::{find_markers, MarkerOptions};
 
 /// Reads, decodes and searches both frames, then triangulates and reprojects the tip.

@@ -25,23 +25,26 @@
 //! is written and listed, the logs are complete, and `capture.json` says how it ended. The
 //! session's files are also rewritten every second while filming ([`Ending::Filming`]).
 
-use crate::session::protocol;
+pub mod calibration;
+mod camera;
+mod files;
+pub mod motion;
+mod regulator;
 pub mod url;
-use url::redact;
+
+use camera::{film, open_camera, CameraEnd, Grabbed};
+use files::SessionFiles;
+use regulator::{drive, run_command, CommandEnd};
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use opencv::core::{Mat, Vector};
-use opencv::prelude::*;
-use opencv::videoio::{self, VideoCapture};
 use serde::Serialize;
 
 use crate::fsio;
-use crate::session::frames::frames_csv;
-use crate::session::pressures::Logged;
+use crate::session::protocol;
 use crate::stereo::Side;
 
 /// A camera that delivers nothing for this long has stopped (s).
@@ -158,6 +161,8 @@ impl Ending {
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct Stats {
     pub frames: [usize; 2],
+    /// Of them, those stamped by the camera's driver (a V4L2 device), not at grab time.
+    pub by_driver: [usize; 2],
     /// Frames per second over the session, each camera.
     pub fps: [f64; 2],
     /// Frames each camera dropped ([`crate::frame_times::dropped`]).
@@ -172,6 +177,10 @@ pub struct Stats {
     /// A calibration capture's pairs taken, and why the last candidate was not.
     pub board_pairs: usize,
     pub board_refused: String,
+    /// A calibration capture's right camera delay behind the left, seen in the board's motion
+    /// ([`motion`], ms), when measured.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub board_delay_ms: Option<f64>,
 }
 
 /// What a session did and wrote.
@@ -188,9 +197,15 @@ pub struct CaptureSummary {
     pub start_unix_s: f64,
 }
 
+/// Longest a `--set-pressure` command may run (s): a regulator that does not answer ends the
+/// session instead of holding it.
+pub const COMMAND_TIMEOUT_S: f64 = 10.0;
+
 /// The session's clock: seconds since it began, on the host's monotonic clock.
 struct Clock {
     start: Instant,
+    /// The host's monotonic clock at `start` (s).
+    start_monotonic_s: f64,
 }
 
 impl Clock {
@@ -210,313 +225,6 @@ fn monotonic_s() -> f64 {
         libc::clock_gettime(libc::CLOCK_MONOTONIC, &mut ts);
     }
     ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
-}
-
-/// An opened camera.
-struct Camera {
-    capture: VideoCapture,
-    /// A file's frame period: frames are handed out at its rate, as a camera would.
-    pace_s: Option<f64>,
-    refused: Vec<String>,
-}
-
-/// The video devices on this machine, for the message when a camera does not open.
-fn devices() -> String {
-    let mut found: Vec<String> = std::fs::read_dir("/dev")
-        .map(|d| {
-            d.flatten()
-                .map(|e| e.path().display().to_string())
-                .filter(|p| p.starts_with("/dev/video"))
-                .collect()
-        })
-        .unwrap_or_default();
-    found.sort();
-    if found.is_empty() {
-        "none (no /dev/video*)".into()
-    } else {
-        found.join(", ")
-    }
-}
-
-fn open_camera(side: Side, source: &str, o: &CaptureOptions) -> Result<Camera, CaptureError> {
-    let device = source.parse::<i32>().is_ok() || source.starts_with("/dev/");
-    let not_opened = |why: String| CaptureError::NotOpened {
-        side: side.name(),
-        camera: redact(source),
-        why,
-        hint: if device {
-            format!("cameras found: {}", devices())
-        } else if source.contains("://") {
-            "check that the stream plays (e.g. `ffplay URL`) and that the address, port and credentials are right".into()
-        } else {
-            "give a device index (0), a device path (/dev/video0), a video file or a stream URL"
-                .into()
-        },
-    };
-    let file = Path::new(source).is_file();
-    let stream = !device && source.contains("://");
-    let opening = Instant::now();
-    let opened = if let Ok(index) = source.parse::<i32>() {
-        VideoCapture::new(index, videoio::CAP_ANY)
-    } else if stream {
-        // FFmpeg's own waits are 30 s; a stream gives up within the stall's time instead, so
-        // a stopped server ends the session promptly and Ctrl-C is never kept waiting.
-        let ms = |s: f64| (1e3 * s).round() as i32;
-        let params = opencv::core::Vector::<i32>::from_slice(&[
-            videoio::CAP_PROP_OPEN_TIMEOUT_MSEC,
-            ms(STREAM_OPEN_S),
-            videoio::CAP_PROP_READ_TIMEOUT_MSEC,
-            ms(STALL_S),
-        ]);
-        VideoCapture::from_file_with_params(source, videoio::CAP_FFMPEG, &params)
-    } else if file {
-        VideoCapture::from_file(source, videoio::CAP_FFMPEG)
-    } else {
-        VideoCapture::from_file(source, videoio::CAP_ANY)
-    };
-    let mut capture = opened.map_err(|e| not_opened(e.message))?;
-    if !capture.is_opened().unwrap_or(false) {
-        return Err(not_opened(if stream {
-            let waited = opening.elapsed().as_secs_f64() >= STREAM_OPEN_S - 0.5;
-            let answer = url::answer(source).map_or(String::new(), |a| format!("; {a}"));
-            if waited {
-                format!("it did not open and send a frame within {STREAM_OPEN_S} s{answer}")
-            } else {
-                format!("it did not open{answer}")
-            }
-        } else {
-            "OpenCV cannot open it".into()
-        }));
-    }
-    let mut refused = Vec::new();
-    let pace_s = if file {
-        // A Motion-JPEG file's frames raw, as a camera's MJPEG would come.
-        crate::video::read_raw_if_jpeg(&mut capture);
-        let fps = capture.get(videoio::CAP_PROP_FPS)?;
-        Some(1.0 / if fps > 0.0 { fps } else { o.fps })
-    } else if stream {
-        // A stream's settings are the server's. Its Motion-JPEG frames are kept as the bytes
-        // that came: no decoding and re-encoding on the grab thread (23.5 ms of CPU for a 720p
-        // frame, which a busy computer cannot spare at 30 fps). Other codecs are decoded.
-        if !crate::video::read_raw_if_jpeg(&mut capture) {
-            refused.push(format!(
-                "raw frames (codec {:?}, not Motion-JPEG: frames decoded, stored as PNG)",
-                crate::video::codec(&capture)
-            ));
-        }
-        None
-    } else {
-        let mjpg = f64::from(opencv::videoio::VideoWriter::fourcc('M', 'J', 'P', 'G')?);
-        let settings = [
-            ("MJPG", videoio::CAP_PROP_FOURCC, mjpg),
-            ("width", videoio::CAP_PROP_FRAME_WIDTH, f64::from(o.width)),
-            (
-                "height",
-                videoio::CAP_PROP_FRAME_HEIGHT,
-                f64::from(o.height),
-            ),
-            ("frame rate", videoio::CAP_PROP_FPS, o.fps),
-            // V4L2: 1 is manual exposure.
-            ("fixed exposure", videoio::CAP_PROP_AUTO_EXPOSURE, 1.0),
-            ("fixed white balance", videoio::CAP_PROP_AUTO_WB, 0.0),
-            ("fixed focus", videoio::CAP_PROP_AUTOFOCUS, 0.0),
-            // The MJPEG bytes as the camera sent them.
-            ("raw frames", videoio::CAP_PROP_CONVERT_RGB, 0.0),
-        ];
-        for (name, prop, value) in settings {
-            if !capture.set(prop, value).unwrap_or(false) {
-                refused.push(name.to_string());
-            }
-        }
-        None
-    };
-    Ok(Camera {
-        capture,
-        pace_s,
-        refused,
-    })
-}
-
-/// A frame as grabbed: its camera, number, time, and file bytes with their extension.
-struct Grabbed {
-    side: Side,
-    index: usize,
-    time_s: f64,
-    bytes: Vec<u8>,
-    extension: &'static str,
-}
-
-/// Why a camera's thread ended.
-enum CameraEnd {
-    Stopped,
-    Failed { time_s: f64, frames: usize },
-}
-
-/// The frame a camera just grabbed, as file bytes: JPEG as it came, else PNG.
-fn retrieve(capture: &mut VideoCapture, mat: &mut Mat) -> opencv::Result<(Vec<u8>, &'static str)> {
-    capture.retrieve(mat, 0)?;
-    let bytes = mat.data_bytes()?;
-    if mat.rows() == 1 && bytes.starts_with(&[0xff, 0xd8]) {
-        return Ok((bytes.to_vec(), "jpg"));
-    }
-    let mut png = Vector::<u8>::new();
-    opencv::imgcodecs::imencode(".png", mat, &mut png, &Vector::new())?;
-    Ok((png.to_vec(), "png"))
-}
-
-fn film(
-    side: Side,
-    mut camera: Camera,
-    clock: &Clock,
-    tx: &mpsc::Sender<Grabbed>,
-    stop: &AtomicBool,
-) -> CameraEnd {
-    let mut mat = Mat::default();
-    let mut index = 0;
-    while !stop.load(Ordering::SeqCst) {
-        if let Some(period) = camera.pace_s {
-            let due = index as f64 * period;
-            let wait = due - clock.now_s();
-            if wait > 0.0 {
-                std::thread::sleep(Duration::from_secs_f64(wait));
-            }
-        }
-        let grabbed = camera.capture.grab().unwrap_or(false);
-        let time_s = clock.now_s();
-        let frame = grabbed
-            .then(|| retrieve(&mut camera.capture, &mut mat).ok())
-            .flatten();
-        let Some((bytes, extension)) = frame else {
-            return CameraEnd::Failed {
-                time_s,
-                frames: index,
-            };
-        };
-        let sent = tx.send(Grabbed {
-            side,
-            index,
-            time_s,
-            bytes,
-            extension,
-        });
-        if sent.is_err() {
-            break;
-        }
-        index += 1;
-    }
-    CameraEnd::Stopped
-}
-
-/// Runs the protocol: each step's command, logged, then held. Returns how it ended.
-fn drive(
-    steps: &[protocol::Step],
-    template: &str,
-    clock: &Clock,
-    log: &std::sync::Mutex<Vec<Commanded>>,
-    stop: &AtomicBool,
-) -> Option<Ending> {
-    for step in steps {
-        if stop.load(Ordering::SeqCst) {
-            return None;
-        }
-        let command = protocol::command_for(template, step);
-        let time_s = clock.now_s();
-        let failed = match run_command(&command, stop, COMMAND_TIMEOUT_S) {
-            Ok(CommandEnd::Done) => None,
-            Ok(CommandEnd::Stopped) => return None,
-            Ok(CommandEnd::Failed(why)) => Some(format!("`{command}` {why}")),
-            Err(e) => Some(format!("`{command}` could not run: {e}")),
-        };
-        if let Some(message) = failed {
-            return Some(Ending::CommandFailed {
-                step: step.step,
-                message,
-            });
-        }
-        log.lock().expect("log").push(Commanded {
-            time_s,
-            end_s: clock.now_s(),
-            step: step.clone(),
-        });
-        let wait = time_s + step.hold_s - clock.now_s();
-        if wait > 0.0 {
-            std::thread::sleep(Duration::from_secs_f64(wait));
-        }
-    }
-    Some(Ending::ProtocolDone)
-}
-
-/// Longest a `--set-pressure` command may run (s): a regulator that does not answer ends the
-/// session instead of holding it.
-pub const COMMAND_TIMEOUT_S: f64 = 10.0;
-
-/// How a pressure command ended.
-enum CommandEnd {
-    Done,
-    /// The session is stopping (Ctrl-C, a signal, a camera lost): the command was killed.
-    Stopped,
-    /// Why it failed: its exit status and error output, or that it timed out.
-    Failed(String),
-}
-
-/// Runs `command` with `sh -c`, waiting at most `timeout_s` and no longer than the session
-/// runs.
-fn run_command(command: &str, stop: &AtomicBool, timeout_s: f64) -> std::io::Result<CommandEnd> {
-    let mut child = std::process::Command::new("sh")
-        .arg("-c")
-        .arg(command)
-        .stdin(std::process::Stdio::null())
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::piped())
-        .spawn()?;
-    let start = Instant::now();
-    loop {
-        if let Some(status) = child.try_wait()? {
-            if status.success() {
-                return Ok(CommandEnd::Done);
-            }
-            let mut error = String::new();
-            if let Some(mut stderr) = child.stderr.take() {
-                use std::io::Read;
-                let _ = stderr.read_to_string(&mut error);
-            }
-            return Ok(CommandEnd::Failed(format!(
-                "exited with {status}: {}",
-                error.trim()
-            )));
-        }
-        let stopping = stop.load(Ordering::SeqCst);
-        if stopping || start.elapsed().as_secs_f64() > timeout_s {
-            let _ = child.kill();
-            let _ = child.wait();
-            return Ok(if stopping {
-                CommandEnd::Stopped
-            } else {
-                CommandEnd::Failed(format!(
-                    "did not finish in {timeout_s} s (killed): check that the regulator answers"
-                ))
-            });
-        }
-        std::thread::sleep(Duration::from_millis(5));
-    }
-}
-
-/// A step the regulator was told: when its command started and when it returned.
-#[derive(Clone, Debug)]
-struct Commanded {
-    time_s: f64,
-    end_s: f64,
-    step: protocol::Step,
-}
-
-fn pressures_csv(log: &[Commanded]) -> String {
-    crate::session::pressures::pressures_csv(log.iter().map(|c| Logged {
-        time_s: c.time_s,
-        command_end_s: Some(c.end_s),
-        pressures_kpa: c.step.pressures,
-        step: c.step.step,
-        phase: &c.step.phase,
-    }))
 }
 
 /// Figures of one camera's times ([`crate::frame_times`]): frames per second, frames
@@ -542,6 +250,7 @@ fn camera_figures(times: &[f64]) -> (f64, usize, usize, f64) {
 
 fn stats(
     rows: &[(Side, usize, f64)],
+    by_driver: [usize; 2],
     steps_done: usize,
     judge: Option<&calibration::Judge>,
 ) -> Stats {
@@ -551,6 +260,7 @@ fn stats(
     let ((fl, dl, ll, ml), (fr, dr, lr, mr)) = (camera_figures(&l), camera_figures(&r));
     Stats {
         frames: [l.len(), r.len()],
+        by_driver,
         fps: [fl, fr],
         drops: [dl, dr],
         late: [ll, lr],
@@ -559,6 +269,9 @@ fn stats(
         steps_done,
         board_pairs: judge.map_or(0, |j| j.taken),
         board_refused: judge.map_or_else(String::new, |j| j.refused.clone()),
+        board_delay_ms: judge
+            .and_then(|j| j.delay)
+            .map(|d| 1e3 * d.right_minus_left_s),
     }
 }
 
@@ -614,6 +327,7 @@ pub fn capture(
     let start_monotonic_s = monotonic_s();
     let clock = Clock {
         start: Instant::now(),
+        start_monotonic_s,
     };
     let mut judge = options
         .calibration
@@ -624,6 +338,7 @@ pub fn capture(
     let log = std::sync::Mutex::new(Vec::new());
     let (tx, rx) = mpsc::channel::<Grabbed>();
     let mut rows: Vec<(Side, usize, f64)> = Vec::new();
+    let mut by_driver = [0; 2];
     let mut ending = None;
     let mut failure = None;
     std::thread::scope(|scope| {
@@ -631,9 +346,11 @@ pub fn capture(
         for (side, camera) in [Side::Left, Side::Right].into_iter().zip(cameras) {
             let tx = tx.clone();
             let (clock, stop) = (&clock, &stop);
+            // A calibration capture measures the motion its judge needs.
+            let meter = judge.is_some().then(motion::Meter::default);
             filming.push((
                 side,
-                scope.spawn(move || film(side, camera, clock, &tx, stop)),
+                scope.spawn(move || film(side, camera, clock, &tx, stop, meter)),
             ));
         }
         drop(tx);
@@ -675,8 +392,12 @@ pub fn capture(
             }
             for frame in arrived {
                 last_seen[frame.side as usize] = frame.time_s;
-                if judge.is_some() {
-                    // A calibration capture keeps only each camera's latest frame.
+                if let Some(judge) = judge.as_mut() {
+                    // A calibration capture keeps only each camera's latest frame, and its
+                    // motion.
+                    if let Some(change) = frame.change {
+                        judge.motion.add(frame.side, frame.time_s, change);
+                    }
                     let side = frame.side as usize;
                     latest[side] = Some(frame);
                 } else if let Err(e) = store(&frame) {
@@ -684,13 +405,14 @@ pub fn capture(
                     stop.store(true, Ordering::SeqCst);
                 } else {
                     rows.push((frame.side, frame.index, frame.time_s));
+                    by_driver[frame.side as usize] += usize::from(frame.by_driver);
                 }
             }
             let now = clock.now_s();
             if let (Some(judge), [Some(l), Some(r)]) = (judge.as_mut(), &latest) {
                 if now - last_look >= calibration::BOARD_EVERY_S && !stop.load(Ordering::SeqCst) {
                     last_look = now;
-                    if let Err(e) = judge.look(l, r) {
+                    if let Err(e) = judge.look(l, r, now) {
                         failure = Some(e);
                         stop.store(true, Ordering::SeqCst);
                     }
@@ -730,7 +452,7 @@ pub fn capture(
                 let so_far = CaptureSummary {
                     ending: Ending::Filming,
                     on_abort: None,
-                    stats: stats(&rows, log.len(), judge.as_ref()),
+                    stats: stats(&rows, by_driver, log.len(), judge.as_ref()),
                     refused: refused.clone(),
                     start_monotonic_s,
                     start_unix_s,
@@ -792,7 +514,7 @@ pub fn capture(
     let summary = CaptureSummary {
         ending,
         on_abort,
-        stats: stats(&rows, log.len(), judge.as_ref()),
+        stats: stats(&rows, by_driver, log.len(), judge.as_ref()),
         refused,
         start_monotonic_s,
         start_unix_s,
@@ -806,199 +528,4 @@ pub fn capture(
         });
     }
     Ok(summary)
-}
-
-/// The files that list a session: `frames/frames.csv` (not for a calibration capture),
-/// `pressures.csv` (with a protocol) and `capture.json`; rewritten whole (temp file, then
-/// rename) every second while filming and at the end, so that they always agree with the
-/// images written.
-struct SessionFiles<'a> {
-    out: &'a Path,
-    options: &'a CaptureOptions,
-}
-
-impl SessionFiles<'_> {
-    fn write(
-        &self,
-        rows: &[(Side, usize, f64)],
-        log: &[Commanded],
-        summary: &CaptureSummary,
-    ) -> Result<(), CaptureError> {
-        let write = |path: &Path, text: &str| {
-            fsio::write_bytes(path, text.as_bytes()).map_err(|source| CaptureError::Write {
-                path: path.to_path_buf(),
-                source,
-            })
-        };
-        // capture.json first: it says how to read the others, so a kill between two writes
-        // leaves it beside lists as of this pass or the one before, never lists without it.
-        let options = self.options;
-        let json = serde_json::json!({
-            "sources": options.sources.each_ref().map(|s| redact(s)),
-            "requested": {"width": options.width, "height": options.height, "fps": options.fps},
-            "clock": "time_s = CLOCK_MONOTONIC seconds - start_monotonic_s (Python: time.monotonic() - start_monotonic_s)",
-            "summary": summary,
-        });
-        write(
-            &self.out.join("capture.json"),
-            &(serde_json::to_string_pretty(&json).expect("serialisable") + "\n"),
-        )?;
-        if options.calibration.is_none() {
-            write(
-                &self.out.join("frames/frames.csv"),
-                &frames_csv(rows.iter().copied()),
-            )?;
-        }
-        if options.protocol.is_some() {
-            write(&self.out.join("pressures.csv"), &pressures_csv(log))?;
-        }
-        Ok(())
-    }
-}
-
-/// A calibration capture's judge: every `BOARD_EVERY_S` the latest frame of each camera is
-/// searched for the board; a pair is taken when both show it, it stood still since the
-/// previous search (no corner moved over [`crate::calib::video::STILL_PX`]) and it stands
-/// somewhere new (`crate::calib::video::new_place`).
-pub mod calibration {
-    use super::*;
-    use crate::calib::detect::{find_board, Detector, Seen};
-    use crate::calib::video::{footprint, new_place, STILL_PX};
-
-    /// How often the latest frames are searched for the board (s).
-    pub const BOARD_EVERY_S: f64 = 0.2;
-
-    /// The pairs taken so far and where their boards stood.
-    pub struct Judge {
-        pub spec: BoardPairs,
-        dir: PathBuf,
-        previous: Option<[Seen; 2]>,
-        places: Vec<[f64; 6]>,
-        pub taken: usize,
-        pub refused: String,
-    }
-
-    fn corners(spec: &BoardPairs, bytes: &[u8]) -> Option<(Seen, [i32; 2])> {
-        let gray = crate::cv::decode_image(
-            &Vector::from_slice(bytes),
-            opencv::imgcodecs::IMREAD_GRAYSCALE,
-        )
-        .ok()?;
-        let found = find_board(&gray, &spec.board, Detector::first_for(&spec.board)).ok()??;
-        Some((found, [gray.cols(), gray.rows()]))
-    }
-
-    impl Judge {
-        /// # Errors
-        /// The `calib` folder or its board file cannot be written.
-        pub fn new(spec: BoardPairs, out: &Path) -> Result<Self, CaptureError> {
-            let dir = out.join("calib");
-            std::fs::create_dir_all(&dir).map_err(|source| CaptureError::Write {
-                path: dir.clone(),
-                source,
-            })?;
-            let board = dir.join(crate::calib::file::BOARD_FILE);
-            fsio::write_bytes(
-                &board,
-                crate::calib::file::board_yaml(&spec.board).as_bytes(),
-            )
-            .map_err(|source| CaptureError::Write {
-                path: board,
-                source,
-            })?;
-            Ok(Judge {
-                spec,
-                dir,
-                previous: None,
-                places: Vec::new(),
-                taken: 0,
-                refused: String::new(),
-            })
-        }
-
-        pub fn done(&self) -> bool {
-            self.taken
-                >= if self.spec.reference {
-                    1
-                } else {
-                    self.spec.pairs
-                }
-        }
-
-        /// Looks at the latest left and right frames; takes them when they qualify.
-        ///
-        /// # Errors
-        /// A pair's file cannot be written.
-        pub(super) fn look(&mut self, left: &Grabbed, right: &Grabbed) -> Result<(), CaptureError> {
-            let (l, r) = (
-                corners(&self.spec, &left.bytes),
-                corners(&self.spec, &right.bytes),
-            );
-            let previous = self.previous.take();
-            let (Some((l, size)), Some((r, _))) = (l, r) else {
-                self.refused = "the board is not seen in both cameras".into();
-                return Ok(());
-            };
-            // The rule `calibrate` will hold the pair to.
-            if let Err(why) = crate::calib::pairs::match_corners(&self.spec.board, &l, &r) {
-                self.refused = why;
-                return Ok(());
-            }
-            let moved = match &previous {
-                Some([pl, pr]) => l.moved_from(pl).max(r.moved_from(pr)),
-                None => f64::INFINITY,
-            };
-            self.previous = Some([l.clone(), r]);
-            if moved > STILL_PX {
-                self.refused = "the board is moving: hold it still".into();
-                return Ok(());
-            }
-            let place = footprint(&self.spec.board, &l, size);
-            if !self.spec.reference && !new_place(&place, &self.places) {
-                self.refused = "the board stands where a pair was taken: move or tilt it".into();
-                return Ok(());
-            }
-            let name = if self.spec.reference {
-                "ref".to_string()
-            } else {
-                format!("{:02}", self.taken)
-            };
-            for frame in [left, right] {
-                let path =
-                    self.dir
-                        .join(format!("{}_{name}.{}", frame.side.name(), frame.extension));
-                fsio::write_bytes(&path, &frame.bytes)
-                    .map_err(|source| CaptureError::Write { path, source })?;
-            }
-            self.places.push(place);
-            self.taken += 1;
-            self.refused.clear();
-            Ok(())
-        }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::{run_command, AtomicBool, CommandEnd};
-
-    #[test]
-    fn a_pressure_command_is_timed_out_or_stopped_and_its_error_said() {
-        let running = AtomicBool::new(false);
-        let said = |end: CommandEnd| match end {
-            CommandEnd::Failed(why) => why,
-            CommandEnd::Done => "done".into(),
-            CommandEnd::Stopped => "stopped".into(),
-        };
-        assert_eq!(said(run_command("true", &running, 5.0).unwrap()), "done");
-        let why = said(run_command("echo no >&2; exit 3", &running, 5.0).unwrap());
-        assert_eq!(why, "exited with exit status: 3: no");
-        let why = said(run_command("sleep 5", &running, 0.2).unwrap());
-        assert!(why.starts_with("did not finish in 0.2 s (killed)"), "{why}");
-        let stopping = AtomicBool::new(true);
-        assert_eq!(
-            said(run_command("sleep 5", &stopping, 5.0).unwrap()),
-            "stopped"
-        );
-    }
 }

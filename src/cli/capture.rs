@@ -117,13 +117,16 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .map(|c| if c.reference { 1 } else { c.pairs });
     let say = |s: &Stats| match wanted {
         Some(n) => format!(
-            "board pairs {}/{n}{}",
+            "board pairs {}/{n}{}{}",
             s.board_pairs,
             if s.board_refused.is_empty() {
                 String::new()
             } else {
                 format!(" ({})", s.board_refused)
-            }
+            },
+            s.board_delay_ms.map_or(String::new(), |ms| format!(
+                "; the right camera sees the board {ms:+.0} ms after the left"
+            ))
         ),
         None => line(s, steps),
     };

@@ -18,8 +18,10 @@ use std::time::Instant;
 
 use nalgebra::Vector3;
 use rand::{Rng, SeedableRng};
-use serde::Serialize;
 
+use super::demo_summary::{
+    CalibrationCheck, IntervalCheck, InverseCheck, Score, Summary, TipCheck,
+};
 use super::fit::{self, FitJob, FitOutcome, Selection};
 use super::{io_error, Event, PipelineError, Session};
 use crate::calib::file::{read_calibration, CalibrationFile};
@@ -34,9 +36,6 @@ use crate::model::msvr::folds::FoldsBy;
 use crate::model::msvr::tune::BasisChoice;
 use crate::model::msvr::MsvrParams;
 use crate::model::Differentiable;
-use crate::model::Errors;
-use crate::provenance::Provenance;
-use crate::report::IntervalReport;
 use crate::search::aco_paper::AcoPaper;
 use crate::search::Method;
 use crate::synth::capture::{CaptureConfig, Realism};
@@ -116,85 +115,6 @@ impl Plan {
             }
         }
     }
-}
-
-/// Calibration against the truth.
-#[derive(Serialize)]
-pub struct CalibrationCheck {
-    pub pairs_used: usize,
-    pub rms_px: f64,
-    pub epipolar_px: f64,
-    /// Largest relative error of fx, fy, cx, cy over both cameras (%).
-    pub intrinsics_error_pct: f64,
-    pub baseline_error_pct: f64,
-    pub rotation_error_deg: f64,
-    pub hand_axes_error_deg: Option<f64>,
-    /// The calibration's own standard deviation of the baseline (%), and of the tip.
-    pub baseline_sd_pct: Option<f64>,
-    pub tip_sd: Option<crate::calib::uncertainty::PointSd>,
-    /// What the calibration advises capturing next.
-    pub advice: Vec<String>,
-    /// Its stated uncertainty checked against two halves of the pairs.
-    pub validation: Option<crate::calib::validate::Validation>,
-}
-
-/// Triangulated tips against the truth, per phase.
-#[derive(Serialize)]
-pub struct TipCheck {
-    pub phase: String,
-    pub rows: usize,
-    pub rms_mm: f64,
-    pub max_mm: f64,
-    /// The mean error (x, y, z mm): what every row shares, mostly the rest position's own
-    /// error, since each tip is measured from it.
-    pub mean_mm: [f64; 3],
-}
-
-/// One model × test file.
-#[derive(Serialize)]
-pub struct Score {
-    pub trained_on: String,
-    pub model: String,
-    pub test: String,
-    pub errors: Errors,
-}
-
-/// Planned pressures run through the plant.
-#[derive(Serialize)]
-pub struct InverseCheck {
-    pub model: String,
-    pub targets: usize,
-    pub reached_by_model: usize,
-    pub mean_mm: f64,
-    pub median_mm: f64,
-    pub p90_mm: f64,
-    pub max_mm: f64,
-    /// The model's 90 % interval radius, and the share of planned tips whose plant tip lies
-    /// within it of the model's (when the model has intervals).
-    pub interval: Option<(f64, f64)>,
-}
-
-/// One model's prediction intervals and their coverage on the test files.
-#[derive(Serialize)]
-pub struct IntervalCheck {
-    pub trained_on: String,
-    #[serde(flatten)]
-    pub intervals: IntervalReport,
-}
-
-#[derive(Serialize)]
-pub struct Summary {
-    pub seed: u64,
-    pub quick: bool,
-    /// What the virtual lab added to the frames.
-    pub realism: Realism,
-    pub timings_s: Vec<(String, f64)>,
-    pub calibration: CalibrationCheck,
-    pub triangulation: Vec<TipCheck>,
-    pub scores: Vec<Score>,
-    pub intervals: Vec<IntervalCheck>,
-    pub inverse: Vec<InverseCheck>,
-    pub provenance: Provenance,
 }
 
 /// What the demo did: the summary it wrote to `summary.json`.

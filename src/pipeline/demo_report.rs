@@ -2,7 +2,7 @@
 
 use std::path::Path;
 
-use super::demo::Summary;
+use super::demo_summary::Summary;
 use crate::calib::{gates, StereoCalibration};
 use crate::model::inverse::PlannedTarget;
 use crate::model::msvr::tune::SearchSummary;

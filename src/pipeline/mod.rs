@@ -13,6 +13,7 @@
 pub mod calibrate;
 pub mod demo;
 mod demo_report;
+pub mod demo_summary;
 pub mod fit;
 pub mod outputs;
 pub mod synth;

@@ -10,7 +10,7 @@ use super::render::{splitmix, uniform};
 /// Albedo of the bare wall.
 const WALL: [f64; 3] = [0.58, 0.57, 0.54];
 /// The red of the distractors: the bead's paint.
-const RED: [f64; 3] = super::render::BEAD;
+const RED: [f64; 3] = super::scene::BEAD;
 
 /// A rectangle of the image the clutter keeps clear of red things (the finger's workspace).
 pub type Keep = [f64; 4];

@@ -22,24 +22,14 @@ use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
 use super::camera::Camera;
-use super::scene::ray_segment_gap;
-use super::scene::Cell;
-pub use super::scene::{Board, Finger};
+use super::scene::{ray_segment_gap, Board, Cell, Finger, BEAD, BEAD_RADIUS_MM, FINGER_RADIUS_MM};
 
 /// Samples per pixel side.
 pub const SUPERSAMPLING: usize = 4;
-/// Radius of the finger's tube (mm).
-pub const FINGER_RADIUS_MM: f64 = 1.6;
-/// Radius of the red tip bead (mm).
-pub const BEAD_RADIUS_MM: f64 = 0.6;
 const BLUR_SIGMA_PX: f64 = 0.7;
 const READ_NOISE_DN: f32 = 0.4;
 const SHOT_NOISE_DN: f32 = 0.004;
 
-pub(super) const SILICONE: [f64; 3] = [0.93, 0.89, 0.82];
-pub(super) const BEAD: [f64; 3] = [0.80, 0.10, 0.09];
-pub(super) const PAPER: [f64; 3] = [0.92, 0.92, 0.90];
-pub(super) const INK: [f64; 3] = [0.08, 0.08, 0.09];
 const BACKDROP: [f64; 3] = [0.47, 0.48, 0.50];
 /// Ambient share of the lighting.
 const AMBIENT: f64 = 0.35;

@@ -9,7 +9,17 @@ use nalgebra::{Point3, Vector3};
 use crate::calib::{BoardSpec, Marker};
 use crate::geometry::WorldFromBoard;
 
-use super::render::{BEAD, BEAD_RADIUS_MM, FINGER_RADIUS_MM, INK, PAPER, SILICONE};
+/// Radius of the finger's tube (mm).
+pub const FINGER_RADIUS_MM: f64 = 1.6;
+/// Radius of the red tip bead (mm).
+pub const BEAD_RADIUS_MM: f64 = 0.6;
+
+/// The objects' colours (linear reflectance, RGB): the finger's silicone, the bead's red, the
+/// board's paper and ink.
+pub(super) const SILICONE: [f64; 3] = [0.93, 0.89, 0.82];
+pub(super) const BEAD: [f64; 3] = [0.80, 0.10, 0.09];
+pub(super) const PAPER: [f64; 3] = [0.92, 0.92, 0.90];
+pub(super) const INK: [f64; 3] = [0.08, 0.08, 0.09];
 
 /// A printed board placed in the world.
 #[derive(Clone, Debug, PartialEq)]

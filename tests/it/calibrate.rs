@@ -886,7 +886,7 @@ fn calibrates_from_two_videos_of_the_board() {
     let dir = tempdir();
     let d = dir.path();
     // Each board held 0.4 s.
-    board_videos(d, 12, handcap::calib::file::default_board());
+    board_videos(d, 12, handcap::calib::file::default_board(), 0);
     let out = handcap_ok(d, &["calibrate", "vids", "--out", "vcal.yml"]);
     println!("{out}");
     let picked: usize = out

@@ -415,20 +415,20 @@ fn a_calibration_capture_takes_still_new_board_pairs_then_the_reference() {
     // The two board videos as cameras: ten boards, each held still for 0.8 s.
     let dir = tempdir();
     let d = dir.path();
-    board_videos(d, 24, handcap::calib::file::default_board());
+    board_videos(d, 24, handcap::calib::file::default_board(), 0);
     let cams = VIDEO_CAMERAS;
     let mut args = vec!["capture"];
     args.extend(cams);
-    args.extend(["--pairs", "7"]);
+    args.extend(["--pairs", "6"]);
     let out = handcap_ok(d, &args);
-    assert!(out.contains("board pairs 7/7"), "{out}");
-    for k in 0..7 {
+    assert!(out.contains("board pairs 6/6"), "{out}");
+    for k in 0..6 {
         for side in ["left", "right"] {
             let jpeg = std::fs::read(d.join(format!("s/calib/{side}_{k:02}.jpg"))).unwrap();
             assert!(jpeg.starts_with(&[0xff, 0xd8]), "{side} {k}");
         }
     }
-    assert!(!d.join("s/calib/left_07.jpg").exists() && !d.join("s/frames").exists());
+    assert!(!d.join("s/calib/left_06.jpg").exists() && !d.join("s/frames").exists());
     // The reference pair: the first still pair.
     let mut args = vec!["capture"];
     args.extend(cams);
@@ -438,7 +438,7 @@ fn a_calibration_capture_takes_still_new_board_pairs_then_the_reference() {
     // What was taken calibrates, with the hand axes.
     let out = handcap_ok(d, &["calibrate", "s/calib", "--out", "cal.yml"]);
     assert!(
-        out.contains("7 pairs used") && out.contains("hand axes: from the reference pair"),
+        out.contains("6 pairs used") && out.contains("hand axes: from the reference pair"),
         "{out}"
     );
     // Taken pairs are never overwritten.
@@ -448,6 +448,36 @@ fn a_calibration_capture_takes_still_new_board_pairs_then_the_reference() {
     assert!(msg.contains("already holds calibration pairs"), "{msg}");
 }
 
+/// The right camera half a second behind the left (its video starts 15 frames later), boards
+/// held 1.5 s: the delay is measured from the board's motion, and a pair is taken only once
+/// the board has stood still in both cameras longer than the delays differ, so every pair
+/// shows one place in both (taken at once, the left's new place would join the right's old
+/// one) and calibrates.
+#[test]
+fn a_calibration_capture_waits_out_the_cameras_delay() {
+    let dir = tempdir();
+    let d = dir.path();
+    board_videos(d, 45, handcap::calib::file::default_board(), 15);
+    let mut args = vec!["capture"];
+    args.extend(VIDEO_CAMERAS);
+    args.extend(["--pairs", "6"]);
+    let out = handcap_ok(d, &args);
+    println!("{out}");
+    assert!(out.contains("board pairs 6/6"), "{out}");
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("s/capture.json")).unwrap()).unwrap();
+    let ms = json["summary"]["stats"]["board_delay_ms"].as_f64().unwrap();
+    assert!((ms - 500.0).abs() < 50.0, "{ms} ms");
+    let out = handcap_ok(d, &["calibrate", "s/calib", "--out", "cal.yml"]);
+    println!("{out}");
+    assert!(out.contains("6 pairs used"), "{out}");
+    let truth = crate::common::read_rig(&d.join("truth/rig.yml"));
+    let calibrated = crate::common::read_rig(&d.join("cal.yml"));
+    let (b, t) = (calibrated.t.norm(), truth.t.norm());
+    println!("baseline {b:.3} mm, truth {t:.3} mm");
+    assert!((b - t).abs() < 0.01 * t, "baseline {b} mm, truth {t} mm");
+}
+
 /// A ChArUco board is taken in part (every other board of these videos is partly out of view),
 /// and the pairs taken, or picked from the videos by `calibrate`, calibrate.
 #[test]
@@ -455,7 +485,7 @@ fn a_charuco_board_is_taken_in_part_from_cameras_and_videos() {
     let dir = tempdir();
     let d = dir.path();
     let board = crate::common::charuco_board();
-    board_videos(d, 24, board);
+    board_videos(d, 24, board, 0);
     let mut args = vec!["capture"];
     args.extend(VIDEO_CAMERAS);
     let board_flags = "--board charuco:10x7 --square-mm 10 --marker-mm 7.5";

@@ -299,24 +299,29 @@ pub fn charuco_board() -> handcap::calib::BoardSpec {
 
 /// `board_capture(dir, 21, 10, board)` and its ten boards as two videos in `dir/vids`
 /// (`left.avi`, `right.avi`, `frames.csv`, with `board.yml` and the reference pair beside them),
-/// each board held still for `hold` frames (at 30 fps) and then moved on.
-pub fn board_videos(dir: &Path, hold: usize, board: handcap::calib::BoardSpec) {
+/// each board held still for `hold` frames (at 30 fps) and up to 12 more, as a hand holds it,
+/// and then moved on; the right video starts `right_late` frames of the first board later (a
+/// camera that far behind).
+pub fn board_videos(dir: &Path, hold: usize, board: handcap::calib::BoardSpec, right_late: usize) {
     board_capture(dir, 21, 10, board);
     let vids = dir.join("vids");
     std::fs::create_dir(&vids).unwrap();
     let mut index = String::from("frame,camera,time_s\n");
-    for side in ["left", "right"] {
+    for (side, late) in [("left", 0), ("right", right_late)] {
         let path = vids.join(format!("{side}.avi"));
         let mut video = handcap::video::MjpegWriter::create(&path, 30.0, [1280, 720], 95).unwrap();
+        let mut written = 0;
         for k in 0..10 {
             let image =
                 handcap::image::decode(&dir.join(format!("calib/{side}_{k:02}.png"))).unwrap();
-            for _ in 0..hold {
+            let frames = hold + [0, 9, 3, 12, 6][k % 5] + if k == 0 { late } else { 0 };
+            for _ in 0..frames {
                 video.write(&image.data).unwrap();
             }
+            written += frames;
         }
         video.finish().unwrap();
-        for f in 0..10 * hold {
+        for f in 0..written {
             index += &format!("{f},{side},{:.6}\n", f as f64 / 30.0);
         }
     }
