@@ -14,7 +14,7 @@
 //!    reprojection errors are at most `max_reproj_px` and the point is in front of both
 //!    cameras. Exactly one consistent combination → the pair is used (when there were several
 //!    candidates, the epipolar constraint resolved them); none → rejected for its reprojection
-//!    error; several → ambiguous, rejected. Nothing is guessed.
+//!    error; several → ambiguous, rejected. Nothing is guessed ([`locate`]).
 //! 4. A step's row is flagged (`flag` column, `;`-separated) when it has fewer than
 //!    `min_frames` pairs (`few_frames`), its pairs disagree by more than `max_spread_mm`
 //!    (`spread`), its step lasted over 1.5 times the log's median step (`long_step`: a gap
@@ -31,11 +31,13 @@
 
 pub mod clock;
 pub mod latency;
+mod locate;
 pub mod marker;
 pub mod options;
 pub mod output;
 pub mod pairing;
 pub mod subpixel;
+pub mod summary;
 
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -50,9 +52,10 @@ use crate::image::{Buffers, RgbImage};
 use crate::session::frames::{self, FrameList, FrameRecord};
 use crate::session::pressures::PressureLog;
 use crate::stereo::{Side, StereoRig};
+use locate::{epipolar_residuals, locate_pairs};
 use marker::Markers;
 pub use options::TriangulateOptions;
-use pairing::Placement;
+use summary::{count_frames, Origin, Summary};
 
 /// Errors of triangulating.
 #[derive(Debug, thiserror::Error)]
@@ -184,79 +187,6 @@ pub struct Row {
     /// The log row's other columns.
     pub extra: Vec<String>,
     pub flags: Vec<&'static str>,
-}
-
-/// Counts per camera: [left, right].
-type PerCamera = [usize; 2];
-
-/// What happened to the frames.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
-pub struct FrameCounts {
-    pub listed: PerCamera,
-    pub no_file: PerCamera,
-    pub unreadable: PerCamera,
-    pub marker_missing: PerCamera,
-    pub several_candidates: PerCamera,
-    /// Red regions that failed the marker's limits, all frames.
-    pub discarded_regions: usize,
-    pub skipped: PerCamera,
-    /// Frames stamped late ([`FrameRecord::late_s`]), left out of the pairs, and the latest of
-    /// them (ms).
-    pub stamped_late: PerCamera,
-    pub late_max_ms: f64,
-    /// The first unreadable frame and why (`frames.csv` line: reason), for the user to look at.
-    pub first_unreadable: Option<String>,
-}
-
-/// How the hand frame's origin was found.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
-pub struct Origin {
-    /// The tip at zero pressure, in the left camera (mm).
-    pub left_mm: [f64; 3],
-    pub zero_steps: usize,
-    pub pairs: usize,
-    /// RMS distance of those pairs' tips from the origin (mm).
-    pub spread_mm: f64,
-}
-
-/// Counts of everything, for the user and the summary file.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
-pub struct Summary {
-    pub frames: FrameCounts,
-    pub pairs_formed: usize,
-    pub unpaired: PerCamera,
-    /// Pairs per [`PairStatus`] name.
-    pub pairs: std::collections::BTreeMap<&'static str, usize>,
-    pub steps_logged: usize,
-    pub rows: usize,
-    pub rows_flagged: usize,
-    /// Log rows (0-based) with no used pair.
-    pub steps_without_tip: Vec<usize>,
-    /// Reprojection error of the used pairs (px): median, 95th percentile, largest.
-    pub reproj_px: [f64; 3],
-    /// The used pairs' signed distance of the right centre from the left centre's epipolar
-    /// line (undistorted px): mean, standard deviation, 95th percentile of its size. Without
-    /// truth a detector's sub-pixel bias cannot be seen in one image; across the two it shows
-    /// here: a mean away from 0 (a bias in one camera, or a calibration that drifted) or a
-    /// spread wider than the frames' noise (a bias that moves with the marker).
-    pub epipolar_px: [f64; 3],
-    /// Used pairs per camera whose centre came from the region's centroid because the
-    /// sub-pixel fit did not settle (`subpixel::refine`).
-    pub centroid_only: PerCamera,
-    /// Per camera, the codec of a video that OpenCV decoded (not Motion-JPEG, so the fit
-    /// cannot undo its colour's sampling and quantisation).
-    pub decoded_video: [Option<String>; 2],
-    /// Per camera, a video that ended before the frames `frames.csv` lists for it.
-    pub video_ended: [Option<frames::VideoEnd>; 2],
-    /// The rows' spread (largest distance of a step's pairs from their median, mm): median,
-    /// 95th percentile, largest.
-    pub step_spread_mm: [f64; 3],
-    /// What the timestamps say: skew, drift, dropped frames, steps filmed while settling.
-    pub clock: clock::ClockCheck,
-    /// Each camera's delay from the tip's motion, and whether the times were corrected by it.
-    pub latency: latency::Latency,
-    pub origin: Origin,
-    pub interrupted: bool,
 }
 
 /// The result of a run.
@@ -570,54 +500,6 @@ pub fn triangulate(
     })
 }
 
-/// Each pair of `pairs` (indices into `records`) placed in the log's steps (`guard_s` before
-/// each command, see [`pairing::place`]) and, when in one, its tip located.
-#[allow(clippy::too_many_arguments)]
-fn locate_pairs(
-    records: &[FrameRecord],
-    paths: &[Option<PathBuf>],
-    pairs: &[(usize, usize)],
-    results: &[FrameResult],
-    log: &PressureLog,
-    rig: &StereoRig,
-    options: &TriangulateOptions,
-    guard_s: f64,
-) -> Result<Vec<PairRecord>, TriangulateError> {
-    let frame_ref = |i: usize| FrameRef {
-        index: records[i].index,
-        time_s: records[i].time_s,
-        path: paths[i].clone(),
-    };
-    pairs
-        .par_iter()
-        .map(|&(l, r)| {
-            let mut record = PairRecord {
-                left: frame_ref(l),
-                right: frame_ref(r),
-                step: None,
-                status: PairStatus::Skipped,
-                candidates: 0,
-                centres_px: None,
-                point_left_mm: None,
-                reprojected_px: None,
-                reproj_px: None,
-                fitted: [false; 2],
-            };
-            let (a, b) = (records[l].time_s, records[r].time_s);
-            match pairing::place(log, a, b, options.settle_s, guard_s) {
-                Placement::Step(k) => record.step = Some(k),
-                Placement::OutsideLog => record.status = PairStatus::OutsideLog,
-                Placement::Settling => record.status = PairStatus::Settling,
-                Placement::Straddles => record.status = PairStatus::Straddles,
-            }
-            if record.step.is_some() {
-                locate(rig, &results[l], &results[r], options, &mut record)?;
-            }
-            Ok(record)
-        })
-        .collect()
-}
-
 /// Decodes record `i`'s frame (into the worker's buffers) and finds its marker candidates.
 #[allow(clippy::too_many_arguments)]
 fn examine(
@@ -653,164 +535,6 @@ fn examine(
         image,
         &options.marker,
     )))
-}
-
-fn count_frames(records: &[FrameRecord], results: &[FrameResult], c: &mut FrameCounts) {
-    for (f, r) in records.iter().zip(results) {
-        let cam = usize::from(f.camera == Side::Right);
-        c.listed[cam] += 1;
-        if let Some(late_s) = f.late_s {
-            c.stamped_late[cam] += 1;
-            c.late_max_ms = c.late_max_ms.max(1e3 * late_s);
-        }
-        match r {
-            FrameResult::NoFile => c.no_file[cam] += 1,
-            FrameResult::Unreadable(why) => {
-                c.unreadable[cam] += 1;
-                c.first_unreadable.get_or_insert_with(|| {
-                    format!(
-                        "{} frame {} (frames.csv line {}): {why}",
-                        f.camera.name(),
-                        f.index,
-                        f.line
-                    )
-                });
-            }
-            FrameResult::Skipped => c.skipped[cam] += 1,
-            FrameResult::Markers(m) => {
-                c.discarded_regions += m.discarded;
-                match m.blobs.len() {
-                    0 => c.marker_missing[cam] += 1,
-                    1 => {}
-                    _ => c.several_candidates[cam] += 1,
-                }
-            }
-        }
-    }
-}
-
-/// Triangulates a pair's candidates and keeps the one consistent combination, if there is one.
-fn locate(
-    rig: &StereoRig,
-    left: &FrameResult,
-    right: &FrameResult,
-    options: &TriangulateOptions,
-    record: &mut PairRecord,
-) -> Result<(), TriangulateError> {
-    let (l, r) = match (left, right) {
-        (FrameResult::Skipped, _) | (_, FrameResult::Skipped) => {
-            record.status = PairStatus::Skipped;
-            return Ok(());
-        }
-        (FrameResult::Markers(l), FrameResult::Markers(r)) => (l, r),
-        _ => {
-            record.status = PairStatus::NoImage;
-            return Ok(());
-        }
-    };
-    record.status = match (l.blobs.is_empty(), r.blobs.is_empty()) {
-        (true, true) => PairStatus::NoMarkerBoth,
-        (true, false) => PairStatus::NoMarkerLeft,
-        (false, true) => PairStatus::NoMarkerRight,
-        (false, false) => PairStatus::Reprojection,
-    };
-    if l.blobs.is_empty() || r.blobs.is_empty() {
-        return Ok(());
-    }
-    let centres = |m: &Markers| -> Vec<[f64; 2]> {
-        m.blobs
-            .iter()
-            .take(marker::MAX_CANDIDATES)
-            .map(|b| b.centre_px)
-            .collect()
-    };
-    let (cl, cr) = (centres(l), centres(r));
-    let (nl, nr) = (
-        rig.normalized(Side::Left, &cl)?,
-        rig.normalized(Side::Right, &cr)?,
-    );
-    // Every combination, left-major.
-    let combos: Vec<(usize, usize)> = (0..cl.len())
-        .flat_map(|i| (0..cr.len()).map(move |j| (i, j)))
-        .collect();
-    let (mut a, mut b): (Vec<[f64; 2]>, Vec<[f64; 2]>) =
-        combos.iter().map(|&(i, j)| (nl[i], nr[j])).unzip();
-    if options.correct_matches {
-        (a, b) = rig.correct_matches(&a, &b)?;
-    }
-    let points = rig.triangulate_normalized(&a, &b)?;
-    let (pl, pr) = (
-        rig.project(Side::Left, &points)?,
-        rig.project(Side::Right, &points)?,
-    );
-    let right_from_left = &rig.right_from_left;
-    let dist = |p: [f64; 2], q: [f64; 2]| (p[0] - q[0]).hypot(p[1] - q[1]);
-    let consistent: Vec<(usize, f64)> = combos
-        .iter()
-        .enumerate()
-        .map(|(k, &(i, j))| (k, dist(pl[k], cl[i]).max(dist(pr[k], cr[j]))))
-        .filter(|&(k, err)| {
-            let p = points[k];
-            err <= options.max_reproj_px && p.z > 0.0 && right_from_left.apply(&p.into()).z > 0.0
-        })
-        .collect();
-    record.candidates = combos.len();
-    match consistent.as_slice() {
-        [] => {}
-        [(k, err)] => {
-            let (i, j) = combos[*k];
-            record.status = if combos.len() > 1 {
-                PairStatus::Resolved
-            } else {
-                PairStatus::Used
-            };
-            record.centres_px = Some([cl[i], cr[j]]);
-            record.fitted = [l.blobs[i].fitted, r.blobs[j].fitted];
-            record.point_left_mm = Some(points[*k]);
-            record.reprojected_px = Some([pl[*k], pr[*k]]);
-            record.reproj_px = Some(*err);
-        }
-        _ => record.status = PairStatus::Ambiguous,
-    }
-    if record.centres_px.is_none() && combos.len() == 1 {
-        // Keep what was seen, for the figures.
-        record.centres_px = Some([cl[0], cr[0]]);
-        record.reprojected_px = Some([pl[0], pr[0]]);
-        record.reproj_px = Some(dist(pl[0], cl[0]).max(dist(pr[0], cr[0])));
-    }
-    Ok(())
-}
-
-/// Mean, standard deviation and 95th percentile of the size of the pairs' signed distance of
-/// the right centre from the left centre's epipolar line (undistorted px).
-fn epipolar_residuals(
-    rig: &StereoRig,
-    pairs: &[&PairRecord],
-) -> Result<[f64; 3], TriangulateError> {
-    let centres: Vec<[[f64; 2]; 2]> = pairs.iter().filter_map(|p| p.centres_px).collect();
-    if centres.is_empty() {
-        return Ok([0.0; 3]);
-    }
-    let side = |k: usize| centres.iter().map(|c| c[k]).collect::<Vec<_>>();
-    let (left, right) = (
-        rig.undistorted(Side::Left, &side(0))?,
-        rig.undistorted(Side::Right, &side(1))?,
-    );
-    let f = rig.fundamental();
-    let d: Vec<f64> = left
-        .iter()
-        .zip(&right)
-        .map(|(l, r)| {
-            let line = f * Vector3::new(l[0], l[1], 1.0);
-            (line[0] * r[0] + line[1] * r[1] + line[2]) / line[0].hypot(line[1])
-        })
-        .collect();
-    let (mean, sd) = crate::stats::mean_sd(&d).unwrap_or_default();
-    Ok([
-        mean,
-        sd,
-        median_95_max(d.iter().map(|v| v.abs()).collect())[1],
-    ])
 }
 
 /// Median, 95th percentile and largest of `values` (zeros for none).

@@ -661,7 +661,7 @@ fn network_mjpeg_frames_are_kept_as_they_came() {
     let stats = &json["summary"]["stats"];
     let late = stats["late"][0].as_u64().unwrap();
     // (A busy test machine may queue a few more of either camera's frames.)
-    assert!((15..=20).contains(&late), "{stats}");
+    assert!((15..=25).contains(&late), "{stats}");
     assert!(stats["late_max_ms"][0].as_f64().unwrap() > 350.0, "{stats}");
     assert!(out.contains(&format!("stamped late {late}/")), "{out}");
     for (side, count) in [("left", l), ("right", r)] {
