@@ -39,16 +39,16 @@ pub const LATE_WINDOW_S: f64 = 2.0;
 /// camera's wrong exposure: it is late.
 pub const LATE_SHARE: f64 = 0.5;
 
-/// For each of `times` (one camera's, sorted, s): how late it was stamped, at least (s), when
-/// that is over [`LATE_SHARE`] of the [`period`]; `None` when it was stamped on time.
+/// For each of `times` (one camera's, sorted, s; its [`period`]): how late it was stamped, at
+/// least (s), when that is over [`LATE_SHARE`] of the period; `None` when it was stamped on
+/// time.
 ///
 /// Frames k < j made every `period` s were exposed at least (j − k)·period apart, so when they
 /// arrived closer than that, frame k waited in a queue: its stamp is at least (j − k)·period −
 /// (t_j − t_k) late (the most over every j up to [`LATE_WINDOW_S`] ahead). A dropped frame only
 /// lengthens such spans, so drops never make a frame look late; a queue that never drains (a
 /// constant latency) is the latency's to measure, not this.
-pub fn late(times: &[f64]) -> Vec<Option<f64>> {
-    let period = period(times);
+pub fn late(times: &[f64], period: f64) -> Vec<Option<f64>> {
     if period <= 0.0 {
         return vec![None; times.len()];
     }
@@ -136,7 +136,7 @@ mod tests {
         }
         // Frames 200-203 dropped.
         times.drain(200..204);
-        let found = late(&times);
+        let found = late(&times, period(&times));
         for (k, l) in found.iter().enumerate() {
             let truth = if (100..112).contains(&k) {
                 times[k] - exposed[k] - 0.050
@@ -157,8 +157,8 @@ mod tests {
         assert_eq!(found.iter().flatten().count(), 11, "{found:?}");
         // A camera at 15 fps throughout: nothing late.
         let slow: Vec<f64> = (0..100).map(|k| k as f64 * 2.0 * p + jitter(k)).collect();
-        assert!(late(&slow).iter().all(Option::is_none));
-        assert!(late(&[]).is_empty() && late(&[1.0]) == [None]);
+        assert!(late(&slow, period(&slow)).iter().all(Option::is_none));
+        assert!(late(&[], 0.0).is_empty() && late(&[1.0], 0.0) == [None]);
     }
 
     #[test]

@@ -235,7 +235,7 @@ fn camera_figures(times: &[f64]) -> (f64, usize, usize, f64) {
     }
     let fps = (times.len() - 1) as f64 / (times[times.len() - 1] - times[0]).max(1e-9);
     let period = crate::frame_times::period(times);
-    let late: Vec<f64> = crate::frame_times::late(times)
+    let late: Vec<f64> = crate::frame_times::late(times, period)
         .into_iter()
         .flatten()
         .collect();

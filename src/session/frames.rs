@@ -100,7 +100,10 @@ fn mark_late(records: &mut [FrameRecord]) {
             .collect();
         order.sort_by(|&a, &b| records[a].time_s.total_cmp(&records[b].time_s));
         let times: Vec<f64> = order.iter().map(|&i| records[i].time_s).collect();
-        for (i, late_s) in order.into_iter().zip(crate::frame_times::late(&times)) {
+        for (i, late_s) in order.into_iter().zip(crate::frame_times::late(
+            &times,
+            crate::frame_times::period(&times),
+        )) {
             records[i].late_s = late_s;
         }
     }

@@ -7,7 +7,7 @@
 use std::path::Path;
 
 use crate::common::{
-    handcap, handcap_err, handcap_ok, handcap_usage, small_capture, tempdir, write,
+    handcap, handcap_err, handcap_ok, handcap_usage, read_json, small_capture, tempdir, write,
 };
 
 /// A command line written as one string (no argument has a space).
@@ -224,8 +224,7 @@ fn predict_refuses_a_model_whose_numbers_overflow() {
     synth(d);
     handcap_ok(d, &words("model data/train.csv --search none --out m.json"));
     // Every coefficient 1e308 (finite, so the file loads): the sum overflows to infinity.
-    let mut model: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(d.join("m.json")).unwrap()).unwrap();
+    let mut model: serde_json::Value = read_json(&d.join("m.json"));
     for row in model["model"]["coefficients"].as_array_mut().unwrap() {
         for v in row.as_array_mut().unwrap() {
             *v = 1e308.into();

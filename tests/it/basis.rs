@@ -10,7 +10,7 @@ use handcap::model::msvr::reduced::{self, FeatureRows, ReducedProblem};
 use handcap::model::msvr::{Basis, Loss, MinMaxScaler, MsvrParams};
 use handcap::model::{evaluate, ModelSpec};
 
-use crate::common::{handcap_ok, handcap_usage, tempdir, write, Lcg};
+use crate::common::{handcap_ok, handcap_usage, read_json, tempdir, write, Lcg};
 
 /// n rows of a smooth 3 → 3 map of inputs in [0, 250] with noise of sd ≈ 0.03.
 fn smooth(seed: u64, n: usize) -> Dataset {
@@ -158,8 +158,7 @@ fn model_basis_writes_a_reduced_model_that_predict_reads() {
         ],
     );
     assert!(out.contains("basis = 50 centres"), "{out}");
-    let file: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(dir.path().join("m.json")).unwrap()).unwrap();
+    let file = read_json(&dir.path().join("m.json"));
     assert_eq!(file["model"]["params"]["basis"]["centres"], 50);
     assert_eq!(
         file["model"]["support_vectors"].as_array().unwrap().len(),
@@ -178,8 +177,7 @@ fn model_basis_writes_a_reduced_model_that_predict_reads() {
         dir.path(),
         &["model", "train.csv", "--search", "none", "--out", "a.json"],
     );
-    let file: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(dir.path().join("a.json")).unwrap()).unwrap();
+    let file = read_json(&dir.path().join("a.json"));
     assert_eq!(file["model"]["params"]["basis"]["kind"], "exact");
     assert!(file["basis"]["reason"]
         .as_str()

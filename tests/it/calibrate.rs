@@ -8,8 +8,8 @@ use opencv::imgcodecs;
 use opencv::prelude::*;
 
 use crate::common::{
-    board_capture, board_videos, handcap, handcap_err, handcap_ok, handcap_usage, read_rig,
-    small_capture, tempdir, tip_rms_against_truth, YamlRig,
+    board_capture, board_videos, handcap, handcap_err, handcap_ok, handcap_usage, read_json,
+    read_rig, small_capture, tempdir, tip_rms_against_truth, YamlRig,
 };
 
 fn at(m: &opencv::core::Mat, r: i32, c: i32) -> f64 {
@@ -118,8 +118,7 @@ fn anipose_toml_matches_the_yaml(toml_path: &Path, yaml: &YamlRig) {
 /// `calib.json` beside the YAML, read by a generic JSON parser, holds the same numbers under the
 /// YAML's keys (matrices as rows), and handcap reads it back as the same rig and hand axes.
 fn json_matches_the_yaml(json_path: &Path, yaml: &YamlRig) {
-    let doc: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(json_path).unwrap()).unwrap();
+    let doc: serde_json::Value = read_json(json_path);
     let floats = |key: &str| -> Vec<f64> {
         let flat = |v: &serde_json::Value| -> Vec<f64> {
             match v {
@@ -233,8 +232,7 @@ fn calibrates_the_synthetic_rig_within_tolerance_and_rejects_a_corrupted_pair() 
         out.contains("advice: no board reached the image's"),
         "{out}"
     );
-    let json: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(d.join("cal.json")).unwrap()).unwrap();
+    let json: serde_json::Value = read_json(&d.join("cal.json"));
     assert!(json["K1_sd"][0][0].as_f64().unwrap() > 0.0);
     assert!(json["baseline_sd_mm"].as_f64().unwrap() > 0.0);
 

@@ -4,8 +4,8 @@ use std::collections::HashSet;
 use std::path::Path;
 
 use crate::common::{
-    board_videos, capture_with, csv_rows, handcap, handcap_err, handcap_ok, mjpeg_server, session,
-    tempdir, Part,
+    board_videos, capture_with, csv_rows, handcap, handcap_err, handcap_ok, mjpeg_server,
+    read_json, session, tempdir, Part,
 };
 
 /// Two Motion-JPEG videos of a small synthetic session (`synth --video`): 14 steps, 42 frames
@@ -154,8 +154,7 @@ fn capture_films_both_cameras_and_drives_the_protocol_on_one_clock() {
         assert!(*end >= times[k], "{ends:?}");
         assert!(times.get(k + 1).is_none_or(|next| end <= next), "{ends:?}");
     }
-    let json: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(s.join("capture.json")).unwrap()).unwrap();
+    let json: serde_json::Value = read_json(&s.join("capture.json"));
     assert_eq!(json["summary"]["ending"], "protocol_done");
     assert!(json["summary"]["start_monotonic_s"].as_f64().unwrap() > 0.0);
     // The session is kept: a second capture into it is refused.
@@ -332,9 +331,7 @@ fn signals_end_a_capture_with_every_frame_kept_and_listed() {
             (10..42).contains(&l) && (10..42).contains(&r),
             "{name}: {l} left, {r} right frames"
         );
-        let json: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(s.join("capture.json")).unwrap())
-                .unwrap();
+        let json: serde_json::Value = read_json(&s.join("capture.json"));
         assert_eq!(json["summary"]["ending"], "interrupted", "{name}");
         // The steps commanded so far are logged, no more.
         let logged = csv_rows(&s.join("pressures.csv")).len();
@@ -351,8 +348,7 @@ fn signals_end_a_capture_with_every_frame_kept_and_listed() {
     wait_until_listed(&s);
     send(&child, libc::SIGKILL);
     child.wait_with_output().unwrap();
-    let json: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(s.join("capture.json")).unwrap()).unwrap();
+    let json: serde_json::Value = read_json(&s.join("capture.json"));
     assert_eq!(json["summary"]["ending"], "filming");
     assert!(!csv_rows(&s.join("frames/frames.csv")).is_empty());
     assert!(!csv_rows(&s.join("pressures.csv")).is_empty());
@@ -394,8 +390,7 @@ fn a_hung_pressure_command_does_not_hold_the_session() {
         std::fs::read_to_string(d.join("vented.txt")).unwrap(),
         "vented\n"
     );
-    let json: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(d.join("s/capture.json")).unwrap()).unwrap();
+    let json: serde_json::Value = read_json(&d.join("s/capture.json"));
     assert_eq!(json["summary"]["on_abort"], "done");
 }
 
@@ -464,8 +459,7 @@ fn a_calibration_capture_waits_out_the_cameras_delay() {
     let out = handcap_ok(d, &args);
     println!("{out}");
     assert!(out.contains("board pairs 6/6"), "{out}");
-    let json: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(d.join("s/capture.json")).unwrap()).unwrap();
+    let json: serde_json::Value = read_json(&d.join("s/capture.json"));
     let ms = json["summary"]["stats"]["board_delay_ms"].as_f64().unwrap();
     assert!((ms - 500.0).abs() < 50.0, "{ms} ms");
     let out = handcap_ok(d, &["calibrate", "s/calib", "--out", "cal.yml"]);
@@ -656,8 +650,7 @@ fn network_mjpeg_frames_are_kept_as_they_came() {
     let [l, r] = assert_consistent(&d.join("s"));
     assert!(l >= 35 && r >= 35, "{l} left, {r} right frames");
     // Frames 15-29 waited 500 ms down to 33 ms: each is late by over half a period.
-    let json: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(d.join("s/capture.json")).unwrap()).unwrap();
+    let json: serde_json::Value = read_json(&d.join("s/capture.json"));
     let stats = &json["summary"]["stats"];
     let late = stats["late"][0].as_u64().unwrap();
     // (A busy test machine may queue a few more of either camera's frames.)
@@ -719,8 +712,7 @@ fn a_silent_or_stalled_stream_ends_the_session() {
     let (out, took) = run(&args(&stalling, &live));
     let said =
         String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
-    let json: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(d.join("s/capture.json")).unwrap()).unwrap();
+    let json: serde_json::Value = read_json(&d.join("s/capture.json"));
     let ending = &json["summary"]["ending"];
     assert_eq!(ending["camera_stopped"]["side"], "left", "{ending} {said}");
     let [l, r] = assert_consistent(&d.join("s"));

@@ -2,7 +2,7 @@
 
 use std::path::Path;
 
-use crate::common::{handcap, handcap_err, handcap_ok, handcap_usage, tempdir, write};
+use crate::common::{handcap, handcap_err, handcap_ok, handcap_usage, read_json, tempdir, write};
 
 fn synth(dir: &Path, out: &str, seed: &str) {
     handcap_ok(dir, &["synth", "--out", out, "--no-images", "--seed", seed]);
@@ -347,8 +347,7 @@ fn the_default_model_beats_the_previous_model_on_held_out_sweeps() {
     ] {
         assert!(d.join("report").join(fig).exists(), "{fig}");
     }
-    let model: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(d.join("model.json")).unwrap()).unwrap();
+    let model: serde_json::Value = read_json(&d.join("model.json"));
     let search = &model["search"];
     assert_eq!(search["method"], "aco-r", "{search}");
     assert_eq!(search["budget"], 400, "{search}");

@@ -10,7 +10,7 @@ use handcap::model::msvr::{Loss, MsvrParams};
 use handcap::model::{Differentiable, ModelSpec, Predict};
 
 use crate::common::{
-    csv_rows, handcap, handcap_err, handcap_ok, handcap_usage, tempdir, write, Lcg,
+    csv_rows, handcap, handcap_err, handcap_ok, handcap_usage, read_json, tempdir, write, Lcg,
 };
 
 /// Time step of the lagging plant's log (s) and its lag's time constant (s).
@@ -72,10 +72,6 @@ fn mae_of(predicted: &Path, truth: &Path) -> f64 {
     sum / (2 * p.len()) as f64
 }
 
-fn json(path: &Path) -> serde_json::Value {
-    serde_json::from_slice(&std::fs::read(path).unwrap()).unwrap()
-}
-
 const COLUMNS: [&str; 4] = ["--inputs", "P1_kpa,P2_kpa", "--outputs", "x_mm,y_mm"];
 
 #[test]
@@ -109,7 +105,7 @@ fn a_lagging_plant_is_modelled_from_its_inputs_history() {
         mae_of(&d.join("pred.csv"), &d.join("test.csv"))
     };
     let history = fit("auto", "model.json");
-    let file = json(&d.join("model.json"));
+    let file = read_json(&d.join("model.json"));
     let decision = &file["history"];
     assert_eq!(decision["used"]["memory"]["kind"], "ema", "{decision}");
     assert_eq!(decision["used"]["group"], "trial");
@@ -123,7 +119,7 @@ fn a_lagging_plant_is_modelled_from_its_inputs_history() {
     let taus = decision["used"]["memory"]["tau"].as_array().unwrap().len();
     assert_eq!(inputs, 2 * (1 + taus));
     let stat = fit("none", "static.json");
-    assert!(json(&d.join("static.json"))["history"]["used"].is_null());
+    assert!(read_json(&d.join("static.json"))["history"]["used"].is_null());
     assert!(
         history <= 0.5 * stat,
         "held-out MAE with history {history:.4}, static {stat:.4}"
@@ -212,7 +208,7 @@ fn a_plant_without_lag_keeps_its_static_model() {
             "m.json",
         ],
     );
-    let decision = &json(&d.join("m.json"))["history"];
+    let decision = &read_json(&d.join("m.json"))["history"];
     assert!(decision["used"].is_null(), "{decision}");
     assert!(
         decision["reason"]

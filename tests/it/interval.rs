@@ -3,9 +3,8 @@
 //! are refused.
 
 use std::fmt::Write as _;
-use std::path::Path;
 
-use crate::common::{csv_rows, handcap, handcap_err, handcap_ok, tempdir, write, Lcg};
+use crate::common::{csv_rows, handcap, handcap_err, handcap_ok, read_json, tempdir, write, Lcg};
 
 /// Standard deviation of the plant's Gaussian noise on each output (mm).
 const NOISE: f64 = 0.5;
@@ -39,10 +38,6 @@ fn noisy_plant(seed: u64, first_trial: usize, trials: usize, rows: usize) -> Str
 fn normal(rng: &mut Lcg) -> f64 {
     let (u, v) = (rng.next().max(1e-300), rng.next());
     (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
-}
-
-fn json(path: &Path) -> serde_json::Value {
-    serde_json::from_slice(&std::fs::read(path).unwrap()).unwrap()
 }
 
 const COLUMNS: [&str; 4] = ["--inputs", "P1_kpa,P2_kpa", "--outputs", "x_mm,y_mm,z_mm"];
@@ -81,7 +76,7 @@ fn intervals_cover_fresh_rows_at_their_level_and_predict_writes_the_radius() {
     ]);
     let log = handcap_ok(d, &args);
     assert!(log.contains("prediction intervals: 90 %"), "{log}");
-    let model = json(&d.join("model.json"));
+    let model = read_json(&d.join("model.json"));
     let intervals = &model["intervals"];
     assert_eq!(intervals["rows"], 480);
     assert_eq!(intervals["folds"]["scheme"], "groups");
@@ -98,7 +93,7 @@ fn intervals_cover_fresh_rows_at_their_level_and_predict_writes_the_radius() {
     }
 
     // The test file: pooled coverage near each level, every trial listed.
-    let report = json(&d.join("rep/fit.json"));
+    let report = read_json(&d.join("rep/fit.json"));
     let test = &report["intervals"]["tests"][0];
     assert_eq!(test["column"], "trial");
     for (k, (level, _)) in NOISE_QUANTILES.iter().enumerate() {

@@ -10,7 +10,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use crate::common::{
-    capture_with, csv_rows, handcap, handcap_ok, mjpeg_server, session, tempdir,
+    capture_with, csv_rows, handcap, handcap_ok, mjpeg_server, read_json, session, tempdir,
     tip_errors_against_truth, Part,
 };
 
@@ -199,8 +199,8 @@ fn live_session(dir: &Path, faults: [Faults; 2], term_after_s: Option<f64>) -> O
 }
 
 /// `handcap triangulate` of the live session into `dir/live/<name>/dataset.csv`, with the truth's
-/// rig and `extra` arguments; its output (success asserted).
-fn triangulate(dir: &Path, name: &str, extra: &[&str]) -> String {
+/// rig and `extra` arguments; its output printed.
+fn triangulate(dir: &Path, name: &str, extra: &[&str]) -> Output {
     let out = format!("live/{name}/dataset.csv");
     let mut args = vec![
         "triangulate",
@@ -211,9 +211,19 @@ fn triangulate(dir: &Path, name: &str, extra: &[&str]) -> String {
         &out,
     ];
     args.extend(extra);
-    let said = handcap_ok(dir, &args);
-    println!("{said}");
-    said
+    let done = handcap(dir, &args);
+    println!("{}", String::from_utf8_lossy(&done.stdout));
+    done
+}
+
+/// [`triangulate`] with no more arguments, which must succeed.
+fn triangulated(dir: &Path) {
+    let done = triangulate(dir, "out", &[]);
+    assert!(
+        done.status.success(),
+        "{}",
+        String::from_utf8_lossy(&done.stderr)
+    );
 }
 
 /// The rows of `dir/live/<name>/dataset.csv` against the truth: (rows, each unflagged row's
@@ -242,9 +252,7 @@ fn against_truth(dir: &Path, name: &str) -> (usize, Vec<f64>) {
 
 fn summary(dir: &Path, name: &str) -> serde_json::Value {
     let path = dir.join(format!("live/{name}/dataset_summary.json"));
-    serde_json::from_str::<serde_json::Value>(&std::fs::read_to_string(path).unwrap()).unwrap()
-        ["summary"]
-        .clone()
+    read_json(&path)["summary"].clone()
 }
 
 /// The cameras of a real lab: the left 40 ms late, the right 190 ms; the left's server falls
@@ -274,12 +282,10 @@ fn a_live_session_with_late_cameras_a_backlog_and_drops_matches_the_truth() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let json: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(d.join("live/capture.json")).unwrap())
-            .unwrap();
+    let json: serde_json::Value = read_json(&d.join("live/capture.json"));
     let stats = &json["summary"]["stats"];
     assert!(stats["late"][0].as_u64().unwrap() >= 10, "{stats}");
-    triangulate(d, "out", &[]);
+    triangulated(d);
     let s = summary(d, "out");
     assert_eq!(s["latency"]["corrected"], true, "{}", s["latency"]);
     let ms = |cam: usize| s["latency"]["cameras"][cam]["delay_ms"].as_f64().unwrap();
@@ -300,19 +306,7 @@ fn a_live_session_with_late_cameras_a_backlog_and_drops_matches_the_truth() {
     );
     assert!(errors.last().unwrap() < &0.5, "{errors:?}");
     // The same frames as stamped pair moments 150 ms apart.
-    let stamped = handcap(
-        d,
-        &[
-            "triangulate",
-            "live/frames",
-            "--calib",
-            "hand/truth/rig.yml",
-            "--latency-ms",
-            "0",
-            "--out",
-            "live/stamped/dataset.csv",
-        ],
-    );
+    let stamped = triangulate(d, "stamped", &["--latency-ms", "0"]);
     if stamped.status.success() {
         let (_, kept) = against_truth(d, "stamped");
         assert!(
@@ -348,7 +342,7 @@ fn a_live_session_ended_by_sigterm_with_a_camera_300_ms_late_matches_the_truth()
     );
     let logged = csv_rows(&d.join("live/pressures.csv")).len();
     assert!((15..37).contains(&logged), "{logged} steps logged");
-    triangulate(d, "out", &[]);
+    triangulated(d);
     let s = summary(d, "out");
     assert_eq!(s["latency"]["corrected"], true, "{}", s["latency"]);
     let (rows, errors) = against_truth(d, "out");

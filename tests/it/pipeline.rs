@@ -6,7 +6,8 @@ use std::path::Path;
 use handcap::synth::plant::Plant;
 
 use crate::common::{
-    csv_rows, handcap_err, handcap_ok, handcap_usage, tempdir, tip_rms_against_truth, write,
+    csv_rows, handcap_err, handcap_ok, handcap_usage, read_json, tempdir, tip_rms_against_truth,
+    write,
 };
 
 #[test]
@@ -118,8 +119,7 @@ fn the_quick_demo_runs_end_to_end_and_its_numbers_hold_against_the_truth() {
         assert!(out.contains(stage), "{stage} missing: {out}");
     }
     let demo = d.join("demo");
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(demo.join("summary.json")).unwrap()).unwrap();
+    let summary: serde_json::Value = read_json(&demo.join("summary.json"));
 
     // Calibration against the true rig (the tolerances).
     let c = &summary["calibration"];

@@ -17,7 +17,8 @@ use handcap::synth::render::encode_png;
 
 use crate::common::{
     capture, capture_as, capture_with, csv_rows, handcap, handcap_err, handcap_ok, handcap_usage,
-    session, small_capture, tempdir, tip_errors_against_truth, tip_rms_against_truth, tips_by_step,
+    read_json, session, small_capture, tempdir, tip_errors_against_truth, tip_rms_against_truth,
+    tips_by_step,
 };
 
 /// Paints a disc of `rgb` (radius `r` px, anti-aliased) into a frame, in place.
@@ -76,9 +77,7 @@ fn triangulate_with_truth(d: &Path, out: &str) -> String {
 }
 
 fn summary(path: &Path) -> serde_json::Value {
-    serde_json::from_str::<serde_json::Value>(&std::fs::read_to_string(path).unwrap()).unwrap()
-        ["summary"]
-        .clone()
+    read_json(path)["summary"].clone()
 }
 
 #[test]
