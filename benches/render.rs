@@ -11,8 +11,9 @@ use nalgebra::{Point3, Rotation3, Vector3};
 
 use handcap::geometry::WorldFromBoard;
 use handcap::synth::camera::RigConfig;
+use handcap::synth::image_format::encode_png;
 use handcap::synth::plant::Plant;
-use handcap::synth::render::{encode_png, Lighting, Surroundings, View};
+use handcap::synth::render::{Lighting, Surroundings, View};
 use handcap::synth::scene::{Board, Finger};
 
 fn bench(c: &mut Criterion) {

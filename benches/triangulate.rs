@@ -17,8 +17,9 @@ use handcap::stereo::{Side, StereoRig};
 use handcap::synth::camera::RigConfig;
 use handcap::synth::capture::Realism;
 use handcap::synth::clutter;
+use handcap::synth::image_format::ImageFormat;
 use handcap::synth::plant::Plant;
-use handcap::synth::render::{ImageFormat, Lighting, Surroundings, View};
+use handcap::synth::render::{Lighting, Surroundings, View};
 use handcap::synth::scene::Finger;
 use handcap::triangulate::marker::{find_markers, MarkerOptions};
 

@@ -9,7 +9,7 @@ use anyhow::{bail, Context};
 use handcap::pipeline::synth;
 use handcap::synth::camera::RigConfig;
 use handcap::synth::capture::{CaptureConfig, Realism};
-use handcap::synth::render::{Chroma, ImageFormat};
+use handcap::synth::image_format::{Chroma, ImageFormat};
 use handcap::synth::{plant::PlantParams, SynthConfig, DEFAULT_NOISE_MM};
 
 #[derive(clap::Args)]

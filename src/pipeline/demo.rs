@@ -39,8 +39,8 @@ use crate::model::Differentiable;
 use crate::search::aco_paper::AcoPaper;
 use crate::search::Method;
 use crate::synth::capture::{CaptureConfig, Realism};
+use crate::synth::image_format::ImageFormat;
 use crate::synth::plant::Plant;
-use crate::synth::render::ImageFormat;
 use crate::synth::SynthConfig;
 use crate::triangulate::{TriangulateOptions, Triangulation};
 

@@ -5,7 +5,7 @@
 //! Drawn in image space (the wall is far behind the finger, so parallax does not matter), as
 //! albedos that the view's illumination field then lights. Every choice comes from the seed.
 
-use super::render::{splitmix, uniform};
+use super::canvas::{splitmix, uniform};
 
 /// Albedo of the bare wall.
 const WALL: [f64; 3] = [0.58, 0.57, 0.54];

@@ -13,8 +13,10 @@
 //! - `manifest.json`: the plant's constants, the noise, the seed and the provenance.
 
 pub mod camera;
+pub mod canvas;
 pub mod capture;
 pub mod clutter;
+pub mod image_format;
 pub mod plant;
 pub mod render;
 pub mod scene;

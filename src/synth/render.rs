@@ -1,136 +1,37 @@
 //! Renders what a webcam of the virtual rig sees: a printed board (chessboard or ChArUco), or
 //! the finger with its red tip bead, over an unevenly lit background.
 //!
-//! Every pixel is the mean of S × S samples (S = 4) inside it: anti-aliasing by supersampling.
-//! Each sample's ray comes from inverting the lens distortion exactly (Newton, see
-//! `Camera::undistort`) at the pixel corners and interpolating bilinearly inside the pixel —
-//! the distortion is so smooth that this differs from inverting at every sample by under
-//! 2·10⁻⁴ px (a test checks it). Then, in order: mild defocus (a Gaussian of σ = 0.7 px), the
-//! exposure gain, sensor noise (read noise 0.4 DN plus shot noise, σ² = 0.4² + 0.004·I, drawn
-//! from a counter-based hash of the seed, the image and the pixel, so parallel rendering is
+//! Every pixel is the mean of S × S samples (S = 4) inside it: anti-aliasing by supersampling. Each
+//! sample's ray comes from inverting the lens distortion exactly (Newton, see `Camera::undistort`)
+//! at the pixel corners and interpolating bilinearly inside the pixel — the distortion is so smooth
+//! that this differs from inverting at every sample by under 2·10⁻⁴ px (a test checks it). Then, in
+//! order ([`super::canvas::Canvas::develop`]): mild defocus (a Gaussian of σ = 0.7 px), the
+//! exposure gain, sensor noise (read noise 0.4 DN plus shot noise, σ² = 0.4² + 0.004·I, drawn from
+//! a counter-based hash of the seed, the image and the pixel, so parallel rendering is
 //! deterministic), and rounding to 8 bits.
 //!
-//! Scene: the finger is a tube of radius 1.6 mm (the 5.0 × 2.6 mm section's mean half-size)
-//! along the plant's centre line, pale silicone, with a rounded end; a matte red bead of radius
-//! 0.6 mm sits on that end with its centre at the plant's tip, which is the point the pipeline
-//! tracks. Shading is Lambertian under a light at the camera (a ring light), so the bead's image
-//! is symmetric about its centre's projection. The board is printed black on white paper
-//! with a one-square white margin (a ChArUco board's markers bit by bit, as OpenCV lays them). Paper, finger and background share one illumination field
-//! (a horizontal gradient, a soft hot spot and vignetting, drawn from the seed).
+//! Scene: the finger is a tube of radius 1.6 mm (the 5.0 × 2.6 mm section's mean half-size) along
+//! the plant's centre line, pale silicone, with a rounded end; a matte red bead of radius 0.6 mm
+//! sits on that end with its centre at the plant's tip, which is the point the pipeline tracks.
+//! Shading is Lambertian under a light at the camera (a ring light), so the bead's image is
+//! symmetric about its centre's projection. The board is printed black on white paper with a
+//! one-square white margin (a ChArUco board's markers bit by bit, as OpenCV lays them). Paper,
+//! finger and background share one illumination field (a horizontal gradient, a soft hot spot and
+//! vignetting, drawn from the seed).
 
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
 use super::camera::Camera;
+use super::canvas::{splitmix, uniform, Canvas, Rect};
 use super::scene::{ray_segment_gap, Board, Cell, Finger, BEAD, BEAD_RADIUS_MM, FINGER_RADIUS_MM};
 
 /// Samples per pixel side.
 pub const SUPERSAMPLING: usize = 4;
-const BLUR_SIGMA_PX: f64 = 0.7;
-const READ_NOISE_DN: f32 = 0.4;
-const SHOT_NOISE_DN: f32 = 0.004;
 
 const BACKDROP: [f64; 3] = [0.47, 0.48, 0.50];
 /// Ambient share of the lighting.
 const AMBIENT: f64 = 0.35;
-
-/// A pixel rectangle, corners inclusive: (x0, y0, x1, y1).
-pub type Rect = (usize, usize, usize, usize);
-
-/// An RGB image of floating-point intensities (0-255) while rendering.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Canvas {
-    pub width: usize,
-    pub height: usize,
-    pub rgb: Vec<f32>,
-    /// Where anything but the smooth backdrop was drawn (what the defocus blur must touch).
-    pub detail: Option<Rect>,
-}
-
-impl Canvas {
-    /// Blurs where detail was drawn, applies `gain`, adds noise keyed by (`seed`, `image`) and
-    /// rounds to 8-bit RGB.
-    ///
-    /// Blurring only the detail is exact where the rest is the smooth backdrop (a 5-pixel
-    /// Gaussian changes it by under 0.01 DN).
-    pub fn develop(mut self, gain: f64, seed: u64, image: u64) -> Vec<u8> {
-        let w = self.width;
-        if let Some(rect) = self.detail {
-            self.blur(rect, BLUR_SIGMA_PX);
-        }
-        let key = splitmix(seed ^ splitmix(image));
-        let gain = gain as f32;
-        let mut out = vec![0u8; self.rgb.len()];
-        out.par_chunks_mut(3 * w)
-            .zip(self.rgb.par_chunks(3 * w))
-            .enumerate()
-            .for_each_init(Vec::new, |noise, (row, (out, values))| {
-                let first = (row * w) as u64;
-                noise.clear();
-                noise.extend((0..w as u64).flat_map(|x| pixel_noise(key, first + x)));
-                // One pass the compiler can vectorise.
-                for ((o, &v), &n) in out.iter_mut().zip(values).zip(noise.iter()) {
-                    let signal = v * gain;
-                    let variance =
-                        READ_NOISE_DN * READ_NOISE_DN + SHOT_NOISE_DN * signal.clamp(0.0, 255.0);
-                    *o = ((signal + variance.sqrt() * n).clamp(0.0, 255.0) + 0.5) as u8;
-                }
-            });
-        out
-    }
-
-    /// Separable Gaussian blur (σ = `sigma` px, out to the nearest whole pixel to 3σ) of a
-    /// rectangle, reading that far beyond it (clamped at the image's edges).
-    fn blur(&mut self, (x0, y0, x1, y1): Rect, sigma: f64) {
-        let r = (3.0 * sigma).round() as usize;
-        let weights: Vec<f32> = {
-            let w: Vec<f64> = (0..=2 * r)
-                .map(|k| {
-                    let d = k as f64 - r as f64;
-                    (-(d * d) / (2.0 * sigma * sigma)).exp()
-                })
-                .collect();
-            let sum: f64 = w.iter().sum();
-            w.iter().map(|v| (v / sum) as f32).collect()
-        };
-        let (w, h) = (self.width, self.height);
-        let (ya, yb) = (y0.saturating_sub(r), (y1 + r).min(h - 1));
-        let at = |x: usize, d: usize, max: usize| (x + d).saturating_sub(r).min(max - 1);
-        // Horizontal pass over the rows the vertical pass will read.
-        let src = &self.rgb;
-        let weights = &weights;
-        let span = 3 * (x1 - x0 + 1);
-        let mut horizontal = vec![0f32; (yb - ya + 1) * span];
-        horizontal
-            .par_chunks_mut(span)
-            .enumerate()
-            .for_each(|(dy, out)| {
-                let row = &src[3 * w * (ya + dy)..3 * w * (ya + dy + 1)];
-                for (x, out) in (x0..=x1).zip(out.chunks_exact_mut(3)) {
-                    for (k, weight) in weights.iter().enumerate() {
-                        let p = &row[3 * at(x, k, w)..][..3];
-                        for c in 0..3 {
-                            out[c] += weight * p[c];
-                        }
-                    }
-                }
-            });
-        self.rgb[3 * w * y0..3 * w * (y1 + 1)]
-            .par_chunks_mut(3 * w)
-            .enumerate()
-            .for_each(|(dy, row)| {
-                let y = y0 + dy;
-                for k in 0..span {
-                    row[3 * x0 + k] = (0..=2 * r)
-                        .map(|t| {
-                            let yy = at(y, t, h).clamp(ya, yb);
-                            weights[t] * horizontal[(yy - ya) * span + k]
-                        })
-                        .sum();
-                }
-            });
-    }
-}
 
 /// A camera prepared for rendering: its rays at every pixel corner, its illumination field and
 /// what it sees behind the finger.
@@ -579,84 +480,6 @@ impl View {
     }
 }
 
-/// How images are stored.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum ImageFormat {
-    /// Lossless.
-    Png,
-    /// Baseline JPEG at a quality of 1-100, as webcams stream MJPEG.
-    Jpeg { quality: u8, chroma: Chroma },
-}
-
-/// Resolution of a JPEG's colour planes.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
-pub enum Chroma {
-    /// 4:2:0, half the resolution both ways: what USB webcams' MJPEG streams and most cameras
-    /// write (OpenCV's encoder, libjpeg-turbo).
-    #[serde(rename = "4:2:0")]
-    Half,
-    /// 4:4:4, full resolution (the `image` crate's encoder).
-    #[serde(rename = "4:4:4")]
-    Full,
-}
-
-impl ImageFormat {
-    /// What a webcam streams: MJPEG 4:2:0 at quality 85.
-    pub const WEBCAM: ImageFormat = ImageFormat::Jpeg {
-        quality: 85,
-        chroma: Chroma::Half,
-    };
-
-    /// File extension, without the dot.
-    pub fn extension(self) -> &'static str {
-        match self {
-            ImageFormat::Png => "png",
-            ImageFormat::Jpeg { .. } => "jpg",
-        }
-    }
-
-    /// Encodes an 8-bit RGB image.
-    pub fn encode(self, width: u32, height: u32, rgb: &[u8]) -> Vec<u8> {
-        match self {
-            ImageFormat::Png => encode_png(width, height, rgb),
-            ImageFormat::Jpeg {
-                quality,
-                chroma: Chroma::Half,
-            } => crate::cv::encode_jpeg(height, rgb, quality.clamp(1, 100))
-                .expect("OpenCV encodes an in-memory RGB image"),
-            ImageFormat::Jpeg {
-                quality,
-                chroma: Chroma::Full,
-            } => {
-                let mut out = Vec::new();
-                image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, quality.clamp(1, 100))
-                    .encode(rgb, width, height, image::ColorType::Rgb8)
-                    .expect("in-memory JPEG of the stated size");
-                out
-            }
-        }
-    }
-}
-
-/// PNG bytes of an 8-bit RGB image: fast deflate (noisy images gain little from harder
-/// compression) and the "up" filter (as small as Paeth on these frames, half the decoding time:
-/// 5.9 against 11.4 ms for a 1280 × 720 frame).
-pub fn encode_png(width: u32, height: u32, rgb: &[u8]) -> Vec<u8> {
-    let mut out = Vec::new();
-    let mut encoder = png::Encoder::new(&mut out, width, height);
-    encoder.set_color(png::ColorType::Rgb);
-    encoder.set_depth(png::BitDepth::Eight);
-    encoder.set_compression(png::Compression::Fast);
-    encoder.set_filter(png::FilterType::Up);
-    let mut writer = encoder.write_header().expect("in-memory PNG header");
-    writer
-        .write_image_data(rgb)
-        .expect("in-memory PNG data of the stated size");
-    writer.finish().expect("in-memory PNG end");
-    out
-}
-
 /// Calls `f(a, b)` for the S × S sample positions inside a pixel (fractions of its width).
 fn for_samples(mut f: impl FnMut(f64, f64)) {
     for sb in 0..SUPERSAMPLING {
@@ -667,30 +490,6 @@ fn for_samples(mut f: impl FnMut(f64, f64)) {
             );
         }
     }
-}
-
-pub(super) fn splitmix(mut z: u64) -> u64 {
-    z = z.wrapping_add(0x9e37_79b9_7f4a_7c15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-    z ^ (z >> 31)
-}
-
-/// A uniform number in [0, 1) from a key and a counter.
-pub(super) fn uniform(key: u64, k: u64) -> f64 {
-    (splitmix(key ^ splitmix(k)) >> 11) as f64 / (1u64 << 53) as f64
-}
-
-/// Three approximately standard normal numbers (one per colour channel) for pixel `k`: from
-/// one SplitMix64 output, each the sum of four 5-bit uniforms, centred and scaled (Irwin-Hall;
-/// 125 levels, tails cut at ±3.4σ — finer than the 8-bit output it perturbs).
-fn pixel_noise(key: u64, k: u64) -> [f32; 3] {
-    let bits = splitmix(key.wrapping_add(k.wrapping_mul(0x9e37_79b9_7f4a_7c15)));
-    // Sum of four uniforms on 0..=31: mean 62, variance 4 · (32² − 1)/12 = 341.
-    std::array::from_fn(|c| {
-        let sum: u64 = (0..4).map(|m| (bits >> (20 * c + 5 * m)) & 31).sum();
-        (sum as f32 - 62.0) / 341f32.sqrt()
-    })
 }
 
 #[cfg(test)]
@@ -719,28 +518,6 @@ mod tests {
             }
         }
         assert!(worst < 2e-4, "interpolation error {worst} px");
-    }
-
-    #[test]
-    fn noise_has_the_stated_spread_and_is_keyed() {
-        for c in 0..3 {
-            let n: Vec<f64> = (0..20000)
-                .map(|k| f64::from(pixel_noise(42, k)[c]))
-                .collect();
-            let (mean, sd) = crate::stats::mean_sd(&n).unwrap();
-            assert!(mean.abs() < 0.03 && (sd - 1.0).abs() < 0.03, "{mean} {sd}");
-        }
-        // Channels are independent of each other.
-        let corr: f64 = (0..20000)
-            .map(|k| {
-                let n = pixel_noise(9, k);
-                f64::from(n[0]) * f64::from(n[1])
-            })
-            .sum::<f64>()
-            / 20000.0;
-        assert!(corr.abs() < 0.03, "{corr}");
-        assert_eq!(pixel_noise(42, 7), pixel_noise(42, 7));
-        assert_ne!(pixel_noise(42, 7), pixel_noise(43, 7));
     }
 
     #[test]

@@ -484,7 +484,7 @@ fn a_tiny_image_is_named_not_an_opencv_assertion() {
     let dir = tempdir();
     let d = dir.path();
     std::fs::create_dir(d.join("tiny")).unwrap();
-    let pixel = handcap::synth::render::encode_png(1, 1, &[128, 128, 128]);
+    let pixel = handcap::synth::image_format::encode_png(1, 1, &[128, 128, 128]);
     for k in 0..8 {
         for side in ["left", "right"] {
             std::fs::write(d.join(format!("tiny/{side}_{k:02}.png")), &pixel).unwrap();

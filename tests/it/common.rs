@@ -1,7 +1,7 @@
 //! Helpers shared by the integration tests.
 
 use handcap::synth::capture::Realism;
-use handcap::synth::render::ImageFormat;
+use handcap::synth::image_format::ImageFormat;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
@@ -105,7 +105,7 @@ pub fn board_capture(dir: &Path, seed: u64, views: usize, board: handcap::calib:
         views,
         board,
         window_s: [0.10, 0.12],
-        format: handcap::synth::render::ImageFormat::Png,
+        format: handcap::synth::image_format::ImageFormat::Png,
         realism: handcap::synth::capture::Realism::CLEAN,
         ..handcap::synth::capture::CaptureConfig::default()
     };

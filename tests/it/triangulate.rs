@@ -6,14 +6,14 @@
 use std::path::Path;
 
 use handcap::synth::capture::Realism;
-use handcap::synth::render::{Chroma, ImageFormat};
+use handcap::synth::image_format::{Chroma, ImageFormat};
 
 use nalgebra::Vector3;
 
 use handcap::calib::file::read_calibration;
 use handcap::image::decode;
 use handcap::stereo::Side;
-use handcap::synth::render::encode_png;
+use handcap::synth::image_format::encode_png;
 
 use crate::common::{
     capture, capture_as, capture_with, csv_rows, handcap, handcap_err, handcap_ok, handcap_usage,

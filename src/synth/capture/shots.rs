@@ -1,0 +1,257 @@
+//! The images a capture renders, in a fixed order, and where they go: each board pair and
+//! finger frame rendered, encoded and written on its own (in parallel), or the finger's frames
+//! as one video per camera.
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+
+use nalgebra::Point3;
+use rayon::prelude::*;
+
+use super::timing::{finger_poses, occluder, pressure_at, Filmed};
+use super::{io_err, CaptureConfig, Realism, SynthError};
+use crate::fsio;
+use crate::stereo::Side;
+use crate::synth::camera::{Camera, Rig};
+use crate::synth::clutter;
+use crate::synth::image_format::ImageFormat;
+use crate::synth::plant::{Plant, Pressures};
+use crate::synth::render::{Lighting, Surroundings, View};
+use crate::synth::scene::Board;
+
+/// One image to render and write.
+enum Shot {
+    Board {
+        camera: Side,
+        name: String,
+        board: usize,
+    },
+    Frame {
+        camera: Side,
+        index: usize,
+        /// Middle of the exposure.
+        exposure_s: f64,
+    },
+}
+
+/// A shot rendered as the camera delivers it (8-bit RGB), and where its image file goes.
+struct Rendered {
+    path: PathBuf,
+    size: [u32; 2],
+    rgb: Vec<u8>,
+}
+
+/// What every shot is rendered from: the two cameras' views of the scene, the boards (the
+/// reference last), and the finger's motion through the protocol.
+pub(super) struct Studio<'a> {
+    pub dir: &'a Path,
+    pub seed: u64,
+    pub config: &'a CaptureConfig,
+    pub plant: &'a Plant,
+    pub steps: &'a [(&'static str, Pressures)],
+    pub boards: Vec<&'a Board>,
+    pub views: [View; 2],
+}
+
+/// The two cameras' views of the scene; with clutter, the wall keeps clear of where the
+/// finger's `tips` and base are seen.
+pub(super) fn views(
+    rig: &Rig,
+    seed: u64,
+    realism: &Realism,
+    plant: &Plant,
+    tips: &[[f64; 3]],
+) -> [View; 2] {
+    let view = |camera: &Camera, side: Side| {
+        let lighting = Lighting::from_seed(seed ^ side as u64);
+        let wall = realism.clutter.then(|| {
+            let base = plant.centre_line([0.0; 3]).map(|line| line[0]);
+            let keep = workspace_box(camera, tips.iter().chain(base.as_ref().ok()));
+            let red = realism.red_distractors && side == Side::Right;
+            clutter::wall(
+                camera.width as usize,
+                camera.height as usize,
+                seed ^ (side as u64 + 1) << 8,
+                red,
+                keep,
+            )
+        });
+        let surroundings = Surroundings {
+            wall,
+            specular: realism.specular,
+        };
+        View::new(camera.clone(), lighting, surroundings)
+    };
+    [view(&rig.left, Side::Left), view(&rig.right, Side::Right)]
+}
+
+impl Studio<'_> {
+    /// Renders shot `id` (its number in the fixed order seeds its sensor noise).
+    fn render(&self, id: usize, shot: &Shot) -> Result<Rendered, SynthError> {
+        let (c, ext) = (self.config, self.config.format.extension());
+        let (side, path, canvas, time) = match shot {
+            Shot::Board {
+                camera,
+                name,
+                board,
+            } => {
+                let view = &self.views[*camera as usize];
+                let path = self
+                    .dir
+                    .join(format!("calib/{}_{name}.{ext}", camera.name()));
+                (*camera, path, view.board(self.boards[*board]), 0.0)
+            }
+            Shot::Frame {
+                camera,
+                index,
+                exposure_s,
+            } => {
+                let view = &self.views[*camera as usize];
+                let poses = finger_poses(c, self.plant, self.steps, &view.camera, *exposure_s)?;
+                let mut canvas = view.finger(&poses);
+                if let Some(angle) = occluder(self.seed, c, *camera, *index) {
+                    let tip = self.plant.tip(pressure_at(c, self.steps, *exposure_s))?;
+                    if let Some(through) = view.camera.project(&Point3::from(tip)) {
+                        view.occlude(&mut canvas, through, angle);
+                    }
+                }
+                let path = self
+                    .dir
+                    .join(format!("frames/{}_{index:05}.{ext}", camera.name()));
+                (*camera, path, canvas, *exposure_s)
+            }
+        };
+        // A slow drift of the auto-exposure and the lights' 100 Hz flicker.
+        let phase = side as u8 as f64;
+        let gain = (1.0 + c.exposure_drift * (std::f64::consts::TAU * time / 20.0 + phase).sin())
+            * (1.0 + c.realism.flicker * (std::f64::consts::TAU * 100.0 * time + phase).sin());
+        let size = [canvas.width as u32, canvas.height as u32];
+        let rgb = canvas.develop(gain, self.seed, id as u64);
+        Ok(Rendered { path, size, rgb })
+    }
+}
+
+/// Renders and writes every image: the board pairs (`calib/`, the reference pair last), then
+/// the finger's `frames` (`frames/`, images or one video per camera). `progress(done, total)`
+/// is called as images are written; `interrupt` stops between images. `false` when
+/// interrupted (the files written are complete).
+pub(super) fn write_all(
+    studio: &Studio,
+    frames: &[Filmed],
+    progress: &(dyn Fn(usize, usize) + Sync),
+    interrupt: &AtomicBool,
+) -> Result<bool, SynthError> {
+    let mut shots = Vec::new();
+    let last = studio.boards.len() - 1;
+    for board in 0..=last {
+        let name = if board == last {
+            "ref".to_string()
+        } else {
+            format!("{board:02}")
+        };
+        for camera in [Side::Left, Side::Right] {
+            shots.push(Shot::Board {
+                camera,
+                name: name.clone(),
+                board,
+            });
+        }
+    }
+    shots.extend(frames.iter().map(|f| Shot::Frame {
+        camera: f.camera,
+        index: f.index,
+        exposure_s: f.exposure_s,
+    }));
+    let total = shots.len();
+    let done = AtomicUsize::new(0);
+    let counted = || progress(done.fetch_add(1, Ordering::SeqCst) + 1, total);
+    // With `video`, the finger's frames go to each camera's video instead, in order.
+    let images = if studio.config.video {
+        2 * studio.boards.len()
+    } else {
+        total
+    };
+    let written: Vec<Result<bool, SynthError>> = shots[..images]
+        .par_iter()
+        .enumerate()
+        .map(|(id, shot)| {
+            if interrupt.load(Ordering::SeqCst) {
+                return Ok(false);
+            }
+            let Rendered { path, size, rgb } = studio.render(id, shot)?;
+            let bytes = studio.config.format.encode(size[0], size[1], &rgb);
+            fsio::write_bytes(&path, &bytes).map_err(io_err(&path))?;
+            counted();
+            Ok(true)
+        })
+        .collect();
+    let mut complete = true;
+    for w in written {
+        complete &= w?;
+    }
+    if studio.config.video && complete {
+        complete = write_videos(studio, &shots, images, &counted, interrupt)?;
+    }
+    Ok(complete)
+}
+
+/// The finger's frames (`shots[first..]`) as `frames/left.avi` and `frames/right.avi`,
+/// Motion-JPEG at the format's quality; `false` when interrupted (no video is then left).
+fn write_videos(
+    studio: &Studio,
+    shots: &[Shot],
+    first: usize,
+    counted: &(dyn Fn() + Sync),
+    interrupt: &AtomicBool,
+) -> Result<bool, SynthError> {
+    let (dir, config) = (studio.dir, studio.config);
+    let quality = match config.format {
+        ImageFormat::Jpeg { quality, .. } => quality,
+        ImageFormat::Png => 95,
+    };
+    let size = [config.rig.width, config.rig.height];
+    for camera in [Side::Left, Side::Right] {
+        let path = dir.join(format!("frames/{}.avi", camera.name()));
+        let failed = |why: String| SynthError::Write {
+            path: path.clone(),
+            source: std::io::Error::other(why),
+        };
+        let mut writer =
+            crate::video::MjpegWriter::create(&path, config.fps, size, quality).map_err(failed)?;
+        let mine: Vec<(usize, &Shot)> = shots
+            .iter()
+            .enumerate()
+            .skip(first)
+            .filter(|(_, s)| matches!(s, Shot::Frame { camera: c, .. } if *c == camera))
+            .collect();
+        for chunk in mine.chunks(32) {
+            if interrupt.load(Ordering::SeqCst) {
+                return Ok(false);
+            }
+            let frames = chunk
+                .par_iter()
+                .map(|&(id, shot)| studio.render(id, shot).map(|r| r.rgb))
+                .collect::<Result<Vec<_>, _>>()?;
+            for rgb in frames {
+                writer.write(&rgb).map_err(|e| failed(e.message))?;
+                counted();
+            }
+        }
+        writer.finish().map_err(failed)?;
+    }
+    Ok(true)
+}
+
+/// The pixel box [u0, v0, u1, v1] of the points' images.
+fn workspace_box<'a>(camera: &Camera, points: impl Iterator<Item = &'a [f64; 3]>) -> [f64; 4] {
+    let mut b = [
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    ];
+    for [u, v] in points.filter_map(|p| camera.project(&Point3::from(*p))) {
+        b = [b[0].min(u), b[1].min(v), b[2].max(u), b[3].max(v)];
+    }
+    b
+}

@@ -1,0 +1,115 @@
+//! The ground truth a capture writes beside its images (`truth/`), and the regulator's log.
+
+use nalgebra::{Matrix3, Point3};
+
+use super::timing::{occluder, pressure_at, Filmed};
+use super::{CaptureConfig, SynthError};
+use crate::opencv_yaml::FileStorage;
+use crate::stereo::Side;
+use crate::synth::camera::Rig;
+use crate::synth::plant::{Plant, Pressures};
+use crate::synth::scene::Board;
+
+fn mat3(m: &Matrix3<f64>) -> Vec<f64> {
+    (0..3)
+        .flat_map(|r| (0..3).map(move |c| m[(r, c)]))
+        .collect()
+}
+
+pub(super) fn rig_yaml(rig: &Rig, provenance: &crate::provenance::Provenance) -> String {
+    let cams = rig.stereo();
+    // The virtual world is the hand frame: the left camera's pose inverted.
+    let hand_from_left = rig.left.pose.inverse();
+    let mut fs = FileStorage::new();
+    crate::calib::file::write_rig(&mut fs, &cams)
+        .matrix("E", 3, 3, &mat3(&cams.essential()))
+        .matrix("F", 3, 3, &mat3(&cams.fundamental()))
+        .matrix("R_hand", 3, 3, &hand_from_left.rotation_rows())
+        .matrix("t_hand", 3, 1, &hand_from_left.translation_array())
+        .string("handcap_version", &provenance.handcap_version)
+        .string("command", &provenance.command.join(" "));
+    if let Some(seed) = provenance.seed {
+        fs.int("seed", seed as i64);
+    }
+    fs.text().to_string()
+}
+
+pub(super) fn boards_csv(rig: &Rig, boards: &[Board], reference: &Board) -> String {
+    let mut out = String::from("view,rx,ry,rz,tx_mm,ty_mm,tz_mm\n");
+    let named = boards
+        .iter()
+        .enumerate()
+        .map(|(k, b)| (format!("{k:02}"), b))
+        .chain(std::iter::once(("ref".to_string(), reference)));
+    for (name, b) in named {
+        let left_from_board = b.pose.then(&rig.left.pose);
+        let (r, t) = (
+            left_from_board.rotation.scaled_axis(),
+            left_from_board.translation,
+        );
+        out += &format!("{name},{},{},{},{},{},{}\n", r.x, r.y, r.z, t.x, t.y, t.z);
+    }
+    out
+}
+
+pub(super) fn pressures_csv(c: &CaptureConfig, steps: &[(&str, Pressures)]) -> String {
+    crate::session::pressures::pressures_csv(steps.iter().enumerate().map(|(k, (phase, p))| {
+        crate::session::pressures::Logged {
+            time_s: k as f64 * c.step_s,
+            command_end_s: None,
+            pressures_kpa: *p,
+            step: k,
+            phase,
+        }
+    }))
+}
+
+pub(super) fn tips_csv(rig: &Rig, steps: &[(&str, Pressures)], tips: &[[f64; 3]]) -> String {
+    let mut out = String::from(
+        "step,phase,P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm,left_x_mm,left_y_mm,left_z_mm\n",
+    );
+    for (k, ((phase, p), tip)) in steps.iter().zip(tips).enumerate() {
+        let left = rig.left.pose.apply(&Point3::from(*tip));
+        out += &format!(
+            "{k},{phase},{},{},{},{},{},{},{},{},{}\n",
+            p[0], p[1], p[2], tip[0], tip[1], tip[2], left.x, left.y, left.z
+        );
+    }
+    out
+}
+
+pub(super) fn truth_frames(
+    rig: &Rig,
+    plant: &Plant,
+    seed: u64,
+    c: &CaptureConfig,
+    steps: &[(&str, Pressures)],
+    frames: &[Filmed],
+) -> Result<String, SynthError> {
+    let mut out = String::from("frame,camera,exposure_s,step,x_mm,y_mm,z_mm,u_px,v_px,occluded\n");
+    for f in frames {
+        let tip = plant.tip(pressure_at(c, steps, f.exposure_s))?;
+        let cam = match f.camera {
+            Side::Left => &rig.left,
+            Side::Right => &rig.right,
+        };
+        let [u, v] = cam
+            .project(&Point3::from(tip))
+            .unwrap_or([f64::NAN, f64::NAN]);
+        let occluded = occluder(seed, c, f.camera, f.index).is_some();
+        out += &format!(
+            "{},{},{:.6},{},{},{},{},{},{},{}\n",
+            f.index,
+            f.camera.name(),
+            f.exposure_s,
+            f.step,
+            tip[0],
+            tip[1],
+            tip[2],
+            u,
+            v,
+            u8::from(occluded)
+        );
+    }
+    Ok(out)
+}
