@@ -114,8 +114,8 @@ impl Judge {
     ) -> Result<(), CaptureError> {
         self.delay = self.motion.delay().or(self.delay);
         let (l, r) = (
-            corners(&self.spec, &left.bytes),
-            corners(&self.spec, &right.bytes),
+            corners(&self.spec, &left.frame.bytes),
+            corners(&self.spec, &right.frame.bytes),
         );
         let previous = self.previous.take();
         let (Some((l, size)), Some((r, _))) = (l, r) else {
@@ -165,11 +165,13 @@ impl Judge {
         } else {
             format!("{:02}", self.taken)
         };
-        for frame in [left, right] {
-            let path = self
-                .dir
-                .join(format!("{}_{name}.{}", frame.side.name(), frame.extension));
-            fsio::write_bytes(&path, &frame.bytes)
+        for grabbed in [left, right] {
+            let path = self.dir.join(format!(
+                "{}_{name}.{}",
+                grabbed.side.name(),
+                grabbed.frame.extension
+            ));
+            fsio::write_bytes(&path, &grabbed.frame.bytes)
                 .map_err(|source| CaptureError::Write { path, source })?;
         }
         self.places.push(place);

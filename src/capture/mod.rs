@@ -1,6 +1,7 @@
-//! `handcap capture`: two cameras filmed on their own threads, every frame stamped with one
-//! clock at grab time and written in the layout `triangulate` reads; optionally a pressure
-//! protocol driven by the lab's own command, logged on the same clock.
+//! `handcap capture`: two cameras filmed on their own threads, every frame stamped on one
+//! clock as near its exposure as its source tells and written in the layout `triangulate`
+//! reads; optionally a pressure protocol driven by the lab's own command, logged on the same
+//! clock.
 //!
 //! # The clock
 //! `time_s` in `frames.csv` and `pressures.csv` is seconds since the session began on the
@@ -12,11 +13,12 @@
 //! # Cameras
 //! Each `--left`/`--right` is a device index (`0`), a device path (`/dev/video2`), a video file
 //! (played at its own frame rate, standing in for a camera), or anything else OpenCV opens (a
-//! URL, a GStreamer pipeline). Devices are asked for MJPG at the size and rate given and for
-//! fixed exposure, white balance and focus; what the backend refuses is said. A stream URL
-//! (`http://…`, `rtsp://…`) is read by FFmpeg with the server's settings. Frames are kept as
-//! they come: a camera's, a Motion-JPEG file's or a Motion-JPEG stream's JPEG bytes as `.jpg`
-//! without decoding or re-encoding, anything else decoded and written losslessly as `.png`.
+//! URL, a GStreamer pipeline), each read through its kind of [`source::FrameSource`]. Devices
+//! are asked for MJPG at the size and rate given and for fixed exposure, white balance and
+//! focus; what the backend refuses is said. A stream URL (`http://…`, `rtsp://…`) is read by
+//! FFmpeg with the server's settings. Frames are kept as they come: a camera's, a Motion-JPEG
+//! file's or a Motion-JPEG stream's JPEG bytes as `.jpg` without decoding or re-encoding,
+//! anything else decoded and written losslessly as `.png`, written off the cameras' threads.
 //!
 //! # Ending
 //! The protocol's end, `--duration`, Ctrl-C (or SIGTERM, SIGHUP), a camera that stops
@@ -26,15 +28,15 @@
 //! session's files are also rewritten every second while filming ([`Ending::Filming`]).
 
 pub mod calibration;
-mod camera;
 mod files;
 pub mod motion;
 mod regulator;
+pub mod source;
 pub mod url;
 
-use camera::{film, open_camera, CameraEnd, Grabbed};
 use files::SessionFiles;
 use regulator::{drive, run_command, CommandEnd};
+use source::{film, CameraEnd, Grabbed};
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -309,8 +311,8 @@ pub fn capture(
     // handcap's one line; what failed is said there.
     let _ = opencv::core::set_log_level(opencv::core::LogLevel::LOG_LEVEL_SILENT);
     let cameras = [
-        open_camera(Side::Left, &options.sources[0], options)?,
-        open_camera(Side::Right, &options.sources[1], options)?,
+        source::open(Side::Left, &options.sources[0], options)?,
+        source::open(Side::Right, &options.sources[1], options)?,
     ];
     if options.calibration.is_none() {
         std::fs::create_dir_all(&frames_dir).map_err(|source| CaptureError::Write {
@@ -318,7 +320,7 @@ pub fn capture(
             source,
         })?;
     }
-    let refused = [cameras[0].refused.clone(), cameras[1].refused.clone()];
+    let refused = [cameras[0].refused(), cameras[1].refused()];
     let session = SessionFiles { out, options };
 
     let start_unix_s = std::time::SystemTime::now()
@@ -363,15 +365,15 @@ pub fn capture(
         let mut last_seen = [STALL_S; 2];
         let mut latest: [Option<Grabbed>; 2] = [None, None];
         let mut last_look = 0.0;
-        let store = |frame: &Grabbed| -> Result<(), CaptureError> {
+        let store = |grabbed: &Grabbed| -> Result<(), CaptureError> {
             let name = format!(
                 "{}_{:05}.{}",
-                frame.side.name(),
-                frame.index,
-                frame.extension
+                grabbed.side.name(),
+                grabbed.index,
+                grabbed.frame.extension
             );
             let path = frames_dir.join(name);
-            fsio::write_bytes(&path, &frame.bytes)
+            fsio::write_bytes(&path, &grabbed.frame.bytes)
                 .map_err(|source| CaptureError::Write { path, source })
         };
         loop {
@@ -379,8 +381,8 @@ pub fn capture(
             // busy machine) the cameras' latest frames are what says whether they stalled.
             let mut arrived = Vec::new();
             match rx.recv_timeout(Duration::from_millis(100)) {
-                Ok(frame) => {
-                    arrived.push(frame);
+                Ok(grabbed) => {
+                    arrived.push(grabbed);
                     arrived.extend(rx.try_iter());
                 }
                 Err(mpsc::RecvTimeoutError::Disconnected) => {
@@ -390,22 +392,22 @@ pub fn capture(
                 }
                 Err(mpsc::RecvTimeoutError::Timeout) => {}
             }
-            for frame in arrived {
-                last_seen[frame.side as usize] = frame.time_s;
+            for grabbed in arrived {
+                last_seen[grabbed.side as usize] = grabbed.frame.time_s;
                 if let Some(judge) = judge.as_mut() {
                     // A calibration capture keeps only each camera's latest frame, and its
                     // motion.
-                    if let Some(change) = frame.change {
-                        judge.motion.add(frame.side, frame.time_s, change);
+                    if let Some(change) = grabbed.change {
+                        judge.motion.add(grabbed.side, grabbed.frame.time_s, change);
                     }
-                    let side = frame.side as usize;
-                    latest[side] = Some(frame);
-                } else if let Err(e) = store(&frame) {
+                    let side = grabbed.side as usize;
+                    latest[side] = Some(grabbed);
+                } else if let Err(e) = store(&grabbed) {
                     failure = Some(e);
                     stop.store(true, Ordering::SeqCst);
                 } else {
-                    rows.push((frame.side, frame.index, frame.time_s));
-                    by_driver[frame.side as usize] += usize::from(frame.by_driver);
+                    rows.push((grabbed.side, grabbed.index, grabbed.frame.time_s));
+                    by_driver[grabbed.side as usize] += usize::from(grabbed.frame.by_driver);
                 }
             }
             let now = clock.now_s();
