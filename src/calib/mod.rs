@@ -66,6 +66,10 @@ use crate::stereo::StereoRig;
 use detect::{Detector, Seen};
 use pairs::ImagePair;
 
+/// Images the classic corner detector is first tried on when the sector-based one finds no
+/// board in any image.
+const CLASSIC_SAMPLE: usize = 4;
+
 /// Errors of calibrating.
 #[derive(Debug, thiserror::Error)]
 pub enum CalibError {
@@ -354,7 +358,22 @@ pub fn calibrate(
     };
     let mut detector = Detector::first_for(board);
     let mut found = detect_all(detector)?;
-    if complete(&found) < options.min_pairs && !board.is_charuco() {
+    // The classic detector is slow to fail (about a second a 720p image): when the first finds
+    // no board at all (a wrong --board, most often), it is first tried on a few images spread
+    // over the set, and on all of them only if it finds the board there.
+    let worth_classic = || -> Result<bool, CalibError> {
+        if found.iter().any(|f| f.1.is_some()) {
+            return Ok(true);
+        }
+        let step = grays.len().div_ceil(CLASSIC_SAMPLE).max(1);
+        let sample: Vec<&opencv::core::Mat> = grays.iter().step_by(step).collect();
+        let seen = sample
+            .par_iter()
+            .map(|gray| detect::find_board(gray, board, Detector::Classic))
+            .collect::<opencv::Result<Vec<_>>>()?;
+        Ok(seen.iter().any(Option::is_some))
+    };
+    if complete(&found) < options.min_pairs && !board.is_charuco() && worth_classic()? {
         let classic = detect_all(Detector::Classic)?;
         if complete(&classic) > complete(&found) {
             detector = Detector::Classic;

@@ -55,7 +55,7 @@ fn calibrate_never_writes_over_its_board_file_or_images() {
 fn a_board_flag_contradicting_board_yml_is_refused() {
     let dir = tempdir();
     let d = dir.path();
-    small_capture(d, 6, 6);
+    small_capture(d, 5, 6);
     // 6x9 for a 9x6 board would turn the hand frame by 90°.
     let msg = handcap_usage(d, &["calibrate", "calib", "--board", "6x9"]);
     assert!(msg.contains("contradicts") && msg.contains("9x6"), "{msg}");
@@ -96,7 +96,7 @@ fn model_report_never_writes_over_inputs_named_like_report_files() {
 fn triangulate_outputs_never_replace_the_frame_index_or_the_log_or_each_other() {
     let dir = tempdir();
     let d = dir.path();
-    small_capture(d, 7, 6);
+    small_capture(d, 5, 6);
     let base = ["triangulate", "frames", "--calib", "truth/rig.yml", "--out"];
     let frames_before = std::fs::read(d.join("frames/frames.csv")).unwrap();
     let msg = handcap_usage(d, &[&base[..], &["frames/frames.csv"]].concat());
@@ -241,7 +241,7 @@ fn predict_refuses_a_model_whose_numbers_overflow() {
 fn a_calibration_whose_hand_axes_are_not_a_rotation_is_refused() {
     let dir = tempdir();
     let d = dir.path();
-    small_capture(d, 8, 6);
+    small_capture(d, 5, 6);
     let rig = std::fs::read_to_string(d.join("truth/rig.yml")).unwrap();
     let start = rig.find("R_hand").unwrap();
     let data = start + rig[start..].find("data: [").unwrap() + "data: [".len();
@@ -329,7 +329,7 @@ fn unreadable_csv_bytes_and_ragged_rows_are_explained_not_dumped() {
 fn a_truncated_jpeg_is_reported_as_truncated() {
     let dir = tempdir();
     let d = dir.path();
-    small_capture(d, 9, 6);
+    small_capture(d, 5, 6);
     // A JPEG cut short: libjpeg would decode it with grey rows and call the board "not found".
     use opencv::core::Vector;
     use opencv::imgcodecs;
@@ -378,7 +378,7 @@ fn flags_are_checked_and_suggest_only_what_the_command_has() {
         "{msg}"
     );
     // --marker-area-px with the smallest above the largest.
-    small_capture(d, 10, 6);
+    small_capture(d, 5, 6);
     let msg = handcap_usage(
         d,
         &words("triangulate frames --calib truth/rig.yml --marker-area-px 10,5"),
@@ -447,7 +447,7 @@ fn a_second_run_into_the_same_place_leaves_no_files_of_the_first() {
     assert!(d.join("rep/notes.txt").exists());
 
     // triangulate: the per-phase files of a log with phases go when the next log has none.
-    small_capture(d, 11, 6);
+    small_capture(d, 5, 6);
     let run = |log: &str| {
         handcap_ok(
             d,

@@ -270,7 +270,7 @@ fn calibrates_the_synthetic_rig_within_tolerance_and_rejects_a_corrupted_pair() 
 fn calibrate_errors_are_one_line_and_say_what_to_do() {
     let dir = tempdir();
     let d = dir.path();
-    small_capture(d, 22, 6);
+    small_capture(d, 5, 6);
 
     // Wrong board size: the right one is suggested (without a board.yml to contradict).
     std::fs::remove_file(d.join("calib/board.yml")).unwrap();

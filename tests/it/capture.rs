@@ -479,7 +479,7 @@ fn a_charuco_board_is_taken_in_part_from_cameras_and_videos() {
     let dir = tempdir();
     let d = dir.path();
     let board = crate::common::charuco_board();
-    board_videos(d, 24, board, 0);
+    board_videos(d, 36, board, 0);
     let mut args = vec!["capture"];
     args.extend(VIDEO_CAMERAS);
     let board_flags = "--board charuco:10x7 --square-mm 10 --marker-mm 7.5";

@@ -126,19 +126,27 @@ pub fn capture_as(
     seed: u64,
     views: usize,
     [grid_step_kpa, sweep_step_kpa]: [f64; 2],
-    (format, realism): (ImageFormat, Realism),
+    look: (ImageFormat, Realism),
 ) {
-    let config = handcap::synth::capture::CaptureConfig {
-        views,
-        format,
-        realism,
-        ..handcap::synth::capture::CaptureConfig::default()
-    };
+    let config = config_as(views, look);
     capture_with(
         dir,
         &session(seed, [grid_step_kpa, sweep_step_kpa]),
         &config,
     );
+}
+
+/// The capture settings of [`capture_as`].
+pub fn config_as(
+    views: usize,
+    (format, realism): (ImageFormat, Realism),
+) -> handcap::synth::capture::CaptureConfig {
+    handcap::synth::capture::CaptureConfig {
+        views,
+        format,
+        realism,
+        ..handcap::synth::capture::CaptureConfig::default()
+    }
 }
 
 /// The virtual session of `seed`: the training grid and both sweeps at the given steps (kPa).
@@ -154,8 +162,72 @@ pub fn session(
     }
 }
 
-/// Renders the capture `synth` and `config` describe in `dir`, whole.
+/// The capture `synth` and `config` describe, whole, in `dir`: a copy of this test run's render
+/// of that configuration, made on first use (renders are the slow part of most tests; tests
+/// that share a configuration share one render).
 pub fn capture_with(
+    dir: &Path,
+    synth: &handcap::synth::SynthConfig,
+    config: &handcap::synth::capture::CaptureConfig,
+) {
+    use std::collections::HashMap;
+    use std::sync::{Arc, Mutex, OnceLock};
+    type Renders = Mutex<HashMap<String, Arc<OnceLock<PathBuf>>>>;
+    static RENDERS: OnceLock<Renders> = OnceLock::new();
+    let key = format!("{synth:?} {config:?}");
+    let slot = RENDERS
+        .get_or_init(Renders::default)
+        .lock()
+        .unwrap()
+        .entry(key)
+        .or_default()
+        .clone();
+    let rendered = slot.get_or_init(|| {
+        static MADE: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+        let n = MADE.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+        let path = render_cache().join(format!("{n:03}"));
+        render_capture(&path, synth, config);
+        path
+    });
+    copy_tree(rendered, dir);
+}
+
+/// This test process's render cache (`target/tmp/renders/PID`); those of processes that have
+/// ended are removed on first use.
+fn render_cache() -> PathBuf {
+    static CACHE: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
+    CACHE
+        .get_or_init(|| {
+            let all = Path::new(env!("CARGO_TARGET_TMPDIR")).join("renders");
+            for entry in std::fs::read_dir(&all).into_iter().flatten().flatten() {
+                let pid = entry.file_name();
+                if !Path::new("/proc").join(&pid).exists() {
+                    let _ = std::fs::remove_dir_all(entry.path());
+                }
+            }
+            let mine = all.join(std::process::id().to_string());
+            std::fs::create_dir_all(&mine).unwrap();
+            mine
+        })
+        .clone()
+}
+
+fn copy_tree(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for entry in std::fs::read_dir(from).unwrap() {
+        let entry = entry.unwrap();
+        let target = to.join(entry.file_name());
+        if entry.file_type().unwrap().is_dir() {
+            copy_tree(&entry.path(), &target);
+        } else {
+            std::fs::copy(entry.path(), target).unwrap();
+        }
+    }
+}
+
+/// Renders the capture `synth` and `config` describe in `dir` afresh ([`capture_with`] copies
+/// an earlier render of the same configuration).
+pub fn render_capture(
     dir: &Path,
     synth: &handcap::synth::SynthConfig,
     config: &handcap::synth::capture::CaptureConfig,

@@ -7,7 +7,9 @@ use opencv::core::{self, FileStorage, Mat, Point2f, Point3f, Size, Vector};
 use opencv::prelude::*;
 use opencv::{calib3d, imgcodecs, imgproc};
 
-use crate::common::{read_rig, small_capture, tempdir};
+use crate::common::{config_as, read_rig, render_capture, session, small_capture, tempdir};
+use handcap::synth::capture::Realism;
+use handcap::synth::image_format::ImageFormat;
 
 /// OpenCV's projection of the board's inner corners seen with pose (rotation, translation).
 fn project(
@@ -66,7 +68,7 @@ fn corner_rms(detected: &Vector<Point2f>, truth: &[(f64, f64)]) -> f64 {
 fn opencv_finds_the_board_corners_where_the_truth_projects() {
     let dir = tempdir();
     let d = dir.path();
-    small_capture(d, 11, 4);
+    small_capture(d, 12, 4);
     let rig = read_rig(&d.join("truth/rig.yml"));
     let (k1, d1, k2, d2) = (&rig.k1, &rig.d1, &rig.k2, &rig.d2);
     let (r, t) = (rig.r, rig.t);
@@ -189,9 +191,14 @@ fn the_red_bead_centroid_is_the_true_tip_projection_and_output_is_deterministic(
     assert!(frames >= 60, "{frames} frames");
     println!("worst bead centroid error {worst:.4} px over {frames} frames");
 
-    // Same seed → the same bytes, file by file.
+    // Same seed → the same bytes, file by file, rendered again (not the test run's copy).
     let again = tempdir();
-    small_capture(again.path(), 12, 4);
+    let clean = (ImageFormat::Png, Realism::CLEAN);
+    render_capture(
+        again.path(),
+        &session(12, [250.0, 125.0]),
+        &config_as(4, clean),
+    );
     let mut files = 0;
     for sub in ["calib", "frames", "truth", "."] {
         for entry in std::fs::read_dir(d.join(sub)).unwrap() {

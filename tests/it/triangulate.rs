@@ -286,7 +286,7 @@ fn faults_are_counted_resolved_or_flagged_never_guessed() {
 fn triangulate_errors_are_one_line_and_name_the_file() {
     let dir = tempdir();
     let d = dir.path();
-    small_capture(d, 33, 3);
+    small_capture(d, 32, 3);
     let args = |calib: &'static str| -> Vec<&'static str> {
         vec!["triangulate", "frames", "--calib", calib, "--out", "x.csv"]
     };
@@ -850,7 +850,7 @@ fn settling_counts_from_when_the_regulator_command_returned() {
     // every frame within --settle-s 0.1 of their end: no row, and the cause said.
     let dir = tempdir();
     let d = dir.path();
-    small_capture(d, 34, 3);
+    small_capture(d, 32, 3);
     let log = std::fs::read_to_string(d.join("pressures.csv")).unwrap();
     let run = |name: &str, took_s: f64| {
         std::fs::write(d.join(name), with_command_end(&log, |_| took_s)).unwrap();
