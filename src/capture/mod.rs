@@ -29,12 +29,14 @@
 
 pub mod calibration;
 mod files;
+pub mod flash;
 pub mod motion;
 mod regulator;
 pub mod source;
 pub mod url;
 
 use files::SessionFiles;
+use flash::FlashState;
 use regulator::{drive, run_command, CommandEnd};
 use source::{film, CameraEnd, Grabbed};
 
@@ -103,6 +105,9 @@ pub struct CaptureOptions {
     /// Command run once when a protocol's session ends early (see [`Ending::aborted`]), e.g.
     /// to vent the regulator.
     pub on_abort: Option<String>,
+    /// Command that switches on a light both cameras see, run before the protocol: each
+    /// camera's latency is measured from it ([`flash`]).
+    pub flash: Option<String>,
 }
 
 /// What a calibration capture collects: still pairs of `board` where it stands somewhere new,
@@ -138,6 +143,10 @@ pub enum Ending {
         step: usize,
         message: String,
     },
+    /// The flash command failed.
+    FlashFailed {
+        message: String,
+    },
     /// A thread of the session (a camera's, the protocol's) panicked.
     ThreadFailed {
         thread: String,
@@ -154,6 +163,7 @@ impl Ending {
             Ending::Interrupted
                 | Ending::CameraStopped { .. }
                 | Ending::CommandFailed { .. }
+                | Ending::FlashFailed { .. }
                 | Ending::ThreadFailed { .. }
         )
     }
@@ -193,6 +203,9 @@ pub struct CaptureSummary {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub on_abort: Option<String>,
     pub stats: Stats,
+    /// Each camera's latency from the flash, once measured.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub flash: Option<flash::FlashLatency>,
     /// Per camera: the settings the backend refused.
     pub refused: [Vec<String>; 2],
     pub start_monotonic_s: f64,
@@ -343,6 +356,9 @@ pub fn capture(
     let mut by_driver = [0; 2];
     let mut ending = None;
     let mut failure = None;
+    let flash_state = std::sync::Mutex::new(FlashState::Waiting);
+    let mut watch = options.flash.as_ref().map(|_| flash::Watch::default());
+    let mut flash = None;
     std::thread::scope(|scope| {
         let mut filming = Vec::new();
         for (side, camera) in [Side::Left, Side::Right].into_iter().zip(cameras) {
@@ -356,10 +372,28 @@ pub fn capture(
             ));
         }
         drop(tx);
+        // The flash first, then the protocol, on one thread; a flash alone has its own.
+        let flash_state = &flash_state;
+        let fire = move |clock: &Clock, stop: &AtomicBool| {
+            if let Some(command) = &options.flash {
+                flash::fire(command, clock, stop, flash_state);
+            }
+        };
         let driving = options.protocol.as_ref().map(|(steps, template)| {
             let (clock, stop, log) = (&clock, &stop, &log);
-            scope.spawn(move || drive(steps, template, clock, log, stop))
+            scope.spawn(move || {
+                fire(clock, stop);
+                let failed = matches!(*flash_state.lock().expect("flash"), FlashState::Failed(_));
+                if failed {
+                    return None;
+                }
+                drive(steps, template, clock, log, stop)
+            })
         });
+        if options.protocol.is_none() {
+            let (clock, stop) = (&clock, &stop);
+            scope.spawn(move || fire(clock, stop));
+        }
         let mut last_shown = 0.0;
         // The first frame may take a while longer: a device warms up.
         let mut last_seen = [STALL_S; 2];
@@ -392,8 +426,17 @@ pub fn capture(
                 }
                 Err(mpsc::RecvTimeoutError::Timeout) => {}
             }
+            let flash_now = flash_state.lock().expect("flash").clone();
+            let fired = match flash_now {
+                FlashState::Fired(times) => Some(times),
+                _ => None,
+            };
             for grabbed in arrived {
                 last_seen[grabbed.side as usize] = grabbed.frame.time_s;
+                if let Some(watch) = watch.as_mut() {
+                    let (time_s, bytes) = (grabbed.frame.time_s, &grabbed.frame.bytes);
+                    watch.add(grabbed.side, time_s, bytes, fired);
+                }
                 if let Some(judge) = judge.as_mut() {
                     // A calibration capture keeps only each camera's latest frame, and its
                     // motion.
@@ -411,6 +454,11 @@ pub fn capture(
                 }
             }
             let now = clock.now_s();
+            if let (Some(times), true) = (fired, watch.is_some()) {
+                if now > times[1] + flash::WATCH_S {
+                    flash = watch.take().map(|w| w.measure(times));
+                }
+            }
             if let (Some(judge), [Some(l), Some(r)]) = (judge.as_mut(), &latest) {
                 if now - last_look >= calibration::BOARD_EVERY_S && !stop.load(Ordering::SeqCst) {
                     last_look = now;
@@ -438,6 +486,10 @@ pub fn capture(
                         time_s: last_seen[side as usize],
                         frames: rows.iter().filter(|r| r.0 == side).count(),
                     })
+                } else if let FlashState::Failed(message) = &flash_now {
+                    Some(Ending::FlashFailed {
+                        message: message.clone(),
+                    })
                 } else if driving.as_ref().is_some_and(|d| d.is_finished()) {
                     Some(Ending::ProtocolDone)
                 } else {
@@ -455,6 +507,7 @@ pub fn capture(
                     ending: Ending::Filming,
                     on_abort: None,
                     stats: stats(&rows, by_driver, log.len(), judge.as_ref()),
+                    flash: flash.clone(),
                     refused: refused.clone(),
                     start_monotonic_s,
                     start_unix_s,
@@ -498,6 +551,11 @@ pub fn capture(
     if let Some(e) = failure {
         return Err(e);
     }
+    if let (Some(watch), FlashState::Fired(times)) =
+        (&watch, flash_state.into_inner().expect("flash"))
+    {
+        flash = Some(watch.measure(times));
+    }
     rows.sort_by_key(|r| (r.0 as u8, r.1));
     let log = log.into_inner().expect("log");
     let ending = ending.unwrap_or(Ending::Interrupted);
@@ -517,6 +575,7 @@ pub fn capture(
         ending,
         on_abort,
         stats: stats(&rows, by_driver, log.len(), judge.as_ref()),
+        flash,
         refused,
         start_monotonic_s,
         start_unix_s,

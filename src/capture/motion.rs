@@ -70,9 +70,9 @@ impl Motion {
 }
 
 /// A grey image's 8 × 8 block means.
-struct Blocks {
-    size: [usize; 2],
-    means: Vec<f64>,
+pub(super) struct Blocks {
+    pub size: [usize; 2],
+    pub means: Vec<f64>,
 }
 
 impl Blocks {
@@ -91,7 +91,7 @@ impl Blocks {
 
 /// A frame's grey levels in 8 × 8 blocks: a JPEG's luma alone by zune-jpeg (libjpeg's warnings
 /// on a webcam's frames would reach the terminal), anything else through OpenCV.
-fn blocks(bytes: &[u8]) -> Option<Blocks> {
+pub(super) fn blocks(bytes: &[u8]) -> Option<Blocks> {
     let (grey, width, height) = if bytes.starts_with(&[0xff, 0xd8]) {
         use zune_core::colorspace::ColorSpace;
         use zune_core::options::DecoderOptions;

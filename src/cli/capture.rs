@@ -41,6 +41,12 @@ pub struct Args {
     /// goes to capture.json
     #[arg(long, requires = "protocol")]
     on_abort: Option<String>,
+    /// Command that switches on a light both cameras see (an LED, a lamp on a relay) and
+    /// returns once it is on, e.g. 'gpioset gpiochip0 17=1'; run 1 s into the session, before
+    /// the protocol: each camera's latency is measured from it, written to capture.json and
+    /// used by triangulate
+    #[arg(long, conflicts_with = "calib")]
+    flash: Option<String>,
     /// Stop after this many seconds (default: the protocol's end, or Ctrl-C)
     #[arg(long, value_parser = super::finite)]
     duration_s: Option<f64>,
@@ -107,6 +113,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         duration_s: a.duration_s,
         calibration,
         on_abort: a.on_abort.clone(),
+        flash: a.flash.clone(),
     };
     let bar = ProgressBar::new_spinner()
         .with_style(ProgressStyle::with_template("{spinner} {elapsed} {msg}").expect("template"));
@@ -157,6 +164,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             out = a.out.display()
         );
     }
+    if let Some(flash) = &summary.flash {
+        println!("{}", flash_line(flash));
+    }
     let kept = "every frame before it is kept and listed";
     if let Some(result) = &summary.on_abort {
         eprintln!("ran --on-abort: {result}");
@@ -177,6 +187,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         Ending::CommandFailed { step, message } => {
             bail!("--set-pressure failed at step {step}: {message}; {kept}")
         }
+        Ending::FlashFailed { message } => bail!("--flash failed: {message}; {kept}"),
         // Never the end of a session `capture` returns: the first while filming, the second
         // is returned as an error.
         Ending::Filming | Ending::ThreadFailed { .. } => {
@@ -206,4 +217,24 @@ fn line(s: &Stats, steps: usize) -> String {
         "left {} frames {:.1} fps, right {} frames {:.1} fps, drops {}/{}{late}, left/right skew {:.1} ms (median){progress}",
         s.frames[0], s.fps[0], s.frames[1], s.fps[1], s.drops[0], s.drops[1], s.skew_ms
     )
+}
+
+/// What the flash measured.
+fn flash_line(f: &handcap::capture::flash::FlashLatency) -> String {
+    let one = |k: usize| match (f.latency_ms[k], f.within_ms[k]) {
+        (Some(ms), Some(within)) => format!("{ms:.0} ms (± {within:.0})"),
+        _ => "not seen".into(),
+    };
+    let mut line = format!(
+        "camera latency from the flash: left {}, right {}",
+        one(0),
+        one(1)
+    );
+    if f.both_ms().is_some() {
+        line += "; triangulate takes them from capture.json";
+    }
+    for why in &f.unmeasured {
+        line += &format!("; {why}");
+    }
+    line
 }

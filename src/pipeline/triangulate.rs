@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use super::outputs::{self, Output};
 use super::{io_error, PipelineError, Session, Task};
 use crate::calib::file::read_calibration;
+use crate::capture::flash::FlashLatency;
 use crate::session::frames::FrameList;
 use crate::session::pressures::{read_pressure_log, PressureLog};
 use crate::triangulate::{self, output, TriangulateOptions, Triangulation};
@@ -35,6 +36,18 @@ pub fn pressure_log(frames: &Path, given: Option<PathBuf>) -> Result<PathBuf, Pi
                 frames.display()
             ))
         })
+}
+
+/// What `capture` wrote beside the frames directory.
+const CAPTURE_FILE: &str = "capture.json";
+
+/// Both cameras' latencies (ms) measured from the flash `capture` filmed, when the frames'
+/// session has them ([`crate::capture::flash`]).
+fn flash_latency(frames: &Path) -> Option<[f64; 2]> {
+    let text = std::fs::read_to_string(frames.parent()?.join(CAPTURE_FILE)).ok()?;
+    let json: serde_json::Value = serde_json::from_str(&text).ok()?;
+    let flash: FlashLatency = serde_json::from_value(json["summary"]["flash"].clone()).ok()?;
+    flash.both_ms()
 }
 
 /// Checks every file `run` writes against every file it reads (the frames and their index, the
@@ -95,6 +108,16 @@ pub fn run(
         )));
     }
     options.check().map_err(PipelineError::Usage)?;
+    // Delays not given: the flash `capture` filmed measured them, when it did.
+    let flash = options
+        .latency_s
+        .is_none()
+        .then(|| flash_latency(frames))
+        .flatten();
+    let options = &TriangulateOptions {
+        latency_s: options.latency_s.or(flash.map(|ms| ms.map(|ms| ms / 1e3))),
+        ..options.clone()
+    };
     let calibration = read_calibration(calib)?;
     let log = read_pressure_log(pressures)?;
     let listed = FrameList::read(frames, options.video_start_s)?;
@@ -108,7 +131,10 @@ pub fn run(
         session.interrupt,
     );
     session.emit(super::Event::Finished(Task::Frames));
-    let triangulation = result?;
+    let mut triangulation = result?;
+    if flash.is_some() {
+        triangulation.summary.latency.from = Some(format!("from the flash in {CAPTURE_FILE}"));
+    }
     let mut provenance = session.provenance(None);
     let index = frames.join("frames.csv");
     let listed_by = Some(index.as_path()).filter(|p| p.exists());

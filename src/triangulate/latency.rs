@@ -72,9 +72,13 @@ pub struct Latency {
     /// because its pairs agreed best so: each camera's cut alone cannot tell a delay from one
     /// a step longer when the steps are even.
     pub steps_apart: i32,
-    /// The delays were given (`--latency-ms`), not measured: pure camera latencies, so the
-    /// corrected times are exposures and no guard is kept before a command.
+    /// The delays were given (`--latency-ms`, or the flash `capture` filmed), not measured
+    /// from the tip: pure camera latencies, so the corrected times are exposures and no guard
+    /// is kept before a command.
     pub given: bool,
+    /// Where given delays came from, when not `--latency-ms`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub from: Option<String>,
 }
 
 impl Latency {
@@ -94,6 +98,7 @@ impl Latency {
             corrected: ms != [0.0; 2],
             steps_apart: 0,
             given: true,
+            from: None,
         }
     }
 
@@ -124,8 +129,9 @@ impl Latency {
             } else {
                 "times used as stamped"
             };
+            let from = self.from.as_deref().unwrap_or("given");
             return vec![format!(
-                "camera delays given: left {:.0} ms, right {:.0} ms; {done}",
+                "camera delays {from}: left {:.0} ms, right {:.0} ms; {done}",
                 ms(left),
                 ms(right)
             )];

@@ -227,6 +227,32 @@ fn capture_refuses_bad_protocols_and_cameras_and_keeps_what_a_stopped_camera_gav
         "{msg}"
     );
     assert!(!d.join("x").exists());
+    // A flash command that fails ends the session before the protocol, said, the frames kept.
+    std::fs::write(
+        d.join("two.csv"),
+        "step,phase,P1_kpa,P2_kpa,P3_kpa,hold_s\n0,train,0,0,0,0.1\n1,train,100,0,0,0.1\n",
+    )
+    .unwrap();
+    let out = handcap(
+        d,
+        &[
+            &session_args("dark", "two.csv", &command)[..],
+            &["--flash", "echo no light >&2; exit 3"],
+        ]
+        .concat(),
+    );
+    let msg = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{msg}");
+    assert!(
+        msg.contains("--flash failed") && msg.contains("no light") && msg.lines().count() == 1,
+        "{msg}"
+    );
+    let json = read_json(&d.join("dark/capture.json"));
+    assert!(
+        json["summary"]["ending"]["flash_failed"].is_object(),
+        "{json}"
+    );
+    assert_eq!(json["summary"]["stats"]["steps_done"], 0, "{json}");
     // The same source twice, or a duration that is not one: usage errors.
     for (right, duration) in [
         ("cams/frames/left.avi", "1"),

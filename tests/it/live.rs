@@ -81,10 +81,15 @@ fn seen<'a>(
 fn virtual_camera(
     steps: Vec<Vec<(f64, Vec<u8>)>>,
     commands: Commands,
+    light: Light,
     phase_s: f64,
     faults: Faults,
 ) -> String {
     let mut start = None;
+    // The last frame shown with the light on, and as it was: the hand rests while it is on,
+    // so the resting frame is lit ahead (lighting one takes a frame period or more).
+    let rest = steps[0].last().unwrap().1.clone();
+    let mut lit_memo = Some((rest.clone(), with_light(&rest)));
     mjpeg_server(move |n| {
         let start = *start.get_or_insert_with(Instant::now);
         let tick = |n: usize| start + Duration::from_secs_f64(phase_s + n as f64 / 30.0);
@@ -98,8 +103,53 @@ fn virtual_camera(
         if faults.drop_every > 0 && n % faults.drop_every == faults.drop_every - 1 {
             return Part::Skip;
         }
-        Part::Frame(seen(&steps, &commands.lock().unwrap(), tick(n)).to_vec())
+        let frame = seen(&steps, &commands.lock().unwrap(), tick(n)).to_vec();
+        let lit = light
+            .lock()
+            .unwrap()
+            .is_some_and(|on| tick(n) >= on && tick(n) < on + Duration::from_secs_f64(LIT_S));
+        if !lit {
+            return Part::Frame(frame);
+        }
+        if lit_memo.as_ref().is_none_or(|(dark, _)| *dark != frame) {
+            lit_memo = Some((frame.clone(), with_light(&frame)));
+        }
+        Part::Frame(lit_memo.as_ref().unwrap().1.clone())
     })
+}
+
+/// When the flash's light came on, once it has.
+type Light = Arc<Mutex<Option<Instant>>>;
+
+/// How long the virtual light stays on (s).
+const LIT_S: f64 = 0.6;
+
+/// `jpeg` with the light on: a white 40 × 40 pixel LED near its top-left corner.
+fn with_light(jpeg: &[u8]) -> Vec<u8> {
+    let mut image = image::load_from_memory(jpeg).unwrap().to_rgb8();
+    for y in 60..100 {
+        for x in 60..100 {
+            image.put_pixel(x, y, image::Rgb([255, 255, 255]));
+        }
+    }
+    let mut out = Vec::new();
+    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, 90)
+        .encode_image(&image)
+        .unwrap();
+    out
+}
+
+/// Watches for `flag` (the flash script's file) and records when it appeared in `light`, until
+/// `done`.
+fn light_watch(flag: std::path::PathBuf, light: Light, done: Arc<Mutex<bool>>) {
+    std::thread::spawn(move || {
+        while !*done.lock().unwrap() && !flag.exists() {
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        if flag.exists() {
+            *light.lock().unwrap() = Some(Instant::now());
+        }
+    });
 }
 
 /// Watches `told` (the regulator script's log, one line per command ending in the step) and
@@ -125,8 +175,9 @@ fn regulator_watch(told: std::path::PathBuf, commands: Commands, done: Arc<Mutex
 
 /// The virtual session of `seed` filmed whole (every frame of each step) in `dir/hand`, served
 /// live by two virtual cameras with `faults`, captured into `dir/live` driving the same
-/// protocol; with `term_after_s`, the capture gets SIGTERM that long after it started.
-fn live_session(dir: &Path, faults: [Faults; 2], term_after_s: Option<f64>) -> Output {
+/// protocol; with `term_after_s`, the capture gets SIGTERM that long after it started; with
+/// `flash`, capture switches on a light both cameras see before the protocol (`--flash`).
+fn live_session(dir: &Path, faults: [Faults; 2], term_after_s: Option<f64>, flash: bool) -> Output {
     let config = handcap::synth::capture::CaptureConfig {
         views: 3,
         window_s: [0.0, 0.3],
@@ -156,30 +207,38 @@ fn live_session(dir: &Path, faults: [Faults; 2], term_after_s: Option<f64>) -> O
     let commands: Commands = Arc::default();
     let done = Arc::new(Mutex::new(false));
     regulator_watch(dir.join("told.txt"), commands.clone(), done.clone());
+    let light: Light = Arc::default();
+    light_watch(dir.join("flash.txt"), light.clone(), done.clone());
     let [left, right] = faults;
     let urls = [("left", 0.0, left), ("right", 0.011, right)].map(|(camera, phase, f)| {
         virtual_camera(
             frames_by_step(&dir.join("hand"), camera, config.step_s),
             commands.clone(),
+            light.clone(),
             phase,
             f,
         )
     });
     let command = format!("sh {} {{p1}} {{p2}} {{p3}} {{step}}", script.display());
+    let mut args = vec![
+        "capture",
+        "--left",
+        &urls[0],
+        "--right",
+        &urls[1],
+        "--out",
+        "live",
+        "--protocol",
+        "protocol.csv",
+        "--set-pressure",
+        &command,
+    ];
+    let switch_on = format!("touch {}", dir.join("flash.txt").display());
+    if flash {
+        args.extend(["--flash", &switch_on]);
+    }
     let child = std::process::Command::new(env!("CARGO_BIN_EXE_handcap"))
-        .args([
-            "capture",
-            "--left",
-            &urls[0],
-            "--right",
-            &urls[1],
-            "--out",
-            "live",
-            "--protocol",
-            "protocol.csv",
-            "--set-pressure",
-            &command,
-        ])
+        .args(args)
         .current_dir(dir)
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::piped())
@@ -276,7 +335,7 @@ fn a_live_session_with_late_cameras_a_backlog_and_drops_matches_the_truth() {
             ..Faults::default()
         },
     ];
-    let out = live_session(d, faults, None);
+    let out = live_session(d, faults, None, false);
     assert!(
         out.status.success(),
         "{}",
@@ -317,10 +376,12 @@ fn a_live_session_with_late_cameras_a_backlog_and_drops_matches_the_truth() {
     }
 }
 
-/// The right camera 300 ms late (more than half a step), and the session ended by SIGTERM
-/// half-way: the files kept give a row for each step filmed, each within 0.5 mm of the truth.
+/// The right camera 300 ms late (more than half a step), its latency and the left's measured
+/// from a flash before the protocol (`capture --flash`; triangulate takes them from
+/// capture.json), and the session ended by SIGTERM half-way: the files kept give a row for each
+/// step filmed, each within 0.5 mm of the truth.
 #[test]
-fn a_live_session_ended_by_sigterm_with_a_camera_300_ms_late_matches_the_truth() {
+fn a_live_session_ended_by_sigterm_with_a_camera_300_ms_late_seen_by_a_flash_matches_the_truth() {
     let dir = tempdir();
     let d = dir.path();
     let faults = [
@@ -333,7 +394,8 @@ fn a_live_session_ended_by_sigterm_with_a_camera_300_ms_late_matches_the_truth()
             ..Faults::default()
         },
     ];
-    let out = live_session(d, faults, Some(9.0));
+    // The flash takes the session's first 2.5 s.
+    let out = live_session(d, faults, Some(11.5), true);
     assert_eq!(
         out.status.code(),
         Some(130),
@@ -342,9 +404,22 @@ fn a_live_session_ended_by_sigterm_with_a_camera_300_ms_late_matches_the_truth()
     );
     let logged = csv_rows(&d.join("live/pressures.csv")).len();
     assert!((15..37).contains(&logged), "{logged} steps logged");
+    // Each camera's latency from the flash: the light shows in a frame exposed within a
+    // period after it came on, and is placed half-way between that frame and the one before.
+    let flash = &read_json(&d.join("live/capture.json"))["summary"]["flash"];
+    for (cam, truth_ms) in [(0, 30.0), (1, 300.0)] {
+        let ms = flash["latency_ms"][cam].as_f64().unwrap();
+        assert!((ms - truth_ms).abs() < 25.0, "{flash}");
+    }
     triangulated(d);
     let s = summary(d, "out");
     assert_eq!(s["latency"]["corrected"], true, "{}", s["latency"]);
+    assert_eq!(s["latency"]["given"], true, "{}", s["latency"]);
+    assert!(
+        s["latency"]["from"].as_str().unwrap().contains("flash"),
+        "{}",
+        s["latency"]
+    );
     let (rows, errors) = against_truth(d, "out");
     assert!(
         rows + 3 >= logged && errors.len() + 4 >= logged,
