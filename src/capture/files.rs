@@ -6,20 +6,33 @@ use super::regulator::{pressures_csv, Commanded};
 use super::url::redact;
 use super::{CaptureError, CaptureOptions, CaptureSummary, Side};
 use crate::fsio;
-use crate::session::frames::frames_csv;
+use crate::session::frames::{frames_csv_rows, FRAMES_HEADER};
 
 /// The files that list a session: `frames/frames.csv` (not for a calibration capture),
 /// `pressures.csv` (with a protocol) and `capture.json`; rewritten whole (temp file, then
 /// rename) every second while filming and at the end, so that they always agree with the
-/// images written.
+/// images written. `frames.csv`'s text grows with the rows (an hour's 216 000 rows took 76 ms to
+/// format whole, every second).
 pub(super) struct SessionFiles<'a> {
-    pub out: &'a Path,
-    pub options: &'a CaptureOptions,
+    out: &'a Path,
+    options: &'a CaptureOptions,
+    /// `frames.csv` of the rows so far, and how many.
+    frames: (String, usize),
 }
 
-impl SessionFiles<'_> {
+impl<'a> SessionFiles<'a> {
+    pub fn new(out: &'a Path, options: &'a CaptureOptions) -> Self {
+        SessionFiles {
+            out,
+            options,
+            frames: (FRAMES_HEADER.to_string(), 0),
+        }
+    }
+
+    /// Writes the files while filming: `rows` are those of the last write and the new ones
+    /// after them.
     pub fn write(
-        &self,
+        &mut self,
         rows: &[(Side, usize, f64)],
         log: &[Commanded],
         summary: &CaptureSummary,
@@ -44,14 +57,25 @@ impl SessionFiles<'_> {
             &(serde_json::to_string_pretty(&json).expect("serialisable") + "\n"),
         )?;
         if options.calibration.is_none() {
-            write(
-                &self.out.join("frames/frames.csv"),
-                &frames_csv(rows.iter().copied()),
-            )?;
+            let (text, listed) = &mut self.frames;
+            frames_csv_rows(text, rows[*listed..].iter().copied());
+            *listed = rows.len();
+            write(&self.out.join("frames/frames.csv"), text)?;
         }
         if options.protocol.is_some() {
             write(&self.out.join("pressures.csv"), &pressures_csv(log))?;
         }
         Ok(())
+    }
+
+    /// Writes the files at the end: `rows` in their final order.
+    pub fn finish(
+        mut self,
+        rows: &[(Side, usize, f64)],
+        log: &[Commanded],
+        summary: &CaptureSummary,
+    ) -> Result<(), CaptureError> {
+        self.frames = (FRAMES_HEADER.to_string(), 0);
+        self.write(rows, log, summary)
     }
 }

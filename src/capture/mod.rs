@@ -334,7 +334,7 @@ pub fn capture(
         })?;
     }
     let refused = [cameras[0].refused(), cameras[1].refused()];
-    let session = SessionFiles { out, options };
+    let mut session = SessionFiles::new(out, options);
 
     let start_unix_s = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
@@ -580,7 +580,7 @@ pub fn capture(
         start_monotonic_s,
         start_unix_s,
     };
-    session.write(&rows, &log, &summary)?;
+    session.finish(&rows, &log, &summary)?;
     if let Ending::ThreadFailed { thread, message } = &summary.ending {
         return Err(CaptureError::ThreadFailed {
             thread: thread.clone(),

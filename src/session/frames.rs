@@ -85,11 +85,20 @@ pub fn read_frame_list(dir: &Path) -> Result<Vec<FrameRecord>, SessionError> {
 
 /// `frames.csv` of `rows` (camera, frame number, time in s), in the order given.
 pub fn frames_csv(rows: impl IntoIterator<Item = (Side, usize, f64)>) -> String {
-    let mut out = String::from("frame,camera,time_s\n");
-    for (side, index, time_s) in rows {
-        out += &format!("{index},{},{time_s:.6}\n", side.name());
-    }
+    let mut out = String::from(FRAMES_HEADER);
+    frames_csv_rows(&mut out, rows);
     out
+}
+
+/// The header line of `frames.csv`.
+pub const FRAMES_HEADER: &str = "frame,camera,time_s\n";
+
+/// Appends `rows` to `frames.csv`'s text `out` ([`frames_csv`] without the header).
+pub fn frames_csv_rows(out: &mut String, rows: impl IntoIterator<Item = (Side, usize, f64)>) {
+    use std::fmt::Write;
+    for (side, index, time_s) in rows {
+        writeln!(out, "{index},{},{time_s:.6}", side.name()).expect("a String takes any text");
+    }
 }
 
 /// Sets each record's [`FrameRecord::late_s`] from its camera's times.
