@@ -147,7 +147,7 @@ pub enum Ending {
     FlashFailed {
         message: String,
     },
-    /// A thread of the session (a camera's, the protocol's) panicked.
+    /// A thread of the session (a camera's, the protocol's, the flash's) panicked.
     ThreadFailed {
         thread: String,
         message: String,
@@ -390,10 +390,10 @@ pub fn capture(
                 drive(steps, template, clock, log, stop)
             })
         });
-        if options.protocol.is_none() {
+        let flashing = options.protocol.is_none().then(|| {
             let (clock, stop) = (&clock, &stop);
-            scope.spawn(move || fire(clock, stop));
-        }
+            scope.spawn(move || fire(clock, stop))
+        });
         let mut last_shown = 0.0;
         // The first frame may take a while longer: a device warms up.
         let mut last_seen = [STALL_S; 2];
@@ -546,6 +546,9 @@ pub fn capture(
                 Ok(_) => {}
                 Err(payload) => ending = Some(failed("protocol".into(), payload)),
             }
+        }
+        if let Some(Err(payload)) = flashing.map(|f| f.join()) {
+            ending = Some(failed("flash".into(), payload));
         }
     });
     if let Some(e) = failure {
