@@ -53,7 +53,7 @@ impl<'a> SessionFiles<'a> {
             "summary": summary,
         });
         write(
-            &self.out.join("capture.json"),
+            &self.out.join(super::CAPTURE_FILE),
             &(serde_json::to_string_pretty(&json).expect("serialisable") + "\n"),
         )?;
         if options.calibration.is_none() {

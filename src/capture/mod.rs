@@ -51,6 +51,9 @@ use crate::fsio;
 use crate::session::protocol;
 use crate::stereo::Side;
 
+/// The session's description and summary, in the session's folder.
+pub const CAPTURE_FILE: &str = "capture.json";
+
 /// A camera that delivers nothing for this long has stopped (s).
 pub const STALL_S: f64 = 2.0;
 /// Longest a stream may take to open and send its first frame (s): a server that answers with

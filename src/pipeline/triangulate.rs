@@ -7,6 +7,7 @@ use super::outputs::{self, Output};
 use super::{io_error, PipelineError, Session, Task};
 use crate::calib::file::read_calibration;
 use crate::capture::flash::FlashLatency;
+use crate::capture::CAPTURE_FILE;
 use crate::session::frames::FrameList;
 use crate::session::pressures::{read_pressure_log, PressureLog};
 use crate::triangulate::{self, output, TriangulateOptions, Triangulation};
@@ -37,9 +38,6 @@ pub fn pressure_log(frames: &Path, given: Option<PathBuf>) -> Result<PathBuf, Pi
             ))
         })
 }
-
-/// What `capture` wrote beside the frames directory.
-const CAPTURE_FILE: &str = "capture.json";
 
 /// Both cameras' latencies (ms) measured from the flash `capture` filmed, when the frames'
 /// session has them ([`crate::capture::flash`]).

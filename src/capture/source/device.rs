@@ -47,8 +47,6 @@ pub(super) fn devices() -> String {
 
 pub(super) struct Device {
     reader: OpenCvReader,
-    /// Its driver stamps each frame ([`driver_time`]).
-    driver_stamps: bool,
     refused: Vec<String>,
 }
 
@@ -87,8 +85,7 @@ impl Device {
             .collect();
         let driver_stamps = capture.get_backend_name().is_ok_and(|b| b == "V4L2");
         Ok(Device {
-            reader: OpenCvReader::new(capture),
-            driver_stamps,
+            reader: OpenCvReader::new(capture, driver_stamps),
             refused,
         })
     }
@@ -100,21 +97,7 @@ impl FrameSource for Device {
     }
 
     fn next(&mut self, clock: &Clock) -> Option<Frame> {
-        let grabbed = self.reader.grab();
-        let grab_s = clock.now_s();
-        let driver_s = self
-            .driver_stamps
-            .then(|| self.reader.capture.get(videoio::CAP_PROP_POS_MSEC).ok())
-            .flatten()
-            .and_then(|ms| driver_time(ms, clock.start_monotonic_s + grab_s))
-            .map(|t| t - clock.start_monotonic_s);
-        let (bytes, extension) = grabbed.then(|| self.reader.retrieve()).flatten()?;
-        Some(Frame {
-            time_s: driver_s.unwrap_or(grab_s),
-            by_driver: driver_s.is_some(),
-            bytes,
-            extension,
-        })
+        self.reader.read(clock)
     }
 }
 

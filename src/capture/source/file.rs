@@ -29,7 +29,7 @@ impl VideoFile {
         crate::video::read_raw_if_jpeg(&mut capture);
         let fps = capture.get(videoio::CAP_PROP_FPS).unwrap_or(0.0);
         Ok(VideoFile {
-            reader: OpenCvReader::new(capture),
+            reader: OpenCvReader::new(capture, false),
             period_s: 1.0 / if fps > 0.0 { fps } else { o.fps },
             count: 0,
         })
@@ -46,15 +46,8 @@ impl FrameSource for VideoFile {
         if wait > 0.0 {
             std::thread::sleep(Duration::from_secs_f64(wait));
         }
-        let grabbed = self.reader.grab();
-        let time_s = clock.now_s();
-        let (bytes, extension) = grabbed.then(|| self.reader.retrieve()).flatten()?;
+        let frame = self.reader.read(clock)?;
         self.count += 1;
-        Some(Frame {
-            time_s,
-            by_driver: false,
-            bytes,
-            extension,
-        })
+        Some(frame)
     }
 }

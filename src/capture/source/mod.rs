@@ -14,7 +14,7 @@ use std::sync::mpsc;
 
 use opencv::core::{Mat, Vector};
 use opencv::prelude::*;
-use opencv::videoio::VideoCapture;
+use opencv::videoio::{self, VideoCapture};
 
 use super::motion::Meter;
 use super::url::redact;
@@ -79,23 +79,41 @@ pub(super) fn open(
     ))
 }
 
-/// What the OpenCV sources share: grabbing a frame, then retrieving its bytes.
+/// What the OpenCV sources share: grabbing a frame, stamping it, then retrieving its bytes.
 struct OpenCvReader {
     capture: VideoCapture,
     mat: Mat,
+    /// A V4L2 device: its driver stamps each frame ([`device::driver_time`]).
+    driver_stamps: bool,
 }
 
 impl OpenCvReader {
-    fn new(capture: VideoCapture) -> Self {
+    fn new(capture: VideoCapture, driver_stamps: bool) -> Self {
         OpenCvReader {
             capture,
             mat: Mat::default(),
+            driver_stamps,
         }
     }
 
-    /// Waits for the next frame; `false` when none came.
-    fn grab(&mut self) -> bool {
-        self.capture.grab().unwrap_or(false)
+    /// Waits for the next frame and stamps it on `clock`: by the driver's stamp when it has
+    /// one for this frame, else when it came. `None` when none came.
+    fn read(&mut self, clock: &Clock) -> Option<Frame> {
+        let grabbed = self.capture.grab().unwrap_or(false);
+        let grab_s = clock.now_s();
+        let driver_s = self
+            .driver_stamps
+            .then(|| self.capture.get(videoio::CAP_PROP_POS_MSEC).ok())
+            .flatten()
+            .and_then(|ms| device::driver_time(ms, clock.start_monotonic_s + grab_s))
+            .map(|t| t - clock.start_monotonic_s);
+        let (bytes, extension) = grabbed.then(|| self.retrieve()).flatten()?;
+        Some(Frame {
+            time_s: driver_s.unwrap_or(grab_s),
+            by_driver: driver_s.is_some(),
+            bytes,
+            extension,
+        })
     }
 
     /// The frame just grabbed, as file bytes: JPEG as it came, else PNG.

@@ -55,7 +55,7 @@ impl Stream {
             ));
         }
         Ok(Stream {
-            reader: OpenCvReader::new(capture),
+            reader: OpenCvReader::new(capture, false),
             refused,
         })
     }
@@ -67,14 +67,6 @@ impl FrameSource for Stream {
     }
 
     fn next(&mut self, clock: &Clock) -> Option<Frame> {
-        let grabbed = self.reader.grab();
-        let time_s = clock.now_s();
-        let (bytes, extension) = grabbed.then(|| self.reader.retrieve()).flatten()?;
-        Some(Frame {
-            time_s,
-            by_driver: false,
-            bytes,
-            extension,
-        })
+        self.reader.read(clock)
     }
 }
