@@ -1,0 +1,2 @@
+//! Present so the build-dependencies (the host side's features) are part of the build.
+fn main() {}
