@@ -4,7 +4,8 @@
 //! in ≤ 0.15 s, n = 2000 in ≤ 1 s. And the default search (ACO_R, robust loss, 5 folds, racing)
 //! on 1000 rows × 6 inputs (two virtual hands in series), at 40 candidates to keep the
 //! benchmark short; the default budget for 1000 rows is 120. The reduced basis: 400 centres at
-//! n = 2000 and 200 centres at n = 20 000.
+//! n = 2000 and 200 centres at n = 20 000; and `--basis auto` on 360 000 rows (its choice of
+//! basis and the fit on every row; target ≤ 60 s in ≤ 2 GB, the peak memory printed).
 //!
 //! Run: `cargo bench --bench msvr`.
 
@@ -20,6 +21,7 @@ use std::sync::atomic::AtomicBool;
 
 use handcap::model::msvr::fitness::FitnessKind;
 use handcap::model::msvr::folds::{self, FoldsBy};
+use handcap::model::msvr::tune::BasisChoice;
 use handcap::model::msvr::{tune, Basis, Loss, MsvrParams};
 use handcap::model::Predict;
 use handcap::search::aco_paper::PAPER_TABLE2;
@@ -116,6 +118,51 @@ fn fit_reduced(c: &mut Criterion) {
     group.finish();
 }
 
+/// `--basis auto` on a long log, 360 000 rows (an hour at 100 Hz), as `handcap model --search
+/// none` runs it: the first basis, its growth scored on the search's evenly spaced rows (5
+/// folds), and the fit on every row. The whole runs once, each step timed and printed; the
+/// benchmark repeats the fit on every row at the basis chosen.
+fn fit_auto_large(c: &mut Criterion) {
+    let data = random_hand_data(360_000, 5);
+    let solver = MsvrParams::default()
+        .with_hyper(PAPER_TABLE2)
+        .loss(Loss::Robust);
+    let clock = std::time::Instant::now();
+    let start = tune::initial_basis(BasisChoice::Auto, data.rows(), 1).unwrap();
+    let scored = data.subsample(tune::SEARCH_ROWS);
+    let plan = folds::plan(&FoldsBy::Auto, &scored, &[], 5).unwrap();
+    let never = AtomicBool::new(false);
+    let fitness = FitnessKind::Cv { folds: 5 };
+    let chosen = tune::grow_basis(start, &scored, fitness, &plan, &solver, &never).unwrap();
+    let grown = clock.elapsed().as_secs_f64();
+    let params = solver.basis(chosen.basis).check().unwrap();
+    let model = params.fit(&data).unwrap();
+    eprintln!(
+        "auto, n = {}: {} ({}): chosen in {grown:.1} s, fitted on every row in {:.1} s ({} iterations, converged {}); peak memory {:.2} GB",
+        data.rows(),
+        chosen.basis,
+        chosen.reason,
+        clock.elapsed().as_secs_f64() - grown,
+        model.fit.iterations,
+        model.fit.converged,
+        peak_memory_gb()
+    );
+    let mut group = c.benchmark_group("msvr_fit_auto");
+    group.sample_size(10);
+    group.bench_function(format!("360000_rows_{}", chosen.basis), |b| {
+        b.iter(|| params.fit(black_box(&data)).unwrap())
+    });
+    group.finish();
+}
+
+/// The process's peak resident memory.
+fn peak_memory_gb() -> f64 {
+    // SAFETY: getrusage fills the struct it is given.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut usage) };
+    usage.ru_maxrss as f64 / 1024.0 / 1024.0
+}
+
 fn search(c: &mut Criterion) {
     let data = random_six_input_data(1000, 4);
     let method = Method::AcoR(AcoR {
@@ -160,5 +207,5 @@ fn predict(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, fit, fit_reduced, search, predict);
+criterion_group!(benches, fit, fit_reduced, fit_auto_large, search, predict);
 criterion_main!(benches);

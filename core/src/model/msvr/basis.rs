@@ -17,6 +17,7 @@
 
 use faer::linalg::matmul::matmul;
 use faer::linalg::triangular_solve;
+use faer::reborrow::ReborrowMut;
 use faer::{Accum, Mat, MatMut, MatRef, Par};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -139,7 +140,7 @@ impl NystromMap {
     }
 
     /// The features of the listed rows of `x` (scaled inputs) into `out` (rows.len() × r).
-    pub fn features_into(&self, x: &Columns, rows: &[usize], mut out: MatMut<f64>) {
+    fn features_into(&self, x: &Columns, rows: &[usize], mut out: MatMut<f64>) {
         let gamma = 1.0 / (2.0 * self.sigma * self.sigma);
         for j in 0..self.width() {
             let c = self.centres.row(j);
@@ -155,25 +156,33 @@ impl NystromMap {
         );
     }
 
+    /// The features of the listed rows of `x` into `out` (rows.len() × r): blocks of rows side
+    /// by side unless `par` is sequential (a search's folds already run side by side).
+    pub fn features_of(&self, x: &Columns, rows: &[usize], mut out: MatMut<f64>, par: Par) {
+        const ROWS: usize = 256;
+        if par == Par::Seq || rows.len() <= ROWS {
+            return self.features_into(x, rows, out);
+        }
+        let blocks: Vec<Mat<f64>> = rows
+            .par_chunks(ROWS)
+            .map(|rows| {
+                let mut m = Mat::zeros(rows.len(), self.width());
+                self.features_into(x, rows, m.as_mut());
+                m
+            })
+            .collect();
+        for (k, m) in blocks.iter().enumerate() {
+            out.rb_mut()
+                .submatrix_mut(k * ROWS, 0, m.nrows(), m.ncols())
+                .copy_from(m);
+        }
+    }
+
     /// Every row's features (n × r).
     pub fn features(&self, x: &Columns) -> Mat<f64> {
         let rows: Vec<usize> = (0..x.rows()).collect();
         let mut out = Mat::zeros(x.rows(), self.width());
-        let chunk = 1024;
-        let blocks: Vec<(usize, Mat<f64>)> = rows
-            .par_chunks(chunk)
-            .enumerate()
-            .map(|(b, rows)| {
-                let mut m = Mat::zeros(rows.len(), self.width());
-                self.features_into(x, rows, m.as_mut());
-                (b * chunk, m)
-            })
-            .collect();
-        for (start, m) in blocks {
-            out.as_mut()
-                .submatrix_mut(start, 0, m.nrows(), m.ncols())
-                .copy_from(&m);
-        }
+        self.features_of(x, &rows, out.as_mut(), Par::rayon(0));
         out
     }
 

@@ -63,7 +63,7 @@ impl FeatureRows<'_> {
     }
 
     /// The features of the listed problem rows into `out` (rows.len() × r).
-    fn gather(&self, listed: &[usize], mut out: MatMut<f64>) {
+    fn gather(&self, listed: &[usize], mut out: MatMut<f64>, par: Par) {
         let source = |i: usize, rows: Option<&[usize]>| rows.map_or(i, |r| r[i]);
         match *self {
             FeatureRows::Stored { all, rows } => {
@@ -73,7 +73,7 @@ impl FeatureRows<'_> {
             }
             FeatureRows::Streamed { map, x, rows } => {
                 let mapped: Vec<usize> = listed.iter().map(|&i| source(i, rows)).collect();
-                map.features_into(x, &mapped, out);
+                map.features_of(x, &mapped, out, par);
             }
         }
     }
@@ -91,7 +91,7 @@ impl FeatureRows<'_> {
         for chunk in listed.chunks(BLOCK) {
             let rows: Vec<usize> = chunk.iter().map(|&(i, _)| i).collect();
             let mut b = block.as_mut().submatrix_mut(0, 0, chunk.len(), r + 1);
-            self.gather(&rows, b.rb_mut().submatrix_mut(0, 0, chunk.len(), r));
+            self.gather(&rows, b.rb_mut().submatrix_mut(0, 0, chunk.len(), r), par);
             for (a, &(_, c)) in chunk.iter().enumerate() {
                 let s = c.sqrt();
                 for j in 0..r {
@@ -122,7 +122,7 @@ impl FeatureRows<'_> {
             let len = BLOCK.min(n - start);
             let rows: Vec<usize> = (start..start + len).collect();
             let mut b = block.as_mut().submatrix_mut(0, 0, len, r);
-            self.gather(&rows, b.rb_mut());
+            self.gather(&rows, b.rb_mut(), par);
             matmul(
                 out.as_mut().submatrix_mut(start, 0, len, w.ncols()),
                 Accum::Replace,
@@ -245,7 +245,7 @@ pub fn solve(
             for chunk in support.chunks(BLOCK) {
                 let rows: Vec<usize> = chunk.iter().map(|&(i, _)| i).collect();
                 let mut b = block.as_mut().submatrix_mut(0, 0, chunk.len(), r);
-                problem.features.gather(&rows, b.rb_mut());
+                problem.features.gather(&rows, b.rb_mut(), par);
                 let targets = Mat::from_fn(chunk.len(), q, |a, j| {
                     let (i, weight) = chunk[a];
                     let (_, shrink) = parts[i].expect("support rows have a part");
