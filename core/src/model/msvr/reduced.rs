@@ -20,7 +20,7 @@
 
 use faer::linalg::matmul::matmul;
 use faer::linalg::solvers::Solve;
-use faer::reborrow::{IntoConst, ReborrowMut};
+use faer::reborrow::{IntoConst, Reborrow, ReborrowMut};
 use faer::{Accum, Mat, MatMut, MatRef, Par, Side};
 
 use super::basis::NystromMap;
@@ -78,29 +78,48 @@ impl FeatureRows<'_> {
         }
     }
 
-    /// Σᵢ cᵢ φ̃ᵢ φ̃ᵢᵀ over the listed rows (cᵢ ≥ 0), added into `out` ((r + 1)²) with `sign`.
-    fn add_weighted_gram(
+    /// One pass over the listed rows' features (Φ̃ = [Φ 1]): Σᵢ cᵢ φ̃ᵢ φ̃ᵢᵀ added into the
+    /// `gram` ((r + 1)²) with its sign, and Φ̃ᵀ T into the `rhs` ((r + 1) × q, T one row per
+    /// listed row), each when asked. `listed` holds (row, cᵢ ≥ 0).
+    fn accumulate(
         &self,
         listed: &[(usize, f64)],
-        sign: f64,
-        mut out: MatMut<f64>,
+        mut gram: Option<(f64, MatMut<f64>)>,
+        mut rhs: Option<(MatRef<f64>, MatMut<f64>)>,
         par: Par,
     ) {
         let r = self.width();
         let mut block = Mat::<f64>::zeros(BLOCK.min(listed.len()), r + 1);
-        for chunk in listed.chunks(BLOCK) {
+        for (k, chunk) in listed.chunks(BLOCK).enumerate() {
             let rows: Vec<usize> = chunk.iter().map(|&(i, _)| i).collect();
             let mut b = block.as_mut().submatrix_mut(0, 0, chunk.len(), r + 1);
             self.gather(&rows, b.rb_mut().submatrix_mut(0, 0, chunk.len(), r), par);
-            for (a, &(_, c)) in chunk.iter().enumerate() {
-                let s = c.sqrt();
-                for j in 0..r {
-                    b[(a, j)] *= s;
+            if let Some((targets, rhs)) = rhs.as_mut() {
+                let t = targets.submatrix(k * BLOCK, 0, chunk.len(), targets.ncols());
+                let features = b.rb().submatrix(0, 0, chunk.len(), r);
+                matmul(
+                    rhs.rb_mut().submatrix_mut(0, 0, r, t.ncols()),
+                    Accum::Add,
+                    features.transpose(),
+                    t,
+                    1.0,
+                    par,
+                );
+                for j in 0..t.ncols() {
+                    rhs[(r, j)] += t.col(j).iter().sum::<f64>();
                 }
-                b[(a, r)] = s;
             }
-            let b = b.into_const();
-            matmul(out.rb_mut(), Accum::Add, b.transpose(), b, sign, par);
+            if let Some((sign, gram)) = gram.as_mut() {
+                for (a, &(_, c)) in chunk.iter().enumerate() {
+                    let s = c.sqrt();
+                    for j in 0..r {
+                        b[(a, j)] *= s;
+                    }
+                    b[(a, r)] = s;
+                }
+                let b = b.into_const();
+                matmul(gram.rb_mut(), Accum::Add, b.transpose(), b, *sign, par);
+            }
         }
     }
 
@@ -109,7 +128,7 @@ impl FeatureRows<'_> {
         let r = self.width();
         let all: Vec<(usize, f64)> = (0..self.nrows()).map(|i| (i, 1.0)).collect();
         let mut gram = Mat::<f64>::zeros(r + 1, r + 1);
-        self.add_weighted_gram(&all, 1.0, gram.as_mut(), par);
+        self.accumulate(&all, Some((1.0, gram.as_mut())), None, par);
         gram
     }
 
@@ -224,44 +243,31 @@ pub fn solve(
                     (a != quadratic_weight).then_some((i, quadratic_weight - a))
                 })
                 .collect();
+            // Right-hand side Φ̃ᵀ A Y' over the support; the matrix from G and the rows outside
+            // the quadratic zone when they are fewer, else in the same pass over the support.
+            let targets = Mat::from_fn(support.len(), q, |a, j| {
+                let (i, weight) = support[a];
+                let (_, shrink) = parts[i].expect("support rows have a part");
+                weight * (y[(i, j)] - shrink * resid[(i, j)])
+            });
             let mut system = Mat::<f64>::zeros(r + 1, r + 1);
+            let mut rhs = Mat::<f64>::zeros(r + 1, q);
+            let features = &problem.features;
             if not_quadratic.len() < support.len() {
                 system.copy_from(gram);
                 system *= faer::Scale(quadratic_weight);
-                problem
-                    .features
-                    .add_weighted_gram(&not_quadratic, -1.0, system.as_mut(), par);
+                features.accumulate(&not_quadratic, Some((-1.0, system.as_mut())), None, par);
+                features.accumulate(&support, None, Some((targets.as_ref(), rhs.as_mut())), par);
             } else {
-                problem
-                    .features
-                    .add_weighted_gram(&support, 1.0, system.as_mut(), par);
+                features.accumulate(
+                    &support,
+                    Some((1.0, system.as_mut())),
+                    Some((targets.as_ref(), rhs.as_mut())),
+                    par,
+                );
             }
             for j in 0..r {
                 system[(j, j)] += 1.0;
-            }
-            // Right-hand side Φ̃ᵀ A Y' over the support, block by block.
-            let mut rhs = Mat::<f64>::zeros(r + 1, q);
-            let mut block = Mat::<f64>::zeros(BLOCK.min(support.len()), r);
-            for chunk in support.chunks(BLOCK) {
-                let rows: Vec<usize> = chunk.iter().map(|&(i, _)| i).collect();
-                let mut b = block.as_mut().submatrix_mut(0, 0, chunk.len(), r);
-                problem.features.gather(&rows, b.rb_mut(), par);
-                let targets = Mat::from_fn(chunk.len(), q, |a, j| {
-                    let (i, weight) = chunk[a];
-                    let (_, shrink) = parts[i].expect("support rows have a part");
-                    weight * (y[(i, j)] - shrink * resid[(i, j)])
-                });
-                matmul(
-                    rhs.as_mut().submatrix_mut(0, 0, r, q),
-                    Accum::Add,
-                    b.into_const().transpose(),
-                    targets.as_ref(),
-                    1.0,
-                    par,
-                );
-                for j in 0..q {
-                    rhs[(r, j)] += targets.col(j).iter().sum::<f64>();
-                }
             }
             let llt = system.llt(Side::Lower).map_err(|_| NotPositiveDefinite {
                 pivot: 0,
