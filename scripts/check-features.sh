@@ -6,13 +6,18 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 features() { cargo tree "$@" -f '{p} {f}' --prefix none | sed 's/ (\*)$//; s/ (proc-macro)//'; }
+# One after the other (two at once wait for each other's lock), and a failing `cargo tree` stops
+# the script rather than passing an empty list.
+command_build=$(features -p handcap -p handcap-core -e normal,build,dev)
+wheel_build=$(features -p handcap-python -e normal,build)
 awk '
     FNR == 1 { side++ }
     NF >= 2 && $3 !~ /^\(/ {
         key = $1 " " $2
         seen[side, key] = 1
         n = split($3, list, ",")
-        for (i = 1; i <= n; i++) has[side, key, list[i]] = 1; all[key] = all[key] "," $3
+        for (i = 1; i <= n; i++) has[side, key, list[i]] = 1
+        all[key] = all[key] "," $3
     }
     END {
         for (key in all) {
@@ -30,4 +35,4 @@ awk '
             }
         }
         exit bad
-    }' <(features -p handcap -p handcap-core -e normal,build,dev) <(features -p handcap-python -e normal,build)
+    }' <(printf '%s\n' "$command_build") <(printf '%s\n' "$wheel_build")
