@@ -1,14 +1,14 @@
 #!/usr/bin/env bash
-# Fails when a dependency shared by the command's build (`cargo test`: the command, the core and
-# their dev-dependencies) and the wheel's (maturin: the Python binding and the core) gets different
-# features in the two, which compiles it and everything above it twice; names the crate and the
-# features to add to workspace-hack/Cargo.toml.
+# Fails when a dependency shared by the command's build (`cargo test`: the default members, i.e.
+# the command, the core and the benchmarks, with their dev-dependencies) and the wheel's (maturin:
+# the Python binding and the core) gets different features in the two, which compiles it and
+# everything above it twice; names the crate and the features to add to workspace-hack/Cargo.toml.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 features() { cargo tree "$@" -f '{p} {f}' --prefix none | sed 's/ (\*)$//; s/ (proc-macro)//'; }
 # One after the other (two at once wait for each other's lock), and a failing `cargo tree` stops
 # the script rather than passing an empty list.
-command_build=$(features -p handcap -p handcap-core -e normal,build,dev)
+command_build=$(features -p handcap -p handcap-core -p handcap-benches -e normal,build,dev)
 wheel_build=$(features -p handcap-python -e normal,build)
 awk '
     FNR == 1 { side++ }
