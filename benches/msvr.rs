@@ -145,17 +145,26 @@ fn auto_once() -> (Dataset, ValidMsvrParams) {
     let start = tune::initial_basis(BasisChoice::Auto, data.rows(), 1).unwrap();
     let scored = data.subsample(tune::SEARCH_ROWS);
     let plan = folds::plan(&FoldsBy::Auto, &scored, &[], 5).unwrap();
+    // `handcap model --basis auto` with the parameters given: the growth at them.
+    let choice = tune::Choice {
+        rows: &scored,
+        fitness: FitnessKind::Cv { folds: 5 },
+        folds: &plan,
+        search: None,
+        pinned: tune::Pinned::default(),
+        grow: true,
+        score: false,
+    };
     let never = AtomicBool::new(false);
-    let fitness = FitnessKind::Cv { folds: 5 };
-    let chosen = tune::grow_basis(start, &scored, fitness, &plan, &solver, &never).unwrap();
+    let chosen = tune::choose(&choice, &solver, start, &mut (), &never).unwrap();
     let grown = clock.elapsed().as_secs_f64();
-    let params = solver.basis(chosen.basis).check().unwrap();
+    let params = chosen.params.check().unwrap();
     let model = params.fit(&data).unwrap();
     eprintln!(
         "auto, n = {}: {} ({}): chosen in {grown:.1} s, fitted on every row in {:.1} s ({} iterations, converged {}); peak memory {:.2} GB",
         data.rows(),
-        chosen.basis,
-        chosen.reason,
+        chosen.basis.basis,
+        chosen.basis.reason,
         clock.elapsed().as_secs_f64() - grown,
         model.fit.iterations,
         model.fit.converged,

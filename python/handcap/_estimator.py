@@ -121,8 +121,8 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
     def interval_radius(self, level=0.9):
         """The conformal interval's radius at `level` (output units): the truth lies within it
         of the prediction that share of the time (marginal over rows like the held-out ones).
-        Calibrated on the search's held-out folds; a fit with C, epsilon and sigma all given
-        has none (ValueError)."""
+        Calibrated on held-out folds (the search's, or with C, epsilon and sigma all given,
+        the same kind of folds)."""
         check_is_fitted(self)
         return self.model_.interval_radius(level)
 

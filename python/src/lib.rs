@@ -84,10 +84,10 @@ struct FitRequest {
     max_iter: usize,
 }
 
-/// The search (when a hyper-parameter is left to it), `auto`'s basis and the fit, as
-/// `handcap model` does them on a file: ACO_R over the data's box with the given
-/// hyper-parameters pinned, cross-validated on whole groups when given, else on the folds the
-/// data call for.
+/// The search (when a hyper-parameter is left to it), `auto`'s basis, the intervals and the
+/// fit, as `handcap model` does them on a file ([`tune::choose`]): ACO_R over the data's box
+/// with the given hyper-parameters pinned, cross-validated on whole groups when given, else on
+/// the folds the data call for.
 fn fit_request(r: FitRequest) -> Result<ModelFile, String> {
     let n = r.data.rows();
     // The core names the file; here there is none.
@@ -96,7 +96,6 @@ fn fit_request(r: FitRequest) -> Result<ModelFile, String> {
         .map_err(|e| e.to_string().trim_start_matches("python: ").to_string())?;
     let initial = tune::initial_basis(r.basis, n, r.seed).map_err(|e| e.to_string())?;
     msvr::check_memory(n, initial.basis).map_err(|e| e.to_string())?;
-    let grows = r.basis == BasisChoice::Auto && initial.basis != Basis::Exact;
     let pin = r.pinned;
     let solver = MsvrParams::new(
         pin.c.unwrap_or(1.0),
@@ -108,59 +107,42 @@ fn fit_request(r: FitRequest) -> Result<ModelFile, String> {
     .max_iter(r.max_iter)
     .basis(initial.basis);
     solver.check().map_err(|e| e.to_string())?;
-    let searched = pin.c.is_none() || pin.epsilon.is_none() || pin.sigma.is_none();
-    let never = AtomicBool::new(false);
-    // With a search (or growth) the held-out rows are there, and calibrate the intervals.
-    let (params, search, basis, intervals) = if !searched && !grows {
-        (solver, None, initial, None)
-    } else {
-        let kept = data::evenly_spaced(n, tune::SEARCH_ROWS);
-        let scored = r.data.subsample(tune::SEARCH_ROWS);
-        let (by, others) = match &r.groups {
-            Some(g) => (
-                FoldsBy::Column("groups".into()),
-                vec![("groups".to_string(), kept.iter().map(|&i| g[i]).collect())],
-            ),
-            None => (FoldsBy::Auto, Vec::new()),
-        };
-        let folds = r.folds.min(scored.rows());
-        let plan = folds::plan(&by, &scored, &others, folds).map_err(|e| e.to_string())?;
-        let fitness = FitnessKind::Cv { folds };
-        let (params, search) = if searched {
-            let method = Method::AcoR(AcoR {
-                seed: r.seed,
-                ..AcoR::default()
-            })
-            .with_budget(r.budget.unwrap_or(tune::budget_for(scored.rows())));
-            let (summary, _, _) = tune::run(
-                &method,
-                &scored,
-                fitness,
-                r.seed,
-                &plan,
-                &solver,
-                &pin,
-                &mut (),
-                &never,
-            )
-            .map_err(|e| e.to_string())?;
-            let params = tune::solver_for(&method, &solver).with_hyper(summary.best);
-            (params, Some(summary))
-        } else {
-            (solver, None)
-        };
-        let basis = if grows {
-            tune::grow_basis(initial, &scored, fitness, &plan, &params, &never)
-                .map_err(|e| e.to_string())?
-        } else {
-            initial
-        };
-        let params = params.basis(basis.basis);
-        let intervals =
-            tune::intervals(&scored, folds, r.seed, &plan, &params).map_err(|e| e.to_string())?;
-        (params, search, basis, Some(intervals))
+    // Candidates, the basis' growth and the intervals are scored on the same rows and folds.
+    let kept = data::evenly_spaced(n, tune::SEARCH_ROWS);
+    let scored = r.data.subsample(tune::SEARCH_ROWS);
+    let (by, others) = match &r.groups {
+        Some(g) => (
+            FoldsBy::Column("groups".into()),
+            vec![("groups".to_string(), kept.iter().map(|&i| g[i]).collect())],
+        ),
+        None => (FoldsBy::Auto, Vec::new()),
     };
-    let stored = ModelSpec::Msvr(params)
+    let folds = r.folds.min(scored.rows());
+    let plan = folds::plan(&by, &scored, &others, folds).map_err(|e| e.to_string())?;
+    let searched = pin.c.is_none() || pin.epsilon.is_none() || pin.sigma.is_none();
+    let search = searched.then(|| {
+        let method = Method::AcoR(AcoR {
+            seed: r.seed,
+            ..AcoR::default()
+        });
+        let budget = r.budget.unwrap_or(tune::budget_for(scored.rows()));
+        (method.with_budget(budget), r.seed)
+    });
+    let choice = tune::Choice {
+        rows: &scored,
+        fitness: FitnessKind::Cv { folds },
+        folds: &plan,
+        search,
+        pinned: pin,
+        grow: r.basis == BasisChoice::Auto && initial.basis != Basis::Exact,
+        score: false,
+    };
+    let never = AtomicBool::new(false);
+    let chosen =
+        tune::choose(&choice, &solver, initial, &mut (), &never).map_err(|e| e.to_string())?;
+    let intervals = tune::intervals(&scored, folds, r.seed, &plan, &chosen.params)
+        .map_err(|e| e.to_string())?;
+    let stored = ModelSpec::Msvr(chosen.params)
         .fit(&r.data)
         .map_err(|e| e.to_string())?;
     let provenance = Provenance::new(
@@ -169,10 +151,10 @@ fn fit_request(r: FitRequest) -> Result<ModelFile, String> {
     );
     Ok(ModelFile::new(
         stored,
-        search,
-        Some(basis),
+        chosen.search.map(|s| s.summary),
+        Some(chosen.basis),
         None,
-        intervals,
+        Some(intervals),
         provenance,
     ))
 }

@@ -193,7 +193,7 @@ impl Ui {
                     r.best_fitness, r.best.c, r.best.epsilon, r.best.sigma
                 ));
             }
-            Event::Searched(_) => {
+            Event::SearchEnded => {
                 if let Some(bar) = self.search.lock().expect("search bar").take() {
                     bar.finish_and_clear();
                 }

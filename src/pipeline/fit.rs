@@ -2,7 +2,6 @@
 //! files, write the report and the model file.
 
 use std::path::{Path, PathBuf};
-use std::time::Instant;
 
 use super::outputs::{self, Output};
 use super::{io_error, Event, PipelineError, Session};
@@ -12,7 +11,7 @@ use crate::model::history::{self, History, HistoryChoice, HistoryTrial, Memory, 
 use crate::model::interval::{Intervals, Radius};
 use crate::model::msvr::fitness::{Counters, FitnessKind};
 use crate::model::msvr::folds::{self, FoldPlan, FoldScheme, FoldsBy};
-use crate::model::msvr::tune::{self, BasisChoice, BasisDecision, Pinned, SearchSummary};
+use crate::model::msvr::tune::{self, BasisChoice, BasisDecision, Chosen, Pinned, SearchSummary};
 use crate::model::msvr::{self, Basis, MsvrParams, MIN_FIT_ROWS};
 use crate::model::previous::{self, PreviousModel};
 use crate::model::{self, ModelSpec};
@@ -94,6 +93,10 @@ impl Observer for Iterations<'_> {
             record,
             cap: self.cap,
         });
+    }
+
+    fn ended(&mut self) {
+        self.session.emit(Event::SearchEnded);
     }
 }
 
@@ -290,10 +293,13 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
     let Chosen {
         params,
         search,
-        iterations,
         basis,
         ..
     } = chosen;
+    let (search, iterations) = match search {
+        Some(s) => (Some((s.summary, s.counters, s.seconds)), Some(s.history)),
+        None => (None, None),
+    };
     if !basis.tried.is_empty() {
         session.emit(Event::Note(format!(
             "basis: {} ({})",
@@ -539,16 +545,6 @@ struct Candidates {
     memories: Vec<Memory>,
 }
 
-/// What one feature set's selection gave.
-struct Chosen {
-    params: MsvrParams,
-    search: Option<(SearchSummary, Counters, f64)>,
-    iterations: Option<Vec<IterationRecord>>,
-    basis: BasisDecision,
-    /// The cross-validated fitness of `params` (the search's best), when known or asked for.
-    fitness: Option<f64>,
-}
-
 /// The rows candidates are scored on and how cross-validation cuts them.
 struct Scoring {
     scored: data::Dataset,
@@ -636,7 +632,7 @@ enum Pass {
 }
 
 /// Chooses the parameters on `scoring`'s rows ([`Pass`]: growing the basis, scoring given
-/// parameters, the budget).
+/// parameters, the budget), by [`tune::choose`].
 fn choose(
     job: &FitJob,
     scoring: &Scoring,
@@ -644,89 +640,45 @@ fn choose(
     pass: Pass,
     session: &Session,
 ) -> Result<Chosen, PipelineError> {
-    let grows = pass == Pass::Only && grows(job, &initial);
-    let score = pass != Pass::Only;
-    let solver = job.params.basis(initial.basis);
-    let Scoring {
-        scored,
-        plan,
-        fitness,
-    } = scoring;
-    let grow = |basis: BasisDecision, params: &MsvrParams| {
-        if grows {
-            tune::grow_basis(basis, scored, *fitness, plan, params, session.interrupt)
-        } else {
-            Ok(basis)
-        }
-    };
-    match &job.selection {
-        Selection::Fixed => {
-            if !grows && !score {
-                return Ok(Chosen {
-                    params: solver,
-                    search: None,
-                    iterations: None,
-                    basis: initial,
-                    fitness: None,
-                });
-            }
-            let basis = grow(initial, &solver)?;
-            let params = solver.basis(basis.basis);
-            let cv = match grown_fitness(&basis, params.basis) {
-                Some(f) => f,
-                None => scoring.fitness_of(&params)?,
-            };
-            Ok(Chosen {
-                params,
-                search: None,
-                iterations: None,
-                basis,
-                fitness: Some(cv),
-            })
-        }
+    let search = match &job.selection {
+        Selection::Fixed => None,
         Selection::Search {
             method,
             budget,
             seed,
             ..
         } => {
-            if matches!(fitness, FitnessKind::Cv { .. }) {
-                session.emit(Event::Note(format!("folds: {}", plan.choice)));
+            if matches!(scoring.fitness, FitnessKind::Cv { .. }) {
+                session.emit(Event::Note(format!("folds: {}", scoring.plan.choice)));
             }
+            let rows = scoring.scored.rows();
             let budget = budget.unwrap_or(match pass {
-                Pass::Reference => tune::budget_for(scored.rows()) / 2,
-                _ => tune::budget_for(scored.rows()),
+                Pass::Reference => tune::budget_for(rows) / 2,
+                _ => tune::budget_for(rows),
             });
-            let method = &method.with_budget(budget);
-            let started = Instant::now();
-            let mut observer = Iterations {
-                session,
-                cap: method.iteration_cap(),
-            };
-            let (summary, result, counters) = tune::run(
-                method,
-                scored,
-                *fitness,
-                *seed,
-                plan,
-                &solver,
-                &Pinned::default(),
-                &mut observer,
-                session.interrupt,
-            )?;
-            session.emit(Event::Searched(&summary));
-            let params = tune::solver_for(method, &solver).with_hyper(summary.best);
-            let basis = grow(initial, &params)?;
-            let seconds = started.elapsed().as_secs_f64();
-            Ok(Chosen {
-                params: params.basis(basis.basis),
-                fitness: Some(grown_fitness(&basis, basis.basis).unwrap_or(summary.best_fitness)),
-                search: Some((summary, counters, seconds)),
-                iterations: Some(result.history),
-                basis,
-            })
+            Some((method.with_budget(budget), *seed))
         }
-    }
+    };
+    let mut observer = Iterations {
+        session,
+        cap: search.as_ref().map_or(0, |(m, _)| m.iteration_cap()),
+    };
+    let choice = tune::Choice {
+        rows: &scoring.scored,
+        fitness: scoring.fitness,
+        folds: &scoring.plan,
+        search,
+        pinned: Pinned::default(),
+        grow: pass == Pass::Only && grows(job, &initial),
+        score: pass != Pass::Only,
+    };
+    Ok(tune::choose(
+        &choice,
+        &job.params,
+        initial,
+        &mut observer,
+        session.interrupt,
+    )?)
 }
 
 /// Conformal intervals from the held-out residuals of `params` on the scoring's rows and folds
@@ -761,18 +713,6 @@ pub(crate) fn radii_text(radii: &[Radius]) -> String {
 /// as they are.
 fn grows(job: &FitJob, initial: &BasisDecision) -> bool {
     job.basis == BasisChoice::Auto && initial.basis != Basis::Exact
-}
-
-/// The cross-validated fitness `auto`'s growth measured for the basis it chose.
-fn grown_fitness(decision: &BasisDecision, chosen: Basis) -> Option<f64> {
-    let Basis::Reduced { centres, .. } = chosen else {
-        return None;
-    };
-    decision
-        .tried
-        .iter()
-        .find(|t| t.centres == centres)
-        .map(|t| t.fitness)
 }
 
 /// The rows a search scores: `search_on`'s when given, else at most [`tune::SEARCH_ROWS`]

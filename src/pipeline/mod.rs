@@ -21,7 +21,6 @@ pub mod triangulate;
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use crate::model::msvr::tune::SearchSummary;
 use crate::provenance::Provenance;
 use crate::search::IterationRecord;
 
@@ -52,7 +51,7 @@ pub enum Event<'a> {
         cap: usize,
     },
     /// A search ended.
-    Searched(&'a SearchSummary),
+    SearchEnded,
     /// A sentence for the user (e.g. rows left out of a file).
     Note(String),
     /// The demo starts stage `step` of `of`.

@@ -35,7 +35,7 @@ pub enum IntervalError {
         needed: usize,
         rows: usize,
     },
-    #[error("the model has no prediction intervals: no held-out rows were scored when it was fitted (parameters given without a search, a training-data fitness, or a handcap before intervals); fit it with a cross-validated search")]
+    #[error("the model has no prediction intervals: no held-out rows were scored when it was fitted (a training-data fitness, or a handcap before intervals); fit it again with cross-validation (the default)")]
     Missing,
 }
 

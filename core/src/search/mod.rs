@@ -81,9 +81,11 @@ pub struct IterationRecord {
     pub best_fitness: f64,
 }
 
-/// Receives each iteration as it ends.
+/// Receives each iteration as it ends, and the end of the search.
 pub trait Observer {
     fn iteration(&mut self, record: &IterationRecord);
+    /// The search ended (finished, stopped or failed).
+    fn ended(&mut self) {}
 }
 
 /// An observer that does nothing.
@@ -339,10 +341,12 @@ impl Search for Method {
         observer: &mut dyn Observer,
         interrupt: &AtomicBool,
     ) -> Result<SearchResult, SearchError> {
-        match self {
+        let result = match self {
             Method::AcoPaper(m) => m.run(objective, observer, interrupt),
             Method::AcoR(m) => m.run(space, objective, observer, interrupt),
             Method::Grid(m) => m.run(space, objective, observer, interrupt),
-        }
+        };
+        observer.ended();
+        result
     }
 }

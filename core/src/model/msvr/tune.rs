@@ -269,6 +269,133 @@ pub fn intervals(
     ))
 }
 
+/// How [`choose`] picks a fit's (C, ε, σ) and basis on rows scored by cross-validation.
+pub struct Choice<'a> {
+    /// The rows candidates are scored on.
+    pub rows: &'a Dataset,
+    pub fitness: FitnessKind,
+    /// How cross-validation cuts `rows`.
+    pub folds: &'a FoldPlan,
+    /// The search (its budget set) and the seed of its folds; `None` keeps the solver's
+    /// (C, ε, σ).
+    pub search: Option<(Method, u64)>,
+    /// Hyper-parameters the search holds at the solver's values.
+    pub pinned: Pinned,
+    /// `auto`'s growth of a reduced starting basis ([`grow_basis`]) at the parameters chosen.
+    pub grow: bool,
+    /// Whether the cross-validated fitness of given parameters is wanted (a search's is its
+    /// best, always known).
+    pub score: bool,
+}
+
+/// What [`choose`] chose.
+pub struct Chosen {
+    /// The solver with the chosen (C, ε, σ) and basis.
+    pub params: MsvrParams,
+    pub search: Option<Searched>,
+    pub basis: BasisDecision,
+    /// The cross-validated fitness of `params`, when measured.
+    pub fitness: Option<f64>,
+}
+
+/// What a search did.
+pub struct Searched {
+    pub summary: SearchSummary,
+    pub counters: Counters,
+    pub history: Vec<crate::search::IterationRecord>,
+    /// The search's time with the basis' growth after it (s).
+    pub seconds: f64,
+}
+
+/// The parameters of a fit, as every front end chooses them: `choice`'s search (when there is
+/// one) from `solver`, started on the `initial` basis, then `auto`'s growth of that basis at
+/// the parameters found. The search reports its iterations to `observer` and stops early (with
+/// the best so far) when `interrupt` is set.
+///
+/// # Errors
+/// [`TuneError`]: the search's own, or folds that cannot be cut.
+pub fn choose(
+    choice: &Choice,
+    solver: &MsvrParams,
+    initial: BasisDecision,
+    observer: &mut dyn Observer,
+    interrupt: &AtomicBool,
+) -> Result<Chosen, TuneError> {
+    let started = std::time::Instant::now();
+    let solver = solver.basis(initial.basis);
+    let Choice {
+        rows,
+        fitness,
+        folds,
+        ..
+    } = *choice;
+    let grow = |basis: BasisDecision, params: &MsvrParams| {
+        if choice.grow {
+            grow_basis(basis, rows, fitness, folds, params, interrupt)
+        } else {
+            Ok(basis)
+        }
+    };
+    let Some((method, seed)) = &choice.search else {
+        if !choice.grow && !choice.score {
+            return Ok(Chosen {
+                params: solver,
+                search: None,
+                basis: initial,
+                fitness: None,
+            });
+        }
+        let basis = grow(initial, &solver)?;
+        let params = solver.basis(basis.basis);
+        let fitness = match grown_fitness(&basis) {
+            Some(f) => f,
+            None => cross_validate(rows, fitness, folds, &params)?,
+        };
+        return Ok(Chosen {
+            params,
+            search: None,
+            basis,
+            fitness: Some(fitness),
+        });
+    };
+    let (summary, result, counters) = run(
+        method,
+        rows,
+        fitness,
+        *seed,
+        folds,
+        &solver,
+        &choice.pinned,
+        observer,
+        interrupt,
+    )?;
+    let params = solver_for(method, &solver).with_hyper(summary.best);
+    let basis = grow(initial, &params)?;
+    Ok(Chosen {
+        params: params.basis(basis.basis),
+        fitness: Some(grown_fitness(&basis).unwrap_or(summary.best_fitness)),
+        search: Some(Searched {
+            summary,
+            counters,
+            history: result.history,
+            seconds: started.elapsed().as_secs_f64(),
+        }),
+        basis,
+    })
+}
+
+/// The cross-validated fitness [`grow_basis`] measured for the basis it chose.
+fn grown_fitness(decision: &BasisDecision) -> Option<f64> {
+    let Basis::Reduced { centres, .. } = decision.basis else {
+        return None;
+    };
+    decision
+        .tried
+        .iter()
+        .find(|t| t.centres == centres)
+        .map(|t| t.fitness)
+}
+
 /// A search scores its candidates on at most this many evenly spaced rows of the training data
 /// (the model is then fitted on every row): a candidate's five fits on 8000 rows and 200
 /// centres take about a second, so 120 candidates stay within minutes on 2 cores, and
