@@ -82,13 +82,13 @@ struct Fold {
     held_out: Vec<usize>,
     y_train: Mat<f64>,
     y_held_out: Mat<f64>,
-    d2: Option<(Mat<f64>, Mat<f64>)>,
 }
 
-/// What every fold needs of one σ: the exact basis's kernels (training, held-out to training),
-/// or the reduced basis's features of every row and Gram matrices.
+/// What every fold needs of one σ: the exact basis's kernel of every row with every row (each
+/// fold takes its training and held-out rows from it: one exponential per pair of rows, not
+/// one per pair in each fold), or the reduced basis's features of every row and Gram matrices.
 enum PerSigma {
-    Exact(Vec<(Mat<f64>, Mat<f64>)>),
+    Exact(Mat<f64>),
     /// Features of every row and each fold's Φ̃ᵀΦ̃ over its training rows (all rows' less the
     /// held-out rows': two passes over the rows instead of one per fold).
     Reduced {
@@ -164,8 +164,8 @@ pub struct Fitness {
     held_out_values: usize,
     /// Solver controls (tol, max_iter) of every fit.
     solver: MsvrParams,
-    /// The scaled inputs and the centres k-means++ chose among them (reduced basis only).
-    reduced: Option<(Columns, Columns)>,
+    /// What the kernels of every σ come from.
+    expansion: Expansion,
     memo: Mutex<HashMap<[u64; 3], f64>>,
     kernels: Mutex<HashMap<u64, Arc<PerSigma>>>,
     kernel_cache_entries: usize,
@@ -174,6 +174,14 @@ pub struct Fitness {
     memo_hits: AtomicUsize,
     kernel_hits: AtomicUsize,
     raced: AtomicUsize,
+}
+
+/// What [`Fitness`] computes the kernels of a σ from.
+enum Expansion {
+    /// The squared distances between every two rows (scaled inputs).
+    Exact { d2: Mat<f64> },
+    /// The scaled inputs and the centres k-means++ chose among them.
+    Reduced { scaled: Columns, centres: Columns },
 }
 
 /// Relative objective tolerance of the fits that score candidates.
@@ -207,7 +215,6 @@ impl Fitness {
                     .collect()
             }
         };
-        let exact = solver.basis == Basis::Exact;
         let folds: Vec<Fold> = splits
             .into_par_iter()
             .map(|(train, held_out)| {
@@ -216,35 +223,26 @@ impl Fitness {
                         data.outputs.row(rows[r])[j]
                     })
                 };
-                let d2 = exact.then(|| {
-                    let (tr, ho) = (scaled.select_rows(&train), scaled.select_rows(&held_out));
-                    (
-                        kernel::squared_distances(&tr, &tr),
-                        kernel::squared_distances(&ho, &tr),
-                    )
-                });
                 Fold {
                     y_train: targets(&train),
                     y_held_out: targets(&held_out),
                     train,
                     held_out,
-                    d2,
                 }
             })
             .collect();
         let per_sigma: usize = match solver.basis {
-            Basis::Exact => folds
-                .iter()
-                .map(|f| 8 * (f.train.len() + f.held_out.len()) * f.train.len())
-                .sum(),
+            Basis::Exact => 8 * n * n,
             Basis::Reduced { centres, .. } => 8 * n * centres.min(n),
         };
-        let reduced = match solver.basis {
-            Basis::Exact => None,
+        let expansion = match solver.basis {
+            Basis::Exact => Expansion::Exact {
+                d2: kernel::squared_distances(&scaled, &scaled),
+            },
             Basis::Reduced { centres, seed } => {
                 let chosen = basis::kmeans_pp(&scaled, centres, seed);
                 let centres = scaled.select_rows(&chosen);
-                Some((scaled, centres))
+                Expansion::Reduced { scaled, centres }
             }
         };
         let held_out_values = folds
@@ -259,7 +257,7 @@ impl Fitness {
                 tol: solver.tol.max(SEARCH_TOL),
                 ..*solver
             },
-            reduced,
+            expansion,
             memo: Mutex::new(HashMap::new()),
             kernels: Mutex::new(HashMap::new()),
             kernel_cache_entries: (KERNEL_CACHE_BYTES / per_sigma.max(1)).max(1),
@@ -384,8 +382,14 @@ impl Fitness {
         let fold = &self.folds[k];
         self.fits.fetch_add(1, Ordering::Relaxed);
         let (pred, bias) = match per_sigma {
-            PerSigma::Exact(kernels) => {
-                let (k_train, k_held_out) = &kernels[k];
+            PerSigma::Exact(kernel) => {
+                let (train, held_out) = (&fold.train, &fold.held_out);
+                let k_train = Mat::from_fn(train.len(), train.len(), |r, c| {
+                    kernel[(train[r], train[c])]
+                });
+                let k_held_out = Mat::from_fn(held_out.len(), train.len(), |r, c| {
+                    kernel[(held_out[r], train[c])]
+                });
                 let sol = params.solve(k_train.as_ref(), fold.y_train.as_ref(), Par::Seq)?;
                 (k_held_out * &sol.beta, sol.bias)
             }
@@ -430,20 +434,9 @@ impl Fitness {
             self.kernel_hits.fetch_add(1, Ordering::Relaxed);
             return Arc::clone(k);
         }
-        let computed = Arc::new(match &self.reduced {
-            None => PerSigma::Exact(
-                self.folds
-                    .iter()
-                    .map(|f| {
-                        let (d2_train, d2_held_out) = f.d2.as_ref().expect("exact folds");
-                        (
-                            rbf_from_squared(d2_train.as_ref(), sigma),
-                            rbf_from_squared(d2_held_out.as_ref(), sigma),
-                        )
-                    })
-                    .collect(),
-            ),
-            Some((scaled, centres)) => {
+        let computed = Arc::new(match &self.expansion {
+            Expansion::Exact { d2 } => PerSigma::Exact(rbf_from_squared(d2.as_ref(), sigma)),
+            Expansion::Reduced { scaled, centres } => {
                 let features = NystromMap::new(centres, sigma).features(scaled);
                 let rows = |rows| FeatureRows::Stored {
                     all: features.as_ref(),

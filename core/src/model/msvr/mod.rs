@@ -305,7 +305,7 @@ impl ValidMsvrParams {
         let y = to_mat(&data.outputs);
         let expansion = match p.basis {
             Basis::Exact => {
-                let k = kernel::rbf(&scaled, &scaled, p.sigma);
+                let k = kernel::rbf_gram(&scaled, p.sigma);
                 let solution = self.solve(k.as_ref(), y.as_ref(), par)?;
                 let sv_rows: Vec<usize> = (0..solution.beta.nrows())
                     .filter(|&i| solution.beta.row(i).iter().any(|&b| b != 0.0))
