@@ -32,7 +32,11 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
         A kernel at every row ("exact"), a reduced basis of that many centres, or exact up to 2000
         rows and a grown reduced basis above ("auto").
     folds : int
-        Cross-validation folds of the search.
+        Cross-validation folds of the search and the intervals.
+    intervals : bool
+        Calibrate conformal prediction intervals (`interval_radius`) on held-out folds: one more
+        fit per fold, on top of the search's. False fits the final model alone (C, epsilon and
+        sigma given: one fit, what a control loop refitting online wants).
     random_state : int or None
         Seeds the search and its folds (None: handcap's default seed, 2020).
     tol, max_iter : solver controls.
@@ -50,7 +54,7 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
 
     def __init__(self, C=None, epsilon=None, sigma=None, search="aco-r", budget=None,
                  loss="robust", basis="auto", folds=5, random_state=None, tol=1e-8,
-                 max_iter=500):
+                 max_iter=500, intervals=True):
         self.C = C
         self.epsilon = epsilon
         self.sigma = sigma
@@ -62,6 +66,7 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
         self.random_state = random_state
         self.tol = tol
         self.max_iter = max_iter
+        self.intervals = intervals
 
     def __sklearn_tags__(self):
         tags = super().__sklearn_tags__()
@@ -100,7 +105,8 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
             epsilon=None if self.epsilon is None else float(self.epsilon),
             sigma=None if self.sigma is None else float(self.sigma),
             loss=self.loss, basis=str(self.basis), budget=self.budget, folds=int(self.folds),
-            groups=groups, seed=int(seed), tol=float(self.tol), max_iter=int(self.max_iter))
+            groups=groups, seed=int(seed), tol=float(self.tol), max_iter=int(self.max_iter),
+            intervals=bool(self.intervals))
         self.C_, self.epsilon_, self.sigma_ = self.model_.hyper
         self.support_vectors_ = self.model_.support_vectors
         self.dual_coef_ = self.model_.dual_coef
@@ -124,6 +130,9 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
         Calibrated on held-out folds (the search's, or with C, epsilon and sigma all given,
         the same kind of folds)."""
         check_is_fitted(self)
+        if not self.intervals:
+            raise ValueError("this estimator was fitted with intervals=False: fit it with "
+                             "intervals=True for interval_radius")
         return self.model_.interval_radius(level)
 
     def inverse(self, targets, max_kpa=250.0, reach=0.01):

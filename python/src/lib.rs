@@ -82,10 +82,12 @@ struct FitRequest {
     seed: u64,
     tol: f64,
     max_iter: usize,
+    /// Calibrate the conformal intervals (one more fit per fold).
+    intervals: bool,
 }
 
-/// The search (when a hyper-parameter is left to it), `auto`'s basis, the intervals and the
-/// fit, as `handcap model` does them on a file ([`tune::choose`]): ACO_R over the data's box
+/// The search (when a hyper-parameter is left to it), `auto`'s basis, the intervals (when
+/// asked) and the fit, as `handcap model` does them on a file ([`tune::choose`]): ACO_R over the data's box
 /// with the given hyper-parameters pinned, cross-validated on whole groups when given, else on
 /// the folds the data call for.
 fn fit_request(r: FitRequest) -> Result<ModelFile, String> {
@@ -140,7 +142,10 @@ fn fit_request(r: FitRequest) -> Result<ModelFile, String> {
     let never = AtomicBool::new(false);
     let chosen =
         tune::choose(&choice, &solver, initial, &mut (), &never).map_err(|e| e.to_string())?;
-    let intervals = tune::intervals(&scored, folds, r.seed, &plan, &chosen.params)
+    let intervals = r
+        .intervals
+        .then(|| tune::intervals(&scored, folds, r.seed, &plan, &chosen.params))
+        .transpose()
         .map_err(|e| e.to_string())?;
     let stored = ModelSpec::Msvr(chosen.params)
         .fit(&r.data)
@@ -154,17 +159,18 @@ fn fit_request(r: FitRequest) -> Result<ModelFile, String> {
         chosen.search.map(|s| s.summary),
         Some(chosen.basis),
         None,
-        Some(intervals),
+        intervals,
         provenance,
     ))
 }
 
 /// Fits MSVR to `x` (n × d) and `y` (n × q); hyper-parameters left `None` are chosen by the
-/// search. Returns the fitted model.
+/// search; `intervals` calibrates the conformal intervals on held-out folds. Returns the fitted
+/// model.
 #[pyfunction]
 #[pyo3(signature = (x, y, *, input_names, output_names, c=None, epsilon=None, sigma=None,
     loss="robust", basis="auto", budget=None, folds=5, groups=None, seed=2020,
-    tol=msvr::DEFAULT_TOL, max_iter=msvr::DEFAULT_MAX_ITER))]
+    tol=msvr::DEFAULT_TOL, max_iter=msvr::DEFAULT_MAX_ITER, intervals=true))]
 #[allow(clippy::too_many_arguments)]
 fn fit(
     py: Python<'_>,
@@ -183,6 +189,7 @@ fn fit(
     seed: u64,
     tol: f64,
     max_iter: usize,
+    intervals: bool,
 ) -> PyResult<Model> {
     let (x, y) = (array2(x, "X")?, array2(y, "y")?);
     let groups = groups.map(|g| array1(g, "groups")).transpose()?;
@@ -228,6 +235,7 @@ fn fit(
         seed,
         tol,
         max_iter,
+        intervals,
     };
     let file = py.detach(|| fit_request(request)).map_err(value_error)?;
     Ok(Model { file })

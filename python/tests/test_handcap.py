@@ -103,6 +103,11 @@ def test_the_interval_radius_covers_fresh_rows_at_its_level():
     error = np.linalg.norm(fixed.predict(xf) - yf, axis=1)
     r = fixed.interval_radius(0.9)
     assert (error <= r).mean() > 0.9 - 0.05, (r, (error <= r).mean())
+    # Without intervals: the same model (no held-out fit touches it), and a clear error.
+    bare = handcap.MSVRRegressor(**FIXED, intervals=False).fit(x, y)
+    np.testing.assert_array_equal(bare.predict(xf), fixed.predict(xf))
+    with pytest.raises(ValueError, match="intervals=False"):
+        bare.interval_radius(0.9)
 
 
 def test_inputs_of_any_layout_give_the_same_predictions():
