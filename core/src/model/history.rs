@@ -35,7 +35,10 @@ pub const AUTO_RATIO: f64 = 4.0;
 pub const AUTO_COUNT: usize = 3;
 /// Ladders `auto` screens: slow actuators (a trunk's seconds of lag at 12 Hz) need the longer
 /// ones, settled steps the shortest.
-pub const AUTO_LADDERS: usize = 3;
+pub const AUTO_LADDERS: usize = 5;
+/// The ratio between successive ladders' first constants: half of [`AUTO_RATIO`]'s steps, so a
+/// lag between two of one ladder's constants meets one of the next's.
+pub const AUTO_SHIFT: f64 = 2.0;
 
 /// Errors of a time series that history cannot be built on (rows are 0-based).
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -313,7 +316,7 @@ impl Series {
 
     /// Ladders of time constants from the data, shortest first: each has [`AUTO_COUNT`]
     /// constants at most, from [`AUTO_FIRST_STEPS`] median sampling intervals up by
-    /// [`AUTO_RATIO`], the next ladder starting where the first's second constant is; none
+    /// [`AUTO_RATIO`], each ladder starting [`AUTO_SHIFT`] times later than the one before; none
     /// longer than half the median group's span (a ladder keeps at least its first; ladders
     /// left alike are given once). [`AUTO_LADDERS`] ladders at most.
     ///
@@ -331,7 +334,7 @@ impl Series {
         let span = crate::stats::upper_median(&mut spans).unwrap_or(0.0);
         let mut ladders: Vec<Vec<f64>> = Vec::new();
         for shift in 0..AUTO_LADDERS {
-            let first = AUTO_FIRST_STEPS * step * AUTO_RATIO.powi(shift as i32);
+            let first = AUTO_FIRST_STEPS * step * AUTO_SHIFT.powi(shift as i32);
             let ladder: Vec<f64> = (0..AUTO_COUNT)
                 .map(|k| round_significant(first * AUTO_RATIO.powi(k as i32)))
                 .enumerate()
@@ -729,16 +732,27 @@ mod tests {
             time: (0..200).map(|i| 0.05 * i as f64).collect(),
             group: None,
         };
-        // 0.5 × 0.05 = 0.025, then × 4; nothing longer than half the 9.95 s span.
+        // 0.5 × 0.05 = 0.025, then × 4; each ladder starting × 2 later; nothing longer than
+        // half the 9.95 s span.
         assert_eq!(
             series.time_constant_ladders().unwrap(),
-            [vec![0.025, 0.1, 0.4], vec![0.1, 0.4, 1.6], vec![0.4, 1.6]]
+            [
+                vec![0.025, 0.1, 0.4],
+                vec![0.05, 0.2, 0.8],
+                vec![0.1, 0.4, 1.6],
+                vec![0.2, 0.8, 3.2],
+                vec![0.4, 1.6]
+            ]
         );
         let short = Series {
             time: vec![0.0, 1.0, 2.0],
             group: None,
         };
-        assert_eq!(short.time_constant_ladders().unwrap(), [vec![0.5]]);
+        // A 2 s span: constants up to 1 s.
+        assert_eq!(
+            short.time_constant_ladders().unwrap(),
+            [vec![0.5], vec![1.0]]
+        );
     }
 
     #[test]
