@@ -14,4 +14,5 @@ if [ ! -x "$venv/bin/python" ]; then
     "$venv/bin/pip" install --quiet scikit-learn pandas optuna
 fi
 cargo build --release --quiet
-"$venv/bin/python" scripts/bench_peers.py --work target/bench-peers "$@"
+# libsvm's iteration bound (max_iter) warns on every fit it stops.
+PYTHONWARNINGS=ignore::UserWarning "$venv/bin/python" scripts/bench_peers.py --work target/bench-peers "$@"
