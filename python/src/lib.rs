@@ -87,9 +87,9 @@ struct FitRequest {
 }
 
 /// The search (when a hyper-parameter is left to it), `auto`'s basis, the intervals (when
-/// asked) and the fit, as `handcap model` does them on a file ([`tune::choose`]): ACO_R over the data's box
-/// with the given hyper-parameters pinned, cross-validated on whole groups when given, else on
-/// the folds the data call for.
+/// asked) and the fit, as `handcap model` does them on a file ([`tune::choose`]): ACO_R over the
+/// data's box with the given hyper-parameters pinned, cross-validated on whole groups when
+/// given, else on the folds the data call for.
 fn fit_request(r: FitRequest) -> Result<ModelFile, String> {
     let n = r.data.rows();
     // The core names the file; here there is none.
