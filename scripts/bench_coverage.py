@@ -30,26 +30,13 @@ import tempfile
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-ROOT = os.path.dirname(HERE)
-SHARED = os.path.join(os.path.dirname(ROOT), "shared", "realdata")
-HANDCAP = os.path.join(ROOT, "target", "release", "handcap")
-
-
-def write(path, header, rows):
-    with open(path, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(header)
-        w.writerows(rows)
+sys.path.insert(0, HERE)
+from bench_peers import (HANDCAP, SOFT_TRUNK, TENDON_ARM, soft_trunk_rows,  # noqa: E402
+                         tendon_arm_rows, write)
 
 
 def soft_trunk():
-    rows = list(csv.reader(open(os.path.join(SHARED, "soft_trunk",
-                                             "soft_trunk_taskspace_clean.csv"))))
-    header, body, logged = rows[0] + ["t_s"], [], {}
-    for r in rows[1:]:
-        k = logged.get(r[0], 0)
-        logged[r[0]] = k + 1
-        body.append(r + [f"{0.05 * k:.2f}"])
+    header, body = soft_trunk_rows()
     for start in range(0, 30, 6):
         held = set(range(start, start + 6))
         train = [r for r in body if int(r[0]) not in held][::4]
@@ -58,20 +45,13 @@ def soft_trunk():
 
 
 def tendon_arm():
-    rows = list(csv.reader(open(os.path.join(SHARED, "tendon_arm",
-                                             "tendon_soft_arm_3000_joined.csv"))))
-    header, body = rows[0], [r for r in rows[1:] if r[1] == "1"]
+    header, body = tendon_arm_rows()
     for start in range(0, len(body), 200):
         yield f"rows {start}-{start + 199}", header, body[:start] + body[start + 200:], \
             body[start:start + 200]
 
 
-DATASETS = {
-    "soft_trunk": (soft_trunk, [f"p{i}_kPa" for i in range(6)], ["x_mm", "y_mm", "z_mm"],
-                   ["--time", "t_s", "--group-by", "iteration"]),
-    "tendon_arm": (tendon_arm, ["act_s0_m0", "act_s0_m1", "act_s0_m2"],
-                   ["SA-up-X_mm", "SA-up-Y_mm", "SA-up-Z_mm"], ["--time", "step"]),
-}
+DATASETS = {"soft_trunk": (soft_trunk, *SOFT_TRUNK[1:]), "tendon_arm": (tendon_arm, *TENDON_ARM[1:])}
 
 
 def coverage(work, header, train, test, inputs, outputs, extra):

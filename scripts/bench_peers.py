@@ -47,35 +47,57 @@ def write(path, header, rows):
         w.writerows(rows)
 
 
+# The real robots: (file under SHARED, inputs, outputs, handcap's time arguments).
+SOFT_TRUNK = (os.path.join("soft_trunk", "soft_trunk_taskspace_clean.csv"),
+              [f"p{i}_kPa" for i in range(6)], ["x_mm", "y_mm", "z_mm"],
+              ["--time", "t_s", "--group-by", "iteration"])
+TENDON_ARM = (os.path.join("tendon_arm", "tendon_soft_arm_3000_joined.csv"),
+              ["act_s0_m0", "act_s0_m1", "act_s0_m2"],
+              ["SA-up-X_mm", "SA-up-Y_mm", "SA-up-Z_mm"], ["--time", "step"])
+
+
+def soft_trunk_rows():
+    """(header, rows) of the soft trunk, with a t_s column: 0.05 s per logged row within each
+    ramp (`iteration`, the first column); None when ../shared is not there."""
+    path = os.path.join(SHARED, SOFT_TRUNK[0])
+    if not os.path.exists(path):
+        return None
+    rows = list(csv.reader(open(path)))
+    body, logged = [], {}
+    for r in rows[1:]:
+        k = logged.get(r[0], 0)
+        logged[r[0]] = k + 1
+        body.append(r + [f"{0.05 * k:.2f}"])
+    return rows[0] + ["t_s"], body
+
+
+def tendon_arm_rows():
+    """(header, rows) of the tendon arm's phase 1; None when ../shared is not there."""
+    path = os.path.join(SHARED, TENDON_ARM[0])
+    if not os.path.exists(path):
+        return None
+    rows = list(csv.reader(open(path)))
+    return rows[0], [r for r in rows[1:] if r[1] == "1"]
+
+
 def splits(work):
     """Writes the train/test files; returns (name, train, [tests], inputs, outputs, time args)."""
     out = []
-    st = os.path.join(SHARED, "soft_trunk", "soft_trunk_taskspace_clean.csv")
-    if os.path.exists(st):
-        rows = list(csv.reader(open(st)))
-        header, body = rows[0] + ["t_s"], []
-        logged = {}
-        for r in rows[1:]:
-            k = logged.get(r[0], 0)
-            logged[r[0]] = k + 1
-            body.append(r + [f"{0.05 * k:.2f}"])
+    st = soft_trunk_rows()
+    if st:
+        header, body = st
         held = {24, 25, 26, 27, 28, 29}
         train = [r for r in body if int(r[0]) not in held][::4]
         test = [r for r in body if int(r[0]) in held]
         write(os.path.join(work, "st_train.csv"), header, train)
         write(os.path.join(work, "st_test.csv"), header, test)
-        out.append(("soft_trunk", "st_train.csv", ["st_test.csv"],
-                    [f"p{i}_kPa" for i in range(6)], ["x_mm", "y_mm", "z_mm"],
-                    ["--time", "t_s", "--group-by", "iteration"]))
-    ta = os.path.join(SHARED, "tendon_arm", "tendon_soft_arm_3000_joined.csv")
-    if os.path.exists(ta):
-        rows = list(csv.reader(open(ta)))
-        header, body = rows[0], [r for r in rows[1:] if r[1] == "1"]
+        out.append(("soft_trunk", "st_train.csv", ["st_test.csv"], *SOFT_TRUNK[1:]))
+    ta = tendon_arm_rows()
+    if ta:
+        header, body = ta
         write(os.path.join(work, "ta_train.csv"), header, body[:780])
         write(os.path.join(work, "ta_test.csv"), header, body[780:])
-        out.append(("tendon_arm", "ta_train.csv", ["ta_test.csv"],
-                    ["act_s0_m0", "act_s0_m1", "act_s0_m2"],
-                    ["SA-up-X_mm", "SA-up-Y_mm", "SA-up-Z_mm"], ["--time", "step"]))
+        out.append(("tendon_arm", "ta_train.csv", ["ta_test.csv"], *TENDON_ARM[1:]))
     subprocess.run([HANDCAP, "synth", "--out", os.path.join(work, "syn"), "--no-images"],
                    check=True, stdout=subprocess.DEVNULL)
     out.append(("synthetic", "syn/train.csv", ["syn/sweep_a.csv", "syn/sweep_b.csv"],
