@@ -85,6 +85,7 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
         if self.search == "none" and any(h is None for h in hyper):
             raise ValueError("search='none' uses C, epsilon and sigma as given: set all three")
         self._single_output = y.ndim == 1
+        self._with_intervals = bool(self.intervals)
         Y = y.reshape(-1, 1) if self._single_output else y
         if groups is not None:
             groups = np.asarray(groups)
@@ -106,7 +107,7 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
             sigma=None if self.sigma is None else float(self.sigma),
             loss=self.loss, basis=str(self.basis), budget=self.budget, folds=int(self.folds),
             groups=groups, seed=int(seed), tol=float(self.tol), max_iter=int(self.max_iter),
-            intervals=bool(self.intervals))
+            intervals=self._with_intervals)
         self.C_, self.epsilon_, self.sigma_ = self.model_.hyper
         self.support_vectors_ = self.model_.support_vectors
         self.dual_coef_ = self.model_.dual_coef
@@ -130,7 +131,7 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
         Calibrated on held-out folds (the search's, or with C, epsilon and sigma all given,
         the same kind of folds)."""
         check_is_fitted(self)
-        if not self.intervals:
+        if not self._with_intervals:
             raise ValueError("this estimator was fitted with intervals=False: fit it with "
                              "intervals=True for interval_radius")
         return self.model_.interval_radius(level)

@@ -108,6 +108,9 @@ def test_the_interval_radius_covers_fresh_rows_at_its_level():
     np.testing.assert_array_equal(bare.predict(xf), fixed.predict(xf))
     with pytest.raises(ValueError, match="intervals=False"):
         bare.interval_radius(0.9)
+    bare.set_params(intervals=True)  # not refitted: still none
+    with pytest.raises(ValueError, match="intervals=False"):
+        bare.interval_radius(0.9)
 
 
 def test_inputs_of_any_layout_give_the_same_predictions():
