@@ -188,10 +188,7 @@ impl Ui {
                     bar("search {bar:30} {pos}/{len} iterations  {msg}", cap as u64)
                 });
                 bar.set_position(r.iteration as u64);
-                bar.set_message(format!(
-                    "best {:.5} (C {:.4}, ε {:.4}, σ {:.4})",
-                    r.best_fitness, r.best.c, r.best.epsilon, r.best.sigma
-                ));
+                bar.set_message(format!("best {:.5} ({})", r.best_fitness, r.best));
             }
             Event::SearchEnded => {
                 if let Some(bar) = self.search.lock().expect("search bar").take() {

@@ -12,7 +12,7 @@ use crate::model::interval::{Intervals, Radius};
 use crate::model::msvr::fitness::{Counters, FitnessKind};
 use crate::model::msvr::folds::{self, FoldPlan, FoldScheme, FoldsBy};
 use crate::model::msvr::tune::{self, BasisChoice, BasisDecision, Chosen, Pinned, SearchSummary};
-use crate::model::msvr::{self, Basis, MsvrParams, MIN_FIT_ROWS};
+use crate::model::msvr::{self, Basis, Hyper, MsvrParams, MIN_FIT_ROWS};
 use crate::model::previous::{self, PreviousModel};
 use crate::model::{self, ModelSpec};
 use crate::report::{
@@ -661,7 +661,9 @@ fn choose(
     };
     let mut observer = Iterations {
         session,
-        cap: search.as_ref().map_or(0, |(m, _)| m.iteration_cap()),
+        cap: search
+            .as_ref()
+            .map_or(0, |(m, _)| m.iteration_cap(Hyper::AXES.len())),
     };
     let choice = tune::Choice {
         rows: &scoring.scored,

@@ -434,25 +434,32 @@ pub fn metrics_csv(tests: &[TestResult]) -> String {
 }
 
 /// The `history.csv` text: per iteration the minimum, mean and maximum fitness over its valid
-/// candidates, and the best so far.
+/// candidates, and the best so far (a `best_` column per searched axis, named as the axis).
 pub fn history_csv(history: &[IterationRecord]) -> String {
-    let mut out = String::from(
-        "iteration,min_mae,mean_mae,max_mae,valid,best_c,best_epsilon,best_sigma,best_mae\n",
-    );
+    let axes: Vec<&str> = history
+        .first()
+        .map(|r| r.best.iter().map(|(name, _)| name).collect())
+        .unwrap_or_default();
+    let mut out = String::from("iteration,min_mae,mean_mae,max_mae,valid,");
+    for name in &axes {
+        let _ = write!(out, "best_{name},");
+    }
+    out.push_str("best_mae\n");
     for r in history {
-        let _ = writeln!(
+        let _ = write!(
             out,
-            "{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},",
             r.iteration,
             format_number(r.min),
             format_number(r.mean),
             format_number(r.max),
             r.valid,
-            format_number(r.best.c),
-            format_number(r.best.epsilon),
-            format_number(r.best.sigma),
-            format_number(r.best_fitness)
         );
+        for name in &axes {
+            let value = r.best.get(name).unwrap_or(f64::NAN);
+            let _ = write!(out, "{},", format_number(value));
+        }
+        let _ = writeln!(out, "{}", format_number(r.best_fitness));
     }
     out
 }

@@ -4,12 +4,12 @@
 
 use handcap::data::{Columns, Dataset};
 use handcap::model::file::{ModelFile, StoredModel};
+use handcap::model::msvr::PAPER_TABLE2;
 use handcap::model::msvr::{Basis, MsvrParams};
 use handcap::model::previous::{self, PreviousModel};
 use handcap::model::ModelSpec;
 use handcap::model::{ModelError, Predict};
 use handcap::provenance::Provenance;
-use handcap::search::aco_paper::PAPER_TABLE2;
 use handcap::synth::{self, SynthConfig};
 
 use crate::common::tempdir;

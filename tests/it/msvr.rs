@@ -9,10 +9,10 @@ use faer::{Mat, MatRef, Par};
 use handcap::data::{Columns, Dataset};
 use handcap::model::file::{ModelFile, StoredModel};
 use handcap::model::msvr::irwls::{self, Problem, SolverOptions, StopReason};
+use handcap::model::msvr::PAPER_TABLE2;
 use handcap::model::msvr::{kernel, Loss, MsvrParams, ROBUST_ZONE};
 use handcap::model::Predict;
 use handcap::provenance::Provenance;
-use handcap::search::aco_paper::PAPER_TABLE2;
 use handcap::synth::{self, SynthConfig};
 
 use crate::common::{dataset, tempdir, Lcg};

@@ -6,17 +6,19 @@ use handcap::data::Dataset;
 use handcap::model::msvr::fitness::{Fitness, FitnessKind};
 use handcap::model::msvr::tune;
 use handcap::model::msvr::MsvrParams;
-use handcap::search::aco_paper::{decode, is_valid_path, AcoPaper, PAPER_TABLE2 as T2};
+use handcap::model::msvr::{Hyper, PAPER_TABLE2 as T2};
+use handcap::search::aco_paper::{decode, is_valid_path, AcoPaper};
 use handcap::search::aco_r::AcoR;
 use handcap::search::grid::Grid;
-use handcap::search::{Hyper, Method, Search, SearchSpace, SearchStop};
+use handcap::search::{Method, Point, Search, SearchSpace, SearchStop};
 use handcap::synth::{self, SynthConfig};
 
 /// A cheap objective whose optimum is the paper's Table 2 : the
 /// relative distance from it, plus 0.01.
-fn table2_bowl(batch: &[Hyper], _bar: f64) -> Vec<f64> {
+fn table2_bowl(batch: &[Point], _bar: f64) -> Vec<f64> {
     batch
         .iter()
+        .map(Hyper::from_point)
         .map(|h| {
             if h.check().is_err() {
                 return f64::INFINITY;
@@ -31,9 +33,10 @@ fn table2_bowl(batch: &[Hyper], _bar: f64) -> Vec<f64> {
 
 /// The same optimum with distances measured in each parameter's digit range (C to 999.9, ε to
 /// 0.9999, σ to 9.999), the scale the paper's colony resolves, plus 0.05.
-fn table2_linear(batch: &[Hyper], _bar: f64) -> Vec<f64> {
+fn table2_linear(batch: &[Point], _bar: f64) -> Vec<f64> {
     batch
         .iter()
+        .map(Hyper::from_point)
         .map(|h| {
             if h.check().is_err() {
                 return f64::INFINITY;
@@ -43,6 +46,11 @@ fn table2_linear(batch: &[Hyper], _bar: f64) -> Vec<f64> {
                 + (h.sigma - T2.sigma).abs() / 9.999
         })
         .collect()
+}
+
+/// A batch's (C, ε, σ).
+fn hypers(batch: &[Point]) -> Vec<Hyper> {
+    batch.iter().map(Hyper::from_point).collect()
 }
 
 fn never() -> AtomicBool {
@@ -121,9 +129,11 @@ fn aco_paper_paths_with_a_zero_parameter_are_invalid() {
     ]))); // smallest values
           // ε = 0 is a valid MSVR parameter (kernel ridge regression): the zero rule is the
           // encoding's, not the model's.
-    assert!(decode(&[1, 0, 0, 0, 0, 0, 0, 0, 1, 0, 0, 0])
-        .check()
-        .is_ok());
+    assert!(
+        Hyper::from_point(&decode(&[1, 0, 0, 0, 0, 0, 0, 0, 1, 0, 0, 0]))
+            .check()
+            .is_ok()
+    );
 }
 
 #[test]
@@ -151,11 +161,10 @@ fn interrupted_search_keeps_its_best() {
 }
 
 fn table2_space() -> SearchSpace {
-    SearchSpace {
-        c: (0.1, 1e5),
-        epsilon: (1e-4, 1.0),
-        sigma: (0.01, 5.0),
-    }
+    SearchSpace::default()
+        .with("c", (0.1, 1e5))
+        .with("epsilon", (1e-4, 1.0))
+        .with("sigma", (0.01, 5.0))
 }
 
 #[test]
@@ -199,10 +208,12 @@ fn grid_covers_the_box_log_evenly() {
         budget: 125,
         batch: 20,
     };
-    assert_eq!(grid.per_axis(), 5);
+    assert_eq!(grid.per_axis(3), 5);
     let seen = std::sync::Mutex::new(Vec::new());
-    let record = |batch: &[Hyper], _bar: f64| {
-        seen.lock().unwrap().extend_from_slice(batch);
+    let record = |batch: &[Point], _bar: f64| {
+        seen.lock()
+            .unwrap()
+            .extend(batch.iter().map(Hyper::from_point));
         table2_bowl(batch, _bar)
     };
     let r = grid
@@ -220,6 +231,83 @@ fn grid_covers_the_box_log_evenly() {
         "not log-spaced: {cs:?}"
     );
     assert!(r.best_fitness >= 0.01);
+}
+
+/// A bowl over any named axes: the mean distance in decades from `optimum`, plus 0.01.
+fn bowl(optimum: &Point) -> impl Fn(&[Point], f64) -> Vec<f64> + Sync + '_ {
+    move |batch: &[Point], _bar: f64| {
+        batch
+            .iter()
+            .map(|p| {
+                let far: f64 = optimum
+                    .iter()
+                    .map(|(name, best)| (p.get(name).unwrap() / best).log10().abs())
+                    .sum();
+                0.01 + far / optimum.len() as f64
+            })
+            .collect()
+    }
+}
+
+/// The searches take any number of named axes: ACO_R finds a 5-axis optimum, the grid spreads
+/// ⌊B^(1/d)⌋ values over each of d axes, the last axis varying slowest, and both name every
+/// candidate's values by the box's axes.
+#[test]
+fn searches_take_any_named_axes() {
+    let names = ["gain", "lag", "width", "ridge", "tau"];
+    let optimum = names
+        .iter()
+        .zip([3.0, 0.2, 40.0, 1e-3, 7.0])
+        .fold(Point::default(), |p, (n, v)| p.with(n, v));
+    let space = names
+        .iter()
+        .fold(SearchSpace::default(), |s, n| s.with(n, (1e-4, 1e3)));
+    let hits = (0..10)
+        .filter(|&seed| {
+            let r = AcoR {
+                seed,
+                budget: 1000,
+                ..AcoR::default()
+            }
+            .run(&space, &bowl(&optimum), &mut (), &never())
+            .unwrap();
+            let axes: Vec<&str> = r.best.iter().map(|(n, _)| n).collect();
+            assert_eq!(axes, names);
+            // Within a quarter decade of the optimum on average.
+            r.best_fitness < 0.01 + 0.25
+        })
+        .count();
+    assert!(hits >= 8, "5-axis optimum reached in {hits} of 10 runs");
+
+    let two = SearchSpace::default()
+        .with("a", (1.0, 100.0))
+        .with("b", (0.01, 1.0));
+    let grid = Grid {
+        budget: 30,
+        batch: 5,
+    };
+    assert_eq!((grid.per_axis(2), grid.points(2)), (5, 25));
+    let seen = std::sync::Mutex::new(Vec::new());
+    let record = |batch: &[Point], bar: f64| {
+        seen.lock().unwrap().push(batch.to_vec());
+        bowl(&Point::default().with("a", 10.0).with("b", 0.1))(batch, bar)
+    };
+    let r = grid.run(&two, &record, &mut (), &never()).unwrap();
+    let batches = seen.into_inner().unwrap();
+    assert_eq!(batches.len(), 5);
+    for batch in &batches {
+        // Each batch of 5 walks the first axis at one value of the last.
+        let a: Vec<f64> = batch.iter().map(|p| p.get("a").unwrap()).collect();
+        let b = batch[0].get("b").unwrap();
+        assert!(batch.iter().all(|p| p.get("b") == Some(b)), "{batch:?}");
+        assert!(
+            (a[0] - 1.0).abs() < 1e-12 && (a[4] - 100.0).abs() < 1e-9,
+            "{a:?}"
+        );
+    }
+    assert!((r.best.get("a").unwrap() - 10.0).abs() < 1e-9);
+    assert!((r.best.get("b").unwrap() - 0.1).abs() < 1e-12);
+    assert!((r.best_fitness - 0.01).abs() < 1e-12, "{}", r.best_fitness);
 }
 
 fn hand_train() -> Dataset {
@@ -300,7 +388,7 @@ fn racing_never_changes_what_a_search_finds() {
         let a = method
             .run(
                 &space,
-                &|b: &[Hyper], bar| raced.evaluate(b, bar),
+                &|b: &[Point], bar| raced.evaluate(&hypers(b), bar),
                 &mut (),
                 &never(),
             )
@@ -308,7 +396,7 @@ fn racing_never_changes_what_a_search_finds() {
         let b = method
             .run(
                 &space,
-                &|b: &[Hyper], _| full.evaluate(b, f64::INFINITY),
+                &|b: &[Point], _| full.evaluate(&hypers(b), f64::INFINITY),
                 &mut (),
                 &never(),
             )
@@ -413,7 +501,7 @@ fn every_search_setting_rule_is_checked_and_named() {
         (Method::Grid(Grid { batch: 0, ..grid }), "batch"),
     ];
     let never =
-        |_: &[Hyper], _: f64| -> Vec<f64> { panic!("a bad setting must stop before any fit") };
+        |_: &[Point], _: f64| -> Vec<f64> { panic!("a bad setting must stop before any fit") };
     for (method, name) in cases {
         let err = method
             .run(&table2_space(), &never, &mut (), &AtomicBool::new(false))
@@ -424,38 +512,33 @@ fn every_search_setting_rule_is_checked_and_named() {
         );
     }
     let boxes = [
-        (
-            SearchSpace {
-                c: (0.0, 10.0),
-                ..table2_space()
-            },
-            "C",
-        ),
-        (
-            SearchSpace {
-                epsilon: (0.1, 0.01),
-                ..table2_space()
-            },
-            "epsilon",
-        ),
-        (
-            SearchSpace {
-                sigma: (0.1, f64::INFINITY),
-                ..table2_space()
-            },
-            "sigma",
-        ),
+        ("c", (0.0, 10.0)),
+        ("epsilon", (0.1, 0.01)),
+        ("sigma", (0.1, f64::INFINITY)),
     ];
-    for (space, name) in boxes {
+    for (name, range) in boxes {
+        let space = table2_space().with(name, range);
         for method in [Method::AcoR(aco_r), Method::Grid(grid)] {
             let err = method
                 .run(&space, &never, &mut (), &AtomicBool::new(false))
                 .unwrap_err();
             assert!(
-                matches!(err, SearchError::InvalidSetting { name: n, .. } if n == name),
+                matches!(&err, SearchError::InvalidAxis { name: n, .. } if n == name),
                 "{space:?}: {err}"
             );
+            assert!(err.to_string().contains(name), "{err}");
         }
+    }
+    for method in [Method::AcoR(aco_r), Method::Grid(grid)] {
+        let err = method
+            .run(
+                &SearchSpace::default(),
+                &never,
+                &mut (),
+                &AtomicBool::new(false),
+            )
+            .unwrap_err();
+        assert_eq!(err, SearchError::NoAxes);
     }
 }
 

@@ -1,7 +1,8 @@
 //! The paper's ant colony (§2.3.2, eqs. 13-15, Table 1), digit by digit.
 //!
 //! A path crosses 12 layers of 10 digit nodes, d0 … d11, read as C = d0d1d2.d3 (0-999.9),
-//! ε = 0.d4d5d6d7 (0-0.9999) and σ = d8.d9d10d11 (0-9.999) (eq. 15). The pheromone lives on the
+//! ε = 0.d4d5d6d7 (0-0.9999) and σ = d8.d9d10d11 (0-9.999) (eq. 15); its candidates name them
+//! `c`, `epsilon` and `sigma`, as MSVR's search box does. The pheromone lives on the
 //! edges: from the nest to each node of layer 0, and from each node of layer l to each node of
 //! layer l + 1. An ant at node i moves to node j with probability τᵢⱼ / Σₛ τᵢₛ (eq. 13 with
 //! η = 1). After all m ants have walked and been scored, every edge evaporates,
@@ -18,9 +19,12 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use super::{invalid, Hyper, Objective, Observer, SearchError, SearchResult, SearchStop, Tracker};
+use super::{invalid, Objective, Observer, Point, SearchError, SearchResult, SearchStop, Tracker};
 
-const LAYERS: usize = 12;
+/// The paper's encoding (Table 1, eq. 15): each parameter's name, its digits on the path, and
+/// the power of ten of its first digit.
+pub const ENCODING: [(&str, usize, i32); 3] = [("c", 4, 2), ("epsilon", 4, -1), ("sigma", 4, 0)];
+const LAYERS: usize = ENCODING[0].1 + ENCODING[1].1 + ENCODING[2].1;
 const DIGITS: usize = 10;
 
 /// The colony's settings.
@@ -48,33 +52,26 @@ impl Default for AcoPaper {
     }
 }
 
-/// The paper's Table 2: the (C, ε, σ) its colony selected for the micro-hand (path
-/// 326701690259), the parameters `handcap model --search none` uses by default.
-pub const PAPER_TABLE2: Hyper = Hyper {
-    c: 326.7,
-    epsilon: 0.0169,
-    sigma: 0.259,
-};
-
 /// The 12 digits of a path.
 pub type Path = [u8; LAYERS];
 
-/// Reads a path as (C, ε, σ) by eq. 15.
-pub fn decode(path: &Path) -> Hyper {
-    let number = |digits: &[u8], first_power: i32| {
-        digits
+/// Reads a path as (C, ε, σ) by eq. 15 ([`ENCODING`]).
+pub fn decode(path: &Path) -> Point {
+    let mut point = Point::default();
+    let mut at = 0;
+    for (name, digits, first_power) in ENCODING {
+        let value: f64 = path[at..at + digits]
             .iter()
             .enumerate()
             .map(|(i, &d)| f64::from(d) * 10f64.powi(first_power - i as i32))
-            .sum::<f64>()
-    };
-    // Rounded to the digits' precision so a path always gives the same bits.
-    let round = |v: f64, decimals: i32| (v * 10f64.powi(decimals)).round() / 10f64.powi(decimals);
-    Hyper {
-        c: round(number(&path[0..4], 2), 1),
-        epsilon: round(number(&path[4..8], -1), 4),
-        sigma: round(number(&path[8..12], 0), 3),
+            .sum();
+        // Rounded to the digits' precision so a path always gives the same bits.
+        let decimals = digits as i32 - 1 - first_power;
+        let scale = 10f64.powi(decimals);
+        point = point.with(name, (value * scale).round() / scale);
+        at += digits;
     }
+    point
 }
 
 impl AcoPaper {
@@ -125,7 +122,7 @@ impl AcoPaper {
                     path
                 })
                 .collect();
-            let candidates: Vec<Hyper> = paths.iter().map(decode).collect();
+            let candidates: Vec<Point> = paths.iter().map(decode).collect();
             let scores = score_valid_paths(objective, &candidates);
             tracker.record(&candidates, &scores);
 
@@ -154,22 +151,22 @@ impl AcoPaper {
 }
 
 /// The paper's rule for its digit encoding: a path with a zero-valued parameter is invalid.
-pub fn is_valid_path(h: &Hyper) -> bool {
-    h.c > 0.0 && h.epsilon > 0.0 && h.sigma > 0.0
+pub fn is_valid_path(p: &Point) -> bool {
+    p.iter().all(|(_, v)| v > 0.0)
 }
 
 /// Scores the valid paths' candidates; an invalid path scores +∞ and is never evaluated.
-fn score_valid_paths(objective: &Objective, candidates: &[Hyper]) -> Vec<f64> {
-    let valid: Vec<Hyper> = candidates
+fn score_valid_paths(objective: &Objective, candidates: &[Point]) -> Vec<f64> {
+    let valid: Vec<Point> = candidates
         .iter()
-        .filter(|h| is_valid_path(h))
-        .copied()
+        .filter(|p| is_valid_path(p))
+        .cloned()
         .collect();
     let mut scores = objective(&valid, f64::INFINITY).into_iter();
     candidates
         .iter()
-        .map(|h| {
-            if is_valid_path(h) {
+        .map(|p| {
+            if is_valid_path(p) {
                 scores.next().unwrap_or(f64::INFINITY)
             } else {
                 f64::INFINITY
@@ -198,10 +195,17 @@ mod tests {
     #[test]
     fn decodes_the_papers_example() {
         // Figure 4: 631288322151 → C = 631.2, ε = 0.8832, σ = 2.151.
-        let h = decode(&[6, 3, 1, 2, 8, 8, 3, 2, 2, 1, 5, 1]);
-        assert_eq!((h.c, h.epsilon, h.sigma), (631.2, 0.8832, 2.151));
+        let p = decode(&[6, 3, 1, 2, 8, 8, 3, 2, 2, 1, 5, 1]);
+        let values: Vec<(&str, f64)> = p.iter().collect();
+        assert_eq!(
+            values,
+            [("c", 631.2), ("epsilon", 0.8832), ("sigma", 2.151)]
+        );
         let table2 = decode(&[3, 2, 6, 7, 0, 1, 6, 9, 0, 2, 5, 9]);
-        assert_eq!(table2, PAPER_TABLE2);
+        assert_eq!(
+            crate::model::msvr::Hyper::from_point(&table2),
+            crate::model::msvr::PAPER_TABLE2
+        );
         assert!(!is_valid_path(&decode(&[
             0, 0, 0, 0, 1, 1, 1, 1, 1, 1, 1, 1
         ])));

@@ -1,13 +1,13 @@
-//! Continuous ant colony optimisation, ACO_R (Socha & Dorigo, EJOR 185 (2008) 1155), on
-//! (ln C, ln ε, ln σ) inside the data-derived [`SearchSpace`].
+//! Continuous ant colony optimisation, ACO_R (Socha & Dorigo, EJOR 185 (2008) 1155), on the
+//! logarithms of a [`SearchSpace`]'s axes.
 //!
 //! An archive keeps the k best solutions found, ranked by fitness; rank l (0-based) has weight
 //! ∝ exp(−l² / (2 q² k²)). Each ant picks an archive member s_l by weight and samples every
 //! coordinate from N(s_l, ξ · mean over the archive of |s_e − s_l|), reflected into the box.
 //! The m ants of an iteration are scored together; the archive keeps the k best of old and new,
 //! so an ant that cannot beat the archive's worst is raced out (see [`super::Objective`]).
-//! Searching in logarithms gives each decade of C, ε and σ the same resolution, where the
-//! paper's digits spend it on the largest values.
+//! Searching in logarithms gives each decade of a parameter (MSVR's C, ε and σ) the same
+//! resolution, where the paper's digits spend it on the largest values.
 
 use std::sync::atomic::AtomicBool;
 
@@ -18,7 +18,7 @@ use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 
 use super::{
-    invalid, Hyper, Objective, Observer, SearchError, SearchResult, SearchSpace, SearchStop,
+    invalid, Objective, Observer, Point, SearchError, SearchResult, SearchSpace, SearchStop,
     Tracker,
 };
 
@@ -93,12 +93,17 @@ impl AcoR {
         let mut rng = ChaCha8Rng::seed_from_u64(self.seed);
         let mut tracker = Tracker::new(observer, interrupt);
 
-        let first: Vec<[f64; 3]> = (0..self.archive)
-            .map(|_| bounds.map(|(lo, hi)| rng.random_range(lo..=hi)))
+        let first: Vec<Vec<f64>> = (0..self.archive)
+            .map(|_| {
+                bounds
+                    .iter()
+                    .map(|&(lo, hi)| rng.random_range(lo..=hi))
+                    .collect()
+            })
             .collect();
-        let mut archive = self.score(&first, f64::INFINITY, objective, &mut tracker);
+        let mut archive = self.score(space, first, f64::INFINITY, objective, &mut tracker);
         archive.sort_by(|a, b| a.1.total_cmp(&b.1));
-        let mut spent = first.len();
+        let mut spent = self.archive;
         let weights: Vec<f64> = (0..self.archive)
             .map(|l| {
                 let qk = self.q * self.archive as f64;
@@ -111,7 +116,7 @@ impl AcoR {
                 return tracker.finish(SearchStop::Interrupted);
             }
             let m = self.ants.min(self.budget - spent);
-            let ants: Vec<[f64; 3]> = (0..m)
+            let ants: Vec<Vec<f64>> = (0..m)
                 .map(|_| {
                     let mut x = rng.random::<f64>() * total;
                     let l = weights
@@ -121,22 +126,24 @@ impl AcoR {
                             x < 0.0
                         })
                         .unwrap_or(self.archive - 1);
-                    let centre = archive[l].0;
-                    std::array::from_fn(|d| {
-                        let spread = self.xi
-                            * archive
-                                .iter()
-                                .map(|(s, _)| (s[d] - centre[d]).abs())
-                                .sum::<f64>()
-                            / (self.archive - 1) as f64;
-                        let z: f64 = StandardNormal.sample(&mut rng);
-                        reflect(centre[d] + spread * z, bounds[d])
-                    })
+                    let centre = &archive[l].0;
+                    (0..bounds.len())
+                        .map(|d| {
+                            let spread = self.xi
+                                * archive
+                                    .iter()
+                                    .map(|(s, _)| (s[d] - centre[d]).abs())
+                                    .sum::<f64>()
+                                / (self.archive - 1) as f64;
+                            let z: f64 = StandardNormal.sample(&mut rng);
+                            reflect(centre[d] + spread * z, bounds[d])
+                        })
+                        .collect()
                 })
                 .collect();
             spent += m;
             let bar = archive[self.archive - 1].1;
-            archive.extend(self.score(&ants, bar, objective, &mut tracker));
+            archive.extend(self.score(space, ants, bar, objective, &mut tracker));
             archive.sort_by(|a, b| a.1.total_cmp(&b.1));
             archive.truncate(self.archive);
         }
@@ -147,15 +154,16 @@ impl AcoR {
     /// fitness) pairs.
     fn score(
         &self,
-        points: &[[f64; 3]],
+        space: &SearchSpace,
+        points: Vec<Vec<f64>>,
         bar: f64,
         objective: &Objective,
         tracker: &mut Tracker,
-    ) -> Vec<([f64; 3], f64)> {
-        let candidates: Vec<Hyper> = points.iter().map(|&x| SearchSpace::from_log(x)).collect();
+    ) -> Vec<(Vec<f64>, f64)> {
+        let candidates: Vec<Point> = points.iter().map(|x| space.point_at_log(x)).collect();
         let scores = objective(&candidates, bar);
         tracker.record(&candidates, &scores);
-        points.iter().copied().zip(scores).collect()
+        points.into_iter().zip(scores).collect()
     }
 }
 

@@ -1,13 +1,14 @@
-//! Optimisers over (C, ε, σ): which candidate scores best on an objective.
+//! Optimisers over named parameters: which candidate scores best on an objective.
 //!
 //! A search sees only an objective — a function scoring a batch of candidates, lower is better —
-//! and a box, and reports each iteration to an [`Observer`] (progress bars and history writers
+//! and a box of named axes ([`SearchSpace`]), and reports each iteration to an [`Observer`] (progress bars and history writers
 //! live there). It knows nothing of MSVR or data: the bridge that scores candidates by fitting
 //! MSVR is [`crate::model::msvr::tune`]. Every search takes a seed; the same seed gives the same
 //! result.
 //!
-//! - [`aco_paper`]: the paper's digit-encoded ant colony (§2.3.2, Table 1).
-//! - [`aco_r`]: continuous ACO_R (Socha & Dorigo 2008) on (log C, log ε, log σ).
+//! - [`aco_paper`]: the paper's digit-encoded ant colony (§2.3.2, Table 1), on its own box of
+//!   MSVR's C, ε and σ.
+//! - [`aco_r`]: continuous ACO_R (Socha & Dorigo 2008) on the logarithms of the box's axes.
 //! - [`grid`]: a log-spaced grid, the baseline the paper says ACO beats.
 
 pub mod aco_paper;
@@ -18,56 +19,141 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use serde::{Deserialize, Serialize};
 
-/// One candidate: penalty C, tube radius ε (output units), RBF width σ (scaled input units).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Hyper {
-    pub c: f64,
-    pub epsilon: f64,
-    pub sigma: f64,
+/// Values by name, in order: a candidate ([`Point`]) or a box ([`SearchSpace`]). Serialized as
+/// a JSON object, the names its keys in this order.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Named<V>(Vec<(String, V)>);
+
+impl<V: Copy> Named<V> {
+    /// These values with `name` set to `value`: replaced where the name is, else added last.
+    #[must_use]
+    pub fn with(mut self, name: &str, value: V) -> Self {
+        match self.0.iter_mut().find(|(n, _)| n == name) {
+            Some((_, v)) => *v = value,
+            None => self.0.push((name.to_string(), value)),
+        }
+        self
+    }
+
+    /// The value of `name`, if it has one.
+    pub fn get(&self, name: &str) -> Option<V> {
+        self.0.iter().find(|(n, _)| n == name).map(|&(_, v)| v)
+    }
+
+    /// (name, value) in order.
+    pub fn iter(&self) -> impl Iterator<Item = (&str, V)> {
+        self.0.iter().map(|(n, v)| (n.as_str(), *v))
+    }
+
+    pub fn len(&self) -> usize {
+        self.0.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
 }
 
-/// A parameter outside its range: which one, its value and the rule.
-#[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
-#[error("{name} = {value}: {requirement}")]
-pub struct InvalidParam {
-    pub name: &'static str,
-    pub value: f64,
-    pub requirement: &'static str,
+impl<V: Serialize> Serialize for Named<V> {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeMap;
+        let mut map = serializer.serialize_map(Some(self.0.len()))?;
+        for (name, value) in &self.0 {
+            map.serialize_entry(name, value)?;
+        }
+        map.end()
+    }
 }
 
-impl Hyper {
-    /// The one rule for (C, ε, σ): C finite and > 0, ε finite and ≥ 0 (ε = 0 is kernel ridge
-    /// regression), σ > 0 with 1/(2σ²) a finite number > 0.
-    ///
-    /// # Errors
-    /// [`InvalidParam`] naming the first value that breaks it.
-    pub fn check(&self) -> Result<(), InvalidParam> {
-        let bad = |name, value, requirement| {
-            Err(InvalidParam {
-                name,
-                value,
-                requirement,
-            })
-        };
-        if !(self.c > 0.0 && self.c.is_finite()) {
-            return bad("C", self.c, "must be finite and > 0");
+impl<'de, V: Deserialize<'de>> Deserialize<'de> for Named<V> {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        struct Entries<V>(std::marker::PhantomData<V>);
+        impl<'de, V: Deserialize<'de>> serde::de::Visitor<'de> for Entries<V> {
+            type Value = Named<V>;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("an object of named values")
+            }
+            fn visit_map<A: serde::de::MapAccess<'de>>(
+                self,
+                mut map: A,
+            ) -> Result<Named<V>, A::Error> {
+                let mut entries: Vec<(String, V)> = Vec::new();
+                while let Some((name, value)) = map.next_entry::<String, V>()? {
+                    if entries.iter().any(|(n, _)| *n == name) {
+                        return Err(serde::de::Error::custom(format!("{name} given twice")));
+                    }
+                    entries.push((name, value));
+                }
+                Ok(Named(entries))
+            }
         }
-        if !(self.epsilon >= 0.0 && self.epsilon.is_finite()) {
-            return bad("epsilon", self.epsilon, "must be finite and ≥ 0");
-        }
-        if !(self.sigma >= 1e-150 && self.sigma <= 1e150) {
-            return bad(
-                "sigma",
-                self.sigma,
-                "must lie in [1e-150, 1e150] (the kernel's 1/(2σ²) must be a finite number > 0)",
-            );
+        deserializer.deserialize_map(Entries(std::marker::PhantomData))
+    }
+}
+
+/// A candidate: a value per axis of the box it was drawn from, by name.
+pub type Point = Named<f64>;
+
+impl std::fmt::Display for Point {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        for (i, (name, value)) in self.iter().enumerate() {
+            write!(f, "{}{name} {value:.4}", if i > 0 { ", " } else { "" })?;
         }
         Ok(())
     }
 }
 
+/// The box [`aco_r`] and [`grid`] search: named axes, each a range (lo, hi) searched in
+/// logarithms. The axes' order is the order of the searches' random draws, and the grid's
+/// nesting, the last axis varying slowest: an objective whose work is shared between candidates
+/// that agree on one axis (MSVR's kernel, one per σ) puts that axis last. A range with lo = hi
+/// holds its axis at that value. The MSVR bridge derives its box from the data
+/// ([`crate::model::msvr::tune::space_for`]).
+pub type SearchSpace = Named<(f64, f64)>;
+
+impl SearchSpace {
+    /// At least one axis, each a range 0 < lo ≤ hi of finite numbers (the searches work in
+    /// logarithms).
+    ///
+    /// # Errors
+    /// [`SearchError::InvalidAxis`] naming the axis; [`SearchError::NoAxes`].
+    pub fn check(&self) -> Result<(), SearchError> {
+        if self.is_empty() {
+            return Err(SearchError::NoAxes);
+        }
+        for (name, (lo, hi)) in self.iter() {
+            if !(lo > 0.0 && lo <= hi && hi.is_finite()) {
+                return Err(SearchError::InvalidAxis {
+                    name: name.to_string(),
+                    lo,
+                    hi,
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// (ln lo, ln hi) per axis, in order.
+    fn log_bounds(&self) -> Vec<(f64, f64)> {
+        self.iter()
+            .map(|(_, (lo, hi))| (lo.ln(), hi.ln()))
+            .collect()
+    }
+
+    /// The point at logarithms `x` (one per axis, in order).
+    fn point_at_log(&self, x: &[f64]) -> Point {
+        Named(
+            self.0
+                .iter()
+                .zip(x)
+                .map(|((name, _), v)| (name.clone(), v.exp()))
+                .collect(),
+        )
+    }
+}
+
 /// What one iteration of a search did.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct IterationRecord {
     /// 1-based.
     pub iteration: usize,
@@ -77,7 +163,7 @@ pub struct IterationRecord {
     pub max: f64,
     /// Valid candidates this iteration.
     pub valid: usize,
-    pub best: Hyper,
+    pub best: Point,
     pub best_fitness: f64,
 }
 
@@ -110,7 +196,7 @@ pub enum SearchStop {
 /// The outcome of a search.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct SearchResult {
-    pub best: Hyper,
+    pub best: Point,
     pub best_fitness: f64,
     pub stop: SearchStop,
     pub history: Vec<IterationRecord>,
@@ -127,6 +213,10 @@ pub enum SearchError {
         value: f64,
         requirement: &'static str,
     },
+    #[error("the search range of {name} is [{lo}, {hi}]: it must be 0 < low ≤ high, finite")]
+    InvalidAxis { name: String, lo: f64, hi: f64 },
+    #[error("the search box has no axis: nothing to search")]
+    NoAxes,
 }
 
 /// The error for a setting outside its range.
@@ -143,11 +233,11 @@ fn invalid<T>(name: &'static str, value: f64, requirement: &'static str) -> Resu
 /// fitness reaches it cannot change the search (it would not enter ACO_R's archive, nor beat
 /// the grid's best), so the objective may stop scoring it early and return any value ≥ the bar
 /// (racing). +∞ asks for every fitness in full.
-pub type Objective<'a> = dyn Fn(&[Hyper], f64) -> Vec<f64> + Sync + 'a;
+pub type Objective<'a> = dyn Fn(&[Point], f64) -> Vec<f64> + Sync + 'a;
 
 /// Keeps the best candidate and the history, and builds each iteration's record.
 struct Tracker<'a> {
-    best: Option<(Hyper, f64)>,
+    best: Option<(Point, f64)>,
     history: Vec<IterationRecord>,
     observer: &'a mut dyn Observer,
     interrupt: &'a AtomicBool,
@@ -169,18 +259,21 @@ impl<'a> Tracker<'a> {
 
     /// The best fitness so far (+∞ before any).
     fn best_fitness(&self) -> f64 {
-        self.best.map_or(f64::INFINITY, |(_, f)| f)
+        self.best.as_ref().map_or(f64::INFINITY, |(_, f)| *f)
     }
 
     /// Records one iteration's candidates and scores (+∞ marks an invalid candidate).
-    fn record(&mut self, candidates: &[Hyper], scores: &[f64]) {
+    fn record(&mut self, candidates: &[Point], scores: &[f64]) {
         let valid: Vec<f64> = scores.iter().copied().filter(|s| s.is_finite()).collect();
-        for (h, &s) in candidates.iter().zip(scores) {
-            if s.is_finite() && self.best.is_none_or(|(_, b)| s < b) {
-                self.best = Some((*h, s));
+        for (p, &s) in candidates.iter().zip(scores) {
+            if s.is_finite() && self.best.as_ref().is_none_or(|(_, b)| s < *b) {
+                self.best = Some((p.clone(), s));
             }
         }
-        let (best, best_fitness) = self.best.unwrap_or((candidates[0], f64::INFINITY));
+        let (best, best_fitness) = self
+            .best
+            .clone()
+            .unwrap_or_else(|| (candidates[0].clone(), f64::INFINITY));
         let (min, max) = valid
             .iter()
             .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &s| {
@@ -210,47 +303,6 @@ impl<'a> Tracker<'a> {
     }
 }
 
-/// The box searched by [`aco_r`] and [`grid`], searched in (ln C, ln ε, ln σ); the MSVR bridge
-/// derives it from the data ([`crate::model::msvr::tune::space_for`]).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct SearchSpace {
-    pub c: (f64, f64),
-    pub epsilon: (f64, f64),
-    pub sigma: (f64, f64),
-}
-
-impl SearchSpace {
-    /// Each axis a range 0 < lo ≤ hi of finite numbers (the searches work in logarithms).
-    ///
-    /// # Errors
-    /// [`SearchError::InvalidSetting`] naming the axis.
-    pub fn check(&self) -> Result<(), SearchError> {
-        for (name, (lo, hi)) in [
-            ("C", self.c),
-            ("epsilon", self.epsilon),
-            ("sigma", self.sigma),
-        ] {
-            if !(lo > 0.0 && lo <= hi && hi.is_finite()) {
-                return invalid(name, lo, "its search range must be 0 < low ≤ high, finite");
-            }
-        }
-        Ok(())
-    }
-
-    /// (ln lo, ln hi) per axis, in the order C, ε, σ.
-    fn log_bounds(&self) -> [(f64, f64); 3] {
-        [self.c, self.epsilon, self.sigma].map(|(lo, hi)| (lo.ln(), hi.ln()))
-    }
-
-    fn from_log(x: [f64; 3]) -> Hyper {
-        Hyper {
-            c: x[0].exp(),
-            epsilon: x[1].exp(),
-            sigma: x[2].exp(),
-        }
-    }
-}
-
 /// A search method with its settings.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "method", rename_all = "kebab-case")]
@@ -273,7 +325,7 @@ impl std::fmt::Display for Method {
                 "ACO_R (archive {}, {} ants, q {}, ξ {}, budget {}, seed {})",
                 m.archive, m.ants, m.q, m.xi, m.budget, m.seed
             ),
-            Method::Grid(m) => write!(f, "a log-spaced grid ({} values per axis)", m.per_axis()),
+            Method::Grid(m) => write!(f, "a log-spaced grid of at most {} candidates", m.budget),
         }
     }
 }
@@ -295,8 +347,8 @@ impl Method {
 pub trait Search {
     /// The `--search` name.
     fn name(&self) -> &'static str;
-    /// Iterations it runs at most (for a progress bar).
-    fn iteration_cap(&self) -> usize;
+    /// Iterations it runs at most in a box of `axes` axes (for a progress bar).
+    fn iteration_cap(&self, axes: usize) -> usize;
     /// Whether it searches `space` (the paper's colony has its own digit box and ignores it).
     fn uses_space(&self) -> bool;
     /// Runs the search.
@@ -322,11 +374,11 @@ impl Search for Method {
         }
     }
 
-    fn iteration_cap(&self) -> usize {
+    fn iteration_cap(&self, axes: usize) -> usize {
         match self {
             Method::AcoPaper(m) => m.max_iter,
             Method::AcoR(m) => (m.budget.saturating_sub(m.archive)).div_ceil(m.ants.max(1)) + 1,
-            Method::Grid(m) => (m.per_axis().pow(3)).div_ceil(m.batch.max(1)),
+            Method::Grid(m) => m.points(axes).div_ceil(m.batch.max(1)),
         }
     }
 
@@ -348,5 +400,27 @@ impl Search for Method {
         };
         observer.ended();
         result
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn named_values_are_a_json_object_in_their_order() {
+        let p = Point::default()
+            .with("sigma", 0.5)
+            .with("c", 10.0)
+            .with("sigma", 0.25);
+        let json = serde_json::to_string(&p).unwrap();
+        assert_eq!(json, r#"{"sigma":0.25,"c":10.0}"#);
+        let back: Point = serde_json::from_str(&json).unwrap();
+        assert_eq!(back, p);
+        let space: SearchSpace =
+            serde_json::from_str(r#"{"c":[0.1,10.0],"epsilon":[1e-4,0.5]}"#).unwrap();
+        assert_eq!(space.get("epsilon"), Some((1e-4, 0.5)));
+        let twice = serde_json::from_str::<Point>(r#"{"c":1.0,"c":2.0}"#).unwrap_err();
+        assert!(twice.to_string().contains("c given twice"), "{twice}");
     }
 }

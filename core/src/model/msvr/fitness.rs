@@ -41,9 +41,8 @@ use super::basis::{self, NystromMap};
 use super::irwls::NotPositiveDefinite;
 use super::kernel::{self, rbf_from_squared};
 use super::reduced::{self, FeatureRows, ReducedProblem};
-use super::{Basis, MinMaxScaler, MsvrError, MsvrParams, ValidMsvrParams};
+use super::{Basis, Hyper, MinMaxScaler, MsvrError, MsvrParams, ValidMsvrParams};
 use crate::data::{Columns, Dataset};
-use crate::search::Hyper;
 
 /// How candidates are scored.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]

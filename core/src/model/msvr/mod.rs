@@ -26,6 +26,7 @@
 pub mod basis;
 pub mod fitness;
 pub mod folds;
+pub mod hyper;
 pub mod irwls;
 pub mod kernel;
 pub mod reduced;
@@ -37,8 +38,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::data::{Columns, DataError, Dataset};
 use crate::model::{Differentiable, Predict};
-use crate::search::aco_paper::PAPER_TABLE2;
-use crate::search::{Hyper, InvalidParam};
+pub use hyper::{Hyper, InvalidParam, PAPER_TABLE2};
 use irwls::{NotPositiveDefinite, Problem, SolverOptions, StopReason};
 pub use tube::{Loss, ROBUST_ZONE};
 

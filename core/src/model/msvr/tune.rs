@@ -1,5 +1,6 @@
-//! Tuning MSVR: a [`Search`] from [`crate::search`] scores (C, ε, σ) candidates by fitting
-//! MSVR ([`super::fitness`]); this module joins the two and records what was done.
+//! Tuning MSVR: a [`Search`] from [`crate::search`] scores candidates named by the axes `c`,
+//! `epsilon` and `sigma` ([`Hyper::AXES`]) by fitting MSVR ([`super::fitness`]); this module
+//! joins the two and records what was done.
 //!
 //! The box searched by ACO_R and the grid comes from the data ([`space_for`]):
 //! - σ from half the median nearest-neighbour distance of the scaled inputs (a narrower kernel
@@ -16,11 +17,11 @@ use serde::{Deserialize, Serialize};
 
 use super::fitness::{Counters, Fitness, FitnessError, FitnessKind};
 use super::folds::{FoldChoice, FoldPlan};
-use super::{kernel, Basis, MinMaxScaler, MsvrParams};
+use super::{kernel, Basis, Hyper, MinMaxScaler, MsvrParams};
 use crate::data::{Columns, Dataset};
 use crate::model::interval::Intervals;
 use crate::search::{
-    Hyper, Method, Observer, Search, SearchError, SearchResult, SearchSpace, SearchStop,
+    Method, Observer, Point, Search, SearchError, SearchResult, SearchSpace, SearchStop,
 };
 
 /// Errors of a tuning run.
@@ -101,11 +102,17 @@ pub fn space_for(data: &Dataset) -> SearchSpace {
         .sqrt()
         .max(f64::MIN_POSITIVE);
     let d = scaled.width() as f64;
-    SearchSpace {
-        c: (0.1, 1e7),
-        epsilon: (1e-4 * spread, 0.5 * spread),
-        sigma: (0.5 * median_nn, 2.0 * d.sqrt()),
-    }
+    let ranges = [
+        (0.1, 1e7),
+        (1e-4 * spread, 0.5 * spread),
+        (0.5 * median_nn, 2.0 * d.sqrt()),
+    ];
+    Hyper::AXES
+        .iter()
+        .zip(ranges)
+        .fold(SearchSpace::default(), |space, (name, range)| {
+            space.with(name, range)
+        })
 }
 
 /// The candidate budget of ACO_R and the grid when none is given, from the rows scored: one
@@ -141,6 +148,14 @@ pub struct Pinned {
 }
 
 impl Pinned {
+    /// (name, value) of each pinned parameter.
+    fn values(&self) -> impl Iterator<Item = (&'static str, f64)> {
+        Hyper::AXES
+            .into_iter()
+            .zip([self.c, self.epsilon, self.sigma])
+            .filter_map(|(name, v)| Some((name, v?)))
+    }
+
     /// `h` with the pinned values exactly (the search's logarithms round them).
     fn hold(&self, h: Hyper) -> Hyper {
         Hyper {
@@ -150,13 +165,10 @@ impl Pinned {
         }
     }
 
+    /// The box with each pinned axis shrunk to its value.
     fn apply(&self, space: SearchSpace) -> SearchSpace {
-        let pin = |v: Option<f64>, range| v.map_or(range, |v| (v, v));
-        SearchSpace {
-            c: pin(self.c, space.c),
-            epsilon: pin(self.epsilon, space.epsilon),
-            sigma: pin(self.sigma, space.sigma),
-        }
+        self.values()
+            .fold(space, |space, (name, v)| space.with(name, (v, v)))
     }
 }
 
@@ -180,17 +192,17 @@ pub fn run(
     super::check_memory(data.rows(), solver.basis)?;
     let labels = folds.labels.as_deref();
     let scorer = Fitness::new(data, fitness, seed, labels, &solver_for(method, solver))?;
-    let objective = |batch: &[Hyper], bar: f64| scorer.evaluate(batch, bar);
+    let objective = |batch: &[Point], bar: f64| {
+        let batch: Vec<Hyper> = batch.iter().map(Hyper::from_point).collect();
+        scorer.evaluate(&batch, bar)
+    };
     let space = method.uses_space().then(|| pinned.apply(space_for(data)));
-    // The paper's colony ignores the box; any box will do for it.
-    let searched = space.unwrap_or(SearchSpace {
-        c: (1.0, 1.0),
-        epsilon: (1.0, 1.0),
-        sigma: (1.0, 1.0),
-    });
-    let mut result = method.run(&searched, &objective, observer, interrupt)?;
+    // The paper's colony has its own digit box and ignores this one.
+    let searched = space.clone().unwrap_or_default();
+    let result = method.run(&searched, &objective, observer, interrupt)?;
+    let mut best = Hyper::from_point(&result.best);
     if space.is_some() {
-        result.best = pinned.hold(result.best);
+        best = pinned.hold(best);
     }
     let counters = scorer.counters();
     let summary = SearchSummary {
@@ -199,7 +211,7 @@ pub fn run(
         folds: matches!(fitness, FitnessKind::Cv { .. }).then(|| folds.choice.clone()),
         fold_seed: seed,
         space,
-        best: result.best,
+        best,
         best_fitness: result.best_fitness,
         iterations: result.history.len(),
         stop: result.stop,
