@@ -239,7 +239,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if outcome
         .search
         .as_ref()
-        .is_some_and(|(s, _, _)| s.stop == SearchStop::Interrupted)
+        .is_some_and(|s| s.summary.stop == SearchStop::Interrupted)
     {
         return Err(super::Interrupted(format!(
             "interrupted: {} holds the model with the best parameters found before Ctrl-C",
@@ -252,7 +252,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
 
 pub fn print_summary(outcome: &FitOutcome) {
     let r = &outcome.report;
-    if let Some((s, counters, seconds)) = &outcome.search {
+    if let Some(searched) = &outcome.search {
+        let (s, counters) = (&searched.summary, &searched.counters);
         println!(
             "search {}: {} iterations ({:?}), best {} {:.5}",
             s.method.name(),
@@ -268,7 +269,7 @@ pub fn print_summary(outcome: &FitOutcome) {
             counters.fits,
             counters.memo_hits,
             counters.kernel_hits,
-            seconds
+            searched.seconds
         );
         if s.stop == SearchStop::Interrupted {
             println!("  interrupted: the model uses the best parameters found so far");

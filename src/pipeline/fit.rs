@@ -9,9 +9,9 @@ use crate::data::{self, HAND_INPUTS, HAND_OUTPUTS};
 use crate::model::file::ModelFile;
 use crate::model::history::{self, History, HistoryChoice, HistoryTrial, Memory, Series};
 use crate::model::interval::{Intervals, Radius};
-use crate::model::msvr::fitness::{Counters, FitnessKind};
+use crate::model::msvr::fitness::FitnessKind;
 use crate::model::msvr::folds::{self, FoldPlan, FoldScheme, FoldsBy};
-use crate::model::msvr::tune::{self, BasisChoice, BasisDecision, Chosen, Pinned, SearchSummary};
+use crate::model::msvr::tune::{self, BasisChoice, BasisDecision, Chosen, Pinned};
 use crate::model::msvr::{self, Basis, Hyper, MsvrParams, MIN_FIT_ROWS};
 use crate::model::previous::{self, PreviousModel};
 use crate::model::{self, ModelSpec};
@@ -74,8 +74,8 @@ impl FitJob {
 /// What a run produced.
 pub struct FitOutcome {
     pub report: ModelReport,
-    /// The search, its work counters and its time (s), when there was one.
-    pub search: Option<(SearchSummary, Counters, f64)>,
+    /// The search, when there was one.
+    pub search: Option<tune::Searched>,
 }
 
 /// Folds of `--basis auto`'s cross-validation when no search gives them.
@@ -296,10 +296,6 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
         basis,
         ..
     } = chosen;
-    let (search, iterations) = match search {
-        Some(s) => (Some((s.summary, s.counters, s.seconds)), Some(s.history)),
-        None => (None, None),
-    };
     if !basis.tried.is_empty() {
         session.emit(Event::Note(format!(
             "basis: {} ({})",
@@ -415,7 +411,7 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
         fit: fitted.diagnostics().clone(),
         basis: basis.clone(),
         history: decision.clone(),
-        search: search.as_ref().map(|(s, _, _)| s.clone()),
+        search: search.as_ref().map(|s| s.summary.clone()),
         train_errors,
         previous: previous.as_ref().map(|(d, c, cal)| PreviousSummary {
             default: d.params.clone(),
@@ -436,7 +432,8 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
             models: &models,
             tests: &test_data,
         };
-        report::write_model_report(dir, &report, iterations.as_deref(), &comparison)
+        let history = search.as_ref().map(|s| s.history.as_slice());
+        report::write_model_report(dir, &report, history, &comparison)
     });
     ModelFile::new(
         fitted,
