@@ -308,6 +308,22 @@ fn searches_take_any_named_axes() {
     assert!((r.best.get("a").unwrap() - 10.0).abs() < 1e-9);
     assert!((r.best.get("b").unwrap() - 0.1).abs() < 1e-12);
     assert!((r.best_fitness - 0.01).abs() < 1e-12, "{}", r.best_fitness);
+
+    // An axis held at one value (lo = hi) takes that value alone: the budget goes to the others.
+    let held = two.with("c", (3.0, 3.0));
+    let seen = std::sync::Mutex::new(Vec::new());
+    let record = |batch: &[Point], _bar: f64| {
+        seen.lock().unwrap().extend_from_slice(batch);
+        vec![1.0; batch.len()]
+    };
+    grid.run(&held, &record, &mut (), &never()).unwrap();
+    let seen = seen.into_inner().unwrap();
+    assert_eq!(seen.len(), 25);
+    assert!(seen.iter().all(|p| p.get("c") == Some(3.0)));
+    let mut distinct: Vec<String> = seen.iter().map(|p| format!("{p}")).collect();
+    distinct.sort();
+    distinct.dedup();
+    assert_eq!(distinct.len(), 25);
 }
 
 fn hand_train() -> Dataset {

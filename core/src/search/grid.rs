@@ -1,7 +1,8 @@
 //! Grid search on log-spaced values of each axis of a [`SearchSpace`]: the baseline the paper
-//! says ACO beats. With a budget B and d axes, each axis gets ⌊B^(1/d)⌋ values (at least 2);
-//! the points are visited with the last axis varying slowest, and scored in batches of
-//! `batch`, each batch one history iteration.
+//! says ACO beats. With a budget B and d axes free to vary, each gets ⌊B^(1/d)⌋ values (at
+//! least 2), an axis held at one value (lo = hi) that value alone; the points are visited with
+//! the last axis varying slowest, and scored in batches of `batch`, each batch one history
+//! iteration.
 
 use std::sync::atomic::AtomicBool;
 
@@ -31,14 +32,14 @@ impl Default for Grid {
 }
 
 impl Grid {
-    /// The values per axis for the budget in a box of `axes` axes.
+    /// The values per axis for the budget in a box of `axes` axes free to vary.
     pub fn per_axis(&self, axes: usize) -> usize {
         ((self.budget as f64).powf(1.0 / axes.max(1) as f64) + 1e-9)
             .floor()
             .max(2.0) as usize
     }
 
-    /// The grid's points in a box of `axes` axes.
+    /// The grid's points in a box of `axes` axes free to vary.
     pub fn points(&self, axes: usize) -> usize {
         self.per_axis(axes).pow(axes as u32)
     }
@@ -56,28 +57,40 @@ impl Grid {
         interrupt: &AtomicBool,
     ) -> Result<SearchResult, SearchError> {
         space.check()?;
-        let axes = space.len();
-        if self.budget < 1 << axes {
+        let bounds = space.log_bounds();
+        // An axis held at one value (lo = hi) gets that value alone; the budget goes to the rest.
+        let free = bounds.iter().filter(|(lo, hi)| hi > lo).count();
+        if self.budget < 1 << free {
             return invalid(
                 "budget",
                 self.budget as f64,
-                "must allow 2 values per axis (2^axes candidates)",
+                "must allow 2 values per free axis (2^axes candidates)",
             );
         }
         if self.batch == 0 {
             return invalid("batch", 0.0, "must be at least 1");
         }
-        let k = self.per_axis(axes);
-        let bounds = space.log_bounds();
-        // Point i's index on axis a is its a-th base-k digit, the first axis the fastest.
-        let points: Vec<Point> = (0..self.points(axes))
-            .map(|i| {
+        let k = self.per_axis(free);
+        let counts: Vec<usize> = bounds
+            .iter()
+            .map(|(lo, hi)| if hi > lo { k } else { 1 })
+            .collect();
+        // Point i's index on each axis is a digit of i in the mixed radix `counts`, the first
+        // axis the fastest.
+        let points: Vec<Point> = (0..counts.iter().product())
+            .map(|i: usize| {
+                let mut rest = i;
                 let x: Vec<f64> = bounds
                     .iter()
-                    .enumerate()
-                    .map(|(a, &(lo, hi))| {
-                        let step = (i / k.pow(a as u32)) % k;
-                        lo + (hi - lo) * step as f64 / (k - 1) as f64
+                    .zip(&counts)
+                    .map(|(&(lo, hi), &n)| {
+                        let step = rest % n;
+                        rest /= n;
+                        if n == 1 {
+                            lo
+                        } else {
+                            lo + (hi - lo) * step as f64 / (n - 1) as f64
+                        }
                     })
                     .collect();
                 space.point_at_log(&x)

@@ -140,13 +140,14 @@ impl SearchSpace {
             .collect()
     }
 
-    /// The point at logarithms `x` (one per axis, in order).
+    /// The point at logarithms `x` (one per axis, in order); an axis held at one value gives
+    /// that value exactly (its logarithm's exponential may not).
     fn point_at_log(&self, x: &[f64]) -> Point {
         Named(
             self.0
                 .iter()
                 .zip(x)
-                .map(|((name, _), v)| (name.clone(), v.exp()))
+                .map(|((name, (lo, hi)), v)| (name.clone(), if lo == hi { *lo } else { v.exp() }))
                 .collect(),
         )
     }

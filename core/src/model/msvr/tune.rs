@@ -156,15 +156,6 @@ impl Pinned {
             .filter_map(|(name, v)| Some((name, v?)))
     }
 
-    /// `h` with the pinned values exactly (the search's logarithms round them).
-    fn hold(&self, h: Hyper) -> Hyper {
-        Hyper {
-            c: self.c.unwrap_or(h.c),
-            epsilon: self.epsilon.unwrap_or(h.epsilon),
-            sigma: self.sigma.unwrap_or(h.sigma),
-        }
-    }
-
     /// The box with each pinned axis shrunk to its value.
     fn apply(&self, space: SearchSpace) -> SearchSpace {
         self.values()
@@ -200,10 +191,7 @@ pub fn run(
     // The paper's colony has its own digit box and ignores this one.
     let searched = space.clone().unwrap_or_default();
     let result = method.run(&searched, &objective, observer, interrupt)?;
-    let mut best = Hyper::from_point(&result.best);
-    if space.is_some() {
-        best = pinned.hold(best);
-    }
+    let best = Hyper::from_point(&result.best);
     let counters = scorer.counters();
     let summary = SearchSummary {
         method: *method,
