@@ -303,15 +303,16 @@ fn read_selected(
         path: path.to_path_buf(),
         source,
     };
-    let file = std::fs::File::open(path).map_err(io_err)?;
+    let bytes = std::fs::read(path).map_err(io_err)?;
+    let mut lines = Lines::new(&bytes);
     let mut reader = csv::ReaderBuilder::new()
         .has_headers(false)
         .trim(csv::Trim::All)
-        .from_reader(std::io::BufReader::new(file));
+        .from_reader(bytes.as_slice());
     let mut records = reader.records();
     let header = match records.next() {
         None => return Err(DataError::Empty { path: path.into() }),
-        Some(r) => r.map_err(|e| csv_error(path, e))?,
+        Some(r) => r.map_err(|e| csv_error(path, e, &mut lines))?,
     };
     if header.iter().all(str::is_empty) {
         return Err(DataError::Empty { path: path.into() });
@@ -320,11 +321,11 @@ fn read_selected(
     let flag = flag_column(&header);
     let mut row = vec![0.0; names.len()];
     for record in records {
-        let record = record.map_err(|e| csv_error(path, e))?;
+        let record = record.map_err(|e| csv_error(path, e, &mut lines))?;
         if is_flagged(flag, &record) {
             continue;
         }
-        let line = record.position().map_or(0, |p| p.line());
+        let line = lines.of(record.position());
         if record.len() != header.len() {
             return Err(DataError::Malformed {
                 path: path.into(),
@@ -355,25 +356,26 @@ pub fn copy_rows(
     columns: &[String],
     keep: impl Fn(&[f64]) -> bool,
 ) -> Result<usize, DataError> {
-    let file = std::fs::File::open(from).map_err(|source| DataError::Io {
+    let bytes = std::fs::read(from).map_err(|source| DataError::Io {
         path: from.to_path_buf(),
         source,
     })?;
+    let mut lines = Lines::new(&bytes);
     let mut reader = csv::ReaderBuilder::new()
         .has_headers(false)
-        .from_reader(std::io::BufReader::new(file));
+        .from_reader(bytes.as_slice());
     let mut records = reader.records();
     let header = match records.next() {
         None => return Err(DataError::Empty { path: from.into() }),
-        Some(r) => r.map_err(|e| csv_error(from, e))?,
+        Some(r) => r.map_err(|e| csv_error(from, e, &mut lines))?,
     };
     let trimmed: csv::StringRecord = header.iter().map(str::trim).collect();
     let index = column_index(from, &trimmed, columns)?;
     let mut kept = vec![header];
     let mut values = vec![0.0; columns.len()];
     for record in records {
-        let record = record.map_err(|e| csv_error(from, e))?;
-        let line = record.position().map_or(0, |p| p.line());
+        let record = record.map_err(|e| csv_error(from, e, &mut lines))?;
+        let line = lines.of(record.position());
         for (slot, (&col, name)) in values.iter_mut().zip(index.iter().zip(columns)) {
             *slot = parse_cell(from, line, name, record.get(col).unwrap_or("").trim())?;
         }
@@ -401,18 +403,23 @@ pub fn copy_rows(
 /// # Errors
 /// [`DataError::Io`] or a malformed CSV file.
 pub fn count_flagged(path: &Path) -> Result<usize, DataError> {
-    let file = std::fs::File::open(path).map_err(|source| DataError::Io {
+    let bytes = std::fs::read(path).map_err(|source| DataError::Io {
         path: path.to_path_buf(),
         source,
     })?;
+    let mut lines = Lines::new(&bytes);
     let mut reader = csv::ReaderBuilder::new()
         .trim(csv::Trim::All)
         .flexible(true)
-        .from_reader(std::io::BufReader::new(file));
-    let flag = flag_column(reader.headers().map_err(|e| csv_error(path, e))?);
+        .from_reader(bytes.as_slice());
+    let header = reader
+        .headers()
+        .map_err(|e| csv_error(path, e, &mut lines))?;
+    let flag = flag_column(header);
     let mut n = 0;
     for record in reader.records() {
-        n += usize::from(is_flagged(flag, &record.map_err(|e| csv_error(path, e))?));
+        let record = record.map_err(|e| csv_error(path, e, &mut lines))?;
+        n += usize::from(is_flagged(flag, &record));
     }
     Ok(n)
 }
@@ -483,8 +490,8 @@ fn parse_cell(path: &Path, line: u64, column: &str, cell: &str) -> Result<f64, D
     Ok(value)
 }
 
-fn csv_error(path: &Path, e: csv::Error) -> DataError {
-    let line = e.position().map_or(0, |p| p.line());
+fn csv_error(path: &Path, e: csv::Error, lines: &mut Lines) -> DataError {
+    let line = lines.of(e.position());
     match e.into_kind() {
         csv::ErrorKind::Io(source) => DataError::Io {
             path: path.into(),
@@ -515,12 +522,60 @@ fn csv_error(path: &Path, e: csv::Error) -> DataError {
     }
 }
 
+/// The line on which each record of a CSV file starts, counted from the file's bytes: the csv
+/// crate's own count is one short after CRLF line ends (a Windows file: every row after the
+/// first) and after a blank line (rust-csv issues 395 and 208). A line ends at `\n`, `\r\n`
+/// or a lone `\r`, as the csv reader takes them.
+struct Lines<'a> {
+    bytes: &'a [u8],
+    /// Bytes counted so far, and the line of the byte at `at`.
+    at: usize,
+    line: u64,
+}
+
+impl<'a> Lines<'a> {
+    fn new(bytes: &'a [u8]) -> Self {
+        Lines {
+            bytes,
+            at: 0,
+            line: 1,
+        }
+    }
+
+    /// The line of the record at `position` (0 when unknown): its first byte that is not a
+    /// line end (the csv reader may place a record at the line end before it, or at blank
+    /// lines it skipped). Records come in file order; one before the last is counted afresh.
+    fn of(&mut self, position: Option<&csv::Position>) -> u64 {
+        let Some(position) = position else {
+            return 0;
+        };
+        let n = self.bytes.len();
+        let mut start = usize::try_from(position.byte()).map_or(n, |b| b.min(n));
+        while start < n && matches!(self.bytes[start], b'\r' | b'\n') {
+            start += 1;
+        }
+        if start < self.at {
+            (self.at, self.line) = (0, 1);
+        }
+        let ends = self.bytes[self.at..start]
+            .iter()
+            .enumerate()
+            .filter(|&(i, &b)| {
+                b == b'\n' || (b == b'\r' && self.bytes.get(self.at + i + 1) != Some(&b'\n'))
+            })
+            .count();
+        self.line += ends as u64;
+        self.at = start;
+        self.line
+    }
+}
+
 /// A CSV input read as text (a frame index, a pressure log): its records with their line
 /// numbers, and its columns by name; every error names the file and the line.
 pub struct Table {
     path: PathBuf,
     pub header: csv::StringRecord,
-    reader: csv::Reader<std::io::BufReader<std::fs::File>>,
+    bytes: Vec<u8>,
     /// What the header must hold, for messages (e.g. "frame,camera,time_s").
     needs: &'static str,
 }
@@ -528,18 +583,24 @@ pub struct Table {
 impl Table {
     pub fn open(path: &Path, needs: &'static str) -> Result<Self, DataError> {
         let bad = |line, message| Table::error(path, line, message);
-        let file = std::fs::File::open(path)
+        let bytes = std::fs::read(path)
             .map_err(|e| bad(0, format!("{e}; it must be a CSV file with {needs}")))?;
-        let mut reader = csv::ReaderBuilder::new()
-            .trim(csv::Trim::All)
-            .from_reader(std::io::BufReader::new(file));
-        let header = reader.headers().map_err(|e| csv_error(path, e))?.clone();
+        let header = Table::reader(&bytes)
+            .headers()
+            .map_err(|e| csv_error(path, e, &mut Lines::new(&bytes)))?
+            .clone();
         Ok(Table {
             path: path.to_path_buf(),
             header,
-            reader,
+            bytes,
             needs,
         })
+    }
+
+    fn reader(bytes: &[u8]) -> csv::Reader<&[u8]> {
+        csv::ReaderBuilder::new()
+            .trim(csv::Trim::All)
+            .from_reader(bytes)
     }
 
     fn error(path: &Path, line: u64, message: String) -> DataError {
@@ -571,13 +632,13 @@ impl Table {
     }
 
     /// Every record with its line number.
-    pub fn records(&mut self) -> Result<Vec<(u64, csv::StringRecord)>, DataError> {
-        let path = self.path.clone();
-        self.reader
+    pub fn records(&self) -> Result<Vec<(u64, csv::StringRecord)>, DataError> {
+        let mut lines = Lines::new(&self.bytes);
+        Table::reader(&self.bytes)
             .records()
             .map(|r| {
-                let r = r.map_err(|e| csv_error(&path, e))?;
-                Ok((r.position().map_or(0, |p| p.line()), r))
+                let r = r.map_err(|e| csv_error(&self.path, e, &mut lines))?;
+                Ok((lines.of(r.position()), r))
             })
             .collect()
     }

@@ -33,7 +33,7 @@ pub struct FrameRecord {
 /// [`DataError::Input`](crate::data::DataError::Input) naming the file and line: unreadable file, missing column, a
 /// camera other than `left`/`right`, a bad number, a frame listed twice.
 pub fn read_frame_list(dir: &Path) -> Result<Vec<FrameRecord>, SessionError> {
-    let mut table = Table::open(&dir.join("frames.csv"), "frame,camera,time_s")?;
+    let table = Table::open(&dir.join("frames.csv"), "frame,camera,time_s")?;
     let (c_frame, c_camera, c_time) = (
         table.column("frame")?,
         table.column("camera")?,

@@ -54,7 +54,7 @@ pub const COMMAND_END_COLUMN: &str = "command_end_s";
 /// [`DataError::Input`](crate::data::DataError::Input) naming the file and line: a missing column, a bad number, times
 /// that do not increase, fewer than two steps.
 pub fn read_pressure_log(path: &Path) -> Result<PressureLog, SessionError> {
-    let mut table = Table::open(path, "time_s,P1_kpa,P2_kpa,P3_kpa")?;
+    let table = Table::open(path, "time_s,P1_kpa,P2_kpa,P3_kpa")?;
     let time_col = table.column("time_s")?;
     let p_cols = [
         table.column(PRESSURE_COLUMNS[0])?,

@@ -136,7 +136,7 @@ pub fn paper_protocol(
 /// # Errors
 /// [`DataError::Input`] naming the file and line.
 pub fn read(path: &Path) -> Result<Vec<Step>, DataError> {
-    let mut table = Table::open(path, "step,phase,P1_kpa,P2_kpa,P3_kpa,hold_s")?;
+    let table = Table::open(path, "step,phase,P1_kpa,P2_kpa,P3_kpa,hold_s")?;
     let columns =
         ["step", "phase", "P1_kpa", "P2_kpa", "P3_kpa", "hold_s"].map(|name| table.column(name));
     let [step, phase, p1, p2, p3, hold] = columns;

@@ -131,6 +131,44 @@ fn constant_input_column() {
     );
 }
 
+/// A Windows file (CRLF), an old Mac one (CR), blank lines and a quoted field over two lines:
+/// the error names the line the bad row starts on, as an editor numbers it.
+#[test]
+fn every_line_end_names_the_right_line() {
+    let rows = ["P1_kpa,P2_kpa,x_mm", "1,2,3", "4,5,6", "7,x,9"];
+    for end in ["\n", "\r\n", "\r"] {
+        let (err, msg) = error_of(&(rows.join(end) + end));
+        assert!(
+            matches!(err, DataError::NotNumeric { line: 4, .. }),
+            "{end:?}: {msg}"
+        );
+        // A ragged row is found by the CSV reader itself.
+        let (err, msg) = error_of(&(rows[..3].join(end) + end + "1,2" + end));
+        assert!(
+            matches!(err, DataError::Malformed { line: 4, .. }),
+            "{end:?}: {msg}"
+        );
+        // Two blank lines before the bad row.
+        let text = rows[..3].join(end) + end + end + end + rows[3] + end;
+        let (err, msg) = error_of(&text);
+        assert!(
+            matches!(err, DataError::NotNumeric { line: 6, .. }),
+            "{end:?}: {msg}"
+        );
+    }
+    let (err, msg) = error_of("P1_kpa,P2_kpa,x_mm,note\r\n1,2,3,\"two\r\nlines\"\r\n4,5,x,\r\n");
+    assert!(
+        matches!(err, DataError::NotNumeric { line: 4, .. }),
+        "{msg}"
+    );
+    // The text tables (frame index, pressure log) count the same way.
+    let dir = tempdir();
+    let path = write(dir.path(), "t.csv", "a,b\r\n1,2\r\n\r\n3,4\r\n");
+    let table = handcap::data::Table::open(&path, "a,b").unwrap();
+    let lines: Vec<u64> = table.records().unwrap().iter().map(|r| r.0).collect();
+    assert_eq!(lines, [2, 4]);
+}
+
 #[test]
 fn ragged_row() {
     let (err, msg) = error_of("P1_kpa,P2_kpa,x_mm\n1,2,3\n4,5\n");
