@@ -39,6 +39,11 @@ pub enum DataError {
         first: usize,
         second: usize,
     },
+    #[error("{path}: line 1: the header is one column of names separated by {separator}; handcap reads comma-separated CSV: export the file with commas between columns (and `.` as the decimal mark)")]
+    NotCommaSeparated {
+        path: PathBuf,
+        separator: &'static str,
+    },
     #[error("{path}: no column `{name}` (the header has: {available})")]
     MissingColumn {
         path: PathBuf,
@@ -434,12 +439,31 @@ fn is_flagged(flag: Option<usize>, record: &csv::StringRecord) -> bool {
         .is_some_and(|f| !f.is_empty())
 }
 
+/// A header of one column holding a semicolon or a tab: a file separated by something other
+/// than commas (a spreadsheet's export in a locale whose decimal mark is the comma).
+fn check_commas(path: &Path, header: &csv::StringRecord) -> Result<(), DataError> {
+    let separator = match header.iter().collect::<Vec<_>>()[..] {
+        [only] => [(';', "semicolons"), ('\t', "tabs")]
+            .into_iter()
+            .find(|&(c, _)| only.contains(c))
+            .map(|(_, name)| name),
+        _ => None,
+    };
+    separator.map_or(Ok(()), |separator| {
+        Err(DataError::NotCommaSeparated {
+            path: path.into(),
+            separator,
+        })
+    })
+}
+
 /// Finds each chosen name in the header; a chosen name that appears twice is ambiguous.
 fn column_index(
     path: &Path,
     header: &csv::StringRecord,
     names: &[String],
 ) -> Result<Vec<usize>, DataError> {
+    check_commas(path, header)?;
     let mut positions: HashMap<&str, usize> = HashMap::new();
     let mut duplicates: HashMap<&str, (usize, usize)> = HashMap::new();
     for (i, name) in header.iter().enumerate() {
@@ -589,6 +613,7 @@ impl Table {
             .headers()
             .map_err(|e| csv_error(path, e, &mut Lines::new(&bytes)))?
             .clone();
+        check_commas(path, &header)?;
         Ok(Table {
             path: path.to_path_buf(),
             header,

@@ -169,6 +169,29 @@ fn every_line_end_names_the_right_line() {
     assert_eq!(lines, [2, 4]);
 }
 
+/// A spreadsheet's export with semicolons or tabs between columns is named as such, not as a
+/// missing column.
+#[test]
+fn a_file_separated_by_semicolons_or_tabs_says_so() {
+    for (text, separator) in [
+        ("P1_kpa;P2_kpa;x_mm\n1,5;2;3\n", "semicolons"),
+        ("P1_kpa\tP2_kpa\tx_mm\n1\t2\t3\n", "tabs"),
+    ] {
+        let (err, msg) = error_of(text);
+        assert!(
+            matches!(err, DataError::NotCommaSeparated { separator: s, .. } if s == separator),
+            "{msg}"
+        );
+        assert!(
+            msg.contains("line 1") && msg.contains("export the file with commas"),
+            "{msg}"
+        );
+    }
+    // A one-column file of other names is a missing column, as before.
+    let (err, _) = error_of("P1_kpa\n1\n");
+    assert!(matches!(err, DataError::MissingColumn { .. }));
+}
+
 #[test]
 fn ragged_row() {
     let (err, msg) = error_of("P1_kpa,P2_kpa,x_mm\n1,2,3\n4,5\n");
