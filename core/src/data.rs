@@ -3,7 +3,8 @@
 //! A CSV file has one header row and one row per sample. Columns are chosen by name
 //! (`--inputs`/`--outputs`); other columns are ignored. Every value must parse as a finite
 //! number. A column named `flag` marks doubtful rows (`triangulate` writes one): rows whose flag
-//! is not empty are left out, and [`count_flagged`] says how many. Errors name the file, the line (the header is line 1) and the column, and say what to do.
+//! is not empty are left out, and [`count_flagged`] says how many; a row whose every field is
+//! empty (a spreadsheet's trailing rows) is a blank line, skipped. Errors name the file, the line (the header is line 1) and the column, and say what to do.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -49,6 +50,12 @@ pub enum DataError {
         path: PathBuf,
         name: String,
         available: String,
+    },
+    #[error("{path}: line {line}, column `{column}`: empty; give a number, or leave the row out with a non-empty `flag` column")]
+    EmptyCell {
+        path: PathBuf,
+        line: u64,
+        column: String,
     },
     #[error("{path}: line {line}, column `{column}`: `{value}` is not a number")]
     NotNumeric {
@@ -327,7 +334,7 @@ fn read_selected(
     let mut row = vec![0.0; names.len()];
     for record in records {
         let record = record.map_err(|e| csv_error(path, e, &mut lines))?;
-        if is_flagged(flag, &record) {
+        if is_blank(&record) || is_flagged(flag, &record) {
             continue;
         }
         let line = lines.of(record.position());
@@ -380,6 +387,9 @@ pub fn copy_rows(
     let mut values = vec![0.0; columns.len()];
     for record in records {
         let record = record.map_err(|e| csv_error(from, e, &mut lines))?;
+        if is_blank(&record) {
+            continue;
+        }
         let line = lines.of(record.position());
         for (slot, (&col, name)) in values.iter_mut().zip(index.iter().zip(columns)) {
             *slot = parse_cell(from, line, name, record.get(col).unwrap_or("").trim())?;
@@ -432,6 +442,12 @@ pub fn count_flagged(path: &Path) -> Result<usize, DataError> {
 /// The index of the `flag` column, if the header has one.
 fn flag_column(header: &csv::StringRecord) -> Option<usize> {
     header.iter().position(|h| h == "flag")
+}
+
+/// A row whose every field is empty (a spreadsheet's trailing rows): a blank line, which the CSV
+/// reader already skips when it holds no separator either.
+fn is_blank(record: &csv::StringRecord) -> bool {
+    record.iter().all(|f| f.trim().is_empty())
 }
 
 fn is_flagged(flag: Option<usize>, record: &csv::StringRecord) -> bool {
@@ -497,6 +513,13 @@ fn column_index(
 }
 
 fn parse_cell(path: &Path, line: u64, column: &str, cell: &str) -> Result<f64, DataError> {
+    if cell.is_empty() {
+        return Err(DataError::EmptyCell {
+            path: path.into(),
+            line,
+            column: column.into(),
+        });
+    }
     let value: f64 = cell.parse().map_err(|_| DataError::NotNumeric {
         path: path.into(),
         line,
@@ -656,7 +679,7 @@ impl Table {
         })
     }
 
-    /// Every record with its line number.
+    /// Every record with its line number, blank ones (every field empty) left out.
     pub fn records(&self) -> Result<Vec<(u64, csv::StringRecord)>, DataError> {
         let mut lines = Lines::new(&self.bytes);
         Table::reader(&self.bytes)
@@ -665,6 +688,7 @@ impl Table {
                 let r = r.map_err(|e| csv_error(&self.path, e, &mut lines))?;
                 Ok((lines.of(r.position()), r))
             })
+            .filter(|r| !r.as_ref().is_ok_and(|(_, r)| is_blank(r)))
             .collect()
     }
 }

@@ -192,6 +192,26 @@ fn a_file_separated_by_semicolons_or_tabs_says_so() {
     assert!(matches!(err, DataError::MissingColumn { .. }));
 }
 
+/// A spreadsheet's empty rows (separators only) are blank lines; an empty cell in a row of
+/// values is named as empty.
+#[test]
+fn empty_rows_are_blank_and_empty_cells_are_named() {
+    let dir = tempdir();
+    let path = write(
+        dir.path(),
+        "d.csv",
+        "P1_kpa,P2_kpa,x_mm\n1,2,3\n, ,\n4,5,6\n,,\n,,\n",
+    );
+    let d = read(&path).unwrap();
+    assert_eq!(d.inputs.values, [1.0, 2.0, 4.0, 5.0]);
+    let (err, msg) = error_of("P1_kpa,P2_kpa,x_mm\n1,2,3\n4,,6\n");
+    assert!(
+        matches!(err, DataError::EmptyCell { line: 3, ref column, .. } if column == "P2_kpa"),
+        "{msg}"
+    );
+    assert!(msg.contains("empty") && msg.contains("flag"), "{msg}");
+}
+
 #[test]
 fn ragged_row() {
     let (err, msg) = error_of("P1_kpa,P2_kpa,x_mm\n1,2,3\n4,5\n");
