@@ -57,12 +57,14 @@ pub enum DataError {
         line: u64,
         column: String,
     },
-    #[error("{path}: line {line}, column `{column}`: `{value}` is not a number")]
+    #[error("{path}: line {line}, column `{column}`: `{value}` is not a number{hint}")]
     NotNumeric {
         path: PathBuf,
         line: u64,
         column: String,
         value: String,
+        /// What the value looks like, when that says what to do ("" otherwise).
+        hint: &'static str,
     },
     #[error(
         "{path}: line {line}, column `{column}`: `{value}` is not finite; remove or repair the row"
@@ -512,6 +514,24 @@ fn column_index(
         .collect()
 }
 
+/// What a cell that is not a number looks like, when a logger or a spreadsheet wrote it that
+/// way: a clock time or date, or a decimal comma.
+fn not_numeric_hint(cell: &str) -> &'static str {
+    let digits_and = |extra: &[char]| {
+        cell.chars().any(|c| c.is_ascii_digit())
+            && cell
+                .chars()
+                .all(|c| c.is_ascii_digit() || extra.contains(&c))
+    };
+    if digits_and(&[':', '-', '/', '.', 'T', 'Z', ' ', '+']) && cell.contains([':', '/', 'T']) {
+        " (a clock time or date: give times as seconds, e.g. since the log's start)"
+    } else if digits_and(&[',', '-', '+']) && cell.matches(',').count() == 1 {
+        " (a decimal comma: write `.` as the decimal mark)"
+    } else {
+        ""
+    }
+}
+
 fn parse_cell(path: &Path, line: u64, column: &str, cell: &str) -> Result<f64, DataError> {
     if cell.is_empty() {
         return Err(DataError::EmptyCell {
@@ -525,6 +545,7 @@ fn parse_cell(path: &Path, line: u64, column: &str, cell: &str) -> Result<f64, D
         line,
         column: column.into(),
         value: cell.into(),
+        hint: not_numeric_hint(cell),
     })?;
     if !value.is_finite() {
         return Err(DataError::NotFinite {

@@ -79,6 +79,27 @@ fn non_numeric_cell_names_line_and_column() {
     );
 }
 
+/// A clock time, a date or a decimal comma is named as what it looks like, with what to do.
+#[test]
+fn not_numbers_that_look_like_times_or_decimal_commas_say_so() {
+    for (cell, says) in [
+        ("12:00:01.5", "clock time"),
+        ("2026-11-25T10:00:00Z", "clock time"),
+        ("25/11/2026", "clock time"),
+        ("\"1,5\"", "decimal comma"),
+        ("\"-0,25\"", "decimal comma"),
+    ] {
+        let (err, msg) = error_of(&format!("P1_kpa,P2_kpa,x_mm\n1,2,3\n4,5,{cell}\n"));
+        assert!(
+            matches!(err, DataError::NotNumeric { line: 3, .. }),
+            "{msg}"
+        );
+        assert!(msg.contains(says), "{cell}: {msg}");
+    }
+    let (_, msg) = error_of("P1_kpa,P2_kpa,x_mm\n1,2,3\n4,5,five\n");
+    assert!(msg.ends_with("`five` is not a number"), "{msg}");
+}
+
 #[test]
 fn nan_and_infinity_are_rejected() {
     for cell in ["NaN", "inf", "-inf"] {
