@@ -4,7 +4,9 @@
 //! (`--inputs`/`--outputs`); other columns are ignored. Every value must parse as a finite
 //! number. A column named `flag` marks doubtful rows (`triangulate` writes one): rows whose flag
 //! is not empty are left out, and [`count_flagged`] says how many; a row whose every field is
-//! empty (a spreadsheet's trailing rows) is a blank line, skipped. Errors name the file, the line (the header is line 1) and the column, and say what to do.
+//! empty (a spreadsheet's trailing rows) is a blank line, skipped. Errors name the file, the
+//! line as an editor numbers it (the header is line 1; [`Lines`]) and the column, and say what
+//! to do.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
