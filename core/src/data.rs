@@ -5,7 +5,7 @@
 //! number. A column named `flag` marks doubtful rows (`triangulate` writes one): rows whose flag
 //! is not empty are left out, and [`count_flagged`] says how many; a row whose every field is
 //! empty (a spreadsheet's trailing rows) is a blank line, skipped. Errors name the file, the
-//! line as an editor numbers it (the header is line 1; [`Lines`]) and the column, and say what
+//! line as an editor numbers it (the header is line 1; `Lines`) and the column, and say what
 //! to do.
 
 use std::collections::HashMap;

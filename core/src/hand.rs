@@ -2,7 +2,7 @@
 //!
 //! The finger of the paper (§2.1, Figure 1): 50 mm long, 5.0 mm wide, 2.6 mm thick, three
 //! McKibben muscles bonded in silicone with a gap between muscle 2 and muscles 1 and 3. These are
-//! the drawing's numbers, not a model's constants: the virtual plant ([`crate::synth::plant`]) and
+//! the drawing's numbers, not a model's constants: the virtual plant (`handcap::synth::plant`) and
 //! the previous physics model ([`crate::model::previous`]) both start from them.
 
 /// Length of the finger from its clamped base to the tip (mm).

@@ -87,7 +87,7 @@ pub struct SolverOptions {
     /// Parallelism of the dense linear algebra (`Par::Seq` when fits run in parallel).
     pub par: Par,
     /// Bring the step system's Cholesky factor up to date by low-rank changes when few rows
-    /// change (see [`Workspace::update`]); off, every change refactors, as the paper's colony's
+    /// change (see `Workspace::update`); off, every change refactors, as the paper's colony's
     /// histories were computed (the results then agree to rounding, not to the bit).
     pub factor_updates: bool,
 }
