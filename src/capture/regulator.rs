@@ -1,10 +1,18 @@
 //! The regulator: each protocol step's command run (timed out, stopped with the session),
 //! logged with when it started and returned, then held; the log as `pressures.csv`.
+//!
+//! A command runs in its own process group: a terminal's Ctrl-C reaches handcap alone, which
+//! gives a command still running [`STOP_GRACE_S`] to return (a regulator is not cut off
+//! mid-message, and a step it was told is logged) and then kills the command's whole group.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use super::{Clock, Ending, COMMAND_TIMEOUT_S};
+
+/// How long a command still running when the session stops may take to return before it is
+/// killed (s).
+pub const STOP_GRACE_S: f64 = 1.0;
 use crate::session::pressures::Logged;
 use crate::session::protocol;
 
@@ -39,9 +47,10 @@ pub(super) fn drive(
             end_s: clock.now_s(),
             step: step.clone(),
         });
-        let wait = time_s + step.hold_s - clock.now_s();
-        if wait > 0.0 {
-            std::thread::sleep(Duration::from_secs_f64(wait));
+        // Held, and let go as soon as the session stops.
+        while clock.now_s() < time_s + step.hold_s && !stop.load(Ordering::SeqCst) {
+            let left = time_s + step.hold_s - clock.now_s();
+            std::thread::sleep(Duration::from_secs_f64(left.clamp(0.0, 0.05)));
         }
     }
     Some(Ending::ProtocolDone)
@@ -50,31 +59,38 @@ pub(super) fn drive(
 /// How a pressure command ended.
 pub(super) enum CommandEnd {
     Done,
-    /// The session is stopping (Ctrl-C, a signal, a camera lost): the command was killed.
+    /// The session stopped (Ctrl-C, a signal, a camera lost) and the command did not return
+    /// in [`STOP_GRACE_S`] (it was killed) or returned failing.
     Stopped,
     /// Why it failed: its exit status and error output, or that it timed out.
     Failed(String),
 }
 
-/// Runs `command` with `sh -c`, waiting at most `timeout_s` and no longer than the session
-/// runs.
+/// Runs `command` with `sh -c` in its own process group, waiting at most `timeout_s`, and
+/// [`STOP_GRACE_S`] more once the session stops.
 pub(super) fn run_command(
     command: &str,
     stop: &AtomicBool,
     timeout_s: f64,
 ) -> std::io::Result<CommandEnd> {
+    use std::os::unix::process::CommandExt;
     let mut child = std::process::Command::new("sh")
         .arg("-c")
         .arg(command)
+        .process_group(0)
         .stdin(std::process::Stdio::null())
         .stdout(std::process::Stdio::null())
         .stderr(std::process::Stdio::piped())
         .spawn()?;
     let start = Instant::now();
+    let mut stopped_at = None;
     loop {
         if let Some(status) = child.try_wait()? {
             if status.success() {
                 return Ok(CommandEnd::Done);
+            }
+            if stopped_at.is_some() {
+                return Ok(CommandEnd::Stopped);
             }
             let mut error = String::new();
             if let Some(mut stderr) = child.stderr.take() {
@@ -86,11 +102,18 @@ pub(super) fn run_command(
                 error.trim()
             )));
         }
-        let stopping = stop.load(Ordering::SeqCst);
-        if stopping || start.elapsed().as_secs_f64() > timeout_s {
-            let _ = child.kill();
+        if stopped_at.is_none() && stop.load(Ordering::SeqCst) {
+            stopped_at = Some(Instant::now());
+        }
+        let graced = stopped_at.is_some_and(|t| t.elapsed().as_secs_f64() > STOP_GRACE_S);
+        if graced || start.elapsed().as_secs_f64() > timeout_s {
+            // The group: a command's own children (`sh -c 'python set.py'`) go with it.
+            // SAFETY: a signal to the process group this function created.
+            unsafe {
+                libc::kill(-(child.id() as i32), libc::SIGKILL);
+            }
             let _ = child.wait();
-            return Ok(if stopping {
+            return Ok(if graced {
                 CommandEnd::Stopped
             } else {
                 CommandEnd::Failed(format!(
@@ -142,5 +165,20 @@ mod tests {
             said(run_command("sleep 5", &stopping, 5.0).unwrap()),
             "stopped"
         );
+        // A command the session's end finds running may still return, and is done.
+        let dir = std::env::temp_dir().join(format!("handcap-regulator-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let told = dir.join("told");
+        let command = format!("sleep 0.2; echo 1 > {}", told.display());
+        assert_eq!(said(run_command(&command, &stopping, 5.0).unwrap()), "done");
+        assert!(told.is_file());
+        // A command killed takes what it started with it.
+        let late = dir.join("late");
+        let command = format!("(sleep 1.5; echo 1 > {}) & wait", late.display());
+        let why = said(run_command(&command, &running, 0.2).unwrap());
+        assert!(why.starts_with("did not finish in 0.2 s (killed)"), "{why}");
+        std::thread::sleep(std::time::Duration::from_secs(2));
+        assert!(!late.exists(), "the command's child outlived it");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

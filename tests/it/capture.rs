@@ -55,12 +55,13 @@ fn session_args<'a>(out: &'a str, protocol: &'a str, command: &'a str) -> [&'a s
     ]
 }
 
-/// A `--set-pressure` script that records what it was told, one line per call.
-fn recorder(dir: &Path) -> String {
+/// A `--set-pressure` script that records what it was told, one line per call, and returns
+/// `ack_s` later, as a regulator acknowledges.
+fn recorder(dir: &Path, ack_s: f64) -> String {
     let script = dir.join("regulator.sh");
     std::fs::write(
         &script,
-        "#!/bin/sh\necho \"$@\" >> \"$(dirname \"$0\")/told.txt\"\n",
+        format!("#!/bin/sh\necho \"$@\" >> \"$(dirname \"$0\")/told.txt\"\nsleep {ack_s}\n"),
     )
     .unwrap();
     format!("sh {} {{p1}} {{p2}} {{p3}} {{step}}", script.display())
@@ -110,7 +111,7 @@ fn capture_films_both_cameras_and_drives_the_protocol_on_one_clock() {
     cameras(d);
     let out = protocol(d, "p.csv", "0.05");
     assert!(out.contains("12 steps"), "{out}");
-    let command = recorder(d);
+    let command = recorder(d, 0.0);
     let mut args = session_args("s", "p.csv", &command).to_vec();
     args.extend(["--on-abort", "touch vented.txt"]);
     let out = handcap_ok(d, &args);
@@ -167,7 +168,7 @@ fn capture_refuses_bad_protocols_and_cameras_and_keeps_what_a_stopped_camera_gav
     let dir = tempdir();
     let d = dir.path();
     cameras(d);
-    let command = recorder(d);
+    let command = recorder(d, 0.0);
     let run = |out: &str, protocol: &str| handcap(d, &session_args(out, protocol, &command));
     std::fs::write(
         d.join("high.csv"),
@@ -311,7 +312,7 @@ fn capture_refuses_bad_protocols_and_cameras_and_keeps_what_a_stopped_camera_gav
 
 /// Ctrl-C, SIGTERM and SIGHUP (a closed terminal, `timeout`, a stopped service) each end a
 /// session as an interruption: exit 130, every frame kept and listed, the steps commanded so far
-/// logged. A session killed outright still has its files as of the last second, said to be
+/// logged, a command the signal finds running included once it returns. A session killed outright still has its files as of the last second, said to be
 /// still filming.
 #[test]
 fn signals_end_a_capture_with_every_frame_kept_and_listed() {
@@ -319,7 +320,7 @@ fn signals_end_a_capture_with_every_frame_kept_and_listed() {
     let d = dir.path();
     cameras(d);
     protocol(d, "p.csv", "1");
-    let command = recorder(d);
+    let command = recorder(d, 0.2);
     let spawn = |out: &str| {
         std::process::Command::new(env!("CARGO_BIN_EXE_handcap"))
             .args(session_args(out, "p.csv", &command))
@@ -343,6 +344,10 @@ fn signals_end_a_capture_with_every_frame_kept_and_listed() {
         let _ = std::fs::remove_file(d.join("told.txt"));
         let child = spawn(name);
         wait_until_listed(&d.join(name));
+        if signal == libc::SIGHUP {
+            // Mid-command: the regulator was told step 1 and has not yet returned.
+            wait_until_told(d, 2);
+        }
         send(&child, signal);
         let out = child.wait_with_output().unwrap();
         assert_eq!(
@@ -378,6 +383,16 @@ fn signals_end_a_capture_with_every_frame_kept_and_listed() {
     assert_eq!(json["summary"]["ending"], "filming");
     assert!(!csv_rows(&s.join("frames/frames.csv")).is_empty());
     assert!(!csv_rows(&s.join("pressures.csv")).is_empty());
+}
+
+/// Waits (at most 30 s) until the recorder of [`recorder`] was told `steps` steps.
+fn wait_until_told(dir: &Path, steps: usize) {
+    let start = std::time::Instant::now();
+    let told = || std::fs::read_to_string(dir.join("told.txt")).map_or(0, |t| t.lines().count());
+    while told() < steps {
+        assert!(start.elapsed().as_secs() < 30, "told {} steps", told());
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
 }
 
 /// Waits (at most 30 s) until the session in `dir` lists a frame and a step: its files are
