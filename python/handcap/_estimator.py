@@ -32,7 +32,8 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
         A kernel at every row ("exact"), a reduced basis of that many centres, or exact up to 2000
         rows and a grown reduced basis above ("auto").
     folds : int
-        Cross-validation folds of the search and the intervals.
+        Cross-validation folds of the search and the intervals; fewer rows than 2 per fold get
+        as many folds as they allow.
     intervals : bool
         Calibrate conformal prediction intervals (`interval_radius`) on held-out folds: one more
         fit per fold, on top of the search's. False fits the final model alone (C, epsilon and

@@ -119,8 +119,8 @@ fn fit_request(r: FitRequest) -> Result<ModelFile, String> {
         ),
         None => (FoldsBy::Auto, Vec::new()),
     };
-    let folds = r.folds.min(scored.rows());
-    let plan = folds::plan(&by, &scored, &others, folds).map_err(|e| e.to_string())?;
+    let plan = folds::plan(&by, &scored, &others, r.folds).map_err(|e| e.to_string())?;
+    let folds = plan.folds;
     let searched = pin.c.is_none() || pin.epsilon.is_none() || pin.sigma.is_none();
     let search = searched.then(|| {
         let method = Method::AcoR(AcoR {

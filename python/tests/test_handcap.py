@@ -83,6 +83,9 @@ def test_the_search_chooses_and_records_what_it_did():
     # Pinned hyper-parameters stay as given; the others are searched.
     pinned = handcap.MSVRRegressor(C=50.0, budget=20, random_state=3).fit(x, y)
     assert pinned.C_ == 50.0 and pinned.epsilon_ != pinned.sigma_
+    # Seven rows: as many folds as give each 2 rows or more, said with the folds.
+    few = handcap.MSVRRegressor(budget=20, random_state=3).fit(x[:7], y[:7])
+    assert "3 folds, not 5: 7 rows" in few.search_["folds"]["reason"], few.search_["folds"]
 
 
 def test_the_interval_radius_covers_fresh_rows_at_its_level():

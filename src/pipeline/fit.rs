@@ -573,7 +573,7 @@ impl Scoring {
         // The fold columns come from the file the rows are: `--search-on`'s or the training data's.
         let file = file.filter(|_| search_on.is_some()).unwrap_or(&job.data);
         let scored = scored_rows(train, search_on)?;
-        let folds = match fitness {
+        let asked = match fitness {
             FitnessKind::Cv { folds } => folds,
             FitnessKind::Train => 2,
         };
@@ -581,8 +581,12 @@ impl Scoring {
             by,
             &scored,
             &other_columns(file, by, job, scored.rows())?,
-            folds,
+            asked,
         )?;
+        let fitness = match fitness {
+            FitnessKind::Cv { .. } => FitnessKind::Cv { folds: plan.folds },
+            FitnessKind::Train => FitnessKind::Train,
+        };
         Ok(Scoring {
             scored,
             plan,

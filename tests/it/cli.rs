@@ -414,6 +414,59 @@ fn model_works_on_any_columns() {
     );
 }
 
+/// A handful of rows is modelled with as many folds as it allows (2 rows or more each), said
+/// in the log and the model file; too few for two folds is refused without naming a flag the
+/// user did not give.
+#[test]
+fn a_few_rows_get_as_many_folds_as_they_allow() {
+    let dir = tempdir();
+    let d = dir.path();
+    let mut text = String::from("a,b,x\n");
+    for k in 0..7 {
+        let (a, b) = (k as f64, ((k * 3) % 7) as f64);
+        text += &format!("{a},{b},{}\n", a * 0.5 - b * 0.25);
+    }
+    std::fs::write(d.join("few.csv"), &text).unwrap();
+    let model = |file: &str, search: &str| {
+        let out = format!("{file}.{search}.json");
+        let args = [
+            "model",
+            file,
+            "--inputs",
+            "a,b",
+            "--outputs",
+            "x",
+            "--search",
+            search,
+            "--out",
+            &out,
+        ];
+        (handcap(d, &args), out)
+    };
+    for search in ["aco-r", "none"] {
+        let (run, out) = model("few.csv", search);
+        let log = String::from_utf8_lossy(&run.stderr);
+        assert!(run.status.success(), "{search}: {log}");
+        let file = std::fs::read_to_string(d.join(&out)).unwrap();
+        assert!(
+            file.contains("3 folds, not 5: 7 rows allow no more"),
+            "{search}: {file}"
+        );
+    }
+    let three: String = text.lines().take(4).map(|l| format!("{l}\n")).collect();
+    std::fs::write(d.join("three.csv"), three).unwrap();
+    let (run, out) = model("three.csv", "none");
+    let msg = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(run.status.code(), Some(1), "{msg}");
+    assert!(
+        msg.contains(
+            "2 folds: cross-validation needs 2 or more folds of 2 rows or more each, which 3 rows"
+        ) && !msg.contains("--folds"),
+        "{msg}"
+    );
+    assert!(!d.join(out).exists());
+}
+
 #[test]
 fn searches_write_history_and_are_deterministic() {
     let dir = tempdir();

@@ -66,7 +66,7 @@ impl std::fmt::Display for FitnessKind {
 /// Errors of setting up the fitness.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum FitnessError {
-    #[error("--folds {folds}: cross-validation needs 2 or more folds, each of at least 2 rows, from {rows} rows in {groups} groups")]
+    #[error("{folds} folds: cross-validation needs 2 or more folds of 2 rows or more each, which {rows} rows in {groups} groups do not give (give more rows, or fewer folds)")]
     BadFolds {
         folds: usize,
         rows: usize,

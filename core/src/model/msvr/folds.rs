@@ -85,11 +85,25 @@ impl std::fmt::Display for FoldChoice {
     }
 }
 
-/// The choice and the group label of every row (`None`: every row its own group).
+/// The choice, the number of folds and the group label of every row (`None`: every row its own
+/// group).
 #[derive(Clone, Debug, PartialEq)]
 pub struct FoldPlan {
     pub choice: FoldChoice,
+    /// The folds asked for, or as many as the rows allow ([`within`]).
+    pub folds: usize,
     pub labels: Option<Vec<f64>>,
+}
+
+/// The folds cut from `rows` rows when `asked` are asked for: as many as allow each fold 2
+/// rows or more, at most `asked` (a count below 2, or fewer than 4 rows, is refused when the
+/// folds are dealt).
+pub fn within(asked: usize, rows: usize) -> usize {
+    if asked < 2 {
+        asked
+    } else {
+        asked.min(rows / 2).max(2)
+    }
 }
 
 /// Errors of choosing the folds.
@@ -105,12 +119,31 @@ pub enum FoldsError {
     },
 }
 
-/// Chooses the folds of `data` (module docs). `others` are the file's other numeric columns,
-/// one value per row of `data` (for `auto`, and the named column's values for a column).
+/// Chooses the folds of `data` (module docs): `asked` of them, fewer when the rows allow fewer
+/// ([`within`], said in the reason). `others` are the file's other numeric columns, one value
+/// per row of `data` (for `auto`, and the named column's values for a column).
 ///
 /// # Errors
 /// [`FoldsError`] for a grouping column with one group or fewer groups than folds.
 pub fn plan(
+    by: &FoldsBy,
+    data: &Dataset,
+    others: &[(String, Vec<f64>)],
+    asked: usize,
+) -> Result<FoldPlan, FoldsError> {
+    let folds = within(asked, data.rows());
+    let mut plan = scheme(by, data, others, folds)?;
+    if folds < asked {
+        plan.choice.reason += &format!(
+            "; {folds} folds, not {asked}: {} rows allow no more of 2 rows each",
+            data.rows()
+        );
+    }
+    Ok(plan)
+}
+
+/// The scheme of [`plan`] for `folds` folds.
+fn scheme(
     by: &FoldsBy,
     data: &Dataset,
     others: &[(String, Vec<f64>)],
@@ -121,6 +154,7 @@ pub fn plan(
             scheme: FoldScheme::Blocks,
             reason,
         },
+        folds,
         labels: Some(block_labels(data.rows(), folds)),
     };
     let shuffle = |reason: String| FoldPlan {
@@ -128,6 +162,7 @@ pub fn plan(
             scheme: FoldScheme::Shuffle,
             reason,
         },
+        folds,
         labels: None,
     };
     let groups = |column: &str, labels: &[f64], reason: String| FoldPlan {
@@ -137,6 +172,7 @@ pub fn plan(
             },
             reason,
         },
+        folds,
         labels: Some(labels.to_vec()),
     };
     match by {
@@ -270,6 +306,29 @@ fn neighbour_ratio(inputs: &Columns) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn folds_shrink_to_what_the_rows_allow_never_below_two() {
+        assert_eq!(within(5, 1000), 5);
+        assert_eq!(within(5, 10), 5);
+        assert_eq!(within(5, 9), 4);
+        assert_eq!(within(5, 7), 3);
+        assert_eq!(within(5, 3), 2);
+        // A count below 2 is the user's, refused where the folds are dealt.
+        assert_eq!(within(1, 100), 1);
+        let plan = plan(
+            &FoldsBy::Shuffle,
+            &dataset((0..7).map(f64::from).collect(), 1),
+            &[],
+            5,
+        );
+        let plan = plan.unwrap();
+        assert_eq!(plan.folds, 3);
+        assert!(plan
+            .choice
+            .reason
+            .ends_with("3 folds, not 5: 7 rows allow no more of 2 rows each"));
+    }
 
     fn dataset(x: Vec<f64>, d: usize) -> Dataset {
         let n = x.len() / d;
