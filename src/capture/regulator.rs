@@ -166,19 +166,17 @@ mod tests {
             "stopped"
         );
         // A command the session's end finds running may still return, and is done.
-        let dir = std::env::temp_dir().join(format!("handcap-regulator-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let told = dir.join("told");
+        let dir = tempfile::tempdir().unwrap();
+        let told = dir.path().join("told");
         let command = format!("sleep 0.2; echo 1 > {}", told.display());
         assert_eq!(said(run_command(&command, &stopping, 5.0).unwrap()), "done");
         assert!(told.is_file());
         // A command killed takes what it started with it.
-        let late = dir.join("late");
+        let late = dir.path().join("late");
         let command = format!("(sleep 1.5; echo 1 > {}) & wait", late.display());
         let why = said(run_command(&command, &running, 0.2).unwrap());
         assert!(why.starts_with("did not finish in 0.2 s (killed)"), "{why}");
         std::thread::sleep(std::time::Duration::from_secs(2));
         assert!(!late.exists(), "the command's child outlived it");
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 }
