@@ -78,7 +78,7 @@ pub struct FitOutcome {
     pub search: Option<tune::Searched>,
 }
 
-/// Folds of `--basis auto`'s cross-validation when no search gives them.
+/// Folds of `--basis auto`'s cross-validation and the intervals' when no search gives them.
 const AUTO_FOLDS: usize = 5;
 
 /// Reports each search iteration as an [`Event::Iteration`].
@@ -551,10 +551,10 @@ struct Scoring {
 
 impl Scoring {
     /// A search's (on `search_on`, the `--search-on` file's rows, when given, else on at most
-    /// [`tune::SEARCH_ROWS`] evenly spaced rows of `train`), or for given parameters `auto`'s
-    /// 5-fold cross-validation; the
-    /// folds are cut from these inputs (the present ones: a history's filtered copies would
-    /// hide a designed grid).
+    /// [`tune::SEARCH_ROWS`] evenly spaced rows of `train`), or for given parameters the
+    /// cross-validation of `auto`'s basis and the intervals ([`AUTO_FOLDS`] folds); the folds
+    /// ([`folds::plan`]: fewer for a handful of rows) are cut from these inputs (the present
+    /// ones: a history's filtered copies would hide a designed grid).
     fn new(
         job: &FitJob,
         train: &data::Dataset,
