@@ -2,7 +2,7 @@
 //! searched for the board; a pair is taken when both show it, it has stood still (no corner
 //! moved over [`crate::calib::video::STILL_PX`] between looks) longer than the two cameras'
 //! delays may differ ([`super::motion`]), and it stands somewhere new
-//! ([`crate::calib::video::new_place`]).
+//! (`calib::video::new_place`).
 
 use std::path::{Path, PathBuf};
 

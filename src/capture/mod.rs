@@ -13,7 +13,7 @@
 //! # Cameras
 //! Each `--left`/`--right` is a device index (`0`), a device path (`/dev/video2`), a video file
 //! (played at its own frame rate, standing in for a camera), or anything else OpenCV opens (a
-//! URL, a GStreamer pipeline), each read through its kind of [`source::FrameSource`]. Devices
+//! URL, a GStreamer pipeline), each read through its kind of `source::FrameSource`. Devices
 //! are asked for MJPG at the size and rate given and for fixed exposure, white balance and
 //! focus; what the backend refuses is said. A stream URL (`http://…`, `rtsp://…`) is read by
 //! FFmpeg with the server's settings. Frames are kept as they come: a camera's, a Motion-JPEG

@@ -128,7 +128,7 @@ pub(super) fn blocks(bytes: &[u8]) -> Option<Blocks> {
 }
 
 /// The lag of `right` behind `left` (each (time, motion), in time order) with the largest
-/// normalised correlation, sampled every [`GRID_S`] over their common span (at least twice
+/// normalised correlation, sampled every `GRID_S` over their common span (at least twice
 /// [`MAX_DELAY_S`]); `None` when either holds no motion or no lag reaches [`MIN_CORRELATION`].
 pub fn delay(left: &[(f64, f64)], right: &[(f64, f64)]) -> Option<Delay> {
     let (first, last) = (

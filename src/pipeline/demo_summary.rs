@@ -1,5 +1,5 @@
 //! What the demo found, each stage against the virtual capture's truth: the contents of
-//! `summary.json`, which [`super::demo`] fills and [`super::demo_report`] shows.
+//! `summary.json`, which [`super::demo`] fills and `demo_report` shows.
 
 use serde::Serialize;
 

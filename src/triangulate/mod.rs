@@ -14,7 +14,7 @@
 //!    reprojection errors are at most `max_reproj_px` and the point is in front of both
 //!    cameras. Exactly one consistent combination → the pair is used (when there were several
 //!    candidates, the epipolar constraint resolved them); none → rejected for its reprojection
-//!    error; several → ambiguous, rejected. Nothing is guessed ([`locate`]).
+//!    error; several → ambiguous, rejected. Nothing is guessed (`locate`).
 //! 4. A step's row is flagged (`flag` column, `;`-separated) when it has fewer than
 //!    `min_frames` pairs (`few_frames`), its pairs disagree by more than `max_spread_mm`
 //!    (`spread`), its step lasted over 1.5 times the log's median step (`long_step`: a gap

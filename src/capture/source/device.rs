@@ -15,7 +15,7 @@ const DRIVER_STAMP_MAX_AGE_S: f64 = 1.0;
 
 /// A V4L2 driver's buffer timestamp (`CAP_PROP_POS_MSEC`: ms on the host's monotonic clock)
 /// as monotonic seconds, when it can be this frame's: not after the grab at `grab_s`, and at
-/// most [`DRIVER_STAMP_MAX_AGE_S`] before it (0 before the first frame, another clock, a
+/// most `DRIVER_STAMP_MAX_AGE_S` before it (0 before the first frame, another clock, a
 /// backend that means something else by it: the grab time is used instead).
 pub fn driver_time(pos_msec: f64, grab_s: f64) -> Option<f64> {
     let t = pos_msec / 1e3;

@@ -1,8 +1,8 @@
-//! Where a camera's frames come from: a [`FrameSource`] hands out each frame as the file bytes
+//! Where a camera's frames come from: a `FrameSource` hands out each frame as the file bytes
 //! it came as (a camera's or a Motion-JPEG file's or stream's JPEG as it came, anything else
 //! decoded and stored as PNG), stamped as near its exposure as the source tells. One file per
 //! kind of source: a device on this machine ([`device`]), a video file standing in for a
-//! camera ([`file`]), a network stream ([`stream`]). [`film`] runs one on its own thread.
+//! camera ([`file`]), a network stream (`stream`). `film` runs one on its own thread.
 
 pub mod device;
 mod file;
