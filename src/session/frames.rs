@@ -101,13 +101,19 @@ pub fn frames_csv_rows(out: &mut String, rows: impl IntoIterator<Item = (Side, u
     }
 }
 
+/// The indices of `side`'s records in time order.
+pub fn in_time_order(records: &[FrameRecord], side: Side) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..records.len())
+        .filter(|&i| records[i].camera == side)
+        .collect();
+    order.sort_by(|&a, &b| records[a].time_s.total_cmp(&records[b].time_s));
+    order
+}
+
 /// Sets each record's [`FrameRecord::late_s`] from its camera's times.
 fn mark_late(records: &mut [FrameRecord]) {
     for side in [Side::Left, Side::Right] {
-        let mut order: Vec<usize> = (0..records.len())
-            .filter(|&i| records[i].camera == side)
-            .collect();
-        order.sort_by(|&a, &b| records[a].time_s.total_cmp(&records[b].time_s));
+        let order = in_time_order(records, side);
         let times: Vec<f64> = order.iter().map(|&i| records[i].time_s).collect();
         for (i, late_s) in order.into_iter().zip(crate::frame_times::late(
             &times,
@@ -387,10 +393,8 @@ pub struct Pairing {
 /// Pairs come in time order.
 pub fn pair_frames(frames: &[FrameRecord], max_dt_s: f64) -> Pairing {
     let by_time = |side: Side| {
-        let mut v: Vec<usize> = (0..frames.len())
-            .filter(|&i| frames[i].camera == side && frames[i].late_s.is_none())
-            .collect();
-        v.sort_by(|&a, &b| frames[a].time_s.total_cmp(&frames[b].time_s));
+        let mut v = in_time_order(frames, side);
+        v.retain(|&i| frames[i].late_s.is_none());
         v
     };
     let (left, right) = (by_time(Side::Left), by_time(Side::Right));

@@ -22,7 +22,7 @@
 use serde::Serialize;
 
 use super::pairing::{place, Placement};
-use crate::session::frames::FrameRecord;
+use crate::session::frames::{in_time_order, FrameRecord};
 use crate::session::pressures::PressureLog;
 use crate::stereo::Side;
 
@@ -85,12 +85,10 @@ pub fn check(
     let mut c = ClockCheck::default();
     // Periods and drops, per camera, from frames of one step.
     for (side, cam) in [Side::Left, Side::Right].into_iter().zip(0..) {
-        let mut times: Vec<(f64, Option<usize>)> = frames
-            .iter()
-            .filter(|f| f.camera == side)
-            .map(|f| (f.time_s, step_of(log, f.time_s)))
+        let times: Vec<(f64, Option<usize>)> = in_time_order(frames, side)
+            .into_iter()
+            .map(|i| (frames[i].time_s, step_of(log, frames[i].time_s)))
             .collect();
-        times.sort_by(|a, b| a.0.total_cmp(&b.0));
         // Each step's frames, in time order.
         let runs: Vec<Vec<f64>> = times
             .chunk_by(|a, b| a.1 == b.1)

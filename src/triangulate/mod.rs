@@ -340,13 +340,8 @@ pub fn triangulate(
             .collect();
         // Frames too far apart to pair is the cause to say first: it empties every count.
         let times = |side: Side| -> Vec<f64> {
-            let mut t: Vec<f64> = records
-                .iter()
-                .filter(|r| r.camera == side)
-                .map(|r| r.time_s)
-                .collect();
-            t.sort_by(f64::total_cmp);
-            t
+            let order = frames::in_time_order(records, side);
+            order.iter().map(|&i| records[i].time_s).collect()
         };
         let apart_s = crate::frame_times::skew(&times(Side::Left), &times(Side::Right));
         let cause = if apart_s > options.max_dt_s {
