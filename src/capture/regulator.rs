@@ -9,12 +9,12 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
 use super::{Clock, Ending, COMMAND_TIMEOUT_S};
+use crate::session::pressures::Logged;
+use crate::session::protocol;
 
 /// How long a command still running when the session stops may take to return before it is
 /// killed (s).
 pub const STOP_GRACE_S: f64 = 1.0;
-use crate::session::pressures::Logged;
-use crate::session::protocol;
 
 /// Runs the protocol: each step's command, logged, then held. Returns how it ended.
 pub(super) fn drive(
@@ -82,6 +82,14 @@ pub(super) fn run_command(
         .stdout(std::process::Stdio::null())
         .stderr(std::process::Stdio::piped())
         .spawn()?;
+    // The group: a command's own children (`sh -c 'python set.py'`) go with it.
+    let group = -(child.id() as i32);
+    let kill_group = || {
+        // SAFETY: a signal to the process group this function created.
+        unsafe {
+            libc::kill(group, libc::SIGKILL);
+        }
+    };
     let start = Instant::now();
     let mut stopped_at = None;
     loop {
@@ -92,6 +100,8 @@ pub(super) fn run_command(
             if stopped_at.is_some() {
                 return Ok(CommandEnd::Stopped);
             }
+            // Nothing it started holds its error output open.
+            kill_group();
             let mut error = String::new();
             if let Some(mut stderr) = child.stderr.take() {
                 use std::io::Read;
@@ -107,11 +117,7 @@ pub(super) fn run_command(
         }
         let graced = stopped_at.is_some_and(|t| t.elapsed().as_secs_f64() > STOP_GRACE_S);
         if graced || start.elapsed().as_secs_f64() > timeout_s {
-            // The group: a command's own children (`sh -c 'python set.py'`) go with it.
-            // SAFETY: a signal to the process group this function created.
-            unsafe {
-                libc::kill(-(child.id() as i32), libc::SIGKILL);
-            }
+            kill_group();
             let _ = child.wait();
             return Ok(if graced {
                 CommandEnd::Stopped
@@ -178,5 +184,14 @@ mod tests {
         assert!(why.starts_with("did not finish in 0.2 s (killed)"), "{why}");
         std::thread::sleep(std::time::Duration::from_secs(2));
         assert!(!late.exists(), "the command's child outlived it");
+        // So does a command that fails, its error said.
+        let command = format!(
+            "(sleep 1.5; echo 1 > {}) & echo no >&2; exit 3",
+            late.display()
+        );
+        let why = said(run_command(&command, &running, 5.0).unwrap());
+        assert_eq!(why, "exited with exit status: 3: no");
+        std::thread::sleep(std::time::Duration::from_secs(2));
+        assert!(!late.exists(), "the failed command's child outlived it");
     }
 }
