@@ -255,13 +255,8 @@ fn bowl(optimum: &Point) -> impl Fn(&[Point], f64) -> Vec<f64> + Sync + '_ {
 #[test]
 fn searches_take_any_named_axes() {
     let names = ["gain", "lag", "width", "ridge", "tau"];
-    let optimum = names
-        .iter()
-        .zip([3.0, 0.2, 40.0, 1e-3, 7.0])
-        .fold(Point::default(), |p, (n, v)| p.with(n, v));
-    let space = names
-        .iter()
-        .fold(SearchSpace::default(), |s, n| s.with(n, (1e-4, 1e3)));
+    let optimum: Point = names.into_iter().zip([3.0, 0.2, 40.0, 1e-3, 7.0]).collect();
+    let space: SearchSpace = names.into_iter().map(|n| (n, (1e-4, 1e3))).collect();
     let hits = (0..10)
         .filter(|&seed| {
             let r = AcoR {

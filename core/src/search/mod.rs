@@ -54,6 +54,17 @@ impl<V: Copy> Named<V> {
     }
 }
 
+/// (name, value) pairs in order, a name given again replacing its value ([`Named::with`]).
+impl<'a, V: Copy> FromIterator<(&'a str, V)> for Named<V> {
+    fn from_iter<I: IntoIterator<Item = (&'a str, V)>>(pairs: I) -> Self {
+        pairs
+            .into_iter()
+            .fold(Named(Vec::new()), |named, (name, value)| {
+                named.with(name, value)
+            })
+    }
+}
+
 impl<V: Serialize> Serialize for Named<V> {
     fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
         use serde::ser::SerializeMap;

@@ -70,13 +70,4 @@ impl Hyper {
         let [c, epsilon, sigma] = Hyper::AXES.map(|name| p.get(name).unwrap_or(f64::NAN));
         Hyper { c, epsilon, sigma }
     }
-
-    /// These values as a search's candidate.
-    pub fn to_point(self) -> Point {
-        let values = [self.c, self.epsilon, self.sigma];
-        Hyper::AXES
-            .iter()
-            .zip(values)
-            .fold(Point::default(), |p, (name, v)| p.with(name, v))
-    }
 }

@@ -107,12 +107,7 @@ pub fn space_for(data: &Dataset) -> SearchSpace {
         (1e-4 * spread, 0.5 * spread),
         (0.5 * median_nn, 2.0 * d.sqrt()),
     ];
-    Hyper::AXES
-        .iter()
-        .zip(ranges)
-        .fold(SearchSpace::default(), |space, (name, range)| {
-            space.with(name, range)
-        })
+    Hyper::AXES.into_iter().zip(ranges).collect()
 }
 
 /// The candidate budget of ACO_R and the grid when none is given, from the rows scored: one
