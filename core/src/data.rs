@@ -315,11 +315,7 @@ fn read_selected(
     names: &[String],
     mut sink: impl FnMut(u64, &[f64]),
 ) -> Result<(), DataError> {
-    let io_err = |source| DataError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    let bytes = std::fs::read(path).map_err(io_err)?;
+    let bytes = read_file(path)?;
     let mut lines = Lines::new(&bytes);
     let mut reader = csv::ReaderBuilder::new()
         .has_headers(false)
@@ -372,10 +368,7 @@ pub fn copy_rows(
     columns: &[String],
     keep: impl Fn(&[f64]) -> bool,
 ) -> Result<usize, DataError> {
-    let bytes = std::fs::read(from).map_err(|source| DataError::Io {
-        path: from.to_path_buf(),
-        source,
-    })?;
+    let bytes = read_file(from)?;
     let mut lines = Lines::new(&bytes);
     let mut reader = csv::ReaderBuilder::new()
         .has_headers(false)
@@ -422,10 +415,7 @@ pub fn copy_rows(
 /// # Errors
 /// [`DataError::Io`] or a malformed CSV file.
 pub fn count_flagged(path: &Path) -> Result<usize, DataError> {
-    let bytes = std::fs::read(path).map_err(|source| DataError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let bytes = read_file(path)?;
     let mut lines = Lines::new(&bytes);
     let mut reader = csv::ReaderBuilder::new()
         .trim(csv::Trim::All)
@@ -446,6 +436,15 @@ pub fn count_flagged(path: &Path) -> Result<usize, DataError> {
 /// The index of the `flag` column, if the header has one.
 fn flag_column(header: &csv::StringRecord) -> Option<usize> {
     header.iter().position(|h| h == "flag")
+}
+
+/// The whole file: its lines are counted from its bytes ([`Lines`]) as the CSV reader parses
+/// them.
+fn read_file(path: &Path) -> Result<Vec<u8>, DataError> {
+    std::fs::read(path).map_err(|source| DataError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
 }
 
 /// A row whose every field is empty (a spreadsheet's trailing rows): a blank line, which the CSV
