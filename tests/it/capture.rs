@@ -313,8 +313,8 @@ fn capture_refuses_bad_protocols_and_cameras_and_keeps_what_a_stopped_camera_gav
 
 /// Ctrl-C, SIGTERM and SIGHUP (a closed terminal, `timeout`, a stopped service) each end a
 /// session as an interruption: exit 130, every frame kept and listed, the steps commanded so far
-/// logged, a command the signal finds running included once it returns. A session killed outright still has its files as of the last second, said to be
-/// still filming.
+/// logged, a command the signal finds running included once it returns. A session killed
+/// outright still has its files as of the last second, said to be still filming.
 #[test]
 fn signals_end_a_capture_with_every_frame_kept_and_listed() {
     let dir = tempdir();
@@ -390,26 +390,26 @@ fn signals_end_a_capture_with_every_frame_kept_and_listed() {
 
 /// Waits (at most 30 s) until the recorder of [`recorder`] was told `steps` steps.
 fn wait_until_told(dir: &Path, steps: usize) {
-    let start = std::time::Instant::now();
     let told = || std::fs::read_to_string(dir.join("told.txt")).map_or(0, |t| t.lines().count());
-    while told() < steps {
-        assert!(start.elapsed().as_secs() < 30, "told {} steps", told());
-        std::thread::sleep(std::time::Duration::from_millis(5));
-    }
+    wait_for(&format!("{steps} steps told"), || told() >= steps);
 }
 
 /// Waits (at most 30 s) until the session in `dir` lists a frame and a step: its files are
 /// rewritten every second while it films, so the first listing is its readiness.
 fn wait_until_listed(dir: &Path) {
     let listed = |file: &str| dir.join(file).is_file() && !csv_rows(&dir.join(file)).is_empty();
+    wait_for(
+        &format!("{} listing a frame and a step", dir.display()),
+        || listed("frames/frames.csv") && listed("pressures.csv"),
+    );
+}
+
+/// Polls `ready` every 5 ms, failing the test after 30 s without it.
+fn wait_for(what: &str, ready: impl Fn() -> bool) {
     let start = std::time::Instant::now();
-    while !(listed("frames/frames.csv") && listed("pressures.csv")) {
-        assert!(
-            start.elapsed().as_secs() < 30,
-            "{} lists nothing",
-            dir.display()
-        );
-        std::thread::sleep(std::time::Duration::from_millis(20));
+    while !ready() {
+        assert!(start.elapsed().as_secs() < 30, "30 s without {what}");
+        std::thread::sleep(std::time::Duration::from_millis(5));
     }
 }
 
