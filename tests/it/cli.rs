@@ -426,7 +426,7 @@ fn a_few_rows_get_as_many_folds_as_they_allow() {
         let (a, b) = (k as f64, ((k * 3) % 7) as f64);
         text += &format!("{a},{b},{}\n", a * 0.5 - b * 0.25);
     }
-    std::fs::write(d.join("few.csv"), &text).unwrap();
+    write(d, "few.csv", &text);
     let model = |file: &str, search: &str| {
         let out = format!("{file}.{search}.json");
         let args = [
@@ -454,7 +454,7 @@ fn a_few_rows_get_as_many_folds_as_they_allow() {
         );
     }
     let three: String = text.lines().take(4).map(|l| format!("{l}\n")).collect();
-    std::fs::write(d.join("three.csv"), three).unwrap();
+    write(d, "three.csv", &three);
     let (run, out) = model("three.csv", "none");
     let msg = String::from_utf8_lossy(&run.stderr);
     assert_eq!(run.status.code(), Some(1), "{msg}");
