@@ -12,24 +12,100 @@
 //! and were stamped when read) shows in the frames queued behind it: they arrive faster than
 //! the camera makes them ([`late`]).
 
-/// The interval between consecutive `times` (sorted, s): the mean of those within half a
-/// median interval of the median (a drop's double interval and a burst's near-zero ones left
-/// out; the mean for precision, which [`late`] needs over seconds); 0 with fewer than two.
+/// The camera's frame period from its `times` (sorted, s); 0 with fewer than two times.
+///
+/// A camera that films all the time gives intervals of one period (a drop's double interval
+/// and a burst's near-zero ones aside). A capture that keeps only the frames around its steps
+/// (one or two per step, as the virtual capture does) has intervals of one period within a
+/// step and of many between steps, and a median of a whole step. Either way the intervals are
+/// whole multiples of the period. So each k = 1, 2, … proposes the median of the intervals
+/// within a quarter of the median interval ÷ k (when at least [`ONE_PERIOD_SHARE`] of them
+/// are), refined as the span of the intervals ÷ the periods they hold: first those of up to
+/// 12 periods, then all, then those within a quarter period of a multiple (the short
+/// intervals of a step alone can be biased: two frames are kept in a short window more often
+/// when their stamps' jitter brings them together). The proposal that explains the most
+/// intervals (at least [`PERIOD_FIT_SHARE`]), the longest of equals, is the period: a step's
+/// length leaves the intervals within a step unexplained, a fraction of the period has no
+/// intervals of its own. With no proposal (a jittery stream), the mean of the intervals within
+/// half a median of the median.
 pub fn period(times: &[f64]) -> f64 {
-    let mut gaps: Vec<f64> = times.windows(2).map(|w| w[1] - w[0]).collect();
-    let Some(median) = crate::stats::median(&mut gaps) else {
+    let gaps: Vec<f64> = times.windows(2).map(|w| w[1] - w[0]).collect();
+    let Some(median) = crate::stats::upper_median(&mut gaps.clone()) else {
         return 0.0;
     };
+    if median <= 0.0 {
+        return 0.0;
+    }
+    // The span ÷ periods of the intervals of 1..=`most` periods of `p` (within a quarter
+    // period of their multiple when `close`), and how many they are.
+    let refine = |p: f64, most: f64, close: bool| -> (f64, usize) {
+        let (mut span, mut periods, mut count) = (0.0, 0.0, 0usize);
+        for g in &gaps {
+            let n = (g / p).round();
+            if n >= 1.0 && n <= most && (!close || (g - n * p).abs() <= 0.25 * p) {
+                span += g;
+                periods += n;
+                count += 1;
+            }
+        }
+        (if periods > 0.0 { span / periods } else { p }, count)
+    };
+    let mut best: Option<(f64, f64)> = None; // (share explained, period)
+    for k in 1..=MAX_PERIODS_PER_INTERVAL {
+        let guess = median / k as f64;
+        if guess < MIN_PERIOD_S {
+            break;
+        }
+        let mut ones: Vec<f64> = gaps
+            .iter()
+            .copied()
+            .filter(|g| (g - guess).abs() <= 0.25 * guess)
+            .collect();
+        if (ones.len() as f64) < ONE_PERIOD_SHARE * gaps.len() as f64 {
+            continue;
+        }
+        let Some(proposed) = crate::stats::median(&mut ones) else {
+            continue;
+        };
+        let (p, _) = refine(proposed, 12.0, false);
+        let (p, _) = refine(p, f64::INFINITY, false);
+        let (p, explained) = refine(p, f64::INFINITY, true);
+        let share = explained as f64 / gaps.len() as f64;
+        if share < PERIOD_FIT_SHARE {
+            continue;
+        }
+        let better = match best {
+            None => true,
+            Some((s, q)) => share > s + 0.005 || (share >= s - 0.005 && p > q),
+        };
+        if better {
+            best = Some((share, p));
+        }
+    }
+    if let Some((_, p)) = best {
+        return p;
+    }
     let near: Vec<f64> = gaps
         .into_iter()
         .filter(|g| (g - median).abs() <= 0.5 * median)
         .collect();
-    if near.is_empty() {
-        median
-    } else {
-        near.iter().sum::<f64>() / near.len() as f64
-    }
+    near.iter().sum::<f64>() / near.len() as f64
 }
+
+/// The share of a camera's intervals of about one period that make a proposal in [`period`]:
+/// fewer are a burst's, not the camera's.
+pub const ONE_PERIOD_SHARE: f64 = 0.05;
+
+/// The share of a camera's intervals that must be whole multiples of its [`period`].
+pub const PERIOD_FIT_SHARE: f64 = 0.9;
+
+/// The most camera periods one median interval is taken to hold ([`period`]): a capture that
+/// keeps one frame a step, at 30 fps and 2 s a step.
+pub const MAX_PERIODS_PER_INTERVAL: usize = 64;
+
+/// The shortest camera period [`period`] finds (s): 240 fps, a fast webcam's; a queue's
+/// frames read out faster than this are a burst.
+pub const MIN_PERIOD_S: f64 = 1.0 / 240.0;
 
 /// How far ahead a burst is looked for (s): a frame queued longer is still found late by this
 /// much at least.
@@ -159,6 +235,34 @@ mod tests {
         let slow: Vec<f64> = (0..100).map(|k| k as f64 * 2.0 * p + jitter(k)).collect();
         assert!(late(&slow, period(&slow)).iter().all(Option::is_none));
         assert!(late(&[], 0.0).is_empty() && late(&[1.0], 0.0) == [None]);
+    }
+
+    /// The virtual capture keeps the frames stamped 100-140 ms (or 100-200 ms) into each
+    /// 0.3 s step: one or two (or three) per camera and step, a period apart within a step.
+    /// Their period is the camera's, not the step's, and nothing is late.
+    #[test]
+    fn frames_kept_around_steps_have_the_cameras_period_and_none_is_late() {
+        let p = 1.0 / 29.97;
+        // Stamp jitter of ±2 ms, spread evenly (a multiplicative hash of the frame number).
+        let jitter = |k: u64| {
+            0.004
+                * ((k.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 11) as f64 / (1u64 << 53) as f64 - 0.5)
+        };
+        for window in [0.10..0.14, 0.10..0.20] {
+            let kept: Vec<f64> = (0..20_000)
+                .map(|k| 0.011 + k as f64 * p + jitter(k))
+                .filter(|t| window.contains(&t.rem_euclid(0.3)))
+                .collect();
+            let across = kept.windows(2).filter(|w| w[1] - w[0] > 0.1).count();
+            let within = kept.len() - 1 - across;
+            assert!(within > 0 && across > 0, "{window:?}");
+            assert!(
+                (period(&kept) - p).abs() < 1e-5,
+                "{window:?}: {} s",
+                period(&kept)
+            );
+            assert!(late(&kept, period(&kept)).iter().all(Option::is_none));
+        }
     }
 
     #[test]
