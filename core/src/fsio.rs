@@ -73,11 +73,15 @@ pub fn listed_files(listing: &Path) -> Vec<String> {
 
 /// Removes the files of a previous run (`previous`, names in `dir`, as [`listed_files`] read
 /// them) that this run did not write again (`written`): a folder never mixes two runs' files.
-/// Names with a path separator are ignored. Returns what was removed.
+/// The listing only narrows what may go: a name is removed only when `ours` says this command
+/// writes files of that name there (a listing on disk can be edited, and must never make
+/// handcap delete a file it did not write). Names with a path separator are ignored. Returns
+/// what was removed.
 pub fn remove_stale(
     dir: &Path,
     previous: &[String],
     written: &[std::path::PathBuf],
+    ours: impl Fn(&Path) -> bool,
 ) -> Vec<std::path::PathBuf> {
     let kept: Vec<&std::ffi::OsStr> = written.iter().filter_map(|p| p.file_name()).collect();
     previous
@@ -85,7 +89,7 @@ pub fn remove_stale(
         .filter(|name| !name.contains(['/', '\\']) && !name.is_empty() && !name.starts_with('.'))
         .filter(|name| !kept.contains(&std::ffi::OsStr::new(name.as_str())))
         .map(|name| dir.join(name))
-        .filter(|path| path.is_file() && std::fs::remove_file(path).is_ok())
+        .filter(|path| path.is_file() && ours(path) && std::fs::remove_file(path).is_ok())
         .collect()
 }
 

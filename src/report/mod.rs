@@ -164,7 +164,9 @@ pub fn write_model_report(
     };
     let bytes = serde_json::to_vec_pretty(&listed).expect("report serialises");
     fsio::write_bytes(&fit, &bytes).map_err(err(&fit))?;
-    fsio::remove_stale(dir, &previous, &written);
+    fsio::remove_stale(dir, &previous, &written, |path| {
+        is_report_file(path, &report.outputs)
+    });
     Ok(())
 }
 
@@ -201,6 +203,30 @@ pub fn report_files(
         ));
     }
     files
+}
+
+/// Whether `path` is named as a file [`write_model_report`] writes for a model of `outputs`
+/// (whatever the test files): the fixed files, Figures 7-8, and sweep figures
+/// ([`sweep_stem`]) of an output or the residuals.
+fn is_report_file(path: &Path, outputs: &[String]) -> bool {
+    let Some(name) = path.file_name().map(|n| n.to_string_lossy().into_owned()) else {
+        return false;
+    };
+    if ["metrics.csv", "fit.json", "report.md", "history.csv"].contains(&name.as_str()) {
+        return true;
+    }
+    let Some(stem) = name
+        .strip_suffix(".svg")
+        .or_else(|| name.strip_suffix(".png"))
+    else {
+        return false;
+    };
+    CONVERGENCE.contains(&stem)
+        || outputs
+            .iter()
+            .map(String::as_str)
+            .chain([RESIDUALS])
+            .any(|figure| stem.ends_with(&format!("_{figure}")))
 }
 
 /// The paper's Figures 7 and 8 (file stems).

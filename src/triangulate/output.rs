@@ -42,6 +42,28 @@ pub fn phase_path(out: &Path, phase: &str) -> PathBuf {
     beside(out, &format!("_{safe}.csv"))
 }
 
+/// Whether `path` is a file a triangulation into `out` writes: one of [`BESIDE`], or a
+/// per-phase file ([`phase_path`]) that holds a dataset (its header's first columns are the
+/// dataset's), so that a stale listing never removes another file.
+fn ours(out: &Path, path: &Path) -> bool {
+    let name = |p: &Path| p.file_name().map(|n| n.to_string_lossy().into_owned());
+    let (Some(name), Some(stem)) = (name(path), name(&beside(out, ""))) else {
+        return false;
+    };
+    if BESIDE
+        .iter()
+        .any(|(suffix, _)| name == format!("{stem}{suffix}"))
+    {
+        return true;
+    }
+    name.starts_with(&format!("{stem}_"))
+        && name.ends_with(".csv")
+        && std::fs::read(path).is_ok_and(|bytes| bytes.starts_with(DATASET_HEAD.as_bytes()))
+}
+
+/// The dataset's first columns, which every dataset and per-phase file starts with.
+const DATASET_HEAD: &str = "P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm,n_frames,spread_mm,reproj_px,dt_ms";
+
 const PAIRS: &str = "_pairs.csv";
 const HAND: &str = "_hand.yml";
 const SUMMARY: &str = "_summary.json";
@@ -82,8 +104,7 @@ fn cell(s: &str) -> String {
 impl Triangulation {
     /// The dataset's text, with the rows `keep` selects.
     fn dataset_csv(&self, keep: impl Fn(&super::Row) -> bool) -> String {
-        let mut out =
-            String::from("P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm,n_frames,spread_mm,reproj_px,dt_ms");
+        let mut out = String::from(DATASET_HEAD);
         for c in &self.extra_columns {
             out.push(',');
             out += &cell(c);
@@ -207,7 +228,7 @@ impl Triangulation {
             &(serde_json::to_string_pretty(&json).expect("serialisable") + "\n"),
         )?;
         let dir = out.parent().unwrap_or(Path::new("."));
-        fsio::remove_stale(dir, &previous, &written);
+        fsio::remove_stale(dir, &previous, &written, |path| ours(out, path));
         Ok(written)
     }
 

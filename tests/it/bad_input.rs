@@ -412,7 +412,7 @@ fn errors_say_an_os_reason_once() {
 }
 
 #[test]
-fn a_second_run_into_the_same_place_leaves_no_files_of_the_first() {
+fn a_second_run_leaves_no_files_of_the_first_and_an_edited_listing_removes_none_of_the_users() {
     let dir = tempdir();
     let d = dir.path();
     synth(d);
@@ -477,6 +477,24 @@ fn a_second_run_into_the_same_place_leaves_no_files_of_the_first() {
         !d.join("t_train.csv").exists(),
         "a stale per-phase file is left"
     );
+
+    // Issue 44, item 2: a listing edited to name the user's files removes none of them: the
+    // listing only narrows what a run may remove, it never authorises a delete.
+    write(d, "rep/notes.txt", "mine");
+    write(d, "rep/fit.json", r#"{"files":["notes.txt","report.md"]}"#);
+    model("data/sweep_a.csv");
+    assert!(
+        d.join("rep/notes.txt").exists(),
+        "fit.json's listing removed a user's file"
+    );
+    write(d, "t_notes.csv", "mine\n");
+    write(
+        d,
+        "t_summary.json",
+        r#"{"files":["pressures.csv","t_notes.csv"]}"#,
+    );
+    run("plain.csv");
+    assert!(d.join("pressures.csv").exists() && d.join("t_notes.csv").exists());
 }
 
 #[test]
