@@ -11,7 +11,7 @@ use std::sync::atomic::AtomicBool;
 
 use numpy::ndarray::{Array1, Array2, ArrayView1, ArrayView2};
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
-use pyo3::exceptions::{PyOSError, PyValueError};
+use pyo3::exceptions::{PyOSError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyTuple;
 
@@ -30,6 +30,29 @@ use handcap_core::search::Method;
 
 fn value_error(e: impl std::fmt::Display) -> PyErr {
     PyValueError::new_err(e.to_string())
+}
+
+/// Runs `work` without the GIL. A panic in it (a defect: the core validates what it is given)
+/// raises `RuntimeError` with its message instead of `PanicException`, which `except Exception`
+/// does not catch.
+fn detached<T: Send>(
+    py: Python<'_>,
+    work: impl FnOnce() -> Result<T, String> + Send,
+) -> PyResult<T> {
+    let outcome = py.detach(|| std::panic::catch_unwind(std::panic::AssertUnwindSafe(work)));
+    match outcome {
+        Ok(result) => result.map_err(value_error),
+        Err(panic) => {
+            let what = panic
+                .downcast_ref::<String>()
+                .map(String::as_str)
+                .or_else(|| panic.downcast_ref::<&str>().copied())
+                .unwrap_or("no message");
+            Err(PyRuntimeError::new_err(format!(
+                "handcap failed inside ({what}); please report it with the data that caused it"
+            )))
+        }
+    }
 }
 
 fn file_error(e: ModelFileError) -> PyErr {
@@ -237,7 +260,7 @@ fn fit(
         max_iter,
         intervals,
     };
-    let file = py.detach(|| fit_request(request)).map_err(value_error)?;
+    let file = detached(py, || fit_request(request))?;
     Ok(Model { file })
 }
 
@@ -277,6 +300,8 @@ impl Model {
     #[staticmethod]
     fn from_json(text: &str) -> PyResult<Model> {
         let file: ModelFile = serde_json::from_str(text).map_err(value_error)?;
+        file.validate()
+            .map_err(|e| value_error(format!("not a handcap model ({e})")))?;
         Ok(Model { file })
     }
 
@@ -346,19 +371,17 @@ impl Model {
                 })
             }
         };
-        let predicted = py
-            .detach(|| {
-                let features = match (self.file.history(), &series) {
-                    (Some(h), Some(s)) => h.features(&given, s).map_err(|e| e.to_string())?,
-                    _ => given,
-                };
-                self.file
-                    .model
-                    .predictor()
-                    .predict(&features)
-                    .map_err(|e| e.to_string())
-            })
-            .map_err(value_error)?;
+        let predicted = detached(py, || {
+            let features = match (self.file.history(), &series) {
+                (Some(h), Some(s)) => h.features(&given, s).map_err(|e| e.to_string())?,
+                _ => given,
+            };
+            self.file
+                .model
+                .predictor()
+                .predict(&features)
+                .map_err(|e| e.to_string())
+        })?;
         Ok(array(&predicted).into_pyarray(py))
     }
 
@@ -400,18 +423,23 @@ impl Model {
             )));
         }
         let rows: Vec<Vec<f64>> = targets.rows().into_iter().map(|r| r.to_vec()).collect();
-        let solutions = py
-            .detach(|| {
-                let cap = |name: &str| name.ends_with("_kpa").then_some((0.0, max_kpa));
-                let options = InverseOptions {
-                    reach,
-                    ..InverseOptions::within_training_range(&steady, cap)
-                };
-                rows.iter()
-                    .map(|t| inverse::solve(&steady, t, &options))
-                    .collect::<Result<Vec<_>, _>>()
-            })
-            .map_err(value_error)?;
+        if let Some(k) = rows.iter().position(|r| r.iter().any(|v| !v.is_finite())) {
+            return Err(value_error(format!(
+                "targets row {k}: {:?} is not a position (NaN or infinite); give finite numbers",
+                rows[k]
+            )));
+        }
+        let solutions = detached(py, || {
+            let cap = |name: &str| name.ends_with("_kpa").then_some((0.0, max_kpa));
+            let options = InverseOptions {
+                reach,
+                ..InverseOptions::within_training_range(&steady, cap)
+            };
+            rows.iter()
+                .map(|t| inverse::solve(&steady, t, &options))
+                .collect::<Result<Vec<_>, _>>()
+                .map_err(|e| e.to_string())
+        })?;
         let d = steady.inputs().len();
         let n = solutions.len();
         let inputs = Array2::from_shape_vec(

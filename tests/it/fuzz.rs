@@ -123,6 +123,340 @@ const MODEL: &str = r#"{
   "provenance": {"handcap_version": "0", "command": ["handcap"], "seed": null, "inputs": []}
 }"#;
 
+/// A model with input history (exponential filters, groups) and intervals, as `handcap model
+/// --time t_s --group-by trial --history ema:0.5` writes it, cut to three support vectors and
+/// twelve held-out scores.
+const HISTORY_MODEL: &str = r#"{
+ "format": "handcap-model",
+ "version": 1,
+ "kind": "msvr",
+ "model": {
+  "inputs": [
+   "a",
+   "b",
+   "a@ema0.5",
+   "b@ema0.5"
+  ],
+  "outputs": [
+   "y"
+  ],
+  "params": {
+   "c": 326.7,
+   "epsilon": 0.0169,
+   "sigma": 0.259,
+   "tol": 1e-08,
+   "max_iter": 500,
+   "loss": "robust",
+   "basis": {
+    "kind": "exact"
+   }
+  },
+  "scaler": {
+   "min": [
+    0.0132,
+    0.062,
+    0.238,
+    0.062
+   ],
+   "max": [
+    0.9956,
+    1.997,
+    0.7453307386427317,
+    1.8472146712642583
+   ]
+  },
+  "support_vectors": [
+   [
+    0.2288273615635179,
+    0.5304909560723514,
+    0.0,
+    0.5750008760980271
+   ],
+   [
+    0.36319218241042345,
+    0.5921447028423772,
+    0.04716359323647536,
+    0.5871145011459784
+   ],
+   [
+    0.6234731270358306,
+    0.035710594315245474,
+    0.17713947434307142,
+    0.48770505551045373
+   ]
+  ],
+  "coefficients": [
+   [
+    -0.9796508989639013
+   ],
+   [
+    0.6613795409055505
+   ],
+   [
+    0.18630643763664673
+   ]
+  ],
+  "bias": [
+   0.7414827193577249
+  ],
+  "fit": {
+   "rows": 48,
+   "iterations": 18,
+   "objective": 1.9313974301238586,
+   "support_vectors": 3,
+   "converged": true,
+   "stop": "no_descent"
+  }
+ },
+ "basis": {
+  "basis": {
+   "kind": "exact"
+  },
+  "reason": "48 rows: exact MSVR, a kernel at every row, is affordable up to 2000"
+ },
+ "history": {
+  "used": {
+   "time": "t_s",
+   "group": "trial",
+   "inputs": [
+    "a",
+    "b"
+   ],
+   "memory": {
+    "kind": "ema",
+    "tau": [
+     0.5
+    ]
+   }
+  },
+  "reason": "--history ema:0.5"
+ },
+ "intervals": {
+  "folds": {
+   "scheme": "groups",
+   "column": "trial",
+   "reason": "--folds-by trial: 4 groups"
+  },
+  "rows": 12,
+  "radii": [
+   {
+    "level": 0.9,
+    "radius": 0.44373711430726326
+   }
+  ],
+  "groups": [
+   {
+    "group": 0.0,
+    "rows": 12,
+    "covered": 1.0
+   },
+   {
+    "group": 1.0,
+    "rows": 12,
+    "covered": 0.9166666666666666
+   }
+  ],
+  "scores": [
+   0.005978767307675659,
+   0.027320134683228803,
+   0.039491091539087364,
+   0.05229777145882264,
+   0.06536614164136823,
+   0.07477177346926211,
+   0.09515172868531852,
+   0.1511116213191488,
+   0.26605846310029735,
+   0.2918511203333202,
+   0.3741842373041334,
+   0.44373711430726326
+  ]
+ },
+ "provenance": {
+  "handcap_version": "0",
+  "command": [
+   "handcap"
+  ],
+  "seed": null,
+  "inputs": []
+ }
+}"#;
+
+/// Values a tampered model file holds where a number, a name or a list was: zero, negative,
+/// huge and tiny numbers, counts that overflow, names of other fields, empty lists.
+fn tampered_value() -> impl Strategy<Value = serde_json::Value> {
+    use serde_json::json;
+    prop_oneof![
+        Just(json!(0)),
+        Just(json!(-0.4)),
+        Just(json!(1e308)),
+        Just(json!(-1e308)),
+        Just(json!(1e-300)),
+        Just(json!(1_000_000_000_000u64)),
+        Just(json!(u64::MAX)),
+        Just(json!(3)),
+        Just(json!("a")),
+        Just(json!("y")),
+        Just(json!("a@ema0.5")),
+        Just(json!("")),
+        Just(json!([])),
+        Just(json!(null)),
+        any::<f64>()
+            .prop_filter("JSON numbers are finite", |v| v.is_finite())
+            .prop_map(|v| json!(v)),
+    ]
+}
+
+/// Every leaf and list of `value`, as JSON pointers.
+fn pointers(value: &serde_json::Value, at: String, out: &mut Vec<String>) {
+    match value {
+        serde_json::Value::Object(map) => {
+            for (k, v) in map {
+                pointers(v, format!("{at}/{k}"), out);
+            }
+        }
+        serde_json::Value::Array(items) => {
+            out.push(at.clone());
+            for (k, v) in items.iter().enumerate() {
+                pointers(v, format!("{at}/{k}"), out);
+            }
+        }
+        _ => out.push(at),
+    }
+}
+
+/// [`HISTORY_MODEL`] with 1-4 of its values replaced ([`tampered_value`]), or a list grown
+/// by a copy of its first element.
+fn tampered_model() -> impl Strategy<Value = String> {
+    let sample: serde_json::Value = serde_json::from_str(HISTORY_MODEL).unwrap();
+    let mut all = Vec::new();
+    pointers(&sample, String::new(), &mut all);
+    let n = all.len();
+    prop::collection::vec((0..n, tampered_value(), any::<bool>()), 1..5).prop_map(move |edits| {
+        let mut v = sample.clone();
+        for (k, value, grow) in edits {
+            let Some(slot) = v.pointer_mut(&all[k]) else {
+                continue;
+            };
+            match slot {
+                serde_json::Value::Array(items) if grow && !items.is_empty() => {
+                    items.push(items[0].clone())
+                }
+                _ => *slot = value,
+            }
+        }
+        v.to_string()
+    })
+}
+
+/// What the commands do with a model that loads: predict a short series (outside-range check
+/// included), plan pressures on its steady state, ask its intervals.
+fn exercise(file: &ModelFile) {
+    use handcap::data::Columns;
+    use handcap::model::history::Series;
+    use handcap::model::inverse::{self, InverseOptions};
+    use handcap::model::Predict;
+    let predictor = file.model.predictor();
+    let given: Vec<String> = match file.history() {
+        Some(h) => h.inputs.clone(),
+        None => predictor.inputs().to_vec(),
+    };
+    let rows = 4;
+    let values: Vec<f64> = (0..rows * given.len()).map(|k| 0.1 * k as f64).collect();
+    let x = Columns::new(given, values);
+    let features = match file.history() {
+        Some(h) => h.features(
+            &x,
+            &Series {
+                time: (0..rows).map(|k| 0.1 * k as f64).collect(),
+                group: h.group.as_ref().map(|_| vec![1.0; rows]),
+            },
+        ),
+        None => Ok(x),
+    };
+    if let Ok(features) = features {
+        let _ = predictor.outside(&features);
+        let _ = predictor.predict(&features);
+    }
+    let steady = file.steady_state();
+    let options = InverseOptions::within_training_range(&steady, |_| None);
+    let target = vec![0.5; steady.outputs().len()];
+    let _ = inverse::solve(&steady, &target, &options);
+    for level in [0.5, 0.9, 0.95] {
+        let _ = file.interval_radius(level);
+    }
+}
+
+proptest! {
+    /// Issue 44, items 3, 4 and 6: a tampered model file is refused on load, or it loads and
+    /// every command's use of it runs without a panic or an abort.
+    #[test]
+    fn a_tampered_model_file_is_refused_or_used_without_a_panic(text in tampered_model()) {
+        if let Ok(file) = on_file("m.json", text.as_bytes(), ModelFile::load) {
+            exercise(&file);
+        }
+    }
+}
+
+/// Each tampering the hostile probes found, refused on load with the field named.
+#[test]
+fn tampered_model_files_are_refused_naming_what_is_wrong() {
+    let sample: serde_json::Value = serde_json::from_str(HISTORY_MODEL).unwrap();
+    let cases: [(&str, serde_json::Value, &str); 10] = [
+        (
+            "/history/used/memory/tau",
+            serde_json::json!([0.5, 2.0]),
+            "does not build",
+        ),
+        (
+            "/history/used/memory/tau",
+            serde_json::json!([0.0]),
+            "not a positive number",
+        ),
+        (
+            "/history/used/memory/tau",
+            serde_json::json!([-0.4]),
+            "not a positive number",
+        ),
+        (
+            "/history/used/memory",
+            serde_json::json!({"kind": "lags", "rows": u64::MAX}),
+            "does not build",
+        ),
+        (
+            "/history/used/memory",
+            serde_json::json!({"kind": "lags", "rows": 1_000_000_000_000u64}),
+            "does not build",
+        ),
+        (
+            "/history/used/inputs",
+            serde_json::json!(["a", "c"]),
+            "does not build",
+        ),
+        ("/intervals/scores/0", serde_json::json!(-5.0), "distances"),
+        ("/intervals/scores/1", serde_json::json!(0.0), "ascending"),
+        (
+            "/model/outputs/0",
+            serde_json::json!("a"),
+            "both an input and an output",
+        ),
+        (
+            "/model/coefficients/0/0",
+            serde_json::json!(1e300),
+            "beyond",
+        ),
+    ];
+    for (pointer, value, says) in cases {
+        let mut v = sample.clone();
+        *v.pointer_mut(pointer).unwrap() = value;
+        let err = on_file("m.json", v.to_string().as_bytes(), ModelFile::load).unwrap_err();
+        assert!(err.to_string().contains(says), "{pointer}: {err}");
+    }
+    let mut v = sample.clone();
+    v["model"]["inputs"][1] = serde_json::json!("a");
+    let err = on_file("m.json", v.to_string().as_bytes(), ModelFile::load).unwrap_err();
+    assert!(err.to_string().contains("names \"a\" twice"), "{err}");
+}
+
 #[test]
 fn the_undamaged_samples_read() {
     on_file("d.csv", CSV.as_bytes(), |p| {
@@ -134,6 +468,7 @@ fn the_undamaged_samples_read() {
     })
     .unwrap();
     on_file("m.json", MODEL.as_bytes(), ModelFile::load).unwrap();
+    exercise(&on_file("m.json", HISTORY_MODEL.as_bytes(), ModelFile::load).unwrap());
     on_file("board.yml", BOARD.as_bytes(), read_board).unwrap();
     on_file("calib.yml", CALIBRATION.as_bytes(), read_calibration).unwrap();
 }

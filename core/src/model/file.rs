@@ -23,7 +23,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::data::{self, Columns, DataError};
 use crate::fsio;
-use crate::model::history::{History, HistoryDecision, SteadyState};
+use crate::model::history::{History, HistoryDecision, Memory, SteadyState};
 use crate::model::interval::{IntervalError, Intervals};
 use crate::model::msvr::tune::{BasisDecision, SearchSummary};
 pub use crate::model::StoredModel;
@@ -183,6 +183,76 @@ impl ModelFile {
             }
             None => return Err(invalid("no `version`".into())),
         }
-        serde_json::from_slice(&bytes).map_err(|e| invalid(e.to_string()))
+        let file: ModelFile = serde_json::from_slice(&bytes).map_err(|e| invalid(e.to_string()))?;
+        file.validate().map_err(invalid)?;
+        Ok(file)
     }
+
+    /// Checks every invariant prediction, the inverse and the intervals rely on, beyond what
+    /// the model's own form checks (shapes, finite numbers): names unique and no output named
+    /// as an input; numbers of a size a fit can give; the history's features are the model's
+    /// inputs, with time constants that are positive and finite; interval radii and scores
+    /// finite, non-negative and in order. A file that passes cannot make a command panic.
+    ///
+    /// # Errors
+    /// What is wrong, in a few words naming the field.
+    pub fn validate(&self) -> Result<(), String> {
+        let model = self.model.predictor();
+        unique("model.inputs", model.inputs())?;
+        unique("model.outputs", model.outputs())?;
+        if let Some(name) = model.outputs().iter().find(|o| model.inputs().contains(o)) {
+            return Err(format!("{name:?} is both an input and an output"));
+        }
+        if let Some(history) = self.history() {
+            validate_history(history, model.inputs())?;
+        }
+        if let Some(intervals) = &self.intervals {
+            intervals.validate()?;
+        }
+        Ok(())
+    }
+}
+
+/// `names` has no name twice.
+fn unique(field: &str, names: &[String]) -> Result<(), String> {
+    let mut seen = std::collections::HashSet::new();
+    match names.iter().find(|n| !seen.insert(n.as_str())) {
+        Some(name) => Err(format!("{field} names {name:?} twice")),
+        None => Ok(()),
+    }
+}
+
+/// The history `h` builds exactly the features `inputs` (counted before they are named: a
+/// tampered lag count must not allocate), from unique inputs, with usable time constants.
+fn validate_history(h: &History, inputs: &[String]) -> Result<(), String> {
+    unique("history.inputs", &h.inputs)?;
+    if h.inputs.is_empty() {
+        return Err("history.inputs is empty".into());
+    }
+    if let Memory::Ema { tau } = &h.memory {
+        if let Some(t) = tau.iter().find(|t| !(t.is_finite() && **t > 0.0)) {
+            return Err(format!(
+                "history time constant {t} is not a positive number"
+            ));
+        }
+        let mut sorted = tau.clone();
+        sorted.sort_by(f64::total_cmp);
+        if sorted.windows(2).any(|w| w[0] == w[1]) {
+            return Err("history names a time constant twice".into());
+        }
+    }
+    let features = h
+        .memory
+        .blocks()
+        .checked_add(1)
+        .and_then(|copies| copies.checked_mul(h.inputs.len()));
+    if features != Some(inputs.len()) || h.feature_names() != inputs {
+        return Err(format!(
+            "history ({} of {}) does not build the model's inputs ({})",
+            h.memory,
+            h.inputs.join(","),
+            inputs.join(",")
+        ));
+    }
+    Ok(())
 }

@@ -157,6 +157,49 @@ impl Intervals {
     pub fn radius(&self, level: f64) -> Result<f64, IntervalError> {
         radius(&self.scores, level)
     }
+
+    /// Checks what a model file holds: scores finite, non-negative and ascending, as many as
+    /// the held-out rows; each radius the scores' radius at its level; coverages shares.
+    ///
+    /// # Errors
+    /// What is wrong, naming the field.
+    pub fn validate(&self) -> Result<(), String> {
+        if let Some(s) = self.scores.iter().find(|s| !(s.is_finite() && **s >= 0.0)) {
+            return Err(format!(
+                "intervals.scores holds {s}: scores are distances (≥ 0)"
+            ));
+        }
+        if self.scores.windows(2).any(|w| w[0] > w[1]) {
+            return Err("intervals.scores are not in ascending order".into());
+        }
+        if self.held_out.rows != self.scores.len() {
+            return Err(format!(
+                "intervals.rows is {} but there are {} scores",
+                self.held_out.rows,
+                self.scores.len()
+            ));
+        }
+        for r in &self.held_out.radii {
+            if radius(&self.scores, r.level) != Ok(r.radius) {
+                return Err(format!(
+                    "intervals.radii: the radius at level {} is not the scores' ({})",
+                    r.level, r.radius
+                ));
+            }
+        }
+        if let Some(c) = self
+            .held_out
+            .groups
+            .iter()
+            .find(|c| !(0.0..=1.0).contains(&c.covered))
+        {
+            return Err(format!(
+                "intervals.groups: a share covered of {} is not between 0 and 1",
+                c.covered
+            ));
+        }
+        Ok(())
+    }
 }
 
 /// Each row's ‖y − ŷ‖₂.

@@ -661,6 +661,10 @@ impl From<Msvr> for MsvrRepr {
     }
 }
 
+/// The largest magnitude of a number in a model file: far beyond any fit's, and far enough
+/// below `f64::MAX` that sums over millions of support vectors stay finite.
+pub const LARGEST_NUMBER: f64 = 1e100;
+
 impl TryFrom<MsvrRepr> for Msvr {
     type Error = String;
 
@@ -700,9 +704,11 @@ impl TryFrom<MsvrRepr> for Msvr {
         if !all
             .chain(r.support_vectors.iter().flatten())
             .chain(r.coefficients.iter().flatten())
-            .all(|v| v.is_finite())
+            .all(|v| v.abs() <= LARGEST_NUMBER)
         {
-            return Err("a number is not finite".into());
+            return Err(format!(
+                "a number is not finite or beyond ±{LARGEST_NUMBER:e}, which no fit gives"
+            ));
         }
         if r.scaler
             .min
