@@ -282,6 +282,62 @@ pub fn read_columns_with_lines(
     Ok((Columns::new(names.to_vec(), values), lines))
 }
 
+/// Every column of a CSV file but those in `skip` (and `flag`) that holds a finite number on
+/// every row [`read_columns`] reads, by name, in the header's order; one pass over the file
+/// however many columns it has (the candidates for the folds' groups).
+///
+/// # Errors
+/// As [`read_columns`]: unreadable or empty file, a row of the wrong length.
+pub fn numeric_columns(path: &Path, skip: &[String]) -> Result<Vec<(String, Vec<f64>)>, DataError> {
+    let bytes = read_file(path)?;
+    let mut lines = Lines::new(&bytes);
+    let mut reader = csv::ReaderBuilder::new()
+        .has_headers(false)
+        .trim(csv::Trim::All)
+        .from_reader(bytes.as_slice());
+    let mut records = reader.records();
+    let header = match records.next() {
+        None => return Err(DataError::Empty { path: path.into() }),
+        Some(r) => r.map_err(|e| csv_error(path, e, &mut lines))?,
+    };
+    let flag = flag_column(&header);
+    let mut columns: Vec<(usize, String, Option<Vec<f64>>)> = header
+        .iter()
+        .enumerate()
+        .filter(|&(j, name)| Some(j) != flag && !skip.iter().any(|s| s == name))
+        .map(|(j, name)| (j, name.to_string(), Some(Vec::new())))
+        .collect();
+    for record in records {
+        let record = record.map_err(|e| csv_error(path, e, &mut lines))?;
+        if is_blank(&record) || is_flagged(flag, &record) {
+            continue;
+        }
+        if record.len() != header.len() {
+            return Err(DataError::Malformed {
+                path: path.into(),
+                line: lines.of(record.position()),
+                message: format!(
+                    "{} fields, but the header has {}; every row needs one value per column",
+                    record.len(),
+                    header.len()
+                ),
+            });
+        }
+        for (j, _, values) in &mut columns {
+            let number = record[*j].parse::<f64>().ok().filter(|v| v.is_finite());
+            match (values.as_mut(), number) {
+                (Some(values), Some(v)) => values.push(v),
+                _ => *values = None,
+            }
+        }
+        columns.retain(|c| c.2.is_some());
+    }
+    Ok(columns
+        .into_iter()
+        .filter_map(|(_, name, values)| Some((name, values?)))
+        .collect())
+}
+
 /// Reads a dataset: `inputs` and `outputs` columns of one CSV file.
 ///
 /// # Errors

@@ -45,7 +45,10 @@ impl<'a> Url<'a> {
     }
 }
 
-/// `source` as it may be shown and written: a URL's password as `***`.
+/// `source` as it may be shown and written: a URL's password as `***`. A password holding a
+/// raw `/`, `?` or `#` ends the URL's authority early, so no parser finds it: when the text
+/// between `://` and the last `@` has the `user:password` shape, all of it is hidden
+/// (`http://***@host/…`), whatever the parse says.
 pub fn redact(source: &str) -> String {
     match Url::parse(source) {
         Some(u) if u.password.is_some() => format!(
@@ -55,8 +58,26 @@ pub fn redact(source: &str) -> String {
             u.authority,
             u.path
         ),
-        _ => source.to_string(),
+        _ => match mangled_credentials(source) {
+            Some((scheme, rest)) => format!("{scheme}://***@{rest}"),
+            None => source.to_string(),
+        },
     }
+}
+
+/// A URL whose credentials hold a raw `/`, `?` or `#` (`http://lab:pa/ss@host/…`): its scheme
+/// and what follows the last `@`. `None` when there is no such shape.
+fn mangled_credentials(source: &str) -> Option<(&str, &str)> {
+    let (scheme, rest) = source.split_once("://")?;
+    let (credentials, after) = rest.rsplit_once('@')?;
+    (credentials.contains(':') && credentials.contains(['/', '?', '#'])).then_some((scheme, after))
+}
+
+/// What to do about a camera URL whose password holds a character that ends a URL's host
+/// part: percent-encode it. `None` for any other source.
+pub fn credentials_hint(source: &str) -> Option<&'static str> {
+    mangled_credentials(source)
+        .map(|_| "a password holding /, ? or # must be percent-encoded in the URL (%2F, %3F, %23)")
 }
 
 /// What the server of an `http://` camera URL answers a GET of its path (with its credentials,
@@ -154,6 +175,28 @@ mod tests {
         assert!(Url::parse("0").is_none());
     }
 
+    /// Issue 44, item 11: a raw `/`, `?` or `#` in the password ends the authority early; the
+    /// password is hidden all the same, and the hint says to percent-encode it.
+    #[test]
+    fn a_password_holding_a_slash_question_mark_or_hash_is_hidden() {
+        for (url, shown) in [
+            (
+                "http://lab:pa/ss@host/left.mjpg",
+                "http://***@host/left.mjpg",
+            ),
+            (
+                "http://lab:pa?ss@host:81/left.mjpg",
+                "http://***@host:81/left.mjpg",
+            ),
+            ("rtsp://admin:a#b/c@cam/live", "rtsp://***@cam/live"),
+        ] {
+            assert_eq!(redact(url), shown);
+            assert!(!redact(url).contains("ss") || !url.contains("pa/ss"));
+            assert!(credentials_hint(url).unwrap().contains("percent-encoded"));
+        }
+        assert_eq!(credentials_hint("http://lab:s3cret@cam/v"), None);
+    }
+
     #[test]
     fn passwords_in_camera_urls_are_hidden_and_nothing_else_changes() {
         assert_eq!(
@@ -167,6 +210,7 @@ mod tests {
         assert_eq!(redact("rtsp://admin@cam/live"), "rtsp://admin@cam/live");
         // An @ after the host belongs to the path, not to credentials.
         assert_eq!(redact("http://cam/a@b"), "http://cam/a@b");
+        assert_eq!(credentials_hint("http://cam/a@b"), None);
         for plain in ["0", "/dev/video2", "left.avi", "http://cam:8080/video"] {
             assert_eq!(redact(plain), plain);
         }

@@ -162,8 +162,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     }
     let folds_given = a.group_by.is_some() || a.folds_by != FoldsBy::Auto;
     let names_runs = a.time.is_some() && a.folds_by == FoldsBy::Auto;
-    if folds_given && !names_runs && (a.fitness != FitnessArg::Cv || a.search == SearchKind::None) {
-        usage!("--folds-by and --group-by cut the folds of a cross-validated search: use them with --fitness cv and a --search");
+    if folds_given && !names_runs && a.fitness != FitnessArg::Cv {
+        usage!("--folds-by and --group-by cut the folds of cross-validation (the search's, the basis' and the intervals'): use them with --fitness cv");
     }
     if a.time.is_none() && a.history != HistoryChoice::Auto {
         usage!(
@@ -211,7 +211,13 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             .max_iter(a.solver_max_iter)
             .loss(loss),
         selection: match method {
-            None => Selection::Fixed,
+            None => Selection::Fixed {
+                folds: a.folds,
+                folds_by: a
+                    .group_by
+                    .clone()
+                    .map_or(a.folds_by.clone(), FoldsBy::Column),
+            },
             Some(method) => Selection::Search {
                 method,
                 budget: a.budget,

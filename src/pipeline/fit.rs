@@ -23,8 +23,9 @@ use crate::search::{IterationRecord, Method, Observer, Search};
 
 /// How the job chooses its hyper-parameters.
 pub enum Selection {
-    /// The parameters of [`FitJob::params`] as they are.
-    Fixed,
+    /// The parameters of [`FitJob::params`] as they are; `auto`'s basis and the intervals
+    /// are cross-validated on `folds` folds cut `folds_by`.
+    Fixed { folds: usize, folds_by: FoldsBy },
     Search {
         method: Method,
         /// Candidates at most (ACO_R, grid); `None`: [`tune::budget_for`] the rows scored.
@@ -77,9 +78,6 @@ pub struct FitOutcome {
     /// The search, when there was one.
     pub search: Option<tune::Searched>,
 }
-
-/// Folds of `--basis auto`'s cross-validation and the intervals' when no search gives them.
-const AUTO_FOLDS: usize = 5;
 
 /// Reports each search iteration as an [`Event::Iteration`].
 struct Iterations<'a> {
@@ -168,7 +166,7 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
         .collect::<Result<Vec<_>, _>>()?;
     let candidates = train.histories(job)?;
     let seed = match job.selection {
-        Selection::Fixed => None,
+        Selection::Fixed { .. } => None,
         Selection::Search { seed, .. } => Some(seed),
     };
     let initial = tune::initial_basis(job.basis, rows, seed.unwrap_or(crate::DEFAULT_SEED))
@@ -552,7 +550,7 @@ struct Scoring {
 impl Scoring {
     /// A search's (on `search_on`, the `--search-on` file's rows, when given, else on at most
     /// [`tune::SEARCH_ROWS`] evenly spaced rows of `train`), or for given parameters the
-    /// cross-validation of `auto`'s basis and the intervals ([`AUTO_FOLDS`] folds); the folds
+    /// cross-validation of `auto`'s basis and the intervals (its folds); the folds
     /// ([`folds::plan`]: fewer for a handful of rows) are cut from these inputs (the present
     /// ones: a history's filtered copies would hide a designed grid).
     fn new(
@@ -560,9 +558,10 @@ impl Scoring {
         train: &data::Dataset,
         search_on: Option<data::Dataset>,
     ) -> Result<Scoring, PipelineError> {
-        let fixed_by = job.group.clone().map_or(FoldsBy::Auto, FoldsBy::Column);
         let (by, fitness, file) = match &job.selection {
-            Selection::Fixed => (&fixed_by, FitnessKind::Cv { folds: AUTO_FOLDS }, None),
+            Selection::Fixed { folds, folds_by } => {
+                (folds_by, FitnessKind::Cv { folds: *folds }, None)
+            }
             Selection::Search {
                 folds_by,
                 fitness,
@@ -642,7 +641,7 @@ fn choose(
     session: &Session,
 ) -> Result<Chosen, PipelineError> {
     let search = match &job.selection {
-        Selection::Fixed => None,
+        Selection::Fixed { .. } => None,
         Selection::Search {
             method,
             budget,
@@ -742,33 +741,31 @@ fn other_columns(
     job: &FitJob,
     rows: usize,
 ) -> Result<Vec<(String, Vec<f64>)>, PipelineError> {
-    let names: Vec<String> = match by {
+    let columns: Vec<(String, Vec<f64>)> = match by {
         FoldsBy::Shuffle | FoldsBy::Blocks => return Ok(Vec::new()),
-        FoldsBy::Column(column) => vec![column.clone()],
-        FoldsBy::Auto => data::header(path)?
-            .into_iter()
-            .filter(|h| !job.inputs.contains(h) && !job.outputs.contains(h) && h != "flag")
-            .collect(),
-    };
-    let mut out = Vec::new();
-    for name in names {
-        let read = data::read_columns(path, std::slice::from_ref(&name));
-        let values = match (read, by) {
-            (Ok(c), _) => c.values,
-            (Err(e), FoldsBy::Column(_)) => return Err(e.into()),
-            (Err(_), _) => continue, // not numeric: not a candidate
-        };
-        // The rows `keep` kept, then those the search scores (as `Dataset::subsample` picks).
-        let mut kept = data::evenly_spaced(values.len(), job.max_rows.unwrap_or(usize::MAX));
-        if rows < kept.len() {
-            kept = data::evenly_spaced(kept.len(), rows)
-                .into_iter()
-                .map(|i| kept[i])
-                .collect();
+        FoldsBy::Column(column) => {
+            let read = data::read_columns(path, std::slice::from_ref(column))?;
+            vec![(column.clone(), read.values)]
         }
-        out.push((name, kept.iter().map(|&i| values[i]).collect()));
-    }
-    Ok(out)
+        FoldsBy::Auto => {
+            let skip: Vec<String> = job.inputs.iter().chain(&job.outputs).cloned().collect();
+            data::numeric_columns(path, &skip)?
+        }
+    };
+    // The rows `keep` kept, then those the search scores (as `Dataset::subsample` picks).
+    Ok(columns
+        .into_iter()
+        .map(|(name, values)| {
+            let mut kept = data::evenly_spaced(values.len(), job.max_rows.unwrap_or(usize::MAX));
+            if rows < kept.len() {
+                kept = data::evenly_spaced(kept.len(), rows)
+                    .into_iter()
+                    .map(|i| kept[i])
+                    .collect();
+            }
+            (name, kept.iter().map(|&i| values[i]).collect())
+        })
+        .collect())
 }
 
 /// The file name of a path, for tables.

@@ -59,6 +59,12 @@ pub(super) fn open(
             device::Device::open(source, o).map_err(|why| not_opened(why, hint()))?,
         ));
     }
+    if let Some(hint) = super::url::credentials_hint(source) {
+        return Err(not_opened(
+            "its password holds a character that ends a URL's host part".into(),
+            hint.into(),
+        ));
+    }
     if stream::is_stream(source) {
         let hint = "check that the stream plays (e.g. `ffplay URL`) and that the address, port and credentials are right";
         return Ok(Box::new(
