@@ -54,7 +54,8 @@ use crate::stereo::Side;
 /// The session's description and summary, in the session's folder.
 pub const CAPTURE_FILE: &str = "capture.json";
 
-/// A camera that delivers nothing for this long has stopped (s).
+/// A live camera (a device or a stream, not a video file) that delivers nothing for this long
+/// has stopped (s).
 pub const STALL_S: f64 = 2.0;
 /// Longest a stream may take to open and send its first frame (s): a server that answers with
 /// headers and no frames is refused, not waited on.
@@ -339,6 +340,7 @@ pub fn capture(
         })?;
     }
     let refused = [cameras[0].refused(), cameras[1].refused()];
+    let can_stall = [cameras[0].live(), cameras[1].live()];
     let mut session = SessionFiles::new(out, options);
 
     let start_unix_s = std::time::SystemTime::now()
@@ -402,6 +404,7 @@ pub fn capture(
         let mut last_shown = 0.0;
         // The first frame may take a while longer: a device warms up.
         let mut last_seen = [STALL_S; 2];
+        let mut received = [0usize; 2];
         let mut latest: [Option<Grabbed>; 2] = [None, None];
         let mut last_look = 0.0;
         let store = |grabbed: &Grabbed| -> Result<(), CaptureError> {
@@ -438,6 +441,7 @@ pub fn capture(
             };
             for grabbed in arrived {
                 last_seen[grabbed.side as usize] = grabbed.frame.time_s;
+                received[grabbed.side as usize] += 1;
                 if let Some(watch) = watch.as_mut() {
                     let (time_s, bytes) = (grabbed.frame.time_s, &grabbed.frame.bytes);
                     watch.add(grabbed.side, time_s, bytes, fired);
@@ -480,7 +484,7 @@ pub fn capture(
             if !stop.load(Ordering::SeqCst) {
                 let stalled = [Side::Left, Side::Right]
                     .into_iter()
-                    .find(|s| now - last_seen[*s as usize] > STALL_S);
+                    .find(|s| can_stall[*s as usize] && now - last_seen[*s as usize] > STALL_S);
                 ending = if interrupt.load(Ordering::SeqCst) {
                     Some(Ending::Interrupted)
                 } else if options.duration_s.is_some_and(|d| now >= d) {
@@ -489,7 +493,7 @@ pub fn capture(
                     Some(Ending::CameraStopped {
                         side,
                         time_s: last_seen[side as usize],
-                        frames: rows.iter().filter(|r| r.0 == side).count(),
+                        frames: received[side as usize],
                     })
                 } else if let FlashState::Failed(message) = &flash_now {
                     Some(Ending::FlashFailed {

@@ -2,7 +2,9 @@
 
 use std::path::Path;
 
-use crate::common::{handcap, handcap_err, handcap_ok, handcap_usage, read_json, tempdir, write};
+use crate::common::{
+    handcap, handcap_err, handcap_ok, handcap_usage, read_json, real_time, tempdir, write,
+};
 
 fn synth(dir: &Path, out: &str, seed: &str) {
     handcap_ok(dir, &["synth", "--out", out, "--no-images", "--seed", seed]);
@@ -529,6 +531,7 @@ fn searches_write_history_and_are_deterministic() {
 
 #[test]
 fn ctrl_c_ends_the_search_and_keeps_the_best_model() {
+    let _cores = real_time();
     let dir = tempdir();
     let d = dir.path();
     synth(d, "data", "1");

@@ -10,8 +10,8 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use crate::common::{
-    capture_with, csv_rows, handcap, handcap_ok, mjpeg_server, read_json, session, tempdir,
-    tip_errors_against_truth, Part,
+    capture_with, csv_rows, handcap, handcap_ok, mjpeg_server, read_json, real_time, session,
+    tempdir, tip_errors_against_truth, Part,
 };
 
 /// How long the protocol holds each step (s); the virtual hand's frames cover its first 0.3 s
@@ -321,6 +321,7 @@ fn summary(dir: &Path, name: &str) -> serde_json::Value {
 /// fewer rows hold.
 #[test]
 fn a_live_session_with_late_cameras_a_backlog_and_drops_matches_the_truth() {
+    let _cores = real_time();
     let dir = tempdir();
     let d = dir.path();
     let faults = [
@@ -382,6 +383,7 @@ fn a_live_session_with_late_cameras_a_backlog_and_drops_matches_the_truth() {
 /// step filmed, each within 0.5 mm of the truth.
 #[test]
 fn a_live_session_ended_by_sigterm_with_a_camera_300_ms_late_seen_by_a_flash_matches_the_truth() {
+    let _cores = real_time();
     let dir = tempdir();
     let d = dir.path();
     let faults = [

@@ -6,8 +6,8 @@ use std::path::Path;
 use handcap::synth::plant::Plant;
 
 use crate::common::{
-    csv_rows, handcap_err, handcap_ok, handcap_usage, read_json, tempdir, tip_rms_against_truth,
-    write,
+    csv_rows, every_core, handcap_err, handcap_ok, handcap_usage, read_json, tempdir,
+    tip_rms_against_truth, write,
 };
 
 #[test]
@@ -185,6 +185,7 @@ fn demo_holds_against_truth(demo: &Path, bars: &Bars) {
 /// it calibrated, the 90 % interval holding on the sweeps and feed-forward within 0.1 mm.
 #[test]
 fn the_default_demo_loses_no_step_and_its_numbers_hold_against_the_truth() {
+    let _cores = every_core();
     let dir = tempdir();
     let d = dir.path();
     handcap_ok(d, &["demo", "--out", "demo"]);
@@ -209,6 +210,7 @@ fn mean(rows: &[std::collections::HashMap<String, String>], column: &str) -> f64
 
 #[test]
 fn the_quick_demo_runs_end_to_end_and_its_numbers_hold_against_the_truth() {
+    let _cores = every_core();
     let dir = tempdir();
     let d = dir.path();
     let out = handcap_ok(d, &["demo", "--out", "demo", "--quick", "--format", "png"]);

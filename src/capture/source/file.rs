@@ -41,6 +41,10 @@ impl FrameSource for VideoFile {
         Vec::new()
     }
 
+    fn live(&self) -> bool {
+        false
+    }
+
     fn next(&mut self, clock: &Clock) -> Option<Frame> {
         let wait = self.count as f64 * self.period_s - clock.now_s();
         if wait > 0.0 {

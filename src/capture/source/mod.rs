@@ -39,6 +39,12 @@ pub(super) trait FrameSource: Send {
     /// Waits for the next frame and stamps it on `clock`; `None` when none came: the source
     /// ended, failed, or stalled past its read timeout.
     fn next(&mut self, clock: &Clock) -> Option<Frame>;
+    /// Whether its frames come from outside in real time (a camera, a stream), so that a
+    /// silence is a stall. A video file is read here when its frames are due: on a busy
+    /// machine they come late, never lost, and the file ends rather than stalls.
+    fn live(&self) -> bool {
+        true
+    }
 }
 
 /// Opens the `side` camera `source` as the kind of source it names.
