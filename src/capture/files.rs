@@ -20,6 +20,14 @@ pub(super) struct SessionFiles<'a> {
     frames: (String, usize),
 }
 
+/// Writes `text` to `path` atomically.
+fn write(path: &Path, text: &str) -> Result<(), CaptureError> {
+    fsio::write_bytes(path, text.as_bytes()).map_err(|source| CaptureError::Write {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
 impl<'a> SessionFiles<'a> {
     pub fn new(out: &'a Path, options: &'a CaptureOptions) -> Self {
         SessionFiles {
@@ -37,24 +45,12 @@ impl<'a> SessionFiles<'a> {
         log: &[Commanded],
         summary: &CaptureSummary,
     ) -> Result<(), CaptureError> {
-        let write = |path: &Path, text: &str| {
-            fsio::write_bytes(path, text.as_bytes()).map_err(|source| CaptureError::Write {
-                path: path.to_path_buf(),
-                source,
-            })
-        };
         // capture.json first: it says how to read the others, so a kill between two writes
         // leaves it beside lists as of this pass or the one before, never lists without it.
         let options = self.options;
-        let json = serde_json::json!({
-            "sources": options.sources.each_ref().map(|s| redact(s)),
-            "requested": {"width": options.width, "height": options.height, "fps": options.fps},
-            "clock": "time_s = CLOCK_MONOTONIC seconds - start_monotonic_s (Python: time.monotonic() - start_monotonic_s)",
-            "summary": summary,
-        });
         write(
             &self.out.join(super::CAPTURE_FILE),
-            &(serde_json::to_string_pretty(&json).expect("serialisable") + "\n"),
+            &self.description(summary),
         )?;
         if options.calibration.is_none() {
             let (text, listed) = &mut self.frames;
@@ -68,14 +64,46 @@ impl<'a> SessionFiles<'a> {
         Ok(())
     }
 
-    /// Writes the files at the end: `rows` in their final order.
+    /// Writes the files at the end: `rows` in their final order. Each file is tried even when
+    /// one before it fails (a full disk may still take the small ones); the first failure is
+    /// returned.
     pub fn finish(
-        mut self,
+        self,
         rows: &[(Side, usize, f64)],
         log: &[Commanded],
         summary: &CaptureSummary,
     ) -> Result<(), CaptureError> {
-        self.frames = (FRAMES_HEADER.to_string(), 0);
-        self.write(rows, log, summary)
+        let options = self.options;
+        let mut first = None;
+        let mut keep = |result: Result<(), CaptureError>| {
+            if let Err(e) = result {
+                first.get_or_insert(e);
+            }
+        };
+        if options.protocol.is_some() {
+            keep(write(&self.out.join("pressures.csv"), &pressures_csv(log)));
+        }
+        if options.calibration.is_none() {
+            let mut text = FRAMES_HEADER.to_string();
+            frames_csv_rows(&mut text, rows.iter().copied());
+            keep(write(&self.out.join("frames/frames.csv"), &text));
+        }
+        keep(write(
+            &self.out.join(super::CAPTURE_FILE),
+            &self.description(summary),
+        ));
+        first.map_or(Ok(()), Err)
+    }
+
+    /// `capture.json`'s text.
+    fn description(&self, summary: &CaptureSummary) -> String {
+        let options = self.options;
+        let json = serde_json::json!({
+            "sources": options.sources.each_ref().map(|s| redact(s)),
+            "requested": {"width": options.width, "height": options.height, "fps": options.fps},
+            "clock": "time_s = CLOCK_MONOTONIC seconds - start_monotonic_s (Python: time.monotonic() - start_monotonic_s)",
+            "summary": summary,
+        });
+        serde_json::to_string_pretty(&json).expect("serialisable") + "\n"
     }
 }

@@ -151,6 +151,11 @@ pub enum Ending {
     FlashFailed {
         message: String,
     },
+    /// A file could not be written (a full disk, a lost mount): everything before it is kept
+    /// and listed as far as the disk allows, and `--on-abort` runs.
+    WriteFailed {
+        message: String,
+    },
     /// A thread of the session (a camera's, the protocol's, the flash's) panicked.
     ThreadFailed {
         thread: String,
@@ -168,6 +173,7 @@ impl Ending {
                 | Ending::CameraStopped { .. }
                 | Ending::CommandFailed { .. }
                 | Ending::FlashFailed { .. }
+                | Ending::WriteFailed { .. }
                 | Ending::ThreadFailed { .. }
         )
     }
@@ -190,6 +196,12 @@ pub struct Stats {
     /// Median |left − right| time of nearest frames (ms).
     pub skew_ms: f64,
     pub steps_done: usize,
+    /// Steps whose `--set-pressure` command returned only after the step's hold was over: the
+    /// next command followed at once, so the finger never settled in them and triangulate
+    /// finds no row there.
+    pub over_hold: usize,
+    /// How long the commands took (ms): median and longest; 0, 0 before the first.
+    pub command_ms: [f64; 2],
     /// A calibration capture's pairs taken, and why the last candidate was not.
     pub board_pairs: usize,
     pub board_refused: String,
@@ -272,9 +284,16 @@ fn camera_figures(times: &[f64]) -> (f64, usize, usize, f64) {
 fn stats(
     rows: &[(Side, usize, f64)],
     by_driver: [usize; 2],
-    steps_done: usize,
+    steps: &[regulator::Commanded],
     judge: Option<&calibration::Judge>,
 ) -> Stats {
+    let mut took: Vec<f64> = steps.iter().map(|c| c.end_s - c.time_s).collect();
+    let over_hold = steps
+        .iter()
+        .filter(|c| c.end_s - c.time_s >= c.step.hold_s)
+        .count();
+    let command_ms =
+        crate::stats::quantiles(&mut took, [0.5, 1.0]).map_or([0.0; 2], |q| q.map(|t| 1e3 * t));
     let times =
         |side: Side| -> Vec<f64> { rows.iter().filter(|r| r.0 == side).map(|r| r.2).collect() };
     let (l, r) = (times(Side::Left), times(Side::Right));
@@ -287,7 +306,9 @@ fn stats(
         late: [ll, lr],
         late_max_ms: [ml, mr],
         skew_ms: 1e3 * crate::frame_times::skew(&l, &r),
-        steps_done,
+        steps_done: steps.len(),
+        over_hold,
+        command_ms,
         board_pairs: judge.map_or(0, |j| j.taken),
         board_refused: judge.map_or_else(String::new, |j| j.refused.clone()),
         board_delay_ms: judge
@@ -515,7 +536,7 @@ pub fn capture(
                 let so_far = CaptureSummary {
                     ending: Ending::Filming,
                     on_abort: None,
-                    stats: stats(&rows, by_driver, log.len(), judge.as_ref()),
+                    stats: stats(&rows, by_driver, &log, judge.as_ref()),
                     flash: flash.clone(),
                     refused: refused.clone(),
                     start_monotonic_s,
@@ -560,8 +581,12 @@ pub fn capture(
             ending = Some(failed("flash".into(), payload));
         }
     });
+    // A file that could not be written ends the session as a failing command does: the
+    // regulator vented, the session's files written as far as the disk allows.
     if let Some(e) = failure {
-        return Err(e);
+        ending = Some(Ending::WriteFailed {
+            message: e.to_string(),
+        });
     }
     if let (Some(watch), FlashState::Fired(times)) =
         (&watch, flash_state.into_inner().expect("flash"))
@@ -586,13 +611,19 @@ pub fn capture(
     let summary = CaptureSummary {
         ending,
         on_abort,
-        stats: stats(&rows, by_driver, log.len(), judge.as_ref()),
+        stats: stats(&rows, by_driver, &log, judge.as_ref()),
         flash,
         refused,
         start_monotonic_s,
         start_unix_s,
     };
-    session.finish(&rows, &log, &summary)?;
+    // After a write failure the disk may take some files and not others: the failure is said
+    // already, and what could be written is.
+    if let Err(e) = session.finish(&rows, &log, &summary) {
+        if !matches!(summary.ending, Ending::WriteFailed { .. }) {
+            return Err(e);
+        }
+    }
     if let Ending::ThreadFailed { thread, message } = &summary.ending {
         return Err(CaptureError::ThreadFailed {
             thread: thread.clone(),

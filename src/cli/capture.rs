@@ -171,7 +171,14 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if let Some(result) = &summary.on_abort {
         eprintln!("ran --on-abort: {result}");
     }
+    let over = summary.stats.over_hold;
     match &summary.ending {
+        Ending::ProtocolDone if over > 0 => bail!(
+            "{over} of {} steps: the --set-pressure command returned only after the step's hold was over (commands took {:.0} ms median, {:.0} ms at most), so the finger never settled in them and triangulate finds no row there; hold each step longer than the regulator takes; {kept}",
+            summary.stats.steps_done,
+            summary.stats.command_ms[0],
+            summary.stats.command_ms[1]
+        ),
         Ending::ProtocolDone | Ending::Duration | Ending::PairsTaken => Ok(()),
         Ending::Interrupted => {
             Err(super::Interrupted(format!("interrupted: {kept} in {}", a.out.display())).into())
@@ -188,6 +195,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             bail!("--set-pressure failed at step {step}: {message}; {kept}")
         }
         Ending::FlashFailed { message } => bail!("--flash failed: {message}; {kept}"),
+        Ending::WriteFailed { message } => bail!(
+            "{message}; the session stopped{}, and {kept} (free space, or film to another disk)",
+            if summary.on_abort.is_some() { " and --on-abort ran" } else { "" }
+        ),
         // Never the end of a session `capture` returns: the first while filming, the second
         // is returned as an error.
         Ending::Filming | Ending::ThreadFailed { .. } => {
@@ -198,10 +209,13 @@ pub fn run(a: Args) -> anyhow::Result<()> {
 
 /// The live line: frames, rates, drops, frames stamped late, skew, steps.
 fn line(s: &Stats, steps: usize) -> String {
-    let progress = if steps > 0 {
-        format!(", step {}/{steps}", s.steps_done)
-    } else {
-        String::new()
+    let progress = match (steps, s.over_hold) {
+        (0, _) => String::new(),
+        (_, 0) => format!(", step {}/{steps}", s.steps_done),
+        (_, over) => format!(
+            ", step {}/{steps} ({over} of them unsettled: the command took longer than the hold)",
+            s.steps_done
+        ),
     };
     let late = if s.late.iter().sum::<usize>() > 0 {
         format!(

@@ -40,6 +40,19 @@ impl PressureLog {
             .get(k + 1)
             .map_or(self.steps[k].time_s + self.median_step_s, |s| s.time_s)
     }
+
+    /// When the regulator holds step `k`'s pressures: from its command's return (its start,
+    /// when the log does not say) to the next command's return (or the median step after the
+    /// last). A regulator that takes 175 ms to answer starts moving the finger then, not when
+    /// it was told.
+    pub fn held_s(&self, k: usize) -> (f64, f64) {
+        let start = self.steps[k].command_end_s;
+        let end = self
+            .steps
+            .get(k + 1)
+            .map_or(start + self.median_step_s, |s| s.command_end_s);
+        (start, end)
+    }
 }
 
 /// The pressure columns of a log.

@@ -7,11 +7,13 @@
 //!
 //! The delay shows in the frames: after each command the tip moves from one place in the image
 //! to another. Per camera, the marker's centre in every frame is cut into one segment per step
-//! at the commands' times plus a delay `d`; the cost of `d` is the sum of each centre's distance
+//! at the commands' returns (`command_end_s`, when the log has it: the regulator acts once it
+//! has answered, and a slow regulator's answer is no camera delay) plus a delay `d`; the cost of `d` is the sum of each centre's distance
 //! (|Δx| + |Δy|) from its segment's median. Frames that still show the previous step, or
 //! already the next, cost their jump; the best `d` puts each cut where the tip has gone half of
 //! its way (between two places, a frame belongs to the nearer one). So `d` is the camera's
-//! latency plus the actuator's own response up to half-way, on the log's clock.
+//! latency plus the actuator's own response up to half-way, after the command returned, on
+//! the log's clock.
 //!
 //! `d` is trusted only when the frames show the tip moving: at least [`MIN_MOVES`] steps move
 //! it by [`MIN_MOVE_PX`] or more, the best cost is well below a typical one ([`MIN_CONTRAST`]),
@@ -385,7 +387,7 @@ fn lead(track: &[(f64, [f64; 2])], times: &[f64], log: &PressureLog, d: f64, per
             if way < MIN_MOVE_PX {
                 return None;
             }
-            let cut = log.steps[k].time_s + d;
+            let cut = log.held_s(k).0 + d;
             let a = times.partition_point(|&t| t < cut - half_step);
             let b = times.partition_point(|&t| t < cut + half_step);
             let first = track[a..b]
@@ -413,9 +415,10 @@ fn segment(track: &[(f64, [f64; 2])], times: &[f64], log: &PressureLog, d: f64) 
     let (mut xs, mut ys) = (Vec::new(), Vec::new());
     let medians: Vec<Option<[f64; 2]>> = (0..log.steps.len())
         .map(|k| {
+            let (start, end) = log.held_s(k);
             let (a, b) = (
-                times.partition_point(|&t| t < log.steps[k].time_s + d),
-                times.partition_point(|&t| t < log.end_s(k) + d),
+                times.partition_point(|&t| t < start + d),
+                times.partition_point(|&t| t < end + d),
             );
             if a == b {
                 return None;
@@ -517,6 +520,31 @@ mod tests {
                 "{late}: {d:?} against {truth} ms"
             );
             assert!(d.moves >= MIN_MOVES, "{d:?}");
+        }
+    }
+
+    /// Issue 44, item 7: a regulator that answers 175 ms after it was told moves the finger
+    /// then; the log says when it answered, and the camera's delay is counted from there (it
+    /// was measured at 189 ms for a camera 0.3 ms late).
+    #[test]
+    fn a_slow_regulators_answer_is_not_counted_as_the_cameras_delay() {
+        let mut log = log(20, 0.5);
+        for step in &mut log.steps {
+            step.command_end_s = step.time_s + 0.175;
+        }
+        for late in [0.0003, 0.12] {
+            // The finger moves when the command returns: as a camera 175 ms later would see it.
+            let d = delay(
+                &track(late + 0.175, 0.02, 0.011, [0.0, 1.0]),
+                &log,
+                1.0 / 30.0,
+            )
+            .expect("the motion is filmed");
+            let truth = 1e3 * late + 13.9;
+            assert!(
+                (d.delay_ms - truth).abs() <= 17.0,
+                "{late}: {d:?} against {truth} ms"
+            );
         }
     }
 

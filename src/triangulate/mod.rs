@@ -74,8 +74,13 @@ pub enum TriangulateError {
         cw: i32,
         ch: i32,
     },
-    #[error("no tip found in a zero-pressure step ({zero} steps with all pressures ≤ {zero_kpa} kPa in the log): the hand frame's origin is the tip at zero pressure; log and film at least one step at 0, 0, 0 kPa")]
-    NoOrigin { zero: usize, zero_kpa: f64 },
+    #[error("no tip found in a zero-pressure step ({zero} steps with all pressures ≤ {zero_kpa} kPa in the log; the hand frame's origin is the tip at zero pressure): {why}")]
+    NoOrigin {
+        zero: usize,
+        zero_kpa: f64,
+        /// What became of those steps' frames ([`no_origin_cause`]).
+        why: String,
+    },
     #[error("no frame pair gave a tip position: {0}")]
     NothingUsed(String),
     #[error(transparent)]
@@ -359,6 +364,11 @@ pub fn triangulate(
         } else {
             counts.join(", ")
         };
+        let cause = if cause.is_empty() {
+            timing_cause(&summary, log)
+        } else {
+            cause
+        };
         return Err(TriangulateError::NothingUsed(format!(
             "{} pairs of {} left and {} right frames: {what}{cause}",
             pairs.len(),
@@ -418,6 +428,7 @@ pub fn triangulate(
         return Err(TriangulateError::NoOrigin {
             zero: zero.len(),
             zero_kpa: options.zero_kpa,
+            why: no_origin_cause(&zero, &flags, &pairs, records, log, options, &summary),
         });
     }
     let origin = crate::stats::median_point(&at_zero);
@@ -547,4 +558,106 @@ fn spread(points: &[Vector3<f64>]) -> f64 {
         .iter()
         .map(|p| (p - centre).norm())
         .fold(0.0, f64::max)
+}
+
+/// Why the zero-pressure steps `zero` gave no origin, and what to do: their rows were flagged
+/// (and why), or their pairs came to nothing (counted by what became of them), or their frames
+/// were too far apart to pair, and [`timing_cause`]; else log and film such a step.
+fn no_origin_cause(
+    zero: &[usize],
+    flags: &[Vec<&'static str>],
+    pairs: &[PairRecord],
+    records: &[FrameRecord],
+    log: &PressureLog,
+    options: &TriangulateOptions,
+    summary: &Summary,
+) -> String {
+    let in_zero = |t: f64| {
+        zero.iter()
+            .any(|&k| (log.steps[k].time_s..log.end_s(k)).contains(&t))
+    };
+    let flagged: Vec<&str> = zero
+        .iter()
+        .flat_map(|&k| flags[k].iter().copied())
+        .collect();
+    let mut said = Vec::new();
+    if flagged.contains(&"few_frames") {
+        said.push(format!(
+            "their rows have fewer than --min-frames {} frame pairs (a capture that keeps one or two frames a step needs --min-frames 1)",
+            options.min_frames
+        ));
+    }
+    if flagged.contains(&"spread") {
+        said.push(format!(
+            "their pairs disagree by more than --max-spread-mm {}",
+            options.max_spread_mm
+        ));
+    }
+    let mut became: std::collections::BTreeMap<&str, usize> = Default::default();
+    for p in pairs
+        .iter()
+        .filter(|p| !p.status.used() && in_zero(p.left.time_s.min(p.right.time_s)))
+    {
+        *became.entry(p.status.name()).or_default() += 1;
+    }
+    if !became.is_empty() {
+        let counts: Vec<String> = became.iter().map(|(k, v)| format!("{v} {k}")).collect();
+        said.push(format!("their frame pairs: {}", counts.join(", ")));
+    }
+    let times = |side: Side| -> Vec<f64> {
+        frames::in_time_order(records, side)
+            .into_iter()
+            .map(|i| records[i].time_s)
+            .filter(|&t| in_zero(t))
+            .collect()
+    };
+    let (left, right) = (times(Side::Left), times(Side::Right));
+    if left.is_empty() || right.is_empty() {
+        said.push(format!(
+            "{} left and {} right frames fall in them",
+            left.len(),
+            right.len()
+        ));
+    } else if pairs.iter().all(|p| !in_zero(p.left.time_s)) {
+        let apart = crate::frame_times::skew(&left, &right);
+        if apart > options.max_dt_s {
+            said.push(format!(
+                "their left and right frames are {:.1} ms apart (median), more than --max-dt-ms {}: none paired (the finger holds still: a larger --max-dt-ms pairs them)",
+                1e3 * apart,
+                1e3 * options.max_dt_s
+            ));
+        }
+    }
+    let timing = timing_cause(summary, log);
+    if said.is_empty() && timing.is_empty() {
+        return "log and film at least one step at 0, 0, 0 kPa".into();
+    }
+    format!("{}{timing}", said.join("; "))
+        .trim_start_matches("; ")
+        .to_string()
+}
+
+/// What in the session's timing leaves no settled frame, as "; …" (empty when nothing): when
+/// most pairs were settling or straddling a command, the regulator's commands taking a large
+/// share of each step, or camera delays measured that large.
+fn timing_cause(summary: &Summary, log: &PressureLog) -> String {
+    let count = |k: &str| summary.pairs.get(k).copied().unwrap_or(0);
+    let formed: usize = summary.pairs.values().sum();
+    if 2 * (count("settling") + count("straddles")) <= formed {
+        return String::new();
+    }
+    let step_ms = 1e3 * log.median_step_s;
+    if let Some([median, _]) = summary.clock.command_ms {
+        if median >= 0.25 * step_ms {
+            return format!(
+                "; the regulator's commands took {median:.0} ms (median) of {step_ms:.0} ms steps, and the finger settles after a command returns: hold each step longer or speed up the regulator"
+            );
+        }
+    }
+    match summary.latency.cameras.each_ref().map(|d| d.as_ref().map(|d| d.delay_ms)) {
+        [Some(l), Some(r)] if !summary.latency.given && l.max(r) >= 0.25 * step_ms => format!(
+            "; the cameras' delays were measured at {l:.0}/{r:.0} ms (left/right) of {step_ms:.0} ms steps: if they are not that late, give --latency-ms"
+        ),
+        _ => String::new(),
+    }
 }

@@ -21,6 +21,20 @@ fn cameras(dir: &Path, views: usize) {
     capture_with(&dir.join("cams"), &synth, &config);
 }
 
+/// Two Motion-JPEG videos of 126 frames (4.2 s at 30 fps): the session of [`cameras`] filmed
+/// whole, every frame of its 14 steps.
+fn long_cameras(dir: &Path) {
+    let synth = session(5, [250.0, 125.0]);
+    let config = handcap::synth::capture::CaptureConfig {
+        views: 3,
+        window_s: [0.0, 0.3],
+        video: true,
+        realism: handcap::synth::capture::Realism::CLEAN,
+        ..handcap::synth::capture::CaptureConfig::default()
+    };
+    capture_with(&dir.join("cams"), &synth, &config);
+}
+
 /// `handcap protocol` into `out`: 12 steps (a 250 kPa grid and sweeps), each held `hold_s`;
 /// returns its output.
 fn protocol(d: &Path, out: &str, hold_s: &str) -> String {
@@ -389,6 +403,78 @@ fn signals_end_a_capture_with_every_frame_kept_and_listed() {
     assert_eq!(json["summary"]["ending"], "filming");
     assert!(!csv_rows(&s.join("frames/frames.csv")).is_empty());
     assert!(!csv_rows(&s.join("pressures.csv")).is_empty());
+}
+
+/// Issue 44, item 1: a file that cannot be written mid-protocol (here the frames' folder
+/// vanishes, as a lost mount or a full disk makes writes fail) ends the session as a failing
+/// command does: `--on-abort` vents the regulator, `capture.json` says how it ended, every step
+/// the regulator was told is logged, and the exit status says it failed.
+#[test]
+fn a_write_failure_ends_the_session_vented_with_every_step_logged() {
+    let _cores = real_time();
+    let dir = tempdir();
+    let d = dir.path();
+    long_cameras(d);
+    protocol(d, "p.csv", "1");
+    let command = recorder(d, 0.05);
+    let mut args = session_args("s", "p.csv", &command).to_vec();
+    args.extend(["--on-abort", "touch vented"]);
+    let child = std::process::Command::new(env!("CARGO_BIN_EXE_handcap"))
+        .args(&args)
+        .current_dir(d)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    wait_until_listed(&d.join("s"));
+    std::fs::remove_dir_all(d.join("s/frames")).unwrap();
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("frames") && err.contains("--on-abort ran"),
+        "{err}"
+    );
+    assert!(d.join("vented").is_file(), "the regulator was not vented");
+    let json: serde_json::Value = read_json(&d.join("s/capture.json"));
+    assert!(
+        json["summary"]["ending"]["write_failed"].is_object(),
+        "{json}"
+    );
+    let logged = csv_rows(&d.join("s/pressures.csv")).len();
+    let told = std::fs::read_to_string(d.join("told.txt"))
+        .unwrap()
+        .lines()
+        .count();
+    assert_eq!(logged, told);
+    assert!(logged >= 1);
+}
+
+/// Issue 44, item 8: a regulator slower than every step's hold leaves no settled frame: the
+/// live line, `capture.json` and the exit status say so, and the session is kept.
+#[test]
+fn commands_slower_than_their_hold_are_said_and_fail_the_session() {
+    let _cores = real_time();
+    let dir = tempdir();
+    let d = dir.path();
+    long_cameras(d);
+    protocol(d, "p.csv", "0.1");
+    let command = recorder(d, 0.15);
+    let out = handcap(d, &session_args("s", "p.csv", &command));
+    let said =
+        String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{said}");
+    assert!(
+        said.contains(
+            "12 of 12 steps: the --set-pressure command returned only after the step's hold"
+        ),
+        "{said}"
+    );
+    assert!(said.contains("12 of them unsettled"), "{said}");
+    let json: serde_json::Value = read_json(&d.join("s/capture.json"));
+    assert_eq!(json["summary"]["ending"], "protocol_done");
+    assert_eq!(json["summary"]["stats"]["over_hold"], 12);
+    assert_eq!(csv_rows(&d.join("s/pressures.csv")).len(), 12);
 }
 
 /// Waits (at most 30 s) until the recorder of [`recorder`] was told `steps` steps.
