@@ -9,7 +9,8 @@
 //!   series ([`model::history`]); the previous physics model ([`model::previous`]); the inverse
 //!   ([`model::inverse`]); the model file ([`model::file`]);
 //! - [`search`]: the hyper-parameter searches (the paper's ant colony, ACO_R, a grid);
-//! - [`stats`], [`fsio`] (atomic writes), [`provenance`], [`hand`] (the micro-hand's design values).
+//! - [`stats`], [`fsio`] (atomic writes), [`provenance`], [`hand`] (the micro-hand's design values),
+//!   [`control`] (long work stopped and watched from outside).
 //!
 //! The `handcap` command (stereo capture, calibration and triangulation through OpenCV, the
 //! demo and the reports) re-exports these modules under the same paths.
@@ -24,6 +25,7 @@
 /// The seed every command uses when none is given (the paper's year).
 pub const DEFAULT_SEED: u64 = 2020;
 
+pub mod control;
 pub mod data;
 pub mod fsio;
 pub mod hand;

@@ -7,7 +7,7 @@
 //! the core's words (the same the command line prints); file errors raise `OSError`.
 
 use std::path::PathBuf;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use numpy::ndarray::{Array1, Array2, ArrayView1, ArrayView2};
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
@@ -32,14 +32,42 @@ fn value_error(e: impl std::fmt::Display) -> PyErr {
     PyValueError::new_err(e.to_string())
 }
 
-/// Runs `work` without the GIL. A panic in it (a defect: the core validates what it is given)
-/// raises `RuntimeError` with its message instead of `PanicException`, which `except Exception`
-/// does not catch.
+/// Set when Python asks the work running to stop (Ctrl-C): the search ends, and nothing
+/// starts after it.
+static STOP: AtomicBool = AtomicBool::new(false);
+
+/// Runs `work` on a thread of its own without the GIL, while this thread checks Python's
+/// signals: Ctrl-C stops the work ([`STOP`] and the core's stop) and raises
+/// `KeyboardInterrupt` once it has ended. A panic in the work (a defect: the core validates
+/// what it is given) raises `RuntimeError` with its message instead of `PanicException`,
+/// which `except Exception` does not catch.
 fn detached<T: Send>(
     py: Python<'_>,
     work: impl FnOnce() -> Result<T, String> + Send,
 ) -> PyResult<T> {
-    let outcome = py.detach(|| std::panic::catch_unwind(std::panic::AssertUnwindSafe(work)));
+    STOP.store(false, Ordering::SeqCst);
+    let (outcome, interrupted) = std::thread::scope(|scope| {
+        let worker =
+            scope.spawn(move || std::panic::catch_unwind(std::panic::AssertUnwindSafe(work)));
+        let mut interrupted = None;
+        while !worker.is_finished() {
+            py.detach(|| std::thread::sleep(std::time::Duration::from_millis(20)));
+            if interrupted.is_none() {
+                if let Err(e) = py.check_signals() {
+                    STOP.store(true, Ordering::SeqCst);
+                    handcap_core::control::request_stop();
+                    interrupted = Some(e);
+                }
+            }
+        }
+        (
+            worker.join().expect("the work's panic is caught"),
+            interrupted,
+        )
+    });
+    if let Some(e) = interrupted {
+        return Err(e);
+    }
     match outcome {
         Ok(result) => result.map_err(value_error),
         Err(panic) => {
@@ -52,6 +80,15 @@ fn detached<T: Send>(
                 "handcap failed inside ({what}); please report it with the data that caused it"
             )))
         }
+    }
+}
+
+/// `Err` when Python asked to stop ([`STOP`]): work after a stopped search does not start.
+fn not_stopped() -> Result<(), String> {
+    if STOP.load(Ordering::SeqCst) {
+        Err("interrupted".into())
+    } else {
+        Ok(())
     }
 }
 
@@ -162,14 +199,15 @@ fn fit_request(r: FitRequest) -> Result<ModelFile, String> {
         grow: r.basis == BasisChoice::Auto && initial.basis != Basis::Exact,
         score: false,
     };
-    let never = AtomicBool::new(false);
     let chosen =
-        tune::choose(&choice, &solver, initial, &mut (), &never).map_err(|e| e.to_string())?;
+        tune::choose(&choice, &solver, initial, &mut (), &STOP).map_err(|e| e.to_string())?;
+    not_stopped()?;
     let intervals = r
         .intervals
         .then(|| tune::intervals(&scored, folds, r.seed, &plan, &chosen.params))
         .transpose()
         .map_err(|e| e.to_string())?;
+    not_stopped()?;
     let stored = ModelSpec::Msvr(chosen.params)
         .fit(&r.data)
         .map_err(|e| e.to_string())?;

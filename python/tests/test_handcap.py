@@ -157,6 +157,54 @@ def test_bad_input_raises_value_error():
         handcap.load("no-such-model.json")
 
 
+def test_tampered_model_files_and_nan_targets_raise_value_error(tmp_path):
+    """Issue 44, items 3-5 and 12: a model file whose history or names disagree with its
+    inputs is refused on load (it used to abort the interpreter from `inverse`), an ordinary
+    exception catches every failure, and a NaN target is refused, not planned for."""
+    import json
+    x, y = smooth(40, 12)
+    model = handcap.MSVRRegressor(**FIXED).fit(x, y)
+    text = model.model_.to_json()
+    data = json.loads(text)
+    data["model"]["outputs"][0] = data["model"]["inputs"][0]
+    with pytest.raises(ValueError, match="both an input and an output"):
+        handcap._core.Model.from_json(json.dumps(data))
+    data = json.loads(text)
+    data["model"]["coefficients"][0][0] = 1e300
+    (tmp_path / "huge.json").write_text(json.dumps(data))
+    with pytest.raises(ValueError, match="beyond"):
+        handcap.load(tmp_path / "huge.json")
+    with pytest.raises(ValueError, match="NaN"):
+        model.model_.inverse(np.array([[np.nan, 0.0, 0.0]]))
+    try:
+        model.model_.inverse(np.array([[np.inf, 0.0, 0.0]]))
+    except Exception as e:  # noqa: BLE001 - the point: an ordinary exception
+        assert isinstance(e, ValueError)
+    else:
+        raise AssertionError("an infinite target was planned for")
+
+
+def test_ctrl_c_stops_a_long_fit_with_keyboard_interrupt():
+    """Issue 44, item 10: Ctrl-C during a fit raises KeyboardInterrupt within a second or
+    two, not when the fit ends (it used to run on for minutes)."""
+    import signal
+    import threading
+    import time
+    x, y = smooth(1500, 13)
+    timer = threading.Timer(1.0, lambda: os.kill(os.getpid(), signal.SIGINT))
+    start = time.monotonic()
+    timer.start()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            handcap.MSVRRegressor(search="aco-r", budget=2000, basis="exact").fit(x, y)
+    finally:
+        timer.cancel()
+    stopped = time.monotonic() - start
+    assert stopped < 30, f"stopped after {stopped:.1f} s"
+    # The next fit runs as usual.
+    assert handcap.MSVRRegressor(**FIXED).fit(x[:50], y[:50]).predict(x[:5]).shape == (5, 3)
+
+
 def test_model_files_of_another_version_or_kind_raise_value_error(tmp_path):
     x, y = smooth(30, 11)
     model = handcap.MSVRRegressor(**FIXED).fit(x, y[:, 0])

@@ -80,6 +80,12 @@ pub fn exit_code(e: &anyhow::Error) -> u8 {
         2
     } else if e.is::<Interrupted>()
         || matches!(e.downcast_ref(), Some(PipelineError::Interrupted(_)))
+        || e.chain().any(|c| {
+            matches!(
+                c.downcast_ref(),
+                Some(handcap::model::msvr::MsvrError::Interrupted)
+            )
+        })
     {
         130
     } else {
@@ -155,7 +161,12 @@ fn interrupt_flag() -> &'static AtomicBool {
     static HANDLER: Once = Once::new();
     HANDLER.call_once(|| {
         // Without a handler (another one is installed) Ctrl-C just ends the process.
-        let _ = ctrlc::set_handler(|| INTERRUPTED.store(true, Ordering::SeqCst));
+        // The flag ends a search (its best kept) or a capture; the core's stop ends the fits
+        // running (a second Ctrl-C ends the fit of the search's best).
+        let _ = ctrlc::set_handler(|| {
+            INTERRUPTED.store(true, Ordering::SeqCst);
+            handcap::control::request_stop();
+        });
     });
     &INTERRUPTED
 }
@@ -210,6 +221,7 @@ fn template(task: Task) -> &'static str {
         Task::Render => "render {bar:30} {pos}/{len} images  {elapsed}",
         Task::Detect => "detect {bar:30} {pos}/{len} images",
         Task::Frames => "frames {bar:30} {pos}/{len} ({per_sec}, {eta})",
+        Task::Fit => "fit: solver iteration {pos} (at most {len})  {elapsed}",
     }
 }
 

@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use super::outputs::{self, Output};
-use super::{io_error, Event, PipelineError, Session};
+use super::{io_error, Event, PipelineError, Session, Task};
 use crate::data::{self, HAND_INPUTS, HAND_OUTPUTS};
 use crate::model::file::ModelFile;
 use crate::model::history::{self, History, HistoryChoice, HistoryTrial, Memory, Series};
@@ -12,7 +12,7 @@ use crate::model::interval::{Intervals, Radius};
 use crate::model::msvr::fitness::FitnessKind;
 use crate::model::msvr::folds::{self, FoldPlan, FoldScheme, FoldsBy};
 use crate::model::msvr::tune::{self, BasisChoice, BasisDecision, Chosen, Pinned};
-use crate::model::msvr::{self, Basis, Hyper, MsvrParams, MIN_FIT_ROWS};
+use crate::model::msvr::{self, Basis, Hyper, MsvrError, MsvrParams, MIN_FIT_ROWS};
 use crate::model::previous::{self, PreviousModel};
 use crate::model::{self, ModelSpec};
 use crate::report::{
@@ -105,6 +105,9 @@ impl Observer for Iterations<'_> {
 /// [`PipelineError`]: bad parameters, unreadable or unusable data, `--out` naming an input, a
 /// search or fit failure, or a file that cannot be written.
 pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError> {
+    // A stop (Ctrl-C, a termination signal) during a search ends the search, its best kept;
+    // any other stops the run.
+    let started = crate::control::Since::now();
     let search_on = match &job.selection {
         Selection::Search { on: Some(p), .. } => Some(p.as_path()),
         _ => None,
@@ -294,6 +297,21 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
         basis,
         ..
     } = chosen;
+    let searched = matches!(job.selection, Selection::Search { .. });
+    let since = if searched && interrupted() {
+        crate::control::Since::now()
+    } else {
+        started
+    };
+    let go_on = || {
+        if since.stopped() {
+            Err(PipelineError::Interrupted(
+                "interrupted before the fit; nothing written".into(),
+            ))
+        } else {
+            Ok(())
+        }
+    };
     if !basis.tried.is_empty() {
         session.emit(Event::Note(format!(
             "basis: {} ({})",
@@ -309,6 +327,7 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
         Some(_) => Scoring::new(job, &job.keep(train.raw.clone()), None)?
             .with_features(&train_rows, None)?,
     };
+    go_on()?;
     let intervals =
         calibrate_intervals(&calibration, &params, seed.unwrap_or(crate::DEFAULT_SEED))?;
     match &intervals {
@@ -341,7 +360,8 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
         .iter()
         .map(|s| Ok((file_name(&s.raw.source), s.with(kept.as_ref())?)))
         .collect::<Result<Vec<_>, PipelineError>>()?;
-    let fitted = ModelSpec::Msvr(params).fit(&train)?;
+    go_on()?;
+    let fitted = final_fit(ModelSpec::Msvr(params), &train, session)?;
     let train_errors = model::evaluate(fitted.predictor(), &train)?;
 
     // The previous physics model describes the micro-hand only.
@@ -766,6 +786,41 @@ fn other_columns(
             (name, kept.iter().map(|&i| values[i]).collect())
         })
         .collect())
+}
+
+/// Fits `spec` to `train`, showing the solver's iterations as they go (a fit on a million
+/// rows takes minutes); a stop (Ctrl-C, a termination signal) ends it, and nothing is written.
+fn final_fit(
+    spec: ModelSpec,
+    train: &data::Dataset,
+    session: &Session,
+) -> Result<model::StoredModel, PipelineError> {
+    let ModelSpec::Msvr(params) = spec;
+    let done = std::sync::atomic::AtomicBool::new(false);
+    let before = crate::control::iterations();
+    let fitted = std::thread::scope(|scope| {
+        scope.spawn(|| {
+            while !done.load(std::sync::atomic::Ordering::Relaxed) {
+                std::thread::sleep(std::time::Duration::from_millis(100));
+                session.emit(Event::Count {
+                    task: Task::Fit,
+                    done: crate::control::iterations() - before,
+                    total: params.max_iter,
+                });
+            }
+            session.emit(Event::Finished(Task::Fit));
+        });
+        let fitted = spec.fit(train);
+        done.store(true, std::sync::atomic::Ordering::Relaxed);
+        fitted
+    });
+    fitted.map_err(|e| match e {
+        MsvrError::Interrupted => PipelineError::Interrupted(format!(
+            "interrupted during the final fit (C = {}, ε = {}, σ = {}); nothing written",
+            params.c, params.epsilon, params.sigma
+        )),
+        e => e.into(),
+    })
 }
 
 /// The file name of a path, for tables.

@@ -33,6 +33,8 @@ pub enum Task {
     Detect,
     /// Finding the tip in frames.
     Frames,
+    /// The final fit's solver iterations (of its cap).
+    Fit,
 }
 
 /// What a stage reports while it works.

@@ -112,7 +112,14 @@ fn streamed_features_give_the_stored_fit() {
             tube,
             gram: None,
         };
-        reduced::solve(&problem, 1e-10, 500, faer::Par::Seq).unwrap()
+        reduced::solve(
+            &problem,
+            1e-10,
+            500,
+            faer::Par::Seq,
+            handcap::control::Since::START,
+        )
+        .unwrap()
     };
     let a = solve(FeatureRows::Stored {
         all: stored.as_ref(),

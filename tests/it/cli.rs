@@ -576,3 +576,56 @@ fn ctrl_c_ends_the_search_and_keeps_the_best_model() {
     let iterations = history.lines().count() - 1;
     assert!((1..10000).contains(&iterations), "{iterations} iterations");
 }
+
+/// Issue 44, item 10: SIGTERM (what `timeout`, systemd and batch schedulers send) ends a long
+/// fit at once, exit 130, with nothing written; before, the fit ran on to its end.
+#[test]
+fn sigterm_ends_a_long_fit_at_once_with_nothing_written() {
+    use std::io::BufRead;
+    let _cores = real_time();
+    let dir = tempdir();
+    let d = dir.path();
+    let mut text = String::from("P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm\n");
+    for i in 0..3000 {
+        let p = [
+            (i * 37 % 251) as f64,
+            (i * 91 % 241) as f64,
+            (i * 53 % 239) as f64,
+        ];
+        let y = [
+            (p[0] / 80.0).sin(),
+            (p[1] / 60.0).cos(),
+            0.01 * (p[0] + p[1] + p[2]),
+        ];
+        text += &format!("{},{},{},{},{},{}\n", p[0], p[1], p[2], y[0], y[1], y[2]);
+    }
+    write(d, "big.csv", &text);
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_handcap"))
+        .args([
+            "model", "big.csv", "--search", "none", "--basis", "exact", "--out", "m.json",
+        ])
+        .current_dir(d)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // The basis line comes before the fits (intervals, then the model): about 6 s of work.
+    let mut lines = std::io::BufReader::new(child.stdout.take().unwrap()).lines();
+    let ready = lines
+        .by_ref()
+        .map_while(Result::ok)
+        .any(|l| l.starts_with("basis:"));
+    assert!(ready, "no basis line");
+    // SAFETY: a signal to our own child.
+    unsafe {
+        libc::kill(child.id() as i32, libc::SIGTERM);
+    }
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(130), "{err}");
+    assert!(
+        err.contains("stopped") || err.contains("interrupted"),
+        "{err}"
+    );
+    assert!(!d.join("m.json").exists(), "a model was written");
+}

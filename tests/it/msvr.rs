@@ -22,6 +22,7 @@ const OPTIONS: SolverOptions = SolverOptions {
     tol: 1e-12,
     max_iter: 500,
     par: Par::Seq,
+    since: handcap::control::Since::START,
 };
 
 /// Random inputs in [0, 1]^d and smooth nonlinear targets with noise.

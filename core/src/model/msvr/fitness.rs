@@ -38,7 +38,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::basis::{self, NystromMap};
-use super::irwls::NotPositiveDefinite;
+use super::irwls::StopReason;
 use super::kernel::{self, rbf_from_squared};
 use super::reduced::{self, FeatureRows, ReducedProblem};
 use super::{Basis, Hyper, MinMaxScaler, MsvrError, MsvrParams, ValidMsvrParams};
@@ -173,6 +173,8 @@ pub struct Fitness {
     memo_hits: AtomicUsize,
     kernel_hits: AtomicUsize,
     raced: AtomicUsize,
+    /// Candidates' fits stop at a stop asked after this ([`crate::control`]).
+    since: crate::control::Since,
 }
 
 /// What [`Fitness`] computes the kernels of a σ from.
@@ -249,6 +251,7 @@ impl Fitness {
             .map(|f| f.y_held_out.nrows() * f.y_held_out.ncols())
             .sum();
         Ok(Fitness {
+            since: crate::control::Since::now(),
             kind,
             folds,
             held_out_values,
@@ -335,7 +338,7 @@ impl Fitness {
                 self.raced.fetch_add(1, Ordering::Relaxed);
                 return abs_sum / all;
             }
-            let Ok((pred, bias)) = self.fold_prediction(&per_sigma, k, &params) else {
+            let Ok((pred, bias)) = self.fold_prediction(&per_sigma, k, &params, self.since) else {
                 return f64::INFINITY;
             };
             let y = &fold.y_held_out;
@@ -350,7 +353,8 @@ impl Fitness {
 
     /// Every row's prediction by the model fitted without its fold (rows × outputs, in the
     /// data's row order): the out-of-fold predictions of one tuple, for conformal intervals.
-    /// With the training fitness a row's "fold" is all rows, itself included.
+    /// With the training fitness a row's "fold" is all rows, itself included. These fits run
+    /// after a search a stop ended; a stop asked after they begin ends them.
     ///
     /// # Errors
     /// [`MsvrError`]: the tuple's parameters, or a failed solve.
@@ -359,8 +363,9 @@ impl Fitness {
         let params = self.solver.with_hyper(*h).check()?;
         let rows: usize = self.folds.iter().map(|f| f.held_out.len()).sum();
         let mut out = Mat::zeros(rows, self.folds[0].y_held_out.ncols());
+        let since = crate::control::Since::now();
         for (k, fold) in self.folds.iter().enumerate() {
-            let (pred, bias) = self.fold_prediction(&per_sigma, k, &params)?;
+            let (pred, bias) = self.fold_prediction(&per_sigma, k, &params, since)?;
             for (r, &row) in fold.held_out.iter().enumerate() {
                 for j in 0..pred.ncols() {
                     out[(row, j)] = pred[(r, j)] + bias[j];
@@ -371,13 +376,15 @@ impl Fitness {
     }
 
     /// Fold `k`'s held-out predictions by the model fitted on its training rows, and the bias
-    /// they leave out.
+    /// they leave out; a fit stopped (a stop asked after `since`) is an error, not a
+    /// prediction.
     fn fold_prediction(
         &self,
         per_sigma: &PerSigma,
         k: usize,
         params: &ValidMsvrParams,
-    ) -> Result<(Mat<f64>, Vec<f64>), NotPositiveDefinite> {
+        since: crate::control::Since,
+    ) -> Result<(Mat<f64>, Vec<f64>), MsvrError> {
         let fold = &self.folds[k];
         self.fits.fetch_add(1, Ordering::Relaxed);
         let (pred, bias) = match per_sigma {
@@ -389,7 +396,10 @@ impl Fitness {
                 let k_held_out = Mat::from_fn(held_out.len(), train.len(), |r, c| {
                     kernel[(held_out[r], train[c])]
                 });
-                let sol = params.solve(k_train.as_ref(), fold.y_train.as_ref(), Par::Seq)?;
+                let sol = params.solve(k_train.as_ref(), fold.y_train.as_ref(), Par::Seq, since)?;
+                if sol.stop == StopReason::Interrupted {
+                    return Err(MsvrError::Interrupted);
+                }
                 (k_held_out * &sol.beta, sol.bias)
             }
             PerSigma::Reduced { features, grams } => {
@@ -403,7 +413,10 @@ impl Fitness {
                     gram: Some(grams[k].as_ref()),
                 };
                 let p = params.params();
-                let sol = reduced::solve(&problem, p.tol, p.max_iter, Par::Seq)?;
+                let sol = reduced::solve(&problem, p.tol, p.max_iter, Par::Seq, since)?;
+                if sol.stop == StopReason::Interrupted {
+                    return Err(MsvrError::Interrupted);
+                }
                 let held_out = Mat::from_fn(fold.held_out.len(), features.ncols(), |r, j| {
                     features[(fold.held_out[r], j)]
                 });

@@ -70,11 +70,14 @@ pub enum StopReason {
     NoDescent,
     /// The iteration cap was reached first: the result is not converged.
     IterationCap,
+    /// A stop was asked ([`crate::control`]): the result is not converged, and no fit returns
+    /// it.
+    Interrupted,
 }
 
 impl StopReason {
     pub fn converged(self) -> bool {
-        !matches!(self, StopReason::IterationCap)
+        !matches!(self, StopReason::IterationCap | StopReason::Interrupted)
     }
 }
 
@@ -90,6 +93,8 @@ pub struct SolverOptions {
     /// change (see `Workspace::update`); off, every change refactors, as the paper's colony's
     /// histories were computed (the results then agree to rounding, not to the bit).
     pub factor_updates: bool,
+    /// Stop at a stop asked after this ([`crate::control`]).
+    pub since: crate::control::Since,
 }
 
 /// A training problem: kernel matrix K (n × n, symmetric PSD, contiguous columns, as any
@@ -366,7 +371,11 @@ pub fn solve(
         if iterations == options.max_iter {
             break StopReason::IterationCap;
         }
+        if options.since.stopped() {
+            break StopReason::Interrupted;
+        }
         iterations += 1;
+        crate::control::iteration_done();
         let (beta_star, bias_star) = problem.step_target(&it, &mut work, options.par)?;
         let previous = it.objective;
         match problem.line_search(&mut it, beta_star, bias_star, options.par) {

@@ -58,6 +58,8 @@ pub enum MsvrError {
     Data(#[from] DataError),
     #[error(transparent)]
     Solver(#[from] NotPositiveDefinite),
+    #[error("the fit was stopped (Ctrl-C, a termination signal, or KeyboardInterrupt) before it converged")]
+    Interrupted,
     #[error("the fit with C = {c}, ε = {epsilon}, σ = {sigma} gave non-finite numbers; choose other parameters or rescale the data")]
     NonFinite { c: f64, epsilon: f64, sigma: f64 },
     #[error("{rows} rows with the {basis} basis need about {need_gb:.1} GB, and {available_gb:.1} GB are available; use a reduced basis of fewer centres (`--basis auto` or `--basis M`)")]
@@ -256,7 +258,8 @@ impl ValidMsvrParams {
         &self.0
     }
 
-    /// Solves the training problem on a kernel matrix and targets with these parameters.
+    /// Solves the training problem on a kernel matrix and targets with these parameters,
+    /// stopping at a stop asked after `since` ([`StopReason::Interrupted`]).
     ///
     /// # Errors
     /// [`NotPositiveDefinite`] when the linear algebra fails.
@@ -265,6 +268,7 @@ impl ValidMsvrParams {
         kernel: MatRef<f64>,
         targets: MatRef<f64>,
         par: Par,
+        since: crate::control::Since,
     ) -> Result<irwls::Solution, NotPositiveDefinite> {
         let p = &self.0;
         let problem = Problem {
@@ -279,6 +283,7 @@ impl ValidMsvrParams {
             max_iter: p.max_iter,
             par,
             factor_updates: p.factor_updates,
+            since,
         };
         irwls::solve(&problem, &options, None)
     }
@@ -297,6 +302,7 @@ impl ValidMsvrParams {
     /// # Errors
     /// As [`ValidMsvrParams::fit`].
     pub fn fit_with(&self, data: &Dataset, par: Par) -> Result<Msvr, MsvrError> {
+        let since = crate::control::Since::now();
         data.check_fittable(MIN_FIT_ROWS)?;
         check_memory(data.rows(), self.0.basis)?;
         let p = &self.0;
@@ -306,7 +312,7 @@ impl ValidMsvrParams {
         let expansion = match p.basis {
             Basis::Exact => {
                 let k = kernel::rbf_gram(&scaled, p.sigma);
-                let solution = self.solve(k.as_ref(), y.as_ref(), par)?;
+                let solution = self.solve(k.as_ref(), y.as_ref(), par, since)?;
                 let sv_rows: Vec<usize> = (0..solution.beta.nrows())
                     .filter(|&i| solution.beta.row(i).iter().any(|&b| b != 0.0))
                     .collect();
@@ -346,7 +352,7 @@ impl ValidMsvrParams {
                     tube: p.tube(),
                     gram: None,
                 };
-                let solution = reduced::solve(&problem, p.tol, p.max_iter, par)?;
+                let solution = reduced::solve(&problem, p.tol, p.max_iter, par, since)?;
                 let beta = map.coefficients(solution.w.as_ref());
                 Expansion {
                     centres: map.centres.iter_rows().map(<[f64]>::to_vec).collect(),
@@ -366,6 +372,9 @@ impl ValidMsvrParams {
                 }
             }
         };
+        if expansion.stop == StopReason::Interrupted {
+            return Err(MsvrError::Interrupted);
+        }
         let finite = expansion.objective.is_finite()
             && expansion.bias.iter().all(|b| b.is_finite())
             && expansion

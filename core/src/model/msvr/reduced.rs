@@ -180,7 +180,8 @@ pub struct ReducedSolution {
     pub outside: usize,
 }
 
-/// Solves from w = 0, b = mean(Y).
+/// Solves from w = 0, b = mean(Y), stopping at a stop asked after `since`
+/// ([`StopReason::Interrupted`]).
 ///
 /// # Errors
 /// [`NotPositiveDefinite`] when a step system cannot be factored (C beyond what f64 resolves).
@@ -189,6 +190,7 @@ pub fn solve(
     tol: f64,
     max_iter: usize,
     par: Par,
+    since: crate::control::Since,
 ) -> Result<ReducedSolution, NotPositiveDefinite> {
     let (n, q) = problem.targets.shape();
     let (r, tube, y) = (problem.features.width(), problem.tube, problem.targets);
@@ -221,7 +223,11 @@ pub fn solve(
         if iterations == max_iter {
             break StopReason::IterationCap;
         }
+        if since.stopped() {
+            break StopReason::Interrupted;
+        }
         iterations += 1;
+        crate::control::iteration_done();
         // 1. Each row's weight and pulled-in target.
         let parts: Vec<Option<(f64, f64)>> = (0..n)
             .map(|i| tube.step_row(row_norm(resid.as_ref(), i)))
