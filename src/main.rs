@@ -11,7 +11,25 @@ use clap::Parser;
 fn main() -> ExitCode {
     restore_sigpipe();
     quiet_ffmpeg();
-    let args = cli::Cli::parse();
+    let args = match cli::Cli::try_parse() {
+        Ok(args) => args,
+        // clap's refusal on one line, as every handcap error: its message, without the usage
+        // and the pointer to --help that follow it.
+        Err(e) if e.use_stderr() => {
+            let text = e.render().to_string();
+            let message: Vec<&str> = text
+                .lines()
+                .take_while(|l| !l.trim().is_empty() && !l.starts_with("Usage:"))
+                .map(str::trim)
+                .collect();
+            eprintln!(
+                "handcap: {}; see --help",
+                message.join(" ").trim_start_matches("error: ")
+            );
+            return ExitCode::from(2);
+        }
+        Err(e) => e.exit(),
+    };
     match cli::run(args) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

@@ -289,49 +289,29 @@ pub fn read_columns_with_lines(
 /// # Errors
 /// As [`read_columns`]: unreadable or empty file, a row of the wrong length.
 pub fn numeric_columns(path: &Path, skip: &[String]) -> Result<Vec<(String, Vec<f64>)>, DataError> {
-    let bytes = read_file(path)?;
-    let mut lines = Lines::new(&bytes);
-    let mut reader = csv::ReaderBuilder::new()
-        .has_headers(false)
-        .trim(csv::Trim::All)
-        .from_reader(bytes.as_slice());
-    let mut records = reader.records();
-    let header = match records.next() {
-        None => return Err(DataError::Empty { path: path.into() }),
-        Some(r) => r.map_err(|e| csv_error(path, e, &mut lines))?,
-    };
-    let flag = flag_column(&header);
-    let mut columns: Vec<(usize, String, Option<Vec<f64>>)> = header
-        .iter()
-        .enumerate()
-        .filter(|&(j, name)| Some(j) != flag && !skip.iter().any(|s| s == name))
-        .map(|(j, name)| (j, name.to_string(), Some(Vec::new())))
-        .collect();
-    for record in records {
-        let record = record.map_err(|e| csv_error(path, e, &mut lines))?;
-        if is_blank(&record) || is_flagged(flag, &record) {
-            continue;
-        }
-        if record.len() != header.len() {
-            return Err(DataError::Malformed {
-                path: path.into(),
-                line: lines.of(record.position()),
-                message: format!(
-                    "{} fields, but the header has {}; every row needs one value per column",
-                    record.len(),
-                    header.len()
-                ),
-            });
-        }
-        for (j, _, values) in &mut columns {
-            let number = record[*j].parse::<f64>().ok().filter(|v| v.is_finite());
-            match (values.as_mut(), number) {
-                (Some(values), Some(v)) => values.push(v),
-                _ => *values = None,
+    let columns = each_row(
+        path,
+        |header| {
+            let flag = flag_column(header);
+            Ok(header
+                .iter()
+                .enumerate()
+                .filter(|&(j, name)| Some(j) != flag && !skip.iter().any(|s| s == name))
+                .map(|(j, name)| (j, name.to_string(), Some(Vec::new())))
+                .collect::<Vec<(usize, String, Option<Vec<f64>>)>>())
+        },
+        |columns, _, record| {
+            for (j, _, values) in columns.iter_mut() {
+                let number = record[*j].parse::<f64>().ok().filter(|v| v.is_finite());
+                match (values.as_mut(), number) {
+                    (Some(values), Some(v)) => values.push(v),
+                    _ => *values = None,
+                }
             }
-        }
-        columns.retain(|c| c.2.is_some());
-    }
+            columns.retain(|c| c.2.is_some());
+            Ok(())
+        },
+    )?;
     Ok(columns
         .into_iter()
         .filter_map(|(_, name, values)| Some((name, values?)))
@@ -371,6 +351,30 @@ fn read_selected(
     names: &[String],
     mut sink: impl FnMut(u64, &[f64]),
 ) -> Result<(), DataError> {
+    let mut row = vec![0.0; names.len()];
+    each_row(
+        path,
+        |header| column_index(path, header, names),
+        |index, line, record| {
+            for (slot, (&col, name)) in row.iter_mut().zip(index.iter().zip(names)) {
+                *slot = parse_cell(path, line, name, &record[col])?;
+            }
+            sink(line, &row);
+            Ok(())
+        },
+    )
+    .map(drop)
+}
+
+/// Reads a file's header, gives it to `setup`, then gives each data row (blank and flagged
+/// rows skipped, a row of the wrong length refused) with its file line to `row`, with what
+/// `setup` made of the header (the chosen columns' positions, or a state the rows build);
+/// returns that.
+fn each_row<C>(
+    path: &Path,
+    setup: impl FnOnce(&csv::StringRecord) -> Result<C, DataError>,
+    mut row: impl FnMut(&mut C, u64, &csv::StringRecord) -> Result<(), DataError>,
+) -> Result<C, DataError> {
     let bytes = read_file(path)?;
     let mut lines = Lines::new(&bytes);
     let mut reader = csv::ReaderBuilder::new()
@@ -385,9 +389,8 @@ fn read_selected(
     if header.iter().all(str::is_empty) {
         return Err(DataError::Empty { path: path.into() });
     }
-    let index = column_index(path, &header, names)?;
+    let mut made = setup(&header)?;
     let flag = flag_column(&header);
-    let mut row = vec![0.0; names.len()];
     for record in records {
         let record = record.map_err(|e| csv_error(path, e, &mut lines))?;
         if is_blank(&record) || is_flagged(flag, &record) {
@@ -405,12 +408,45 @@ fn read_selected(
                 ),
             });
         }
-        for (slot, (&col, name)) in row.iter_mut().zip(index.iter().zip(names)) {
-            *slot = parse_cell(path, line, name, &record[col])?;
-        }
-        sink(line, &row);
+        row(&mut made, line, &record)?;
     }
-    Ok(())
+    Ok(made)
+}
+
+/// A column of labels (runs, trials, groups) as numbers, one per row [`read_columns`] reads,
+/// with the rows' file lines: the labels themselves when every one is a number, else each
+/// distinct label's rank of first appearance (`T0`, `T1`, `T0` → 0, 1, 0). Labels are names,
+/// not quantities: `T0`, `run-3` and `12:00` are labels like any other.
+///
+/// # Errors
+/// As [`read_columns`], but for a cell that is not a number.
+pub fn read_labels(path: &Path, name: &str) -> Result<(Vec<f64>, Vec<u64>), DataError> {
+    let (mut cells, mut lines) = (Vec::new(), Vec::new());
+    let names = [name.to_string()];
+    each_row(
+        path,
+        |header| column_index(path, header, &names),
+        |index, line, record| {
+            cells.push(record[index[0]].to_string());
+            lines.push(line);
+            Ok(())
+        },
+    )?;
+    let numbers: Option<Vec<f64>> = cells
+        .iter()
+        .map(|c| c.parse::<f64>().ok().filter(|v| v.is_finite()))
+        .collect();
+    let labels = numbers.unwrap_or_else(|| {
+        let mut seen: std::collections::HashMap<&str, f64> = std::collections::HashMap::new();
+        cells
+            .iter()
+            .map(|c| {
+                let next = seen.len() as f64;
+                *seen.entry(c.as_str()).or_insert(next)
+            })
+            .collect()
+    });
+    Ok((labels, lines))
 }
 
 /// Copies the header and the rows of `from` whose `columns` satisfy `keep` into `to`

@@ -95,8 +95,14 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
             _, groups = np.unique(groups, return_inverse=True)
             groups = groups.astype(np.float64)
         seed = DEFAULT_SEED if self.random_state is None else self.random_state
-        if not isinstance(seed, (int, np.integer)) or seed < 0:
-            raise ValueError("random_state must be None or a non-negative int")
+        if not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**64:
+            raise ValueError(f"random_state {seed!r}: give None or an int from 0 to 2**64 - 1")
+        for name, value, least in (("budget", self.budget, 1), ("folds", self.folds, 2),
+                                   ("max_iter", self.max_iter, 1)):
+            if name == "budget" and value is None:
+                continue
+            if not isinstance(value, (int, np.integer)) or not least <= value < 2**63:
+                raise ValueError(f"{name} {value!r}: give an int of at least {least}")
         names = [f"x{j}" for j in range(X.shape[1])]
         if hasattr(self, "feature_names_in_"):
             names = [str(n) for n in self.feature_names_in_]

@@ -155,6 +155,12 @@ def test_bad_input_raises_value_error():
         model.model_.inverse(np.zeros((1, 2)))
     with pytest.raises(OSError):
         handcap.load("no-such-model.json")
+    # Issue 44, item 12: out-of-range integers name their parameter (they raised a bare
+    # OverflowError).
+    for bad, name in ((dict(budget=-1), "budget"), (dict(folds=2**70), "folds"),
+                      (dict(random_state=-3), "random_state"), (dict(max_iter=0), "max_iter")):
+        with pytest.raises(ValueError, match=name):
+            handcap.MSVRRegressor(**{**FIXED, **bad}).fit(x, y)
 
 
 def test_tampered_model_files_and_nan_targets_raise_value_error(tmp_path):

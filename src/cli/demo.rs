@@ -32,7 +32,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         realism,
     };
     let done = super::with_session(|s| demo::run(&a.out, config, s))?;
-    if let Some((_, total)) = done.summary.timings_s.iter().find(|(k, _)| k == "total") {
+    if let Some((_, total)) = done.timings.iter().find(|(k, _)| k == "total") {
         println!("total {total:.1} s");
     }
     println!("report: {}", done.index.display());

@@ -31,27 +31,39 @@ pub struct Cli {
     command: Command,
 }
 
+/// Every subcommand takes negative numbers as values (`--c -1` is refused by its own check,
+/// saying why, not taken for a flag).
 #[derive(Subcommand)]
 enum Command {
     /// Virtual micro-hand and stereo rig → images, pressure log, datasets, ground truth
+    #[command(allow_negative_numbers = true)]
     Synth(synth::Args),
     /// Stereo calibration from chessboard or ChArUco image pairs → OpenCV YAML
+    #[command(allow_negative_numbers = true)]
     Calibrate(calibrate::Args),
     /// Red tip in each frame pair → 3-D tip in the hand frame → one dataset row per pressure step
+    #[command(allow_negative_numbers = true)]
     Triangulate(triangulate::Args),
     /// Fit MSVR to a CSV dataset, report held-out errors, write the model file
+    #[command(allow_negative_numbers = true)]
     Model(model::Args),
     /// Predict outputs of a fitted model for the inputs in a CSV file
+    #[command(allow_negative_numbers = true)]
     Predict(predict::Args),
     /// Inputs (pressures) that put a fitted model's tip at a target, for feed-forward control
+    #[command(allow_negative_numbers = true)]
     Inverse(inverse::Args),
     /// The whole pipeline on the built-in virtual micro-hand, with a report
+    #[command(allow_negative_numbers = true)]
     Demo(demo::Args),
     /// Two cameras → frames + frames.csv on one clock, optionally driving a pressure protocol
+    #[command(allow_negative_numbers = true)]
     Capture(capture::Args),
     /// The paper's pressure protocol → protocol.csv, for `capture --protocol`
+    #[command(allow_negative_numbers = true)]
     Protocol(protocol::Args),
     /// A calibration board to print (chessboard or ChArUco, SVG at true size) and its board.yml
+    #[command(allow_negative_numbers = true)]
     Board(board::Args),
 }
 

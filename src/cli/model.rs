@@ -157,6 +157,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         FitnessArg::Cv => FitnessKind::Cv { folds: a.folds },
         FitnessArg::Train => FitnessKind::Train,
     };
+    if a.folds < 2 {
+        usage!(
+            "--folds {}: cross-validation needs 2 folds or more",
+            a.folds
+        );
+    }
     if a.search_on.is_some() && a.search == SearchKind::None {
         usage!("--search-on gives the rows a search scores candidates on: use it with a --search");
     }
@@ -196,6 +202,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     if a.budget.is_some() && !matches!(a.search, SearchKind::AcoR | SearchKind::Grid) {
         usage!("--budget is the candidate budget of --search aco-r and grid");
+    }
+    let least = AcoR::default().archive;
+    if let (Some(budget), SearchKind::AcoR) = (a.budget, a.search) {
+        if budget < least {
+            usage!("--budget {budget}: must be at least {least} candidates: the first fill of the colony's archive");
+        }
     }
     let loss = match a.loss {
         LossArg::Auto if a.search == SearchKind::AcoPaper => Loss::Quadratic,

@@ -13,10 +13,12 @@ fn f4(v: f64) -> String {
     format!("{v:.4}")
 }
 
-/// The report page.
+/// The report page; `timings` each stage's seconds (the only figures that differ between two
+/// runs of one seed).
 pub(super) fn page(
     out: &Path,
     s: &Summary,
+    timings: &[(String, f64)],
     tri: &Triangulation,
     cal: &StereoCalibration,
     search: Option<&SearchSummary>,
@@ -37,17 +39,17 @@ pub(super) fn page(
             vec![
                 "synth".into(),
                 format!("{} board pairs, {} pressure steps", cal.pairs.len(), tri.summary.steps_logged),
-                timing(s, "synth"),
+                timing(timings, "synth"),
             ],
             vec![
                 "calibrate".into(),
                 format!("RMS {:.3} px; intrinsics within {:.3} %, baseline {:.3} %, rotation {:.4}°", c.rms_px, c.intrinsics_error_pct, c.baseline_error_pct, c.rotation_error_deg),
-                timing(s, "calibrate"),
+                timing(timings, "calibrate"),
             ],
             vec![
                 "triangulate".into(),
                 all.map_or("-".into(), |t| format!("tip RMS error {:.4} mm over {} steps", t.rms_mm, t.rows)),
-                timing(s, "triangulate"),
+                timing(timings, "triangulate"),
             ],
             vec![
                 "model".into(),
@@ -55,14 +57,14 @@ pub(super) fn page(
                     .iter()
                     .find(|x| x.model == "msvr" && x.test == "dataset_sweep_a.csv")
                     .map_or("-".into(), |x| format!("MSVR held-out MAE {:.4} mm on sweep A", x.errors.mae)),
-                timing(s, "model"),
+                timing(timings, "model"),
             ],
             vec![
                 "inverse".into(),
                 s.inverse.first().map_or("-".into(), |i| format!("planned pressures put the plant's tip {:.4} mm (mean) from the target", i.mean_mm)),
-                timing(s, "inverse"),
+                timing(timings, "inverse"),
             ],
-            vec!["total".into(), String::new(), timing(s, "total")],
+            vec!["total".into(), String::new(), timing(timings, "total")],
         ],
     );
 
@@ -241,10 +243,10 @@ pub(super) fn page(
                 vec!["handcap version".into(), s.provenance.handcap_version.clone()],
                 vec!["command".into(), s.provenance.command.join(" ")],
                 vec!["seed".into(), s.seed.to_string()],
-                vec!["stage timings (s)".into(), s.timings_s.iter().map(|(k, v)| format!("{k} {v:.1}")).collect::<Vec<_>>().join(", ")],
+                vec!["stage timings (s)".into(), timings.iter().map(|(k, v)| format!("{k} {v:.1}")).collect::<Vec<_>>().join(", ")],
             ],
         )
-        .paragraph("Files: capture/ (images, pressures.csv, truth/), calib.yml, triangulated/ (dataset and its diagnostics), search/ (the rows the search scored), model.json and model/ (report.md, metrics.csv, history.csv, figures), model_plant/, inverse_check.csv, summary.json.");
+        .paragraph("Files: capture/ (images, pressures.csv, truth/), calib.yml, triangulated/ (dataset and its diagnostics), search/ (the rows the search scored), model.json and model/ (report.md, metrics.csv, history.csv, figures), model_plant/, inverse_check.csv, summary.json (the same bytes for the same seed), timings.json (the stage times).");
     page
 }
 
@@ -255,8 +257,8 @@ fn triple(v: &[f64], digits: usize) -> String {
         .join(", ")
 }
 
-fn timing(s: &Summary, stage: &str) -> String {
-    s.timings_s
+fn timing(timings: &[(String, f64)], stage: &str) -> String {
+    timings
         .iter()
         .find(|(k, _)| k == stage)
         .map_or(String::new(), |(_, v)| format!("{v:.1}"))

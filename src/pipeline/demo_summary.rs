@@ -79,7 +79,6 @@ pub struct Summary {
     pub quick: bool,
     /// What the virtual lab added to the frames.
     pub realism: Realism,
-    pub timings_s: Vec<(String, f64)>,
     pub calibration: CalibrationCheck,
     pub triangulation: Vec<TipCheck>,
     pub scores: Vec<Score>,

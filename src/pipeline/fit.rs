@@ -320,6 +320,9 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
     }
 
     let train_rows = job.keep(train.with(kept.as_ref())?);
+    if let Selection::Fixed { .. } = job.selection {
+        constant_tube(params.epsilon, &train_rows.outputs)?;
+    }
     // Intervals come from the rows the model is fitted on (the scored rows, unless the search
     // scored another file), cut into the search's kind of folds.
     let calibration = match search_source {
@@ -533,7 +536,15 @@ impl Source {
                     tau: ladders()?.swap_remove(0),
                 }],
             ),
-            HistoryChoice::Ema(tau) => (false, vec![Memory::Ema { tau: tau.clone() }]),
+            HistoryChoice::Ema(tau) => {
+                let scale = series
+                    .time_scale()
+                    .map_err(|e| history::series_error(&self.raw.source, lines, e))?;
+                if let Some(why) = history::useless_time_constant(tau, scale) {
+                    return Err(PipelineError::Usage(format!("--history ema:…: {why}")));
+                }
+                (false, vec![Memory::Ema { tau: tau.clone() }])
+            }
             HistoryChoice::Lags(rows) => (false, vec![Memory::Lags { rows: *rows }]),
         };
         // Groups too short for the memory are refused before any search.
@@ -763,10 +774,7 @@ fn other_columns(
 ) -> Result<Vec<(String, Vec<f64>)>, PipelineError> {
     let columns: Vec<(String, Vec<f64>)> = match by {
         FoldsBy::Shuffle | FoldsBy::Blocks => return Ok(Vec::new()),
-        FoldsBy::Column(column) => {
-            let read = data::read_columns(path, std::slice::from_ref(column))?;
-            vec![(column.clone(), read.values)]
-        }
+        FoldsBy::Column(column) => vec![(column.clone(), data::read_labels(path, column)?.0)],
         FoldsBy::Auto => {
             let skip: Vec<String> = job.inputs.iter().chain(&job.outputs).cloned().collect();
             data::numeric_columns(path, &skip)?
@@ -786,6 +794,32 @@ fn other_columns(
             (name, kept.iter().map(|&i| values[i]).collect())
         })
         .collect())
+}
+
+/// Refuses a tube radius `epsilon` that holds every row of `outputs` around their mean: every
+/// row would lie inside the tube, and the model would be a constant.
+fn constant_tube(epsilon: f64, outputs: &data::Columns) -> Result<(), PipelineError> {
+    let n = outputs.rows() as f64;
+    let mean: Vec<f64> = (0..outputs.width())
+        .map(|j| outputs.column(j).sum::<f64>() / n)
+        .collect();
+    let widest = outputs
+        .iter_rows()
+        .map(|row| {
+            row.iter()
+                .zip(&mean)
+                .map(|(v, m)| (v - m).powi(2))
+                .sum::<f64>()
+                .sqrt()
+        })
+        .fold(0.0, f64::max);
+    if epsilon >= widest {
+        return Err(PipelineError::Usage(format!(
+            "--epsilon {epsilon:e}: every row's outputs lie within {widest:.4} of their mean, so every row is inside the tube and the model is a constant; give ε well below that (e.g. {:.2e})",
+            widest / 100.0
+        )));
+    }
+    Ok(())
 }
 
 /// Fits `spec` to `train`, showing the solver's iterations as they go (a fit on a million

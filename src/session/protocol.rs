@@ -205,17 +205,31 @@ pub fn command_for(template: &str, step: &Step) -> String {
             .all(|p| (0.0..=MAX_PRESSURE_KPA).contains(p)),
         "pressure above the cap reached the command"
     );
-    let [p1, p2, p3] = step.pressures;
+    // `-0` (a protocol file may hold it) is 0 to a regulator.
+    let [p1, p2, p3] = step.pressures.map(crate::data::format_number);
     template
-        .replace("{p1}", &p1.to_string())
-        .replace("{p2}", &p2.to_string())
-        .replace("{p3}", &p3.to_string())
+        .replace("{p1}", &p1)
+        .replace("{p2}", &p2)
+        .replace("{p3}", &p3)
         .replace("{step}", &step.step.to_string())
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Issue 44, item 12: a protocol's `-0` reaches the regulator as `0`.
+    #[test]
+    fn negative_zero_reaches_the_command_as_zero() {
+        let step = Step {
+            step: 3,
+            phase: "train".into(),
+            pressures: [-0.0, 12.5, 0.0],
+            hold_s: 1.0,
+            line: 5,
+        };
+        assert_eq!(command_for("set {p1} {p2} {p3}", &step), "set 0 12.5 0");
+    }
 
     #[test]
     fn the_design_is_the_papers() {

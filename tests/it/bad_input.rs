@@ -643,3 +643,57 @@ fn figures_of_a_file_with_a_dot_in_its_name_keep_their_names() {
     }
     assert!(!d.join("rep/sweep.png").exists());
 }
+
+/// Issue 44, item 12: each message says what to do, in one line, exit 2; labels are labels.
+#[test]
+fn model_options_out_of_range_say_the_range_and_labels_group_runs() {
+    let dir = tempdir();
+    let d = dir.path();
+    synth(d);
+    let model = |extra: &str| format!("model data/train.csv --out m.json {extra}");
+    let cases = [
+        (
+            "--search aco-r --budget 5",
+            "must be at least 12 candidates",
+        ),
+        ("--folds 1", "needs 2 folds or more"),
+        ("--search none --c -1", "C = -1: must be finite and > 0"),
+        (
+            "--search none --epsilon 1e300",
+            "every row is inside the tube",
+        ),
+    ];
+    for (extra, says) in cases {
+        let msg = handcap_usage(d, &words(&model(extra)));
+        assert!(msg.contains(says), "{extra}: {msg}");
+    }
+    // --folds and --group-by cut the intervals' folds with --search none.
+    let out = handcap_ok(d, &words(&model("--search none --folds 3")));
+    assert!(
+        out.contains("3-fold") || out.contains("3 folds") || out.contains("prediction intervals"),
+        "{out}"
+    );
+    // A time series whose runs are named, not numbered; extreme and repeated time constants.
+    let mut text = String::from("t_s,run,u,y\n");
+    for run in 0..5 {
+        let mut f = 0.0;
+        for k in 0..20 {
+            let u = ((run * 20 + k) * 37 % 100) as f64 / 100.0;
+            f += 0.3 * (u - f);
+            text += &format!("{},T{run},{u},{}\n", 0.1 * k as f64, f.sin());
+        }
+    }
+    write(d, "named.csv", &text);
+    let series = |history: &str| {
+        format!("model named.csv --inputs u --outputs y --time t_s --group-by run --history {history} --search none --out s.json")
+    };
+    handcap_ok(d, &words(&series("ema:0.3")));
+    for (history, says) in [
+        ("ema:1e300", "far beyond the longest run"),
+        ("ema:1e-300", "far below the rows' interval"),
+        ("ema:0.3,0.3", "given twice"),
+    ] {
+        let msg = handcap_usage(d, &words(&series(history)));
+        assert!(msg.contains(says), "{history}: {msg}");
+    }
+}

@@ -326,4 +326,41 @@ fn the_quick_demo_runs_end_to_end_and_its_numbers_hold_against_the_truth() {
     assert!(html.matches("data:image/png;base64,").count() >= 2);
     assert!(html.matches("<svg").count() >= 10);
     assert!(Path::new(&demo.join("model.json")).is_file());
+
+    // Issue 44, item 12: the same seed gives the same bytes, but for the stage times (in
+    // timings.json and the report's page).
+    std::fs::rename(&demo, d.join("first")).unwrap();
+    handcap_ok(d, &["demo", "--out", "demo", "--quick", "--format", "png"]);
+    let mut compared = 0;
+    for entry in walkdir(&d.join("first")) {
+        let relative = entry.strip_prefix(d.join("first")).unwrap();
+        if relative == Path::new("timings.json") || relative == Path::new("report/index.html") {
+            continue;
+        }
+        let (a, b) = (
+            std::fs::read(&entry).unwrap(),
+            std::fs::read(demo.join(relative)).unwrap(),
+        );
+        assert!(
+            a == b,
+            "{} differs between two runs of one seed",
+            relative.display()
+        );
+        compared += 1;
+    }
+    assert!(compared > 50, "{compared} files compared");
+}
+
+/// Every file under `dir`, depth first.
+fn walkdir(dir: &Path) -> Vec<std::path::PathBuf> {
+    let mut out = Vec::new();
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.is_dir() {
+            out.extend(walkdir(&path));
+        } else {
+            out.push(path);
+        }
+    }
+    out
 }

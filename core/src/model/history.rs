@@ -161,6 +161,15 @@ impl std::str::FromStr for HistoryChoice {
                     if tau.is_empty() || tau.iter().any(|t| !(t.is_finite() && *t > 0.0)) {
                         return Err(bad());
                     }
+                    if let Some(t) = tau
+                        .iter()
+                        .enumerate()
+                        .find_map(|(k, t)| tau[..k].contains(t).then_some(t))
+                    {
+                        return Err(format!(
+                            "`{s}`: time constant {t} is given twice; each gives one filtered copy"
+                        ));
+                    }
                     Ok(HistoryChoice::Ema(tau))
                 } else if let Some(k) = s.strip_prefix("lags:") {
                     match k.trim().parse::<usize>() {
@@ -323,15 +332,7 @@ impl Series {
     /// # Errors
     /// As [`Series::check`].
     pub fn time_constant_ladders(&self) -> Result<Vec<Vec<f64>>, HistoryError> {
-        let groups = self.check()?;
-        let mut steps: Vec<f64> = Vec::new();
-        let mut spans: Vec<f64> = Vec::new();
-        for (_, rows) in &groups {
-            steps.extend(rows.windows(2).map(|w| self.time[w[1]] - self.time[w[0]]));
-            spans.push(self.time[*rows.last().expect("a group has rows")] - self.time[rows[0]]);
-        }
-        let step = crate::stats::upper_median(&mut steps).unwrap_or(1.0);
-        let span = crate::stats::upper_median(&mut spans).unwrap_or(0.0);
+        let TimeScale { step, span, .. } = self.time_scale()?;
         let mut ladders: Vec<Vec<f64>> = Vec::new();
         for shift in 0..AUTO_LADDERS {
             let first = AUTO_FIRST_STEPS * step * AUTO_SHIFT.powi(shift as i32);
@@ -348,6 +349,68 @@ impl Series {
         Ok(ladders)
     }
 }
+
+/// The series' times at a glance: the median interval between rows, the median and the
+/// longest run's span (within groups, time-column units).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TimeScale {
+    pub step: f64,
+    pub span: f64,
+    pub longest: f64,
+}
+
+impl Series {
+    /// The series' [`TimeScale`].
+    ///
+    /// # Errors
+    /// As [`Series::check`].
+    pub fn time_scale(&self) -> Result<TimeScale, HistoryError> {
+        let groups = self.check()?;
+        let mut steps: Vec<f64> = Vec::new();
+        let mut spans: Vec<f64> = Vec::new();
+        for (_, rows) in &groups {
+            steps.extend(rows.windows(2).map(|w| self.time[w[1]] - self.time[w[0]]));
+            spans.push(self.time[*rows.last().expect("a group has rows")] - self.time[rows[0]]);
+        }
+        let longest = spans.iter().copied().fold(0.0, f64::max);
+        Ok(TimeScale {
+            step: crate::stats::upper_median(&mut steps).unwrap_or(1.0),
+            span: crate::stats::upper_median(&mut spans).unwrap_or(0.0),
+            longest,
+        })
+    }
+}
+
+/// Why time constants `tau` cannot see this series' history, when they cannot: far below its
+/// sampling (the filter is the input itself) or far beyond its longest run (the filter never
+/// leaves its first value). `None` when each lies within [`TAU_REACH`] of them.
+pub fn useless_time_constant(tau: &[f64], scale: TimeScale) -> Option<String> {
+    let (low, high) = (scale.step / TAU_REACH, scale.longest * TAU_REACH);
+    let t = *tau.iter().find(|&&t| t < low || t > high)?;
+    let short = |v: f64| {
+        if (1e-3..1e6).contains(&v.abs()) {
+            round_significant(v).to_string()
+        } else {
+            format!("{v:.2e}")
+        }
+    };
+    let why = if t < low {
+        format!("far below the rows' interval ({})", short(scale.step))
+    } else {
+        format!("far beyond the longest run ({})", short(scale.longest))
+    };
+    Some(format!(
+        "time constant {} is {why}: its filter {}; give time constants from {} to {} (or ema, from the data)",
+        short(t),
+        if t < low { "is the input itself" } else { "never moves" },
+        short(low),
+        short(high)
+    ))
+}
+
+/// How far (as a factor) a time constant may lie below a series' interval or beyond its
+/// longest run ([`useless_time_constant`]).
+pub const TAU_REACH: f64 = 100.0;
 
 /// `v` to 3 significant digits (names stay readable: `@ema0.6`, not `@ema0.6000000000000001`).
 fn round_significant(v: f64) -> f64 {
@@ -467,28 +530,32 @@ pub fn read_series(
     time: &str,
     group: Option<&str>,
 ) -> Result<(Series, Vec<u64>), DataError> {
-    let names: Vec<String> = std::iter::once(time)
-        .chain(group)
-        .map(String::from)
-        .collect();
-    let (columns, lines) = data::read_columns_with_lines(path, &names).map_err(|e| match e {
-        DataError::MissingColumn {
-            path,
-            name,
-            available,
-        } => DataError::Input {
-            path,
-            line: 0,
-            message: format!(
-                "no column `{name}`, which the model's input history needs as its {} (the header has: {available})",
-                if name == time { "time" } else { "group" }
-            ),
-        },
-        e => e,
-    })?;
+    let needs = |name: &'static str| {
+        move |e: DataError| {
+            match e {
+            DataError::MissingColumn {
+                path,
+                name: missing,
+                available,
+            } => DataError::Input {
+                path,
+                line: 0,
+                message: format!(
+                    "no column `{missing}`, which the model's input history needs as its {name} (the header has: {available})"
+                ),
+            },
+            e => e,
+        }
+        }
+    };
+    let (times, lines) =
+        data::read_columns_with_lines(path, &[time.to_string()]).map_err(needs("time"))?;
+    let group = group
+        .map(|g| data::read_labels(path, g).map_err(needs("group")))
+        .transpose()?;
     let series = Series {
-        time: columns.column(0).collect(),
-        group: group.map(|_| columns.column(1).collect()),
+        time: times.values,
+        group: group.map(|(labels, _)| labels),
     };
     Ok((series, lines))
 }

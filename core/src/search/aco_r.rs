@@ -63,7 +63,10 @@ impl AcoR {
             return invalid(
                 "budget",
                 self.budget as f64,
-                "must hold the archive's first fill",
+                format!(
+                    "must be at least {} candidates: the first fill of the colony's archive",
+                    self.archive
+                ),
             );
         }
         if !(self.q > 0.0 && self.q.is_finite()) {

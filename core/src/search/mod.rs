@@ -223,7 +223,7 @@ pub enum SearchError {
     InvalidSetting {
         name: &'static str,
         value: f64,
-        requirement: &'static str,
+        requirement: std::borrow::Cow<'static, str>,
     },
     #[error("the search range of {name} is [{lo}, {hi}]: it must be 0 < low ≤ high, finite")]
     InvalidAxis { name: String, lo: f64, hi: f64 },
@@ -232,11 +232,15 @@ pub enum SearchError {
 }
 
 /// The error for a setting outside its range.
-fn invalid<T>(name: &'static str, value: f64, requirement: &'static str) -> Result<T, SearchError> {
+fn invalid<T>(
+    name: &'static str,
+    value: f64,
+    requirement: impl Into<std::borrow::Cow<'static, str>>,
+) -> Result<T, SearchError> {
     Err(SearchError::InvalidSetting {
         name,
         value,
-        requirement,
+        requirement: requirement.into(),
     })
 }
 

@@ -66,7 +66,7 @@ impl std::fmt::Display for FitnessKind {
 /// Errors of setting up the fitness.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum FitnessError {
-    #[error("{folds} folds: cross-validation needs 2 or more folds of 2 rows or more each, which {rows} rows in {groups} groups do not give (give more rows, or fewer folds)")]
+    #[error("{folds} folds: cross-validation needs 2 or more folds of 2 rows or more each, which {rows} rows in {groups} groups do not give ({})", if *folds < 2 { "give 2 folds or more".to_string() } else { format!("give more rows, or at most {} folds", groups.min(&(rows / 2))) })]
     BadFolds {
         folds: usize,
         rows: usize,
