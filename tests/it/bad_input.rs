@@ -234,7 +234,10 @@ fn predict_refuses_a_model_whose_numbers_overflow() {
     write(d, "big.json", &model.to_string());
     write(d, "in.csv", "P1_kpa,P2_kpa,P3_kpa\n100,100,100\n");
     let msg = handcap_err(d, &words("predict big.json in.csv --out p.csv"));
-    assert!(msg.contains("big.json") && msg.contains("beyond ±1e100"), "{msg}");
+    assert!(
+        msg.contains("big.json") && msg.contains("beyond ±1e100"),
+        "{msg}"
+    );
     assert!(!d.join("p.csv").exists());
 }
 

@@ -8,24 +8,23 @@ use std::process::{Command, Output};
 use handcap::data::{Columns, Dataset};
 
 /// A fresh temporary directory, removed when dropped.
-/// The cores, shared between tests that run in real time and tests that keep every core busy.
-static CORES: std::sync::RwLock<()> = std::sync::RwLock::new(());
+/// The machine, shared between tests that run in real time and tests that keep every core
+/// busy: each of those runs alone among them (light tests run beside any of them).
+static MACHINE: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
-/// Held by a test that runs in real time (a capture from paced videos or streams, a signal at
-/// a moment): such tests run beside each other and beside light tests, never beside one that
-/// takes [`every_core`] (a starved real-time test misses the frames and deadlines it asserts).
-pub fn real_time() -> std::sync::RwLockReadGuard<'static, ()> {
-    CORES
-        .read()
-        .unwrap_or_else(std::sync::PoisonError::into_inner)
+/// Held by a test that runs in real time (a capture from paced videos or streams served by
+/// the test itself, a signal at a moment): it runs beside light tests only, never beside
+/// another real-time test or one that takes [`every_core`] (a starved real-time test misses
+/// the frames and deadlines it asserts: two live sessions side by side on two busy cores saw
+/// their virtual cameras stall).
+pub fn real_time() -> std::sync::MutexGuard<'static, ()> {
+    MACHINE.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
 /// Held by a test that keeps every core busy for long (the demo end to end): it runs while no
 /// [`real_time`] test does.
-pub fn every_core() -> std::sync::RwLockWriteGuard<'static, ()> {
-    CORES
-        .write()
-        .unwrap_or_else(std::sync::PoisonError::into_inner)
+pub fn every_core() -> std::sync::MutexGuard<'static, ()> {
+    MACHINE.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
 pub fn tempdir() -> tempfile::TempDir {
