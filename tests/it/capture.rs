@@ -429,7 +429,8 @@ fn a_write_failure_ends_the_session_vented_with_every_step_logged() {
         .spawn()
         .unwrap();
     wait_until_listed(&d.join("s"));
-    std::fs::remove_dir_all(d.join("s/frames")).unwrap();
+    // Moved away at once (removing it would race the frames still being written).
+    std::fs::rename(d.join("s/frames"), d.join("gone")).unwrap();
     let out = child.wait_with_output().unwrap();
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{err}");
