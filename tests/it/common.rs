@@ -18,13 +18,17 @@ static MACHINE: std::sync::Mutex<()> = std::sync::Mutex::new(());
 /// the frames and deadlines it asserts: two live sessions side by side on two busy cores saw
 /// their virtual cameras stall).
 pub fn real_time() -> std::sync::MutexGuard<'static, ()> {
-    MACHINE.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+    MACHINE
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
 /// Held by a test that keeps every core busy for long (the demo end to end): it runs while no
 /// [`real_time`] test does.
 pub fn every_core() -> std::sync::MutexGuard<'static, ()> {
-    MACHINE.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+    MACHINE
+        .lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
 pub fn tempdir() -> tempfile::TempDir {
