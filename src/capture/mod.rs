@@ -55,7 +55,7 @@ use crate::stereo::Side;
 pub const CAPTURE_FILE: &str = "capture.json";
 
 /// A live camera (a device or a stream, not a video file) that delivers nothing for this long
-/// has stopped (s).
+/// has stopped (s): `--stall-s`'s default.
 pub const STALL_S: f64 = 2.0;
 /// Longest a stream may take to open and send its first frame (s): a server that answers with
 /// headers and no frames is refused, not waited on.
@@ -104,6 +104,8 @@ pub struct CaptureOptions {
     pub protocol: Option<(Vec<protocol::Step>, String)>,
     /// Stop after this long (s).
     pub duration_s: Option<f64>,
+    /// A live camera silent this long has stopped (s; [`STALL_S`] by default).
+    pub stall_s: f64,
     /// Instead of the finger's frames: chessboard pairs for `calibrate` ([`calibration`]).
     pub calibration: Option<BoardPairs>,
     /// Command run once when a protocol's session ends early (see [`Ending::aborted`]), e.g.
@@ -424,7 +426,7 @@ pub fn capture(
         });
         let mut last_shown = 0.0;
         // The first frame may take a while longer: a device warms up.
-        let mut last_seen = [STALL_S; 2];
+        let mut last_seen = [options.stall_s; 2];
         let mut received = [0usize; 2];
         let mut latest: [Option<Grabbed>; 2] = [None, None];
         let mut last_look = 0.0;
@@ -503,9 +505,9 @@ pub fn capture(
                 }
             }
             if !stop.load(Ordering::SeqCst) {
-                let stalled = [Side::Left, Side::Right]
-                    .into_iter()
-                    .find(|s| can_stall[*s as usize] && now - last_seen[*s as usize] > STALL_S);
+                let stalled = [Side::Left, Side::Right].into_iter().find(|s| {
+                    can_stall[*s as usize] && now - last_seen[*s as usize] > options.stall_s
+                });
                 ending = if interrupt.load(Ordering::SeqCst) {
                     Some(Ending::Interrupted)
                 } else if options.duration_s.is_some_and(|d| now >= d) {

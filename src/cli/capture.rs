@@ -50,6 +50,10 @@ pub struct Args {
     /// Stop after this many seconds (default: the protocol's end, or Ctrl-C)
     #[arg(long, value_parser = super::finite)]
     duration_s: Option<f64>,
+    /// A camera or stream silent this long has stopped, and ends the session (s; a slow
+    /// network or a busy machine may need more)
+    #[arg(long, default_value_t = handcap::capture::STALL_S, value_parser = super::finite)]
+    stall_s: f64,
     /// Board pairs for `calibrate` instead of the finger's frames: a pair is taken when the
     /// board is seen in both cameras (a chessboard whole, a ChArUco board at least in part),
     /// still, somewhere new (OUT/calib/left_NN.jpg, …)
@@ -76,6 +80,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             "--left and --right are the same source ({}); give each camera its own",
             capture::url::redact(&a.left)
         );
+    }
+    if a.stall_s <= 0.0 {
+        super::usage!("--stall-s {}: give a positive number of seconds", a.stall_s);
     }
     if let Some(d) = a.duration_s.filter(|&d| d <= 0.0) {
         super::usage!("--duration-s {d} must be positive");
@@ -111,6 +118,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         fps: a.fps,
         protocol,
         duration_s: a.duration_s,
+        stall_s: a.stall_s,
         calibration,
         on_abort: a.on_abort.clone(),
         flash: a.flash.clone(),

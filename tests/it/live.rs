@@ -232,6 +232,11 @@ fn live_session(dir: &Path, faults: [Faults; 2], term_after_s: Option<f64>, flas
         "protocol.csv",
         "--set-pressure",
         &command,
+        // The virtual cameras are threads of this test, which a busy machine may pause for
+        // seconds (a backlog's held frames then come later still): a stall is not what these
+        // sessions test (`a_silent_or_stalled_stream_ends_the_session` does, at the default).
+        "--stall-s",
+        "10",
     ];
     let switch_on = format!("touch {}", dir.join("flash.txt").display());
     if flash {
