@@ -27,6 +27,7 @@ pub use handcap_core::{control, data, fsio, hand, model, provenance, search, sta
 pub mod base64;
 pub mod calib;
 pub mod capture;
+pub mod cli;
 mod cv;
 pub mod frame_times;
 pub mod geometry;

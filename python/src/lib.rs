@@ -46,12 +46,30 @@ fn detached<T: Send>(
     work: impl FnOnce() -> Result<T, String> + Send,
 ) -> PyResult<T> {
     STOP.store(false, Ordering::SeqCst);
+    // Set, and the waiting thread woken, when the work ends: it returns at once, not at its
+    // next check of the signals.
+    let finished = (std::sync::Mutex::new(false), std::sync::Condvar::new());
     let (outcome, interrupted) = std::thread::scope(|scope| {
-        let worker =
-            scope.spawn(move || std::panic::catch_unwind(std::panic::AssertUnwindSafe(work)));
+        let worker = scope.spawn(|| {
+            let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(work));
+            *finished.0.lock().expect("the flag") = true;
+            finished.1.notify_all();
+            outcome
+        });
         let mut interrupted = None;
-        while !worker.is_finished() {
-            py.detach(|| std::thread::sleep(std::time::Duration::from_millis(20)));
+        loop {
+            let done = py.detach(|| {
+                let flag = finished.0.lock().expect("the flag");
+                let tick = std::time::Duration::from_millis(20);
+                *finished
+                    .1
+                    .wait_timeout_while(flag, tick, |done| !*done)
+                    .expect("the flag")
+                    .0
+            });
+            if done {
+                break;
+            }
             if interrupted.is_none() {
                 if let Err(e) = py.check_signals() {
                     STOP.store(true, Ordering::SeqCst);

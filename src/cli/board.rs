@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use handcap::calib::{file, print, BoardFlags, Dictionary, Layout};
+use crate::calib::{file, print, BoardFlags, Dictionary, Layout};
 
 /// The printed board, as flags.
 #[derive(clap::Args, Clone, Debug, Default)]
@@ -60,7 +60,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let svg = print::svg(&board)?;
     let yaml = a.out.with_extension("yml");
     for (path, text) in [(&a.out, svg.as_str()), (&yaml, &file::board_yaml(&board))] {
-        handcap::fsio::write_bytes(path, text.as_bytes())
+        crate::fsio::write_bytes(path, text.as_bytes())
             .map_err(|e| anyhow::anyhow!("writing {}: {e}", path.display()))?;
     }
     let [w, h] = print::page_mm(&board);

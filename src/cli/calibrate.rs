@@ -1,13 +1,13 @@
 //! `handcap calibrate DIR`: stereo calibration from chessboard pairs → OpenCV YAML + quality
-//! (the file's keys: `handcap::calib::file`).
+//! (the file's keys: `crate::calib::file`).
 
 use std::path::PathBuf;
 
 use anyhow::bail;
 
-use handcap::calib::uncertainty::{self, ParameterSd};
-use handcap::calib::{file, validate, CalibOptions};
-use handcap::pipeline::calibrate::{self, Calibrated};
+use crate::calib::uncertainty::{self, ParameterSd};
+use crate::calib::{file, validate, CalibOptions};
+use crate::pipeline::calibrate::{self, Calibrated};
 
 #[derive(clap::Args)]
 pub struct Args {

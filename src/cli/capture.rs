@@ -1,13 +1,13 @@
 //! `handcap capture`: two cameras → `DIR/frames/` + `frames.csv` (and `pressures.csv` when a
-//! protocol drives the regulator), the layout `triangulate` reads (`handcap::capture`).
+//! protocol drives the regulator), the layout `triangulate` reads (`crate::capture`).
 
 use std::path::PathBuf;
 
 use anyhow::bail;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use handcap::capture::{self, CaptureOptions, Ending, Stats};
-use handcap::session::protocol;
+use crate::capture::{self, CaptureOptions, Ending, Stats};
+use crate::session::protocol;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -52,7 +52,7 @@ pub struct Args {
     duration_s: Option<f64>,
     /// A camera or stream silent this long has stopped, and ends the session (s; a slow
     /// network or a busy machine may need more)
-    #[arg(long, default_value_t = handcap::capture::STALL_S, value_parser = super::finite)]
+    #[arg(long, default_value_t = crate::capture::STALL_S, value_parser = super::finite)]
     stall_s: f64,
     /// Board pairs for `calibrate` instead of the finger's frames: a pair is taken when the
     /// board is seen in both cameras (a chessboard whole, a ChArUco board at least in part),
@@ -97,7 +97,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if a.board.any() && !a.calib {
         super::usage!("--board, --square-mm, --marker-mm and --dictionary describe the calibration board: add --calib");
     }
-    let calibration = match a.board.flags().over(&handcap::calib::file::default_board()) {
+    let calibration = match a.board.flags().over(&crate::calib::file::default_board()) {
         Ok(board) => a.calib.then_some(capture::BoardPairs {
             board,
             pairs: a.pairs,
@@ -242,7 +242,7 @@ fn line(s: &Stats, steps: usize) -> String {
 }
 
 /// What the flash measured.
-fn flash_line(f: &handcap::capture::flash::FlashLatency) -> String {
+fn flash_line(f: &crate::capture::flash::FlashLatency) -> String {
     let one = |k: usize| match (f.latency_ms[k], f.within_ms[k]) {
         (Some(ms), Some(within)) => format!("{ms:.0} ms (± {within:.0})"),
         _ => "not seen".into(),

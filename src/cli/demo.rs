@@ -1,9 +1,9 @@
 //! `handcap demo`: the whole pipeline on the built-in virtual micro-hand, checked against its
-//! ground truth, with one report a lab can read (`handcap::pipeline::demo`).
+//! ground truth, with one report a lab can read (`crate::pipeline::demo`).
 
 use std::path::PathBuf;
 
-use handcap::pipeline::demo::{self, DemoConfig};
+use crate::pipeline::demo::{self, DemoConfig};
 
 use super::synth::FrameArgs;
 
@@ -13,7 +13,7 @@ pub struct Args {
     #[arg(long, default_value = "handcap-demo")]
     out: PathBuf,
     /// Seed of every random choice
-    #[arg(long, default_value_t = handcap::DEFAULT_SEED)]
+    #[arg(long, default_value_t = crate::DEFAULT_SEED)]
     seed: u64,
     /// A reduced run for a first look and the tests: 8 board pairs, a 125 kPa grid and 50 kPa
     /// sweeps, a short search, 20 inverse targets

@@ -7,12 +7,12 @@ use anyhow::{bail, Context};
 
 use super::usage;
 
-use handcap::data::{self, Columns};
-use handcap::hand::MAX_PRESSURE_KPA;
-use handcap::model::file::ModelFile;
-use handcap::model::inverse::{self, InverseOptions, InverseSolution};
-use handcap::model::Differentiable;
-use handcap::pipeline::outputs::{self, Output};
+use crate::data::{self, Columns};
+use crate::hand::MAX_PRESSURE_KPA;
+use crate::model::file::ModelFile;
+use crate::model::inverse::{self, InverseOptions, InverseSolution};
+use crate::model::Differentiable;
+use crate::pipeline::outputs::{self, Output};
 
 #[derive(clap::Args)]
 #[command(group(clap::ArgGroup::new("what").required(true).args(["target", "targets"])))]

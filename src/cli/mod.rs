@@ -1,5 +1,5 @@
 //! Command-line front end: one file per subcommand turns arguments into a library call and
-//! prints the result ([`handcap::pipeline`] does the work). Nothing below this module prints.
+//! prints the result ([`crate::pipeline`] does the work). Nothing below this module prints.
 
 mod board;
 mod calibrate;
@@ -13,13 +13,14 @@ mod synth;
 mod triangulate;
 
 use std::collections::HashMap;
+use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Mutex, Once};
 
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 
-use handcap::pipeline::{Event, Session, Task};
+use crate::pipeline::{Event, Session, Task};
 
 /// Model a soft pneumatic micro-hand from two webcams and a pressure log: calibrate the
 /// cameras, fit the pressure → tip map (MSVR, the method of Kawamura & Deng 2020), and generate
@@ -34,7 +35,7 @@ pub struct Cli {
 /// Every subcommand takes negative numbers as values (`--c -1` is refused by its own check,
 /// saying why, not taken for a flag).
 #[derive(Subcommand)]
-enum Command {
+pub enum Command {
     /// Virtual micro-hand and stereo rig → images, pressure log, datasets, ground truth
     #[command(allow_negative_numbers = true)]
     Synth(synth::Args),
@@ -87,7 +88,7 @@ pub(crate) use usage;
 
 /// The exit code of an error: 2 usage, 130 interrupted, 1 anything else.
 pub fn exit_code(e: &anyhow::Error) -> u8 {
-    use handcap::pipeline::PipelineError;
+    use crate::pipeline::PipelineError;
     if e.is::<Usage>() || matches!(e.downcast_ref(), Some(PipelineError::Usage(_))) {
         2
     } else if e.is::<Interrupted>()
@@ -95,7 +96,7 @@ pub fn exit_code(e: &anyhow::Error) -> u8 {
         || e.chain().any(|c| {
             matches!(
                 c.downcast_ref(),
-                Some(handcap::model::msvr::MsvrError::Interrupted)
+                Some(crate::model::msvr::MsvrError::Interrupted)
             )
         })
     {
@@ -150,19 +151,112 @@ pub fn level(s: &str) -> Result<f64, String> {
     }
 }
 
-/// Runs the chosen subcommand.
-pub fn run(cli: Cli) -> anyhow::Result<()> {
-    match cli.command {
-        Command::Synth(a) => synth::run(a),
-        Command::Calibrate(a) => calibrate::run(a),
-        Command::Triangulate(a) => triangulate::run(a),
+/// The `handcap` command: parses the command line, runs the command and turns its outcome
+/// into the exit code. The modelling commands (`model`, `predict`, `inverse`) and `protocol`
+/// run here; `cameras` runs the others, which call OpenCV: the `handcap` binary hands them to
+/// `handcap-cameras` beside it, so that the modelling commands start without loading OpenCV's
+/// libraries (about 250 shared objects, 0.2 s).
+pub fn main(cameras: fn(Command) -> anyhow::Result<()>) -> ExitCode {
+    restore_sigpipe();
+    quiet_ffmpeg();
+    let args = match Cli::try_parse() {
+        Ok(args) => args,
+        // clap's refusal on one line, as every handcap error: its message, without the usage
+        // and the pointer to --help that follow it.
+        Err(e) if e.use_stderr() => {
+            let text = e.render().to_string();
+            let message: Vec<&str> = text
+                .lines()
+                .take_while(|l| !l.trim().is_empty() && !l.starts_with("Usage:"))
+                .map(str::trim)
+                .collect();
+            eprintln!(
+                "handcap: {}; see --help",
+                message.join(" ").trim_start_matches("error: ")
+            );
+            return ExitCode::from(2);
+        }
+        Err(e) => e.exit(),
+    };
+    let outcome = match args.command {
         Command::Model(a) => model::run(a),
         Command::Predict(a) => predict::run(a),
         Command::Inverse(a) => inverse::run(a),
+        Command::Protocol(a) => protocol::run(a),
+        other => cameras(other),
+    };
+    match outcome {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("handcap: {}", one_line(&e));
+            ExitCode::from(exit_code(&e))
+        }
+    }
+}
+
+/// Runs a command that calls OpenCV (every one but those [`main`] runs itself).
+///
+/// # Errors
+/// The command's own.
+pub fn run_cameras(command: Command) -> anyhow::Result<()> {
+    match command {
+        Command::Synth(a) => synth::run(a),
+        Command::Calibrate(a) => calibrate::run(a),
+        Command::Triangulate(a) => triangulate::run(a),
         Command::Demo(a) => demo::run(a),
         Command::Capture(a) => capture::run(a),
-        Command::Protocol(a) => protocol::run(a),
         Command::Board(a) => board::run(a),
+        Command::Model(_) | Command::Predict(_) | Command::Inverse(_) | Command::Protocol(_) => {
+            unreachable!("`main` runs the modelling commands itself")
+        }
+    }
+}
+
+/// Replaces this process with `handcap-cameras` (the same directory, the same arguments): the
+/// commands that call OpenCV are built into that binary only.
+///
+/// # Errors
+/// When `handcap-cameras` cannot be started (not installed beside `handcap`).
+pub fn hand_to_cameras(_: Command) -> anyhow::Result<()> {
+    let exe = std::env::current_exe()?;
+    let cameras = exe.with_file_name(format!("handcap-cameras{}", std::env::consts::EXE_SUFFIX));
+    let mut command = std::process::Command::new(&cameras);
+    command.args(std::env::args_os().skip(1));
+    #[cfg(unix)]
+    let error = {
+        use std::os::unix::process::CommandExt;
+        command.arg0("handcap").exec()
+    };
+    #[cfg(not(unix))]
+    let error = match command.status() {
+        Ok(status) => std::process::exit(status.code().unwrap_or(1)),
+        Err(e) => e,
+    };
+    Err(anyhow::anyhow!(
+        "cannot start {} ({error}): the camera commands are built into that binary, which installs beside handcap (cargo install --path . installs both)",
+        cameras.display()
+    ))
+}
+
+/// Keeps FFmpeg's own log lines (a corrupt JPEG, a stream's HTTP status) off stderr, where they
+/// would bury handcap's one line; handcap says what failed. OpenCV reads this variable when it
+/// first loads FFmpeg; one the user set is left as it is.
+fn quiet_ffmpeg() {
+    const LEVEL: &str = "OPENCV_FFMPEG_LOGLEVEL";
+    if std::env::var_os(LEVEL).is_none() {
+        // AV_LOG_QUIET. Set before any thread starts (nothing else reads the environment yet).
+        std::env::set_var(LEVEL, "-8");
+    }
+}
+
+/// Lets a closed pipe end the process quietly (`handcap triangulate … | head`), as other
+/// command-line tools do, instead of the Rust default (ignore SIGPIPE, then panic on the write).
+fn restore_sigpipe() {
+    #[cfg(unix)]
+    // SAFETY: called first thing in `main`, before any thread starts; SIG_DFL is a valid
+    // disposition for SIGPIPE.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
 }
 
@@ -177,7 +271,7 @@ fn interrupt_flag() -> &'static AtomicBool {
         // running (a second Ctrl-C ends the fit of the search's best).
         let _ = ctrlc::set_handler(|| {
             INTERRUPTED.store(true, Ordering::SeqCst);
-            handcap::control::request_stop();
+            crate::control::request_stop();
         });
     });
     &INTERRUPTED

@@ -5,19 +5,19 @@ use std::path::PathBuf;
 
 use super::usage;
 
-use handcap::data::{HAND_INPUTS, HAND_OUTPUTS};
-use handcap::model::history::HistoryChoice;
-use handcap::model::msvr::fitness::FitnessKind;
-use handcap::model::msvr::folds::FoldsBy;
-use handcap::model::msvr::tune::BasisChoice;
-use handcap::model::msvr::{Loss, MsvrParams, DEFAULT_MAX_ITER, DEFAULT_TOL, PAPER_TABLE2};
-use handcap::pipeline::fit::{self, FitJob, FitOutcome, Selection};
-use handcap::report;
-use handcap::search::aco_paper::AcoPaper;
-use handcap::search::aco_r::AcoR;
-use handcap::search::grid::Grid;
-use handcap::search::{Method, Search, SearchStop};
-use handcap::DEFAULT_SEED;
+use crate::data::{HAND_INPUTS, HAND_OUTPUTS};
+use crate::model::history::HistoryChoice;
+use crate::model::msvr::fitness::FitnessKind;
+use crate::model::msvr::folds::FoldsBy;
+use crate::model::msvr::tune::BasisChoice;
+use crate::model::msvr::{Loss, MsvrParams, DEFAULT_MAX_ITER, DEFAULT_TOL, PAPER_TABLE2};
+use crate::pipeline::fit::{self, FitJob, FitOutcome, Selection};
+use crate::report;
+use crate::search::aco_paper::AcoPaper;
+use crate::search::aco_r::AcoR;
+use crate::search::grid::Grid;
+use crate::search::{Method, Search, SearchStop};
+use crate::DEFAULT_SEED;
 
 /// How the hyper-parameters are chosen.
 #[derive(Clone, Copy, Debug, PartialEq, clap::ValueEnum)]

@@ -4,9 +4,9 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 
-use handcap::data::{self, Columns};
-use handcap::model::file::ModelFile;
-use handcap::pipeline::outputs::{self, Output};
+use crate::data::{self, Columns};
+use crate::model::file::ModelFile;
+use crate::pipeline::outputs::{self, Output};
 
 #[derive(clap::Args)]
 pub struct Args {

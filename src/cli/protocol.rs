@@ -2,9 +2,9 @@
 
 use std::path::PathBuf;
 
-use handcap::fsio;
-use handcap::pipeline::outputs::{self, Output};
-use handcap::session::protocol;
+use crate::fsio;
+use crate::pipeline::outputs::{self, Output};
+use crate::session::protocol;
 
 #[derive(clap::Args)]
 pub struct Args {

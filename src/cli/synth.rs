@@ -1,16 +1,16 @@
 //! `handcap synth`: the virtual micro-hand seen by a virtual stereo rig — calibration images,
 //! finger frames, the regulator's log, datasets and ground truth (layout:
-//! `handcap::synth::capture`).
+//! `crate::synth::capture`).
 
 use std::path::PathBuf;
 
 use anyhow::{bail, Context};
 
-use handcap::pipeline::synth;
-use handcap::synth::camera::RigConfig;
-use handcap::synth::capture::{CaptureConfig, Realism};
-use handcap::synth::image_format::{Chroma, ImageFormat};
-use handcap::synth::{plant::PlantParams, SynthConfig, DEFAULT_NOISE_MM};
+use crate::pipeline::synth;
+use crate::synth::camera::RigConfig;
+use crate::synth::capture::{CaptureConfig, Realism};
+use crate::synth::image_format::{Chroma, ImageFormat};
+use crate::synth::{plant::PlantParams, SynthConfig, DEFAULT_NOISE_MM};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -21,7 +21,7 @@ pub struct Args {
     #[arg(long)]
     no_images: bool,
     /// Seed of every random choice (noise, rig variation, board poses, clocks)
-    #[arg(long, default_value_t = handcap::DEFAULT_SEED)]
+    #[arg(long, default_value_t = crate::DEFAULT_SEED)]
     seed: u64,
     /// Tip measurement noise of the datasets, standard deviation per coordinate (mm)
     #[arg(long, default_value_t = DEFAULT_NOISE_MM)]

@@ -3,8 +3,8 @@
 
 use std::path::PathBuf;
 
-use handcap::pipeline::triangulate::{self, Triangulated};
-use handcap::triangulate::TriangulateOptions;
+use crate::pipeline::triangulate::{self, Triangulated};
+use crate::triangulate::TriangulateOptions;
 
 use super::usage;
 
