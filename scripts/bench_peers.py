@@ -236,79 +236,124 @@ def ema_features(path, inputs, time_args, taus):
     return ema(d[inputs].values.astype(float), d[time_col].values.astype(float), groups, taus)
 
 
-def peers(x, y, tests, budget, seed, grids_only=False):
-    """(name, [held-out MAE per test], seconds) for each peer (the two grid searches alone with
-    `grids_only`).
+# libsvm's iteration bound (module docs): on targets in mm, C 1000-1e4 with gamma 0.1-10 needs
+# 10^6 iterations and more (4-12 s per output's fit on the soft trunk).
+MAX_ITER = 10**6
+SVR_GRID = {"C": [1, 10, 100, 1000], "gamma": np.logspace(-2, 2, 5)}  # the example's grids
+KR_GRID = {"alpha": [1, 0.1, 1e-2, 1e-3], "gamma": np.logspace(-2, 2, 5)}
+# The box of the searches at handcap's budget: a decade beyond the grids on either side; epsilon
+# in output units (mm) around SVR's default 0.1.
+SVR_BOX = {"C": (0.1, 1e4), "gamma": (1e-3, 1e3), "epsilon": (1e-2, 10)}
+KR_BOX = {"alpha": (1e-4, 10), "gamma": (1e-3, 1e3)}
 
-    The SVRs learn standardised targets (scikit-learn's TransformedTargetRegressor), as a user
-    of libsvm would: on targets in mm (spreads of 50-800 mm) the C that fits them is in the
-    thousands, where libsvm takes minutes per fit (the soft trunk's grid ran over 30 minutes)."""
-    from sklearn.compose import TransformedTargetRegressor
+
+def peers(x, y, tests, budget, seed, folds, gp=True):
+    """(name, [held-out MAE per test], seconds, what it chose) for each peer (module docs), all
+    scored on the same `folds` (a list of (train, test) row indices of `x`); `gp` False leaves
+    the Gaussian process out."""
+    from sklearn.base import clone
     from sklearn.gaussian_process import GaussianProcessRegressor
     from sklearn.gaussian_process.kernels import RBF, WhiteKernel, ConstantKernel
     from sklearn.kernel_ridge import KernelRidge
     from sklearn.model_selection import GridSearchCV, RandomizedSearchCV, cross_val_score
     from sklearn.multioutput import MultiOutputRegressor
     from sklearn.pipeline import make_pipeline
-    from sklearn.preprocessing import MinMaxScaler, StandardScaler
+    from sklearn.preprocessing import StandardScaler
     from sklearn.svm import SVR
     from scipy.stats import loguniform
 
     results = []
+    key = "multioutputregressor__estimator__"
+    svr = make_pipeline(StandardScaler(),
+                        MultiOutputRegressor(SVR(cache_size=500, max_iter=MAX_ITER)))
+    kr = make_pipeline(StandardScaler(), KernelRidge(kernel="rbf"))
+
+    def chose(model):
+        """What a search picked (and whether the final SVR fits hit libsvm's bound)."""
+        picked = getattr(model, "best_params_", None)
+        if picked is None:
+            return ""
+        text = ", ".join(f"{k.split('__')[-1]} {v:.3g}" for k, v in sorted(picked.items()))
+        final = model.best_estimator_[-1]
+        if isinstance(final, MultiOutputRegressor):
+            stopped = sum(int(getattr(e, "fit_status_", 0)) for e in final.estimators_)
+            if stopped:
+                text += f"; {stopped} of {len(final.estimators_)} final fits stopped at max_iter"
+        return text
 
     def timed(name, fit):
         start = time.time()
         model = fit()
         seconds = time.time() - start
-        results.append((name, [mae(ty, model.predict(tx)) for tx, ty in tests], seconds))
+        results.append((name, [mae(ty, model.predict(tx)) for tx, ty in tests], seconds,
+                        chose(model)))
 
-    # libsvm's iterations are bounded (its default is none): on the noise-free synthetic grid, at
-    # gamma 0.1 (a nearly constant kernel) and C 100, one fit ran for minutes.
-    svr = TransformedTargetRegressor(
-        make_pipeline(MinMaxScaler(), MultiOutputRegressor(SVR(cache_size=500, max_iter=10**6))),
-        transformer=StandardScaler())
-    key = "regressor__multioutputregressor__estimator__"
-    timed("scikit-learn SVR x3 + GridSearchCV (48)", lambda: GridSearchCV(
-        svr, {key + "C": [0.1, 1, 10, 100], key + "epsilon": [0.01, 0.1, 0.5],
-              key + "gamma": [0.1, 1, 10, 100]},
-        scoring="neg_mean_absolute_error", cv=5, n_jobs=2).fit(x, y))
-    kr = make_pipeline(MinMaxScaler(), KernelRidge(kernel="rbf"))
-    timed("scikit-learn KernelRidge + GridSearchCV (16)", lambda: GridSearchCV(
-        kr, {"kernelridge__alpha": [1e-3, 1e-2, 1e-1, 1], "kernelridge__gamma": [0.1, 1, 10, 100]},
-        scoring="neg_mean_absolute_error", cv=5, n_jobs=2).fit(x, y))
-    if grids_only:
-        return results
-    gp = make_pipeline(MinMaxScaler(), GaussianProcessRegressor(
-        ConstantKernel() * RBF(length_scale=np.ones(x.shape[1])) + WhiteKernel(),
-        normalize_y=True, random_state=seed))
-    timed("scikit-learn GaussianProcess (ARD RBF + white)", lambda: gp.fit(x, y))
-    # A box as wide as the grid's and a decade beyond, in standardised target units.
-    box = {key + "C": loguniform(0.01, 1e3), key + "epsilon": loguniform(1e-3, 1),
-           key + "gamma": loguniform(0.01, 1e3)}
-    timed(f"scikit-learn SVR x3 + RandomizedSearchCV ({budget})", lambda: RandomizedSearchCV(
-        svr, box, n_iter=budget, scoring="neg_mean_absolute_error", cv=5, n_jobs=2,
-        random_state=seed).fit(x, y))
+    def grid(model, space, prefix):
+        return GridSearchCV(model, {prefix + k: list(v) for k, v in space.items()},
+                            scoring="neg_mean_absolute_error", cv=folds, n_jobs=2)
+
+    def randomized(model, box, prefix):
+        return RandomizedSearchCV(
+            model, {prefix + k: loguniform(*b) for k, b in box.items()}, n_iter=budget,
+            scoring="neg_mean_absolute_error", cv=folds, n_jobs=2, random_state=seed)
+
+    n_svr = len(SVR_GRID["C"]) * len(SVR_GRID["gamma"])
+    n_kr = len(KR_GRID["alpha"]) * len(KR_GRID["gamma"])
+    timed(f"scikit-learn SVR x3 + GridSearchCV (docs grid, {n_svr}; epsilon 0.1)",
+          lambda: grid(svr, SVR_GRID, key).fit(x, y))
+    timed(f"scikit-learn KernelRidge + GridSearchCV (docs grid, {n_kr})",
+          lambda: grid(kr, KR_GRID, "kernelridge__").fit(x, y))
+    if gp:
+        model = make_pipeline(StandardScaler(), GaussianProcessRegressor(
+            ConstantKernel() * RBF(length_scale=np.ones(x.shape[1])) + WhiteKernel(),
+            normalize_y=True, random_state=seed))
+        timed("scikit-learn GaussianProcess (ARD RBF + white)", lambda: model.fit(x, y))
+    timed(f"scikit-learn SVR x3 + RandomizedSearchCV ({budget})",
+          lambda: randomized(svr, SVR_BOX, key).fit(x, y))
+    timed(f"scikit-learn KernelRidge + RandomizedSearchCV ({budget})",
+          lambda: randomized(kr, KR_BOX, "kernelridge__").fit(x, y))
     try:
         import optuna
-        optuna.logging.set_verbosity(optuna.logging.WARNING)
+    except ImportError:
+        return results
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
 
-        def fit_tpe():
+    class Tuned:
+        """The TPE study's best SVR x 3, refitted on all rows (what `chose` reads)."""
+
+        def fit(self):
             def objective(trial):
-                svr.set_params(**{
-                    key + "C": trial.suggest_float("C", 0.01, 1e3, log=True),
-                    key + "epsilon": trial.suggest_float("eps", 1e-3, 1, log=True),
-                    key + "gamma": trial.suggest_float("gamma", 0.01, 1e3, log=True)})
-                return -cross_val_score(svr, x, y, cv=5, scoring="neg_mean_absolute_error",
-                                        n_jobs=2).mean()
+                params = {key + k: trial.suggest_float(k, *b, log=True) for k, b in SVR_BOX.items()}
+                return -cross_val_score(clone(svr).set_params(**params), x, y, cv=folds,
+                                        scoring="neg_mean_absolute_error", n_jobs=2).mean()
             study = optuna.create_study(sampler=optuna.samplers.TPESampler(seed=seed))
             study.optimize(objective, n_trials=budget)
-            p = study.best_params
-            svr.set_params(**{key + "C": p["C"], key + "epsilon": p["eps"], key + "gamma": p["gamma"]})
-            return svr.fit(x, y)
-        timed(f"Optuna TPE over SVR x3 ({budget})", fit_tpe)
-    except ImportError:
-        pass
+            self.best_params_ = {key + k: v for k, v in study.best_params.items()}
+            self.best_estimator_ = clone(svr).set_params(**self.best_params_).fit(x, y)
+            return self
+
+        def predict(self, tx):
+            return self.best_estimator_.predict(tx)
+
+    timed(f"Optuna TPE over SVR x3 ({budget})", lambda: Tuned().fit())
     return results
+
+
+def best(rows):
+    """The row (name, errors, ...) with the lowest mean held-out MAE."""
+    return min(rows, key=lambda r: float(np.mean(r[1])))
+
+
+def errors_text(errors):
+    return " / ".join(f"{e:.3f}" for e in errors)
+
+
+def versus(what, peer, handcap_label, handcap_errors):
+    """The line comparing a handcap run with the best peer."""
+    ratio = float(np.mean(handcap_errors)) / float(np.mean(peer[1]))
+    return (f"{what}: {peer[0]} MAE {errors_text(peer[1])}, {handcap_label} MAE "
+            f"{errors_text(handcap_errors)} (handcap / best peer {ratio:.2f}; "
+            f"{'handcap ahead' if ratio < 1 else 'the peer ahead' if ratio > 1 else 'level'})")
 
 
 def main():
@@ -318,7 +363,8 @@ def main():
                     help="handcap runs: default (no --search), history (defaults with the time "
                          "column), aco-r, grid, aco-paper")
     ap.add_argument("--budget", type=int, default=None,
-                    help="for aco-r and grid runs (default: handcap's, from the rows)")
+                    help="for aco-r and grid runs and the peers' searches at handcap's budget "
+                         "(default: what handcap's default search scored, else 120)")
     ap.add_argument("--seed", type=int, default=2020)
     ap.add_argument("--only", default="", help="comma-separated dataset names")
     a = ap.parse_args()
@@ -327,9 +373,12 @@ def main():
     global HANDCAP
     HANDCAP = os.path.join(a.work, "handcap")  # rebuilding during a run changes nothing
     shutil.copy2(BUILT, HANDCAP)
+    # handcap hands synth (and the other camera commands) to handcap-cameras beside it.
+    cameras = os.path.join(os.path.dirname(BUILT), "handcap-cameras")
+    if os.path.exists(cameras):
+        shutil.copy2(cameras, os.path.join(a.work, "handcap-cameras"))
     started = time.time()
-    print("| data | method | held-out MAE | time (s) | MAE / handcap's | time / handcap's |")
-    print("|---|---|---|---|---|---|")
+    summary = []
 
     def row(name, label, errors, seconds, reference):
         """One line; `reference` is the handcap run (errors, seconds) the ratios compare with."""
@@ -337,18 +386,28 @@ def main():
         if reference:
             ratios = (" / ".join(f"{e / r:.2f}" for e, r in zip(errors, reference[0])),
                       f"{seconds / reference[1]:.2f}")
-        print(f"| {name} | {label} | {' / '.join(f'{e:.3f}' for e in errors)} | {seconds:.1f} "
+        print(f"| {name} | {label} | {errors_text(errors)} | {seconds:.1f} "
               f"| {ratios[0]} | {ratios[1]} |", flush=True)
 
     for name, train, tests, inputs, outputs, time_args in splits(a.work):
         if a.only and name not in a.only.split(","):
             continue
+        x, y = load(os.path.join(a.work, train), inputs, outputs)
+        held = [load(os.path.join(a.work, t), inputs, outputs) for t in tests]
+        split, (kind, column) = SPLIT[name]
+        folds, folds_text = cv_folds(os.path.join(a.work, train), kind, column, a.seed)
+        print(f"\n### {name}\n\nsplit: {split}; {len(x)} training rows, "
+              f"{' + '.join(str(len(ty)) for _, ty in held)} held out ({', '.join(tests)})  ")
+        print(f"peers' cross-validation (the same folds for every peer): {folds_text}\n",
+              flush=True)
+        print("| data | method | held-out MAE | time (s) | MAE / handcap's | time / handcap's |")
+        print("|---|---|---|---|---|---|")
         budget = a.budget
         static = history = None
         for search in a.searches.split(","):
             if search == "history" and not time_args:
                 continue
-            errors, seconds, folds, scored, kept = run_handcap(
+            errors, seconds, scheme, scored, kept = run_handcap(
                 a.work, name, train, tests, inputs, outputs, search, a.budget, time_args)
             if search == "history":
                 memory = "none kept" if kept is None else (
@@ -356,26 +415,49 @@ def main():
                 label = f"handcap, defaults + {' '.join(time_args)} (history: {memory})"
                 history = (errors, seconds, kept)
             elif search == "default":
-                label = f"handcap, defaults ({scored} candidates, folds: {folds})"
+                label = f"handcap, defaults ({scored} candidates, folds: {scheme})"
                 budget = budget or scored
                 static = (errors, seconds)
             else:
-                label = f"handcap --search {search} ({scored} candidates, folds: {folds})"
+                label = f"handcap --search {search} ({scored} candidates, folds: {scheme})"
             row(name, label, errors, seconds, static if search != "default" else None)
-        x, y = load(os.path.join(a.work, train), inputs, outputs)
-        held = [load(os.path.join(a.work, t), inputs, outputs) for t in tests]
-        for peer, errors, seconds in peers(x, y, held, budget or 120, a.seed):
-            row(name, peer, errors, seconds, static)
+        budget = budget or 120
+        found = peers(x, y, held, budget, a.seed, folds)
+        for peer, errors, seconds, picked in found:
+            row(name, f"{peer}{f' (chose {picked})' if picked else ''}", errors, seconds, static)
+        lines = []
+        top = best(found)
+        if static:
+            lines.append(versus("best peer", top, "handcap defaults", static[0]))
+        else:
+            lines.append(f"best peer: {top[0]} MAE {errors_text(top[1])} (no handcap defaults run)")
         if history and history[2] and history[2]["kind"] == "ema":
-            # The peers on the features handcap's history kept: the same inputs, the regressor alone
-            # differs.
+            # The peers on the features handcap's history kept: the same inputs, the regressor
+            # alone differs.
             taus = history[2]["tau"]
             xh = ema_features(os.path.join(a.work, train), inputs, time_args, taus)
             heldh = [(ema_features(os.path.join(a.work, t), inputs, time_args, taus), ty)
                      for t, (_, ty) in zip(tests, held)]
-            for peer, errors, seconds in peers(xh, y, heldh, budget or 120, a.seed, True):
-                row(name, f"{peer} on the inputs + handcap's filtered copies", errors, seconds,
-                    history[:2])
+            filtered = peers(xh, y, heldh, budget, a.seed, folds, gp=False)
+            for peer, errors, seconds, picked in filtered:
+                row(name, f"{peer} on the inputs + handcap's filtered copies"
+                    f"{f' (chose {picked})' if picked else ''}", errors, seconds, history[:2])
+            lines.append(versus("best peer on handcap's filtered features", best(filtered),
+                                f"handcap defaults + {' '.join(time_args)}", history[0]))
+            lines.append(versus("best peer of all", best(found + filtered),
+                                f"handcap defaults + {' '.join(time_args)}", history[0]))
+        elif history:
+            # No filtered copies to hand the peers (none kept, or lags): the static peers.
+            kept = "none" if history[2] is None else history[2]["kind"]
+            lines.append(versus(f"best peer (static features; handcap's history kept {kept})",
+                                top, f"handcap defaults + {' '.join(time_args)}", history[0]))
+        print()
+        for line in lines:
+            print(f"{line}  ", flush=True)
+        summary += [f"{name}, {line}" for line in lines]
+    print("\n### handcap against the best peer\n")
+    for line in summary:
+        print(f"- {line}")
     print(f"\nwhole benchmark: {time.time() - started:.0f} s")
 
 

@@ -22,7 +22,9 @@
 //! - Files are written atomically (temporary file, then rename) and never over an input.
 
 // The modelling core is its own crate (it builds without OpenCV); its modules keep their paths.
-pub use handcap_core::{control, data, fsio, hand, model, provenance, search, stats, DEFAULT_SEED};
+pub use handcap_core::{
+    control, data, fsio, hand, model, provenance, search, select, stats, DEFAULT_SEED,
+};
 
 pub mod base64;
 pub mod calib;

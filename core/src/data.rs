@@ -95,7 +95,7 @@ pub enum DataError {
         found: usize,
         needed: usize,
     },
-    #[error("{path}: input column `{column}` is constant ({value}) over all rows; it carries no information, leave it out of --inputs")]
+    #[error("{path}: input column `{column}` is constant ({value}) over all rows; it carries no information, leave it out of the inputs")]
     ConstantInput {
         path: PathBuf,
         column: String,
@@ -107,7 +107,7 @@ pub enum DataError {
         column: String,
         value: f64,
     },
-    #[error("column `{name}` is chosen twice; each column may appear once in --inputs and --outputs together")]
+    #[error("column `{name}` is chosen twice; each column may appear once in the inputs and outputs together")]
     RepeatedSelection { name: String },
     #[error("writing {path}: {source}")]
     Write {

@@ -32,4 +32,5 @@ pub mod hand;
 pub mod model;
 pub mod provenance;
 pub mod search;
+pub mod select;
 pub mod stats;

@@ -34,10 +34,14 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
     folds : int
         Cross-validation folds of the search and the intervals; fewer rows than 2 per fold get
         as many folds as they allow.
+    history : str
+        With `time` given to `fit`: "auto" (filtered copies of the inputs, kept when
+        cross-validation says they help), "none", "ema:tau1,tau2,..." (seconds) or "lags:k".
     intervals : bool
-        Calibrate conformal prediction intervals (`interval_radius`) on held-out folds: one more
-        fit per fold, on top of the search's. False fits the final model alone (C, epsilon and
-        sigma given: one fit, what a control loop refitting online wants).
+        Conformal prediction intervals (`interval_radius`) come from the held-out predictions a
+        search makes, at no cost. True calibrates them also when no search made any (C, epsilon
+        and sigma all given: one more fit per fold); False fits that case's model alone (one
+        fit, what a control loop refitting online wants).
     random_state : int or None
         Seeds the search and its folds (None: handcap's default seed, 2020).
     tol, max_iter : solver controls.
@@ -54,8 +58,8 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
     """
 
     def __init__(self, C=None, epsilon=None, sigma=None, search="aco-r", budget=None,
-                 loss="robust", basis="auto", folds=5, random_state=None, tol=1e-8,
-                 max_iter=500, intervals=True):
+                 loss="robust", basis="auto", folds=5, history="auto", random_state=None,
+                 tol=1e-8, max_iter=500, intervals=False):
         self.C = C
         self.epsilon = epsilon
         self.sigma = sigma
@@ -64,6 +68,7 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
         self.loss = loss
         self.basis = basis
         self.folds = folds
+        self.history = history
         self.random_state = random_state
         self.tol = tol
         self.max_iter = max_iter
@@ -75,9 +80,11 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
         tags.target_tags.single_output = True
         return tags
 
-    def fit(self, X, y, groups=None):
+    def fit(self, X, y, groups=None, time=None):
         """Fits the model (searching the hyper-parameters left None). `groups`: one label per
-        row; the search holds whole groups out together (runs, trials, ramps)."""
+        row; the search holds whole groups out together (runs, trials, ramps). `time`: each
+        row's time in seconds, increasing within each group: the model may see its inputs'
+        history (`history`), as `handcap model --time --group-by` does."""
         X, y = validate_data(self, X, y, multi_output=True, y_numeric=True, dtype=np.float64,
                              ensure_min_samples=_core.MIN_FIT_ROWS)
         hyper = (self.C, self.epsilon, self.sigma)
@@ -86,14 +93,16 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
         if self.search == "none" and any(h is None for h in hyper):
             raise ValueError("search='none' uses C, epsilon and sigma as given: set all three")
         self._single_output = y.ndim == 1
-        self._with_intervals = bool(self.intervals)
         Y = y.reshape(-1, 1) if self._single_output else y
-        if groups is not None:
-            groups = np.asarray(groups)
-            if groups.shape != (X.shape[0],):
-                raise ValueError("groups needs one value per row of X")
-            _, groups = np.unique(groups, return_inverse=True)
-            groups = groups.astype(np.float64)
+        groups = _labels(groups, X.shape[0])
+        if time is not None:
+            time = np.asarray(time, dtype=np.float64)
+            if time.shape != (X.shape[0],):
+                raise ValueError(f"time has shape {time.shape}; give one value per row of X "
+                                 f"({X.shape[0]})")
+            if not np.all(np.isfinite(time)):
+                row = int(np.flatnonzero(~np.isfinite(time))[0])
+                raise ValueError(f"row {row}: time {time[row]} is not a number of seconds")
         seed = DEFAULT_SEED if self.random_state is None else self.random_state
         if not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**64:
             raise ValueError(f"random_state {seed!r}: give None or an int from 0 to 2**64 - 1")
@@ -113,8 +122,8 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
             epsilon=None if self.epsilon is None else float(self.epsilon),
             sigma=None if self.sigma is None else float(self.sigma),
             loss=self.loss, basis=str(self.basis), budget=self.budget, folds=int(self.folds),
-            groups=groups, seed=int(seed), tol=float(self.tol), max_iter=int(self.max_iter),
-            intervals=self._with_intervals)
+            groups=groups, time=time, history=str(self.history), seed=int(seed),
+            tol=float(self.tol), max_iter=int(self.max_iter), intervals=bool(self.intervals))
         self.C_, self.epsilon_, self.sigma_ = self.model_.hyper
         self.support_vectors_ = self.model_.support_vectors
         self.dual_coef_ = self.model_.dual_coef
@@ -125,22 +134,24 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
         self.search_ = None if search is None else json.loads(search)
         return self
 
-    def predict(self, X):
-        """The model's outputs for each row of X: (n,) for a single-output fit, else (n, q)."""
+    def predict(self, X, time=None, groups=None):
+        """The model's outputs for each row of X: (n,) for a single-output fit, else (n, q). A
+        model that sees its inputs' history needs each row's `time` (and `groups`, when it was
+        fitted with them), rows in time order within each group."""
         check_is_fitted(self)
         X = validate_data(self, X, reset=False, dtype=np.float64)
-        Y = self.model_.predict(np.ascontiguousarray(X))
+        if time is not None:
+            time = np.ascontiguousarray(time, dtype=np.float64)
+        groups = _labels(groups, X.shape[0])
+        Y = self.model_.predict(np.ascontiguousarray(X), time=time, groups=groups)
         return Y.ravel() if self._single_output else Y
 
     def interval_radius(self, level=0.9):
         """The conformal interval's radius at `level` (output units): the truth lies within it
         of the prediction that share of the time (marginal over rows like the held-out ones).
-        Calibrated on held-out folds (the search's, or with C, epsilon and sigma all given,
-        the same kind of folds)."""
+        Calibrated on the held-out predictions of the search's folds (or, with C, epsilon and
+        sigma all given and intervals=True, the same kind of folds)."""
         check_is_fitted(self)
-        if not self._with_intervals:
-            raise ValueError("this estimator was fitted with intervals=False: fit it with "
-                             "intervals=True for interval_radius")
         return self.model_.interval_radius(level)
 
     def inverse(self, targets, max_kpa=250.0, reach=0.01):
@@ -154,3 +165,14 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
         """Writes the model file (`handcap predict` and `inverse` read it)."""
         check_is_fitted(self)
         self.model_.save(str(path))
+
+
+def _labels(groups, rows):
+    """`groups` as float64 ranks of their labels (any hashable, sortable values), or None."""
+    if groups is None:
+        return None
+    groups = np.asarray(groups)
+    if groups.shape != (rows,):
+        raise ValueError(f"groups has shape {groups.shape}; give one value per row of X ({rows})")
+    _, ranks = np.unique(groups, return_inverse=True)
+    return ranks.astype(np.float64)

@@ -15,21 +15,29 @@ use pyo3::exceptions::{PyOSError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyTuple;
 
-use handcap_core::data::{self, Columns, Dataset};
+use handcap_core::data::{Columns, Dataset};
 use handcap_core::model::file::{ModelFile, ModelFileError};
-use handcap_core::model::history::Series;
+use handcap_core::model::history::{HistoryChoice, Series};
 use handcap_core::model::inverse::{self, InverseOptions};
 use handcap_core::model::msvr::fitness::FitnessKind;
-use handcap_core::model::msvr::folds::{self, FoldsBy};
-use handcap_core::model::msvr::tune::{self, BasisChoice, Pinned};
-use handcap_core::model::msvr::{self, Basis, Loss, MsvrParams, MIN_FIT_ROWS};
-use handcap_core::model::{ModelSpec, Predict, StoredModel};
+use handcap_core::model::msvr::folds::FoldsBy;
+use handcap_core::model::msvr::tune::{BasisChoice, Pinned};
+use handcap_core::model::msvr::{self, Loss, MsvrParams, MIN_FIT_ROWS};
+use handcap_core::model::{Predict, StoredModel};
 use handcap_core::provenance::Provenance;
 use handcap_core::search::aco_r::AcoR;
 use handcap_core::search::Method;
+use handcap_core::select::{self, Plan, Selection, Table};
 
+/// A core message in Python's words: its parameters are named `field=value` already, but
+/// Python spells the booleans True and False.
 fn value_error(e: impl std::fmt::Display) -> PyErr {
-    PyValueError::new_err(e.to_string())
+    let message = e.to_string();
+    PyValueError::new_err(
+        message
+            .replace("=true", "=True")
+            .replace("=false", "=False"),
+    )
 }
 
 /// Set when Python asks the work running to stop (Ctrl-C): the search ends, and nothing
@@ -150,106 +158,50 @@ fn array(c: &Columns) -> Array2<f64> {
 
 /// What `fit` is asked for, owned so the work can run without the GIL.
 struct FitRequest {
-    data: Dataset,
-    groups: Option<Vec<f64>>,
-    pinned: Pinned,
-    loss: Loss,
-    basis: BasisChoice,
-    budget: Option<usize>,
-    folds: usize,
-    seed: u64,
-    tol: f64,
-    max_iter: usize,
-    /// Calibrate the conformal intervals (one more fit per fold).
-    intervals: bool,
+    table: Table,
+    plan: Plan,
+    seed: Option<u64>,
 }
 
-/// The search (when a hyper-parameter is left to it), `auto`'s basis, the intervals (when
-/// asked) and the fit, as `handcap model` does them on a file ([`tune::choose`]): ACO_R over the
-/// data's box with the given hyper-parameters pinned, cross-validated on whole groups when
-/// given, else on the folds the data call for.
+/// The selection `handcap model` makes on a file ([`select::select`]), on arrays.
 fn fit_request(r: FitRequest) -> Result<ModelFile, String> {
-    let n = r.data.rows();
-    // The core names the file; here there is none.
-    r.data
-        .check_fittable(MIN_FIT_ROWS)
-        .map_err(|e| e.to_string().trim_start_matches("python: ").to_string())?;
-    let initial = tune::initial_basis(r.basis, n, r.seed).map_err(|e| e.to_string())?;
-    msvr::check_memory(n, initial.basis).map_err(|e| e.to_string())?;
-    let pin = r.pinned;
-    let solver = MsvrParams::new(
-        pin.c.unwrap_or(1.0),
-        pin.epsilon.unwrap_or(0.1),
-        pin.sigma.unwrap_or(1.0),
-    )
-    .loss(r.loss)
-    .tol(r.tol)
-    .max_iter(r.max_iter)
-    .basis(initial.basis);
-    solver.check().map_err(|e| e.to_string())?;
-    // Candidates, the basis' growth and the intervals are scored on the same rows and folds.
-    let kept = data::evenly_spaced(n, tune::SEARCH_ROWS);
-    let scored = r.data.subsample(tune::SEARCH_ROWS);
-    let (by, others) = match &r.groups {
-        Some(g) => (
-            FoldsBy::Column("groups".into()),
-            vec![("groups".to_string(), kept.iter().map(|&i| g[i]).collect())],
-        ),
-        None => (FoldsBy::Auto, Vec::new()),
-    };
-    let plan = folds::plan(&by, &scored, &others, r.folds).map_err(|e| e.to_string())?;
-    let folds = plan.folds;
-    let searched = pin.c.is_none() || pin.epsilon.is_none() || pin.sigma.is_none();
-    let search = searched.then(|| {
-        let method = Method::AcoR(AcoR {
-            seed: r.seed,
-            ..AcoR::default()
-        });
-        let budget = r.budget.unwrap_or(tune::budget_for(scored.rows()));
-        (method.with_budget(budget), r.seed)
-    });
-    let choice = tune::Choice {
-        rows: &scored,
-        fitness: FitnessKind::Cv { folds },
-        folds: &plan,
-        search,
-        pinned: pin,
-        grow: r.basis == BasisChoice::Auto && initial.basis != Basis::Exact,
-        score: false,
-    };
-    let chosen =
-        tune::choose(&choice, &solver, initial, &mut (), &STOP).map_err(|e| e.to_string())?;
+    let selected =
+        select::select(&r.table, None, &r.plan, &(), &STOP).map_err(|e| rows(e.to_string()))?;
     not_stopped()?;
-    let intervals = r
-        .intervals
-        .then(|| tune::intervals(&scored, folds, r.seed, &plan, &chosen.params))
-        .transpose()
-        .map_err(|e| e.to_string())?;
-    not_stopped()?;
-    let stored = ModelSpec::Msvr(chosen.params)
-        .fit(&r.data)
-        .map_err(|e| e.to_string())?;
-    let provenance = Provenance::new(
-        vec!["handcap.MSVRRegressor.fit".into()],
-        searched.then_some(r.seed),
-    );
+    let provenance = Provenance::new(vec!["handcap.MSVRRegressor.fit".into()], r.seed);
     Ok(ModelFile::new(
-        stored,
-        chosen.search.map(|s| s.summary),
-        Some(chosen.basis),
-        None,
-        intervals,
+        selected.model,
+        selected.search.map(|s| s.summary),
+        Some(selected.basis),
+        selected.history,
+        selected.intervals,
         provenance,
     ))
 }
 
-/// Fits MSVR to `x` (n × d) and `y` (n × q); hyper-parameters left `None` are chosen by the
-/// search; `intervals` calibrates the conformal intervals on held-out folds. Returns the fitted
-/// model.
+/// A core message about rows from memory: "python line N: …" (the table's lines are the rows
+/// counted from 1) as "row N-1: …", and "python: …" without its prefix.
+fn rows(message: String) -> String {
+    if let Some(rest) = message.strip_prefix("python line ") {
+        let (line, tail) = rest.split_once(':').unwrap_or((rest, ""));
+        if let Ok(line) = line.parse::<u64>() {
+            return format!("row {}:{tail}", line.saturating_sub(1));
+        }
+    }
+    message
+        .strip_prefix("python: ")
+        .map_or(message.clone(), str::to_string)
+}
+
+/// Fits MSVR to `x` (n × d) and `y` (n × q) as `handcap model` does: hyper-parameters left
+/// `None` are chosen by the search; `groups` (one label per row) keeps runs whole in the
+/// folds, `time` (seconds, increasing within each group) lets the model see its inputs'
+/// history (`history`: auto, none, ema:τ1,τ2…, lags:k); `intervals` calibrates the conformal
+/// intervals when the search made no held-out predictions (k more fits). Returns the model.
 #[pyfunction]
 #[pyo3(signature = (x, y, *, input_names, output_names, c=None, epsilon=None, sigma=None,
-    loss="robust", basis="auto", budget=None, folds=5, groups=None, seed=2020,
-    tol=msvr::DEFAULT_TOL, max_iter=msvr::DEFAULT_MAX_ITER, intervals=true))]
+    loss="robust", basis="auto", budget=None, folds=5, groups=None, time=None, history="auto",
+    seed=2020, tol=msvr::DEFAULT_TOL, max_iter=msvr::DEFAULT_MAX_ITER, intervals=false))]
 #[allow(clippy::too_many_arguments)]
 fn fit(
     py: Python<'_>,
@@ -265,6 +217,8 @@ fn fit(
     budget: Option<usize>,
     folds: usize,
     groups: Option<&Bound<'_, PyAny>>,
+    time: Option<&Bound<'_, PyAny>>,
+    history: &str,
     seed: u64,
     tol: f64,
     max_iter: usize,
@@ -272,6 +226,7 @@ fn fit(
 ) -> PyResult<Model> {
     let (x, y) = (array2(x, "X")?, array2(y, "y")?);
     let groups = groups.map(|g| array1(g, "groups")).transpose()?;
+    let time = time.map(|t| array1(t, "time")).transpose()?;
     let (x, y) = (x.as_array(), y.as_array());
     if x.nrows() != y.nrows() {
         return Err(value_error(format!(
@@ -295,26 +250,81 @@ fn fit(
     let basis: BasisChoice = basis
         .parse()
         .map_err(|e: String| value_error(format!("basis `{basis}`: {e}")))?;
-    let groups = groups.map(|g| g.as_array().to_vec());
-    if groups.as_ref().is_some_and(|g| g.len() != x.nrows()) {
-        return Err(value_error("groups needs one value per row of X"));
-    }
-    let request = FitRequest {
+    let history: HistoryChoice = history
+        .parse()
+        .map_err(|e: String| value_error(format!("history `{history}`: {e}")))?;
+    let per_row = |values: Option<PyReadonlyArray1<f64>>, what: &str| {
+        let values = values.map(|v| v.as_array().to_vec());
+        match values {
+            Some(v) if v.len() != x.nrows() => Err(value_error(format!(
+                "{what} has {} values; give one per row of X ({})",
+                v.len(),
+                x.nrows()
+            ))),
+            v => Ok(v),
+        }
+    };
+    let groups = per_row(groups, "groups")?;
+    let time = per_row(time, "time")?;
+    let series = time.map(|time| Series {
+        time,
+        group: groups.clone(),
+    });
+    let table = Table {
         data: Dataset {
             source: PathBuf::from("python"),
             inputs: columns(&input_names, x),
             outputs: columns(&output_names, y),
         },
-        groups,
-        pinned: Pinned { c, epsilon, sigma },
-        loss,
-        basis,
-        budget,
-        folds,
-        seed,
-        tol,
-        max_iter,
-        intervals,
+        series,
+        lines: (1..=x.nrows() as u64).collect(),
+        fold_columns: groups
+            .clone()
+            .map(|g| vec![("groups".to_string(), g)])
+            .unwrap_or_default(),
+    };
+    let folds_by = match groups {
+        Some(_) => FoldsBy::Column("groups".into()),
+        None => FoldsBy::Auto,
+    };
+    let searched = c.is_none() || epsilon.is_none() || sigma.is_none();
+    let selection = if searched {
+        Selection::Search {
+            method: Method::AcoR(AcoR {
+                seed,
+                ..AcoR::default()
+            }),
+            budget,
+            fitness: FitnessKind::Cv { folds },
+            folds_by,
+            seed,
+        }
+    } else {
+        Selection::Fixed { folds, folds_by }
+    };
+    let params = MsvrParams::new(
+        c.unwrap_or(1.0),
+        epsilon.unwrap_or(0.1),
+        sigma.unwrap_or(1.0),
+    )
+    .loss(loss)
+    .tol(tol)
+    .max_iter(max_iter);
+    let with_time = table.series.is_some();
+    let request = FitRequest {
+        plan: Plan {
+            params,
+            selection,
+            pinned: Pinned { c, epsilon, sigma },
+            basis,
+            history,
+            time: with_time.then(|| "time".to_string()),
+            group: (with_time && table.fold_columns.len() == 1).then(|| "groups".to_string()),
+            max_rows: None,
+            intervals,
+        },
+        table,
+        seed: searched.then_some(seed),
     };
     let file = detached(py, || fit_request(request))?;
     Ok(Model { file })

@@ -82,7 +82,10 @@ def test_the_search_chooses_and_records_what_it_did():
     assert np.abs(model.predict(x) - y).mean() < 0.3
     # Pinned hyper-parameters stay as given; the others are searched.
     pinned = handcap.MSVRRegressor(C=50.0, budget=20, random_state=3).fit(x, y)
-    assert pinned.C_ == 50.0 and pinned.epsilon_ != pinned.sigma_
+    space = pinned.search_["space"]
+    assert pinned.C_ == 50.0 and space["c"] == [50.0, 50.0], space
+    assert space["sigma"][0] < pinned.sigma_ <= space["sigma"][1]
+    assert space["sigma"][0] < space["sigma"][1]
     # Seven rows: as many folds as give each 2 rows or more, said with the folds.
     few = handcap.MSVRRegressor(budget=20, random_state=3).fit(x[:7], y[:7])
     assert "3 folds, not 5: 7 rows" in few.search_["folds"]["reason"], few.search_["folds"]
@@ -99,20 +102,17 @@ def test_the_interval_radius_covers_fresh_rows_at_its_level():
     assert model.interval_radius(0.95) > model.interval_radius(0.9) > 0
     with pytest.raises(ValueError, match="strictly between 0 and 1"):
         model.interval_radius(1.5)
-    # Every hyper-parameter given: the intervals still come from held-out folds, as the
-    # command line's `--search none` has them, and cover at least their level (these fixed
+    # Every hyper-parameter given: no search made held-out predictions, so intervals cost one
+    # more fit per fold and come only when asked; they cover at least their level (these fixed
     # parameters fit 4/5 of the rows worse than all of them, so the radius errs wide).
-    fixed = handcap.MSVRRegressor(**FIXED).fit(x, y)
+    fixed = handcap.MSVRRegressor(**FIXED, intervals=True).fit(x, y)
     error = np.linalg.norm(fixed.predict(xf) - yf, axis=1)
     r = fixed.interval_radius(0.9)
     assert (error <= r).mean() > 0.9 - 0.05, (r, (error <= r).mean())
-    # Without intervals: the same model (no held-out fit touches it), and a clear error.
-    bare = handcap.MSVRRegressor(**FIXED, intervals=False).fit(x, y)
+    # Without: the same model (no held-out fit touches it), and one line saying how to get them.
+    bare = handcap.MSVRRegressor(**FIXED).fit(x, y)
     np.testing.assert_array_equal(bare.predict(xf), fixed.predict(xf))
-    with pytest.raises(ValueError, match="intervals=False"):
-        bare.interval_radius(0.9)
-    bare.set_params(intervals=True)  # not refitted: still none
-    with pytest.raises(ValueError, match="intervals=False"):
+    with pytest.raises(ValueError, match="fit it again with intervals=True"):
         bare.interval_radius(0.9)
 
 
@@ -300,3 +300,64 @@ def test_a_history_model_needs_time_and_groups(tmp_path):
         model.predict(x)
     with pytest.raises(ValueError, match="repeats the previous row"):
         model.predict(x[:2], time=np.array([0.0, 0.0]), groups=np.array([1.0, 1.0]))
+
+
+def dynamic_log(trials, seed):
+    """A plant with a first-order lag (0.4 s) behind its two inputs, held in steps of 0.6 s:
+    (frame of trial, t_s, P1_kpa, P2_kpa, x_mm, y_mm)."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for trial in range(trials):
+        s = u = rng.uniform(0, 200, 2)
+        for k in range(60):
+            if k % 6 == 0:
+                u = rng.uniform(0, 200, 2)
+            s = s + (1 - np.exp(-0.1 / 0.4)) * (u - s)
+            rows.append([trial, 0.1 * k, *u, 0.1 * s[0] + 3 * np.sin(s[1] / 60),
+                         0.08 * s[1] - 2 * np.cos(s[0] / 70)])
+    return pd.DataFrame(rows, columns=["trial", "t_s", "P1_kpa", "P2_kpa", "x_mm", "y_mm"])
+
+
+def test_python_fits_history_models_as_the_command_line_does(tmp_path):
+    """Issue 41: fit(X, y, groups=, time=) makes the command line's selection, history
+    included: the same choice and the same numbers."""
+    frame = dynamic_log(8, 11)
+    frame.to_csv(tmp_path / "log.csv", index=False, float_format="%.17g")
+    run("model", tmp_path / "log.csv", "--inputs", "P1_kpa,P2_kpa", "--outputs", "x_mm,y_mm",
+        "--time", "t_s", "--group-by", "trial", "--budget", 24, "--seed", 5,
+        "--out", tmp_path / "cli.json")
+    cli = handcap.load(tmp_path / "cli.json")
+    x = frame[["P1_kpa", "P2_kpa"]]
+    model = handcap.MSVRRegressor(budget=24, random_state=5).fit(
+        x, frame[["x_mm", "y_mm"]].to_numpy(), groups=frame["trial"], time=frame["t_s"])
+    assert model.model_.feature_names == cli.feature_names
+    assert len(cli.feature_names) > 2, "the log's lag calls for history"
+    np.testing.assert_allclose(model.model_.hyper, cli.hyper, rtol=1e-12)
+    time, groups = frame["t_s"].to_numpy(), frame["trial"].to_numpy()
+    np.testing.assert_allclose(model.predict(x, time=time, groups=groups),
+                               cli.predict(x.to_numpy(), time=time, groups=groups.astype(float)),
+                               rtol=1e-12, atol=1e-12)
+    # The search's held-out predictions gave the intervals, at no further fit.
+    assert model.interval_radius(0.9) == pytest.approx(cli.interval_radius(0.9), rel=1e-12)
+
+
+def test_bad_time_series_raise_value_error_naming_the_row():
+    frame = dynamic_log(3, 12)
+    x, y = frame[["P1_kpa", "P2_kpa"]].to_numpy(), frame[["x_mm", "y_mm"]].to_numpy()
+    time, groups = frame["t_s"].to_numpy().copy(), frame["trial"].to_numpy()
+    fixed = handcap.MSVRRegressor(**FIXED)
+    backwards = time.copy()
+    backwards[70] = backwards[68]
+    with pytest.raises(ValueError, match=r"^row 70: time .* goes back .* in group"):
+        fixed.fit(x, y, groups=groups, time=backwards)
+    # The runs one after another without their groups: time restarts at row 60.
+    with pytest.raises(ValueError, match=r"^row 60: .*give each row its run, groups="):
+        fixed.fit(x, y, time=time)
+    lonely = groups.copy()
+    lonely[59] = 7
+    with pytest.raises(ValueError, match=r"^row 59: group .* one row"):
+        fixed.fit(x, y, groups=lonely, time=time)
+    with pytest.raises(ValueError, match="time has shape"):
+        fixed.fit(x, y, groups=groups, time=time[:-1])
+    with pytest.raises(ValueError, match="history `ema:-1`"):
+        handcap.MSVRRegressor(**FIXED, history="ema:-1").fit(x, y, groups=groups, time=time)

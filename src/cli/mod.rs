@@ -107,7 +107,7 @@ pub fn exit_code(e: &anyhow::Error) -> u8 {
 }
 
 /// The error on one line: its message, then each cause the message does not already contain
-/// (an I/O error wrapped with its path is said once, not twice).
+/// (an I/O error wrapped with its path is said once, not twice), parameters named as flags.
 pub fn one_line(e: &anyhow::Error) -> String {
     let mut line = e.to_string();
     for cause in e.chain().skip(1) {
@@ -116,7 +116,57 @@ pub fn one_line(e: &anyhow::Error) -> String {
             line = format!("{line}: {text}");
         }
     }
-    line.replace('\n', " ")
+    flags(&line.replace('\n', " "))
+}
+
+/// The library's parameter names (`field=value`, as the Python estimator takes them) and the
+/// flags that set them here: the one place the command line maps them.
+const FLAGS: [(&str, &str); 12] = [
+    ("c", "--c"),
+    ("epsilon", "--epsilon"),
+    ("sigma", "--sigma"),
+    ("basis", "--basis"),
+    ("folds", "--folds"),
+    ("folds_by", "--folds-by"),
+    ("groups", "--group-by"),
+    ("history", "--history"),
+    ("fitness", "--fitness"),
+    ("budget", "--budget"),
+    ("max_rows", "--max-rows"),
+    ("intervals", "--intervals"),
+];
+
+/// `text` with each `field=value` of [`FLAGS`] written as the flag (`basis=exact` →
+/// `--basis exact`; `intervals=true` → `--intervals`).
+pub fn flags(text: &str) -> String {
+    let mut out = String::with_capacity(text.len());
+    let mut rest = text;
+    'scan: while !rest.is_empty() {
+        let at_boundary = out
+            .chars()
+            .last()
+            .is_none_or(|c| !(c.is_alphanumeric() || c == '_' || c == '-'));
+        if at_boundary {
+            for (field, flag) in FLAGS {
+                let Some(value) = rest.strip_prefix(field).and_then(|r| r.strip_prefix('=')) else {
+                    continue;
+                };
+                if let Some(after) = value.strip_prefix("true") {
+                    out.push_str(flag);
+                    rest = after;
+                } else {
+                    out.push_str(flag);
+                    out.push(' ');
+                    rest = value;
+                }
+                continue 'scan;
+            }
+        }
+        let c = rest.chars().next().expect("not empty");
+        out.push(c);
+        rest = &rest[c.len_utf8()..];
+    }
+    out
 }
 
 /// A LEFT,RIGHT flag's values (one value serves both cameras); `None` when not given.
@@ -312,7 +362,7 @@ impl Ui {
                     bar.finish_and_clear();
                 }
             }
-            Event::Note(line) => println!("{line}"),
+            Event::Note(line) => println!("{}", flags(&line)),
             Event::Stage { step, of, text } => println!("[{step}/{of}] {text}"),
             Event::StageTime { name, seconds } => println!("      {name} done in {seconds:.1} s"),
             Event::Calibrated(c) => calibrate::print_summary(c),
@@ -357,6 +407,18 @@ fn print_written(files: &[std::path::PathBuf]) {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn parameters_are_named_as_flags() {
+        assert_eq!(
+            super::flags("give basis=3 or fewer, or basis=auto (folds_by=run: 2 groups)"),
+            "give --basis 3 or fewer, or --basis auto (--folds-by run: 2 groups)"
+        );
+        assert_eq!(
+            super::flags("fit it with intervals=true; epsilon=0.5, c=10, basic=1"),
+            "fit it with --intervals; --epsilon 0.5, --c 10, basic=1"
+        );
+    }
+
     #[test]
     fn the_command_line_is_consistent() {
         use clap::CommandFactory;

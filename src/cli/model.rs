@@ -91,6 +91,11 @@ pub struct Args {
     /// coarser subset of a dense grid: the search stays fast, the fit uses every row)
     #[arg(long)]
     search_on: Option<PathBuf>,
+    /// Calibrate the prediction intervals even when no search made the held-out predictions
+    /// they need (with --search none or --search-on: one more fit per fold); a search's own
+    /// are used at no cost
+    #[arg(long)]
+    intervals: bool,
     /// aco-paper: ants per iteration
     #[arg(long, default_value_t = AcoPaper::default().ants)]
     ants: usize,
@@ -236,9 +241,10 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 fitness,
                 folds_by: a.group_by.map_or(a.folds_by, FoldsBy::Column),
                 seed: a.seed,
-                on: a.search_on,
             },
         },
+        search_on: a.search_on,
+        intervals: a.intervals,
         tests: a.tests,
         out: a.out,
         report: a.report,

@@ -415,8 +415,11 @@ fn job(
             fitness: FitnessKind::Cv { folds: 5 },
             folds_by: FoldsBy::Auto,
             seed: plan.aco.seed,
-            on: search_on,
         },
+        search_on,
+        // The search scores the image grid's rows: the intervals are calibrated on the
+        // training rows' own folds.
+        intervals: true,
         tests,
         out,
         report: Some(report),

@@ -131,6 +131,8 @@ pub enum PipelineError {
     #[error(transparent)]
     Tune(#[from] crate::model::msvr::tune::TuneError),
     #[error(transparent)]
+    Select(crate::select::SelectError),
+    #[error(transparent)]
     Folds(#[from] crate::model::msvr::folds::FoldsError),
     #[error(transparent)]
     Previous(#[from] crate::model::previous::PreviousError),

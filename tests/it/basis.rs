@@ -174,7 +174,7 @@ fn model_basis_writes_a_reduced_model_that_predict_reads() {
     assert!(file["basis"]["reason"]
         .as_str()
         .unwrap()
-        .contains("--basis 50"));
+        .contains("basis=50"));
     handcap_ok(
         dir.path(),
         &["predict", "m.json", "train.csv", "--out", "p.csv"],

@@ -429,9 +429,10 @@ fn a_few_rows_get_as_many_folds_as_they_allow() {
         text += &format!("{a},{b},{}\n", a * 0.5 - b * 0.25);
     }
     write(d, "few.csv", &text);
+    // Without a search the folds are those of the intervals asked for.
     let model = |file: &str, search: &str| {
         let out = format!("{file}.{search}.json");
-        let args = [
+        let mut args = vec![
             "model",
             file,
             "--inputs",
@@ -443,6 +444,9 @@ fn a_few_rows_get_as_many_folds_as_they_allow() {
             "--out",
             &out,
         ];
+        if search == "none" {
+            args.push("--intervals");
+        }
         (handcap(d, &args), out)
     };
     for search in ["aco-r", "none"] {

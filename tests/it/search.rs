@@ -602,7 +602,7 @@ fn auto_folds_on_a_time_series_estimate_the_error_on_new_ramps() {
         ..Grid::default()
     });
     let choose = |plan| {
-        let (summary, _, _) = tune::run(
+        let (summary, ..) = tune::run(
             &method,
             &train,
             FitnessKind::Cv { folds: 5 },

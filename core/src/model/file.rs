@@ -43,7 +43,7 @@ pub enum ModelFileError {
         source: std::io::Error,
     },
     #[error(
-        "{path}: not a handcap model file ({reason}); give a file written by `handcap model --out`"
+        "{path}: not a handcap model file ({reason}); give a model file that `handcap model` or the Python estimator wrote"
     )]
     Invalid { path: PathBuf, reason: String },
     #[error("{path}: model file version {found}, this handcap reads version {VERSION}; refit with this version")]

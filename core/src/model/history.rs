@@ -79,7 +79,10 @@ impl HistoryError {
 }
 
 fn in_group(group: Option<f64>) -> String {
-    group.map_or_else(String::new, |g| format!(" in group {g}"))
+    group.map_or_else(
+        || " (several runs one after another: give each row its run, groups=…)".into(),
+        |g| format!(" in group {g}"),
+    )
 }
 
 /// What the features remember of the past.

@@ -35,7 +35,7 @@ pub enum IntervalError {
         needed: usize,
         rows: usize,
     },
-    #[error("the model has no prediction intervals: no held-out rows were scored when it was fitted (a training-data fitness, or a handcap before intervals); fit it again with cross-validation (the default)")]
+    #[error("the model has no prediction intervals: no held-out predictions were made when it was fitted (its parameters given without intervals=true, or fitness=train); fit it again with intervals=true")]
     Missing,
 }
 

@@ -175,6 +175,21 @@ pub struct Fitness {
     raced: AtomicUsize,
     /// Candidates' fits stop at a stop asked after this ([`crate::control`]).
     since: crate::control::Since,
+    /// The held-out predictions of the best candidate scored on every fold (ties: the first
+    /// by its key), kept so that intervals cost no further fit.
+    best: Mutex<Option<Best>>,
+}
+
+/// A candidate's held-out predictions (rows × outputs, in the data's row order).
+struct Best {
+    fitness: f64,
+    key: [u64; 3],
+    predicted: Mat<f64>,
+}
+
+/// A candidate's memo key: its three numbers' bits.
+fn key(h: &Hyper) -> [u64; 3] {
+    [h.c.to_bits(), h.epsilon.to_bits(), h.sigma.to_bits()]
 }
 
 /// What [`Fitness`] computes the kernels of a σ from.
@@ -268,6 +283,7 @@ impl Fitness {
             memo_hits: AtomicUsize::new(0),
             kernel_hits: AtomicUsize::new(0),
             raced: AtomicUsize::new(0),
+            best: Mutex::new(None),
         })
     }
 
@@ -289,7 +305,6 @@ impl Fitness {
     /// fitness reaches `bar` may stop there with a lower bound ≥ `bar` (racing, see the module
     /// docs). A candidate that breaks [`Hyper::check`] scores +∞.
     pub fn evaluate(&self, batch: &[Hyper], bar: f64) -> Vec<f64> {
-        let key = |h: &Hyper| [h.c.to_bits(), h.epsilon.to_bits(), h.sigma.to_bits()];
         let is_valid = |h: &Hyper| h.check().is_ok();
         let mut fresh: Vec<Hyper> = Vec::new();
         {
@@ -325,7 +340,8 @@ impl Fitness {
     }
 
     /// MAE over every held-out prediction for one tuple, or a lower bound of it that is at
-    /// least `bar` once one is reached (racing).
+    /// least `bar` once one is reached (racing). A tuple scored on every fold that beats the
+    /// best so far leaves its held-out predictions ([`Fitness::held_out_of`]).
     fn score(&self, h: &Hyper, bar: f64) -> f64 {
         let per_sigma = self.per_sigma(h.sigma);
         let Ok(params) = self.solver.with_hyper(*h).check() else {
@@ -333,6 +349,7 @@ impl Fitness {
         };
         let all = self.held_out_values as f64;
         let mut abs_sum = 0.0;
+        let mut predicted = Mat::zeros(self.rows(), self.folds[0].y_held_out.ncols());
         for (k, fold) in self.folds.iter().enumerate() {
             if k > 0 && abs_sum / all >= bar {
                 self.raced.fetch_add(1, Ordering::Relaxed);
@@ -342,13 +359,40 @@ impl Fitness {
                 return f64::INFINITY;
             };
             let y = &fold.y_held_out;
-            for r in 0..y.nrows() {
+            for (r, &row) in fold.held_out.iter().enumerate() {
                 for j in 0..y.ncols() {
                     abs_sum += (y[(r, j)] - pred[(r, j)] - bias[j]).abs();
+                    predicted[(row, j)] = pred[(r, j)] + bias[j];
                 }
             }
         }
-        abs_sum / all
+        let fitness = abs_sum / all;
+        let mut best = self.best.lock().expect("best lock");
+        let better = best
+            .as_ref()
+            .is_none_or(|b| fitness < b.fitness || (fitness == b.fitness && key(h) < b.key));
+        if better && fitness.is_finite() && self.kind != FitnessKind::Train {
+            *best = Some(Best {
+                fitness,
+                key: key(h),
+                predicted,
+            });
+        }
+        fitness
+    }
+
+    /// The held-out predictions of `h` when it is the best tuple scored on every fold so far
+    /// (what [`Fitness::held_out_predictions`] would compute, without its fits).
+    pub fn held_out_of(&self, h: &Hyper) -> Option<Mat<f64>> {
+        let best = self.best.lock().expect("best lock");
+        best.as_ref()
+            .filter(|b| b.key == key(h))
+            .map(|b| b.predicted.clone())
+    }
+
+    /// Rows over every fold's held-out rows (each row once; with the training fitness, all).
+    fn rows(&self) -> usize {
+        self.folds.iter().map(|f| f.held_out.len()).sum()
     }
 
     /// Every row's prediction by the model fitted without its fold (rows × outputs, in the
@@ -361,8 +405,7 @@ impl Fitness {
     pub fn held_out_predictions(&self, h: &Hyper) -> Result<Mat<f64>, MsvrError> {
         let per_sigma = self.per_sigma(h.sigma);
         let params = self.solver.with_hyper(*h).check()?;
-        let rows: usize = self.folds.iter().map(|f| f.held_out.len()).sum();
-        let mut out = Mat::zeros(rows, self.folds[0].y_held_out.ncols());
+        let mut out = Mat::zeros(self.rows(), self.folds[0].y_held_out.ncols());
         let since = crate::control::Since::now();
         for (k, fold) in self.folds.iter().enumerate() {
             let (pred, bias) = self.fold_prediction(&per_sigma, k, &params, since)?;

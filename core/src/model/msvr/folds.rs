@@ -109,9 +109,9 @@ pub fn within(asked: usize, rows: usize) -> usize {
 /// Errors of choosing the folds.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum FoldsError {
-    #[error("--folds-by {column}: all {rows} rows are in one group; give a column that separates runs, or --folds-by blocks")]
+    #[error("folds_by={column}: all {rows} rows are in one group; give a column that separates runs, or folds_by=blocks")]
     OneGroup { column: String, rows: usize },
-    #[error("--folds-by {column}: {groups} groups, fewer than the {folds} folds; use --folds {groups} or fewer, or --folds-by blocks")]
+    #[error("folds_by={column}: {groups} groups, fewer than the {folds} folds; use folds={groups} or fewer, or folds_by=blocks")]
     FewGroups {
         column: String,
         groups: usize,
@@ -176,8 +176,8 @@ fn scheme(
         labels: Some(labels.to_vec()),
     };
     match by {
-        FoldsBy::Shuffle => Ok(shuffle("--folds-by shuffle".into())),
-        FoldsBy::Blocks => Ok(blocks("--folds-by blocks".into())),
+        FoldsBy::Shuffle => Ok(shuffle("folds_by=shuffle".into())),
+        FoldsBy::Blocks => Ok(blocks("folds_by=blocks".into())),
         FoldsBy::Column(column) => {
             let labels = others
                 .iter()
@@ -201,7 +201,7 @@ fn scheme(
             Ok(groups(
                 column,
                 labels,
-                format!("--folds-by {column}: {count} groups"),
+                format!("folds_by={column}: {count} groups"),
             ))
         }
         FoldsBy::Auto => {
@@ -401,7 +401,7 @@ mod tests {
         let err = plan(&FoldsBy::Column("run".into()), &data, &one, 5).unwrap_err();
         assert!(err
             .to_string()
-            .contains("--folds-by run: all 40 rows are in one group"));
+            .contains("folds_by=run: all 40 rows are in one group"));
         let three = [(
             "run".to_string(),
             (0..40).map(|i| f64::from(i % 3)).collect(),

@@ -62,7 +62,7 @@ pub enum MsvrError {
     Interrupted,
     #[error("the fit with C = {c}, ε = {epsilon}, σ = {sigma} gave non-finite numbers; choose other parameters or rescale the data")]
     NonFinite { c: f64, epsilon: f64, sigma: f64 },
-    #[error("{rows} rows with the {basis} basis need about {need_gb:.1} GB, and {available_gb:.1} GB are available; use a reduced basis of fewer centres (`--basis auto` or `--basis M`)")]
+    #[error("{rows} rows with the {basis} basis need about {need_gb:.1} GB, and {available_gb:.1} GB are available; use a reduced basis of fewer centres (basis=auto or basis=M)")]
     TooLarge {
         rows: usize,
         basis: Basis,

@@ -12,6 +12,7 @@
 
 use std::sync::atomic::AtomicBool;
 
+use faer::Mat;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -158,8 +159,13 @@ impl Pinned {
     }
 }
 
+/// What [`run`] returns: the summary, the full result, the work counters and the best tuple's
+/// held-out predictions.
+pub type Ran = (SearchSummary, SearchResult, Counters, Option<Mat<f64>>);
+
 /// Runs `method` on `data` with the given fitness, the [`Pinned`] hyper-parameters held;
-/// returns the summary, the full result and the work counters.
+/// returns the summary, the full result, the work counters and the best tuple's held-out
+/// predictions (for intervals; `None` with the training fitness).
 ///
 /// # Errors
 /// [`TuneError`]: the method's own, or a fold set-up error.
@@ -174,7 +180,7 @@ pub fn run(
     pinned: &Pinned,
     observer: &mut dyn Observer,
     interrupt: &AtomicBool,
-) -> Result<(SearchSummary, SearchResult, Counters), TuneError> {
+) -> Result<Ran, TuneError> {
     super::check_memory(data.rows(), solver.basis)?;
     let labels = folds.labels.as_deref();
     let scorer = Fitness::new(data, fitness, seed, labels, &solver_for(method, solver))?;
@@ -203,10 +209,12 @@ pub fn run(
         memo_hits: counters.memo_hits,
         raced: counters.raced,
     };
-    Ok((summary, result, counters))
+    let held_out = scorer.held_out_of(&best);
+    Ok((summary, result, counters, held_out))
 }
 
-/// The cross-validated fitness of `params` itself, on the folds of `folds`.
+/// The cross-validated fitness of `params` itself, on the folds of `folds`, and its held-out
+/// predictions (`None` with the training fitness).
 ///
 /// # Errors
 /// [`TuneError`] when the folds cannot be cut.
@@ -215,7 +223,7 @@ pub fn cross_validate(
     fitness: FitnessKind,
     folds: &FoldPlan,
     params: &MsvrParams,
-) -> Result<f64, TuneError> {
+) -> Result<(f64, Option<Mat<f64>>), TuneError> {
     super::check_memory(data.rows(), params.basis)?;
     let scorer = Fitness::new(
         data,
@@ -224,22 +232,23 @@ pub fn cross_validate(
         folds.labels.as_deref(),
         params,
     )?;
-    Ok(scorer.evaluate(&[params.hyper()], f64::INFINITY)[0])
+    let score = scorer.evaluate(&[params.hyper()], f64::INFINITY)[0];
+    Ok((score, scorer.held_out_of(&params.hyper())))
 }
 
-/// Conformal prediction intervals of `params` on `data`: every row predicted by the model
-/// fitted without the row's fold (the folds of `folds`, `k` of them, cut with `seed` as a
-/// search with that seed cuts them), and the radii of those held-out residuals.
+/// Held-out predictions of `params` on `data`: every row predicted by the model fitted without
+/// the row's fold (the folds of `folds`, `k` of them, cut with `seed` as a search with that
+/// seed cuts them). `k` more fits: what intervals cost when no search made them.
 ///
 /// # Errors
 /// [`TuneError`] when the folds cannot be cut or a fit fails.
-pub fn intervals(
+pub fn held_out_predictions(
     data: &Dataset,
     k: usize,
     seed: u64,
     folds: &FoldPlan,
     params: &MsvrParams,
-) -> Result<Intervals, TuneError> {
+) -> Result<Mat<f64>, TuneError> {
     super::check_memory(data.rows(), params.basis)?;
     let scorer = Fitness::new(
         data,
@@ -248,20 +257,24 @@ pub fn intervals(
         folds.labels.as_deref(),
         params,
     )?;
-    let predicted = scorer.held_out_predictions(&params.hyper())?;
+    Ok(scorer.held_out_predictions(&params.hyper())?)
+}
+
+/// Conformal prediction intervals from held-out predictions of `data`'s rows (rows × outputs,
+/// cut by `folds`).
+pub fn intervals(data: &Dataset, folds: &FoldPlan, predicted: &Mat<f64>) -> Intervals {
     let predicted = Columns::new(
         data.outputs.names.clone(),
         (0..predicted.nrows())
-            .flat_map(|r| (0..predicted.ncols()).map(move |j| (r, j)))
-            .map(|(r, j)| predicted[(r, j)])
+            .flat_map(|r| (0..predicted.ncols()).map(move |j| predicted[(r, j)]))
             .collect(),
     );
-    Ok(Intervals::calibrate(
+    Intervals::calibrate(
         &data.outputs,
         &predicted,
         folds.labels.as_deref(),
         folds.choice.clone(),
-    ))
+    )
 }
 
 /// How [`choose`] picks a fit's (C, ε, σ) and basis on rows scored by cross-validation.
@@ -291,6 +304,8 @@ pub struct Chosen {
     pub basis: BasisDecision,
     /// The cross-validated fitness of `params`, when measured.
     pub fitness: Option<f64>,
+    /// The held-out predictions of `params` on the scored rows, when the choice made them.
+    pub held_out: Option<Mat<f64>>,
 }
 
 /// What a search did.
@@ -328,7 +343,7 @@ pub fn choose(
         if choice.grow {
             grow_basis(basis, rows, fitness, folds, params, interrupt)
         } else {
-            Ok(basis)
+            Ok((basis, None))
         }
     };
     let Some((method, seed)) = &choice.search else {
@@ -338,22 +353,24 @@ pub fn choose(
                 search: None,
                 basis: initial,
                 fitness: None,
+                held_out: None,
             });
         }
-        let basis = grow(initial, &solver)?;
+        let (basis, grown) = grow(initial, &solver)?;
         let params = solver.basis(basis.basis);
-        let fitness = match grown_fitness(&basis) {
-            Some(f) => f,
-            None => cross_validate(rows, fitness, folds, &params)?,
+        let (fitness, held_out) = match (grown_fitness(&basis), grown) {
+            (Some(f), grown) => (f, grown),
+            (None, _) => cross_validate(rows, fitness, folds, &params)?,
         };
         return Ok(Chosen {
             params,
             search: None,
             basis,
             fitness: Some(fitness),
+            held_out,
         });
     };
-    let (summary, result, counters) = run(
+    let (summary, result, counters, searched) = run(
         method,
         rows,
         fitness,
@@ -365,10 +382,15 @@ pub fn choose(
         interrupt,
     )?;
     let params = solver_for(method, &solver).with_hyper(summary.best);
-    let basis = grow(initial, &params)?;
+    let (basis, grown) = grow(initial, &params)?;
     Ok(Chosen {
         params: params.basis(basis.basis),
         fitness: Some(grown_fitness(&basis).unwrap_or(summary.best_fitness)),
+        held_out: if basis.tried.is_empty() {
+            searched
+        } else {
+            grown
+        },
         search: Some(Searched {
             summary,
             counters,
@@ -453,7 +475,7 @@ pub struct BasisTrial {
 /// Errors of choosing a basis.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum BasisError {
-    #[error("a basis of {centres} centres for {rows} rows: at most one centre per row; give --basis {rows} or fewer, or --basis auto")]
+    #[error("a basis of {centres} centres for {rows} rows: at most one centre per row; give basis={rows} or fewer, or basis=auto")]
     MoreCentresThanRows { centres: usize, rows: usize },
 }
 
@@ -472,7 +494,7 @@ pub fn initial_basis(
     Ok(match choice {
         BasisChoice::Exact => BasisDecision {
             basis: Basis::Exact,
-            reason: "asked for (--basis exact)".into(),
+            reason: "asked for (basis=exact)".into(),
             tried: Vec::new(),
         },
         BasisChoice::Centres(centres) if centres > rows => {
@@ -480,7 +502,7 @@ pub fn initial_basis(
         }
         BasisChoice::Centres(centres) => BasisDecision {
             basis: reduced(centres),
-            reason: format!("asked for (--basis {centres})"),
+            reason: format!("asked for (basis={centres})"),
             tried: Vec::new(),
         },
         BasisChoice::Auto => {
@@ -526,15 +548,18 @@ pub fn grow_basis(
     folds: &FoldPlan,
     solver: &MsvrParams,
     interrupt: &AtomicBool,
-) -> Result<BasisDecision, TuneError> {
+) -> Result<(BasisDecision, Option<Mat<f64>>), TuneError> {
     let Basis::Reduced { centres, seed } = start.basis else {
-        return Ok(start);
+        return Ok((start, None));
     };
     let limit = AUTO_MAX_CENTRES.min(data.rows() / 2).max(centres);
-    let score = |m: usize| -> Result<BasisTrial, TuneError> {
+    // Each size's held-out predictions, for the intervals of the one chosen.
+    let mut predicted = Vec::new();
+    let mut score = |m: usize| -> Result<BasisTrial, TuneError> {
         let params = solver.basis(Basis::Reduced { centres: m, seed });
         let scorer = Fitness::new(data, fitness, seed, folds.labels.as_deref(), &params)?;
         let fitness = scorer.evaluate(&[solver.hyper()], f64::INFINITY)[0];
+        predicted.push(scorer.held_out_of(&solver.hyper()));
         Ok(BasisTrial {
             centres: m,
             kept: scorer.kept_centres(solver.sigma),
@@ -582,17 +607,17 @@ pub fn grow_basis(
     };
     // The first size the next did not beat by the gain (the last when growth stopped for
     // another reason).
-    let best = tried
+    let chosen = tried
         .windows(2)
-        .find(|w| !gains(w[0], w[1]))
-        .map_or(tried.last(), |w| w.first())
-        .expect("one trial");
-    Ok(BasisDecision {
+        .position(|w| !gains(w[0], w[1]))
+        .unwrap_or(tried.len() - 1);
+    let decision = BasisDecision {
         basis: Basis::Reduced {
-            centres: best.centres,
+            centres: tried[chosen].centres,
             seed,
         },
         reason: format!("{}; grown: {why}", start.reason),
         tried,
-    })
+    };
+    Ok((decision, predicted.swap_remove(chosen)))
 }
