@@ -11,7 +11,9 @@ The notes hold out one block of each dataset (the soft trunk's ramps 24-29, the 
 over splits; one split of a time series is a few long runs of correlated rows, and its pooled
 coverage varies from split to split. This holds out each block in turn, fits `handcap model` with
 all defaults on the rest (`--history`: with the time column too), and prints each split's pooled
-coverage at the model's 90 % and 95 % radii, their mean over the splits and their spread.
+coverage at the model's 90 % and 95 % radii, their mean over the splits and their spread, the
+90 % radius over the median test error, and the per-run band (radii calibrated on each held-out
+run's worst error) with the share of whole test runs inside it.
 
 Splits (from ../shared/realdata, never copied into the repository):
   soft_trunk  30 ramps in 5 windows of 6 (0-5, ..., 24-29); training every 4th row of the other
@@ -54,8 +56,10 @@ def tendon_arm():
 DATASETS = {"soft_trunk": (soft_trunk, *SOFT_TRUNK[1:]), "tendon_arm": (tendon_arm, *TENDON_ARM[1:])}
 
 
-def coverage(work, header, train, test, inputs, outputs, extra):
-    """Pooled coverage of the test rows at the model's 90 % and 95 % radii."""
+def coverage(work, header, train, test, inputs, outputs, extra, run_column):
+    """Pooled coverage of the test rows at the model's 90 % and 95 % radii, the radii, the
+    median test error, and the per-run band: its radii and the share of whole test runs (rows
+    grouped by `run_column`) inside them."""
     write(os.path.join(work, "train.csv"), header, train)
     write(os.path.join(work, "test.csv"), header, test)
     subprocess.run([HANDCAP, "model", "train.csv", "--inputs", ",".join(inputs), "--outputs",
@@ -64,13 +68,19 @@ def coverage(work, header, train, test, inputs, outputs, extra):
     subprocess.run([HANDCAP, "predict", "model.json", "test.csv", "--out", "pred.csv"], cwd=work,
                    check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     with open(os.path.join(work, "model.json")) as f:
-        radii = [r["radius"] for r in json.load(f)["intervals"]["radii"]]
+        intervals = json.load(f)["intervals"]
+    radii = [r["radius"] for r in intervals["radii"]]
+    band = [r["radius"] for r in intervals.get("runs", {}).get("radii", [])]
     truth = np.array([[float(r[header.index(c)]) for c in outputs] for r in test])
     with open(os.path.join(work, "pred.csv")) as f:
         pred = list(csv.DictReader(f))
     predicted = np.array([[float(r[c]) for c in outputs] for r in pred])
     error = np.linalg.norm(truth - predicted, axis=1)
-    return [float((error <= r).mean()) for r in radii], radii
+    runs = np.array([r[header.index(run_column)] for r in test]) if run_column else np.zeros(len(test))
+    worst = np.array([error[runs == g].max() for g in np.unique(runs)])
+    inside = [float((worst <= b).mean()) for b in band]
+    return [float((error <= r).mean()) for r in radii], radii, float(np.median(error)), band, \
+        inside, len(worst)
 
 
 def main():
@@ -78,24 +88,40 @@ def main():
     ap.add_argument("--history", action="store_true", help="fit with the time column too")
     ap.add_argument("--only", default="", help="comma-separated dataset names")
     a = ap.parse_args()
-    print("| data | held out | rows | coverage at 90 % / 95 % | radii |")
-    print("|---|---|---|---|---|")
+    print("| data | held out | rows | coverage at 90 % / 95 % | radii | radius 90 % / median error "
+          "| per-run band 90 % / 95 % | whole test runs inside |")
+    print("|---|---|---|---|---|---|---|---|")
     for name, (splits, inputs, outputs, time_args) in DATASETS.items():
         if a.only and name not in a.only.split(","):
             continue
-        seen = []
+        seen, ratios, insides = [], [], []
+        run_column = RUN_COLUMN[name]
         with tempfile.TemporaryDirectory() as work:
             for label, header, train, test in splits():
-                cov, radii = coverage(work, header, train, test, inputs, outputs,
-                                      time_args if a.history else [])
+                cov, radii, median, band, inside, runs = coverage(
+                    work, header, train, test, inputs, outputs, time_args if a.history else [],
+                    run_column)
                 seen.append(cov)
+                ratios.append(radii[0] / median)
+                insides.append(inside)
                 print(f"| {name} | {label} | {len(test)} | "
                       f"{' / '.join(f'{100 * c:.1f}' for c in cov)} | "
-                      f"{' / '.join(f'{r:.2f}' for r in radii)} |", flush=True)
+                      f"{' / '.join(f'{r:.2f}' for r in radii)} | {radii[0] / median:.2f} | "
+                      f"{' / '.join(f'{b:.2f}' for b in band) or 'none'} | "
+                      f"{' / '.join(f'{100 * i:.0f} %' for i in inside) or '-'} of {runs} |",
+                      flush=True)
         seen = np.array(seen)
         mean, sd = 100 * seen.mean(0), 100 * seen.std(0, ddof=1)
+        pooled_inside = [np.mean([i[k] for i in insides if len(i) > k]) for k in range(2)
+                         if any(len(i) > k for i in insides)]
         print(f"| {name} | mean over {len(seen)} splits (sd) | | "
-              f"{' / '.join(f'{m:.1f} ({s:.1f})' for m, s in zip(mean, sd))} | |", flush=True)
+              f"{' / '.join(f'{m:.1f} ({s:.1f})' for m, s in zip(mean, sd))} | | "
+              f"{np.mean(ratios):.2f} | | "
+              f"{' / '.join(f'{100 * i:.0f} %' for i in pooled_inside) or '-'} |", flush=True)
+
+
+# The column naming the held-out rows' runs (the tendon arm's block is one run).
+RUN_COLUMN = {"soft_trunk": "iteration", "tendon_arm": None}
 
 
 if __name__ == "__main__":

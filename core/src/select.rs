@@ -31,7 +31,7 @@ use crate::model::msvr::tune::{
     self, BasisChoice, BasisDecision, BasisError, Chosen, Pinned, Searched, TuneError,
 };
 use crate::model::msvr::{self, Basis, Hyper, MsvrError, MsvrParams, MIN_FIT_ROWS};
-use crate::model::{ModelSpec, StoredModel};
+use crate::model::{self, ModelSpec, StoredModel};
 use crate::search::{IterationRecord, Method, Observer, Search};
 
 /// Rows to select a model on: the dataset (present inputs and outputs), its time series, and
@@ -135,7 +135,8 @@ pub struct Plan {
     pub group: Option<String>,
     /// Rows kept at most from the training (and search) data, evenly spaced.
     pub max_rows: Option<usize>,
-    /// Intervals even when no held-out predictions were made on the way (k more fits).
+    /// Intervals also without a search, when no held-out predictions were made on the way
+    /// (k more fits).
     pub intervals: bool,
 }
 
@@ -188,6 +189,8 @@ pub enum SelectError {
     Folds(#[from] FoldsError),
     #[error(transparent)]
     Basis(#[from] BasisError),
+    #[error(transparent)]
+    Model(#[from] model::ModelError),
     /// A parameter that cannot work with these rows, named as `field=value`.
     #[error("{0}")]
     Parameter(String),
@@ -206,6 +209,8 @@ pub struct Selected {
     pub intervals: Option<Intervals>,
     /// The rows the model was fitted on, as it sees them (with the history's features).
     pub train: Dataset,
+    /// The model's errors on those rows (not a measure of generalisation).
+    pub train_errors: model::Errors,
     /// The column naming the runs the folds kept whole, when they did.
     pub runs: Option<String>,
 }
@@ -262,9 +267,14 @@ pub fn select(
     go_on()?;
     let intervals = run.intervals(kept.as_ref(), &chosen, scored)?;
     go_on()?;
-    let model = final_fit(ModelSpec::Msvr(chosen.params), &train_rows, listener)?;
+    let (model, fitted) = final_fit(ModelSpec::Msvr(chosen.params), &train_rows, listener)?;
+    let train_errors = match fitted {
+        Some(fitted) => model::errors(&train_rows.outputs, &fitted),
+        None => model::evaluate(model.predictor(), &train_rows)?,
+    };
     Ok(Selected {
         model,
+        train_errors,
         search: chosen.search,
         basis: chosen.basis,
         history: decision,
@@ -678,8 +688,8 @@ impl Run<'_> {
     }
 
     /// Step 5: conformal intervals of the chosen parameters on the training rows scored: from
-    /// the held-out predictions the choice made, or, when it made none (or scored another
-    /// file's rows) and [`Plan::intervals`] asks, from k more fits.
+    /// the held-out predictions the choice made, else from k more fits after a search (which
+    /// scored another file's rows) or when [`Plan::intervals`] asks.
     fn intervals(
         &self,
         kept: Option<&History>,
@@ -693,7 +703,7 @@ impl Run<'_> {
         };
         let intervals = match (&chosen.held_out, self.search_on) {
             (Some(predicted), None) => tune::intervals(&scored.scored, &scored.plan, predicted),
-            _ if !self.plan.intervals => {
+            _ if !self.plan.intervals && chosen.search.is_none() => {
                 self.listener.note(format!(
                     "prediction intervals: none (no held-out predictions were made on the way; intervals=true makes them: {folds} more fits)"
                 ));
@@ -795,20 +805,24 @@ fn final_fit(
     spec: ModelSpec,
     train: &Dataset,
     listener: &dyn Listener,
-) -> Result<StoredModel, SelectError> {
+) -> Result<(StoredModel, Option<data::Columns>), SelectError> {
     let ModelSpec::Msvr(params) = spec;
-    let done = AtomicBool::new(false);
+    // Set, and the watcher woken, when the fit ends: the run does not wait out its tick.
+    let done = (std::sync::Mutex::new(false), std::sync::Condvar::new());
     let before = crate::control::iterations();
     let fitted = std::thread::scope(|scope| {
         scope.spawn(|| {
-            while !done.load(Ordering::Relaxed) {
-                std::thread::sleep(std::time::Duration::from_millis(100));
+            let tick = std::time::Duration::from_millis(100);
+            let mut ended = done.0.lock().expect("the flag");
+            while !*ended {
+                ended = done.1.wait_timeout(ended, tick).expect("the flag").0;
                 listener.fitting(crate::control::iterations() - before, params.max_iter);
             }
             listener.fitted();
         });
-        let fitted = spec.fit(train);
-        done.store(true, Ordering::Relaxed);
+        let fitted = spec.fit_predicting(train);
+        *done.0.lock().expect("the flag") = true;
+        done.1.notify_all();
         fitted
     });
     fitted.map_err(|e| match e {

@@ -91,9 +91,8 @@ pub struct Args {
     /// coarser subset of a dense grid: the search stays fast, the fit uses every row)
     #[arg(long)]
     search_on: Option<PathBuf>,
-    /// Calibrate the prediction intervals even when no search made the held-out predictions
-    /// they need (with --search none or --search-on: one more fit per fold); a search's own
-    /// are used at no cost
+    /// Calibrate the prediction intervals with --search none too (one more fit per fold); a
+    /// search's own held-out predictions give them at no cost
     #[arg(long)]
     intervals: bool,
     /// aco-paper: ants per iteration

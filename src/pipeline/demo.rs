@@ -417,9 +417,7 @@ fn job(
             seed: plan.aco.seed,
         },
         search_on,
-        // The search scores the image grid's rows: the intervals are calibrated on the
-        // training rows' own folds.
-        intervals: true,
+        intervals: false,
         tests,
         out,
         report: Some(report),

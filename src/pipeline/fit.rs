@@ -45,7 +45,8 @@ pub struct FitJob {
     pub group: Option<String>,
     /// What history to try (with `time`).
     pub history: HistoryChoice,
-    /// Intervals even when no search made the held-out predictions they need.
+    /// Intervals also without a search (k more fits when nothing else made the held-out
+    /// predictions they need).
     pub intervals: bool,
 }
 
@@ -170,6 +171,7 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
     )
     .map_err(|e| match e {
         SelectError::Parameter(message) => PipelineError::Usage(message),
+        SelectError::Basis(e) => PipelineError::Usage(e.to_string()),
         SelectError::Interrupted(message) => PipelineError::Interrupted(message),
         e => PipelineError::Select(e),
     })?;
@@ -278,7 +280,6 @@ fn fold_columns(
 /// The selected model and the previous physics model scored on the test files.
 struct Scored {
     test_data: Vec<(String, data::Dataset)>,
-    train_errors: model::Errors,
     previous: Option<(PreviousModel, PreviousModel, previous::Calibration)>,
     tests: Vec<TestResult>,
     coverage: Vec<TestCoverageReport>,
@@ -293,7 +294,6 @@ fn score(job: &FitJob, selected: &Selected, tests: &[Table]) -> Result<Scored, P
         .map(|t| Ok((file_name(&t.data.source), t.with(used)?)))
         .collect::<Result<Vec<_>, PipelineError>>()?;
     let train = &selected.train;
-    let train_errors = model::evaluate(selected.model.predictor(), train)?;
     // The previous physics model describes the micro-hand only.
     let is_hand = train.inputs.names == HAND_INPUTS && train.outputs.names == HAND_OUTPUTS;
     let previous = if is_hand {
@@ -305,7 +305,6 @@ fn score(job: &FitJob, selected: &Selected, tests: &[Table]) -> Result<Scored, P
     };
     let mut scored = Scored {
         test_data,
-        train_errors,
         previous,
         tests: Vec::new(),
         coverage: Vec::new(),
@@ -382,7 +381,7 @@ impl Scored {
             basis: selected.basis.clone(),
             history: selected.history.clone(),
             search: selected.search.as_ref().map(|s| s.summary.clone()),
-            train_errors: self.train_errors.clone(),
+            train_errors: selected.train_errors.clone(),
             previous: self.previous.as_ref().map(|(d, c, cal)| PreviousSummary {
                 default: d.params.clone(),
                 calibrated: c.params.clone(),

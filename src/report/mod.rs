@@ -701,6 +701,26 @@ fn intervals_section(report: &IntervalReport) -> String {
         "The guarantee is marginal: over new rows exchangeable with the held-out ones, at least that share falls within the radius. It is not a promise for each input or each run; the radius is the same everywhere, and a run unlike the training runs (another day, a drifted actuator) can fall outside more often. The coverage per group below shows where.
 "
     );
+    if let Some(band) = &i.runs {
+        let _ = writeln!(
+            s,
+            "Per-run band, from the worst error of each of the {} held-out runs: {}.
+",
+            band.worst.len(),
+            match band.radii.as_slice() {
+                [] => "none (a 90 % band needs 9 runs)".to_string(),
+                radii => radii
+                    .iter()
+                    .map(|r| format!(
+                        "{} of whole runs stay within {:.4}",
+                        percent(r.level),
+                        r.radius
+                    ))
+                    .collect::<Vec<_>>()
+                    .join(", "),
+            }
+        );
+    }
     let first = i.radii[0];
     if !i.groups.is_empty() {
         let _ = writeln!(
@@ -727,9 +747,23 @@ fn intervals_section(report: &IntervalReport) -> String {
             })
             .collect::<Vec<_>>()
             .join("; ");
+        let runs = t
+            .coverage
+            .runs
+            .iter()
+            .map(|r| {
+                format!(
+                    "; {} of {} whole runs inside the {} band ({:.4})",
+                    r.inside,
+                    r.runs,
+                    percent(r.radius.level),
+                    r.radius.radius
+                )
+            })
+            .collect::<String>();
         let _ = writeln!(
             s,
-            "Test `{}`: {pooled}.
+            "Test `{}`: {pooled}{runs}.
 ",
             t.test
         );

@@ -65,6 +65,9 @@ pub struct TestCoverage {
     pub pooled: Vec<(Radius, f64)>,
     /// Coverage of each group at the first radius.
     pub groups: Vec<Coverage>,
+    /// Whole runs (groups) inside each radius of the per-run band.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub runs: Vec<RunsInside>,
 }
 
 /// What the held-out rows said: the radii and where they hold.
@@ -79,6 +82,41 @@ pub struct HeldOut {
     /// Coverage of each held-out group (or block) at the first level's radius: where the
     /// radius holds less than the level.
     pub groups: Vec<Coverage>,
+    /// The per-run band, when the held-out rows were cut into runs.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub runs: Option<RunBand>,
+}
+
+/// A band for whole runs: each held-out run's worst error, and the radii at [`LEVELS`] such
+/// that that share of runs like them stays inside the band from its first row to its last
+/// (the conformal rank of the runs' worst errors: 9 runs for 90 %, 19 for 95 %).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RunBand {
+    /// Each held-out run's largest ‖y − ŷ‖₂, ascending.
+    pub worst: Vec<f64>,
+    /// The radii at [`LEVELS`] the runs suffice for.
+    pub radii: Vec<Radius>,
+}
+
+impl RunBand {
+    /// The band of the held-out `scores` cut into runs by `labels`.
+    pub fn calibrate(scores: &[f64], labels: &[f64]) -> RunBand {
+        let mut worst = worst_by_group(scores, labels);
+        worst.sort_by(f64::total_cmp);
+        RunBand {
+            radii: radii(&worst),
+            worst,
+        }
+    }
+}
+
+/// Whole test runs inside a per-run band.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RunsInside {
+    pub radius: Radius,
+    pub runs: usize,
+    /// Runs every row of which lies within the radius.
+    pub inside: usize,
 }
 
 /// A model's intervals, as the model file keeps them.
@@ -106,13 +144,7 @@ impl Intervals {
         let norms = scores(truth, held_out);
         let mut sorted = norms.clone();
         sorted.sort_by(f64::total_cmp);
-        let radii: Vec<Radius> = LEVELS
-            .iter()
-            .filter_map(|&level| {
-                let radius = radius(&sorted, level).ok()?;
-                Some(Radius { level, radius })
-            })
-            .collect();
+        let radii = radii(&sorted);
         let groups = match (labels, radii.first()) {
             (Some(labels), Some(first)) => by_group(&norms, labels, first.radius),
             _ => Vec::new(),
@@ -123,6 +155,7 @@ impl Intervals {
                 rows: sorted.len(),
                 radii,
                 groups,
+                runs: labels.map(|labels| RunBand::calibrate(&norms, labels)),
             },
             scores: sorted,
         }
@@ -145,6 +178,20 @@ impl Intervals {
                 .collect(),
             groups: match (labels, radii.first()) {
                 (Some(labels), Some(first)) => by_group(&norms, labels, first.radius),
+                _ => Vec::new(),
+            },
+            runs: match (labels, &self.held_out.runs) {
+                (Some(labels), Some(band)) => {
+                    let worst = worst_by_group(&norms, labels);
+                    band.radii
+                        .iter()
+                        .map(|&radius| RunsInside {
+                            radius,
+                            runs: worst.len(),
+                            inside: worst.iter().filter(|&&w| w <= radius.radius).count(),
+                        })
+                        .collect()
+                }
                 _ => Vec::new(),
             },
         }
@@ -187,6 +234,16 @@ impl Intervals {
                 ));
             }
         }
+        if let Some(band) = &self.held_out.runs {
+            if band.worst.iter().any(|w| !(w.is_finite() && *w >= 0.0))
+                || band.worst.windows(2).any(|w| w[0] > w[1])
+            {
+                return Err("intervals.runs.worst are not ascending distances (≥ 0)".into());
+            }
+            if band.radii != radii(&band.worst) {
+                return Err("intervals.runs.radii are not the runs' worst errors' radii".into());
+            }
+        }
         if let Some(c) = self
             .held_out
             .groups
@@ -200,6 +257,27 @@ impl Intervals {
         }
         Ok(())
     }
+}
+
+/// The radii at [`LEVELS`] of ascending scores, as many levels as they suffice for.
+fn radii(sorted: &[f64]) -> Vec<Radius> {
+    LEVELS
+        .iter()
+        .filter_map(|&level| {
+            let radius = radius(sorted, level).ok()?;
+            Some(Radius { level, radius })
+        })
+        .collect()
+}
+
+/// Each group's largest score, in ascending label order.
+fn worst_by_group(scores: &[f64], labels: &[f64]) -> Vec<f64> {
+    let mut order: Vec<usize> = (0..scores.len()).collect();
+    order.sort_by(|&a, &b| labels[a].total_cmp(&labels[b]));
+    order
+        .chunk_by(|&a, &b| labels[a] == labels[b])
+        .map(|rows| rows.iter().map(|&i| scores[i]).fold(0.0, f64::max))
+        .collect()
 }
 
 /// Each row's ‖y − ŷ‖₂.
@@ -322,6 +400,23 @@ mod tests {
             let c = coverage(&fresh, r).covered;
             assert!((c - level).abs() < 0.025, "level {level}: coverage {c}");
         }
+    }
+
+    #[test]
+    fn the_run_band_is_the_conformal_rank_of_each_runs_worst_error() {
+        // 19 runs of 3 rows; run k's worst error is k + 1.
+        let labels: Vec<f64> = (0..57).map(|i| f64::from(i / 3)).collect();
+        let scores: Vec<f64> = (0..57)
+            .map(|i| f64::from(i / 3 + 1) * [0.2, 1.0, 0.5][i as usize % 3])
+            .collect();
+        let band = RunBand::calibrate(&scores, &labels);
+        assert_eq!(band.worst, (1..=19).map(f64::from).collect::<Vec<_>>());
+        let radii: Vec<f64> = band.radii.iter().map(|r| r.radius).collect();
+        assert_eq!(radii, [18.0, 19.0]);
+        // Eight runs: too few for a 90 % band.
+        assert!(RunBand::calibrate(&scores[..24], &labels[..24])
+            .radii
+            .is_empty());
     }
 
     #[test]

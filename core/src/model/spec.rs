@@ -41,8 +41,23 @@ impl ModelSpec {
     /// # Errors
     /// The model's own: bad parameters, too few rows, a constant input, a failed solve.
     pub fn fit(&self, data: &Dataset) -> Result<StoredModel, MsvrError> {
+        Ok(self.fit_predicting(data)?.0)
+    }
+
+    /// [`ModelSpec::fit`], with the model's predictions of the training rows when the fit
+    /// made them on the way.
+    ///
+    /// # Errors
+    /// As [`ModelSpec::fit`].
+    pub fn fit_predicting(
+        &self,
+        data: &Dataset,
+    ) -> Result<(StoredModel, Option<crate::data::Columns>), MsvrError> {
         match self {
-            ModelSpec::Msvr(params) => Ok(StoredModel::Msvr(params.check()?.fit(data)?)),
+            ModelSpec::Msvr(params) => {
+                let (model, fitted) = params.check()?.fit_predicting(data, faer::Par::rayon(0))?;
+                Ok((StoredModel::Msvr(model), fitted))
+            }
         }
     }
 }

@@ -302,6 +302,19 @@ impl ValidMsvrParams {
     /// # Errors
     /// As [`ValidMsvrParams::fit`].
     pub fn fit_with(&self, data: &Dataset, par: Par) -> Result<Msvr, MsvrError> {
+        Ok(self.fit_predicting(data, par)?.0)
+    }
+
+    /// Fits the model, and with the exact basis also gives its predictions of the training
+    /// rows (Kβ + b from the kernel the fit built: no kernel evaluated twice).
+    ///
+    /// # Errors
+    /// As [`ValidMsvrParams::fit`].
+    pub fn fit_predicting(
+        &self,
+        data: &Dataset,
+        par: Par,
+    ) -> Result<(Msvr, Option<Columns>), MsvrError> {
         let since = crate::control::Since::now();
         data.check_fittable(MIN_FIT_ROWS)?;
         check_memory(data.rows(), self.0.basis)?;
@@ -309,10 +322,19 @@ impl ValidMsvrParams {
         let scaler = MinMaxScaler::fit(&data.inputs);
         let scaled = scaler.transform(&data.inputs);
         let y = to_mat(&data.outputs);
+        let mut fitted = None;
         let expansion = match p.basis {
             Basis::Exact => {
                 let k = kernel::rbf_gram(&scaled, p.sigma);
                 let solution = self.solve(k.as_ref(), y.as_ref(), par, since)?;
+                let k_beta = k.as_ref() * &solution.beta;
+                fitted = Some(Columns::new(
+                    data.outputs.names.clone(),
+                    (0..k_beta.nrows())
+                        .flat_map(|i| (0..k_beta.ncols()).map(move |j| (i, j)))
+                        .map(|(i, j)| k_beta[(i, j)] + solution.bias[j])
+                        .collect(),
+                ));
                 let sv_rows: Vec<usize> = (0..solution.beta.nrows())
                     .filter(|&i| solution.beta.row(i).iter().any(|&b| b != 0.0))
                     .collect();
@@ -398,7 +420,7 @@ impl ValidMsvrParams {
             stop: expansion.stop,
             basis: expansion.basis,
         };
-        Ok(Msvr::from_repr(MsvrRepr {
+        let model = Msvr::from_repr(MsvrRepr {
             inputs: data.inputs.names.clone(),
             outputs: data.outputs.names.clone(),
             params: *p,
@@ -407,7 +429,8 @@ impl ValidMsvrParams {
             coefficients: expansion.coefficients,
             bias: expansion.bias,
             fit,
-        }))
+        });
+        Ok((model, fitted))
     }
 }
 
