@@ -61,6 +61,7 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
     loss: str
     basis: Union[str, int]
     folds: int
+    history: str
     random_state: Optional[int]
     tol: float
     max_iter: int
@@ -84,13 +85,22 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
         loss: str = "robust",
         basis: Union[str, int] = "auto",
         folds: int = 5,
+        history: str = "auto",
         random_state: Optional[int] = None,
         tol: float = 1e-8,
         max_iter: int = 500,
-        intervals: bool = True,
+        intervals: bool = False,
     ) -> None: ...
-    def fit(self, X: ArrayLike, y: ArrayLike, groups: Optional[ArrayLike] = None) -> "MSVRRegressor": ...
-    def predict(self, X: ArrayLike) -> NDArray[np.float64]: ...
+    def fit(
+        self,
+        X: ArrayLike,
+        y: ArrayLike,
+        groups: Optional[ArrayLike] = None,
+        time: Optional[ArrayLike] = None,
+    ) -> "MSVRRegressor": ...
+    def predict(
+        self, X: ArrayLike, time: Optional[ArrayLike] = None, groups: Optional[ArrayLike] = None
+    ) -> NDArray[np.float64]: ...
     def interval_radius(self, level: float = 0.9) -> float: ...
     def inverse(
         self, targets: ArrayLike, max_kpa: float = 250.0, reach: float = 0.01

@@ -168,11 +168,17 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
 
 
 def _labels(groups, rows):
-    """`groups` as float64 ranks of their labels (any hashable, sortable values), or None."""
+    """`groups` as float64 labels, or None: numbers as they are, other labels (names) as the
+    rank of their first appearance, as the command line reads a group column. The order
+    matters to the intervals, whose folds are blocks of consecutive runs."""
     if groups is None:
         return None
     groups = np.asarray(groups)
     if groups.shape != (rows,):
         raise ValueError(f"groups has shape {groups.shape}; give one value per row of X ({rows})")
-    _, ranks = np.unique(groups, return_inverse=True)
-    return ranks.astype(np.float64)
+    if np.issubdtype(groups.dtype, np.number) and np.all(np.isfinite(groups)):
+        return groups.astype(np.float64)
+    _, first, inverse = np.unique(groups, return_index=True, return_inverse=True)
+    rank = np.empty(len(first), dtype=np.float64)
+    rank[np.argsort(first)] = np.arange(len(first))
+    return rank[inverse]

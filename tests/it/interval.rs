@@ -218,3 +218,83 @@ fn levels_an_interval_cannot_honour_are_refused_never_a_radius_of_zero() {
     assert!(err.contains("no prediction intervals"), "{err}");
     assert!(!d.join("q.csv").exists());
 }
+
+/// Runs of a drifting actuator: `noisy_plant`'s map, shifted by 0.03 mm per run along x.
+fn drifting_plant(seed: u64, first_trial: usize, trials: usize, rows: usize) -> String {
+    let text = noisy_plant(seed, first_trial, trials, rows);
+    let mut lines = text.lines();
+    let mut csv = format!("{}\n", lines.next().unwrap());
+    for line in lines {
+        let mut cells: Vec<String> = line.split(',').map(String::from).collect();
+        let trial: f64 = cells[0].parse().unwrap();
+        let x: f64 = cells[3].parse().unwrap();
+        cells[3] = format!("{:.6}", x + 0.03 * trial);
+        csv += &(cells.join(",") + "\n");
+    }
+    csv
+}
+
+#[test]
+fn runs_get_intervals_from_blocks_of_consecutive_runs_and_a_band_for_whole_runs() {
+    let dir = tempdir();
+    let d = dir.path();
+    write(d, "train.csv", &drifting_plant(3, 0, 20, 30));
+    write(d, "later.csv", &drifting_plant(4, 20, 6, 40));
+    let mut args = vec!["model", "train.csv"];
+    args.extend(COLUMNS);
+    args.extend([
+        "--folds-by",
+        "trial",
+        "--budget",
+        "30",
+        "--test",
+        "later.csv",
+        "--out",
+        "model.json",
+        "--report",
+        "rep",
+    ]);
+    handcap_ok(d, &args);
+    let model = read_json(&d.join("model.json"));
+    let intervals = &model["intervals"];
+    // The search dealt whole runs at random; the intervals' folds are blocks of runs.
+    assert_eq!(model["search"]["folds"]["scheme"], "groups");
+    let reason = intervals["folds"]["reason"].as_str().unwrap();
+    assert!(
+        reason.contains("each fold a block of consecutive runs"),
+        "{reason}"
+    );
+    // The band: each of the 20 runs' worst error, ascending, at its conformal rank (the 19th
+    // of 20 at 90 %, the 20th at 95 %).
+    let worst: Vec<f64> = intervals["runs"]["worst"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    assert_eq!(worst.len(), 20);
+    assert!(worst.windows(2).all(|w| w[0] <= w[1]));
+    let band = &intervals["runs"]["radii"];
+    assert_eq!(band[0]["radius"].as_f64().unwrap(), worst[18]);
+    assert_eq!(band[1]["radius"].as_f64().unwrap(), worst[19]);
+    // A run's worst error exceeds most rows' error: the band is wider than the row radius.
+    assert!(band[0]["radius"].as_f64().unwrap() > radius(&model, 0.9));
+
+    // On the six later runs, the rows' coverage holds its level and whole runs stay in the band.
+    let report = read_json(&d.join("rep/fit.json"));
+    let test = &report["intervals"]["tests"][0];
+    let covered = test["pooled"][0][1].as_f64().unwrap();
+    assert!(
+        covered > 0.85,
+        "{covered} of the later runs' rows within the 90 % radius"
+    );
+    let runs = &test["runs"][0];
+    assert_eq!(runs["runs"], 6);
+    assert!(runs["inside"].as_u64().unwrap() >= 5, "{runs}");
+    let md = std::fs::read_to_string(d.join("rep/report.md")).unwrap();
+    assert!(
+        md.contains("Per-run band, from the worst error of each of the 20 held-out runs"),
+        "{md}"
+    );
+    assert!(md.contains("whole runs inside the 90.0 % band"), "{md}");
+}

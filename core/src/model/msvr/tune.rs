@@ -16,7 +16,7 @@ use faer::Mat;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::fitness::{Counters, Fitness, FitnessError, FitnessKind};
+use super::fitness::{Counters, Dealing, Fitness, FitnessError, FitnessKind};
 use super::folds::{FoldChoice, FoldPlan};
 use super::{kernel, Basis, Hyper, MinMaxScaler, MsvrParams};
 use crate::data::{Columns, Dataset};
@@ -237,8 +237,9 @@ pub fn cross_validate(
 }
 
 /// Held-out predictions of `params` on `data`: every row predicted by the model fitted without
-/// the row's fold (the folds of `folds`, `k` of them, cut with `seed` as a search with that
-/// seed cuts them). `k` more fits: what intervals cost when no search made them.
+/// the row's fold (the folds of `folds`, `k` of them, their groups dealt as `dealing` says,
+/// shuffled with `seed` as a search with that seed shuffles them). `k` more fits: what
+/// intervals cost when no search made them.
 ///
 /// # Errors
 /// [`TuneError`] when the folds cannot be cut or a fit fails.
@@ -247,34 +248,40 @@ pub fn held_out_predictions(
     k: usize,
     seed: u64,
     folds: &FoldPlan,
+    dealing: Dealing,
     params: &MsvrParams,
 ) -> Result<Mat<f64>, TuneError> {
     super::check_memory(data.rows(), params.basis)?;
-    let scorer = Fitness::new(
+    let scorer = Fitness::dealt(
         data,
         FitnessKind::Cv { folds: k },
         seed,
         folds.labels.as_deref(),
+        dealing,
         params,
     )?;
     Ok(scorer.held_out_predictions(&params.hyper())?)
 }
 
 /// Conformal prediction intervals from held-out predictions of `data`'s rows (rows × outputs,
-/// cut by `folds`).
-pub fn intervals(data: &Dataset, folds: &FoldPlan, predicted: &Mat<f64>) -> Intervals {
+/// cut by `folds`, their groups dealt as `dealing` says).
+pub fn intervals(
+    data: &Dataset,
+    folds: &FoldPlan,
+    dealing: Dealing,
+    predicted: &Mat<f64>,
+) -> Intervals {
     let predicted = Columns::new(
         data.outputs.names.clone(),
         (0..predicted.nrows())
             .flat_map(|r| (0..predicted.ncols()).map(move |j| predicted[(r, j)]))
             .collect(),
     );
-    Intervals::calibrate(
-        &data.outputs,
-        &predicted,
-        folds.labels.as_deref(),
-        folds.choice.clone(),
-    )
+    let mut choice = folds.choice.clone();
+    if dealing == Dealing::Consecutive {
+        choice.reason += "; for the intervals, each fold a block of consecutive runs";
+    }
+    Intervals::calibrate(&data.outputs, &predicted, folds.labels.as_deref(), choice)
 }
 
 /// How [`choose`] picks a fit's (C, ε, σ) and basis on rows scored by cross-validation.
