@@ -272,10 +272,12 @@ def test_a_model_fitted_in_python_predicts_the_same_from_the_command_line(tmp_pa
                                rtol=1e-12, atol=0)
 
 
-def test_a_history_model_needs_time_and_groups(tmp_path):
-    rng = np.random.default_rng(10)
+def dynamic_log(trials, seed):
+    """A plant with a first-order lag (0.4 s) behind its two inputs, held in steps of 0.6 s:
+    (frame of trial, t_s, P1_kpa, P2_kpa, x_mm, y_mm)."""
+    rng = np.random.default_rng(seed)
     rows = []
-    for trial in range(6):
+    for trial in range(trials):
         s = u = rng.uniform(0, 200, 2)
         for k in range(60):
             if k % 6 == 0:
@@ -283,7 +285,11 @@ def test_a_history_model_needs_time_and_groups(tmp_path):
             s = s + (1 - np.exp(-0.1 / 0.4)) * (u - s)
             rows.append([trial, 0.1 * k, *u, 0.1 * s[0] + 3 * np.sin(s[1] / 60),
                          0.08 * s[1] - 2 * np.cos(s[0] / 70)])
-    frame = pd.DataFrame(rows, columns=["trial", "t_s", "P1_kpa", "P2_kpa", "x_mm", "y_mm"])
+    return pd.DataFrame(rows, columns=["trial", "t_s", "P1_kpa", "P2_kpa", "x_mm", "y_mm"])
+
+
+def test_a_history_model_needs_time_and_groups(tmp_path):
+    frame = dynamic_log(6, 10)
     frame.to_csv(tmp_path / "log.csv", index=False, float_format="%.17g")
     run("model", tmp_path / "log.csv", "--inputs", "P1_kpa,P2_kpa", "--outputs", "x_mm,y_mm",
         "--time", "t_s", "--group-by", "trial", "--history", "ema:0.2,0.8", "--search", "none",
@@ -300,22 +306,6 @@ def test_a_history_model_needs_time_and_groups(tmp_path):
         model.predict(x)
     with pytest.raises(ValueError, match="repeats the previous row"):
         model.predict(x[:2], time=np.array([0.0, 0.0]), groups=np.array([1.0, 1.0]))
-
-
-def dynamic_log(trials, seed):
-    """A plant with a first-order lag (0.4 s) behind its two inputs, held in steps of 0.6 s:
-    (frame of trial, t_s, P1_kpa, P2_kpa, x_mm, y_mm)."""
-    rng = np.random.default_rng(seed)
-    rows = []
-    for trial in range(trials):
-        s = u = rng.uniform(0, 200, 2)
-        for k in range(60):
-            if k % 6 == 0:
-                u = rng.uniform(0, 200, 2)
-            s = s + (1 - np.exp(-0.1 / 0.4)) * (u - s)
-            rows.append([trial, 0.1 * k, *u, 0.1 * s[0] + 3 * np.sin(s[1] / 60),
-                         0.08 * s[1] - 2 * np.cos(s[0] / 70)])
-    return pd.DataFrame(rows, columns=["trial", "t_s", "P1_kpa", "P2_kpa", "x_mm", "y_mm"])
 
 
 def test_python_fits_history_models_as_the_command_line_does(tmp_path):

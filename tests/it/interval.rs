@@ -42,6 +42,26 @@ fn normal(rng: &mut Lcg) -> f64 {
 
 const COLUMNS: [&str; 4] = ["--inputs", "P1_kpa,P2_kpa", "--outputs", "x_mm,y_mm,z_mm"];
 
+/// `handcap model train.csv` searching `budget` candidates on folds of whole trials, tested on
+/// `test`: model.json and the report in rep/.
+fn fit_by_trial<'a>(budget: &'a str, test: &'a str) -> Vec<&'a str> {
+    let mut args = vec!["model", "train.csv"];
+    args.extend(COLUMNS);
+    args.extend([
+        "--folds-by",
+        "trial",
+        "--budget",
+        budget,
+        "--test",
+        test,
+        "--out",
+        "model.json",
+        "--report",
+        "rep",
+    ]);
+    args
+}
+
 /// The model file's radius at `level`.
 fn radius(model: &serde_json::Value, level: f64) -> f64 {
     model["intervals"]["radii"]
@@ -60,21 +80,7 @@ fn intervals_cover_fresh_rows_at_their_level_and_predict_writes_the_radius() {
     let d = dir.path();
     write(d, "train.csv", &noisy_plant(1, 0, 8, 60));
     write(d, "test.csv", &noisy_plant(2, 100, 6, 200));
-    let mut args = vec!["model", "train.csv"];
-    args.extend(COLUMNS);
-    args.extend([
-        "--folds-by",
-        "trial",
-        "--budget",
-        "40",
-        "--test",
-        "test.csv",
-        "--out",
-        "model.json",
-        "--report",
-        "rep",
-    ]);
-    let log = handcap_ok(d, &args);
+    let log = handcap_ok(d, &fit_by_trial("40", "test.csv"));
     assert!(log.contains("prediction intervals: 90 %"), "{log}");
     let model = read_json(&d.join("model.json"));
     let intervals = &model["intervals"];
@@ -240,21 +246,7 @@ fn runs_get_intervals_from_blocks_of_consecutive_runs_and_a_band_for_whole_runs(
     let d = dir.path();
     write(d, "train.csv", &drifting_plant(3, 0, 20, 30));
     write(d, "later.csv", &drifting_plant(4, 20, 6, 40));
-    let mut args = vec!["model", "train.csv"];
-    args.extend(COLUMNS);
-    args.extend([
-        "--folds-by",
-        "trial",
-        "--budget",
-        "30",
-        "--test",
-        "later.csv",
-        "--out",
-        "model.json",
-        "--report",
-        "rep",
-    ]);
-    handcap_ok(d, &args);
+    handcap_ok(d, &fit_by_trial("30", "later.csv"));
     let model = read_json(&d.join("model.json"));
     let intervals = &model["intervals"];
     // The search dealt whole runs at random; the intervals' folds are blocks of runs.
