@@ -38,10 +38,11 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
         With `time` given to `fit`: "auto" (filtered copies of the inputs, kept when
         cross-validation says they help), "none", "ema:tau1,tau2,..." (seconds) or "lags:k".
     intervals : bool
-        Conformal prediction intervals (`interval_radius`) come from the held-out predictions a
-        search makes, at no cost. True calibrates them also when no search made any (C, epsilon
-        and sigma all given: one more fit per fold); False fits that case's model alone (one
-        fit, what a control loop refitting online wants).
+        Conformal prediction intervals (`interval_radius`) come with every search: from its own
+        held-out predictions at no cost, or with `groups`, from folds of consecutive runs (one
+        more fit per fold: runs recorded one after another drift). True calibrates them also
+        without a search (C, epsilon and sigma all given: one more fit per fold); False fits
+        that case's model alone (one fit, what a control loop refitting online wants).
     random_state : int or None
         Seeds the search and its folds (None: handcap's default seed, 2020).
     tol, max_iter : solver controls.
