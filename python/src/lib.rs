@@ -109,6 +109,10 @@ fn detached<T: Send>(
     }
 }
 
+/// Kernel evaluations (rows × centres) a prediction runs on the calling thread: about a
+/// millisecond at most, where a thread of its own costs tens of microseconds.
+const INLINE_WORK: usize = 100_000;
+
 /// `Err` when Python asked to stop ([`STOP`]): work after a stopped search does not start.
 fn not_stopped() -> Result<(), String> {
     if STOP.load(Ordering::SeqCst) {
@@ -437,7 +441,8 @@ impl Model {
                 })
             }
         };
-        let predicted = detached(py, || {
+        let rows = given.rows();
+        let work = || {
             let features = match (self.file.history(), &series) {
                 (Some(h), Some(s)) => h.features(&given, s).map_err(|e| e.to_string())?,
                 _ => given,
@@ -447,7 +452,14 @@ impl Model {
                 .predictor()
                 .predict(&features)
                 .map_err(|e| e.to_string())
-        })?;
+        };
+        // A few rows (a controller's step) take microseconds: run here, without the thread
+        // that lets Ctrl-C through a long prediction.
+        let predicted = if rows * self.msvr().support_vector_count() <= INLINE_WORK {
+            work().map_err(value_error)?
+        } else {
+            detached(py, work)?
+        };
         Ok(array(&predicted).into_pyarray(py))
     }
 
