@@ -164,7 +164,6 @@ fn array(c: &Columns) -> Array2<f64> {
 struct FitRequest {
     table: Table,
     plan: Plan,
-    seed: Option<u64>,
 }
 
 /// The selection `handcap model` makes on a file ([`select::select`]), on arrays.
@@ -172,15 +171,11 @@ fn fit_request(r: FitRequest) -> Result<ModelFile, String> {
     let selected =
         select::select(&r.table, None, &r.plan, &(), &STOP).map_err(|e| rows(e.to_string()))?;
     not_stopped()?;
-    let provenance = Provenance::new(vec!["handcap.MSVRRegressor.fit".into()], r.seed);
-    Ok(ModelFile::new(
-        selected.model,
-        selected.search.map(|s| s.summary),
-        Some(selected.basis),
-        selected.history,
-        selected.intervals,
-        provenance,
-    ))
+    let provenance = Provenance::new(
+        vec!["handcap.MSVRRegressor.fit".into()],
+        r.plan.selection.seed(),
+    );
+    Ok(selected.into_file(provenance).0)
 }
 
 /// A core message about rows from memory: "python line N: …" (the table's lines are the rows
@@ -328,7 +323,6 @@ fn fit(
             intervals,
         },
         table,
-        seed: searched.then_some(seed),
     };
     let file = detached(py, || fit_request(request))?;
     Ok(Model { file })

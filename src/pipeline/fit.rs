@@ -7,7 +7,6 @@ use super::outputs::{self, Output};
 use super::{io_error, Event, PipelineError, Session, Task};
 use crate::data::{self, HAND_INPUTS, HAND_OUTPUTS};
 use crate::model;
-use crate::model::file::ModelFile;
 use crate::model::history::{self, HistoryChoice};
 use crate::model::msvr::folds::FoldsBy;
 use crate::model::msvr::tune::{self, BasisChoice, Pinned};
@@ -66,13 +65,6 @@ impl FitJob {
         }
     }
 
-    fn seed(&self) -> Option<u64> {
-        match self.selection {
-            Selection::Fixed { .. } => None,
-            Selection::Search { seed, .. } => Some(seed),
-        }
-    }
-
     /// Every file read: the training data, the search's rows, the tests.
     fn inputs(&self) -> Vec<&Path> {
         std::iter::once(self.data.as_path())
@@ -85,7 +77,7 @@ impl FitJob {
     fn outputs(&self) -> Vec<Output> {
         let mut planned = vec![Output::new(&self.out, "--out")];
         if let Some(dir) = &self.report {
-            let searched = matches!(self.selection, Selection::Search { .. });
+            let searched = self.selection.searched();
             let tests: Vec<String> = self.tests.iter().map(|p| file_name(p)).collect();
             planned.extend(
                 report::report_files(dir, searched, &tests, &self.outputs)
@@ -176,7 +168,7 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
         e => PipelineError::Select(e),
     })?;
     let scored = score(job, &selected, &tests)?;
-    let mut provenance = session.provenance(job.seed());
+    let mut provenance = session.provenance(job.selection.seed());
     for path in job.inputs() {
         provenance = provenance.with_input(path).map_err(io_error(path))?;
     }
@@ -192,23 +184,8 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
         let history = selected.search.as_ref().map(|s| s.history.as_slice());
         report::write_model_report(dir, &report, history, &comparison)
     });
-    let Selected {
-        model,
-        search,
-        basis,
-        history,
-        intervals,
-        ..
-    } = selected;
-    ModelFile::new(
-        model,
-        report.search.clone(),
-        Some(basis),
-        history,
-        intervals,
-        provenance,
-    )
-    .save(&job.out)?;
+    let (file, search) = selected.into_file(provenance);
+    file.save(&job.out)?;
     if let Some(Err(e)) = reported {
         return Err(PipelineError::Partial {
             source: Box::new(e.into()),
@@ -240,9 +217,6 @@ fn read_table(path: &Path, job: &FitJob, folds: bool) -> Result<Table, PipelineE
         None => (None, Vec::new()),
         Some(time) => {
             let (series, lines) = history::read_series(path, time, job.group.as_deref())?;
-            series
-                .check()
-                .map_err(|e| history::series_error(path, &lines, e))?;
             (Some(series), lines)
         }
     };
@@ -252,12 +226,14 @@ fn read_table(path: &Path, job: &FitJob, folds: bool) -> Result<Table, PipelineE
             fold_columns(path, folds_by, job)?
         }
     };
-    Ok(Table {
+    let table = Table {
         data,
         series,
         lines,
         fold_columns,
-    })
+    };
+    table.check_series(false)?;
+    Ok(table)
 }
 
 /// The columns of `path` the fold choice may use: the named column for `--folds-by COLUMN`;

@@ -10,8 +10,9 @@
 //! 3. each set's parameters chosen ([`crate::model::msvr::tune::choose`]: the search, or the given ones), `auto`'s
 //!    ladders of time constants screened at the present inputs' parameters first;
 //! 4. the set kept ([`history::decide`]) and `auto`'s basis grown for it;
-//! 5. the intervals, from the held-out predictions steps 3-4 made (no further fit), or when
-//!    none were made and [`Plan::intervals`] asks, from k more fits;
+//! 5. the intervals: from the held-out predictions steps 3-4 made (no further fit), or from
+//!    one more fit per fold for runs (dealt to the folds in blocks of consecutive runs), after
+//!    a search that scored another file's rows, or when [`Plan::intervals`] asks;
 //! 6. the final fit on every row.
 //!
 //! Messages name parameters as `field=value` (`basis=exact`, `folds_by=blocks`), as the
@@ -21,6 +22,7 @@ use std::sync::atomic::AtomicBool;
 
 use crate::control::Since;
 use crate::data::{self, DataError, Dataset};
+use crate::model::file::ModelFile;
 use crate::model::history::{self, History, HistoryChoice, HistoryDecision, HistoryError, Series};
 use crate::model::interval::Intervals;
 use crate::model::msvr::fitness::FitnessKind;
@@ -30,6 +32,7 @@ use crate::model::msvr::tune::{
 };
 use crate::model::msvr::{MsvrError, MsvrParams};
 use crate::model::{self, ModelSpec, StoredModel};
+use crate::provenance::Provenance;
 use crate::search::{IterationRecord, Method, Observer};
 
 mod run;
@@ -121,6 +124,20 @@ pub enum Selection {
     },
 }
 
+impl Selection {
+    /// The search's seed (also its folds'), `None` for fixed parameters.
+    pub fn seed(&self) -> Option<u64> {
+        match self {
+            Selection::Fixed { .. } => None,
+            Selection::Search { seed, .. } => Some(*seed),
+        }
+    }
+
+    pub fn searched(&self) -> bool {
+        matches!(self, Selection::Search { .. })
+    }
+}
+
 /// What to select.
 pub struct Plan {
     /// The fixed parameters ([`Selection::Fixed`], and those [`Plan::pinned`]) and the solver
@@ -144,14 +161,11 @@ pub struct Plan {
 
 impl Plan {
     fn seed(&self) -> Option<u64> {
-        match self.selection {
-            Selection::Fixed { .. } => None,
-            Selection::Search { seed, .. } => Some(seed),
-        }
+        self.selection.seed()
     }
 
     fn searched(&self) -> bool {
-        matches!(self.selection, Selection::Search { .. })
+        self.selection.searched()
     }
 
     /// The rows [`Plan::max_rows`] keeps.
@@ -221,6 +235,20 @@ impl Selected {
     /// The history the model sees, if any.
     pub fn used(&self) -> Option<&History> {
         self.history.as_ref().and_then(|d| d.used.as_ref())
+    }
+
+    /// The model file of the selection, and the search it records the summary of (its
+    /// iterations stay out of the file).
+    pub fn into_file(self, provenance: Provenance) -> (ModelFile, Option<Searched>) {
+        let file = ModelFile::new(
+            self.model,
+            self.search.as_ref().map(|s| s.summary.clone()),
+            Some(self.basis),
+            self.history,
+            self.intervals,
+            provenance,
+        );
+        (file, self.search)
     }
 }
 

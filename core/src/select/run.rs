@@ -429,15 +429,14 @@ impl Run<'_> {
                 .note("prediction intervals: none (fitness=train scores no held-out rows)".into());
             return Ok(None);
         };
-        let runs = scored.runs().is_some();
-        let dealing = if runs {
-            Dealing::Consecutive
-        } else {
-            Dealing::Shuffled
+        // Runs are dealt to the intervals' folds in blocks of consecutive runs.
+        let dealing = |on: &Scoring| match on.runs() {
+            Some(_) => Dealing::Consecutive,
+            None => Dealing::Shuffled,
         };
         let intervals = match (&chosen.held_out, self.search_on) {
-            (Some(predicted), None) if !runs => {
-                tune::intervals(&scored.scored, &scored.plan, dealing, predicted)
+            (Some(predicted), None) if dealing(&scored) == Dealing::Shuffled => {
+                tune::intervals(&scored.scored, &scored.plan, Dealing::Shuffled, predicted)
             }
             _ if !self.plan.intervals && chosen.search.is_none() => {
                 self.listener.note(format!(
@@ -460,13 +459,12 @@ impl Run<'_> {
                 let seed = self.plan.seed().unwrap_or(crate::DEFAULT_SEED);
                 let predicted = tune::held_out_predictions(
                     &on.scored,
-                    on.plan.folds,
                     seed,
                     &on.plan,
-                    dealing,
+                    dealing(&on),
                     &chosen.params,
                 )?;
-                tune::intervals(&on.scored, &on.plan, dealing, &predicted)
+                tune::intervals(&on.scored, &on.plan, dealing(&on), &predicted)
             }
         };
         let c = &intervals.held_out;

@@ -327,14 +327,11 @@ impl ValidMsvrParams {
             Basis::Exact => {
                 let k = kernel::rbf_gram(&scaled, p.sigma);
                 let solution = self.solve(k.as_ref(), y.as_ref(), par, since)?;
-                let k_beta = k.as_ref() * &solution.beta;
-                fitted = Some(Columns::new(
-                    data.outputs.names.clone(),
-                    (0..k_beta.nrows())
-                        .flat_map(|i| (0..k_beta.ncols()).map(move |j| (i, j)))
-                        .map(|(i, j)| k_beta[(i, j)] + solution.bias[j])
-                        .collect(),
-                ));
+                let mut k_beta = k.as_ref() * &solution.beta;
+                for (j, b) in solution.bias.iter().enumerate() {
+                    k_beta.col_mut(j).iter_mut().for_each(|v| *v += b);
+                }
+                fitted = Some(to_columns(data.outputs.names.clone(), k_beta.as_ref()));
                 let sv_rows: Vec<usize> = (0..solution.beta.nrows())
                     .filter(|&i| solution.beta.row(i).iter().any(|&b| b != 0.0))
                     .collect();
@@ -757,4 +754,12 @@ impl TryFrom<MsvrRepr> for Msvr {
 /// A faer matrix of a block of columns.
 pub fn to_mat(c: &Columns) -> Mat<f64> {
     Mat::from_fn(c.rows(), c.width(), |i, j| c.row(i)[j])
+}
+
+/// The block of columns `names` of a faer matrix ([`to_mat`]'s inverse).
+pub fn to_columns(names: Vec<String>, m: MatRef<f64>) -> Columns {
+    let values = (0..m.nrows())
+        .flat_map(|i| (0..m.ncols()).map(move |j| m[(i, j)]))
+        .collect();
+    Columns::new(names, values)
 }

@@ -19,7 +19,7 @@ use serde::{Deserialize, Serialize};
 use super::fitness::{Counters, Dealing, Fitness, FitnessError, FitnessKind};
 use super::folds::{FoldChoice, FoldPlan};
 use super::{kernel, Basis, Hyper, MinMaxScaler, MsvrParams};
-use crate::data::{Columns, Dataset};
+use crate::data::Dataset;
 use crate::model::interval::Intervals;
 use crate::search::{
     Method, Observer, Point, Search, SearchError, SearchResult, SearchSpace, SearchStop,
@@ -237,15 +237,14 @@ pub fn cross_validate(
 }
 
 /// Held-out predictions of `params` on `data`: every row predicted by the model fitted without
-/// the row's fold (the folds of `folds`, `k` of them, their groups dealt as `dealing` says,
-/// shuffled with `seed` as a search with that seed shuffles them). `k` more fits: what
-/// intervals cost when no search made them.
+/// the row's fold (the folds of `folds`, their groups dealt as `dealing` says, shuffled with
+/// `seed` as a search with that seed shuffles them). One fit per fold: what intervals cost
+/// when no search made them.
 ///
 /// # Errors
 /// [`TuneError`] when the folds cannot be cut or a fit fails.
 pub fn held_out_predictions(
     data: &Dataset,
-    k: usize,
     seed: u64,
     folds: &FoldPlan,
     dealing: Dealing,
@@ -254,7 +253,7 @@ pub fn held_out_predictions(
     super::check_memory(data.rows(), params.basis)?;
     let scorer = Fitness::dealt(
         data,
-        FitnessKind::Cv { folds: k },
+        FitnessKind::Cv { folds: folds.folds },
         seed,
         folds.labels.as_deref(),
         dealing,
@@ -271,12 +270,7 @@ pub fn intervals(
     dealing: Dealing,
     predicted: &Mat<f64>,
 ) -> Intervals {
-    let predicted = Columns::new(
-        data.outputs.names.clone(),
-        (0..predicted.nrows())
-            .flat_map(|r| (0..predicted.ncols()).map(move |j| predicted[(r, j)]))
-            .collect(),
-    );
+    let predicted = super::to_columns(data.outputs.names.clone(), predicted.as_ref());
     let mut choice = folds.choice.clone();
     if dealing == Dealing::Consecutive {
         choice.reason += "; for the intervals, each fold a block of consecutive runs";
