@@ -16,6 +16,7 @@ pub mod camera;
 pub mod canvas;
 pub mod capture;
 pub mod clutter;
+pub mod dynamics;
 pub mod image_format;
 pub mod plant;
 pub mod render;

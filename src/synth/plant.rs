@@ -140,15 +140,12 @@ impl Plant {
     /// # Errors
     /// As [`Plant::tip`], for the first bad step.
     pub fn run(&self, steps: &[Pressures]) -> Result<Vec<[f64; 3]>, PlantError> {
-        let half = self.params.hysteresis_kpa / 2.0;
         let mut state = [0.0f64; 3];
         steps
             .iter()
             .map(|&p| {
                 check_pressures(p)?;
-                for (s, &pi) in state.iter_mut().zip(&p) {
-                    *s = (*s).max(pi - half).min(pi + half);
-                }
+                play(&mut state, p, self.params.hysteresis_kpa);
                 Ok(self.tip_from_effective(state))
             })
             .collect()
@@ -237,6 +234,15 @@ impl Plant {
 impl Default for Plant {
     fn default() -> Self {
         Plant::new(PlantParams::default())
+    }
+}
+
+/// The play operator of width `width_kpa` (equation 1), one step: `state` follows `p` only
+/// where `p` leaves the band of half the width around it. Stays in 0-300 kPa when `p` does.
+pub fn play(state: &mut Pressures, p: Pressures, width_kpa: f64) {
+    let half = width_kpa / 2.0;
+    for (s, &pi) in state.iter_mut().zip(&p) {
+        *s = (*s).max(pi - half).min(pi + half);
     }
 }
 

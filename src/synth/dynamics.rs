@@ -1,0 +1,230 @@
+//! The finger in time: how the muscles' pressures, and so the tip, follow the regulator's
+//! commands.
+//!
+//! # Equations (per muscle i; t in s, pressures in kPa)
+//!
+//! 1. Tubing: a transport delay d and a first-order lag τ_i,
+//!    τ_i · dp_i/dt = u_i(t − d) − p_i, where u is the command held from each command's time
+//!    (0 before the first: the session starts at rest).
+//! 2. Hysteresis: p̃ = play(p), the plant's play operator ([`super::plant::play`], width
+//!    `hysteresis_kpa`).
+//! 3. Creep of the silicone: a slow state q with τ_c · dq/dt = p̃ − q; the rod feels
+//!    p_eff = (1 − a) · p̃ + a · q, so after a change the tip goes (1 − a) of the way with the
+//!    pressure and creeps the last share a over seconds.
+//!
+//! Held long enough, q = p̃ = p = u: without hysteresis the settled tip is the plant's map of
+//! the command, whatever the dynamics. The tip at any instant is the plant's rod under p_eff
+//! (the rod itself is quasi-static: its own modes are far faster than the tubing).
+//!
+//! The equations are integrated on a 1 ms grid, exactly for a delayed command constant over
+//! each grid step (taken at the step's middle); between grid points p_eff is interpolated
+//! linearly.
+
+use serde::Serialize;
+
+use super::plant::{play, Pressures};
+
+/// The integration grid (s).
+const GRID_S: f64 = 1e-3;
+
+/// The pneumatic line and the silicone (see the module docs).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Dynamics {
+    /// Transport delay d from the regulator to the muscles (s).
+    pub delay_s: f64,
+    /// Each muscle's lag τ_i (s), muscles 1, 2, 3.
+    pub lag_s: [f64; 3],
+    /// The share a of the response that creeps.
+    pub creep_share: f64,
+    /// The creep's time constant τ_c (s).
+    pub creep_s: f64,
+}
+
+impl Dynamics {
+    /// The step sessions' regulator: a short line, the pressure settled 0.1 s after a command
+    /// to e^{−5}; no delay, no creep.
+    pub const STEPS: Dynamics = Dynamics {
+        delay_s: 0.0,
+        lag_s: [0.02; 3],
+        creep_share: 0.0,
+        creep_s: 1.0,
+    };
+    /// A McKibben hand on a metre of tubing (`notes/motion.md`): 30 ms of transport delay,
+    /// lags of 0.15-0.4 s (the muscles' volumes differ), 8 % of the response creeping with a
+    /// time constant of 3 s.
+    pub const PNEUMATIC: Dynamics = Dynamics {
+        delay_s: 0.03,
+        lag_s: [0.15, 0.25, 0.4],
+        creep_share: 0.08,
+        creep_s: 3.0,
+    };
+
+    /// Why these constants are not a line's, if they are not.
+    pub fn check(&self) -> Result<(), String> {
+        if !(0.0..=1.0).contains(&self.delay_s) {
+            return Err(format!("delay {} s must lie in 0-1 s", self.delay_s));
+        }
+        if !self.lag_s.iter().all(|&t| (0.0..=10.0).contains(&t)) {
+            return Err(format!("lags {:?} s must lie in 0-10 s", self.lag_s));
+        }
+        if !(0.0..1.0).contains(&self.creep_share) || !(self.creep_s > 0.0 && self.creep_s <= 600.0)
+        {
+            return Err(format!(
+                "creep share {} must lie in [0, 1) and its time {} s in (0, 600]",
+                self.creep_share, self.creep_s
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// The pressures the rod feels (p_eff) over a session, on the integration grid from t = 0.
+#[derive(Clone, Debug)]
+pub struct Motion {
+    effective: Vec<Pressures>,
+}
+
+impl Motion {
+    /// Simulates `commands` (times in s, increasing, and the pressures held from each) until
+    /// `end_s`, from rest.
+    pub fn simulate(
+        commands: &[(f64, Pressures)],
+        dynamics: &Dynamics,
+        hysteresis_kpa: f64,
+        end_s: f64,
+    ) -> Motion {
+        let n = (end_s.max(0.0) / GRID_S).ceil() as usize + 2;
+        let lag = dynamics.lag_s.map(decay);
+        let creep = decay(dynamics.creep_s);
+        let a = dynamics.creep_share;
+        let (mut line, mut played, mut slow) = ([0.0; 3], [0.0; 3], [0.0; 3]);
+        let mut next = 0;
+        let mut command = [0.0; 3];
+        let mut effective = Vec::with_capacity(n);
+        effective.push([0.0; 3]);
+        for k in 1..n {
+            let seen = (k as f64 - 0.5) * GRID_S - dynamics.delay_s;
+            while next < commands.len() && commands[next].0 <= seen {
+                command = commands[next].1;
+                next += 1;
+            }
+            for i in 0..3 {
+                line[i] = command[i] + (line[i] - command[i]) * lag[i];
+            }
+            play(&mut played, line, hysteresis_kpa);
+            for i in 0..3 {
+                slow[i] = played[i] + (slow[i] - played[i]) * creep;
+            }
+            effective.push(std::array::from_fn(|i| {
+                ((1.0 - a) * played[i] + a * slow[i]).clamp(0.0, crate::hand::MAX_PRESSURE_KPA)
+            }));
+        }
+        Motion { effective }
+    }
+
+    /// The pressures the rod feels at `t` (s): rest before 0, the last simulated after the end.
+    pub fn at(&self, t: f64) -> Pressures {
+        let x = (t / GRID_S).max(0.0);
+        let k = x.floor() as usize;
+        if k + 1 >= self.effective.len() {
+            return *self.effective.last().expect("at least two grid points");
+        }
+        let f = x - k as f64;
+        let (a, b) = (self.effective[k], self.effective[k + 1]);
+        std::array::from_fn(|i| a[i] + (b[i] - a[i]) * f)
+    }
+}
+
+/// e^{−Δ/τ} for one grid step; 0 for no lag.
+fn decay(tau_s: f64) -> f64 {
+    if tau_s > 0.0 {
+        (-GRID_S / tau_s).exp()
+    } else {
+        0.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn step_to(p: Pressures) -> Vec<(f64, Pressures)> {
+        vec![(0.0, [0.0; 3]), (1.0, p)]
+    }
+
+    #[test]
+    fn a_held_command_settles_to_itself() {
+        let motion = Motion::simulate(
+            &step_to([50.0, 120.0, 200.0]),
+            &Dynamics::PNEUMATIC,
+            0.0,
+            40.0,
+        );
+        let p = motion.at(39.0);
+        for (got, want) in p.iter().zip([50.0, 120.0, 200.0]) {
+            assert!((got - want).abs() < 1e-3, "{p:?}");
+        }
+        assert_eq!(motion.at(0.9), [0.0; 3], "before the command: rest");
+    }
+
+    #[test]
+    fn the_line_delays_and_lags_each_muscle_by_its_own_time() {
+        let d = Dynamics {
+            creep_share: 0.0,
+            ..Dynamics::PNEUMATIC
+        };
+        let motion = Motion::simulate(&step_to([100.0; 3]), &d, 0.0, 5.0);
+        // Nothing arrives before the delay.
+        assert!(motion.at(1.0 + 0.9 * d.delay_s).iter().all(|&p| p == 0.0));
+        // One lag after the delay, each muscle is at 1 − e^{−1} of the step.
+        for i in 0..3 {
+            let p = motion.at(1.0 + d.delay_s + d.lag_s[i])[i];
+            let want = 100.0 * (1.0 - (-1.0f64).exp());
+            assert!(
+                (p - want).abs() < 0.3,
+                "muscle {}: {p} kPa, want {want}",
+                i + 1
+            );
+        }
+    }
+
+    #[test]
+    fn creep_brings_the_last_share_over_seconds() {
+        let d = Dynamics {
+            delay_s: 0.0,
+            lag_s: [0.0; 3],
+            ..Dynamics::PNEUMATIC
+        };
+        let motion = Motion::simulate(&step_to([100.0; 3]), &d, 0.0, 30.0);
+        let early = motion.at(1.01)[0];
+        assert!(
+            (early - 100.0 * (1.0 - d.creep_share)).abs() < 0.1,
+            "{early}"
+        );
+        let one_tau = motion.at(1.0 + d.creep_s)[0];
+        let want = 100.0 - 100.0 * d.creep_share * (-1.0f64).exp();
+        assert!((one_tau - want).abs() < 0.05, "{one_tau} vs {want}");
+    }
+
+    #[test]
+    fn hysteresis_remains_when_the_command_is_held() {
+        let commands = [(0.0, [200.0; 3]), (5.0, [100.0; 3])];
+        let motion = Motion::simulate(&commands, &Dynamics::STEPS, 20.0, 10.0);
+        // Unloaded from 200 to 100 kPa through a play of 20 kPa: stuck 10 kPa above.
+        assert!(
+            (motion.at(9.9)[0] - 110.0).abs() < 1e-6,
+            "{:?}",
+            motion.at(9.9)
+        );
+    }
+
+    #[test]
+    fn the_constants_are_checked() {
+        assert!(Dynamics::PNEUMATIC.check().is_ok() && Dynamics::STEPS.check().is_ok());
+        let bad = Dynamics {
+            creep_share: 1.0,
+            ..Dynamics::PNEUMATIC
+        };
+        assert!(bad.check().unwrap_err().contains("creep share"));
+    }
+}
