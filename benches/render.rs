@@ -45,7 +45,7 @@ fn bench(c: &mut Criterion) {
         markers: Default::default(),
     };
     let plant = Plant::default();
-    let finger = Finger::from_centre_line(&plant.centre_line([0.0, 120.0, 200.0]).unwrap(), 4);
+    let finger = Finger::from_centre_line(&plant.centre_line([0.0, 120.0, 200.0]).unwrap(), 8);
 
     let mut g = c.benchmark_group("render");
     g.sample_size(10);

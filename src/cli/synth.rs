@@ -7,8 +7,10 @@ use std::path::PathBuf;
 use anyhow::{bail, Context};
 
 use crate::pipeline::synth;
+use crate::session::protocol::DynamicDesign;
 use crate::synth::camera::RigConfig;
 use crate::synth::capture::{CaptureConfig, Realism};
+use crate::synth::dynamics::Dynamics;
 use crate::synth::image_format::{Chroma, ImageFormat};
 use crate::synth::{plant::PlantParams, SynthConfig, DEFAULT_NOISE_MM};
 
@@ -67,6 +69,21 @@ pub struct Args {
     video: bool,
     #[command(flatten)]
     frames: FrameArgs,
+    /// A dynamic session instead of the paper's steps: random excitation between rest holds
+    /// (as `handcap protocol --dynamic` writes), the muscles lagging through a pneumatic line
+    /// and creeping, every frame kept (truth/per_frame.csv is what triangulate --per-frame
+    /// should give)
+    #[arg(long, conflicts_with_all = ["no_images", "window_ms"])]
+    dynamic: bool,
+    /// Length of each dynamic trial (s)
+    #[arg(long, requires = "dynamic", default_value_t = 20.0, value_parser = super::finite)]
+    duration_s: f64,
+    /// Dynamic commands per second
+    #[arg(long, requires = "dynamic", default_value_t = 30.0, value_parser = super::finite)]
+    rate_hz: f64,
+    /// Dynamic trials (phases dyn_1 … dyn_N)
+    #[arg(long, requires = "dynamic", default_value_t = 4)]
+    trials: usize,
 }
 
 /// How the virtual webcams' frames look and are stored (synth and demo).
@@ -127,8 +144,8 @@ impl FrameArgs {
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
-    if !a.no_images && a.hysteresis_kpa != 0.0 {
-        bail!("--hysteresis-kpa applies to the datasets only; add --no-images, or drop it to render images");
+    if !a.no_images && !a.dynamic && a.hysteresis_kpa != 0.0 {
+        bail!("--hysteresis-kpa applies to the datasets and dynamic sessions only; add --no-images or --dynamic, or drop it to render images");
     }
     if !(a.baseline_mm > 0.0 && a.distance_mm >= 80.0 && a.distance_mm <= 400.0) {
         bail!("--baseline-mm must be positive and --distance-mm lie in 80-400 mm");
@@ -173,6 +190,18 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         latency_s,
         window_s,
         realism,
+        dynamic: a.dynamic.then(|| DynamicDesign {
+            duration_s: a.duration_s,
+            rate_hz: a.rate_hz,
+            trials: a.trials,
+            seed: a.seed,
+            ..DynamicDesign::default()
+        }),
+        dynamics: if a.dynamic {
+            Dynamics::PNEUMATIC
+        } else {
+            Dynamics::STEPS
+        },
         ..CaptureConfig::default()
     });
     let done = super::with_session(|s| synth::run(&a.out, &config, capture_config.as_ref(), s))

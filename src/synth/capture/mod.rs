@@ -12,7 +12,8 @@
 //! - `frames/left_NNNNN.png`, `frames/right_NNNNN.png` (each camera numbers its own frames) and
 //!   `frames/frames.csv`: `frame,camera,time_s`, the capture computer's timestamp of each frame.
 //! - `pressures.csv`: the regulator log, `time_s,P1_kpa,P2_kpa,P3_kpa,step,phase` — one row per
-//!   commanded step (phase `train`, `sweep_a` or `sweep_b`).
+//!   commanded step (phase `train`, `sweep_a` or `sweep_b`; `rest`, `dyn_1` … in a dynamic
+//!   session).
 //! - `truth/rig.yml` (OpenCV YAML, the keys `calibrate` writes: `image_size`, `K1`, `D1`, `K2`,
 //!   `D2`, `R`, `T` (left → right, mm), `E`, `F`, and `R_hand`, `t_hand`: p_hand = R_hand ·
 //!   p_left + t_hand); `truth/boards.csv`: each board pose in the left camera
@@ -22,13 +23,19 @@
 //!   `truth/frames.csv`: per frame `frame,camera,exposure_s,step,x_mm,y_mm,z_mm,u_px,v_px,
 //!   occluded`, the tip at the middle of the exposure (still settling early in a step), its
 //!   projection, and 1 where something hides the bead.
+//!   `truth/per_frame.csv` (dynamic sessions): per left frame
+//!   `time_s,phase,P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm,frame,exposure_s`, the row
+//!   `triangulate --per-frame` should give: the frame's stamp, the command in force then, the
+//!   true tip at its exposure.
 //! - `manifest.json`: configuration, counts, provenance.
 //!
 //! # Timing
 //!
 //! The regulator commands step k at t_k = k · 0.3 s; each muscle's pressure follows
-//! first-order, p(t) = p_k + (p_{k−1} − p_k) e^{−(t − t_k)/τ}, τ = 20 ms, and the finger follows
-//! its pressures quasi-statically. Each camera exposes at its own 30 fps (±50 ppm) from its own
+//! first-order with τ = 20 ms ([`Dynamics::STEPS`]), and the finger follows its pressures
+//! quasi-statically. A dynamic session (`dynamic`) commands its protocol's rows at their times
+//! through the pneumatic line of [`Dynamics::PNEUMATIC`] (delay, lags, creep; see
+//! [`crate::synth::dynamics`]) and keeps every frame. Each camera exposes at its own 30 fps (±50 ppm) from its own
 //! phase; the capture computer stamps a frame at exposure + the camera's latency (`latency_s`,
 //! 0 unless asked) + its offset (±5 ms) + jitter (±2 ms), and keeps the frames stamped 100-200
 //! ms into a step (`window_s`): three per camera and step, the first of them possibly not settled
@@ -56,18 +63,19 @@ use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
 use super::camera::RigConfig;
+use super::dynamics::{Dynamics, Motion};
 use super::image_format::ImageFormat;
 use super::plant::{Plant, Pressures};
 use super::scene::Markers;
 use super::{SynthConfig, SynthError};
 use crate::calib::BoardSpec;
 use crate::fsio;
-use crate::session::protocol::designed;
+use crate::session::protocol::{self, DynamicDesign, Step};
 use crate::stereo::Side;
 use boards::{board_poses, reference_board};
 use shots::Studio;
 use timing::camera_frames;
-use truth::{boards_csv, pressures_csv, rig_yaml, tips_csv, truth_frames};
+use truth::{boards_csv, per_frame_csv, pressures_csv, rig_yaml, tips_csv, truth_frames};
 
 /// How the virtual capture session runs (see the module docs).
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -77,11 +85,16 @@ pub struct CaptureConfig {
     pub views: usize,
     /// The printed board.
     pub board: BoardSpec,
+    /// How long the paper's protocol holds each step (s).
     pub step_s: f64,
-    /// Frames are kept when stamped in [start, end) seconds after their step's command.
+    /// Frames are kept when stamped in [start, end) seconds after their step's command (the
+    /// paper's protocol; a dynamic session keeps every frame).
     pub window_s: [f64; 2],
     pub fps: f64,
-    pub settle_tau_s: f64,
+    /// A dynamic protocol instead of the paper's steps (the session films it all).
+    pub dynamic: Option<DynamicDesign>,
+    /// How the muscles follow the regulator.
+    pub dynamics: Dynamics,
     /// Relative amplitude of a slow exposure drift (0 = locked exposure).
     pub exposure_drift: f64,
     pub format: ImageFormat,
@@ -146,7 +159,8 @@ impl Default for CaptureConfig {
             step_s: 0.3,
             window_s: [0.10, 0.20],
             fps: 30.0,
-            settle_tau_s: 0.02,
+            dynamic: None,
+            dynamics: Dynamics::STEPS,
             exposure_drift: 0.0,
             format: ImageFormat::WEBCAM,
             clock_drift_s: 0.0,
@@ -194,13 +208,22 @@ pub fn write_capture(
     let mut rng = ChaCha8Rng::seed_from_u64(synth.seed ^ 0x434c_4f43);
     let reference = reference_board(config, &markers);
 
-    // The protocol as one session: steps in order, each commanded at k · step_s.
-    let steps: Vec<(&'static str, Pressures)> =
-        designed(synth.grid_step_kpa, synth.sweep_step_kpa)?
-            .into_iter()
-            .flat_map(|(phase, ps)| ps.into_iter().map(move |p| (phase, p)))
-            .collect();
-    let frames = camera_frames(config, steps.len(), &mut rng);
+    // The protocol as one session, each step commanded when the one before it ends; the
+    // muscles following through the line.
+    let steps = config.steps(synth)?;
+    let (starts, end_s) = protocol::start_times(&steps);
+    let commands: Vec<(f64, Pressures)> = starts
+        .iter()
+        .zip(&steps)
+        .map(|(&t, s)| (t, s.pressures))
+        .collect();
+    let motion = Motion::simulate(
+        &commands,
+        &config.dynamics,
+        synth.plant.hysteresis_kpa,
+        end_s,
+    );
+    let frames = camera_frames(config, &starts, end_s, &mut rng);
 
     for sub in ["calib", "frames", "truth"] {
         let path = dir.join(sub);
@@ -215,10 +238,10 @@ pub fn write_capture(
         &dir.join("truth/boards.csv"),
         &boards_csv(&rig, &boards, &reference),
     )?;
-    write_text(&dir.join("pressures.csv"), &pressures_csv(config, &steps))?;
+    write_text(&dir.join("pressures.csv"), &pressures_csv(&steps, &starts))?;
     let tips = steps
         .iter()
-        .map(|(_, p)| plant.tip(*p))
+        .map(|s| plant.tip(s.pressures))
         .collect::<Result<Vec<_>, _>>()?;
     write_text(&dir.join("truth/tips.csv"), &tips_csv(&rig, &steps, &tips))?;
     write_text(
@@ -226,15 +249,19 @@ pub fn write_capture(
         &crate::session::frames::frames_csv(frames.iter().map(|f| (f.camera, f.index, f.stamp_s))),
     )?;
 
-    let truth_rows = truth_frames(&rig, &plant, synth.seed, config, &steps, &frames)?;
+    let truth_rows = truth_frames(&rig, &plant, &motion, synth.seed, config, &frames)?;
     write_text(&dir.join("truth/frames.csv"), &truth_rows)?;
+    if config.dynamic.is_some() {
+        let rows = per_frame_csv(&plant, &motion, &steps, &frames)?;
+        write_text(&dir.join("truth/per_frame.csv"), &rows)?;
+    }
 
     let studio = Studio {
         dir,
         seed: synth.seed,
         config,
         plant: &plant,
-        steps: &steps,
+        motion: &motion,
         boards: boards.iter().chain(std::iter::once(&reference)).collect(),
         views: shots::views(&rig, synth.seed, &config.realism, &plant, &tips),
     };
@@ -249,6 +276,18 @@ pub fn write_capture(
 }
 
 impl CaptureConfig {
+    /// The protocol the session drives: the dynamic design, or the paper's steps at `synth`'s
+    /// grid and sweep steps, each held `step_s`.
+    ///
+    /// # Errors
+    /// [`SynthError::Protocol`] for a design the protocol refuses.
+    pub fn steps(&self, synth: &SynthConfig) -> Result<Vec<Step>, SynthError> {
+        Ok(match &self.dynamic {
+            Some(design) => protocol::dynamic(design)?,
+            None => protocol::paper_steps(synth.grid_step_kpa, synth.sweep_step_kpa, self.step_s)?,
+        })
+    }
+
     /// # Errors
     /// [`SynthError::BadCapture`] saying which rule the settings break.
     pub fn check(&self) -> Result<(), SynthError> {
@@ -267,6 +306,9 @@ impl CaptureConfig {
             || c.window_s[1] > c.step_s
         {
             return bad("the capture window must lie inside a step and the frame rate be positive");
+        }
+        if let Err(why) = c.dynamics.check() {
+            return bad(&format!("the muscles' dynamics: {why}"));
         }
         if c.clock_drift_s.is_nan() || c.clock_drift_s.abs() >= 1.0 {
             return bad("the clock drift must lie within ±1 s");

@@ -8,14 +8,15 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use nalgebra::Point3;
 use rayon::prelude::*;
 
-use super::timing::{finger_poses, occluder, pressure_at, Filmed};
+use super::timing::{finger_poses, occluder, Filmed};
 use super::{io_err, CaptureConfig, Realism, SynthError};
 use crate::fsio;
 use crate::stereo::Side;
 use crate::synth::camera::{Camera, Rig};
 use crate::synth::clutter;
+use crate::synth::dynamics::Motion;
 use crate::synth::image_format::ImageFormat;
-use crate::synth::plant::{Plant, Pressures};
+use crate::synth::plant::Plant;
 use crate::synth::render::{Lighting, Surroundings, View};
 use crate::synth::scene::Board;
 
@@ -48,7 +49,7 @@ pub(super) struct Studio<'a> {
     pub seed: u64,
     pub config: &'a CaptureConfig,
     pub plant: &'a Plant,
-    pub steps: &'a [(&'static str, Pressures)],
+    pub motion: &'a Motion,
     pub boards: Vec<&'a Board>,
     pub views: [View; 2],
 }
@@ -107,10 +108,10 @@ impl Studio<'_> {
                 exposure_s,
             } => {
                 let view = &self.views[*camera as usize];
-                let poses = finger_poses(c, self.plant, self.steps, &view.camera, *exposure_s)?;
+                let poses = finger_poses(c, self.plant, self.motion, &view.camera, *exposure_s)?;
                 let mut canvas = view.finger(&poses);
                 if let Some(angle) = occluder(self.seed, c, *camera, *index) {
-                    let tip = self.plant.tip(pressure_at(c, self.steps, *exposure_s))?;
+                    let tip = self.plant.tip(self.motion.at(*exposure_s))?;
                     if let Some(through) = view.camera.project(&Point3::from(tip)) {
                         view.occlude(&mut canvas, through, angle);
                     }

@@ -7,7 +7,8 @@ use rand_chacha::ChaCha8Rng;
 use super::{CaptureConfig, SynthError};
 use crate::stereo::Side;
 use crate::synth::camera::Camera;
-use crate::synth::plant::{Plant, Pressures};
+use crate::synth::dynamics::Motion;
+use crate::synth::plant::Plant;
 use crate::synth::scene::Finger;
 
 /// One camera frame kept by the capture computer.
@@ -26,8 +27,14 @@ struct Clock {
     offset_s: f64,
 }
 
-/// The frames each camera keeps: those stamped inside a step's window.
-pub(super) fn camera_frames(c: &CaptureConfig, steps: usize, rng: &mut ChaCha8Rng) -> Vec<Filmed> {
+/// The frames each camera keeps: those stamped inside a step's window (every frame of a dynamic
+/// session). `starts` are the steps' command times, `end` when the last ends (s).
+pub(super) fn camera_frames(
+    c: &CaptureConfig,
+    starts: &[f64],
+    end: f64,
+    rng: &mut ChaCha8Rng,
+) -> Vec<Filmed> {
     let clocks: Vec<Clock> = (0..2)
         .map(|_| Clock {
             phase_s: rng.random_range(0.0..1.0 / c.fps),
@@ -35,7 +42,6 @@ pub(super) fn camera_frames(c: &CaptureConfig, steps: usize, rng: &mut ChaCha8Rn
             offset_s: rng.random_range(-0.005..0.005),
         })
         .collect();
-    let end = steps as f64 * c.step_s;
     let mut out = Vec::new();
     for (side, clock) in [Side::Left, Side::Right].into_iter().zip(&clocks) {
         let mut index = 0;
@@ -56,18 +62,20 @@ pub(super) fn camera_frames(c: &CaptureConfig, steps: usize, rng: &mut ChaCha8Rn
                 + clock.offset_s
                 + rng.random_range(-0.002..0.002)
                 + drift;
-            let step = (stamp_s / c.step_s).floor();
-            if step < 0.0 || step as usize >= steps {
+            let Some(step) = starts.partition_point(|&t| t <= stamp_s).checked_sub(1) else {
+                continue;
+            };
+            if stamp_s >= end {
                 continue;
             }
-            let into = stamp_s - step * c.step_s;
-            if into >= c.window_s[0] && into < c.window_s[1] {
+            let into = stamp_s - starts[step];
+            if c.dynamic.is_some() || (into >= c.window_s[0] && into < c.window_s[1]) {
                 out.push(Filmed {
                     camera: side,
                     index,
                     exposure_s,
                     stamp_s,
-                    step: step as usize,
+                    step,
                 });
                 index += 1;
             }
@@ -76,32 +84,38 @@ pub(super) fn camera_frames(c: &CaptureConfig, steps: usize, rng: &mut ChaCha8Rn
     out
 }
 
-/// The finger during the exposure centred on `t`: one pose when it moves less than 0.02 px
-/// in the image meanwhile, else four, evenly spread over the exposure (motion blur).
+/// The finger during the exposure centred on `t`: one pose when its tip moves less than
+/// [`BLUR_STEP_PX`] in the image meanwhile (the smear's centre is the middle pose's), else up
+/// to four, evenly spread over the exposure, one per [`BLUR_STEP_PX`] of motion (motion blur).
 pub(super) fn finger_poses(
     c: &CaptureConfig,
     plant: &Plant,
-    steps: &[(&str, Pressures)],
+    motion: &Motion,
     camera: &Camera,
     t: f64,
 ) -> Result<Vec<Finger>, SynthError> {
     let pose = |t: f64| -> Result<Finger, SynthError> {
-        let line = plant.centre_line(pressure_at(c, steps, t))?;
-        Ok(Finger::from_centre_line(&line, 4))
+        let line = plant.centre_line(motion.at(t))?;
+        Ok(Finger::from_centre_line(&line, AXIS_STRIDE))
     };
-    let half = c.realism.exposure_s / 2.0;
-    let (start, end) = (pose(t - half)?, pose(t + half)?);
-    let moved = match (camera.project(&start.tip), camera.project(&end.tip)) {
+    let exposure = c.realism.exposure_s;
+    let tip = |t: f64| plant.tip(motion.at(t)).map(|p| camera.project(&p.into()));
+    let moved = match (tip(t - exposure / 2.0)?, tip(t + exposure / 2.0)?) {
         (Some(a), Some(b)) => (a[0] - b[0]).hypot(a[1] - b[1]),
         _ => 0.0,
     };
-    if moved < 0.02 {
-        return Ok(vec![pose(t)?]);
-    }
-    (0..4)
-        .map(|k| pose(t - half + c.realism.exposure_s * (k as f64 + 0.5) / 4.0))
+    let n = ((moved / BLUR_STEP_PX).ceil() as usize).clamp(1, 4);
+    (0..n)
+        .map(|k| pose(t + exposure * ((k as f64 + 0.5) / n as f64 - 0.5)))
         .collect()
 }
+
+/// The image motion of the tip (px) each further blur pose stands for.
+const BLUR_STEP_PX: f64 = 0.5;
+
+/// Points of the centre line per capsule of the rendered finger: 25 capsules of 1.9 mm, whose
+/// chord strays from the bent line by under 0.01 mm.
+const AXIS_STRIDE: usize = 8;
 
 /// The angle of the rod hiding the bead in this frame, for a share `realism.occluded` of the
 /// frames (drawn from the seed, the camera and the frame).
@@ -109,13 +123,4 @@ pub(super) fn occluder(seed: u64, c: &CaptureConfig, camera: Side, index: usize)
     let key = seed ^ 0x4f43_434c ^ (camera as u64) << 40 ^ index as u64;
     let mut rng = ChaCha8Rng::seed_from_u64(key);
     (rng.random::<f64>() < c.realism.occluded).then(|| rng.random_range(0.0..std::f64::consts::TAU))
-}
-
-/// The muscles' pressures at time `t` (first-order response to each command).
-pub(super) fn pressure_at(c: &CaptureConfig, steps: &[(&str, Pressures)], t: f64) -> Pressures {
-    let k = ((t / c.step_s).floor().max(0.0) as usize).min(steps.len() - 1);
-    let target = steps[k].1;
-    let before = if k == 0 { [0.0; 3] } else { steps[k - 1].1 };
-    let decay = (-(t - k as f64 * c.step_s).max(0.0) / c.settle_tau_s).exp();
-    std::array::from_fn(|i| target[i] + (before[i] - target[i]) * decay)
 }

@@ -2,12 +2,14 @@
 
 use nalgebra::{Matrix3, Point3};
 
-use super::timing::{occluder, pressure_at, Filmed};
+use super::timing::{occluder, Filmed};
 use super::{CaptureConfig, SynthError};
 use crate::opencv_yaml::FileStorage;
+use crate::session::protocol::Step;
 use crate::stereo::Side;
 use crate::synth::camera::Rig;
-use crate::synth::plant::{Plant, Pressures};
+use crate::synth::dynamics::Motion;
+use crate::synth::plant::Plant;
 use crate::synth::scene::Board;
 
 fn mat3(m: &Matrix3<f64>) -> Vec<f64> {
@@ -52,23 +54,35 @@ pub(super) fn boards_csv(rig: &Rig, boards: &[Board], reference: &Board) -> Stri
     out
 }
 
-pub(super) fn pressures_csv(c: &CaptureConfig, steps: &[(&str, Pressures)]) -> String {
-    crate::session::pressures::pressures_csv(steps.iter().enumerate().map(|(k, (phase, p))| {
+/// The regulator's log: each step at its command time `starts`.
+pub(super) fn pressures_csv(steps: &[Step], starts: &[f64]) -> String {
+    crate::session::pressures::pressures_csv(steps.iter().zip(starts).map(|(s, &time_s)| {
         crate::session::pressures::Logged {
-            time_s: k as f64 * c.step_s,
+            time_s,
             command_end_s: None,
-            pressures_kpa: *p,
-            step: k,
-            phase,
+            pressures_kpa: s.pressures,
+            step: s.step,
+            phase: &s.phase,
         }
     }))
 }
 
-pub(super) fn tips_csv(rig: &Rig, steps: &[(&str, Pressures)], tips: &[[f64; 3]]) -> String {
+pub(super) fn tips_csv(rig: &Rig, steps: &[Step], tips: &[[f64; 3]]) -> String {
     let mut out = String::from(
         "step,phase,P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm,left_x_mm,left_y_mm,left_z_mm\n",
     );
-    for (k, ((phase, p), tip)) in steps.iter().zip(tips).enumerate() {
+    for (
+        k,
+        (
+            Step {
+                phase,
+                pressures: p,
+                ..
+            },
+            tip,
+        ),
+    ) in steps.iter().zip(tips).enumerate()
+    {
         let left = rig.left.pose.apply(&Point3::from(*tip));
         out += &format!(
             "{k},{phase},{},{},{},{},{},{},{},{},{}\n",
@@ -81,14 +95,14 @@ pub(super) fn tips_csv(rig: &Rig, steps: &[(&str, Pressures)], tips: &[[f64; 3]]
 pub(super) fn truth_frames(
     rig: &Rig,
     plant: &Plant,
+    motion: &Motion,
     seed: u64,
     c: &CaptureConfig,
-    steps: &[(&str, Pressures)],
     frames: &[Filmed],
 ) -> Result<String, SynthError> {
     let mut out = String::from("frame,camera,exposure_s,step,x_mm,y_mm,z_mm,u_px,v_px,occluded\n");
     for f in frames {
-        let tip = plant.tip(pressure_at(c, steps, f.exposure_s))?;
+        let tip = plant.tip(motion.at(f.exposure_s))?;
         let cam = match f.camera {
             Side::Left => &rig.left,
             Side::Right => &rig.right,
@@ -109,6 +123,32 @@ pub(super) fn truth_frames(
             u,
             v,
             u8::from(occluded)
+        );
+    }
+    Ok(out)
+}
+
+/// A dynamic session's truth as the dataset `triangulate --per-frame` should give: one row per
+/// left frame, at its timestamp, the command in force then and the true tip at its exposure
+/// (`time_s,phase,P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm,frame,exposure_s`).
+pub(super) fn per_frame_csv(
+    plant: &Plant,
+    motion: &Motion,
+    steps: &[Step],
+    frames: &[Filmed],
+) -> Result<String, SynthError> {
+    let mut out =
+        String::from("time_s,phase,P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm,frame,exposure_s\n");
+    for f in frames.iter().filter(|f| f.camera == Side::Left) {
+        let tip = plant.tip(motion.at(f.exposure_s))?;
+        let Step {
+            phase,
+            pressures: p,
+            ..
+        } = &steps[f.step];
+        out += &format!(
+            "{:.6},{phase},{},{},{},{},{},{},{},{:.6}\n",
+            f.stamp_s, p[0], p[1], p[2], tip[0], tip[1], tip[2], f.index, f.exposure_s
         );
     }
     Ok(out)
