@@ -92,6 +92,50 @@ pub fn period(times: &[f64]) -> f64 {
     near.iter().sum::<f64>() / near.len() as f64
 }
 
+/// A free-running camera's stamps put back on its own clock: the camera exposes every
+/// `period` on a crystal, the computer's stamps add the USB's jitter. Each frame's slot
+/// n = round((t − t₀) / period) (a dropped frame skips one), then the line t = a + b · n fitted by
+/// least squares, once more without the stamps more than a quarter period off it; the line's
+/// times, and the RMS of the stamps about it (s). `None` when the stamps do not lie on one line
+/// (an RMS over a sixth of a period: a camera that changed its rate or paused), or with fewer
+/// than three frames.
+pub fn regular(times: &[f64], period: f64) -> Option<(Vec<f64>, f64)> {
+    if times.len() < 3 || !(period > 0.0) {
+        return None;
+    }
+    let slots: Vec<f64> = times
+        .iter()
+        .map(|t| ((t - times[0]) / period).round())
+        .collect();
+    let fit = |keep: &dyn Fn(usize) -> bool| -> Option<(f64, f64)> {
+        let idx: Vec<usize> = (0..times.len()).filter(|&k| keep(k)).collect();
+        let n = idx.len() as f64;
+        if n < 3.0 {
+            return None;
+        }
+        let (mx, my) = (
+            idx.iter().map(|&k| slots[k]).sum::<f64>() / n,
+            idx.iter().map(|&k| times[k]).sum::<f64>() / n,
+        );
+        let sxx: f64 = idx.iter().map(|&k| (slots[k] - mx).powi(2)).sum();
+        let sxy: f64 = idx.iter().map(|&k| (slots[k] - mx) * (times[k] - my)).sum();
+        (sxx > 0.0).then(|| {
+            let b = sxy / sxx;
+            (my - b * mx, b)
+        })
+    };
+    let (a, b) = fit(&|_| true)?;
+    let (a, b) = fit(&|k| (times[k] - a - b * slots[k]).abs() <= period / 4.0)?;
+    let rms = (times
+        .iter()
+        .zip(&slots)
+        .map(|(t, n)| (t - a - b * n).powi(2))
+        .sum::<f64>()
+        / times.len() as f64)
+        .sqrt();
+    (rms <= period / 6.0).then(|| (slots.iter().map(|n| a + b * n).collect(), rms))
+}
+
 /// The share of a camera's intervals of about one period that make a proposal in [`period`]:
 /// fewer are a burst's, not the camera's.
 pub const ONE_PERIOD_SHARE: f64 = 0.05;

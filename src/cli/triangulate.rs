@@ -4,6 +4,7 @@
 use std::path::PathBuf;
 
 use crate::pipeline::triangulate::{self, Triangulated};
+use crate::triangulate::per_frame::PerFrameSummary;
 use crate::triangulate::TriangulateOptions;
 
 use super::usage;
@@ -56,6 +57,13 @@ pub struct Args {
     /// Default: measured from the tip's motion after each command
     #[arg(long, value_delimiter = ',', num_args = 1..=2, value_parser = super::finite)]
     latency_ms: Vec<f64>,
+    /// One row per left frame instant instead of one per pressure step, for a finger in motion
+    /// (a dynamic protocol): the right camera's track interpolated to each left frame's time
+    /// (and the cameras' clock offset measured from the motion), the pressures in force then;
+    /// columns time_s, the log's others, P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm,frame,reproj_px,
+    /// flag. The log must start with a rest hold at 0, 0, 0 kPa (the hand frame's origin)
+    #[arg(long, conflicts_with_all = ["max_dt_ms", "settle_s", "min_frames", "max_spread_mm"])]
+    per_frame: bool,
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
@@ -77,6 +85,17 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     options.video_start_s = super::left_right("--video-start-s", &a.video_start_s)?;
     options.latency_s =
         super::left_right("--latency-ms", &a.latency_ms)?.map(|ms| ms.map(|ms| ms / 1e3));
+    if a.per_frame {
+        let done = super::with_session(|s| {
+            triangulate::run_per_frame(&a.frames, &a.calib, &pressures, &options, &a.out, s)
+        })?;
+        print_per_frame(&done.per_frame.summary);
+        super::print_written(&done.written);
+        if done.per_frame.summary.interrupted {
+            return Err(super::Interrupted("interrupted: the dataset holds the frames examined before Ctrl-C; run again for all of them".into()).into());
+        }
+        return Ok(());
+    }
     let done = super::with_session(|s| {
         triangulate::run(&a.frames, &a.calib, &pressures, &options, &a.out, s)
     })?;
@@ -87,6 +106,45 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         return Err(super::Interrupted("interrupted: the dataset holds the frames examined before Ctrl-C; run again for all of them".into()).into());
     }
     Ok(())
+}
+
+/// What a per-frame run found, in a few lines.
+pub fn print_per_frame(s: &PerFrameSummary) {
+    let f = &s.frames;
+    println!(
+        "frames: {} left, {} right; marker missing in {} / {}, several candidates in {} / {}",
+        f.listed[0],
+        f.listed[1],
+        f.marker_missing[0],
+        f.marker_missing[1],
+        f.several_candidates[0],
+        f.several_candidates[1],
+    );
+    let flagged: Vec<String> = s.flagged.iter().map(|(k, v)| format!("{v} {k}")).collect();
+    println!(
+        "rows: {} (one per left frame), {} with a tip and no flag{}",
+        s.rows,
+        s.good_rows,
+        if flagged.is_empty() {
+            String::new()
+        } else {
+            format!("; flagged: {}", flagged.join(", "))
+        }
+    );
+    if s.clock_frames > 0 {
+        println!(
+            "clock: the right camera's stamps run {:+.2} ms ahead of the left's (from the motion of {} frames); tracks interpolated across it",
+            s.clock_offset_ms, s.clock_frames
+        );
+    } else {
+        println!(
+            "clock: too little motion to measure the cameras' offset; stamps taken as they are"
+        );
+    }
+    println!(
+        "origin: {} rows of the first rest hold, spread {:.4} mm RMS; reprojection {:.3} / {:.3} / {:.3} px (median / 95 % / max)",
+        s.origin_rows, s.origin_spread_mm, s.reproj_px[0], s.reproj_px[1], s.reproj_px[2]
+    );
 }
 
 pub fn print_summary(done: &Triangulated) {

@@ -10,6 +10,7 @@ use crate::capture::flash::FlashLatency;
 use crate::capture::CAPTURE_FILE;
 use crate::session::frames::FrameList;
 use crate::session::pressures::{read_pressure_log, PressureLog};
+use crate::triangulate::per_frame::{self, PerFrame};
 use crate::triangulate::{self, output, TriangulateOptions, Triangulation};
 
 /// What the stage did and wrote.
@@ -144,4 +145,57 @@ pub fn run(
         triangulation,
         written,
     })
+}
+
+/// What the per-frame stage did and wrote.
+pub struct TriangulatedPerFrame {
+    pub per_frame: PerFrame,
+    pub written: Vec<PathBuf>,
+}
+
+/// The tip at every left frame's instant of `frames` (`triangulate --per-frame`), in the hand
+/// frame of `calib`, with the pressures of the log at `pressures` in force then; writes `out`,
+/// the per-phase files and the summary beside it. Ctrl-C stops at the next frame: the rows of
+/// the frames examined are written, the summary says `interrupted`.
+///
+/// # Errors
+/// As [`run`].
+pub fn run_per_frame(
+    frames: &Path,
+    calib: &Path,
+    pressures: &Path,
+    options: &TriangulateOptions,
+    out: &Path,
+    session: &Session,
+) -> Result<TriangulatedPerFrame, PipelineError> {
+    if !frames.is_dir() {
+        return Err(PipelineError::Place(format!(
+            "{} is not a directory of frames",
+            frames.display()
+        )));
+    }
+    options.check().map_err(PipelineError::Usage)?;
+    let calibration = read_calibration(calib)?;
+    let log = read_pressure_log(pressures)?;
+    let listed = FrameList::read(frames, options.video_start_s)?;
+    check_outputs(frames, &listed, calib, pressures, &log, out)?;
+    let index = frames.join("frames.csv");
+    let result = per_frame::triangulate_per_frame(
+        &listed,
+        &index,
+        &calibration,
+        &log,
+        options,
+        &session.counter(Task::Frames),
+        session.interrupt,
+    );
+    session.emit(super::Event::Finished(Task::Frames));
+    let per_frame = result?;
+    let mut provenance = session.provenance(None);
+    let listed_by = Some(index.as_path()).filter(|p| p.exists());
+    for input in [calib, pressures].into_iter().chain(listed_by) {
+        provenance = provenance.with_input(input).map_err(io_error(input))?;
+    }
+    let written = per_frame.write(out, &log, &provenance)?;
+    Ok(TriangulatedPerFrame { per_frame, written })
 }

@@ -100,11 +100,62 @@ fn locate(
             .collect()
     };
     let (cl, cr) = (centres(l), centres(r));
+    let combos = combinations(rig, &cl, &cr, options)?;
+    let consistent: Vec<&Combination> = combos.iter().filter(|c| c.consistent).collect();
+    record.candidates = combos.len();
+    match consistent.as_slice() {
+        [] => {}
+        [c] => {
+            record.status = if combos.len() > 1 {
+                PairStatus::Resolved
+            } else {
+                PairStatus::Used
+            };
+            record.centres_px = Some([cl[c.left], cr[c.right]]);
+            record.fitted = [l.blobs[c.left].fitted, r.blobs[c.right].fitted];
+            record.point_left_mm = Some(c.point);
+            record.reprojected_px = Some(c.reprojected_px);
+            record.reproj_px = Some(c.reproj_px);
+        }
+        _ => record.status = PairStatus::Ambiguous,
+    }
+    if record.centres_px.is_none() && combos.len() == 1 {
+        // Keep what was seen, for the figures.
+        let c = &combos[0];
+        record.centres_px = Some([cl[0], cr[0]]);
+        record.reprojected_px = Some(c.reprojected_px);
+        record.reproj_px = Some(c.reproj_px);
+    }
+    Ok(())
+}
+
+/// One left × right combination of candidate centres, triangulated.
+pub(super) struct Combination {
+    /// Indices into the left and right candidates.
+    pub left: usize,
+    pub right: usize,
+    /// The point in the left camera (mm).
+    pub point: Vector3<f64>,
+    /// Its reprojections (left, right), px.
+    pub reprojected_px: [[f64; 2]; 2],
+    /// The larger of the two reprojection errors (px).
+    pub reproj_px: f64,
+    /// Both errors within `max_reproj_px`, the point in front of both cameras.
+    pub consistent: bool,
+}
+
+/// Every combination of the candidate centres `cl` × `cr` (px), left-major: undistorted and
+/// triangulated by OpenCV (after Hartley-Sturm correction when asked), reprojected, and judged.
+pub(super) fn combinations(
+    rig: &StereoRig,
+    cl: &[[f64; 2]],
+    cr: &[[f64; 2]],
+    options: &TriangulateOptions,
+) -> Result<Vec<Combination>, TriangulateError> {
     let (nl, nr) = (
-        rig.normalized(Side::Left, &cl)?,
-        rig.normalized(Side::Right, &cr)?,
+        rig.normalized(Side::Left, cl)?,
+        rig.normalized(Side::Right, cr)?,
     );
-    // Every combination, left-major.
     let combos: Vec<(usize, usize)> = (0..cl.len())
         .flat_map(|i| (0..cr.len()).map(move |j| (i, j)))
         .collect();
@@ -118,42 +169,25 @@ fn locate(
         rig.project(Side::Left, &points)?,
         rig.project(Side::Right, &points)?,
     );
-    let right_from_left = &rig.right_from_left;
     let dist = |p: [f64; 2], q: [f64; 2]| (p[0] - q[0]).hypot(p[1] - q[1]);
-    let consistent: Vec<(usize, f64)> = combos
+    Ok(combos
         .iter()
         .enumerate()
-        .map(|(k, &(i, j))| (k, dist(pl[k], cl[i]).max(dist(pr[k], cr[j]))))
-        .filter(|&(k, err)| {
+        .map(|(k, &(i, j))| {
             let p = points[k];
-            err <= options.max_reproj_px && p.z > 0.0 && right_from_left.apply(&p.into()).z > 0.0
+            let err = dist(pl[k], cl[i]).max(dist(pr[k], cr[j]));
+            Combination {
+                left: i,
+                right: j,
+                point: p,
+                reprojected_px: [pl[k], pr[k]],
+                reproj_px: err,
+                consistent: err <= options.max_reproj_px
+                    && p.z > 0.0
+                    && rig.right_from_left.apply(&p.into()).z > 0.0,
+            }
         })
-        .collect();
-    record.candidates = combos.len();
-    match consistent.as_slice() {
-        [] => {}
-        [(k, err)] => {
-            let (i, j) = combos[*k];
-            record.status = if combos.len() > 1 {
-                PairStatus::Resolved
-            } else {
-                PairStatus::Used
-            };
-            record.centres_px = Some([cl[i], cr[j]]);
-            record.fitted = [l.blobs[i].fitted, r.blobs[j].fitted];
-            record.point_left_mm = Some(points[*k]);
-            record.reprojected_px = Some([pl[*k], pr[*k]]);
-            record.reproj_px = Some(*err);
-        }
-        _ => record.status = PairStatus::Ambiguous,
-    }
-    if record.centres_px.is_none() && combos.len() == 1 {
-        // Keep what was seen, for the figures.
-        record.centres_px = Some([cl[0], cr[0]]);
-        record.reprojected_px = Some([pl[0], pr[0]]);
-        record.reproj_px = Some(dist(pl[0], cl[0]).max(dist(pr[0], cr[0])));
-    }
-    Ok(())
+        .collect())
 }
 
 /// Mean, standard deviation and 95th percentile of the size of the pairs' signed distance of

@@ -36,6 +36,7 @@ pub mod marker;
 pub mod options;
 pub mod output;
 pub mod pairing;
+pub mod per_frame;
 pub mod subpixel;
 pub mod summary;
 
@@ -221,55 +222,18 @@ pub fn triangulate(
     progress: &(dyn Fn(usize, usize) + Sync),
     interrupt: &AtomicBool,
 ) -> Result<Triangulation, TriangulateError> {
-    let r_hand = calibration.r_hand.ok_or_else(|| {
-        let path = calibration.path.clone();
-        if path
-            .extension()
-            .is_some_and(|e| e.eq_ignore_ascii_case("toml"))
-        {
-            let yaml = path.with_extension("yml");
-            TriangulateError::AniposeFile { path, yaml }
-        } else {
-            TriangulateError::NoHandAxes { path }
-        }
-    })?;
+    let r_hand = hand_axes(calibration)?;
     let rig = &calibration.rig;
     let (records, paths) = (&frames.records, &frames.paths);
 
-    // 1. Markers in every frame: handed out in order (a video is read front to back) a chunk
-    // at a time, examined in parallel.
-    let done = AtomicUsize::new(0);
-    let mut results: Vec<FrameResult> = vec![FrameResult::Skipped; records.len()];
-    let mut reader = frames.reader()?;
-    let decoded_video = reader.decoded_codecs();
-    for chunk in frames.reading_order().chunks(256) {
-        if interrupt.load(Ordering::SeqCst) {
-            break;
-        }
-        let data = chunk
-            .iter()
-            .map(|&i| Ok((i, reader.read(i)?)))
-            .collect::<Result<Vec<_>, TriangulateError>>()?;
-        let examined: Vec<(usize, Result<FrameResult, TriangulateError>)> = data
-            .into_par_iter()
-            .map_init(
-                || (RgbImage::default(), Buffers::default()),
-                |(image, buffers), (i, data)| {
-                    let result = examine(&data, frames, i, rig, options, interrupt, image, buffers);
-                    progress(done.fetch_add(1, Ordering::SeqCst) + 1, records.len());
-                    (i, result)
-                },
-            )
-            .collect();
-        for (i, result) in examined {
-            results[i] = result?;
-        }
-    }
+    // 1. Markers in every frame.
+    let found = find_all_markers(frames, rig, options, progress, interrupt)?;
+    let results = found.results;
     let mut summary = Summary {
         interrupted: interrupt.load(Ordering::SeqCst),
         steps_logged: log.steps.len(),
-        decoded_video,
-        video_ended: reader.ended(),
+        decoded_video: found.decoded_video,
+        video_ended: found.video_ended,
         ..Summary::default()
     };
     count_frames(records, &results, &mut summary.frames);
@@ -503,6 +467,74 @@ pub fn triangulate(
         hand_from_left,
         extra_columns: log.extra_columns.clone(),
         options: options.clone(),
+    })
+}
+
+/// The hand frame's axes from the calibration, or why it has none.
+fn hand_axes(calibration: &CalibrationFile) -> Result<nalgebra::Rotation3<f64>, TriangulateError> {
+    calibration.r_hand.ok_or_else(|| {
+        let path = calibration.path.clone();
+        if path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("toml"))
+        {
+            let yaml = path.with_extension("yml");
+            TriangulateError::AniposeFile { path, yaml }
+        } else {
+            TriangulateError::NoHandAxes { path }
+        }
+    })
+}
+
+/// What the search of every frame found.
+struct Found {
+    /// Per frame record.
+    results: Vec<FrameResult>,
+    decoded_video: [Option<String>; 2],
+    video_ended: [Option<frames::VideoEnd>; 2],
+}
+
+/// The marker candidates in every frame: handed out in order (a video is read front to back) a
+/// chunk at a time, examined in parallel; `interrupt` leaves the rest [`FrameResult::Skipped`].
+fn find_all_markers(
+    frames: &FrameList,
+    rig: &StereoRig,
+    options: &TriangulateOptions,
+    progress: &(dyn Fn(usize, usize) + Sync),
+    interrupt: &AtomicBool,
+) -> Result<Found, TriangulateError> {
+    let records = &frames.records;
+    let done = AtomicUsize::new(0);
+    let mut results: Vec<FrameResult> = vec![FrameResult::Skipped; records.len()];
+    let mut reader = frames.reader()?;
+    let decoded_video = reader.decoded_codecs();
+    for chunk in frames.reading_order().chunks(256) {
+        if interrupt.load(Ordering::SeqCst) {
+            break;
+        }
+        let data = chunk
+            .iter()
+            .map(|&i| Ok((i, reader.read(i)?)))
+            .collect::<Result<Vec<_>, TriangulateError>>()?;
+        let examined: Vec<(usize, Result<FrameResult, TriangulateError>)> = data
+            .into_par_iter()
+            .map_init(
+                || (RgbImage::default(), Buffers::default()),
+                |(image, buffers), (i, data)| {
+                    let result = examine(&data, frames, i, rig, options, interrupt, image, buffers);
+                    progress(done.fetch_add(1, Ordering::SeqCst) + 1, records.len());
+                    (i, result)
+                },
+            )
+            .collect();
+        for (i, result) in examined {
+            results[i] = result?;
+        }
+    }
+    Ok(Found {
+        results,
+        decoded_video,
+        video_ended: reader.ended(),
     })
 }
 

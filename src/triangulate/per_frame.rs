@@ -1,0 +1,652 @@
+//! Per-frame triangulation (`triangulate --per-frame`): one row per left frame instant, for a
+//! finger in motion.
+//!
+//! # Steps
+//!
+//! 1. Every frame is searched for the marker (as for steps; a moving bead's smear is found as
+//!    one region, its centroid the bead at mid-exposure).
+//! 2. Each camera's frames in time order: their stamps must increase (frames.csv named
+//!    otherwise).
+//! 3. The clock offset between the cameras, from the motion itself: the right track
+//!    interpolated to the left frames' instants shifted by δ, the δ (within one frame period)
+//!    whose interpolated pairs lie closest to their epipolar lines (a robust sum of squared
+//!    distances, undistorted px, over the frames where the tip moves). Without motion δ = 0.
+//! 4. Each left frame: the right camera's two frames around its instant (less δ) and the tip
+//!    in them interpolated linearly in time to it — never the nearest frame, which at tens of
+//!    mm/s is off by more than the error budget. Every combination of candidates (left ×
+//!    right before × right after) is triangulated and reprojected as for a step's pair; exactly
+//!    one consistent → the row's tip. Else the row is flagged, its tip left empty: `no_image`,
+//!    `no_marker_left`, `no_marker_right`, `gap` (no right frame within one and a half periods
+//!    on one side), `reprojection`, `ambiguous`.
+//! 5. The pressures in force at the row's time: the log's command held until the next
+//!    (the last held on); a row before the first command is flagged `outside_log`.
+//! 6. The hand frame: axes from the calibration, origin the median tip over the rows in the
+//!    log's first rest hold (the steps at 0, 0, 0 kPa before anything else: the finger rested
+//!    before the session; later rest holds still creep). A tip beyond the finger's reach is
+//!    flagged `reach`.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use nalgebra::Vector3;
+use serde::Serialize;
+
+use super::locate::combinations;
+use super::marker::MAX_CANDIDATES;
+use super::summary::{count_frames, FrameCounts};
+use super::{find_all_markers, options, FrameResult, TriangulateError, TriangulateOptions};
+use crate::calib::file::CalibrationFile;
+use crate::geometry::HandFromLeft;
+use crate::provenance::Provenance;
+use crate::session::frames::{FrameList, FrameRecord};
+use crate::session::pressures::PressureLog;
+use crate::stereo::{Side, StereoRig};
+
+/// The longest a right frame may be from its neighbour for the track to be interpolated
+/// between them, in frame periods.
+const MAX_GAP_PERIODS: f64 = 1.5;
+/// Epipolar distances above this count as this in the clock's fit (px): detections gone wrong
+/// must not pull it.
+const EPIPOLAR_CAP_PX: f64 = 2.0;
+/// The tip must move at least this between two right frames (px) for the frame to tell the
+/// clock offset.
+const MOVING_PX: f64 = 0.3;
+/// The farthest the tip may move from one right frame to the next to be taken for the same
+/// candidate by the spline (px).
+const NEIGHBOUR_PX: f64 = 30.0;
+
+/// One row: a left frame's instant.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FrameRow {
+    /// The left frame's number.
+    pub frame: usize,
+    /// Its timestamp on the log's clock (s).
+    pub time_s: f64,
+    /// The log step in force then.
+    pub step: Option<usize>,
+    /// The tip in the hand frame (mm), when found.
+    pub tip_mm: Option<[f64; 3]>,
+    pub reproj_px: Option<f64>,
+    pub flags: Vec<&'static str>,
+}
+
+/// What a per-frame run counted and measured.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct PerFrameSummary {
+    pub frames: FrameCounts,
+    pub rows: usize,
+    /// Rows with a tip and no flag.
+    pub good_rows: usize,
+    /// Rows per flag.
+    pub flagged: BTreeMap<&'static str, usize>,
+    /// The right camera's stamps run this far ahead of the left's (ms), as the motion shows.
+    pub clock_offset_ms: f64,
+    /// How many moving frames told the offset (0: not measured, taken as 0).
+    pub clock_frames: usize,
+    /// Per camera, the RMS of its stamps about its regular frame clock (ms), when they lie on
+    /// one: the times used are the clock's (`None`: the stamps as they are).
+    pub stamp_jitter_ms: [Option<f64>; 2],
+    /// The origin: the tip at rest in the left camera (mm), from this many rows, and their RMS
+    /// distance from it (mm).
+    pub origin_left_mm: [f64; 3],
+    pub origin_rows: usize,
+    pub origin_spread_mm: f64,
+    /// Reprojection error of the rows with a tip (px): median, 95th percentile, largest.
+    pub reproj_px: [f64; 3],
+    pub interrupted: bool,
+}
+
+/// The result of a per-frame run.
+#[derive(Clone, Debug)]
+pub struct PerFrame {
+    pub rows: Vec<FrameRow>,
+    pub summary: PerFrameSummary,
+    pub hand_from_left: HandFromLeft,
+    pub options: TriangulateOptions,
+}
+
+/// One camera's frames in time order: their records' indices and times (s).
+struct Track {
+    order: Vec<usize>,
+    /// On the camera's own regular clock, when its stamps lie on one.
+    times: Vec<f64>,
+    period_s: f64,
+    /// The stamps' RMS about the regular clock (s), when they lie on one.
+    jitter_s: Option<f64>,
+}
+
+impl Track {
+    /// `index` names the frame list in messages.
+    fn of(
+        records: &[FrameRecord],
+        side: Side,
+        shift_s: f64,
+        index: &Path,
+    ) -> Result<Track, TriangulateError> {
+        let mut order: Vec<usize> = (0..records.len())
+            .filter(|&i| records[i].camera == side)
+            .collect();
+        order.sort_by_key(|&i| records[i].index);
+        for w in order.windows(2) {
+            let (a, b) = (&records[w[0]], &records[w[1]]);
+            if b.time_s <= a.time_s {
+                return Err(TriangulateError::Input(crate::data::DataError::Input {
+                    path: index.to_path_buf(),
+                    line: b.line,
+                    message: format!(
+                        "{} frame {} is stamped {} s, not after frame {} ({} s, line {}): a camera's stamps must increase; check the capture's clock",
+                        side.name(),
+                        b.index,
+                        b.time_s,
+                        a.index,
+                        a.time_s,
+                        a.line
+                    ),
+                }));
+            }
+        }
+        let stamps: Vec<f64> = order.iter().map(|&i| records[i].time_s - shift_s).collect();
+        let period_s = crate::frame_times::period(&stamps);
+        let (times, jitter_s) = match crate::frame_times::regular(&stamps, period_s) {
+            Some((times, rms)) => (times, Some(rms)),
+            None => (stamps, None),
+        };
+        Ok(Track {
+            order,
+            times,
+            period_s,
+            jitter_s,
+        })
+    }
+
+    /// The frames just before and after `t` (positions in the track) and where `t` lies
+    /// between them (0-1), when both exist and lie close enough together.
+    fn around(&self, t: f64) -> Result<(usize, usize, f64), &'static str> {
+        let after = self.times.partition_point(|&s| s <= t);
+        if after == 0 || after == self.times.len() {
+            return Err("gap");
+        }
+        let (a, b) = (self.times[after - 1], self.times[after]);
+        if b - a > MAX_GAP_PERIODS * self.period_s {
+            return Err("gap");
+        }
+        Ok((after - 1, after, (t - a) / (b - a)))
+    }
+
+    /// Whether the frames before `a` and after `b` lie one interval from them, as `a` and `b`
+    /// from each other (no frame dropped: the spline's points are evenly spaced).
+    fn evenly_around(&self, a: usize, b: usize) -> bool {
+        let gap = self.times[b] - self.times[a];
+        let even = |x: f64, y: f64| (y - x - gap).abs() <= 0.25 * gap;
+        a > 0
+            && b + 1 < self.times.len()
+            && even(self.times[a - 1], self.times[a])
+            && even(self.times[b], self.times[b + 1])
+    }
+}
+
+/// Runs the per-frame triangulation; `progress(done, total)` counts frames examined,
+/// `interrupt` stops the frame search (the rows of the frames examined are still made).
+///
+/// # Errors
+/// [`TriangulateError`]: bad inputs (each naming the file and line or frame), no hand axes,
+/// stamps going back, no tip in the first rest hold. `index` is the frame list's file, for
+/// messages.
+#[allow(clippy::too_many_arguments)]
+pub fn triangulate_per_frame(
+    frames: &FrameList,
+    index: &Path,
+    calibration: &CalibrationFile,
+    log: &PressureLog,
+    options: &TriangulateOptions,
+    progress: &(dyn Fn(usize, usize) + Sync),
+    interrupt: &AtomicBool,
+) -> Result<PerFrame, TriangulateError> {
+    let r_hand = super::hand_axes(calibration)?;
+    let rig = &calibration.rig;
+    let records = &frames.records;
+    let shift = options.latency_s.unwrap_or([0.0; 2]);
+    let (left, right) = (
+        Track::of(records, Side::Left, shift[0], index)?,
+        Track::of(records, Side::Right, shift[1], index)?,
+    );
+    let found = find_all_markers(frames, rig, options, progress, interrupt)?;
+    let results = &found.results;
+    let mut summary = PerFrameSummary {
+        interrupted: interrupt.load(Ordering::SeqCst),
+        ..PerFrameSummary::default()
+    };
+    count_frames(records, results, &mut summary.frames);
+
+    let centres = |i: usize| -> Result<Vec<[f64; 2]>, &'static str> {
+        match &results[i] {
+            FrameResult::Markers(m) => Ok(m
+                .blobs
+                .iter()
+                .take(MAX_CANDIDATES)
+                .map(|b| b.centre_px)
+                .collect()),
+            FrameResult::Skipped => Err("skipped"),
+            _ => Err("no_image"),
+        }
+    };
+    summary.stamp_jitter_ms = [&left, &right].map(|t| t.jitter_s.map(|s| 1e3 * s));
+
+    // 3. The clock offset, from the candidates a first pass on the stamps chose.
+    let first = locate_all(rig, options, &left, &right, &centres, 0.0);
+    let (offset_s, clock_frames) = clock_offset(rig, &left, &right, &first)?;
+    summary.clock_offset_ms = 1e3 * offset_s;
+    summary.clock_frames = clock_frames;
+
+    // 4-5. Each left frame's tip (left camera) and its step.
+    let located = if offset_s == 0.0 {
+        first
+    } else {
+        locate_all(rig, options, &left, &right, &centres, offset_s)
+    };
+    let mut rows = Vec::with_capacity(left.order.len());
+    let mut points: Vec<Option<Vector3<f64>>> = Vec::with_capacity(left.order.len());
+    for (k, &i) in left.order.iter().enumerate() {
+        let t = left.times[k];
+        let step = log.steps.partition_point(|s| s.time_s <= t).checked_sub(1);
+        let mut row = FrameRow {
+            frame: records[i].index,
+            time_s: t,
+            step,
+            tip_mm: None,
+            reproj_px: None,
+            flags: Vec::new(),
+        };
+        if step.is_none() {
+            row.flags.push("outside_log");
+        }
+        match &located[k] {
+            Ok(found) => {
+                row.reproj_px = Some(found.reproj_px);
+                points.push(Some(found.point));
+            }
+            Err(flag) => {
+                row.flags.push(flag);
+                points.push(None);
+            }
+        }
+        rows.push(row);
+    }
+
+    // 6. The hand frame from the first rest hold.
+    let rest_steps = log
+        .steps
+        .iter()
+        .take_while(|s| s.pressures_kpa.iter().all(|p| p.abs() <= options.zero_kpa))
+        .count();
+    let at_rest: Vec<Vector3<f64>> = rows
+        .iter()
+        .zip(&points)
+        .filter(|(r, _)| r.step.is_some_and(|k| k < rest_steps))
+        .filter_map(|(_, p)| *p)
+        .collect();
+    if at_rest.is_empty() {
+        let why = if rest_steps == 0 {
+            "the log does not start with one: a session filmed per frame starts at rest, its first command 0, 0, 0 kPa held a few seconds (handcap protocol --dynamic writes one)".to_string()
+        } else {
+            let in_rest = rows
+                .iter()
+                .filter(|r| r.step.is_some_and(|k| k < rest_steps));
+            let mut why: BTreeMap<&str, usize> = BTreeMap::new();
+            for r in in_rest {
+                for f in &r.flags {
+                    *why.entry(f).or_default() += 1;
+                }
+            }
+            let said: Vec<String> = why.iter().map(|(f, n)| format!("{n} {f}")).collect();
+            format!(
+                "its left frames: {}",
+                if said.is_empty() {
+                    "none".into()
+                } else {
+                    said.join(", ")
+                }
+            )
+        };
+        return Err(TriangulateError::NoOrigin {
+            zero: rest_steps,
+            zero_kpa: options.zero_kpa,
+            why: format!("no tip in the first rest hold: {why}"),
+        });
+    }
+    let origin = crate::stats::median_point(&at_rest);
+    summary.origin_left_mm = origin.into();
+    summary.origin_rows = at_rest.len();
+    summary.origin_spread_mm = (at_rest
+        .iter()
+        .map(|p| (p - origin).norm_squared())
+        .sum::<f64>()
+        / at_rest.len() as f64)
+        .sqrt();
+    let hand_from_left = HandFromLeft::new(r_hand, -(r_hand * origin));
+    let base = Vector3::new(0.0, 0.0, options.finger_mm);
+    for (row, point) in rows.iter_mut().zip(&points) {
+        if let Some(p) = point {
+            let tip = hand_from_left.apply(&(*p).into()).coords;
+            if (tip - base).norm() > options.finger_mm + options::REACH_MARGIN_MM {
+                row.flags.push("reach");
+            }
+            row.tip_mm = Some(tip.into());
+        }
+    }
+    summary.rows = rows.len();
+    summary.good_rows = rows.iter().filter(|r| r.flags.is_empty()).count();
+    for f in rows.iter().flat_map(|r| &r.flags) {
+        *summary.flagged.entry(f).or_default() += 1;
+    }
+    summary.reproj_px = super::median_95_max(rows.iter().filter_map(|r| r.reproj_px).collect());
+    Ok(PerFrame {
+        rows,
+        summary,
+        hand_from_left,
+        options: options.clone(),
+    })
+}
+
+/// A left frame's tip, and the candidates it was seen as.
+struct Located {
+    /// In the left camera (mm).
+    point: Vector3<f64>,
+    reproj_px: f64,
+    /// The left centre, and the right track's frames around the instant (positions in the
+    /// track) with their centres (px).
+    left_px: [f64; 2],
+    right: [(usize, [f64; 2]); 2],
+}
+
+/// Every left frame's tip at its instant plus `offset_s` on the right camera's clock, in
+/// parallel; or the flag saying why there is none.
+fn locate_all(
+    rig: &StereoRig,
+    options: &TriangulateOptions,
+    left: &Track,
+    right: &Track,
+    centres: &(dyn Fn(usize) -> Result<Vec<[f64; 2]>, &'static str> + Sync),
+    offset_s: f64,
+) -> Vec<Result<Located, &'static str>> {
+    use rayon::prelude::*;
+    left.order
+        .par_iter()
+        .zip(&left.times)
+        .map(|(&i, &t)| locate_at(rig, options, right, centres, i, t + offset_s))
+        .collect()
+}
+
+/// The tip at left frame `i` and its instant `t` on the right camera's clock.
+fn locate_at(
+    rig: &StereoRig,
+    options: &TriangulateOptions,
+    right: &Track,
+    centres: &dyn Fn(usize) -> Result<Vec<[f64; 2]>, &'static str>,
+    i: usize,
+    t: f64,
+) -> Result<Located, &'static str> {
+    let cl = centres(i)?;
+    let (a, b, s) = right.around(t)?;
+    let (ca, cb) = (centres(right.order[a])?, centres(right.order[b])?);
+    if cl.is_empty() {
+        return Err("no_marker_left");
+    }
+    if ca.is_empty() || cb.is_empty() {
+        return Err("no_marker_right");
+    }
+    // The candidate nearest `to` in the track's frame at `pos`, when there is one.
+    let nearest = |pos: Option<usize>, to: [f64; 2]| -> Option<[f64; 2]> {
+        let found = centres(right.order[pos?]).ok()?;
+        found
+            .into_iter()
+            .map(|c| ((c[0] - to[0]).hypot(c[1] - to[1]), c))
+            .filter(|(d, _)| *d <= NEIGHBOUR_PX)
+            .min_by(|x, y| x.0.total_cmp(&y.0))
+            .map(|(_, c)| c)
+    };
+    let (before, after) = (
+        a.checked_sub(1),
+        Some(b + 1).filter(|&k| k < right.times.len()),
+    );
+    let cr: Vec<[f64; 2]> = ca
+        .iter()
+        .flat_map(|&p| cb.iter().map(move |&q| (p, q)))
+        .map(|(p, q)| match (nearest(before, p), nearest(after, q)) {
+            (Some(o), Some(r)) if right.evenly_around(a, b) => catmull_rom([o, p, q, r], s),
+            _ => lerp(p, q, s),
+        })
+        .collect();
+    let combos = combinations(rig, &cl, &cr, options).map_err(|_| "reprojection")?;
+    let consistent: Vec<_> = combos.iter().filter(|c| c.consistent).collect();
+    match consistent.as_slice() {
+        [c] => Ok(Located {
+            point: c.point,
+            reproj_px: c.reproj_px,
+            left_px: cl[c.left],
+            right: [(a, ca[c.right / cb.len()]), (b, cb[c.right % cb.len()])],
+        }),
+        [] => Err("reprojection"),
+        _ => Err("ambiguous"),
+    }
+}
+
+/// The Catmull-Rom spline through four evenly spaced points, at `s` (0-1) between the middle
+/// two: exact for a track of constant acceleration, where a straight line between two frames
+/// 33 ms apart misses a turning tip by a good share of the error budget.
+fn catmull_rom([p0, p1, p2, p3]: [[f64; 2]; 4], s: f64) -> [f64; 2] {
+    let (s2, s3) = (s * s, s * s * s);
+    std::array::from_fn(|i| {
+        0.5 * (2.0 * p1[i]
+            + (p2[i] - p0[i]) * s
+            + (2.0 * p0[i] - 5.0 * p1[i] + 4.0 * p2[i] - p3[i]) * s2
+            + (3.0 * p1[i] - p0[i] - 3.0 * p2[i] + p3[i]) * s3)
+    })
+}
+
+fn lerp(p: [f64; 2], q: [f64; 2], s: f64) -> [f64; 2] {
+    [p[0] + (q[0] - p[0]) * s, p[1] + (q[1] - p[1]) * s]
+}
+
+/// The offset δ (s) to add to a left instant to find it on the right camera's clock, and how
+/// many moving frames told it (see the module docs, step 3), from the candidates each frame
+/// was seen as in `first`, a pass without an offset.
+fn clock_offset(
+    rig: &StereoRig,
+    left: &Track,
+    right: &Track,
+    first: &[Result<Located, &'static str>],
+) -> Result<(f64, usize), TriangulateError> {
+    // The centres seen, undistorted once: the left frame's, and the right track's frames'.
+    let mut right_px: Vec<Option<[f64; 2]>> = vec![None; right.times.len()];
+    let mut left_px: Vec<Option<[f64; 2]>> = vec![None; left.times.len()];
+    for (k, found) in first.iter().enumerate() {
+        if let Ok(found) = found {
+            left_px[k] = Some(found.left_px);
+            for (pos, px) in found.right {
+                right_px[pos] = Some(px);
+            }
+        }
+    }
+    let undistort =
+        |px: &[Option<[f64; 2]>], side: Side| -> Result<Vec<Option<[f64; 2]>>, TriangulateError> {
+            let seen: Vec<[f64; 2]> = px.iter().flatten().copied().collect();
+            let mut undistorted = rig.undistorted(side, &seen)?.into_iter();
+            Ok(px
+                .iter()
+                .map(|p| p.and_then(|_| undistorted.next()))
+                .collect())
+        };
+    let (ul, ur) = (
+        undistort(&left_px, Side::Left)?,
+        undistort(&right_px, Side::Right)?,
+    );
+    let f = rig.fundamental();
+    let cost = |delta: f64| -> (f64, usize) {
+        let (mut sum, mut n) = (0.0, 0);
+        for (k, l) in ul.iter().enumerate() {
+            let Some(l) = l else { continue };
+            let Ok((a, b, s)) = right.around(left.times[k] + delta) else {
+                continue;
+            };
+            let (Some(p), Some(q)) = (ur[a], ur[b]) else {
+                continue;
+            };
+            if (p[0] - q[0]).hypot(p[1] - q[1]) < MOVING_PX {
+                continue;
+            }
+            let r = lerp(p, q, s);
+            let line = f * Vector3::new(l[0], l[1], 1.0);
+            let d = (line[0] * r[0] + line[1] * r[1] + line[2]) / line[0].hypot(line[1]);
+            sum += d.abs().min(EPIPOLAR_CAP_PX).powi(2);
+            n += 1;
+        }
+        (if n > 0 { sum / n as f64 } else { f64::INFINITY }, n)
+    };
+    // A scan over one period each way in tenths of a millisecond, then the parabola through the
+    // best and its neighbours.
+    let step = 1e-4;
+    let reach = (right.period_s / step).ceil() as i64;
+    let scanned: Vec<(f64, f64, usize)> = (-reach..=reach)
+        .map(|k| {
+            let delta = k as f64 * step;
+            let (c, n) = cost(delta);
+            (delta, c, n)
+        })
+        .collect();
+    let Some(best) = (0..scanned.len()).min_by(|&a, &b| {
+        scanned[a]
+            .1
+            .total_cmp(&scanned[b].1)
+            .then(scanned[a].0.abs().total_cmp(&scanned[b].0.abs()))
+    }) else {
+        return Ok((0.0, 0));
+    };
+    let n = scanned[best].2;
+    if n < 20 || !scanned[best].1.is_finite() {
+        return Ok((0.0, 0));
+    }
+    let mut delta = scanned[best].0;
+    if best > 0 && best + 1 < scanned.len() {
+        let (a, b, c) = (scanned[best - 1].1, scanned[best].1, scanned[best + 1].1);
+        let curvature = a - 2.0 * b + c;
+        if curvature > 0.0 && a.is_finite() && c.is_finite() {
+            delta += step * 0.5 * (a - c) / curvature;
+        }
+    }
+    Ok((delta, n))
+}
+
+impl PerFrame {
+    /// The rows as CSV: `time_s`, the log's other columns, the pressures in force, the tip,
+    /// `frame`, `reproj_px`, `flag`.
+    pub fn csv(&self, log: &PressureLog, keep: impl Fn(&FrameRow) -> bool) -> String {
+        let mut w = csv::Writer::from_writer(Vec::new());
+        let mut header = vec!["time_s".to_string()];
+        header.extend(log.extra_columns.iter().cloned());
+        header.extend(
+            [
+                "P1_kpa",
+                "P2_kpa",
+                "P3_kpa",
+                "x_mm",
+                "y_mm",
+                "z_mm",
+                "frame",
+                "reproj_px",
+                "flag",
+            ]
+            .map(String::from),
+        );
+        w.write_record(&header).expect("in memory");
+        let number = |v: Option<f64>| v.map_or_else(String::new, crate::data::format_number);
+        for r in self.rows.iter().filter(|r| keep(r)) {
+            let mut record = vec![format!("{:.6}", r.time_s)];
+            match r.step {
+                Some(k) => {
+                    record.extend(log.steps[k].extra.iter().cloned());
+                    record.extend(log.steps[k].pressures_kpa.map(crate::data::format_number));
+                }
+                None => record.extend(std::iter::repeat_n(
+                    String::new(),
+                    log.extra_columns.len() + 3,
+                )),
+            }
+            let tip = r
+                .tip_mm
+                .filter(|_| r.flags.is_empty() || r.flags == ["reach"]);
+            record.extend((0..3).map(|c| number(tip.map(|t| t[c]))));
+            record.push(r.frame.to_string());
+            record.push(r.reproj_px.map_or_else(String::new, |e| format!("{e:.4}")));
+            record.push(r.flags.join(";"));
+            w.write_record(&record).expect("in memory");
+        }
+        String::from_utf8(w.into_inner().expect("in memory")).expect("UTF-8 fields")
+    }
+
+    /// Writes `out` (every row), `OUT_<phase>.csv` per phase of the log, and
+    /// `OUT_summary.json`; returns the files written.
+    ///
+    /// # Errors
+    /// [`TriangulateError::Write`] naming the file.
+    pub fn write(
+        &self,
+        out: &Path,
+        log: &PressureLog,
+        provenance: &Provenance,
+    ) -> Result<Vec<PathBuf>, TriangulateError> {
+        let write = |path: &Path, text: &str| {
+            crate::fsio::write_bytes(path, text.as_bytes()).map_err(|e| TriangulateError::Write {
+                path: path.to_path_buf(),
+                message: e.to_string(),
+            })
+        };
+        let mut written = vec![out.to_path_buf()];
+        write(out, &self.csv(log, |_| true))?;
+        if let Some(col) = log.extra_columns.iter().position(|c| c == "phase") {
+            let phase_of = |r: &FrameRow| r.step.map(|k| log.steps[k].extra[col].as_str());
+            let mut phases: Vec<&str> = Vec::new();
+            for p in self.rows.iter().filter_map(phase_of) {
+                if !phases.contains(&p) {
+                    phases.push(p);
+                }
+            }
+            for phase in phases {
+                let path = super::output::phase_path(out, phase);
+                write(&path, &self.csv(log, |r| phase_of(r) == Some(phase)))?;
+                written.push(path);
+            }
+        }
+        let path = super::output::beside(out, "_summary.json");
+        written.push(path.clone());
+        let json = serde_json::json!({
+            "per_frame": true,
+            "summary": self.summary,
+            "hand_from_left": {
+                "R_hand": self.hand_from_left.rotation_rows(),
+                "t_hand": self.hand_from_left.translation_array(),
+            },
+            "options": self.options,
+            "provenance": provenance,
+            "files": crate::fsio::file_names(&written),
+        });
+        write(
+            &path,
+            &(serde_json::to_string_pretty(&json).expect("serialisable") + "\n"),
+        )?;
+        Ok(written)
+    }
+}
+
+/// The rows' tips against a truth table with a `frame` column (the synth's
+/// `truth/per_frame.csv`): per matched unflagged row, the distance (mm).
+pub fn errors_against(rows: &[FrameRow], truth: &BTreeMap<usize, [f64; 3]>) -> Vec<f64> {
+    rows.iter()
+        .filter(|r| r.flags.is_empty())
+        .filter_map(|r| {
+            let (tip, want) = (r.tip_mm?, truth.get(&r.frame)?);
+            Some((Vector3::from(tip) - Vector3::from(*want)).norm())
+        })
+        .collect()
+}
