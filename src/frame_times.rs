@@ -100,7 +100,7 @@ pub fn period(times: &[f64]) -> f64 {
 /// (an RMS over a sixth of a period: a camera that changed its rate or paused), or with fewer
 /// than three frames.
 pub fn regular(times: &[f64], period: f64) -> Option<(Vec<f64>, f64)> {
-    if times.len() < 3 || !(period > 0.0) {
+    if times.len() < 3 || period.is_nan() || period <= 0.0 {
         return None;
     }
     let slots: Vec<f64> = times

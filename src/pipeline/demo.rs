@@ -38,6 +38,7 @@ use crate::model::msvr::MsvrParams;
 use crate::model::Differentiable;
 use crate::search::aco_paper::AcoPaper;
 use crate::search::Method;
+use crate::session::protocol::DynamicDesign;
 use crate::synth::capture::{CaptureConfig, Realism};
 use crate::synth::image_format::ImageFormat;
 use crate::synth::plant::Plant;
@@ -71,6 +72,8 @@ struct Plan {
     triangulate: TriangulateOptions,
     aco: AcoPaper,
     targets: usize,
+    /// The dynamic session (its seed the run's).
+    dynamic: DynamicDesign,
 }
 
 impl Plan {
@@ -93,6 +96,12 @@ impl Plan {
                     ..aco
                 },
                 targets: 20,
+                dynamic: DynamicDesign {
+                    duration_s: 5.0,
+                    trials: 3,
+                    seed,
+                    ..DynamicDesign::default()
+                },
             }
         } else {
             // A 25 kPa training grid (1331 steps): the 50 kPa grid of the paper leaves 0.18 mm of
@@ -112,6 +121,12 @@ impl Plan {
                 },
                 aco,
                 targets: 100,
+                dynamic: DynamicDesign {
+                    duration_s: 10.0,
+                    trials: 3,
+                    seed,
+                    ..DynamicDesign::default()
+                },
             }
         }
     }
@@ -151,7 +166,7 @@ pub fn run(
         clock = Instant::now();
         (name.to_string(), seconds)
     };
-    let stage = |step: usize, text: String| session.emit(Event::Stage { step, of: 6, text });
+    let stage = |step: usize, text: String| session.emit(Event::Stage { step, of: 7, text });
 
     // 1. The virtual capture.
     let capture = out.join("capture");
@@ -351,8 +366,42 @@ pub fn run(
     }
     timings.push(lap("inverse"));
 
-    // 6. The report.
-    stage(6, "report".into());
+    // 6. The finger in motion.
+    stage(
+        6,
+        format!(
+            "dynamic: {} trials of {} s of random excitation, triangulated per frame, static against input history",
+            plan.dynamic.trials, plan.dynamic.duration_s
+        ),
+    );
+    let dynamic = super::demo_dynamic::run(
+        &out.join("dynamic"),
+        &synth_config,
+        &capture_config,
+        plan.dynamic.clone(),
+        &calib_path,
+        session,
+    )?;
+    session.emit(Event::Note(format!(
+        "      per-frame tip vs truth: RMS {:.4} mm over {} of {} frames; held-out trial {}: {}",
+        dynamic.tip_rms_mm,
+        dynamic.unflagged,
+        dynamic.rows,
+        dynamic.held_out,
+        dynamic
+            .scores
+            .iter()
+            .map(|s| format!(
+                "{} from {} {:.4} mm",
+                s.model, s.trained_on, s.errors.euclid
+            ))
+            .collect::<Vec<_>>()
+            .join(", ")
+    )));
+    timings.push(lap("dynamic"));
+
+    // 7. The report.
+    stage(7, "report".into());
     timings.push(("total".into(), started.elapsed().as_secs_f64()));
     let summary = Summary {
         seed: config.seed,
@@ -363,6 +412,7 @@ pub fn run(
         scores,
         intervals,
         inverse,
+        dynamic,
         provenance,
     };
     let summary_path = out.join("summary.json");

@@ -64,6 +64,15 @@ pub(super) fn page(
                 s.inverse.first().map_or("-".into(), |i| format!("planned pressures put the plant's tip {:.4} mm (mean) from the target", i.mean_mm)),
                 timing(timings, "inverse"),
             ],
+            vec![
+                "dynamic".into(),
+                {
+                    let d = &s.dynamic;
+                    let euclid = |k: usize| d.scores.get(k).map_or(f64::NAN, |x| x.errors.euclid);
+                    format!("per-frame tip RMS {:.4} mm; held-out trial: {:.4} mm static, {:.4} mm with input history", d.tip_rms_mm, euclid(0), euclid(1))
+                },
+                timing(timings, "dynamic"),
+            ],
             vec!["total".into(), String::new(), timing(timings, "total")],
         ],
     );
@@ -235,6 +244,33 @@ pub(super) fn page(
             ]).collect::<Vec<_>>(),
         )
         .paragraph("All targets: inverse_check.csv. The last column: the share of planned tips whose plant tip lies within the model's 90 % interval of the model's own tip there. The interval is calibrated on triangulated tips, so it cannot see what every triangulated row shares (the hand frame's origin, the triangulation table's mean error), nor the inverse's own error; against the plant's truth it covers less than its level.");
+
+    let d = &s.dynamic;
+    page.section("dynamic", "The finger in motion: per-frame tips and input history")
+        .paragraph(&format!(
+            "A dynamic session: {} trials of {} s, each muscle commanded {} times a second by a rate-limited random sequence (APRBS) over 0-{} kPa, with rest holds at 0, 0, 0 kPa first, between trials and last. The muscles follow through a pneumatic line (delay {} ms, lags {} s, muscles 1-3), {} % of the response creeping with a time constant of {} s; the cameras run free at 30 fps, each on its own clock. `triangulate --per-frame` gives one row per left frame: the right camera's track interpolated to its instant across the clocks' offset (measured from the motion: {:+.2} ms), the pressures in force then.",
+            d.design.trials, d.design.duration_s, d.design.rate_hz, d.design.max_kpa,
+            1e3 * d.dynamics.delay_s, triple(&d.dynamics.lag_s, 2), 100.0 * d.dynamics.creep_share, d.dynamics.creep_s,
+            d.clock_offset_ms,
+        ))
+        .table(
+            &["frames", "rows with a tip, unflagged", "tip RMS vs truth (mm)", "largest (mm)"],
+            &[vec![d.rows.to_string(), format!("{} ({:.1} %)", d.unflagged, 100.0 * d.unflagged as f64 / d.rows.max(1) as f64), f4(d.tip_rms_mm), f4(d.tip_max_mm)]],
+        )
+        .paragraph(&format!(
+            "Trial {} held out whole; the models trained on the others (the search's folds are whole trials). The history model chose `{}` (exponentially filtered pressures, time constants in s).",
+            d.held_out, d.history
+        ))
+        .table(
+            &["model", "trained on", "held-out MAE (mm)", "mean Euclidean (mm)", "max Euclidean (mm)"],
+            &d.scores.iter().map(|x| vec![x.model.clone(), x.trained_on.clone(), f4(x.errors.mae), f4(x.errors.euclid), f4(x.errors.max_euclid)]).collect::<Vec<_>>(),
+        );
+    for axis in ["x", "y"] {
+        page.figure(
+            &out.join(format!("dynamic/trajectory_{axis}_mm.svg")),
+            &format!("The held-out trial: the tip's {axis} against time, the truth at each frame's instant, the triangulated rows, and both models' predictions from the commanded pressures."),
+        );
+    }
 
     page.section("manifest", "Run manifest")
         .table(

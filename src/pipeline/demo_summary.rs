@@ -84,5 +84,7 @@ pub struct Summary {
     pub scores: Vec<Score>,
     pub intervals: Vec<IntervalCheck>,
     pub inverse: Vec<InverseCheck>,
+    /// The finger in motion.
+    pub dynamic: super::demo_dynamic::DynamicCheck,
     pub provenance: Provenance,
 }

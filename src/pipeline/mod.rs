@@ -12,6 +12,7 @@
 
 pub mod calibrate;
 pub mod demo;
+pub mod demo_dynamic;
 mod demo_report;
 pub mod demo_summary;
 pub mod fit;

@@ -2,7 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
-use super::{PipelineError, Session, Task};
+use super::{io_error, PipelineError, Session, Task};
 use crate::synth::capture::{self, CaptureConfig, CaptureSummary};
 use crate::synth::{self as plant_data, SynthConfig};
 
@@ -28,7 +28,13 @@ pub fn run(
 ) -> Result<Synthesized, PipelineError> {
     let started = std::time::Instant::now();
     let provenance = session.provenance(Some(config.seed));
-    let datasets = plant_data::write_datasets(out, config, &provenance)?;
+    // A dynamic session's dataset is its per-frame truth; the settled grid is the steps'.
+    let datasets = if capture_config.is_some_and(|c| c.dynamic.is_some()) {
+        std::fs::create_dir_all(out).map_err(io_error(out))?;
+        Vec::new()
+    } else {
+        plant_data::write_datasets(out, config, &provenance)?
+    };
     let Some(capture_config) = capture_config else {
         return Ok(Synthesized {
             datasets,

@@ -67,7 +67,7 @@ impl Dynamics {
         if !self.lag_s.iter().all(|&t| (0.0..=10.0).contains(&t)) {
             return Err(format!("lags {:?} s must lie in 0-10 s", self.lag_s));
         }
-        if !(0.0..1.0).contains(&self.creep_share) || !(self.creep_s > 0.0 && self.creep_s <= 600.0)
+        if !((0.0..1.0).contains(&self.creep_share) && self.creep_s > 0.0 && self.creep_s <= 600.0)
         {
             return Err(format!(
                 "creep share {} must lie in [0, 1) and its time {} s in (0, 600]",

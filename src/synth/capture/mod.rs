@@ -83,6 +83,9 @@ pub struct CaptureConfig {
     pub rig: RigConfig,
     /// Chessboard pairs for calibration (besides the reference pair).
     pub views: usize,
+    /// Whether to render the board pairs (`calib/`, `truth/boards.csv`); a session filmed
+    /// with a rig calibrated before (the same seed's) needs none.
+    pub calibration_images: bool,
     /// The printed board.
     pub board: BoardSpec,
     /// How long the paper's protocol holds each step (s).
@@ -155,6 +158,7 @@ impl Default for CaptureConfig {
         CaptureConfig {
             rig: RigConfig::default(),
             views: 20,
+            calibration_images: true,
             board: crate::calib::file::default_board(),
             step_s: 0.3,
             window_s: [0.10, 0.20],
@@ -225,19 +229,26 @@ pub fn write_capture(
     );
     let frames = camera_frames(config, &starts, end_s, &mut rng);
 
-    for sub in ["calib", "frames", "truth"] {
+    let subs: &[&str] = if config.calibration_images {
+        &["calib", "frames", "truth"]
+    } else {
+        &["frames", "truth"]
+    };
+    for sub in subs {
         let path = dir.join(sub);
         std::fs::create_dir_all(&path).map_err(io_err(&path))?;
     }
-    write_text(
-        &dir.join("calib").join(crate::calib::file::BOARD_FILE),
-        &crate::calib::file::board_yaml(&config.board),
-    )?;
     write_text(&dir.join("truth/rig.yml"), &rig_yaml(&rig, provenance))?;
-    write_text(
-        &dir.join("truth/boards.csv"),
-        &boards_csv(&rig, &boards, &reference),
-    )?;
+    if config.calibration_images {
+        write_text(
+            &dir.join("calib").join(crate::calib::file::BOARD_FILE),
+            &crate::calib::file::board_yaml(&config.board),
+        )?;
+        write_text(
+            &dir.join("truth/boards.csv"),
+            &boards_csv(&rig, &boards, &reference),
+        )?;
+    }
     write_text(&dir.join("pressures.csv"), &pressures_csv(&steps, &starts))?;
     let tips = steps
         .iter()
@@ -262,12 +273,20 @@ pub fn write_capture(
         config,
         plant: &plant,
         motion: &motion,
-        boards: boards.iter().chain(std::iter::once(&reference)).collect(),
+        boards: if config.calibration_images {
+            boards.iter().chain(std::iter::once(&reference)).collect()
+        } else {
+            Vec::new()
+        },
         views: shots::views(&rig, synth.seed, &config.realism, &plant, &tips),
     };
     let complete = shots::write_all(&studio, &frames, progress, interrupt)?;
     Ok(CaptureSummary {
-        board_pairs: boards.len(),
+        board_pairs: if config.calibration_images {
+            boards.len()
+        } else {
+            0
+        },
         steps: steps.len(),
         left_frames: frames.iter().filter(|f| f.camera == Side::Left).count(),
         right_frames: frames.iter().filter(|f| f.camera == Side::Right).count(),

@@ -143,8 +143,8 @@ pub(super) fn write_all(
     interrupt: &AtomicBool,
 ) -> Result<bool, SynthError> {
     let mut shots = Vec::new();
-    let last = studio.boards.len() - 1;
-    for board in 0..=last {
+    let last = studio.boards.len().saturating_sub(1);
+    for board in 0..studio.boards.len() {
         let name = if board == last {
             "ref".to_string()
         } else {
