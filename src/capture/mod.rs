@@ -37,7 +37,7 @@ pub mod url;
 
 use files::SessionFiles;
 use flash::FlashState;
-use regulator::{drive, run_command, CommandEnd};
+use regulator::{drive, drive_streaming, run_command, CommandEnd};
 use source::{film, CameraEnd, Grabbed};
 
 use std::path::{Path, PathBuf};
@@ -100,8 +100,8 @@ pub struct CaptureOptions {
     pub width: u32,
     pub height: u32,
     pub fps: f64,
-    /// Steps to drive, and the command that sets each step's pressures.
-    pub protocol: Option<(Vec<protocol::Step>, String)>,
+    /// Steps to drive, and how the regulator is told them.
+    pub protocol: Option<(Vec<protocol::Step>, Regulator)>,
     /// Stop after this long (s).
     pub duration_s: Option<f64>,
     /// A live camera silent this long has stopped (s; [`STALL_S`] by default).
@@ -114,6 +114,15 @@ pub struct CaptureOptions {
     /// Command that switches on a light both cameras see, run before the protocol: each
     /// camera's latency is measured from it ([`flash`]).
     pub flash: Option<String>,
+}
+
+/// How the regulator is told each step.
+#[derive(Clone, Debug)]
+pub enum Regulator {
+    /// A command run per step, `{p1} {p2} {p3}` and `{step}` filled in (`--set-pressure`).
+    PerStep(String),
+    /// One process kept running, a line per step on its input (`--regulator`).
+    Streaming(String),
 }
 
 /// What a calibration capture collects: still pairs of `board` where it stands somewhere new,
@@ -204,6 +213,9 @@ pub struct Stats {
     pub over_hold: usize,
     /// How long the commands took (ms): median and longest; 0, 0 before the first.
     pub command_ms: [f64; 2],
+    /// How late a streaming regulator's lines went out after they were due (ms): median and
+    /// latest; 0, 0 for commands per step.
+    pub command_late_ms: [f64; 2],
     /// A calibration capture's pairs taken, and why the last candidate was not.
     pub board_pairs: usize,
     pub board_refused: String,
@@ -296,6 +308,12 @@ fn stats(
         .count();
     let command_ms =
         crate::stats::quantiles(&mut took, [0.5, 1.0]).map_or([0.0; 2], |q| q.map(|t| 1e3 * t));
+    let mut late: Vec<f64> = steps
+        .iter()
+        .filter_map(|c| c.scheduled_s.map(|due| c.time_s - due))
+        .collect();
+    let command_late_ms =
+        crate::stats::quantiles(&mut late, [0.5, 1.0]).map_or([0.0; 2], |q| q.map(|t| 1e3 * t));
     let times =
         |side: Side| -> Vec<f64> { rows.iter().filter(|r| r.0 == side).map(|r| r.2).collect() };
     let (l, r) = (times(Side::Left), times(Side::Right));
@@ -311,6 +329,7 @@ fn stats(
         steps_done: steps.len(),
         over_hold,
         command_ms,
+        command_late_ms,
         board_pairs: judge.map_or(0, |j| j.taken),
         board_refused: judge.map_or_else(String::new, |j| j.refused.clone()),
         board_delay_ms: judge
@@ -409,7 +428,7 @@ pub fn capture(
                 flash::fire(command, clock, stop, flash_state);
             }
         };
-        let driving = options.protocol.as_ref().map(|(steps, template)| {
+        let driving = options.protocol.as_ref().map(|(steps, regulator)| {
             let (clock, stop, log) = (&clock, &stop, &log);
             scope.spawn(move || {
                 fire(clock, stop);
@@ -417,7 +436,12 @@ pub fn capture(
                 if failed {
                     return None;
                 }
-                drive(steps, template, clock, log, stop)
+                match regulator {
+                    Regulator::PerStep(template) => drive(steps, template, clock, log, stop),
+                    Regulator::Streaming(command) => {
+                        drive_streaming(steps, command, clock, log, stop)
+                    }
+                }
             })
         });
         let flashing = options.protocol.is_none().then(|| {

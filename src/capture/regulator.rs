@@ -1,5 +1,7 @@
 //! The regulator: each protocol step's command run (timed out, stopped with the session),
-//! logged with when it started and returned, then held; the log as `pressures.csv`.
+//! logged with when it started and returned, then held; or one regulator process kept running,
+//! each step a line on its input at the step's time ([`drive_streaming`]); the log as
+//! `pressures.csv`.
 //!
 //! A command runs in its own process group: a terminal's Ctrl-C reaches handcap alone, which
 //! gives a command still running [`STOP_GRACE_S`] to return (a regulator is not cut off
@@ -45,6 +47,8 @@ pub(super) fn drive(
         log.lock().expect("log").push(Commanded {
             time_s,
             end_s: clock.now_s(),
+            scheduled_s: None,
+            measured: None,
             step: step.clone(),
         });
         // Held, and let go as soon as the session stops.
@@ -136,17 +140,233 @@ pub(super) fn run_command(
 pub(super) struct Commanded {
     pub time_s: f64,
     pub end_s: f64,
+    /// When a streamed command was due (s): `time_s` minus this is how late it went out.
+    pub scheduled_s: Option<f64>,
+    /// The last pressures a streaming regulator reported while this command was in force.
+    pub measured: Option<[f64; 3]>,
     pub step: protocol::Step,
 }
 
 pub(super) fn pressures_csv(log: &[Commanded]) -> String {
+    let streamed = log.first().is_some_and(|c| c.scheduled_s.is_some());
     crate::session::pressures::pressures_csv(log.iter().map(|c| Logged {
         time_s: c.time_s,
         command_end_s: Some(c.end_s),
         pressures_kpa: c.step.pressures,
         step: c.step.step,
         phase: &c.step.phase,
+        measured_kpa: streamed.then_some(c.measured),
     }))
+}
+
+/// How long a streaming regulator may leave its input unread before it has stalled (s).
+pub const STREAM_STALL_S: f64 = 2.0;
+
+/// Runs the protocol through one regulator process, `command` (`sh -c`, its own process
+/// group): each step is the line `time_s P1_kpa P2_kpa P3_kpa` on its input, written when the
+/// step is due (the protocol's holds added up from the session's start) and logged when it
+/// was written; a line it prints back in the same form is the pressure it measured, logged
+/// beside the command then in force. It ends the session, everything recorded kept, when it
+/// exits, leaves its input unread for [`STREAM_STALL_S`], or prints anything else.
+pub(super) fn drive_streaming(
+    steps: &[protocol::Step],
+    command: &str,
+    clock: &Clock,
+    log: &std::sync::Mutex<Vec<Commanded>>,
+    stop: &AtomicBool,
+) -> Option<Ending> {
+    use std::io::{BufRead, Write};
+    use std::os::unix::process::CommandExt;
+    let step_of = |k: usize| steps.get(k).map_or(0, |s| s.step);
+    let failed = |k: usize, message: String| {
+        Some(Ending::CommandFailed {
+            step: step_of(k),
+            message,
+        })
+    };
+    let mut child = match std::process::Command::new("sh")
+        .arg("-c")
+        .arg(command)
+        .process_group(0)
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+    {
+        Ok(child) => child,
+        Err(e) => return failed(0, format!("`{command}` could not run: {e}")),
+    };
+    let group = -(child.id() as i32);
+    let mut input = child.stdin.take().expect("piped");
+    // SAFETY: the descriptor is the child's input, ours alone; non-blocking so that a regulator
+    // that stops reading is seen, not waited on forever.
+    unsafe {
+        let fd = std::os::fd::AsRawFd::as_raw_fd(&input);
+        let flags = libc::fcntl(fd, libc::F_GETFL);
+        libc::fcntl(fd, libc::F_SETFL, flags | libc::O_NONBLOCK);
+    }
+    // What it prints: measured pressures, or the first line that is not one.
+    let garbage: std::sync::Mutex<Option<String>> = std::sync::Mutex::new(None);
+    let output = child.stdout.take().expect("piped");
+    let mut stderr = child.stderr.take().expect("piped");
+    let ending = std::thread::scope(|scope| {
+        let garbage = &garbage;
+        scope.spawn(move || {
+            for (n, line) in std::io::BufReader::new(output).lines().enumerate() {
+                let Ok(line) = line else { break };
+                if line.trim().is_empty() {
+                    continue;
+                }
+                match parse_measured(&line) {
+                    Some(p) => {
+                        if let Some(last) = log.lock().expect("log").last_mut() {
+                            last.measured = Some(p);
+                        }
+                    }
+                    None => {
+                        *garbage.lock().expect("garbage") = Some(format!(
+                            "`{command}` printed line {}: {:?}, not `time_s P1_kpa P2_kpa P3_kpa` (a measured pressure)",
+                            n + 1,
+                            line.chars().take(80).collect::<String>()
+                        ));
+                        break;
+                    }
+                }
+            }
+        });
+        let ended = |child: &mut std::process::Child, stderr: &mut std::process::ChildStderr| {
+            let status = child.try_wait().ok().flatten()?;
+            let mut error = String::new();
+            use std::io::Read;
+            let _ = stderr.read_to_string(&mut error);
+            Some(format!(
+                "`{command}` exited with {status}: {}",
+                error.trim()
+            ))
+        };
+        let mut told = || -> Option<Ending> {
+            let mut due = 0.0;
+            // When its input was last seen read to the end.
+            let mut drained_s = clock.now_s();
+            for (k, step) in steps.iter().enumerate() {
+                // Due at its time; checked meanwhile for a stop, a death, garbage or a stall.
+                loop {
+                    if stop.load(Ordering::SeqCst) {
+                        return None;
+                    }
+                    if let Some(why) = garbage.lock().expect("garbage").take() {
+                        return failed(k.saturating_sub(1), why);
+                    }
+                    if let Some(why) = ended(&mut child, &mut stderr) {
+                        return failed(k, why);
+                    }
+                    if unread(&input) == 0 {
+                        drained_s = clock.now_s();
+                    } else if clock.now_s() - drained_s > STREAM_STALL_S {
+                        return failed(
+                            k.saturating_sub(1),
+                            format!(
+                                "`{command}` has not read its input for {STREAM_STALL_S} s (stalled)"
+                            ),
+                        );
+                    }
+                    let left = due - clock.now_s();
+                    if left <= 0.0 {
+                        break;
+                    }
+                    std::thread::sleep(Duration::from_secs_f64(left.min(0.005)));
+                }
+                let [p1, p2, p3] = step.pressures.map(crate::data::format_number);
+                let time_s = clock.now_s();
+                let line = format!("{time_s:.6} {p1} {p2} {p3}\n");
+                let mut written = 0;
+                let bytes = line.as_bytes();
+                while written < bytes.len() {
+                    match input.write(&bytes[written..]) {
+                        Ok(n) => written += n,
+                        Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
+                            if clock.now_s() - time_s > STREAM_STALL_S {
+                                return failed(k, format!("`{command}` has not read its input for {STREAM_STALL_S} s (stalled)"));
+                            }
+                            if stop.load(Ordering::SeqCst) {
+                                return None;
+                            }
+                            std::thread::sleep(Duration::from_millis(1));
+                        }
+                        Err(e) => {
+                            let why = ended(&mut child, &mut stderr)
+                                .unwrap_or_else(|| format!("`{command}` stopped reading: {e}"));
+                            return failed(k, why);
+                        }
+                    }
+                }
+                log.lock().expect("log").push(Commanded {
+                    time_s,
+                    end_s: clock.now_s(),
+                    scheduled_s: Some(due),
+                    measured: None,
+                    step: step.clone(),
+                });
+                due += step.hold_s;
+            }
+            // The last step held for its time.
+            while clock.now_s() < due && !stop.load(Ordering::SeqCst) {
+                std::thread::sleep(Duration::from_secs_f64(
+                    (due - clock.now_s()).clamp(0.0, 0.05),
+                ));
+            }
+            Some(Ending::ProtocolDone)
+        };
+        let ending = told();
+        // Its input closed (end of file), then a grace to exit, then its group killed: its
+        // output ends, and the reader with it.
+        drop(input);
+        let waited = Instant::now();
+        while child.try_wait().ok().flatten().is_none()
+            && waited.elapsed().as_secs_f64() < STOP_GRACE_S
+        {
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        // SAFETY: a signal to the process group this function created.
+        unsafe {
+            libc::kill(group, libc::SIGKILL);
+        }
+        let _ = child.wait();
+        ending
+    });
+    ending
+}
+
+/// The bytes written to a pipe and not yet read from it (Linux answers `FIONREAD` on either
+/// end); 0 when it cannot tell.
+fn unread(pipe: &std::process::ChildStdin) -> i32 {
+    let mut n: libc::c_int = 0;
+    // SAFETY: FIONREAD writes one int through the pointer, on a descriptor we own.
+    let ok = unsafe {
+        libc::ioctl(
+            std::os::fd::AsRawFd::as_raw_fd(pipe),
+            libc::FIONREAD,
+            &mut n,
+        )
+    };
+    if ok == 0 {
+        n
+    } else {
+        0
+    }
+}
+
+/// `time_s P1_kpa P2_kpa P3_kpa` (whitespace or commas between): the three pressures.
+fn parse_measured(line: &str) -> Option<[f64; 3]> {
+    let numbers: Vec<f64> = line
+        .split(|c: char| c.is_whitespace() || c == ',')
+        .filter(|t| !t.is_empty())
+        .map(|t| t.parse::<f64>().ok().filter(|v| v.is_finite()))
+        .collect::<Option<_>>()?;
+    match numbers[..] {
+        [_, p1, p2, p3] => Some([p1, p2, p3]),
+        _ => None,
+    }
 }
 
 #[cfg(test)]

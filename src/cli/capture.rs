@@ -29,9 +29,16 @@ pub struct Args {
     #[arg(long, default_value_t = 30.0)]
     fps: f64,
     /// Pressure protocol to drive (step,phase,P1_kpa,P2_kpa,P3_kpa,hold_s; `handcap protocol`
-    /// writes the paper's); needs --set-pressure
-    #[arg(long, requires = "set_pressure")]
+    /// writes the paper's, or a dynamic one); needs --set-pressure or --regulator
+    #[arg(long)]
     protocol: Option<PathBuf>,
+    /// A regulator process started once and kept running: each protocol row is one line
+    /// `time_s P1_kpa P2_kpa P3_kpa` on its input, sent at the row's time (for dynamic
+    /// protocols, tens of commands a second); a line it prints back in the same form is the
+    /// pressure it measured, logged beside the command (P1_measured_kpa, …). If it exits,
+    /// stops reading for 2 s or prints anything else, the session ends, everything kept
+    #[arg(long, requires = "protocol", conflicts_with = "set_pressure")]
+    regulator: Option<String>,
     /// Command run at each step, {p1} {p2} {p3} (kPa) and {step} filled in, e.g.
     /// 'python3 regulator.py {p1} {p2} {p3}'; pressures above 300 kPa are refused first
     #[arg(long, requires = "protocol")]
@@ -87,8 +94,18 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if let Some(d) = a.duration_s.filter(|&d| d <= 0.0) {
         super::usage!("--duration-s {d} must be positive");
     }
-    let protocol = match (&a.protocol, &a.set_pressure) {
-        (Some(path), Some(command)) => Some((protocol::read(path)?, command.clone())),
+    let protocol = match (&a.protocol, &a.set_pressure, &a.regulator) {
+        (Some(path), Some(command), _) => Some((
+            protocol::read(path)?,
+            capture::Regulator::PerStep(command.clone()),
+        )),
+        (Some(path), None, Some(command)) => Some((
+            protocol::read(path)?,
+            capture::Regulator::Streaming(command.clone()),
+        )),
+        (Some(_), None, None) => {
+            super::usage!("--protocol needs --set-pressure (a command per step) or --regulator (one process, a line per step)")
+        }
         _ => None,
     };
     if protocol.is_none() && a.duration_s.is_none() && !a.calib {
@@ -174,6 +191,16 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     }
     if let Some(flash) = &summary.flash {
         println!("{}", flash_line(flash));
+    }
+    if matches!(
+        options.protocol,
+        Some((_, capture::Regulator::Streaming(_)))
+    ) {
+        let [median, latest] = summary.stats.command_late_ms;
+        println!(
+            "regulator: {} lines written, {median:.2} ms after they were due (median), {latest:.2} ms at most",
+            summary.stats.steps_done
+        );
     }
     let kept = "every frame before it is kept and listed";
     if let Some(result) = &summary.on_abort {

@@ -153,28 +153,41 @@ pub struct Logged<'a> {
     pub pressures_kpa: [f64; 3],
     pub step: usize,
     pub phase: &'a str,
+    /// What a streaming regulator measured while this command held (`Some(None)`: nothing;
+    /// `None`: no such columns in the log).
+    pub measured_kpa: Option<Option<[f64; 3]>>,
 }
 
-/// `pressures.csv` of `rows`; the `command_end_s` column when the first row has it.
+/// `pressures.csv` of `rows`; the `command_end_s` column when the first row has it, the
+/// measured pressures' columns ([`MEASURED_COLUMNS`]) when it has those.
 pub fn pressures_csv<'a>(rows: impl IntoIterator<Item = Logged<'a>>) -> String {
     let mut rows = rows.into_iter().peekable();
     let with_end = rows.peek().is_some_and(|r| r.command_end_s.is_some());
-    let mut out = format!(
-        "time_s,{},step,phase{}\n",
-        PRESSURE_COLUMNS.join(","),
-        if with_end {
-            format!(",{COMMAND_END_COLUMN}")
-        } else {
-            String::new()
-        }
-    );
+    let with_measured = rows.peek().is_some_and(|r| r.measured_kpa.is_some());
+    let mut out = format!("time_s,{},step,phase", PRESSURE_COLUMNS.join(","));
+    if with_end {
+        out += &format!(",{COMMAND_END_COLUMN}");
+    }
+    if with_measured {
+        out += &format!(",{}", MEASURED_COLUMNS.join(","));
+    }
+    out += "\n";
     for r in rows {
         let [p1, p2, p3] = r.pressures_kpa;
         out += &format!("{:.6},{p1},{p2},{p3},{},{}", r.time_s, r.step, r.phase);
         if let Some(end) = r.command_end_s.filter(|_| with_end) {
             out += &format!(",{end:.6}");
         }
+        if with_measured {
+            match r.measured_kpa.flatten() {
+                Some([m1, m2, m3]) => out += &format!(",{m1},{m2},{m3}"),
+                None => out += ",,,",
+            }
+        }
         out += "\n";
     }
     out
 }
+
+/// The columns of what a streaming regulator measured while each command held (kPa).
+pub const MEASURED_COLUMNS: [&str; 3] = ["P1_measured_kpa", "P2_measured_kpa", "P3_measured_kpa"];

@@ -19,7 +19,9 @@
 //!    `no_marker_left`, `no_marker_right`, `gap` (no right frame within one and a half periods
 //!    on one side), `reprojection`, `ambiguous`.
 //! 5. The pressures in force at the row's time: the log's command held until the next
-//!    (the last held on); a row before the first command is flagged `outside_log`.
+//!    (the last held on), or what a streaming regulator measured while it held, where the log
+//!    has that (`P1_measured_kpa`, …); a row before the first command is flagged
+//!    `outside_log`.
 //! 6. The hand frame: axes from the calibration, origin the median tip over the rows in the
 //!    log's first rest hold (the steps at 0, 0, 0 kPa before anything else: the finger rested
 //!    before the session; later rest holds still creep). A tip beyond the finger's reach is
@@ -40,7 +42,7 @@ use crate::calib::file::CalibrationFile;
 use crate::geometry::HandFromLeft;
 use crate::provenance::Provenance;
 use crate::session::frames::{FrameList, FrameRecord};
-use crate::session::pressures::PressureLog;
+use crate::session::pressures::{PressureLog, MEASURED_COLUMNS};
 use crate::stereo::{Side, StereoRig};
 
 /// The longest a right frame may be from its neighbour for the track to be interpolated
@@ -239,12 +241,13 @@ pub fn triangulate_per_frame(
     summary.clock_offset_ms = 1e3 * offset_s;
     summary.clock_frames = clock_frames;
 
-    // 4-5. Each left frame's tip (left camera) and its step.
-    let located = if offset_s == 0.0 {
-        first
-    } else {
-        locate_all(rig, options, &left, &right, &centres, offset_s)
+    // 4-5. Each left frame's tip (left camera) and its step, from the tracks smoothed.
+    let smoothed = smoothed_tracks(&left, &right, &first);
+    let chosen = |i: usize| match smoothed.get(&i) {
+        Some(c) => Ok(vec![*c]),
+        None => centres(i),
     };
+    let located = locate_all(rig, options, &left, &right, &chosen, offset_s);
     let mut rows = Vec::with_capacity(left.order.len());
     let mut points: Vec<Option<Vector3<f64>>> = Vec::with_capacity(left.order.len());
     for (k, &i) in left.order.iter().enumerate() {
@@ -347,6 +350,45 @@ pub fn triangulate_per_frame(
         hand_from_left,
         options: options.clone(),
     })
+}
+
+/// Each camera's track smoothed where the first pass saw the tip in five frames in a row,
+/// evenly spaced: the Savitzky-Golay filter of a parabola through the five (weights −3, 12,
+/// 17, 12, −3 over 35), exact for a tip moving at constant acceleration, which averages out
+/// the frame-to-frame error of a moving bead's JPEG chroma. Keyed by frame record.
+fn smoothed_tracks(
+    left: &Track,
+    right: &Track,
+    first: &[Result<Located, &'static str>],
+) -> std::collections::HashMap<usize, [f64; 2]> {
+    const WEIGHTS: [f64; 5] = [-3.0, 12.0, 17.0, 12.0, -3.0];
+    let mut seen: [Vec<Option<[f64; 2]>>; 2] =
+        [vec![None; left.times.len()], vec![None; right.times.len()]];
+    for (k, found) in first.iter().enumerate() {
+        if let Ok(found) = found {
+            seen[0][k] = Some(found.left_px);
+            for (pos, px) in found.right {
+                seen[1][pos] = Some(px);
+            }
+        }
+    }
+    let mut out = std::collections::HashMap::new();
+    for (track, seen) in [left, right].into_iter().zip(&seen) {
+        for k in 2..track.times.len().saturating_sub(2) {
+            let window: Option<Vec<[f64; 2]>> = (k - 2..=k + 2).map(|j| seen[j]).collect();
+            let even = (k - 2..k + 2).all(|j| {
+                let gap = track.times[j + 1] - track.times[j];
+                (gap - track.period_s).abs() <= 0.25 * track.period_s
+            });
+            if let (Some(w), true) = (window, even) {
+                let c = std::array::from_fn(|a| {
+                    w.iter().zip(WEIGHTS).map(|(p, wt)| wt * p[a]).sum::<f64>() / 35.0
+                });
+                out.insert(track.order[k], c);
+            }
+        }
+    }
+    out
 }
 
 /// A left frame's tip, and the candidates it was seen as.
@@ -561,12 +603,26 @@ impl PerFrame {
         );
         w.write_record(&header).expect("in memory");
         let number = |v: Option<f64>| v.map_or_else(String::new, crate::data::format_number);
+        let measured: Option<Vec<usize>> = MEASURED_COLUMNS
+            .iter()
+            .map(|name| log.extra_columns.iter().position(|c| c == name))
+            .collect();
         for r in self.rows.iter().filter(|r| keep(r)) {
             let mut record = vec![format!("{:.6}", r.time_s)];
             match r.step {
                 Some(k) => {
-                    record.extend(log.steps[k].extra.iter().cloned());
-                    record.extend(log.steps[k].pressures_kpa.map(crate::data::format_number));
+                    let step = &log.steps[k];
+                    record.extend(step.extra.iter().cloned());
+                    // The pressures measured while the command held, where a streaming
+                    // regulator reported them; else the command's.
+                    let measured: Option<Vec<String>> = measured.as_ref().and_then(|cols| {
+                        let m: Vec<String> = cols.iter().map(|&c| step.extra[c].clone()).collect();
+                        m.iter().all(|v| !v.trim().is_empty()).then_some(m)
+                    });
+                    match measured {
+                        Some(m) => record.extend(m),
+                        None => record.extend(step.pressures_kpa.map(crate::data::format_number)),
+                    }
                 }
                 None => record.extend(std::iter::repeat_n(
                     String::new(),

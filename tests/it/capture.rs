@@ -863,3 +863,153 @@ fn a_silent_or_stalled_stream_ends_the_session() {
     assert!(l >= 20 && r > l, "{l} left, {r} right frames");
     println!("a stream stalled after 1 s: session ended after {took:.1} s, {l} left and {r} right frames kept");
 }
+
+/// A dynamic protocol of 3 s at 20 commands a second: 2 s of rest, then 1 s of one trial.
+fn dynamic_protocol(d: &Path) {
+    handcap_ok(
+        d,
+        &[
+            "protocol",
+            "--dynamic",
+            "--duration-s",
+            "1",
+            "--rate-hz",
+            "20",
+            "--trials",
+            "1",
+            "--out",
+            "p.csv",
+        ],
+    );
+}
+
+/// `--regulator`: one process told every command on its input at the command's time; what it
+/// prints back is logged as measured beside the command in force.
+#[test]
+fn a_streaming_regulator_is_told_each_command_on_time_and_its_measurements_logged() {
+    let _cores = real_time();
+    let dir = tempdir();
+    let d = dir.path();
+    long_cameras(d);
+    dynamic_protocol(d);
+    let protocol = csv_rows(&d.join("p.csv"));
+    assert_eq!(protocol.len(), 22, "rest, 20 commands, rest");
+    // It records what it reads, and answers each line with half the pressures as measured.
+    let regulator = "while read t a b c; do echo \"$t $a $b $c\" >> told.txt; echo \"$t $(echo \"$a/2\" | bc -l) $b $c\"; done";
+    let args = [
+        "capture",
+        "--left",
+        "cams/frames/left.avi",
+        "--right",
+        "cams/frames/right.avi",
+        "--out",
+        "s",
+        "--protocol",
+        "p.csv",
+        "--regulator",
+        regulator,
+        "--duration-s",
+        "3.5",
+    ];
+    let out = handcap_ok(d, &args);
+    assert!(out.contains("regulator: 22 lines written"), "{out}");
+    let told: Vec<String> = std::fs::read_to_string(d.join("told.txt"))
+        .unwrap()
+        .lines()
+        .map(String::from)
+        .collect();
+    let log = csv_rows(&d.join("s/pressures.csv"));
+    assert_eq!(told.len(), 22);
+    assert_eq!(log.len(), 22);
+    let mut due = 0.0;
+    for ((p, t), l) in protocol.iter().zip(&told).zip(&log) {
+        // The line carries the logged time and the protocol's pressures.
+        let fields: Vec<&str> = t.split(' ').collect();
+        assert_eq!(fields[0], l["time_s"]);
+        assert_eq!(
+            fields[1..],
+            [&p["P1_kpa"], &p["P2_kpa"], &p["P3_kpa"]].map(String::as_str)
+        );
+        // Sent when due (the holds added up from the session's start), within the scheduler's
+        // slack.
+        let time: f64 = l["time_s"].parse().unwrap();
+        assert!(time >= due && time <= due + 0.05, "{time} due {due}");
+        due += p["hold_s"].parse::<f64>().unwrap();
+    }
+    // Measured: logged beside the commands (all but, perhaps, the last few of the trial).
+    let measured: Vec<&_> = log
+        .iter()
+        .filter(|l| !l["P1_measured_kpa"].is_empty())
+        .collect();
+    assert!(measured.len() >= 18, "{} rows measured", measured.len());
+    for l in measured {
+        let (m, c): (f64, f64) = (
+            l["P1_measured_kpa"].parse().unwrap(),
+            l["P1_kpa"].parse().unwrap(),
+        );
+        assert!((m - c / 2.0).abs() < 1e-6, "{m} measured for {c}");
+    }
+}
+
+/// A streaming regulator that prints garbage, dies or stops reading ends the session with one
+/// line naming what it did, the commands before it logged.
+#[test]
+fn a_streaming_regulator_that_fails_ends_the_session_with_everything_kept() {
+    let _cores = real_time();
+    let dir = tempdir();
+    let d = dir.path();
+    long_cameras(d);
+    dynamic_protocol(d);
+    let cases = [
+        (
+            "garbage",
+            "read l; echo pressure is fine; sleep 10",
+            "printed line 1: \"pressure is fine\", not `time_s P1_kpa P2_kpa P3_kpa`",
+        ),
+        (
+            "dies",
+            "read l; read l; echo valve fault >&2; exit 4",
+            "exited with exit status: 4: valve fault",
+        ),
+        (
+            "stalls",
+            "sleep 30",
+            "has not read its input for 2 s (stalled)",
+        ),
+    ];
+    for (name, regulator, says) in cases {
+        let args = [
+            "capture",
+            "--left",
+            "cams/frames/left.avi",
+            "--right",
+            "cams/frames/right.avi",
+            "--out",
+            name,
+            "--protocol",
+            "p.csv",
+            "--regulator",
+            regulator,
+        ];
+        let msg = handcap_err(d, &args);
+        assert!(msg.contains(says), "{name}: {msg}");
+        assert_eq!(
+            msg.trim()
+                .lines()
+                .filter(|l| l.starts_with("handcap:"))
+                .count(),
+            1,
+            "{msg}"
+        );
+        let log = csv_rows(&d.join(name).join("pressures.csv"));
+        assert!(
+            !log.is_empty() || name == "stalls",
+            "{name}: nothing logged"
+        );
+        let json: serde_json::Value = read_json(&d.join(name).join("capture.json"));
+        assert!(
+            json["summary"]["ending"]["command_failed"].is_object(),
+            "{name}: {json}"
+        );
+    }
+}

@@ -63,6 +63,7 @@ pub(super) fn pressures_csv(steps: &[Step], starts: &[f64]) -> String {
             pressures_kpa: s.pressures,
             step: s.step,
             phase: &s.phase,
+            measured_kpa: None,
         }
     }))
 }
