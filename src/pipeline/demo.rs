@@ -72,8 +72,9 @@ struct Plan {
     triangulate: TriangulateOptions,
     aco: AcoPaper,
     targets: usize,
-    /// The dynamic session (its seed the run's).
+    /// The dynamic session (its seed the run's), and its model searches' candidate budget.
     dynamic: DynamicDesign,
+    dynamic_budget: Option<usize>,
 }
 
 impl Plan {
@@ -102,6 +103,7 @@ impl Plan {
                     seed,
                     ..DynamicDesign::default()
                 },
+                dynamic_budget: Some(40),
             }
         } else {
             // A 25 kPa training grid (1331 steps): the 50 kPa grid of the paper leaves 0.18 mm of
@@ -127,6 +129,7 @@ impl Plan {
                     seed,
                     ..DynamicDesign::default()
                 },
+                dynamic_budget: None,
             }
         }
     }
@@ -379,6 +382,7 @@ pub fn run(
         &synth_config,
         &capture_config,
         plan.dynamic.clone(),
+        plan.dynamic_budget,
         &calib_path,
         session,
     )?;

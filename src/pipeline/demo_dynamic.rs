@@ -64,7 +64,8 @@ pub struct DynamicScore {
     pub errors: Errors,
 }
 
-/// Runs the dynamic part into `dir` with the rig calibrated in `calib`.
+/// Runs the dynamic part into `dir` with the rig calibrated in `calib`; `budget` caps each
+/// model search's candidates (`None`: `handcap model`'s default).
 ///
 /// # Errors
 /// [`PipelineError`] from any stage, or a file that cannot be written.
@@ -73,6 +74,7 @@ pub fn run(
     synth: &SynthConfig,
     capture: &CaptureConfig,
     design: DynamicDesign,
+    budget: Option<usize>,
     calib: &Path,
     session: &Session,
 ) -> Result<DynamicCheck, PipelineError> {
@@ -119,10 +121,12 @@ pub fn run(
     // Folds are whole phases: the training trials and the rest holds.
     let folds = design.trials.min(5);
     let fit = |data: &Path, test: &Path, name: &str, history: bool| {
-        fit::run(
-            &job(data, test, &dir.join(name), history, synth.seed, folds),
-            session,
-        )
+        let search = Search {
+            seed: synth.seed,
+            folds,
+            budget,
+        };
+        fit::run(&job(data, test, &dir.join(name), history, search), session)
     };
     let fitted_static = fit(&train, &test, "static", false)?;
     let fitted_history = fit(&train, &test, "history", true)?;
@@ -178,9 +182,22 @@ pub fn run(
     })
 }
 
+/// How the dynamic part's models are searched: `folds` phases as folds, at most `budget`
+/// candidates (`None`: `handcap model`'s default).
+struct Search {
+    seed: u64,
+    folds: usize,
+    budget: Option<usize>,
+}
+
 /// The model search of the dynamic part: `handcap model`'s default (ACO-R, robust loss), with
-/// input history or without, `folds` phases as folds.
-fn job(data: &Path, test: &Path, out: &Path, history: bool, seed: u64, folds: usize) -> FitJob {
+/// input history or without.
+fn job(data: &Path, test: &Path, out: &Path, history: bool, search: Search) -> FitJob {
+    let Search {
+        seed,
+        folds,
+        budget,
+    } = search;
     let group = history.then(|| "phase".to_string());
     FitJob {
         data: data.to_path_buf(),
@@ -192,7 +209,7 @@ fn job(data: &Path, test: &Path, out: &Path, history: bool, seed: u64, folds: us
                 seed,
                 ..AcoR::default()
             }),
-            budget: None,
+            budget,
             fitness: FitnessKind::Cv { folds },
             folds_by: FoldsBy::Column("phase".into()),
             seed,

@@ -1013,3 +1013,53 @@ fn a_streaming_regulator_that_fails_ends_the_session_with_everything_kept() {
         );
     }
 }
+
+/// `protocol --dynamic` outside its rules is refused in one line, nothing written; the step
+/// protocol's flags do not go with it.
+#[test]
+fn a_dynamic_protocol_outside_its_rules_is_one_line() {
+    let dir = tempdir();
+    let d = dir.path();
+    for (flags, says) in [
+        (
+            ["--rate-hz", "300"],
+            "--rate-hz 300: the command rate must be more than 0 and at most 200 Hz",
+        ),
+        (
+            ["--duration-s", "0"],
+            "--duration-s 0: each trial must last more than 0 s",
+        ),
+        (
+            ["--max-kpa", "350"],
+            "--max-kpa 350: the pressure box must lie inside 0-300 kPa",
+        ),
+    ] {
+        let mut args = vec!["protocol", "--dynamic", "--out", "p.csv"];
+        args.extend(flags);
+        let msg = handcap_err(d, &args);
+        assert!(msg.contains(says), "{msg}");
+        assert!(!d.join("p.csv").exists());
+    }
+    let msg = crate::common::handcap_usage(
+        d,
+        &["protocol", "--dynamic", "--hold-s", "1", "--out", "p.csv"],
+    );
+    assert!(msg.contains("--hold-s"), "{msg}");
+    let out = handcap_ok(
+        d,
+        &[
+            "protocol",
+            "--dynamic",
+            "--trials",
+            "2",
+            "--duration-s",
+            "5",
+            "--out",
+            "p.csv",
+        ],
+    );
+    assert!(
+        out.contains("303 commands at 30 Hz in 2 trials, 16 s with the rest holds; seed 2020"),
+        "{out}"
+    );
+}

