@@ -5,6 +5,7 @@ use std::path::PathBuf;
 
 use crate::pipeline::triangulate::{self, Triangulated};
 use crate::triangulate::per_frame::PerFrameSummary;
+use crate::triangulate::summary::FrameCounts;
 use crate::triangulate::TriangulateOptions;
 
 use super::usage;
@@ -108,18 +109,26 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// What a per-frame run found, in a few lines.
-pub fn print_per_frame(s: &PerFrameSummary) {
-    let f = &s.frames;
-    println!(
-        "frames: {} left, {} right; marker missing in {} / {}, several candidates in {} / {}",
+/// What became of the frames, one line.
+fn frames_line(f: &FrameCounts) -> String {
+    format!(
+        "frames: {} left, {} right; marker missing in {} / {}, several candidates in {} / {}, unreadable {} / {}, no file {} / {}",
         f.listed[0],
         f.listed[1],
         f.marker_missing[0],
         f.marker_missing[1],
         f.several_candidates[0],
         f.several_candidates[1],
-    );
+        f.unreadable[0],
+        f.unreadable[1],
+        f.no_file[0],
+        f.no_file[1],
+    )
+}
+
+/// What a per-frame run found, in a few lines.
+pub fn print_per_frame(s: &PerFrameSummary) {
+    println!("{}", frames_line(&s.frames));
     let flagged: Vec<String> = s.flagged.iter().map(|(k, v)| format!("{v} {k}")).collect();
     println!(
         "rows: {} (one per left frame), {} with a tip and no flag{}",
@@ -151,19 +160,7 @@ pub fn print_summary(done: &Triangulated) {
     let t = &done.triangulation;
     let s = &t.summary;
     let f = &s.frames;
-    println!(
-        "frames: {} left, {} right; marker missing in {} / {}, several candidates in {} / {}, unreadable {} / {}, no file {} / {}",
-        f.listed[0],
-        f.listed[1],
-        f.marker_missing[0],
-        f.marker_missing[1],
-        f.several_candidates[0],
-        f.several_candidates[1],
-        f.unreadable[0],
-        f.unreadable[1],
-        f.no_file[0],
-        f.no_file[1],
-    );
+    println!("{}", frames_line(f));
     if let Some(first) = &f.first_unreadable {
         println!("  first unreadable: {first}");
     }

@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use super::outputs::{self, Output};
 use super::{io_error, PipelineError, Session, Task};
-use crate::calib::file::read_calibration;
+use crate::calib::file::{read_calibration, CalibrationFile};
 use crate::capture::flash::FlashLatency;
 use crate::capture::CAPTURE_FILE;
 use crate::session::frames::FrameList;
@@ -85,6 +85,29 @@ fn check_outputs(
     outputs::check(&inputs, &planned)
 }
 
+/// The run's inputs, read and checked: `frames` a directory, the options in their ranges, the
+/// calibration, the log, the frame list, and no output naming an input.
+fn read_inputs(
+    frames: &Path,
+    calib: &Path,
+    pressures: &Path,
+    options: &TriangulateOptions,
+    out: &Path,
+) -> Result<(CalibrationFile, PressureLog, FrameList), PipelineError> {
+    if !frames.is_dir() {
+        return Err(PipelineError::Place(format!(
+            "{} is not a directory of frames",
+            frames.display()
+        )));
+    }
+    options.check().map_err(PipelineError::Usage)?;
+    let calibration = read_calibration(calib)?;
+    let log = read_pressure_log(pressures)?;
+    let listed = FrameList::read(frames, options.video_start_s)?;
+    check_outputs(frames, &listed, calib, pressures, &log, out)?;
+    Ok((calibration, log, listed))
+}
+
 /// Finds the tip in every frame pair of `frames`, in the hand frame of `calib`, one row per
 /// step of the log at `pressures`; writes `out` and the files beside it. Ctrl-C stops at the
 /// next frame: the files hold the frames examined, and the summary says `interrupted`.
@@ -100,13 +123,6 @@ pub fn run(
     out: &Path,
     session: &Session,
 ) -> Result<Triangulated, PipelineError> {
-    if !frames.is_dir() {
-        return Err(PipelineError::Place(format!(
-            "{} is not a directory of frames",
-            frames.display()
-        )));
-    }
-    options.check().map_err(PipelineError::Usage)?;
     // Delays not given: the flash `capture` filmed measured them, when it did.
     let flash = options
         .latency_s
@@ -117,10 +133,7 @@ pub fn run(
         latency_s: options.latency_s.or(flash.map(|ms| ms.map(|ms| ms / 1e3))),
         ..options.clone()
     };
-    let calibration = read_calibration(calib)?;
-    let log = read_pressure_log(pressures)?;
-    let listed = FrameList::read(frames, options.video_start_s)?;
-    check_outputs(frames, &listed, calib, pressures, &log, out)?;
+    let (calibration, log, listed) = read_inputs(frames, calib, pressures, options, out)?;
     let result = triangulate::triangulate(
         &listed,
         &calibration,
@@ -168,17 +181,7 @@ pub fn run_per_frame(
     out: &Path,
     session: &Session,
 ) -> Result<TriangulatedPerFrame, PipelineError> {
-    if !frames.is_dir() {
-        return Err(PipelineError::Place(format!(
-            "{} is not a directory of frames",
-            frames.display()
-        )));
-    }
-    options.check().map_err(PipelineError::Usage)?;
-    let calibration = read_calibration(calib)?;
-    let log = read_pressure_log(pressures)?;
-    let listed = FrameList::read(frames, options.video_start_s)?;
-    check_outputs(frames, &listed, calib, pressures, &log, out)?;
+    let (calibration, log, listed) = read_inputs(frames, calib, pressures, options, out)?;
     let index = frames.join("frames.csv");
     let result = per_frame::triangulate_per_frame(
         &listed,

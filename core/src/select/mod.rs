@@ -304,6 +304,13 @@ pub fn select(
     let intervals = run.intervals(kept.as_ref(), &chosen, scored)?;
     go_on()?;
     let (model, fitted) = final_fit(ModelSpec::Msvr(chosen.params), &train_rows, listener)?;
+    // A stop in the fit's last iteration, which it finishes: nothing is written either.
+    if since.stopped() {
+        return Err(SelectError::Interrupted(format!(
+            "interrupted during the final fit (C = {}, ε = {}, σ = {}); nothing written",
+            chosen.params.c, chosen.params.epsilon, chosen.params.sigma
+        )));
+    }
     let train_errors = match fitted {
         Some(fitted) => model::errors(&train_rows.outputs, &fitted),
         None => model::evaluate(model.predictor(), &train_rows)?,
