@@ -87,13 +87,8 @@ pub(super) fn run_command(
         .stderr(std::process::Stdio::piped())
         .spawn()?;
     // The group: a command's own children (`sh -c 'python set.py'`) go with it.
-    let group = -(child.id() as i32);
-    let kill_group = || {
-        // SAFETY: a signal to the process group this function created.
-        unsafe {
-            libc::kill(group, libc::SIGKILL);
-        }
-    };
+    let group = child.id();
+    let kill_group = || kill_group(group);
     let start = Instant::now();
     let mut stopped_at = None;
     loop {
@@ -196,7 +191,7 @@ pub(super) fn drive_streaming(
         Ok(child) => child,
         Err(e) => return failed(0, format!("`{command}` could not run: {e}")),
     };
-    let group = -(child.id() as i32);
+    let group = child.id();
     let mut input = child.stdin.take().expect("piped");
     // SAFETY: the descriptor is the child's input, ours alone; non-blocking so that a regulator
     // that stops reading is seen, not waited on forever.
@@ -327,14 +322,20 @@ pub(super) fn drive_streaming(
         {
             std::thread::sleep(Duration::from_millis(10));
         }
-        // SAFETY: a signal to the process group this function created.
-        unsafe {
-            libc::kill(group, libc::SIGKILL);
-        }
+        kill_group(group);
         let _ = child.wait();
         ending
     });
     ending
+}
+
+/// Kills the process group led by `leader`, a child started with `process_group(0)`: the
+/// command and whatever it started.
+fn kill_group(leader: u32) {
+    // SAFETY: a signal to a process group this module created.
+    unsafe {
+        libc::kill(-(leader as i32), libc::SIGKILL);
+    }
 }
 
 /// The bytes written to a pipe and not yet read from it (Linux answers `FIONREAD` on either

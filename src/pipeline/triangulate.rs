@@ -147,17 +147,29 @@ pub fn run(
     if flash.is_some() {
         triangulation.summary.latency.from = Some(format!("from the flash in {CAPTURE_FILE}"));
     }
+    let provenance = provenance(session, frames, calib, pressures)?;
+    let written = triangulation.write(out, &provenance)?;
+    Ok(Triangulated {
+        triangulation,
+        written,
+    })
+}
+
+/// The run's provenance: the calibration, the log and the frame list (when there is one) as its
+/// inputs.
+fn provenance(
+    session: &Session,
+    frames: &Path,
+    calib: &Path,
+    pressures: &Path,
+) -> Result<crate::provenance::Provenance, PipelineError> {
     let mut provenance = session.provenance(None);
     let index = frames.join("frames.csv");
     let listed_by = Some(index.as_path()).filter(|p| p.exists());
     for input in [calib, pressures].into_iter().chain(listed_by) {
         provenance = provenance.with_input(input).map_err(io_error(input))?;
     }
-    let written = triangulation.write(out, &provenance)?;
-    Ok(Triangulated {
-        triangulation,
-        written,
-    })
+    Ok(provenance)
 }
 
 /// What the per-frame stage did and wrote.
@@ -194,11 +206,7 @@ pub fn run_per_frame(
     );
     session.emit(super::Event::Finished(Task::Frames));
     let per_frame = result?;
-    let mut provenance = session.provenance(None);
-    let listed_by = Some(index.as_path()).filter(|p| p.exists());
-    for input in [calib, pressures].into_iter().chain(listed_by) {
-        provenance = provenance.with_input(input).map_err(io_error(input))?;
-    }
+    let provenance = provenance(session, frames, calib, pressures)?;
     let written = per_frame.write(out, &log, &provenance)?;
     Ok(TriangulatedPerFrame { per_frame, written })
 }

@@ -42,6 +42,17 @@ pub fn phase_path(out: &Path, phase: &str) -> PathBuf {
     beside(out, &format!("_{safe}.csv"))
 }
 
+/// The distinct `phases`, in the order they first appear (the per-phase files' order).
+pub(super) fn first_appearances<'a>(phases: impl Iterator<Item = &'a str>) -> Vec<&'a str> {
+    let mut seen: Vec<&str> = Vec::new();
+    for p in phases {
+        if !seen.contains(&p) {
+            seen.push(p);
+        }
+    }
+    seen
+}
+
 /// Whether `path` is a file a triangulation into `out` writes: one of [`BESIDE`], or a
 /// per-phase file ([`phase_path`]) that holds a dataset (its header's first columns are the
 /// dataset's), so that a stale listing never removes another file.
@@ -188,13 +199,7 @@ impl Triangulation {
         write_text(out, &self.dataset_csv(|_| true))?;
         written.push(out.to_path_buf());
         if let Some(col) = self.extra_columns.iter().position(|c| c == "phase") {
-            let mut phases: Vec<&str> = Vec::new();
-            for r in &self.rows {
-                if !phases.contains(&r.extra[col].as_str()) {
-                    phases.push(&r.extra[col]);
-                }
-            }
-            for phase in phases {
+            for phase in first_appearances(self.rows.iter().map(|r| r.extra[col].as_str())) {
                 let path = phase_path(out, phase);
                 write_text(&path, &self.dataset_csv(|r| r.extra[col] == phase))?;
                 written.push(path);

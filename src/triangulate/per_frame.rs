@@ -237,12 +237,13 @@ pub fn triangulate_per_frame(
 
     // 3. The clock offset, from the candidates a first pass on the stamps chose.
     let first = locate_all(rig, options, &left, &right, &centres, 0.0);
-    let (offset_s, clock_frames) = clock_offset(rig, &left, &right, &first)?;
+    let seen = seen_in(&left, &right, &first);
+    let (offset_s, clock_frames) = clock_offset(rig, &left, &right, &seen)?;
     summary.clock_offset_ms = 1e3 * offset_s;
     summary.clock_frames = clock_frames;
 
     // 4-5. Each left frame's tip (left camera) and its step, from the tracks smoothed.
-    let smoothed = smoothed_tracks(&left, &right, &first);
+    let smoothed = smoothed_tracks(&left, &right, &seen);
     let chosen = |i: usize| match smoothed.get(&i) {
         Some(c) => Ok(vec![*c]),
         None => centres(i),
@@ -352,19 +353,13 @@ pub fn triangulate_per_frame(
     })
 }
 
-/// Each camera's track smoothed where the first pass saw the tip in five frames in a row,
-/// evenly spaced: the Savitzky-Golay filter of a parabola through the five (weights −3, 12,
-/// 17, 12, −3 over 35), exact for a tip moving at constant acceleration, which averages out
-/// the frame-to-frame error of a moving bead's JPEG chroma. Keyed by frame record.
-fn smoothed_tracks(
-    left: &Track,
-    right: &Track,
-    first: &[Result<Located, &'static str>],
-) -> std::collections::HashMap<usize, [f64; 2]> {
-    const WEIGHTS: [f64; 5] = [-3.0, 12.0, 17.0, 12.0, -3.0];
-    let mut seen: [Vec<Option<[f64; 2]>>; 2] =
-        [vec![None; left.times.len()], vec![None; right.times.len()]];
-    for (k, found) in first.iter().enumerate() {
+/// Per camera, per position in its track, the centre a pass chose there (left, right).
+type Seen = [Vec<Option<[f64; 2]>>; 2];
+
+/// The centres the located frames were seen as, in each track.
+fn seen_in(left: &Track, right: &Track, located: &[Result<Located, &'static str>]) -> Seen {
+    let mut seen: Seen = [vec![None; left.times.len()], vec![None; right.times.len()]];
+    for (k, found) in located.iter().enumerate() {
         if let Ok(found) = found {
             seen[0][k] = Some(found.left_px);
             for (pos, px) in found.right {
@@ -372,8 +367,21 @@ fn smoothed_tracks(
             }
         }
     }
+    seen
+}
+
+/// Each camera's track smoothed where the first pass saw the tip in five frames in a row,
+/// evenly spaced: the Savitzky-Golay filter of a parabola through the five (weights −3, 12,
+/// 17, 12, −3 over 35), exact for a tip moving at constant acceleration, which averages out
+/// the frame-to-frame error of a moving bead's JPEG chroma. Keyed by frame record.
+fn smoothed_tracks(
+    left: &Track,
+    right: &Track,
+    seen: &Seen,
+) -> std::collections::HashMap<usize, [f64; 2]> {
+    const WEIGHTS: [f64; 5] = [-3.0, 12.0, 17.0, 12.0, -3.0];
     let mut out = std::collections::HashMap::new();
-    for (track, seen) in [left, right].into_iter().zip(&seen) {
+    for (track, seen) in [left, right].into_iter().zip(seen) {
         for k in 2..track.times.len().saturating_sub(2) {
             let window: Option<Vec<[f64; 2]>> = (k - 2..=k + 2).map(|j| seen[j]).collect();
             let even = (k - 2..k + 2).all(|j| {
@@ -492,25 +500,16 @@ fn lerp(p: [f64; 2], q: [f64; 2], s: f64) -> [f64; 2] {
 }
 
 /// The offset δ (s) to add to a left instant to find it on the right camera's clock, and how
-/// many moving frames told it (see the module docs, step 3), from the candidates each frame
-/// was seen as in `first`, a pass without an offset.
+/// many moving frames told it (see the module docs, step 3), from the centres a pass without
+/// an offset saw.
 fn clock_offset(
     rig: &StereoRig,
     left: &Track,
     right: &Track,
-    first: &[Result<Located, &'static str>],
+    seen: &Seen,
 ) -> Result<(f64, usize), TriangulateError> {
     // The centres seen, undistorted once: the left frame's, and the right track's frames'.
-    let mut right_px: Vec<Option<[f64; 2]>> = vec![None; right.times.len()];
-    let mut left_px: Vec<Option<[f64; 2]>> = vec![None; left.times.len()];
-    for (k, found) in first.iter().enumerate() {
-        if let Ok(found) = found {
-            left_px[k] = Some(found.left_px);
-            for (pos, px) in found.right {
-                right_px[pos] = Some(px);
-            }
-        }
-    }
+    let [left_px, right_px] = seen;
     let undistort =
         |px: &[Option<[f64; 2]>], side: Side| -> Result<Vec<Option<[f64; 2]>>, TriangulateError> {
             let seen: Vec<[f64; 2]> = px.iter().flatten().copied().collect();
@@ -521,8 +520,8 @@ fn clock_offset(
                 .collect())
         };
     let (ul, ur) = (
-        undistort(&left_px, Side::Left)?,
-        undistort(&right_px, Side::Right)?,
+        undistort(left_px, Side::Left)?,
+        undistort(right_px, Side::Right)?,
     );
     let f = rig.fundamental();
     let cost = |delta: f64| -> (f64, usize) {
@@ -662,13 +661,7 @@ impl PerFrame {
         write(out, &self.csv(log, |_| true))?;
         if let Some(col) = log.extra_columns.iter().position(|c| c == "phase") {
             let phase_of = |r: &FrameRow| r.step.map(|k| log.steps[k].extra[col].as_str());
-            let mut phases: Vec<&str> = Vec::new();
-            for p in self.rows.iter().filter_map(phase_of) {
-                if !phases.contains(&p) {
-                    phases.push(p);
-                }
-            }
-            for phase in phases {
+            for phase in super::output::first_appearances(self.rows.iter().filter_map(phase_of)) {
                 let path = super::output::phase_path(out, phase);
                 write(&path, &self.csv(log, |r| phase_of(r) == Some(phase)))?;
                 written.push(path);
