@@ -5,6 +5,7 @@ mod board;
 mod calibrate;
 mod capture;
 mod demo;
+mod export;
 mod inverse;
 mod model;
 mod predict;
@@ -54,6 +55,8 @@ pub enum Command {
     /// Inputs (pressures) that put a fitted model's tip at a target, for feed-forward control
     #[command(allow_negative_numbers = true)]
     Inverse(inverse::Args),
+    /// A fitted model as a self-contained C header, for a controller to embed
+    Export(export::Args),
     /// The whole pipeline on the built-in virtual micro-hand, with a report
     #[command(allow_negative_numbers = true)]
     Demo(demo::Args),
@@ -232,6 +235,7 @@ pub fn main(cameras: fn(Command) -> anyhow::Result<()>) -> ExitCode {
         Command::Model(a) => model::run(a),
         Command::Predict(a) => predict::run(a),
         Command::Inverse(a) => inverse::run(a),
+        Command::Export(a) => export::run(a),
         Command::Protocol(a) => protocol::run(a),
         other => cameras(other),
     };
@@ -256,7 +260,11 @@ pub fn run_cameras(command: Command) -> anyhow::Result<()> {
         Command::Demo(a) => demo::run(a),
         Command::Capture(a) => capture::run(a),
         Command::Board(a) => board::run(a),
-        Command::Model(_) | Command::Predict(_) | Command::Inverse(_) | Command::Protocol(_) => {
+        Command::Model(_)
+        | Command::Predict(_)
+        | Command::Inverse(_)
+        | Command::Export(_)
+        | Command::Protocol(_) => {
             unreachable!("`main` runs the modelling commands itself")
         }
     }

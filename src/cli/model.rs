@@ -73,7 +73,7 @@ pub struct Args {
     #[arg(long, value_enum, default_value = "cv")]
     fitness: FitnessArg,
     /// Folds of the cross-validated fitness (fewer rows than 2 per fold: as many folds as they
-    /// allow)
+    /// allow; fewer groups than folds: one fold per group)
     #[arg(long, default_value_t = 5)]
     folds: usize,
     /// How cross-validation cuts the rows: auto (a designed grid → shuffled; a run/ramp/trial

@@ -28,7 +28,7 @@ fn settled(s: [f64; 2]) -> [f64; 2] {
 /// `trials` runs of `rows` rows each, logged every [`DT`] s: two pressures held for 3-12 rows at
 /// random levels in [0, 200] kPa, and outputs that follow them through a first-order lag of
 /// [`LAG_S`]. Columns: trial, t_s, P1_kpa, P2_kpa, x_mm, y_mm.
-fn lagging_plant(seed: u64, trials: usize, rows: usize) -> String {
+pub(crate) fn lagging_plant(seed: u64, trials: usize, rows: usize) -> String {
     let mut rng = Lcg(seed);
     let mut csv = String::from("trial,t_s,P1_kpa,P2_kpa,x_mm,y_mm\n");
     for trial in 0..trials {
@@ -72,7 +72,7 @@ fn mae_of(predicted: &Path, truth: &Path) -> f64 {
     sum / (2 * p.len()) as f64
 }
 
-const COLUMNS: [&str; 4] = ["--inputs", "P1_kpa,P2_kpa", "--outputs", "x_mm,y_mm"];
+pub(crate) const COLUMNS: [&str; 4] = ["--inputs", "P1_kpa,P2_kpa", "--outputs", "x_mm,y_mm"];
 
 #[test]
 fn a_lagging_plant_is_modelled_from_its_inputs_history() {

@@ -4,6 +4,7 @@
 //! physics-based model it is compared with. Every model implements
 //! [`Predict`], so evaluation, reports and the command line treat them alike.
 
+pub mod export;
 pub mod file;
 pub mod history;
 pub mod interval;

@@ -111,12 +111,6 @@ pub fn within(asked: usize, rows: usize) -> usize {
 pub enum FoldsError {
     #[error("folds_by={column}: all {rows} rows are in one group; give a column that separates runs, or folds_by=blocks")]
     OneGroup { column: String, rows: usize },
-    #[error("folds_by={column}: {groups} groups, fewer than the {folds} folds; use folds={groups} or fewer, or folds_by=blocks")]
-    FewGroups {
-        column: String,
-        groups: usize,
-        folds: usize,
-    },
 }
 
 /// Chooses the folds of `data` (module docs): `asked` of them, fewer when the rows allow fewer
@@ -124,7 +118,7 @@ pub enum FoldsError {
 /// per row of `data` (for `auto`, and the named column's values for a column).
 ///
 /// # Errors
-/// [`FoldsError`] for a grouping column with one group or fewer groups than folds.
+/// [`FoldsError`] for a grouping column with one group.
 pub fn plan(
     by: &FoldsBy,
     data: &Dataset,
@@ -191,18 +185,16 @@ fn scheme(
                     rows: labels.len(),
                 });
             }
-            if count < folds {
-                return Err(FoldsError::FewGroups {
-                    column: column.clone(),
-                    groups: count,
-                    folds,
-                });
-            }
-            Ok(groups(
-                column,
-                labels,
-                format!("folds_by={column}: {count} groups"),
-            ))
+            // Fewer groups than folds: each group its own fold (leave one group out).
+            let reason = if count < folds {
+                format!("folds_by={column}: {count} groups, so {count} folds (one group held out at a time), not {folds}")
+            } else {
+                format!("folds_by={column}: {count} groups")
+            };
+            Ok(FoldPlan {
+                folds: folds.min(count),
+                ..groups(column, labels, reason)
+            })
         }
         FoldsBy::Auto => {
             if let Some(levels) = grid_levels(&data.inputs) {
@@ -395,7 +387,7 @@ mod tests {
     }
 
     #[test]
-    fn a_grouping_column_with_too_few_groups_is_refused_by_name() {
+    fn a_grouping_column_with_one_group_is_refused_and_few_groups_are_each_a_fold() {
         let data = dataset((0..40).map(f64::from).collect(), 1);
         let one = [("run".to_string(), vec![1.0; 40])];
         let err = plan(&FoldsBy::Column("run".into()), &data, &one, 5).unwrap_err();
@@ -406,10 +398,8 @@ mod tests {
             "run".to_string(),
             (0..40).map(|i| f64::from(i % 3)).collect(),
         )];
-        let err = plan(&FoldsBy::Column("run".into()), &data, &three, 5).unwrap_err();
-        assert!(
-            err.to_string().contains("3 groups, fewer than the 5 folds"),
-            "{err}"
-        );
+        let p = plan(&FoldsBy::Column("run".into()), &data, &three, 5).unwrap();
+        assert_eq!(p.folds, 3, "each group its own fold");
+        assert!(p.choice.reason.contains("3 groups, so 3 folds"), "{p:?}");
     }
 }

@@ -1,0 +1,314 @@
+//! A fitted model as one self-contained C99 header, for a controller to embed (Simulink's C
+//! function block, a microcontroller, a real-time loop): the kernel expansion written out with
+//! its numbers, needing only `<math.h>`.
+//!
+//! ```c
+//! #include "model.h"
+//! double state[HANDCAP_STATE_LEN], p[HANDCAP_N_INPUTS], tip[HANDCAP_N_OUTPUTS];
+//! handcap_reset(state);                 /* the finger at rest: every filter at 0 input */
+//! for (;;) { /* each control period dt_s */
+//!     handcap_step(state, dt_s, p, tip);  /* the filters advance by dt_s, then the tip */
+//! }
+//! handcap_predict(p, tip);              /* the tip settled at held inputs */
+//! handcap_jacobian(p, jac);             /* ∂tip/∂p there, row-major outputs × inputs */
+//! ```
+//!
+//! The functions compute what [`Predict::predict_row`](crate::model::Predict) and
+//! [`Differentiable`](crate::model::Differentiable) compute, in the same order (the numbers are
+//! printed so they read back to the same `f64`), so the header agrees with `handcap predict` to
+//! rounding. `handcap_step` is [`History::features`](crate::model::history::History)' filter
+//! step: `handcap predict` starts each group's filters settled at its first row, which
+//! `handcap_reset_at` does. The functions are `static inline`: one model per translation unit.
+
+use std::fmt::Write;
+
+use crate::model::file::ModelFile;
+use crate::model::history::Memory;
+use crate::model::StoredModel;
+
+/// The header for `file`; `source` names the model file in its comment.
+pub fn c_header(file: &ModelFile, source: &str) -> String {
+    let StoredModel::Msvr(msvr) = &file.model;
+    let history = file.history();
+    let d = history.map_or(msvr.inputs.len(), |h| h.inputs.len());
+    let inputs = history.map_or(&msvr.inputs, |h| &h.inputs);
+    let features = msvr.inputs.len();
+    let q = msvr.outputs.len();
+    let centres = msvr.support_vector_count();
+    let blocks = history.map_or(0, |h| h.memory.blocks());
+    let memory_doc = match history.map(|h| (&h.memory, &h.time)) {
+        None => "none: the outputs follow the present inputs".to_string(),
+        Some((Memory::Ema { tau }, time)) => format!(
+            "each input exponentially filtered with time constants {} ({time} units; dt_s in them)",
+            list(tau, ", ")
+        ),
+        Some((Memory::Lags { rows }, _)) => format!(
+            "the inputs of the {rows} previous steps (dt_s is not used: the model was fitted on rows {rows} steps apart)"
+        ),
+    };
+
+    let mut h = String::new();
+    let _ = write!(
+        h,
+        "/* A handcap model ({source}), exported by handcap {version}: multi-output support vector
+ * regression, {centres} Gaussian kernel centres, sigma {sigma:e}.
+ * Inputs, in order: {input_names}. Outputs, in order: {output_names}.
+ * Input history: {memory_doc}.
+ * Fitted by: {command}
+ *
+ * C99, only <math.h> (link with -lm). One model per translation unit.
+ *   double state[HANDCAP_STATE_LEN];
+ *   handcap_reset(state);                  the finger at rest: every filter at 0 input
+ *   handcap_reset_at(state, inputs);       every filter settled at these inputs
+ *   handcap_step(state, dt_s, inputs, out) the filters advance by dt_s, then the outputs
+ *   handcap_predict(inputs, out)           the outputs settled at held inputs
+ *   handcap_jacobian(inputs, jac)          d outputs / d inputs there, row-major outputs x inputs
+ */
+#ifndef HANDCAP_MODEL_H
+#define HANDCAP_MODEL_H
+
+#include <math.h>
+
+#define HANDCAP_N_INPUTS {d}
+#define HANDCAP_N_OUTPUTS {q}
+/* The inputs, then each memory block's copy of them. */
+#define HANDCAP_N_FEATURES {features}
+#define HANDCAP_N_CENTRES {centres}
+/* The filters' state (a model without history keeps none: one unused slot). */
+#define HANDCAP_STATE_LEN {state_len}
+
+static const char *const handcap_input_names[HANDCAP_N_INPUTS] = {{{input_strings}}};
+static const char *const handcap_output_names[HANDCAP_N_OUTPUTS] = {{{output_strings}}};
+",
+        source = comment(source),
+        version = comment(&file.provenance.handcap_version),
+        sigma = msvr.params.sigma,
+        input_names = comment(&inputs.join(", ")),
+        output_names = comment(&msvr.outputs.join(", ")),
+        memory_doc = comment(&memory_doc),
+        command = comment(&file.provenance.command.join(" ")),
+        state_len = (blocks * d).max(1),
+        input_strings = strings(inputs),
+        output_strings = strings(&msvr.outputs),
+    );
+    array(
+        &mut h,
+        "handcap_min_",
+        "HANDCAP_N_FEATURES",
+        &msvr.scaler.min,
+        features,
+    );
+    array(
+        &mut h,
+        "handcap_max_",
+        "HANDCAP_N_FEATURES",
+        &msvr.scaler.max,
+        features,
+    );
+    array(&mut h, "handcap_bias_", "HANDCAP_N_OUTPUTS", &msvr.bias, q);
+    array(
+        &mut h,
+        "handcap_centres_",
+        "HANDCAP_N_CENTRES * HANDCAP_N_FEATURES",
+        msvr.support_vectors(),
+        features,
+    );
+    array(
+        &mut h,
+        "handcap_beta_",
+        "HANDCAP_N_CENTRES * HANDCAP_N_OUTPUTS",
+        msvr.coefficients(),
+        q,
+    );
+    let _ = writeln!(
+        h,
+        "static const double handcap_sigma_ = {:e};",
+        msvr.params.sigma
+    );
+    if let Some(Memory::Ema { tau }) = history.map(|h| &h.memory) {
+        let _ = writeln!(
+            h,
+            "static const double handcap_tau_[{blocks}] = {{{}}};",
+            list(tau, ", ")
+        );
+    }
+    h.push_str(EXPANSION);
+    h.push_str(&step_functions(history.map(|h| &h.memory), blocks));
+    h.push_str(STEADY_STATE);
+    h.push_str("\n#endif /* HANDCAP_MODEL_H */\n");
+    h
+}
+
+/// The kernel expansion at the features, and its Jacobian over them: as `Msvr::predict_row`
+/// and `Msvr::predict_with_jacobian`.
+const EXPANSION: &str = "
+/* The outputs at the features f, and if jac is not 0 their derivatives over f (outputs x
+ * features, row-major). */
+static inline void handcap_expand_(const double *f, double *out, double *jac)
+{
+    const double sigma2 = handcap_sigma_ * handcap_sigma_;
+    const double gamma = 1.0 / (2.0 * sigma2);
+    double s[HANDCAP_N_FEATURES];
+    int i, j, o;
+    for (j = 0; j < HANDCAP_N_FEATURES; j++)
+        s[j] = (f[j] - handcap_min_[j]) / (handcap_max_[j] - handcap_min_[j]);
+    for (o = 0; o < HANDCAP_N_OUTPUTS; o++)
+        out[o] = handcap_bias_[o];
+    if (jac)
+        for (j = 0; j < HANDCAP_N_OUTPUTS * HANDCAP_N_FEATURES; j++)
+            jac[j] = 0.0;
+    for (i = 0; i < HANDCAP_N_CENTRES; i++) {
+        const double *c = handcap_centres_ + i * HANDCAP_N_FEATURES;
+        const double *beta = handcap_beta_ + i * HANDCAP_N_OUTPUTS;
+        double d2 = 0.0, k;
+        for (j = 0; j < HANDCAP_N_FEATURES; j++)
+            d2 += (s[j] - c[j]) * (s[j] - c[j]);
+        k = exp(-gamma * d2);
+        for (o = 0; o < HANDCAP_N_OUTPUTS; o++) {
+            out[o] += k * beta[o];
+            if (jac)
+                for (j = 0; j < HANDCAP_N_FEATURES; j++)
+                    jac[o * HANDCAP_N_FEATURES + j] += k * beta[o] * (c[j] - s[j]);
+        }
+    }
+    if (jac)
+        for (o = 0; o < HANDCAP_N_OUTPUTS; o++)
+            for (j = 0; j < HANDCAP_N_FEATURES; j++)
+                jac[o * HANDCAP_N_FEATURES + j] /= sigma2 * (handcap_max_[j] - handcap_min_[j]);
+}
+";
+
+/// The settled map: every memory block equal to the inputs; the Jacobian sums the blocks'.
+const STEADY_STATE: &str = "
+/* Every memory block equal to the inputs (the finger settled at them). */
+static inline void handcap_settled_(const double *inputs, double *f)
+{
+    int j;
+    for (j = 0; j < HANDCAP_N_FEATURES; j++)
+        f[j] = inputs[j % HANDCAP_N_INPUTS];
+}
+
+static inline void handcap_predict(const double *inputs, double *outputs)
+{
+    double f[HANDCAP_N_FEATURES];
+    handcap_settled_(inputs, f);
+    handcap_expand_(f, outputs, 0);
+}
+
+static inline void handcap_jacobian(const double *inputs, double *jac)
+{
+    double f[HANDCAP_N_FEATURES], out[HANDCAP_N_OUTPUTS];
+    double full[HANDCAP_N_OUTPUTS * HANDCAP_N_FEATURES];
+    int o, j;
+    handcap_settled_(inputs, f);
+    handcap_expand_(f, out, full);
+    for (o = 0; o < HANDCAP_N_OUTPUTS; o++) {
+        for (j = 0; j < HANDCAP_N_INPUTS; j++)
+            jac[o * HANDCAP_N_INPUTS + j] = 0.0;
+        for (j = 0; j < HANDCAP_N_FEATURES; j++)
+            jac[o * HANDCAP_N_INPUTS + j % HANDCAP_N_INPUTS] += full[o * HANDCAP_N_FEATURES + j];
+    }
+}
+";
+
+/// `handcap_reset`, `handcap_reset_at` and `handcap_step` for the model's memory.
+fn step_functions(memory: Option<&Memory>, blocks: usize) -> String {
+    let advance = match memory {
+        None => "    (void)state;
+    (void)dt_s;
+    for (j = 0; j < HANDCAP_N_INPUTS; j++)
+        f[j] = inputs[j];"
+            .to_string(),
+        Some(Memory::Ema { .. }) => format!(
+            "    int b;
+    for (j = 0; j < HANDCAP_N_INPUTS; j++)
+        f[j] = inputs[j];
+    for (b = 0; b < {blocks}; b++) {{
+        const double gain = 1.0 - exp(-dt_s / handcap_tau_[b]);
+        for (j = 0; j < HANDCAP_N_INPUTS; j++) {{
+            double *x = state + b * HANDCAP_N_INPUTS + j;
+            *x += gain * (inputs[j] - *x);
+            f[HANDCAP_N_INPUTS + b * HANDCAP_N_INPUTS + j] = *x;
+        }}
+    }}"
+        ),
+        Some(Memory::Lags { .. }) => "    (void)dt_s;
+    for (j = 0; j < HANDCAP_N_INPUTS; j++)
+        f[j] = inputs[j];
+    /* The state holds the previous steps' inputs, newest first. */
+    for (j = HANDCAP_N_INPUTS; j < HANDCAP_N_FEATURES; j++)
+        f[j] = state[j - HANDCAP_N_INPUTS];
+    for (j = HANDCAP_N_FEATURES - HANDCAP_N_INPUTS - 1; j >= HANDCAP_N_INPUTS; j--)
+        state[j] = state[j - HANDCAP_N_INPUTS];
+    for (j = 0; j < HANDCAP_N_INPUTS; j++)
+        state[j] = inputs[j];"
+            .to_string(),
+    };
+    format!(
+        "
+static inline void handcap_reset_at(double *state, const double *inputs)
+{{
+    int j;
+    for (j = 0; j < HANDCAP_STATE_LEN; j++)
+        state[j] = inputs[j % HANDCAP_N_INPUTS];
+}}
+
+static inline void handcap_reset(double *state)
+{{
+    int j;
+    for (j = 0; j < HANDCAP_STATE_LEN; j++)
+        state[j] = 0.0;
+}}
+
+static inline void handcap_step(double *state, double dt_s, const double *inputs, double *outputs)
+{{
+    double f[HANDCAP_N_FEATURES];
+    int j;
+{advance}
+    handcap_expand_(f, outputs, 0);
+}}
+"
+    )
+}
+
+/// `static const double NAME[LEN] = {...};`, `per_line` numbers a line.
+fn array(h: &mut String, name: &str, len: &str, values: &[f64], per_line: usize) {
+    let _ = writeln!(h, "static const double {name}[{len}] = {{");
+    for row in values.chunks(per_line.max(1)) {
+        let _ = writeln!(h, "    {},", list(row, ", "));
+    }
+    h.push_str("};\n");
+}
+
+/// Numbers as C reads them back to the same `f64` (Rust's shortest round-trip form).
+fn list(values: &[f64], separator: &str) -> String {
+    values
+        .iter()
+        .map(|v| format!("{v:e}"))
+        .collect::<Vec<_>>()
+        .join(separator)
+}
+
+/// Text safe inside a C comment.
+fn comment(text: &str) -> String {
+    text.replace("*/", "* /").replace(['\n', '\r'], " ")
+}
+
+/// Names as C string literals.
+fn strings(names: &[String]) -> String {
+    names
+        .iter()
+        .map(|n| {
+            let escaped: String = n
+                .chars()
+                .flat_map(|c| match c {
+                    '"' | '\\' => vec!['\\', c],
+                    c if c.is_control() || c == '?' => vec!['_'],
+                    c => vec![c],
+                })
+                .collect();
+            format!("\"{escaped}\"")
+        })
+        .collect::<Vec<_>>()
+        .join(", ")
+}

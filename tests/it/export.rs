@@ -1,0 +1,202 @@
+//! `handcap export --c`: the model as a C99 header, compiled by the system's C compiler and
+//! run against `handcap predict` (issue 45).
+
+use std::path::Path;
+use std::process::Command;
+
+use crate::common::{csv_rows, handcap_err, handcap_ok, tempdir, write};
+use crate::history::{lagging_plant, COLUMNS};
+
+/// Reads `time_s` then the inputs per line, one series: `reset_at` the first row's inputs (as
+/// `handcap predict` starts a group), `step` by each row's time difference; prints the outputs.
+/// With `-s`, the settled map and its Jacobian at each line's inputs instead, and the settled
+/// map's central differences (the Jacobian's check).
+const HARNESS: &str = r#"
+#include <stdio.h>
+#include <string.h>
+#include "model.h"
+int main(int argc, char **argv) {
+    double state[HANDCAP_STATE_LEN], u[HANDCAP_N_INPUTS], y[HANDCAP_N_OUTPUTS], t, last = 0;
+    double jac[HANDCAP_N_OUTPUTS * HANDCAP_N_INPUTS];
+    int first = 1, settled = argc > 1 && strcmp(argv[1], "-s") == 0, i, o;
+    while (scanf("%lf", &t) == 1) {
+        for (i = 0; i < HANDCAP_N_INPUTS; i++)
+            if (scanf("%lf", &u[i]) != 1) return 1;
+        if (settled) {
+            handcap_predict(u, y);
+            handcap_jacobian(u, jac);
+            for (o = 0; o < HANDCAP_N_OUTPUTS; o++) printf("%.17g ", y[o]);
+            for (i = 0; i < HANDCAP_N_OUTPUTS * HANDCAP_N_INPUTS; i++) printf("%.17g ", jac[i]);
+            for (i = 0; i < HANDCAP_N_INPUTS; i++) {
+                double up[HANDCAP_N_OUTPUTS], down[HANDCAP_N_OUTPUTS], keep = u[i], h = 1e-4;
+                u[i] = keep + h; handcap_predict(u, up);
+                u[i] = keep - h; handcap_predict(u, down);
+                u[i] = keep;
+                for (o = 0; o < HANDCAP_N_OUTPUTS; o++) printf("%.17g ", (up[o] - down[o]) / (2 * h));
+            }
+            printf("\n");
+            continue;
+        }
+        if (first) { handcap_reset_at(state, u); last = t; first = 0; }
+        handcap_step(state, t - last, u, y);
+        last = t;
+        for (o = 0; o < HANDCAP_N_OUTPUTS; o++) printf("%.17g ", y[o]);
+        printf("\n");
+    }
+    return 0;
+}
+"#;
+
+/// Compiles the harness with `header` as strictly as C99 allows (warnings are errors).
+fn compile(dir: &Path) -> std::path::PathBuf {
+    write(dir, "harness.c", HARNESS);
+    let exe = dir.join("harness");
+    let out = Command::new("cc")
+        .current_dir(dir)
+        .args([
+            "-std=c99",
+            "-pedantic",
+            "-Wall",
+            "-Wextra",
+            "-Werror",
+            "-O2",
+        ])
+        .args(["harness.c", "-lm", "-o"])
+        .arg(&exe)
+        .output()
+        .expect("the system C compiler (cc) runs");
+    assert!(
+        out.status.success(),
+        "the header compiles: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    exe
+}
+
+/// Runs the harness on `rows` (`time inputs…` per row), one line of numbers per row.
+fn run(exe: &Path, settled: bool, rows: &[Vec<f64>]) -> Vec<Vec<f64>> {
+    use std::io::Write as _;
+    let mut child = Command::new(exe)
+        .args(settled.then_some("-s"))
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut text = String::new();
+    for r in rows {
+        let line: Vec<String> = r.iter().map(f64::to_string).collect();
+        text.push_str(&line.join(" "));
+        text.push('\n');
+    }
+    child
+        .stdin
+        .take()
+        .unwrap()
+        .write_all(text.as_bytes())
+        .unwrap();
+    let out = child.wait_with_output().unwrap();
+    assert!(out.status.success());
+    String::from_utf8(out.stdout)
+        .unwrap()
+        .lines()
+        .map(|l| l.split_whitespace().map(|v| v.parse().unwrap()).collect())
+        .collect()
+}
+
+/// The largest difference between `a` and `b` relative to the largest magnitude in `b`.
+fn relative(a: &[f64], b: &[f64]) -> f64 {
+    let scale = b.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    a.iter()
+        .zip(b)
+        .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()))
+        / scale
+}
+
+#[test]
+fn the_c_header_predicts_what_handcap_predict_does() {
+    let dir = tempdir();
+    let d = dir.path();
+    write(d, "train.csv", &lagging_plant(1, 4, 80));
+    write(d, "test.csv", &lagging_plant(2, 1, 80));
+    for (history, model) in [("ema:0.2,0.8", "history.json"), ("none", "static.json")] {
+        let mut args = vec!["model", "train.csv"];
+        args.extend(COLUMNS);
+        args.extend(["--time", "t_s", "--group-by", "trial", "--history", history]);
+        args.extend([
+            "--c",
+            "100",
+            "--epsilon",
+            "0.01",
+            "--sigma",
+            "2",
+            "--out",
+            model,
+        ]);
+        handcap_ok(d, &args);
+        let said = handcap_ok(d, &["export", model, "--c", "model.h"]);
+        assert!(said.contains("wrote model.h"), "{said}");
+        let exe = compile(d);
+
+        // Along the held-out trial, step by step: `handcap predict`'s outputs.
+        handcap_ok(d, &["predict", model, "test.csv", "--out", "pred.csv"]);
+        let test = csv_rows(&d.join("test.csv"));
+        let rows: Vec<Vec<f64>> = test
+            .iter()
+            .map(|r| {
+                ["t_s", "P1_kpa", "P2_kpa"]
+                    .map(|k| r[k].parse().unwrap())
+                    .to_vec()
+            })
+            .collect();
+        let c: Vec<f64> = run(&exe, false, &rows).concat();
+        let rust: Vec<f64> = csv_rows(&d.join("pred.csv"))
+            .iter()
+            .flat_map(|r| ["x_mm", "y_mm"].map(|k| r[k].parse::<f64>().unwrap()))
+            .collect();
+        assert_eq!(c.len(), rust.len());
+        let differs = relative(&c, &rust);
+        assert!(
+            differs <= 1e-9,
+            "{model}: C against predict, {differs:e} relative"
+        );
+
+        // The settled map and its Jacobian: the map as `predict` gives it for held inputs, the
+        // Jacobian as the map's central differences.
+        let settled = run(&exe, true, &rows);
+        for line in &settled {
+            let (jac, fd) = (&line[2..6], &line[6..10]);
+            // fd is column by column (input-major), jac row-major (output-major).
+            let fd_rows = [fd[0], fd[2], fd[1], fd[3]];
+            let differs = relative(jac, &fd_rows);
+            assert!(
+                differs <= 1e-5,
+                "{model}: Jacobian {jac:?} against {fd_rows:?}"
+            );
+        }
+        if history == "none" {
+            // Without history, settled and stepped are the same map.
+            assert!(
+                relative(
+                    &settled
+                        .iter()
+                        .flat_map(|l| l[..2].to_vec())
+                        .collect::<Vec<_>>(),
+                    &rust
+                ) <= 1e-12
+            );
+        }
+    }
+}
+
+#[test]
+fn export_refuses_what_is_not_a_model_and_writes_nothing() {
+    let dir = tempdir();
+    let d = dir.path();
+    write(d, "data.csv", "P1_kpa,x_mm\n1,2\n");
+    let err = handcap_err(d, &["export", "data.csv", "--c", "model.h"]);
+    assert!(
+        err.contains("data.csv") && err.lines().count() == 1,
+        "{err}"
+    );
+    assert!(!d.join("model.h").exists());
+}
