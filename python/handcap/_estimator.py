@@ -147,6 +147,14 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
         Y = self.model_.predict(np.ascontiguousarray(X), time=time, groups=groups)
         return Y.ravel() if self._single_output else Y
 
+    def jacobian(self, X):
+        """d outputs / d inputs at each row of X: (n, q, d), exact (the kernel's derivative).
+        A model that sees its inputs' history gives its steady state's (every filter settled at
+        the row's inputs): the map a feed-forward controller inverts."""
+        check_is_fitted(self)
+        X = validate_data(self, X, reset=False, dtype=np.float64)
+        return self.model_.jacobian(np.ascontiguousarray(X))
+
     def interval_radius(self, level=0.9):
         """The conformal interval's radius at `level` (output units): the truth lies within it
         of the prediction that share of the time (marginal over rows like the held-out ones).

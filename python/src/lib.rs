@@ -9,8 +9,8 @@
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use numpy::ndarray::{Array1, Array2, ArrayView1, ArrayView2};
-use numpy::{IntoPyArray, PyArray1, PyArray2, PyReadonlyArray1, PyReadonlyArray2};
+use numpy::ndarray::{Array1, Array2, Array3, ArrayView1, ArrayView2};
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2};
 use pyo3::exceptions::{PyOSError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyTuple;
@@ -23,7 +23,7 @@ use handcap_core::model::msvr::fitness::FitnessKind;
 use handcap_core::model::msvr::folds::FoldsBy;
 use handcap_core::model::msvr::tune::{BasisChoice, Pinned};
 use handcap_core::model::msvr::{self, Loss, MsvrParams, MIN_FIT_ROWS};
-use handcap_core::model::{Predict, StoredModel};
+use handcap_core::model::{Differentiable, Predict, StoredModel};
 use handcap_core::provenance::Provenance;
 use handcap_core::search::aco_r::AcoR;
 use handcap_core::search::Method;
@@ -455,6 +455,38 @@ impl Model {
             detached(py, work)?
         };
         Ok(array(&predicted).into_pyarray(py))
+    }
+
+    /// ∂outputs/∂inputs at each row of `x` (rows × inputs): `(rows, outputs, inputs)`. A
+    /// history model's is its steady state's (every filter settled at the row's inputs), the
+    /// map the inverse and a feed-forward controller use; exact, from the kernel's derivative.
+    fn jacobian<'py>(
+        &self,
+        py: Python<'py>,
+        x: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyArray3<f64>>> {
+        let steady = self.file.steady_state();
+        let (d, q) = (steady.inputs().len(), steady.outputs().len());
+        let x = array2(x, "X")?;
+        let x = x.as_array();
+        if x.ncols() != d {
+            return Err(value_error(format!(
+                "X has {} features, but the model takes {d} ({})",
+                x.ncols(),
+                steady.inputs().join(",")
+            )));
+        }
+        let n = x.nrows();
+        let values: Vec<f64> = x.iter().copied().collect();
+        let work = || Ok(steady.jacobians(&values));
+        let jac = if n * self.msvr().support_vector_count() <= INLINE_WORK {
+            work().map_err(|e: String| value_error(e))?
+        } else {
+            detached(py, work)?
+        };
+        Ok(Array3::from_shape_vec((n, q, d), jac)
+            .expect("n × q × d")
+            .into_pyarray(py))
     }
 
     /// The inputs that put the model's outputs at each row of `targets`, within the training

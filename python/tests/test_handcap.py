@@ -351,3 +351,39 @@ def test_bad_time_series_raise_value_error_naming_the_row():
         fixed.fit(x, y, groups=groups, time=time[:-1])
     with pytest.raises(ValueError, match="history `ema:-1`"):
         handcap.MSVRRegressor(**FIXED, history="ema:-1").fit(x, y, groups=groups, time=time)
+
+
+def test_the_jacobian_is_the_settled_maps_derivative(tmp_path):
+    """Issue 45: `jacobian` (rows, outputs, inputs) of a history model is its steady state's:
+    the central differences of `predict` on one held row (every filter settled there), for a
+    batch of rows at once; a static model's is its own map's."""
+    frame = dynamic_log(6, 10)
+    x, y = frame[["P1_kpa", "P2_kpa"]].to_numpy(), frame[["x_mm", "y_mm"]].to_numpy()
+    history = handcap.MSVRRegressor(**FIXED, history="ema:0.2,0.8").fit(
+        x, y, groups=frame["trial"], time=frame["t_s"])
+    static = handcap.MSVRRegressor(**FIXED).fit(x, y)
+    rows = x[::7]
+    for model in (history, static):
+        settled = lambda u: model.predict(np.array([u, u]), time=[0.0, 1.0], groups=[0.0, 0.0])[1]
+        jac = model.jacobian(rows)
+        assert jac.shape == (len(rows), 2, 2)
+        h = 1e-4
+        for row, j in zip(rows, jac):
+            fd = np.column_stack([(settled(row + h * e) - settled(row - h * e)) / (2 * h)
+                                  for e in np.eye(2)])
+            np.testing.assert_allclose(j, fd, rtol=1e-5, atol=1e-7 * np.abs(fd).max())
+    # A history model's steady state differs from its instant response: the Jacobian is not
+    # the derivative along the present inputs alone.
+    features = history.model_.feature_names
+    assert len(features) == 6
+    with pytest.raises(ValueError, match="expecting 2 features"):
+        history.jacobian(np.zeros((3, 3)))
+    with pytest.raises(ValueError, match="takes 2"):
+        history.model_.jacobian(np.zeros((3, 3)))
+    # A horizon of 10^4 rows in one call (an MPC's), the filters carried along it.
+    horizon = np.tile(x[:100], (100, 1))
+    t = np.arange(len(horizon)) * 0.1
+    predicted = history.predict(horizon, time=t, groups=np.zeros(len(horizon)))
+    assert predicted.shape == (10_000, 2) and np.isfinite(predicted).all()
+    np.testing.assert_allclose(predicted[:100], history.predict(
+        horizon[:100], time=t[:100], groups=np.zeros(100)), rtol=1e-12)

@@ -15,7 +15,7 @@ use crate::model::Differentiable;
 use crate::pipeline::outputs::{self, Output};
 
 #[derive(clap::Args)]
-#[command(group(clap::ArgGroup::new("what").required(true).args(["target", "targets"])))]
+#[command(group(clap::ArgGroup::new("what").required(true).args(["target", "targets", "trajectory"])))]
 pub struct Args {
     /// Model file written by `handcap model`
     model: PathBuf,
@@ -31,6 +31,30 @@ pub struct Args {
     /// CSV of targets with the model's output columns
     #[arg(long, requires = "out")]
     targets: Option<PathBuf>,
+    /// CSV of a path in time: the time column (the model's, or time_s) and the model's output
+    /// columns; writes the commands (each held until the next row's time) that make the
+    /// model's predicted outputs follow it, the finger starting at rest. A history model's are
+    /// planned over the whole path, its lag anticipated
+    #[arg(long, requires = "out", conflicts_with_all = ["target", "targets"])]
+    trajectory: Option<PathBuf>,
+    /// With --trajectory: the commands played in the previous repetition (a --trajectory
+    /// output), for learning (with --measured)
+    #[arg(long, requires = "trajectory")]
+    previous: Option<PathBuf>,
+    /// With --previous: the outputs measured while those commands played (the time column and
+    /// the output columns, at any instants that cover the path, e.g. `triangulate
+    /// --per-frame`'s rows on the commands' clock)
+    #[arg(long, requires = "trajectory")]
+    measured: Option<PathBuf>,
+    /// Learning gain: the share of the measured error corrected per repetition
+    #[arg(long, default_value_t = 0.6, value_parser = super::finite)]
+    gain: f64,
+    /// Largest change of a `_kpa` command per second along a trajectory (a regulator's slew)
+    #[arg(long, default_value_t = 600.0, value_parser = super::finite)]
+    max_rate: f64,
+    /// Weight of the commands' smoothness along a trajectory (against the squared output error)
+    #[arg(long, default_value_t = 1e-3, value_parser = super::finite)]
+    smoothness: f64,
     /// CSV to write: the targets, the inputs found, the model's outputs there, the error
     #[arg(long)]
     out: Option<PathBuf>,
@@ -88,6 +112,9 @@ fn describe(names: &[String], values: &[f64]) -> String {
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
+    if let Some(target) = &a.trajectory {
+        return run_trajectory(&a, target);
+    }
     let file = ModelFile::load(&a.model)?;
     let steady = file.steady_state();
     let model: &dyn Differentiable = &steady;
@@ -158,6 +185,31 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         }
         _ => usage!("give --target X,Y,Z or --targets FILE.csv --out FILE.csv"),
     }
+}
+
+/// `--trajectory`: the dynamic inverse, or with `--previous` and `--measured` a repetition of
+/// learning.
+fn run_trajectory(a: &Args, target: &std::path::Path) -> anyhow::Result<()> {
+    let learn = super::trajectory::paths(&a.previous, &a.measured)?;
+    if a.max_rate <= 0.0 || a.smoothness < 0.0 {
+        usage!("--max-rate must be positive and --smoothness 0 or more");
+    }
+    let file = ModelFile::load(&a.model)?;
+    let options = options(&file.steady_state(), a)?;
+    let out = a
+        .out
+        .as_ref()
+        .expect("clap requires --out with --trajectory");
+    let request = super::trajectory::Request {
+        model: &a.model,
+        target,
+        out,
+        learn: learn.as_ref().map(|(p, m)| (p.as_path(), m.as_path())),
+        gain: a.gain,
+        max_rate: a.max_rate,
+        smoothness: a.smoothness,
+    };
+    super::trajectory::run(&request, options)
 }
 
 /// The box, e.g. "P1_kpa 0-250, P2_kpa 0-250, P3_kpa 0-250".

@@ -11,6 +11,7 @@ mod model;
 mod predict;
 mod protocol;
 mod synth;
+mod trajectory;
 mod triangulate;
 
 use std::collections::HashMap;

@@ -5,7 +5,7 @@ use std::path::Path;
 use std::process::Command;
 
 use crate::common::{csv_rows, handcap_err, handcap_ok, tempdir, write};
-use crate::history::{lagging_plant, COLUMNS};
+use crate::history::{fit_lagging, lagging_plant};
 
 /// Reads `time_s` then the inputs per line, one series: `reset_at` the first row's inputs (as
 /// `handcap predict` starts a group), `step` by each row's time difference; prints the outputs.
@@ -119,20 +119,7 @@ fn the_c_header_predicts_what_handcap_predict_does() {
     write(d, "train.csv", &lagging_plant(1, 4, 80));
     write(d, "test.csv", &lagging_plant(2, 1, 80));
     for (history, model) in [("ema:0.2,0.8", "history.json"), ("none", "static.json")] {
-        let mut args = vec!["model", "train.csv"];
-        args.extend(COLUMNS);
-        args.extend(["--time", "t_s", "--group-by", "trial", "--history", history]);
-        args.extend([
-            "--c",
-            "100",
-            "--epsilon",
-            "0.01",
-            "--sigma",
-            "2",
-            "--out",
-            model,
-        ]);
-        handcap_ok(d, &args);
+        fit_lagging(d, history, model);
         let said = handcap_ok(d, &["export", model, "--c", "model.h"]);
         assert!(said.contains("wrote model.h"), "{said}");
         let exe = compile(d);

@@ -72,6 +72,25 @@ fn mae_of(predicted: &Path, truth: &Path) -> f64 {
     sum / (2 * p.len()) as f64
 }
 
+/// Fits `train.csv` in `d` (a [`lagging_plant`]) with `history` and fixed hyper-parameters
+/// (no search) into `out`.
+pub(crate) fn fit_lagging(d: &Path, history: &str, out: &str) {
+    let mut args = vec!["model", "train.csv"];
+    args.extend(COLUMNS);
+    args.extend(["--time", "t_s", "--group-by", "trial", "--history", history]);
+    args.extend([
+        "--c",
+        "100",
+        "--epsilon",
+        "0.01",
+        "--sigma",
+        "2",
+        "--out",
+        out,
+    ]);
+    handcap_ok(d, &args);
+}
+
 pub(crate) const COLUMNS: [&str; 4] = ["--inputs", "P1_kpa,P2_kpa", "--outputs", "x_mm,y_mm"];
 
 #[test]

@@ -18,4 +18,5 @@ mod live;
 mod msvr;
 mod pipeline;
 mod search;
+mod trajectory;
 mod triangulate;

@@ -12,6 +12,7 @@ pub mod inverse;
 pub mod msvr;
 pub mod previous;
 pub mod spec;
+pub mod trajectory;
 
 pub use spec::{ModelSpec, StoredModel};
 
@@ -103,6 +104,18 @@ pub trait Predict: Sync {
 pub trait Differentiable: Predict {
     /// The outputs at `x` into `out` and ∂outᵢ/∂xⱼ into `jacobian` (`q × d`, row-major).
     fn predict_with_jacobian(&self, x: &[f64], out: &mut [f64], jacobian: &mut [f64]);
+
+    /// The Jacobian at every row of `x` (the model's inputs, `n × d` row-major): `n × q × d`,
+    /// rows in parallel.
+    fn jacobians(&self, x: &[f64]) -> Vec<f64> {
+        let (d, q) = (self.inputs().len(), self.outputs().len());
+        let mut jac = vec![0.0; x.len() / d * q * d];
+        jac.par_chunks_mut(q * d)
+            .zip(x.par_chunks(d))
+            .with_min_len(64)
+            .for_each(|(j, row)| self.predict_with_jacobian(row, &mut vec![0.0; q], j));
+        jac
+    }
 }
 
 /// Inputs outside a model's training range ([`Predict::outside`]).

