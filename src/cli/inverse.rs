@@ -47,13 +47,13 @@ pub struct Args {
     #[arg(long, requires = "trajectory")]
     measured: Option<PathBuf>,
     /// Learning gain: the share of the measured error corrected per repetition
-    #[arg(long, default_value_t = 0.6, value_parser = super::finite)]
+    #[arg(long, default_value_t = 0.5, value_parser = super::finite)]
     gain: f64,
     /// Largest change of a `_kpa` command per second along a trajectory (a regulator's slew)
     #[arg(long, default_value_t = 600.0, value_parser = super::finite)]
     max_rate: f64,
     /// Weight of the commands' smoothness along a trajectory (against the squared output error)
-    #[arg(long, default_value_t = 1e-3, value_parser = super::finite)]
+    #[arg(long, default_value_t = 0.1, value_parser = super::finite)]
     smoothness: f64,
     /// CSV to write: the targets, the inputs found, the model's outputs there, the error
     #[arg(long)]
