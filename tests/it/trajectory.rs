@@ -169,11 +169,11 @@ fn textbook_ilc(
             .map(|r| ["x_mm", "y_mm", "z_mm"].map(|k| r[k].parse::<f64>().unwrap()))
             .collect();
         let n = u.len();
-        for k in 0..n {
+        for (k, p) in u.iter_mut().enumerate() {
             let j = (k + shift).min(n - 1);
             let e: [f64; 3] = std::array::from_fn(|o| targets[j][o] - run[j][o]);
-            let step = solve3(settled_jacobian(plant, u[k]), e);
-            u[k] = clamp(std::array::from_fn(|i| u[k][i] + 0.5 * step[i]));
+            let step = solve3(settled_jacobian(plant, *p), e);
+            *p = clamp(std::array::from_fn(|i| p[i] + 0.5 * step[i]));
         }
     }
     errors
