@@ -7,9 +7,9 @@ use std::path::PathBuf;
 use anyhow::{bail, Context};
 
 use crate::pipeline::synth;
-use crate::session::protocol::DynamicDesign;
+use crate::session::protocol::{self, DynamicDesign};
 use crate::synth::camera::RigConfig;
-use crate::synth::capture::{CaptureConfig, Realism};
+use crate::synth::capture::{CaptureConfig, DynamicSession, Realism};
 use crate::synth::dynamics::Dynamics;
 use crate::synth::image_format::{Chroma, ImageFormat};
 use crate::synth::{plant::PlantParams, SynthConfig, DEFAULT_NOISE_MM};
@@ -84,6 +84,11 @@ pub struct Args {
     /// Dynamic trials (phases dyn_1 … dyn_N)
     #[arg(long, requires = "dynamic", default_value_t = 4)]
     trials: usize,
+    /// A protocol file to play instead (as `handcap protocol` writes it, e.g. a trajectory's
+    /// commands between rest holds), filmed as a dynamic session, without board pairs: the rig
+    /// is the one a synth run of the same seed and rig flags calibrates
+    #[arg(long, conflicts_with_all = ["dynamic", "no_images", "window_ms"])]
+    protocol: Option<PathBuf>,
 }
 
 /// How the virtual webcams' frames look and are stored (synth and demo).
@@ -144,7 +149,7 @@ impl FrameArgs {
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
-    if !a.no_images && !a.dynamic && a.hysteresis_kpa != 0.0 {
+    if !a.no_images && !a.dynamic && a.protocol.is_none() && a.hysteresis_kpa != 0.0 {
         bail!("--hysteresis-kpa applies to the datasets and dynamic sessions only; add --no-images or --dynamic, or drop it to render images");
     }
     if !(a.baseline_mm > 0.0 && a.distance_mm >= 80.0 && a.distance_mm <= 400.0) {
@@ -175,6 +180,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .map_or(CaptureConfig::default().latency_s, |ms| {
             ms.map(|ms| ms / 1e3)
         });
+    let played = a.protocol.as_deref().map(protocol::read).transpose()?;
     let capture_config = (!a.no_images).then(|| CaptureConfig {
         rig: RigConfig {
             baseline_mm: a.baseline_mm,
@@ -190,14 +196,20 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         latency_s,
         window_s,
         realism,
-        dynamic: a.dynamic.then(|| DynamicDesign {
-            duration_s: a.duration_s,
-            rate_hz: a.rate_hz,
-            trials: a.trials,
-            seed: a.seed,
-            ..DynamicDesign::default()
-        }),
-        dynamics: if a.dynamic {
+        calibration_images: a.protocol.is_none(),
+        dynamic: match &played {
+            Some(steps) => Some(DynamicSession::Played(steps.clone())),
+            None => a.dynamic.then(|| {
+                DynamicSession::Design(DynamicDesign {
+                    duration_s: a.duration_s,
+                    rate_hz: a.rate_hz,
+                    trials: a.trials,
+                    seed: a.seed,
+                    ..DynamicDesign::default()
+                })
+            }),
+        },
+        dynamics: if a.dynamic || a.protocol.is_some() {
             Dynamics::PNEUMATIC
         } else {
             Dynamics::STEPS
@@ -208,9 +220,17 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .with_context(|| format!("synth into {}", a.out.display()))?;
     super::print_written(&done.datasets);
     if let Some(c) = &done.capture {
+        let boards = if c.board_pairs > 0 {
+            format!(
+                "{}/calib/ ({} board pairs + the reference pair), ",
+                a.out.display(),
+                c.board_pairs
+            )
+        } else {
+            String::new()
+        };
         println!(
-            "wrote {out}/calib/ ({} board pairs + the reference pair), {out}/frames/ ({} left, {} right frames over {} pressure steps), pressures.csv, truth/ in {:.1} s",
-            c.board_pairs,
+            "wrote {boards}{out}/frames/ ({} left, {} right frames over {} pressure steps), pressures.csv, truth/ in {:.1} s",
             c.left_frames,
             c.right_frames,
             c.steps,

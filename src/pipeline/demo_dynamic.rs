@@ -29,7 +29,7 @@ use crate::plot::{self, LinePlot, Mark, Series};
 use crate::search::aco_r::AcoR;
 use crate::search::Method;
 use crate::session::protocol::DynamicDesign;
-use crate::synth::capture::CaptureConfig;
+use crate::synth::capture::{CaptureConfig, DynamicSession};
 use crate::synth::dynamics::Dynamics;
 use crate::synth::SynthConfig;
 use crate::triangulate::per_frame;
@@ -82,7 +82,7 @@ pub fn run(
     let capture_dir = dir.join("capture");
     let config = CaptureConfig {
         calibration_images: false,
-        dynamic: Some(design.clone()),
+        dynamic: Some(DynamicSession::Design(design.clone())),
         dynamics: Dynamics::PNEUMATIC,
         ..capture.clone()
     };

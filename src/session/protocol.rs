@@ -212,7 +212,7 @@ pub fn bad_hold(hold_s: f64) -> Option<String> {
 }
 
 /// One step: the three muscles' pressures, held for `hold_s`.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct Step {
     pub step: usize,
     pub phase: String,

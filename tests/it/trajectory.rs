@@ -429,3 +429,56 @@ fn bad_trajectories_get_one_line_and_nothing_is_written() {
     let rows = csv_rows(&d.join("far_c.csv"));
     assert_eq!(rows[1]["reached"], "0");
 }
+
+#[test]
+fn synth_plays_a_protocol_file_as_a_dynamic_session() {
+    let dir = tempdir();
+    let d = dir.path();
+    write(
+        d,
+        "protocol.csv",
+        "step,phase,P1_kpa,P2_kpa,P3_kpa,hold_s\n0,rest,0,0,0,1\n1,path,150,0,40,0.25\n2,path,150,90,40,0.25\n3,rest,0,0,0,0.5\n",
+    );
+    let said = handcap_ok(
+        d,
+        &[
+            "synth",
+            "--out",
+            "run",
+            "--protocol",
+            "protocol.csv",
+            "--clean",
+        ],
+    );
+    assert!(!said.contains("calib/"), "{said}");
+    assert!(!d.join("run/calib").exists(), "no board pairs");
+    // The log is the protocol's rows at their times; every frame has its truth.
+    let log = csv_rows(&d.join("run/pressures.csv"));
+    let times: Vec<&str> = log.iter().map(|r| r["time_s"].as_str()).collect();
+    assert_eq!(times, ["0.000000", "1.000000", "1.250000", "1.500000"]);
+    assert_eq!(log[2]["P2_kpa"], "90");
+    let truth = csv_rows(&d.join("run/truth/per_frame.csv"));
+    let frames = csv_rows(&d.join("run/frames/frames.csv"));
+    let left = frames.iter().filter(|f| f["camera"] == "left").count();
+    assert_eq!(truth.len(), left);
+    // The finger moves during the path and lags it: still at the rest origin at 1.0 s.
+    let tip_at = |t: f64| {
+        let row = truth
+            .iter()
+            .min_by(|a, b| {
+                let da = (a["time_s"].parse::<f64>().unwrap() - t).abs();
+                let db = (b["time_s"].parse::<f64>().unwrap() - t).abs();
+                da.total_cmp(&db)
+            })
+            .unwrap();
+        row["x_mm"].parse::<f64>().unwrap().abs() + row["y_mm"].parse::<f64>().unwrap().abs()
+    };
+    assert!(tip_at(0.5) < 1e-9 && tip_at(1.45) > 0.5);
+    write(
+        d,
+        "bad.csv",
+        "step,phase,P1_kpa,P2_kpa,P3_kpa,hold_s\n0,rest,0,0,0,-1\n",
+    );
+    let err = handcap_err(d, &["synth", "--out", "bad", "--protocol", "bad.csv"]);
+    assert!(err.contains("bad.csv") && err.contains("line 2"), "{err}");
+}

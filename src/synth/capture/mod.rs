@@ -95,7 +95,7 @@ pub struct CaptureConfig {
     pub window_s: [f64; 2],
     pub fps: f64,
     /// A dynamic protocol instead of the paper's steps (the session films it all).
-    pub dynamic: Option<DynamicDesign>,
+    pub dynamic: Option<DynamicSession>,
     /// How the muscles follow the regulator.
     pub dynamics: Dynamics,
     /// Relative amplitude of a slow exposure drift (0 = locked exposure).
@@ -294,6 +294,16 @@ pub fn write_capture(
     })
 }
 
+/// Where a dynamic session's commands come from.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DynamicSession {
+    /// Random excitation between rest holds (`handcap protocol --dynamic`).
+    Design(DynamicDesign),
+    /// A protocol file's rows, played as they are (e.g. a trajectory's commands).
+    Played(Vec<Step>),
+}
+
 impl CaptureConfig {
     /// The protocol the session drives: the dynamic design, or the paper's steps at `synth`'s
     /// grid and sweep steps, each held `step_s`.
@@ -302,7 +312,8 @@ impl CaptureConfig {
     /// [`SynthError::Protocol`] for a design the protocol refuses.
     pub fn steps(&self, synth: &SynthConfig) -> Result<Vec<Step>, SynthError> {
         Ok(match &self.dynamic {
-            Some(design) => protocol::dynamic(design)?,
+            Some(DynamicSession::Design(design)) => protocol::dynamic(design)?,
+            Some(DynamicSession::Played(steps)) => steps.clone(),
             None => protocol::paper_steps(synth.grid_step_kpa, synth.sweep_step_kpa, self.step_s)?,
         })
     }
