@@ -13,6 +13,7 @@ use crate::model::inverse::InverseOptions;
 use crate::model::trajectory::{self, Dynamic, PathPlan, PlanOptions};
 use crate::model::Predict;
 use crate::pipeline::outputs::{self, Output};
+use crate::plot::{self, LinePlot, Mark, Series};
 
 /// What a trajectory run was given.
 pub struct Request<'a> {
@@ -87,7 +88,13 @@ pub fn run(r: &Request, options: InverseOptions) -> anyhow::Result<()> {
     if let Some((previous, measured)) = r.learn {
         inputs.extend([previous, measured]);
     }
-    outputs::check(&inputs, &[Output::new(r.out, "--out")])?;
+    let figure = r.out.with_extension("").with_file_name(format!(
+        "{}_path",
+        r.out.file_stem().unwrap_or_default().to_string_lossy()
+    ));
+    let mut written = vec![Output::new(r.out, "--out")];
+    written.extend(plot::line_plot_files(&figure).map(|f| Output::new(f, "the path figure")));
+    outputs::check(&inputs, &written)?;
     if !(r.gain > 0.0 && r.gain <= 1.0) {
         usage!("--gain {} must lie in (0, 1]", r.gain);
     }
@@ -116,6 +123,7 @@ pub fn run(r: &Request, options: InverseOptions) -> anyhow::Result<()> {
         smoothness: r.smoothness,
         max_iter: 30,
     };
+    let mut seen = None;
     let plan = match r.learn {
         None => {
             let start = trajectory::pointwise(dynamic, &steady, &time, &targets.values, &options)?;
@@ -174,6 +182,7 @@ pub fn run(r: &Request, options: InverseOptions) -> anyhow::Result<()> {
                         .sqrt()
                 })
                 .collect();
+            seen = Some(measured.clone());
             let plan = trajectory::learn(
                 dynamic,
                 &time,
@@ -204,8 +213,71 @@ pub fn run(r: &Request, options: InverseOptions) -> anyhow::Result<()> {
     }
     write(r.out, time_column, &time, &names_in, &names_out, &plan)
         .with_context(|| format!("writing {}", r.out.display()))?;
-    println!("wrote {}", r.out.display());
+    path_figure(
+        &figure,
+        &names_out,
+        &targets.values,
+        &plan.predicted,
+        seen.as_deref(),
+    )?;
+    println!(
+        "wrote {} and {}.svg/.png (the path: target, the model's prediction{})",
+        r.out.display(),
+        figure.display(),
+        if seen.is_some() {
+            ", the run measured"
+        } else {
+            ""
+        }
+    );
     Ok(())
+}
+
+/// The path in the plane of the first two outputs: the target, the model's prediction along
+/// the commands, and the run measured (learning).
+fn path_figure(
+    stem: &Path,
+    outputs: &[String],
+    targets: &[f64],
+    predicted: &[f64],
+    measured: Option<&[f64]>,
+) -> anyhow::Result<()> {
+    let q = outputs.len();
+    if q < 2 {
+        return Ok(());
+    }
+    let points = |v: &[f64]| v.chunks(q).map(|r| (r[0], r[1])).collect();
+    let mut series = vec![
+        Series {
+            label: "target".into(),
+            points: points(targets),
+            mark: Mark::Line,
+            colour: plot::BLACK_INDEX,
+        },
+        Series {
+            label: "model, along the commands written".into(),
+            points: points(predicted),
+            mark: Mark::Line,
+            colour: 0,
+        },
+    ];
+    if let Some(m) = measured {
+        series.push(Series {
+            label: "the run measured".into(),
+            points: points(m),
+            mark: Mark::Points,
+            colour: 2,
+        });
+    }
+    let plot = LinePlot {
+        title: "The path".into(),
+        x_label: outputs[0].clone(),
+        y_label: outputs[1].clone(),
+        series,
+        log_y: false,
+        x_names: Vec::new(),
+    };
+    plot::write_line_plot(stem, &plot).with_context(|| format!("writing {}.svg", stem.display()))
 }
 
 /// The commands file: time, the inputs, the model's outputs along them, the error and reach.

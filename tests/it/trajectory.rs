@@ -290,6 +290,9 @@ fn the_dynamic_inverse_anticipates_the_lag_and_learning_closes_the_rest() {
         assert!(trajectory("static.json").contains("pointwise inverse"));
         let pointwise = play(d, &plant, &dynamics, lead);
         assert!(trajectory("model.json").contains("predicted tracking RMS"));
+        for figure in ["commands_path.svg", "commands_path.png"] {
+            assert!(d.join(figure).exists(), "{figure}");
+        }
         let mut errors = vec![play(d, &plant, &dynamics, lead)];
         assert!(
             errors[0] <= 0.5 * pointwise,
