@@ -152,6 +152,19 @@ fn array1<'py>(x: &Bound<'py, PyAny>, what: &str) -> PyResult<PyReadonlyArray1<'
     float_array(x, 1, what)?.extract()
 }
 
+/// `x` has one column per name, or a `ValueError` says what the model takes.
+fn check_width(x: ArrayView2<f64>, names: &[String]) -> PyResult<()> {
+    if x.ncols() == names.len() {
+        return Ok(());
+    }
+    Err(value_error(format!(
+        "X has {} features, but the model takes {} ({})",
+        x.ncols(),
+        names.len(),
+        names.join(",")
+    )))
+}
+
 fn columns(names: &[String], x: ArrayView2<f64>) -> Columns {
     Columns::new(names.to_vec(), x.iter().copied().collect())
 }
@@ -343,10 +356,7 @@ impl Model {
 
     /// The inputs a caller gives: the present inputs (a history model's features are built).
     fn given_inputs(&self) -> Vec<String> {
-        match self.file.history() {
-            Some(h) => h.inputs.clone(),
-            None => self.file.model.predictor().inputs().to_vec(),
-        }
+        self.file.steady_state().inputs().to_vec()
     }
 }
 
@@ -402,14 +412,7 @@ impl Model {
         let time = time.map(|t| array1(t, "time")).transpose()?;
         let groups = groups.map(|g| array1(g, "groups")).transpose()?;
         let x = x.as_array();
-        if x.ncols() != names.len() {
-            return Err(value_error(format!(
-                "X has {} features, but the model takes {} ({})",
-                x.ncols(),
-                names.len(),
-                names.join(",")
-            )));
-        }
+        check_width(x, &names)?;
         let given = columns(&names, x);
         let series = match (self.file.history(), time) {
             (None, _) => None,
@@ -469,13 +472,7 @@ impl Model {
         let (d, q) = (steady.inputs().len(), steady.outputs().len());
         let x = array2(x, "X")?;
         let x = x.as_array();
-        if x.ncols() != d {
-            return Err(value_error(format!(
-                "X has {} features, but the model takes {d} ({})",
-                x.ncols(),
-                steady.inputs().join(",")
-            )));
-        }
+        check_width(x, steady.inputs())?;
         let n = x.nrows();
         let values: Vec<f64> = x.iter().copied().collect();
         let work = || Ok(steady.jacobians(&values));

@@ -7,7 +7,7 @@ use anyhow::Context;
 use crate::fsio;
 use crate::model::export;
 use crate::model::file::ModelFile;
-use crate::model::StoredModel;
+use crate::model::{Predict, StoredModel};
 use crate::pipeline::outputs::{self, Output};
 
 #[derive(clap::Args)]
@@ -32,12 +32,13 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     fsio::write_bytes(&a.c, header.as_bytes())
         .with_context(|| format!("writing {}", a.c.display()))?;
     let StoredModel::Msvr(m) = &file.model;
+    let steady = file.steady_state();
     println!(
         "wrote {} ({} kernel centres, {} → {}{})",
         a.c.display(),
         m.support_vector_count(),
-        file.history().map_or(&m.inputs, |h| &h.inputs).join(","),
-        m.outputs.join(","),
+        steady.inputs().join(","),
+        steady.outputs().join(","),
         file.history()
             .map_or(String::new(), |h| format!("; input history {}", h.memory))
     );

@@ -209,7 +209,7 @@ fn run_trajectory(a: &Args, target: &std::path::Path) -> anyhow::Result<()> {
         max_rate: a.max_rate,
         smoothness: a.smoothness,
     };
-    super::trajectory::run(&request, options)
+    super::trajectory::run(&request, &file, options)
 }
 
 /// The box, e.g. "P1_kpa 0-250, P2_kpa 0-250, P3_kpa 0-250".

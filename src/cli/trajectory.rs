@@ -83,12 +83,12 @@ fn resample(path: &Path, at: &[f64], measured: &Columns, time: &[f64]) -> anyhow
     Ok(out)
 }
 
-pub fn run(r: &Request, options: InverseOptions) -> anyhow::Result<()> {
+pub fn run(r: &Request, file: &ModelFile, options: InverseOptions) -> anyhow::Result<()> {
     let mut inputs: Vec<&Path> = vec![r.model, r.target];
     if let Some((previous, measured)) = r.learn {
         inputs.extend([previous, measured]);
     }
-    let figure = r.out.with_extension("").with_file_name(format!(
+    let figure = r.out.with_file_name(format!(
         "{}_path",
         r.out.file_stem().unwrap_or_default().to_string_lossy()
     ));
@@ -98,7 +98,6 @@ pub fn run(r: &Request, options: InverseOptions) -> anyhow::Result<()> {
     if !(r.gain > 0.0 && r.gain <= 1.0) {
         usage!("--gain {} must lie in (0, 1]", r.gain);
     }
-    let file = ModelFile::load(r.model)?;
     let steady = file.steady_state();
     let dynamic = Dynamic {
         model: file.model.differentiable(),
@@ -171,18 +170,7 @@ pub fn run(r: &Request, options: InverseOptions) -> anyhow::Result<()> {
             }
             let (t_run, run) = read_timed(measured_path, time_column, &names_out)?;
             let measured = resample(measured_path, &t_run, &run, &time)?;
-            let errors: Vec<f64> = measured
-                .chunks(names_out.len())
-                .zip(targets.values.chunks(names_out.len()))
-                .map(|(m, t)| {
-                    m.iter()
-                        .zip(t)
-                        .map(|(a, b)| (a - b).powi(2))
-                        .sum::<f64>()
-                        .sqrt()
-                })
-                .collect();
-            seen = Some(measured.clone());
+            let errors = trajectory::distances(&measured, &targets.values, names_out.len());
             let plan = trajectory::learn(
                 dynamic,
                 &time,
@@ -200,6 +188,7 @@ pub fn run(r: &Request, options: InverseOptions) -> anyhow::Result<()> {
                 time.len(),
                 r.gain
             );
+            seen = Some(measured);
             plan
         }
     };

@@ -132,10 +132,7 @@ fn textbook_ilc(
     reps: usize,
 ) -> Vec<f64> {
     let rest = plant.tip([0.0; 3]).unwrap();
-    let targets: Vec<[f64; 3]> = csv_rows(&d.join("target.csv"))
-        .iter()
-        .map(|r| ["x_mm", "y_mm", "z_mm"].map(|k| r[k].parse::<f64>().unwrap()))
-        .collect();
+    let targets = tips(&d.join("target.csv"));
     // Delay and mean lag (s), in rows.
     let shift =
         ((dynamics.delay_s + dynamics.lag_s.iter().sum::<f64>() / 3.0) * RATE).round() as usize;
@@ -164,10 +161,7 @@ fn textbook_ilc(
         if rep == reps {
             break;
         }
-        let run: Vec<[f64; 3]> = csv_rows(&d.join("run.csv"))
-            .iter()
-            .map(|r| ["x_mm", "y_mm", "z_mm"].map(|k| r[k].parse::<f64>().unwrap()))
-            .collect();
+        let run = tips(&d.join("run.csv"));
         let n = u.len();
         for (k, p) in u.iter_mut().enumerate() {
             let j = (k + shift).min(n - 1);
@@ -177,6 +171,14 @@ fn textbook_ilc(
         }
     }
     errors
+}
+
+/// The x, y, z of every row of a CSV file.
+fn tips(path: &Path) -> Vec<[f64; 3]> {
+    csv_rows(path)
+        .iter()
+        .map(|r| ["x_mm", "y_mm", "z_mm"].map(|k| r[k].parse::<f64>().unwrap()))
+        .collect()
 }
 
 /// Plays `commands.csv` on the plant; writes the tip at each row's time to `run.csv` and
@@ -195,18 +197,14 @@ fn play(d: &Path, plant: &Plant, dynamics: &Dynamics, from: usize) -> f64 {
         .collect();
     let end = commands.last().unwrap().0 + 1.0;
     let motion = Motion::simulate(&commands, dynamics, 0.0, end);
-    let targets = csv_rows(&d.join("target.csv"));
+    let targets = tips(&d.join("target.csv"));
     let mut run = String::from("time_s,x_mm,y_mm,z_mm\n");
     let mut sum = 0.0;
     for (k, (&(t, _), target)) in commands.iter().zip(&targets).enumerate() {
         let x = tip(plant, &motion, t);
         let _ = writeln!(run, "{t:.6},{},{},{}", x[0], x[1], x[2]);
         if k >= from {
-            sum += ["x_mm", "y_mm", "z_mm"]
-                .iter()
-                .zip(x)
-                .map(|(n, v)| (v - f(target, n)).powi(2))
-                .sum::<f64>();
+            sum += (0..3).map(|o| (x[o] - target[o]).powi(2)).sum::<f64>();
         }
     }
     write(d, "run.csv", &run);
@@ -375,42 +373,28 @@ fn bad_trajectories_get_one_line_and_nothing_is_written() {
             "c.csv",
         ],
     );
-    write(d, "short.csv", "t_s,x_mm,y_mm\n0,1,1\n0.1,1,1\n");
-    let err = handcap_err(
-        d,
-        &[
+    let learn_from = |measured: &str| {
+        let args = [
             "inverse",
             "m.json",
             "--trajectory",
             "path.csv",
             "--previous",
             "c.csv",
-            "--measured",
-            "short.csv",
-            "--out",
-            "next.csv",
-        ],
-    );
+        ];
+        handcap_err(
+            d,
+            &[&args[..], &["--measured", measured, "--out", "next.csv"]].concat(),
+        )
+    };
+    write(d, "short.csv", "t_s,x_mm,y_mm\n0,1,1\n0.1,1,1\n");
+    let err = learn_from("short.csv");
     assert!(
         err.contains("short.csv") && err.contains("whole run"),
         "{err}"
     );
     write(d, "other.csv", "t_s,x_mm,z_mm\n0,1,1\n0.3,1,1\n");
-    let err = handcap_err(
-        d,
-        &[
-            "inverse",
-            "m.json",
-            "--trajectory",
-            "path.csv",
-            "--previous",
-            "c.csv",
-            "--measured",
-            "other.csv",
-            "--out",
-            "next.csv",
-        ],
-    );
+    let err = learn_from("other.csv");
     assert!(err.contains("no column `y_mm`"), "{err}");
     assert!(!d.join("next.csv").exists());
     // A target far out of reach: followed as closely as the box allows, flagged, said.

@@ -30,8 +30,8 @@ use crate::model::StoredModel;
 pub fn c_header(file: &ModelFile, source: &str) -> String {
     let StoredModel::Msvr(msvr) = &file.model;
     let history = file.history();
-    let d = history.map_or(msvr.inputs.len(), |h| h.inputs.len());
     let inputs = history.map_or(&msvr.inputs, |h| &h.inputs);
+    let d = inputs.len();
     let features = msvr.inputs.len();
     let q = msvr.outputs.len();
     let centres = msvr.support_vector_count();

@@ -211,6 +211,22 @@ pub fn feedforward_check(
     Ok(rows.into_iter().flatten().collect())
 }
 
+/// Whether a bounded input at `v` stays where it is in a projected step: at a bound, with the
+/// descent direction −`g` pointing out of the box.
+pub(super) fn held_at_bound(v: f64, lower: f64, upper: f64, g: f64) -> bool {
+    (v <= lower && g > 0.0) || (v >= upper && g < 0.0)
+}
+
+/// The damped Gauss-Newton step s of Levenberg-Marquardt, (H + μ (diag H + 10⁻¹²)) s = −g, over
+/// the free inputs' normal matrix `h` and gradient `g`; `None` when that is not positive definite.
+pub(super) fn damped_step(h: &DMatrix<f64>, g: &DVector<f64>, mu: f64) -> Option<DVector<f64>> {
+    let mut damped = h.clone();
+    for k in 0..h.nrows() {
+        damped[(k, k)] += mu * (h[(k, k)] + 1e-12);
+    }
+    damped.cholesky().map(|c| c.solve(&(-g)))
+}
+
 /// Projected Levenberg-Marquardt from `x`; returns (squared error, inputs).
 fn local_search(
     model: &dyn Differentiable,
@@ -233,13 +249,8 @@ fn local_search(
         let j = DMatrix::from_row_slice(q, d, &jac);
         let r = DVector::from_iterator(q, out.iter().zip(target).map(|(a, b)| a - b));
         let g = j.transpose() * &r;
-        // Inputs held at a bound: the descent direction −g points out of the box.
         let free: Vec<usize> = (0..d)
-            .filter(|&k| {
-                let at_lower = x[k] <= o.lower[k] && g[k] > 0.0;
-                let at_upper = x[k] >= o.upper[k] && g[k] < 0.0;
-                !(at_lower || at_upper)
-            })
+            .filter(|&k| !held_at_bound(x[k], o.lower[k], o.upper[k], g[k]))
             .collect();
         if free.is_empty() {
             break;
@@ -249,11 +260,7 @@ fn local_search(
         let h = jf.transpose() * &jf;
         let mut improved = false;
         for _ in 0..20 {
-            let mut damped = h.clone();
-            for k in 0..free.len() {
-                damped[(k, k)] += lambda * (h[(k, k)] + 1e-12);
-            }
-            let Some(step) = damped.cholesky().map(|c| c.solve(&(-&gf))) else {
+            let Some(step) = damped_step(&h, &gf, lambda) else {
                 lambda *= 10.0;
                 continue;
             };

@@ -32,7 +32,9 @@ use serde::Serialize;
 
 use super::history::{History, Memory};
 use super::inverse::{self, InverseError, InverseOptions};
+use super::msvr::kernel::squared_distance;
 use super::Differentiable;
+use crate::stats;
 
 /// A model on its features, and the history that builds them from the commands (`None`: the
 /// features are the commands).
@@ -79,7 +81,7 @@ pub fn rms(values: &[f64]) -> f64 {
     (values.iter().map(|e| e * e).sum::<f64>() / values.len().max(1) as f64).sqrt()
 }
 
-impl Dynamic<'_> {
+impl<'a> Dynamic<'a> {
     fn d(&self) -> usize {
         self.history
             .map_or(self.model.inputs().len(), |h| h.inputs.len())
@@ -127,12 +129,34 @@ impl Dynamic<'_> {
         }
     }
 
+    /// The model along the rows of `time`: every block's weights at every row.
+    fn along<'t>(self, time: &'t [f64]) -> Along<'a, 't> {
+        let weights = (0..self.blocks())
+            .map(|b| (0..time.len()).map(|k| self.weights(time, b, k)).collect())
+            .collect();
+        Along {
+            dynamic: self,
+            time,
+            weights,
+        }
+    }
+}
+
+/// A model along the rows of a time grid: the features of any commands on it.
+struct Along<'a, 't> {
+    dynamic: Dynamic<'a>,
+    time: &'t [f64],
+    /// Block b's weights at row k: `weights[b][k]`, (j, w) with the block = Σ w u_j.
+    weights: Vec<Vec<Vec<(usize, f64)>>>,
+}
+
+impl Along<'_, '_> {
     /// The features at row `k` of the commands `u` (`n × d`).
-    fn features(&self, u: &[f64], k: usize, weights: &[Vec<Vec<(usize, f64)>>]) -> Vec<f64> {
-        let d = self.d();
-        let mut x = vec![0.0; d * (1 + self.blocks())];
+    fn features(&self, u: &[f64], k: usize) -> Vec<f64> {
+        let d = self.dynamic.d();
+        let mut x = vec![0.0; d * (1 + self.dynamic.blocks())];
         x[..d].copy_from_slice(&u[k * d..(k + 1) * d]);
-        for (b, w) in weights.iter().enumerate() {
+        for (b, w) in self.weights.iter().enumerate() {
             let block = &mut x[d * (1 + b)..d * (2 + b)];
             for &(j, w) in &w[k] {
                 for i in 0..d {
@@ -143,33 +167,42 @@ impl Dynamic<'_> {
         x
     }
 
-    /// Every block's weights at every row.
-    fn all_weights(&self, time: &[f64]) -> Vec<Vec<Vec<(usize, f64)>>> {
-        (0..self.blocks())
-            .map(|b| (0..time.len()).map(|k| self.weights(time, b, k)).collect())
-            .collect()
-    }
-
     /// The model's outputs along the commands `u` from rest (`n × q`).
-    pub fn predict(&self, time: &[f64], u: &[f64]) -> Vec<f64> {
-        let q = self.model.outputs().len();
-        let weights = self.all_weights(time);
-        let mut y = vec![0.0; time.len() * q];
+    fn predict(&self, u: &[f64]) -> Vec<f64> {
+        let q = self.dynamic.model.outputs().len();
+        let mut y = vec![0.0; self.time.len() * q];
         y.par_chunks_mut(q).enumerate().for_each(|(k, out)| {
-            self.model.predict_row(&self.features(u, k, &weights), out);
+            self.dynamic.model.predict_row(&self.features(u, k), out);
         });
         y
     }
+
+    /// The predicted outputs of commands `u` and their distances from `targets`.
+    fn finish(&self, targets: &[f64], u: Vec<f64>, reach: f64) -> PathPlan {
+        let q = self.dynamic.model.outputs().len();
+        let predicted = self.predict(&u);
+        let error = distances(&predicted, targets, q);
+        PathPlan {
+            inputs: u,
+            predicted,
+            reached: error.iter().map(|&e| e <= reach).collect(),
+            error,
+        }
+    }
+}
+
+/// The distance between each row of `a` and of `b` (rows of `q`).
+pub fn distances(a: &[f64], b: &[f64], q: usize) -> Vec<f64> {
+    a.chunks(q)
+        .zip(b.chunks(q))
+        .map(|(a, b)| squared_distance(a, b).sqrt())
+        .collect()
 }
 
 /// The median time step of `time` (positive).
 fn median_step(time: &[f64]) -> f64 {
     let mut steps: Vec<f64> = time.windows(2).map(|w| w[1] - w[0]).collect();
-    if steps.is_empty() {
-        return 1.0;
-    }
-    steps.sort_by(f64::total_cmp);
-    steps[steps.len() / 2]
+    stats::upper_median(&mut steps).unwrap_or(1.0)
 }
 
 /// The static feed-forward along `targets` (`n × q`, one row per `time`): each row's pointwise
@@ -191,7 +224,9 @@ pub fn pointwise(
         .map(|t| inverse::solve(steady, t, &options.inverse))
         .collect::<Result<_, _>>()?;
     let u = solutions.iter().flat_map(|s| s.inputs.clone()).collect();
-    Ok(finish(dynamic, time, targets, u, options.inverse.reach))
+    Ok(dynamic
+        .along(time)
+        .finish(targets, u, options.inverse.reach))
 }
 
 /// Plans commands along `targets` from rest, starting from `start` (the [`pointwise`] plan):
@@ -206,7 +241,7 @@ pub fn plan(
     if dynamic.history.is_none() {
         return start.clone();
     }
-    refine(dynamic, time, targets, start.inputs.clone(), options)
+    refine(&dynamic.along(time), targets, start.inputs.clone(), options)
 }
 
 /// One repetition of learning (module docs): the commands `previous` were played and the
@@ -223,13 +258,14 @@ pub fn learn(
     let q = dynamic.model.outputs().len();
     let error: Vec<f64> = targets.iter().zip(measured).map(|(t, m)| t - m).collect();
     let error = smooth_rows(&error, q, 2);
-    let predicted = dynamic.predict(time, previous);
-    let reference: Vec<f64> = predicted
+    let along = dynamic.along(time);
+    let reference: Vec<f64> = along
+        .predict(previous)
         .iter()
         .zip(&error)
         .map(|(p, e)| p + gain * e)
         .collect();
-    refine(dynamic, time, &reference, previous.to_vec(), options)
+    refine(&along, &reference, previous.to_vec(), options)
 }
 
 /// A centred moving average of each column over ±`half` rows (fewer at the ends): zero phase.
@@ -246,81 +282,47 @@ fn smooth_rows(values: &[f64], q: usize, half: usize) -> Vec<f64> {
     out
 }
 
-/// The predicted outputs and errors of commands `u`.
-fn finish(
-    dynamic: Dynamic<'_>,
-    time: &[f64],
-    targets: &[f64],
-    u: Vec<f64>,
-    reach: f64,
-) -> PathPlan {
-    let q = dynamic.model.outputs().len();
-    let predicted = dynamic.predict(time, &u);
-    let error: Vec<f64> = predicted
-        .chunks(q)
-        .zip(targets.chunks(q))
-        .map(|(p, t)| {
-            p.iter()
-                .zip(t)
-                .map(|(a, b)| (a - b).powi(2))
-                .sum::<f64>()
-                .sqrt()
-        })
-        .collect();
-    PathPlan {
-        inputs: u,
-        predicted,
-        reached: error.iter().map(|&e| e <= reach).collect(),
-        error,
-    }
-}
-
 /// Projected Levenberg-Marquardt on receding windows from `u`.
 fn refine(
-    dynamic: Dynamic<'_>,
-    time: &[f64],
+    along: &Along<'_, '_>,
     targets: &[f64],
     mut u: Vec<f64>,
     options: &PlanOptions,
 ) -> PathPlan {
-    let n = time.len();
-    let window = (4 * dynamic.memory_rows(time)).max(60).min(n);
+    let n = along.time.len();
+    let window = (4 * along.dynamic.memory_rows(along.time)).max(60).min(n);
     let keep = if window == n { n } else { window / 2 };
-    let weights = dynamic.all_weights(time);
-    project(&mut u, time, 0, options);
+    project(&mut u, along.time, 0, options);
     let mut s = 0;
     while s < n {
         let e = (s + window).min(n);
-        solve_window(dynamic, time, targets, &mut u, (s, e), &weights, options);
+        solve_window(along, targets, &mut u, (s, e), options);
         s = if e == n { n } else { s + keep };
     }
-    finish(dynamic, time, targets, u, options.inverse.reach)
+    along.finish(targets, u, options.inverse.reach)
 }
 
 /// The cost of the window's rows: squared output errors and the smoothness term.
 struct Window<'a, 'b> {
-    dynamic: Dynamic<'a>,
+    along: &'b Along<'a, 'b>,
     targets: &'b [f64],
     rows: (usize, usize),
-    weights: &'b [Vec<Vec<(usize, f64)>>],
     /// λ / range² per input.
     smooth: Vec<f64>,
 }
 
 impl Window<'_, '_> {
     fn cost(&self, u: &[f64]) -> f64 {
-        let (d, q) = (self.dynamic.d(), self.dynamic.model.outputs().len());
+        let dynamic = self.along.dynamic;
+        let (d, q) = (dynamic.d(), dynamic.model.outputs().len());
         let (s, e) = self.rows;
         let mut out = vec![0.0; q];
         let mut cost = 0.0;
         for k in s..e {
-            let x = self.dynamic.features(u, k, self.weights);
-            self.dynamic.model.predict_row(&x, &mut out);
-            cost += out
-                .iter()
-                .zip(&self.targets[k * q..(k + 1) * q])
-                .map(|(a, b)| (a - b).powi(2))
-                .sum::<f64>();
+            dynamic
+                .model
+                .predict_row(&self.along.features(u, k), &mut out);
+            cost += squared_distance(&out, &self.targets[k * q..(k + 1) * q]);
             if k > 0 {
                 for i in 0..d {
                     cost += self.smooth[i] * (u[k * d + i] - u[(k - 1) * d + i]).powi(2);
@@ -332,18 +334,18 @@ impl Window<'_, '_> {
 
     /// The Gauss-Newton normal matrix and gradient over the window's commands.
     fn normal(&self, u: &[f64]) -> (DMatrix<f64>, DVector<f64>) {
-        let (d, q) = (self.dynamic.d(), self.dynamic.model.outputs().len());
+        let dynamic = self.along.dynamic;
+        let (d, q) = (dynamic.d(), dynamic.model.outputs().len());
         let (s, e) = self.rows;
         let m = (e - s) * d;
-        let features = d * (1 + self.dynamic.blocks());
+        let features = d * (1 + dynamic.blocks());
         let per_row: Vec<(Vec<f64>, Vec<f64>)> = (s..e)
             .into_par_iter()
             .map(|k| {
-                let x = self.dynamic.features(u, k, self.weights);
                 let (mut out, mut g) = (vec![0.0; q], vec![0.0; q * features]);
-                self.dynamic
+                dynamic
                     .model
-                    .predict_with_jacobian(&x, &mut out, &mut g);
+                    .predict_with_jacobian(&self.along.features(u, k), &mut out, &mut g);
                 (out, g)
             })
             .collect();
@@ -359,7 +361,7 @@ impl Window<'_, '_> {
                     jac[(o, (k - s) * d + i)] += g[o * features + i];
                 }
             }
-            for (b, w) in self.weights.iter().enumerate() {
+            for (b, w) in self.along.weights.iter().enumerate() {
                 for &(j, w) in &w[k] {
                     if j < s {
                         continue;
@@ -419,24 +421,21 @@ impl Window<'_, '_> {
 
 /// Projected Levenberg-Marquardt over the commands of rows `rows` (the others held).
 fn solve_window(
-    dynamic: Dynamic<'_>,
-    time: &[f64],
+    along: &Along<'_, '_>,
     targets: &[f64],
     u: &mut [f64],
     rows: (usize, usize),
-    weights: &[Vec<Vec<(usize, f64)>>],
     options: &PlanOptions,
 ) {
-    let d = dynamic.d();
+    let d = along.dynamic.d();
     let (lower, upper) = (&options.inverse.lower, &options.inverse.upper);
     let smooth = (0..d)
         .map(|i| options.smoothness / (upper[i] - lower[i]).max(1e-12).powi(2))
         .collect();
     let window = Window {
-        dynamic,
+        along,
         targets,
         rows,
-        weights,
         smooth,
     };
     let (s, e) = rows;
@@ -444,29 +443,22 @@ fn solve_window(
     let mut mu = 1e-3;
     for _ in 0..options.max_iter {
         let (a, grad) = window.normal(u);
-        // Commands at a bound whose gradient points out stay there.
         let free: Vec<usize> = (0..(e - s) * d)
             .filter(|&c| {
-                let (v, i) = (u[s * d + c], c % d);
-                !((v <= lower[i] && grad[c] > 0.0) || (v >= upper[i] && grad[c] < 0.0))
+                let i = c % d;
+                !inverse::held_at_bound(u[s * d + c], lower[i], upper[i], grad[c])
             })
             .collect();
         if free.is_empty() {
             break;
         }
+        let (a, grad) = (
+            a.select_rows(&free).select_columns(&free),
+            grad.select_rows(&free),
+        );
         let mut improved = false;
         while mu < 1e12 {
-            let m = free.len();
-            let mut sys = DMatrix::zeros(m, m);
-            let mut rhs = DVector::zeros(m);
-            for (p, &c1) in free.iter().enumerate() {
-                rhs[p] = -grad[c1];
-                for (r, &c2) in free.iter().enumerate() {
-                    sys[(p, r)] = a[(c1, c2)];
-                }
-                sys[(p, p)] += mu * (a[(c1, c1)] + 1e-12);
-            }
-            let Some(step) = sys.cholesky().map(|c| c.solve(&rhs)) else {
+            let Some(step) = inverse::damped_step(&a, &grad, mu) else {
                 mu *= 4.0;
                 continue;
             };
@@ -474,7 +466,7 @@ fn solve_window(
             for (p, &c) in free.iter().enumerate() {
                 trial[s * d + c] += step[p];
             }
-            project(&mut trial, time, s, options);
+            project(&mut trial, along.time, s, options);
             let next = window.cost(&trial);
             if next < cost {
                 let done = cost - next < 1e-6 * cost;
