@@ -8,6 +8,7 @@ mod cli;
 mod common;
 mod contract;
 mod data;
+mod docs;
 mod export;
 mod fuzz;
 mod geometry;
