@@ -337,12 +337,18 @@ fn interrupt_flag() -> &'static AtomicBool {
 }
 
 /// Shows the pipeline's events: a progress bar per counted task and for a search, sentences
-/// and stage lines as they come.
+/// and stage lines as they come. Where the bars cannot show (stderr not a terminal: a log
+/// file, a pipe, a batch job), a search's progress is a line after its first iteration and at
+/// most every [`LOG_EVERY_S`] after.
 #[derive(Default)]
 struct Ui {
     bars: Mutex<HashMap<Task, ProgressBar>>,
     search: Mutex<Option<ProgressBar>>,
+    search_logged: Mutex<Option<std::time::Instant>>,
 }
+
+/// Seconds between two lines of a search's progress in a log.
+const LOG_EVERY_S: f64 = 10.0;
 
 impl Ui {
     fn show(&self, event: Event) {
@@ -363,13 +369,21 @@ impl Ui {
                 let bar = search.get_or_insert_with(|| {
                     bar("search {bar:30} {pos}/{len} iterations  {msg}", cap as u64)
                 });
+                let best = format!("best {:.5} ({})", r.best_fitness, r.best);
                 bar.set_position(r.iteration as u64);
-                bar.set_message(format!("best {:.5} ({})", r.best_fitness, r.best));
+                bar.set_message(best.clone());
+                let mut logged = self.search_logged.lock().expect("search log");
+                let due = logged.is_none_or(|t| t.elapsed().as_secs_f64() >= LOG_EVERY_S);
+                if due && !std::io::IsTerminal::is_terminal(&std::io::stderr()) {
+                    println!("search: iteration {} of at most {cap}, {best}", r.iteration);
+                    *logged = Some(std::time::Instant::now());
+                }
             }
             Event::SearchEnded => {
                 if let Some(bar) = self.search.lock().expect("search bar").take() {
                     bar.finish_and_clear();
                 }
+                *self.search_logged.lock().expect("search log") = None;
             }
             Event::Note(line) => println!("{}", flags(&line)),
             Event::Stage { step, of, text } => println!("[{step}/{of}] {text}"),

@@ -270,10 +270,11 @@ fn sizes_are_checked_before_allocating() {
     );
     let msg = handcap_err(d, &words("synth --out s --no-images --sweep-step-kpa 0"));
     assert!(msg.contains("--sweep-step-kpa 0"), "{msg}");
-    // 50 000 rows: the n × n kernel is refused with the limit and what to do (on a machine
-    // with less than the 120 GB it needs), or kept to --max-rows.
+    // 200 000 rows: exact MSVR's n × n kernel (about 1.9 TB, more than any machine has
+    // available) is refused before anything is allocated, with the figure and what to do; the
+    // same rows are kept to --max-rows.
     let mut text = String::from("a,b,y\n");
-    for k in 0..50_000 {
+    for k in 0..200_000 {
         text += &format!("{},{},{}\n", k % 97, k % 89, (k % 13) as f64 * 0.1);
     }
     write(d, "big.csv", &text);
@@ -287,14 +288,12 @@ fn sizes_are_checked_before_allocating() {
         "--search",
         "none",
     ];
-    let out = handcap(d, &args);
-    if !out.status.success() {
-        let stderr = String::from_utf8_lossy(&out.stderr);
-        assert!(
-            stderr.contains("50000 rows need about") && stderr.contains("--max-rows"),
-            "{stderr}"
-        );
-    }
+    let msg = handcap_err(d, &[&args[..], &["--basis", "exact"]].concat());
+    assert!(
+        msg.contains("200000 rows with the exact basis need about 1920.0 GB")
+            && msg.contains("--basis auto"),
+        "{msg}"
+    );
     let said = handcap_ok(
         d,
         &[&args[..], &["--max-rows", "300", "--out", "small.json"]].concat(),

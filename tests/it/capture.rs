@@ -849,6 +849,13 @@ fn a_silent_or_stalled_stream_ends_the_session() {
         "{said}"
     );
     println!("silent server refused after {took:.1} s");
+    // Within the open timeout (and the process's start and the other camera's opening), far
+    // from FFmpeg's own 30 s.
+    let open = handcap::capture::STREAM_OPEN_S;
+    assert!(
+        (open - 0.5..open + 5.0).contains(&took),
+        "refused after {took:.1} s, the open timeout is {open} s"
+    );
     let (stalling, live) = (
         served(moving_square(30), 0..0, true),
         served(moving_square(600), 0..0, false),
@@ -862,6 +869,13 @@ fn a_silent_or_stalled_stream_ends_the_session() {
     let [l, r] = assert_consistent(&d.join("s"));
     assert!(l >= 20 && r > l, "{l} left, {r} right frames");
     println!("a stream stalled after 1 s: session ended after {took:.1} s, {l} left and {r} right frames kept");
+    // The stall is seen `STALL_S` after the last frame, not at `--duration-s 30` or FFmpeg's
+    // 30 s.
+    let stall = handcap::capture::STALL_S;
+    assert!(
+        (1.0 + stall..1.0 + stall + 8.0).contains(&took),
+        "ended after {took:.1} s, the stall bound is {stall} s after the last frame at 1 s"
+    );
 }
 
 /// A dynamic protocol of 3 s at 20 commands a second: 2 s of rest, then 1 s of one trial.

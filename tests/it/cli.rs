@@ -535,34 +535,56 @@ fn searches_write_history_and_are_deterministic() {
 
 #[test]
 fn ctrl_c_ends_the_search_and_keeps_the_best_model() {
+    use std::io::BufRead;
     let _cores = real_time();
     let dir = tempdir();
     let d = dir.path();
     synth(d, "data", "1");
-    let child = std::process::Command::new(env!("CARGO_BIN_EXE_handcap"))
-        .args([
-            "model",
-            "data/train.csv",
-            "--max-iter",
-            "10000",
-            "--out",
-            "m.json",
-            "--report",
-            "rep",
-        ])
-        .current_dir(d)
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    std::thread::sleep(std::time::Duration::from_millis(2500));
-    let sent = std::process::Command::new("kill")
-        .args(["-INT", &child.id().to_string()])
-        .status()
-        .unwrap();
-    assert!(sent.success());
-    let out = child.wait_with_output().unwrap();
-    let stdout = String::from_utf8_lossy(&out.stdout);
+    // `handcap model` interrupted once its stdout has said `line`: (stdout, the process's end).
+    let interrupted_after = |line: &str| {
+        let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_handcap"))
+            .args([
+                "model",
+                "data/train.csv",
+                "--max-iter",
+                "10000",
+                "--out",
+                "m.json",
+                "--report",
+                "rep",
+            ])
+            .current_dir(d)
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let mut lines = std::io::BufReader::new(child.stdout.take().unwrap()).lines();
+        let mut stdout: String = lines
+            .by_ref()
+            .map_while(Result::ok)
+            .take_while(|l| !l.starts_with(line))
+            .map(|l| l + "\n")
+            .collect();
+        // SAFETY: a signal to our own child.
+        unsafe {
+            libc::kill(child.id() as i32, libc::SIGINT);
+        }
+        stdout.extend(lines.map_while(Result::ok).map(|l| l + "\n"));
+        (stdout, child.wait_with_output().unwrap())
+    };
+    // As the search starts (the folds' line): interrupted, with the first iteration's best
+    // when it ended, or with nothing written when no candidate was scored yet; never an error.
+    let (_, out) = interrupted_after("folds:");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(130), "{err}");
+    assert!(
+        err.contains("interrupted before the search scored a candidate; nothing written")
+            != d.join("m.json").exists(),
+        "{err}"
+    );
+    // In a log, the search says when its first iteration has ended: Ctrl-C from then on ends
+    // it after the iteration under way, and its best is kept.
+    let (stdout, out) = interrupted_after("search: iteration 1 of at most");
     // Exit 130 as for any interrupted command, the model kept.
     assert_eq!(
         out.status.code(),

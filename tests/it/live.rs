@@ -175,9 +175,15 @@ fn regulator_watch(told: std::path::PathBuf, commands: Commands, done: Arc<Mutex
 
 /// The virtual session of `seed` filmed whole (every frame of each step) in `dir/hand`, served
 /// live by two virtual cameras with `faults`, captured into `dir/live` driving the same
-/// protocol; with `term_after_s`, the capture gets SIGTERM that long after it started; with
+/// protocol; with `term_after_steps`, the capture gets SIGTERM once the regulator has been told
+/// that many steps (a minute at most: then the capture is killed and the test fails); with
 /// `flash`, capture switches on a light both cameras see before the protocol (`--flash`).
-fn live_session(dir: &Path, faults: [Faults; 2], term_after_s: Option<f64>, flash: bool) -> Output {
+fn live_session(
+    dir: &Path,
+    faults: [Faults; 2],
+    term_after_steps: Option<usize>,
+    flash: bool,
+) -> Output {
     let config = handcap::synth::capture::CaptureConfig {
         views: 3,
         window_s: [0.0, 0.3],
@@ -249,12 +255,27 @@ fn live_session(dir: &Path, faults: [Faults; 2], term_after_s: Option<f64>, flas
         .stderr(std::process::Stdio::piped())
         .spawn()
         .unwrap();
-    if let Some(after) = term_after_s {
-        std::thread::sleep(Duration::from_secs_f64(after));
+    if let Some(steps) = term_after_steps {
+        let deadline = Instant::now() + Duration::from_secs(60);
+        while commands.lock().unwrap().len() < steps && Instant::now() < deadline {
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        let told = commands.lock().unwrap().len();
         // SAFETY: sending a signal to our own child process.
         unsafe {
-            libc::kill(child.id() as i32, libc::SIGTERM);
+            libc::kill(
+                child.id() as i32,
+                if told < steps {
+                    libc::SIGKILL
+                } else {
+                    libc::SIGTERM
+                },
+            );
         }
+        assert!(
+            told >= steps,
+            "the regulator was told {told} of {steps} steps in a minute"
+        );
     }
     let out = child.wait_with_output().unwrap();
     *done.lock().unwrap() = true;
@@ -401,8 +422,8 @@ fn a_live_session_ended_by_sigterm_with_a_camera_300_ms_late_seen_by_a_flash_mat
             ..Faults::default()
         },
     ];
-    // The flash takes the session's first 2.5 s.
-    let out = live_session(d, faults, Some(11.5), true);
+    // Half-way through the protocol's 37 steps.
+    let out = live_session(d, faults, Some(18), true);
     assert_eq!(
         out.status.code(),
         Some(130),
@@ -410,7 +431,7 @@ fn a_live_session_ended_by_sigterm_with_a_camera_300_ms_late_seen_by_a_flash_mat
         String::from_utf8_lossy(&out.stderr)
     );
     let logged = csv_rows(&d.join("live/pressures.csv")).len();
-    assert!((15..37).contains(&logged), "{logged} steps logged");
+    assert!((18..37).contains(&logged), "{logged} steps logged");
     // Each camera's latency from the flash: the light shows in a frame exposed within a
     // period after it came on, and is placed half-way between that frame and the one before.
     let flash = &read_json(&d.join("live/capture.json"))["summary"]["flash"];

@@ -9,9 +9,9 @@ use crate::model::history::{self, History, HistoryChoice, HistoryDecision, Histo
 use crate::model::interval::Intervals;
 use crate::model::msvr::fitness::{Dealing, FitnessKind};
 use crate::model::msvr::folds::{self, FoldPlan};
-use crate::model::msvr::tune::{self, BasisChoice, BasisDecision, Chosen};
+use crate::model::msvr::tune::{self, BasisChoice, BasisDecision, Chosen, TuneError};
 use crate::model::msvr::{self, Basis, Hyper, MsvrParams, MIN_FIT_ROWS};
-use crate::search::Search;
+use crate::search::{Search, SearchError};
 
 /// One selection under way.
 #[derive(Clone, Copy)]
@@ -343,13 +343,22 @@ impl Run<'_> {
             grow: pass == Pass::Only && self.grows(&initial),
             score: pass != Pass::Only,
         };
-        Ok(tune::choose(
+        tune::choose(
             &choice,
             &self.plan.params,
             initial,
             &mut observer,
             self.interrupt,
-        )?)
+        )
+        .map_err(|e| match e {
+            // A stop before the search's first iteration ended has no best to keep.
+            TuneError::Search(SearchError::NothingValid) if self.interrupted() => {
+                SelectError::Interrupted(
+                    "interrupted before the search scored a candidate; nothing written".into(),
+                )
+            }
+            e => e.into(),
+        })
     }
 
     /// Step 4: the feature set kept, by [`history::decide`] with a time series.
