@@ -5,8 +5,9 @@ use std::path::Path;
 use super::regulator::{pressures_csv, Commanded};
 use super::url::redact;
 use super::{CaptureError, CaptureOptions, CaptureSummary, Side};
+use crate::data::Csv;
 use crate::fsio;
-use crate::session::frames::{frames_csv_rows, FRAMES_HEADER};
+use crate::session::frames::{frames_rows, frames_table};
 
 /// The files that list a session: `frames/frames.csv` (not for a calibration capture),
 /// `pressures.csv` (with a protocol) and `capture.json`; rewritten whole (temp file, then
@@ -17,15 +18,24 @@ pub(super) struct SessionFiles<'a> {
     out: &'a Path,
     options: &'a CaptureOptions,
     /// `frames.csv` of the rows so far, and how many.
-    frames: (String, usize),
+    frames: (Csv, usize),
 }
 
 /// Writes `text` to `path` atomically.
 fn write(path: &Path, text: &str) -> Result<(), CaptureError> {
-    fsio::write_bytes(path, text.as_bytes()).map_err(|source| CaptureError::Write {
+    write_bytes(path, text.as_bytes())
+}
+
+fn write_bytes(path: &Path, bytes: &[u8]) -> Result<(), CaptureError> {
+    fsio::write_bytes(path, bytes).map_err(|source| CaptureError::Write {
         path: path.to_path_buf(),
         source,
     })
+}
+
+/// Writes `csv` to `path` atomically.
+fn save(path: &Path, csv: &mut Csv) -> Result<(), CaptureError> {
+    write_bytes(path, csv.as_bytes())
 }
 
 impl<'a> SessionFiles<'a> {
@@ -33,7 +43,7 @@ impl<'a> SessionFiles<'a> {
         SessionFiles {
             out,
             options,
-            frames: (FRAMES_HEADER.to_string(), 0),
+            frames: (frames_table(), 0),
         }
     }
 
@@ -53,10 +63,10 @@ impl<'a> SessionFiles<'a> {
             &self.description(summary),
         )?;
         if options.calibration.is_none() {
-            let (text, listed) = &mut self.frames;
-            frames_csv_rows(text, rows[*listed..].iter().copied());
+            let (csv, listed) = &mut self.frames;
+            frames_rows(csv, rows[*listed..].iter().copied());
             *listed = rows.len();
-            write(&self.out.join("frames/frames.csv"), text)?;
+            save(&self.out.join("frames/frames.csv"), csv)?;
         }
         if options.protocol.is_some() {
             write(&self.out.join("pressures.csv"), &pressures_csv(log))?;
@@ -84,9 +94,9 @@ impl<'a> SessionFiles<'a> {
             keep(write(&self.out.join("pressures.csv"), &pressures_csv(log)));
         }
         if options.calibration.is_none() {
-            let mut text = FRAMES_HEADER.to_string();
-            frames_csv_rows(&mut text, rows.iter().copied());
-            keep(write(&self.out.join("frames/frames.csv"), &text));
+            let mut csv = frames_table();
+            frames_rows(&mut csv, rows.iter().copied());
+            keep(save(&self.out.join("frames/frames.csv"), &mut csv));
         }
         keep(write(
             &self.out.join(super::CAPTURE_FILE),

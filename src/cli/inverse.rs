@@ -3,16 +3,15 @@
 
 use std::path::PathBuf;
 
-use anyhow::{bail, Context};
+use anyhow::bail;
 
 use super::usage;
 
-use crate::data::{self, Columns};
-use crate::hand::MAX_PRESSURE_KPA;
 use crate::model::file::ModelFile;
-use crate::model::inverse::{self, InverseOptions, InverseSolution};
+use crate::model::inverse::solve;
 use crate::model::Differentiable;
-use crate::pipeline::outputs::{self, Output};
+use crate::pipeline::inverse::{self, Limits};
+use crate::pipeline::trajectory::{self, How};
 
 #[derive(clap::Args)]
 #[command(group(clap::ArgGroup::new("what").required(true).args(["target", "targets", "trajectory"])))]
@@ -85,23 +84,6 @@ fn interval_level(s: &str) -> Result<f64, String> {
     }
 }
 
-fn options(model: &dyn Differentiable, a: &Args) -> anyhow::Result<InverseOptions> {
-    if !(a.max_kpa > 0.0 && a.max_kpa <= MAX_PRESSURE_KPA) {
-        usage!(
-            "--max-kpa {} must lie in (0, {MAX_PRESSURE_KPA}]: the regulator caps the supply",
-            a.max_kpa
-        );
-    }
-    if a.reach.is_nan() || a.reach <= 0.0 {
-        usage!("--reach must be positive");
-    }
-    let cap = |name: &str| name.ends_with("_kpa").then_some((0.0, a.max_kpa));
-    Ok(InverseOptions {
-        reach: a.reach,
-        ..InverseOptions::within_training_range(model, cap)
-    })
-}
-
 fn describe(names: &[String], values: &[f64]) -> String {
     names
         .iter()
@@ -112,66 +94,26 @@ fn describe(names: &[String], values: &[f64]) -> String {
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
-    if let Some(target) = &a.trajectory {
-        return run_trajectory(&a, target);
-    }
-    let file = ModelFile::load(&a.model)?;
-    let steady = file.steady_state();
-    let model: &dyn Differentiable = &steady;
-    if let Some(h) = file.history() {
-        eprintln!(
-            "note: the model sees the inputs' history ({}); the inputs found hold the tip there once settled (every filter equal to the input)",
-            h.memory
-        );
-    }
-    let options = options(model, &a)?;
-    // The radius at the planned inputs: a conformal radius is the same for every input.
-    let radius = match a.interval {
-        0.0 => None,
-        level => match file.interval_radius(level) {
-            Ok(r) => Some((level, r)),
-            Err(e) => {
-                eprintln!("note: no interval around the planned tips: {e}");
-                None
-            }
-        },
+    let limits = Limits {
+        max_kpa: a.max_kpa,
+        reach: a.reach,
     };
-    match (&a.target, &a.targets) {
-        (Some(target), None) => {
-            let s = inverse::solve(model, target, &options)?;
-            if !s.reached {
-                bail!(
-                    "target ({}) is out of reach within {}: the nearest reachable point is ({}), {:.4} away, at {}",
-                    describe(model.outputs(), target),
-                    bounds(model, &options),
-                    describe(model.outputs(), &s.achieved),
-                    s.error,
-                    describe(model.inputs(), &s.inputs)
-                );
-            }
-            println!("{}", describe(model.inputs(), &s.inputs));
-            println!(
-                "model tip: {} (error {:.5})",
-                describe(model.outputs(), &s.achieved),
-                s.error
-            );
-            if let Some((level, r)) = radius {
-                println!(
-                    "the real tip lies within {r:.4} of it {} % of the time (conformal interval, marginal over inputs like the held-out ones)",
-                    level * 100.0
-                );
-            }
-            Ok(())
-        }
-        (None, Some(path)) => {
+    let level = (a.interval > 0.0).then_some(a.interval);
+    match (&a.target, &a.targets, &a.trajectory) {
+        (Some(target), None, None) => one_target(&a, target, limits, level),
+        (None, Some(targets), None) => {
             let out = a.out.as_ref().expect("clap requires --out with --targets");
-            outputs::check(&[&a.model, path], &[Output::new(out, "--out")])?;
-            let targets = data::read_columns(path, model.outputs())?;
-            let solutions: Vec<InverseSolution> = targets
-                .iter_rows()
-                .map(|t| inverse::solve(model, t, &options))
-                .collect::<Result<_, _>>()?;
-            write_solutions(out, model, &targets, &solutions, radius.map(|(_, r)| r))?;
+            let planned = inverse::plan_targets(&inverse::Targets {
+                model: &a.model,
+                targets,
+                out,
+                limits,
+                level,
+            })?;
+            for note in &planned.notes {
+                eprintln!("note: {note}");
+            }
+            let solutions = &planned.solutions;
             let missed = solutions.iter().filter(|s| !s.reached).count();
             let mean = solutions.iter().map(|s| s.error).sum::<f64>() / solutions.len() as f64;
             println!(
@@ -183,75 +125,97 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             println!("wrote {}", out.display());
             Ok(())
         }
+        (None, None, Some(target)) => along(&a, target, limits),
         _ => usage!("give --target X,Y,Z or --targets FILE.csv --out FILE.csv"),
     }
 }
 
+/// `--target X,Y,Z`: the inputs printed, or the nearest reachable point when out of reach.
+fn one_target(a: &Args, target: &[f64], limits: Limits, level: Option<f64>) -> anyhow::Result<()> {
+    let file = ModelFile::load(&a.model)?;
+    let (steady, notes) = inverse::steady_state(&file);
+    for note in notes {
+        eprintln!("note: {note}");
+    }
+    let model: &dyn Differentiable = &steady;
+    let options = limits.options(model)?;
+    let s = solve(model, target, &options)?;
+    if !s.reached {
+        bail!(
+            "target ({}) is out of reach within {}: the nearest reachable point is ({}), {:.4} away, at {}",
+            describe(model.outputs(), target),
+            inverse::bounds(model, &options),
+            describe(model.outputs(), &s.achieved),
+            s.error,
+            describe(model.inputs(), &s.inputs)
+        );
+    }
+    println!("{}", describe(model.inputs(), &s.inputs));
+    println!(
+        "model tip: {} (error {:.5})",
+        describe(model.outputs(), &s.achieved),
+        s.error
+    );
+    match level.map(|level| (level, file.interval_radius(level))) {
+        Some((level, Ok(r))) => println!(
+            "the real tip lies within {r:.4} of it {} % of the time (conformal interval, marginal over inputs like the held-out ones)",
+            level * 100.0
+        ),
+        Some((_, Err(e))) => eprintln!("note: no interval around the planned tips: {e}"),
+        None => {}
+    }
+    Ok(())
+}
+
 /// `--trajectory`: the dynamic inverse, or with `--previous` and `--measured` a repetition of
 /// learning.
-fn run_trajectory(a: &Args, target: &std::path::Path) -> anyhow::Result<()> {
-    let learn = super::trajectory::paths(&a.previous, &a.measured)?;
-    if a.max_rate <= 0.0 || a.smoothness < 0.0 {
-        usage!("--max-rate must be positive and --smoothness 0 or more");
-    }
-    let file = ModelFile::load(&a.model)?;
-    let options = options(&file.steady_state(), a)?;
+fn along(a: &Args, target: &std::path::Path, limits: Limits) -> anyhow::Result<()> {
+    let learn = match (&a.previous, &a.measured) {
+        (Some(p), Some(m)) => Some((p.as_path(), m.as_path())),
+        (None, None) => None,
+        _ => usage!("--previous and --measured go together: the commands played and the outputs measured while they were"),
+    };
     let out = a
         .out
         .as_ref()
         .expect("clap requires --out with --trajectory");
-    let request = super::trajectory::Request {
+    let planned = trajectory::run(&trajectory::Request {
         model: &a.model,
         target,
         out,
-        learn: learn.as_ref().map(|(p, m)| (p.as_path(), m.as_path())),
+        learn,
         gain: a.gain,
         max_rate: a.max_rate,
         smoothness: a.smoothness,
-    };
-    super::trajectory::run(&request, &file, options)
-}
-
-/// The box, e.g. "P1_kpa 0-250, P2_kpa 0-250, P3_kpa 0-250".
-fn bounds(model: &dyn Differentiable, o: &InverseOptions) -> String {
-    model
-        .inputs()
-        .iter()
-        .enumerate()
-        .map(|(j, n)| format!("{n} {}-{}", o.lower[j], o.upper[j]))
-        .collect::<Vec<_>>()
-        .join(", ")
-}
-
-fn write_solutions(
-    out: &std::path::Path,
-    model: &dyn Differentiable,
-    targets: &Columns,
-    solutions: &[InverseSolution],
-    radius: Option<f64>,
-) -> anyhow::Result<()> {
-    let inputs = Columns::new(
-        model.inputs().to_vec(),
-        solutions.iter().flat_map(|s| s.inputs.clone()).collect(),
+        limits,
+    })?;
+    let rows = planned.rows;
+    match &planned.how {
+        How::Anticipated { memory, rms, pointwise_rms } => println!(
+            "planned {rows} rows along the path with the model's history ({memory}): predicted tracking RMS {rms:.4} (the pointwise inverse of the settled map, played at the same times: {pointwise_rms:.4})"
+        ),
+        How::Pointwise { rms } => println!(
+            "planned {rows} rows, each the pointwise inverse (the model has no history: it cannot anticipate the actuator's lag); model error RMS {rms:.4}"
+        ),
+        How::Learned { measured, rms, largest } => println!(
+            "the run learned from ({}): tracking RMS {rms:.4}, largest {largest:.4} over {rows} rows; next commands planned with gain {}",
+            measured.display(),
+            a.gain
+        ),
+    }
+    let learned = matches!(planned.how, How::Learned { .. });
+    if planned.missed > 0 && !learned {
+        eprintln!(
+            "warning: {} of {rows} rows are out of the model's reach within the box (or its lag) at their times: followed as closely as it allows, reached=0 in {}",
+            planned.missed,
+            out.display()
+        );
+    }
+    println!(
+        "wrote {} and {}.svg/.png (the path: target, the model's prediction{})",
+        out.display(),
+        planned.figure.display(),
+        if learned { ", the run measured" } else { "" }
     );
-    let achieved = Columns::new(
-        model
-            .outputs()
-            .iter()
-            .map(|n| format!("{n}_model"))
-            .collect(),
-        solutions.iter().flat_map(|s| s.achieved.clone()).collect(),
-    );
-    let verdict = Columns::new(
-        vec!["error".into(), "reached".into()],
-        solutions
-            .iter()
-            .flat_map(|s| [s.error, f64::from(u8::from(s.reached))])
-            .collect(),
-    );
-    let interval =
-        radius.map(|r| Columns::new(vec!["interval_radius".into()], vec![r; solutions.len()]));
-    let mut blocks = vec![targets, &inputs, &achieved, &verdict];
-    blocks.extend(&interval);
-    data::write_csv(out, &blocks).with_context(|| format!("writing {}", out.display()))
+    Ok(())
 }

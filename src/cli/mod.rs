@@ -11,7 +11,6 @@ mod model;
 mod predict;
 mod protocol;
 mod synth;
-mod trajectory;
 mod triangulate;
 
 use std::collections::HashMap;
@@ -93,7 +92,7 @@ pub(crate) use usage;
 /// The exit code of an error: 2 usage, 130 interrupted, 1 anything else.
 pub fn exit_code(e: &anyhow::Error) -> u8 {
     use crate::pipeline::PipelineError;
-    if e.is::<Usage>() || matches!(e.downcast_ref(), Some(PipelineError::Usage(_))) {
+    if e.is::<Usage>() || matches!(e.downcast_ref(), Some(PipelineError::Request(_))) {
         2
     } else if e.is::<Interrupted>()
         || matches!(e.downcast_ref(), Some(PipelineError::Interrupted(_)))
@@ -125,7 +124,7 @@ pub fn one_line(e: &anyhow::Error) -> String {
 
 /// The library's parameter names (`field=value`, as the Python estimator takes them) and the
 /// flags that set them here: the one place the command line maps them.
-const FLAGS: [(&str, &str); 12] = [
+const FLAGS: [(&str, &str); 18] = [
     ("c", "--c"),
     ("epsilon", "--epsilon"),
     ("sigma", "--sigma"),
@@ -138,6 +137,12 @@ const FLAGS: [(&str, &str); 12] = [
     ("budget", "--budget"),
     ("max_rows", "--max-rows"),
     ("intervals", "--intervals"),
+    ("pressures", "--pressures"),
+    ("max_kpa", "--max-kpa"),
+    ("reach", "--reach"),
+    ("gain", "--gain"),
+    ("max_rate", "--max-rate"),
+    ("smoothness", "--smoothness"),
 ];
 
 /// `text` with each `field=value` of [`FLAGS`] written as the flag (`basis=exact` →

@@ -23,7 +23,7 @@ pub struct Calibrated {
 ///
 /// # Errors
 /// [`PipelineError::Calib`] when `dir/board.yml` exists but cannot be read;
-/// [`PipelineError::Usage`] when a flag contradicts it, or the flags do not fit together.
+/// [`PipelineError::Request`] when a flag contradicts it, or the flags do not fit together.
 pub fn board(
     dir: &Path,
     flags: &BoardFlags,
@@ -33,7 +33,7 @@ pub fn board(
     let base = if path.exists() {
         let written = file::read_board(&path)?;
         if let Some(flag) = flags.contradiction(&written) {
-            return Err(PipelineError::Usage(format!(
+            return Err(PipelineError::Request(format!(
                 "{flag} contradicts {} ({written}); correct the file or drop the flag",
                 path.display()
             )));
@@ -49,7 +49,7 @@ pub fn board(
         }
         b
     };
-    flags.over(&base).map_err(PipelineError::Usage)
+    flags.over(&base).map_err(PipelineError::Request)
 }
 
 /// Calibrates from the pairs in `dir` and writes `out` (OpenCV YAML) and the figures beside it.
@@ -84,7 +84,7 @@ pub fn run(
     outputs::check(
         &inputs,
         &[
-            Output::new(out, "--out"),
+            Output::new(out, "the calibration"),
             Output::new(file::toml_path(out), "the Anipose calibration.toml"),
             Output::new(file::json_path(out), "the calibration as JSON"),
             Output::new(pairs_png, "the per-pair error figure"),
@@ -148,7 +148,7 @@ fn pick_from_videos(
     let frames = FrameList::read(dir, options.video_start_s)?;
     let to = video_pairs_dir(out);
     if to.exists() {
-        return Err(PipelineError::Usage(format!(
+        return Err(PipelineError::Request(format!(
             "{} exists (pairs picked by an earlier run): remove it, or calibrate from it directly",
             to.display()
         )));

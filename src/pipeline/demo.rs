@@ -338,7 +338,11 @@ pub fn run(
     let file = ModelFile::load(&out.join("model.json"))?;
     let model = &file.model;
     let planned = feedforward(model.differentiable(), &plant, &sources)?;
-    write_inverse_csv(&out.join("inverse_check.csv"), &planned)?;
+    super::inverse::write_feedforward(
+        &out.join("inverse_check.csv"),
+        model.differentiable(),
+        &planned,
+    )?;
     let mut inverse = vec![inverse_stats(
         &format!(
             "MSVR from the triangulated frames ({} kPa grid)",
@@ -551,25 +555,6 @@ fn inverse_stats(model: &str, rows: &[PlannedTarget], radius: Option<f64>) -> In
             (r, within as f64 / rows.len() as f64)
         }),
     }
-}
-
-fn write_inverse_csv(path: &Path, rows: &[PlannedTarget]) -> Result<(), PipelineError> {
-    let mut text = String::from("x_mm,y_mm,z_mm,P1_kpa,P2_kpa,P3_kpa,x_model_mm,y_model_mm,z_model_mm,x_plant_mm,y_plant_mm,z_plant_mm,plant_error_mm,source_P1_kpa,source_P2_kpa,source_P3_kpa\n");
-    for r in rows {
-        let cells: Vec<String> = r
-            .target
-            .iter()
-            .chain(&r.solution.inputs)
-            .chain(&r.solution.achieved)
-            .chain(&r.plant)
-            .chain(std::iter::once(&r.plant_error))
-            .chain(&r.source_inputs)
-            .map(|v| format!("{v:.4}"))
-            .collect();
-        text += &cells.join(",");
-        text.push('\n');
-    }
-    fsio::write_bytes(path, text.as_bytes()).map_err(io_error(path))
 }
 
 fn check_calibration(cal: &StereoCalibration, truth: &CalibrationFile) -> CalibrationCheck {

@@ -16,8 +16,8 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 
 use super::fit::{self, FitJob, Selection};
-use super::{io_error, PipelineError, Session};
-use crate::data::{self, names, HAND_INPUTS, HAND_OUTPUTS};
+use super::{PipelineError, Session};
+use crate::data::{self, names, Csv, HAND_INPUTS, HAND_OUTPUTS};
 use crate::model::file::ModelFile;
 use crate::model::history::HistoryChoice;
 use crate::model::msvr::fitness::FitnessKind;
@@ -261,20 +261,14 @@ fn split_rows(
         .iter()
         .position(|h| h == "phase")
         .ok_or_else(|| PipelineError::Place(format!("{}: no phase column", from.display())))?;
-    let mut out = [Vec::new(), Vec::new()].map(|buf| {
-        let mut w = csv::Writer::from_writer(buf);
-        w.write_record(&header).expect("in memory");
-        w
-    });
+    let mut out = [Csv::new(&header), Csv::new(&header)];
     for record in reader.records() {
         let record =
             record.map_err(|e| PipelineError::Place(format!("{}: {e}", from.display())))?;
-        let k = usize::from(test(record.get(phase).unwrap_or_default()));
-        out[k].write_record(&record).expect("in memory");
+        out[usize::from(test(record.get(phase).unwrap_or_default()))].row(&record);
     }
-    for (w, path) in out.into_iter().zip([to_train, to_test]) {
-        let bytes = w.into_inner().expect("in memory");
-        crate::fsio::write_bytes(path, &bytes).map_err(io_error(path))?;
+    for (csv, path) in out.into_iter().zip([to_train, to_test]) {
+        csv.write(path)?;
     }
     Ok(())
 }

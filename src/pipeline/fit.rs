@@ -75,14 +75,14 @@ impl FitJob {
 
     /// Every file written: the model file and the report's.
     fn outputs(&self) -> Vec<Output> {
-        let mut planned = vec![Output::new(&self.out, "--out")];
+        let mut planned = vec![Output::new(&self.out, "the model file")];
         if let Some(dir) = &self.report {
             let searched = self.selection.searched();
             let tests: Vec<String> = self.tests.iter().map(|p| file_name(p)).collect();
             planned.extend(
                 report::report_files(dir, searched, &tests, &self.outputs)
                     .into_iter()
-                    .map(|(path, role)| Output::new(path, format!("{role} in --report"))),
+                    .map(|(path, role)| Output::new(path, format!("{role} in the report"))),
             );
         }
         planned
@@ -132,7 +132,7 @@ impl Listener for Session<'_> {
 pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError> {
     job.params
         .check()
-        .map_err(|e| PipelineError::Usage(format!("model parameters: {e}")))?;
+        .map_err(|e| PipelineError::Request(format!("model parameters: {e}")))?;
     outputs::check(&job.inputs(), &job.outputs())?;
     note_flagged(job, session)?;
     let train = read_table(&job.data, job, true)?;
@@ -162,8 +162,8 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
         session.interrupt,
     )
     .map_err(|e| match e {
-        SelectError::Parameter(message) => PipelineError::Usage(message),
-        SelectError::Basis(e) => PipelineError::Usage(e.to_string()),
+        SelectError::Parameter(message) => PipelineError::Request(message),
+        SelectError::Basis(e) => PipelineError::Request(e.to_string()),
         SelectError::Interrupted(message) => PipelineError::Interrupted(message),
         e => PipelineError::Select(e),
     })?;

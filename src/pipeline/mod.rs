@@ -16,8 +16,10 @@ pub mod demo_dynamic;
 mod demo_report;
 pub mod demo_summary;
 pub mod fit;
+pub mod inverse;
 pub mod outputs;
 pub mod synth;
+pub mod trajectory;
 pub mod triangulate;
 
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -150,9 +152,13 @@ pub enum PipelineError {
         path: std::path::PathBuf,
         source: std::io::Error,
     },
-    /// Options that do not go together, or an output that would replace an input.
+    /// A request that cannot be carried out as asked: settings that contradict each other or
+    /// the data, an output that would replace an input (a front end's usage error).
     #[error("{0}")]
-    Usage(String),
+    Request(String),
+    /// An input file whose content cannot be used (the file, and the line where there is one).
+    #[error("{0}")]
+    Input(String),
     /// An input or output place that cannot be used (not a directory, not writable).
     #[error("{0}")]
     Place(String),

@@ -29,7 +29,7 @@ impl Output {
 /// each output's directory exists and takes a new file.
 ///
 /// # Errors
-/// [`PipelineError::Usage`] naming the output, what it would replace and what to do; or the
+/// [`PipelineError::Request`] naming the output, what it would replace and what to do; or the
 /// directory that cannot be created or written.
 pub fn check(inputs: &[&Path], outputs: &[Output]) -> Result<(), PipelineError> {
     let resolved: Vec<PathBuf> = outputs.iter().map(|o| resolve(&o.path)).collect();
@@ -49,7 +49,7 @@ pub fn check(inputs: &[&Path], outputs: &[Output]) -> Result<(), PipelineError> 
     let mut seen: HashMap<PathBuf, &Output> = HashMap::new();
     for (out, resolved) in outputs.iter().zip(resolved) {
         if let Some(input) = read.get(&resolved) {
-            return Err(PipelineError::Usage(format!(
+            return Err(PipelineError::Request(format!(
                 "{} ({}) would replace the input {}; outputs never overwrite inputs, choose another name",
                 out.path.display(),
                 out.role,
@@ -57,7 +57,7 @@ pub fn check(inputs: &[&Path], outputs: &[Output]) -> Result<(), PipelineError> 
             )));
         }
         if let Some(first) = seen.insert(resolved, out) {
-            return Err(PipelineError::Usage(format!(
+            return Err(PipelineError::Request(format!(
                 "{} would be written twice: as {} and as {}; rename one (e.g. another --out)",
                 out.path.display(),
                 first.role,
@@ -65,7 +65,7 @@ pub fn check(inputs: &[&Path], outputs: &[Output]) -> Result<(), PipelineError> 
             )));
         }
         if out.path.is_dir() {
-            return Err(PipelineError::Usage(format!(
+            return Err(PipelineError::Request(format!(
                 "{} ({}) is a directory; give a file name",
                 out.path.display(),
                 out.role

@@ -23,7 +23,7 @@ pub struct Triangulated {
 /// The regulator's log: `given`, else `pressures.csv` beside the frames directory.
 ///
 /// # Errors
-/// [`PipelineError::Usage`] when none is given and there is no such file.
+/// [`PipelineError::Request`] when none is given and there is no such file.
 pub fn pressure_log(frames: &Path, given: Option<PathBuf>) -> Result<PathBuf, PipelineError> {
     given
         .or_else(|| {
@@ -33,8 +33,8 @@ pub fn pressure_log(frames: &Path, given: Option<PathBuf>) -> Result<PathBuf, Pi
                 .filter(|p| p.is_file())
         })
         .ok_or_else(|| {
-            PipelineError::Usage(format!(
-                "no --pressures given and no pressures.csv beside {}; pass --pressures LOG.csv",
+            PipelineError::Request(format!(
+                "no pressure log given and no pressures.csv beside {}; give the log (pressures=LOG.csv)",
                 frames.display()
             ))
         })
@@ -65,7 +65,7 @@ fn check_outputs(
         .chain(listed.paths.iter().flatten().map(PathBuf::as_path))
         .chain(listed.videos.iter().flatten().map(PathBuf::as_path))
         .collect();
-    let mut planned = vec![Output::new(out, "--out")];
+    let mut planned = vec![Output::new(out, "the dataset")];
     if let Some(col) = log.extra_columns.iter().position(|c| c == "phase") {
         let mut phases: Vec<&str> = log.steps.iter().map(|s| s.extra[col].as_str()).collect();
         phases.sort_unstable();
@@ -100,7 +100,7 @@ fn read_inputs(
             frames.display()
         )));
     }
-    options.check().map_err(PipelineError::Usage)?;
+    options.check().map_err(PipelineError::Request)?;
     let calibration = read_calibration(calib)?;
     let log = read_pressure_log(pressures)?;
     let listed = FrameList::read(frames, options.video_start_s)?;

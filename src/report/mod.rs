@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 
-use crate::data::{format_number, Columns, Dataset};
+use crate::data::{format_number, Columns, Csv, Dataset};
 use crate::fsio;
 use crate::model::history::HistoryDecision;
 use crate::model::interval::{Coverage, HeldOut, TestCoverage};
@@ -445,18 +445,16 @@ fn unit(outputs: &[String]) -> String {
 
 /// The `metrics.csv` text.
 pub fn metrics_csv(tests: &[TestResult]) -> String {
-    let mut out = String::from("model,test,mae_mm,euclid_mm\n");
+    let mut csv = Csv::new(["model", "test", "mae_mm", "euclid_mm"]);
     for t in tests {
-        let _ = writeln!(
-            out,
-            "{},{},{},{}",
-            t.model,
-            t.test,
+        csv.row([
+            t.model.clone(),
+            t.test.clone(),
             format_number(t.errors.mae),
-            format_number(t.errors.euclid)
-        );
+            format_number(t.errors.euclid),
+        ]);
     }
-    out
+    csv.into_string()
 }
 
 /// The `history.csv` text: per iteration the minimum, mean and maximum fitness over its valid
@@ -466,28 +464,27 @@ pub fn history_csv(history: &[IterationRecord]) -> String {
         .first()
         .map(|r| r.best.iter().map(|(name, _)| name).collect())
         .unwrap_or_default();
-    let mut out = String::from("iteration,min_mae,mean_mae,max_mae,valid,");
-    for name in &axes {
-        let _ = write!(out, "best_{name},");
-    }
-    out.push_str("best_mae\n");
+    let mut csv = Csv::new(
+        ["iteration", "min_mae", "mean_mae", "max_mae", "valid"]
+            .map(String::from)
+            .into_iter()
+            .chain(axes.iter().map(|name| format!("best_{name}")))
+            .chain(["best_mae".to_string()]),
+    );
     for r in history {
-        let _ = write!(
-            out,
-            "{},{},{},{},{},",
-            r.iteration,
-            format_number(r.min),
-            format_number(r.mean),
-            format_number(r.max),
-            r.valid,
+        let best = axes
+            .iter()
+            .map(|name| format_number(r.best.get(name).unwrap_or(f64::NAN)));
+        csv.row(
+            [r.iteration.to_string()]
+                .into_iter()
+                .chain([r.min, r.mean, r.max].map(format_number))
+                .chain([r.valid.to_string()])
+                .chain(best)
+                .chain([format_number(r.best_fitness)]),
         );
-        for name in &axes {
-            let value = r.best.get(name).unwrap_or(f64::NAN);
-            let _ = write!(out, "{},", format_number(value));
-        }
-        let _ = writeln!(out, "{}", format_number(r.best_fitness));
     }
-    out
+    csv.into_string()
 }
 
 /// The paper's Figures 7 and 8: minimum and mean fitness per iteration.

@@ -9,7 +9,7 @@ use std::collections::HashSet;
 use std::path::{Path, PathBuf};
 
 use super::SessionError;
-use crate::data::Table;
+use crate::data::{Csv, Table};
 use crate::image::{bgr_to_rgb, decode_bytes, decode_into, Buffers, ChromaSampling, RgbImage};
 use crate::stereo::Side;
 
@@ -85,19 +85,24 @@ pub fn read_frame_list(dir: &Path) -> Result<Vec<FrameRecord>, SessionError> {
 
 /// `frames.csv` of `rows` (camera, frame number, time in s), in the order given.
 pub fn frames_csv(rows: impl IntoIterator<Item = (Side, usize, f64)>) -> String {
-    let mut out = String::from(FRAMES_HEADER);
-    frames_csv_rows(&mut out, rows);
-    out
+    let mut csv = frames_table();
+    frames_rows(&mut csv, rows);
+    csv.into_string()
 }
 
-/// The header line of `frames.csv`.
-pub const FRAMES_HEADER: &str = "frame,camera,time_s\n";
+/// `frames.csv` with its header and no rows yet.
+pub fn frames_table() -> Csv {
+    Csv::new(["frame", "camera", "time_s"])
+}
 
-/// Appends `rows` to `frames.csv`'s text `out` ([`frames_csv`] without the header).
-pub fn frames_csv_rows(out: &mut String, rows: impl IntoIterator<Item = (Side, usize, f64)>) {
-    use std::fmt::Write;
+/// Adds `rows` to `frames.csv`.
+pub fn frames_rows(csv: &mut Csv, rows: impl IntoIterator<Item = (Side, usize, f64)>) {
     for (side, index, time_s) in rows {
-        writeln!(out, "{index},{},{time_s:.6}", side.name()).expect("a String takes any text");
+        csv.row([
+            index.to_string(),
+            side.name().to_string(),
+            format!("{time_s:.6}"),
+        ]);
     }
 }
 

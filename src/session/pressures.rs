@@ -8,7 +8,7 @@
 use std::path::{Path, PathBuf};
 
 use super::SessionError;
-use crate::data::Table;
+use crate::data::{Csv, Table};
 
 /// One commanded step of the log.
 #[derive(Clone, Debug, PartialEq)]
@@ -164,29 +164,31 @@ pub fn pressures_csv<'a>(rows: impl IntoIterator<Item = Logged<'a>>) -> String {
     let mut rows = rows.into_iter().peekable();
     let with_end = rows.peek().is_some_and(|r| r.command_end_s.is_some());
     let with_measured = rows.peek().is_some_and(|r| r.measured_kpa.is_some());
-    let mut out = format!("time_s,{},step,phase", PRESSURE_COLUMNS.join(","));
-    if with_end {
-        out += &format!(",{COMMAND_END_COLUMN}");
-    }
-    if with_measured {
-        out += &format!(",{}", MEASURED_COLUMNS.join(","));
-    }
-    out += "\n";
+    let mut header = vec!["time_s"];
+    header.extend(PRESSURE_COLUMNS);
+    header.extend(["step", "phase"]);
+    header.extend(with_end.then_some(COMMAND_END_COLUMN));
+    header.extend(MEASURED_COLUMNS.iter().filter(|_| with_measured));
+    let mut csv = Csv::new(header);
     for r in rows {
-        let [p1, p2, p3] = r.pressures_kpa;
-        out += &format!("{:.6},{p1},{p2},{p3},{},{}", r.time_s, r.step, r.phase);
-        if let Some(end) = r.command_end_s.filter(|_| with_end) {
-            out += &format!(",{end:.6}");
+        let mut row = vec![format!("{:.6}", r.time_s)];
+        row.extend(r.pressures_kpa.map(|p| p.to_string()));
+        row.extend([r.step.to_string(), r.phase.to_string()]);
+        if with_end {
+            row.push(
+                r.command_end_s
+                    .map_or_else(String::new, |end| format!("{end:.6}")),
+            );
         }
         if with_measured {
             match r.measured_kpa.flatten() {
-                Some([m1, m2, m3]) => out += &format!(",{m1},{m2},{m3}"),
-                None => out += ",,,",
+                Some(m) => row.extend(m.map(|p| p.to_string())),
+                None => row.extend([String::new(), String::new(), String::new()]),
             }
         }
-        out += "\n";
+        csv.row(row);
     }
-    out
+    csv.into_string()
 }
 
 /// The columns of what a streaming regulator measured while each command held (kPa).

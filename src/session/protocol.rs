@@ -18,10 +18,9 @@
 //! the muscles' bandwidth would only wear the valves). Each trial draws from its own stream of
 //! the seed.
 
-use std::fmt::Write as _;
 use std::path::Path;
 
-use crate::data::{DataError, Table};
+use crate::data::{Csv, DataError, Table};
 
 pub use crate::hand::MAX_PRESSURE_KPA;
 
@@ -250,12 +249,19 @@ pub fn paper_steps(
 
 /// `steps` as `protocol.csv` text.
 pub fn protocol_csv(steps: &[Step]) -> String {
-    let mut out = String::from("step,phase,P1_kpa,P2_kpa,P3_kpa,hold_s\n");
+    let mut csv = Csv::new(["step", "phase", "P1_kpa", "P2_kpa", "P3_kpa", "hold_s"]);
     for s in steps {
-        let [p1, p2, p3] = s.pressures;
-        let _ = writeln!(out, "{},{},{p1},{p2},{p3},{}", s.step, s.phase, s.hold_s);
+        let [p1, p2, p3] = s.pressures.map(|p| p.to_string());
+        csv.row([
+            s.step.to_string(),
+            s.phase.clone(),
+            p1,
+            p2,
+            p3,
+            s.hold_s.to_string(),
+        ]);
     }
-    out
+    csv.into_string()
 }
 
 /// When each step is commanded (s from the first), and when the last one ends.

@@ -11,7 +11,6 @@
 //! - `OUT_detections.png`: a few pairs, cropped around the tip: the detected centroid (green
 //!   cross), the reprojected tip (magenta circle), and where the crop is in the left frame.
 
-use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use opencv::core::{self, Mat, Point, Rect, Scalar, Size, Vector};
@@ -19,6 +18,7 @@ use opencv::prelude::*;
 use opencv::{imgcodecs, imgproc};
 
 use super::{PairRecord, PairStatus, TriangulateError, Triangulation};
+use crate::data::{format_fixed, format_number, Csv};
 use crate::fsio;
 use crate::provenance::Provenance;
 
@@ -103,76 +103,80 @@ fn write_text(path: &Path, text: &str) -> Result<(), TriangulateError> {
     fsio::write_bytes(path, text.as_bytes()).map_err(|e| write_err(path)(e.to_string()))
 }
 
-/// A CSV cell: quoted when it needs to be.
-fn cell(s: &str) -> String {
-    if s.contains([',', '"', '\n']) {
-        format!("\"{}\"", s.replace('"', "\"\""))
-    } else {
-        s.to_string()
-    }
-}
-
 impl Triangulation {
     /// The dataset's text, with the rows `keep` selects.
     fn dataset_csv(&self, keep: impl Fn(&super::Row) -> bool) -> String {
-        let mut out = String::from(DATASET_HEAD);
-        for c in &self.extra_columns {
-            out.push(',');
-            out += &cell(c);
-        }
-        out += ",flag\n";
+        let header = DATASET_HEAD.trim_end().split(',').map(str::to_string);
+        let mut csv = Csv::new(
+            header
+                .chain(self.extra_columns.iter().cloned())
+                .chain(["flag".to_string()]),
+        );
         for r in self.rows.iter().filter(|r| keep(r)) {
-            let [p1, p2, p3] = r.pressures_kpa.map(crate::data::format_number);
             let [x, y, z] = r.tip_mm;
-            let _ = write!(
-                out,
-                "{p1},{p2},{p3},{x:.4},{y:.4},{z:.4},{},{:.4},{:.3},{:.1}",
-                r.n_frames, r.spread_mm, r.reproj_px, r.dt_ms
+            csv.row(
+                r.pressures_kpa
+                    .map(format_number)
+                    .into_iter()
+                    .chain([
+                        format!("{x:.4}"),
+                        format!("{y:.4}"),
+                        format!("{z:.4}"),
+                        r.n_frames.to_string(),
+                        format!("{:.4}", r.spread_mm),
+                        format!("{:.3}", r.reproj_px),
+                        format!("{:.1}", r.dt_ms),
+                    ])
+                    .chain(r.extra.iter().cloned())
+                    .chain([r.flags.join(";")]),
             );
-            for e in &r.extra {
-                out.push(',');
-                out += &cell(e);
-            }
-            out.push(',');
-            out += &r.flags.join(";");
-            out.push('\n');
         }
-        out
+        csv.into_string()
     }
 
     /// Every frame pair: frames, times, step, status, centroids, tip (hand frame), error.
     fn pairs_csv(&self) -> String {
-        let mut out = String::from(
-            "left_frame,right_frame,left_time_s,right_time_s,step,status,candidates,left_u_px,left_v_px,right_u_px,right_v_px,x_mm,y_mm,z_mm,reproj_px\n",
-        );
-        let opt =
-            |v: Option<f64>, digits: usize| v.map_or(String::new(), |v| format!("{v:.digits$}"));
+        let mut csv = Csv::new([
+            "left_frame",
+            "right_frame",
+            "left_time_s",
+            "right_time_s",
+            "step",
+            "status",
+            "candidates",
+            "left_u_px",
+            "left_v_px",
+            "right_u_px",
+            "right_v_px",
+            "x_mm",
+            "y_mm",
+            "z_mm",
+            "reproj_px",
+        ]);
         for p in &self.pairs {
             let c = p.centres_px;
             let tip = p
                 .point_left_mm
                 .map(|q| self.hand_from_left.apply(&q.into()));
-            let _ = writeln!(
-                out,
-                "{},{},{:.6},{:.6},{},{},{},{},{},{},{},{},{},{},{}",
-                p.left.index,
-                p.right.index,
-                p.left.time_s,
-                p.right.time_s,
+            csv.row([
+                p.left.index.to_string(),
+                p.right.index.to_string(),
+                format!("{:.6}", p.left.time_s),
+                format!("{:.6}", p.right.time_s),
                 p.step.map_or(String::new(), |k| k.to_string()),
-                p.status.name(),
-                p.candidates,
-                opt(c.map(|c| c[0][0]), 3),
-                opt(c.map(|c| c[0][1]), 3),
-                opt(c.map(|c| c[1][0]), 3),
-                opt(c.map(|c| c[1][1]), 3),
-                opt(tip.map(|t| t.x), 4),
-                opt(tip.map(|t| t.y), 4),
-                opt(tip.map(|t| t.z), 4),
-                opt(p.reproj_px, 3),
-            );
+                p.status.name().to_string(),
+                p.candidates.to_string(),
+                format_fixed(c.map(|c| c[0][0]), 3),
+                format_fixed(c.map(|c| c[0][1]), 3),
+                format_fixed(c.map(|c| c[1][0]), 3),
+                format_fixed(c.map(|c| c[1][1]), 3),
+                format_fixed(tip.map(|t| t.x), 4),
+                format_fixed(tip.map(|t| t.y), 4),
+                format_fixed(tip.map(|t| t.z), 4),
+                format_fixed(p.reproj_px, 3),
+            ]);
         }
-        out
+        csv.into_string()
     }
 
     fn hand_yaml(&self, provenance: &Provenance) -> String {

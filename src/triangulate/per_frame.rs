@@ -39,6 +39,7 @@ use super::marker::MAX_CANDIDATES;
 use super::summary::{count_frames, FrameCounts};
 use super::{find_all_markers, options, FrameResult, TriangulateError, TriangulateOptions};
 use crate::calib::file::CalibrationFile;
+use crate::data::{Csv, HAND_INPUTS, HAND_OUTPUTS};
 use crate::geometry::HandFromLeft;
 use crate::provenance::Provenance;
 use crate::session::frames::{FrameList, FrameRecord};
@@ -583,24 +584,16 @@ impl PerFrame {
     /// The rows as CSV: `time_s`, the log's other columns, the pressures in force, the tip,
     /// `frame`, `reproj_px`, `flag`.
     pub fn csv(&self, log: &PressureLog, keep: impl Fn(&FrameRow) -> bool) -> String {
-        let mut w = csv::Writer::from_writer(Vec::new());
         let mut header = vec!["time_s".to_string()];
         header.extend(log.extra_columns.iter().cloned());
         header.extend(
-            [
-                "P1_kpa",
-                "P2_kpa",
-                "P3_kpa",
-                "x_mm",
-                "y_mm",
-                "z_mm",
-                "frame",
-                "reproj_px",
-                "flag",
-            ]
-            .map(String::from),
+            HAND_INPUTS
+                .into_iter()
+                .chain(HAND_OUTPUTS)
+                .chain(["frame", "reproj_px", "flag"])
+                .map(String::from),
         );
-        w.write_record(&header).expect("in memory");
+        let mut csv = Csv::new(header);
         let number = |v: Option<f64>| v.map_or_else(String::new, crate::data::format_number);
         let measured: Option<Vec<usize>> = MEASURED_COLUMNS
             .iter()
@@ -633,11 +626,11 @@ impl PerFrame {
                 .filter(|_| r.flags.is_empty() || r.flags == ["reach"]);
             record.extend((0..3).map(|c| number(tip.map(|t| t[c]))));
             record.push(r.frame.to_string());
-            record.push(r.reproj_px.map_or_else(String::new, |e| format!("{e:.4}")));
+            record.push(crate::data::format_fixed(r.reproj_px, 4));
             record.push(r.flags.join(";"));
-            w.write_record(&record).expect("in memory");
+            csv.row(record);
         }
-        String::from_utf8(w.into_inner().expect("in memory")).expect("UTF-8 fields")
+        csv.into_string()
     }
 
     /// Writes `out` (every row), `OUT_<phase>.csv` per phase of the log, and

@@ -4,6 +4,7 @@ use nalgebra::{Matrix3, Point3};
 
 use super::timing::{occluder, Filmed};
 use super::{CaptureConfig, SynthError};
+use crate::data::{Csv, HAND_INPUTS, HAND_OUTPUTS};
 use crate::opencv_yaml::FileStorage;
 use crate::session::protocol::Step;
 use crate::stereo::Side;
@@ -37,7 +38,7 @@ pub(super) fn rig_yaml(rig: &Rig, provenance: &crate::provenance::Provenance) ->
 }
 
 pub(super) fn boards_csv(rig: &Rig, boards: &[Board], reference: &Board) -> String {
-    let mut out = String::from("view,rx,ry,rz,tx_mm,ty_mm,tz_mm\n");
+    let mut csv = Csv::new(["view", "rx", "ry", "rz", "tx_mm", "ty_mm", "tz_mm"]);
     let named = boards
         .iter()
         .enumerate()
@@ -49,9 +50,18 @@ pub(super) fn boards_csv(rig: &Rig, boards: &[Board], reference: &Board) -> Stri
             left_from_board.rotation.scaled_axis(),
             left_from_board.translation,
         );
-        out += &format!("{name},{},{},{},{},{},{}\n", r.x, r.y, r.z, t.x, t.y, t.z);
+        csv.row(
+            [name]
+                .into_iter()
+                .chain(text([r.x, r.y, r.z, t.x, t.y, t.z])),
+        );
     }
-    out
+    csv.into_string()
+}
+
+/// Numbers as `Display` writes them (the shortest form that reads back the same).
+fn text<const N: usize>(values: [f64; N]) -> [String; N] {
+    values.map(|v| v.to_string())
 }
 
 /// The regulator's log: each step at its command time `starts`.
@@ -69,8 +79,12 @@ pub(super) fn pressures_csv(steps: &[Step], starts: &[f64]) -> String {
 }
 
 pub(super) fn tips_csv(rig: &Rig, steps: &[Step], tips: &[[f64; 3]]) -> String {
-    let mut out = String::from(
-        "step,phase,P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm,left_x_mm,left_y_mm,left_z_mm\n",
+    let mut csv = Csv::new(
+        ["step", "phase"]
+            .into_iter()
+            .chain(HAND_INPUTS)
+            .chain(HAND_OUTPUTS)
+            .chain(["left_x_mm", "left_y_mm", "left_z_mm"]),
     );
     for (
         k,
@@ -85,12 +99,14 @@ pub(super) fn tips_csv(rig: &Rig, steps: &[Step], tips: &[[f64; 3]]) -> String {
     ) in steps.iter().zip(tips).enumerate()
     {
         let left = rig.left.pose.apply(&Point3::from(*tip));
-        out += &format!(
-            "{k},{phase},{},{},{},{},{},{},{},{},{}\n",
-            p[0], p[1], p[2], tip[0], tip[1], tip[2], left.x, left.y, left.z
+        csv.row(
+            [k.to_string(), phase.clone()]
+                .into_iter()
+                .chain(text([p[0], p[1], p[2], tip[0], tip[1], tip[2]]))
+                .chain(text([left.x, left.y, left.z])),
         );
     }
-    out
+    csv.into_string()
 }
 
 pub(super) fn truth_frames(
@@ -101,7 +117,12 @@ pub(super) fn truth_frames(
     c: &CaptureConfig,
     frames: &[Filmed],
 ) -> Result<String, SynthError> {
-    let mut out = String::from("frame,camera,exposure_s,step,x_mm,y_mm,z_mm,u_px,v_px,occluded\n");
+    let mut csv = Csv::new(
+        ["frame", "camera", "exposure_s", "step"]
+            .into_iter()
+            .chain(HAND_OUTPUTS)
+            .chain(["u_px", "v_px", "occluded"]),
+    );
     for f in frames {
         let tip = plant.tip(motion.at(f.exposure_s))?;
         let cam = match f.camera {
@@ -112,21 +133,19 @@ pub(super) fn truth_frames(
             .project(&Point3::from(tip))
             .unwrap_or([f64::NAN, f64::NAN]);
         let occluded = occluder(seed, c, f.camera, f.index).is_some();
-        out += &format!(
-            "{},{},{:.6},{},{},{},{},{},{},{}\n",
-            f.index,
-            f.camera.name(),
-            f.exposure_s,
-            f.step,
-            tip[0],
-            tip[1],
-            tip[2],
-            u,
-            v,
-            u8::from(occluded)
+        csv.row(
+            [
+                f.index.to_string(),
+                f.camera.name().to_string(),
+                format!("{:.6}", f.exposure_s),
+                f.step.to_string(),
+            ]
+            .into_iter()
+            .chain(text([tip[0], tip[1], tip[2], u, v]))
+            .chain([u8::from(occluded).to_string()]),
         );
     }
-    Ok(out)
+    Ok(csv.into_string())
 }
 
 /// A dynamic session's truth as the dataset `triangulate --per-frame` should give: one row per
@@ -138,8 +157,13 @@ pub(super) fn per_frame_csv(
     steps: &[Step],
     frames: &[Filmed],
 ) -> Result<String, SynthError> {
-    let mut out =
-        String::from("time_s,phase,P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm,frame,exposure_s\n");
+    let mut csv = Csv::new(
+        ["time_s", "phase"]
+            .into_iter()
+            .chain(HAND_INPUTS)
+            .chain(HAND_OUTPUTS)
+            .chain(["frame", "exposure_s"]),
+    );
     for f in frames.iter().filter(|f| f.camera == Side::Left) {
         let tip = plant.tip(motion.at(f.exposure_s))?;
         let Step {
@@ -147,10 +171,12 @@ pub(super) fn per_frame_csv(
             pressures: p,
             ..
         } = &steps[f.step];
-        out += &format!(
-            "{:.6},{phase},{},{},{},{},{},{},{},{:.6}\n",
-            f.stamp_s, p[0], p[1], p[2], tip[0], tip[1], tip[2], f.index, f.exposure_s
+        csv.row(
+            [format!("{:.6}", f.stamp_s), phase.clone()]
+                .into_iter()
+                .chain(text([p[0], p[1], p[2], tip[0], tip[1], tip[2]]))
+                .chain([f.index.to_string(), format!("{:.6}", f.exposure_s)]),
         );
     }
-    Ok(out)
+    Ok(csv.into_string())
 }

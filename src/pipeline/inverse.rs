@@ -1,0 +1,217 @@
+//! The inverse as a stage: the inputs (pressures) that put a model's outputs at targets, for
+//! feed-forward control. `handcap inverse --targets` writes a row per target, the demo's check
+//! the same columns with the plant's answer beside them, and [`super::trajectory`] the same
+//! along a path: the columns are named by [`planned_columns`] alone.
+
+use std::path::Path;
+
+use super::outputs::{self, Output};
+use super::PipelineError;
+use crate::data::{self, Columns};
+use crate::hand::MAX_PRESSURE_KPA;
+use crate::model::file::ModelFile;
+use crate::model::inverse::{self, InverseOptions, InverseSolution, PlannedTarget};
+use crate::model::Differentiable;
+
+/// Where the inverse may look, and when a target counts as reached.
+#[derive(Clone, Copy, Debug)]
+pub struct Limits {
+    /// Upper bound of every `_kpa` input (kPa; at most the regulator's [`MAX_PRESSURE_KPA`]).
+    pub max_kpa: f64,
+    /// A target is reached when the model's outputs are this close (output units).
+    pub reach: f64,
+}
+
+impl Limits {
+    /// The inverse's options for `model`: inside its training range, `_kpa` inputs within
+    /// 0-`max_kpa`.
+    ///
+    /// # Errors
+    /// [`PipelineError::Request`] for a cap outside (0, 300] kPa or a reach that is not
+    /// positive.
+    pub fn options(&self, model: &dyn Differentiable) -> Result<InverseOptions, PipelineError> {
+        if !(self.max_kpa > 0.0 && self.max_kpa <= MAX_PRESSURE_KPA) {
+            return Err(PipelineError::Request(format!(
+                "max_kpa={} must lie in (0, {MAX_PRESSURE_KPA}]: the regulator caps the supply",
+                self.max_kpa
+            )));
+        }
+        if self.reach.is_nan() || self.reach <= 0.0 {
+            return Err(PipelineError::Request(format!(
+                "reach={} must be positive",
+                self.reach
+            )));
+        }
+        let cap = |name: &str| name.ends_with("_kpa").then_some((0.0, self.max_kpa));
+        Ok(InverseOptions {
+            reach: self.reach,
+            ..InverseOptions::within_training_range(model, cap)
+        })
+    }
+}
+
+/// The columns of planned inputs: the inputs (named as the model's), the model's outputs there
+/// (`x_mm_model`, …), the distance from the target (`error`) and whether it is within reach
+/// (`reached`, 1 or 0). `inputs` and `achieved` hold one row per plan, row after row.
+pub fn planned_columns(
+    model: &dyn Differentiable,
+    inputs: Vec<f64>,
+    achieved: Vec<f64>,
+    error: &[f64],
+    reached: &[bool],
+) -> [Columns; 3] {
+    let verdict = error
+        .iter()
+        .zip(reached)
+        .flat_map(|(&e, &r)| [e, f64::from(u8::from(r))])
+        .collect();
+    [
+        Columns::new(model.inputs().to_vec(), inputs),
+        Columns::new(suffixed(model.outputs(), "_model"), achieved),
+        Columns::new(vec!["error".into(), "reached".into()], verdict),
+    ]
+}
+
+/// `names`, each with `suffix` (`x_mm` → `x_mm_model`).
+fn suffixed(names: &[String], suffix: &str) -> Vec<String> {
+    names.iter().map(|n| format!("{n}{suffix}")).collect()
+}
+
+/// [`planned_columns`] of pointwise solutions.
+fn solution_columns(model: &dyn Differentiable, solutions: &[InverseSolution]) -> [Columns; 3] {
+    let error: Vec<f64> = solutions.iter().map(|s| s.error).collect();
+    let reached: Vec<bool> = solutions.iter().map(|s| s.reached).collect();
+    planned_columns(
+        model,
+        solutions.iter().flat_map(|s| s.inputs.clone()).collect(),
+        solutions.iter().flat_map(|s| s.achieved.clone()).collect(),
+        &error,
+        &reached,
+    )
+}
+
+/// A file of targets to plan for.
+pub struct Targets<'a> {
+    pub model: &'a Path,
+    /// A CSV with the model's output columns.
+    pub targets: &'a Path,
+    pub out: &'a Path,
+    pub limits: Limits,
+    /// The coverage of the interval written around each planned tip (`None`: no interval).
+    pub level: Option<f64>,
+}
+
+/// What [`plan_targets`] planned.
+pub struct PlannedTargets {
+    pub solutions: Vec<InverseSolution>,
+    /// The box searched, e.g. "P1_kpa 0-250, P2_kpa 0-250, P3_kpa 0-250".
+    pub bounds: String,
+    /// What the user should know about the plan (the model's history, a missing interval).
+    pub notes: Vec<String>,
+}
+
+/// `handcap inverse --targets`: every target planned (a history model at its steady state)
+/// and written with the targets, [`planned_columns`] and `interval_radius`.
+///
+/// # Errors
+/// An output that would replace an input, an unreadable model or targets file, limits out of
+/// range, or a failed solve.
+pub fn plan_targets(job: &Targets) -> Result<PlannedTargets, PipelineError> {
+    outputs::check(
+        &[job.model, job.targets],
+        &[Output::new(job.out, "the planned inputs")],
+    )?;
+    let file = ModelFile::load(job.model)?;
+    let (steady, mut notes) = steady_state(&file);
+    let model: &dyn Differentiable = &steady;
+    let options = job.limits.options(model)?;
+    let radius = match job.level.map(|level| file.interval_radius(level)) {
+        Some(Ok(r)) => Some(r),
+        Some(Err(e)) => {
+            notes.push(format!("no interval around the planned tips: {e}"));
+            None
+        }
+        None => None,
+    };
+    let targets = data::read_columns(job.targets, model.outputs())?;
+    let solutions: Vec<InverseSolution> = targets
+        .iter_rows()
+        .map(|t| inverse::solve(model, t, &options))
+        .collect::<Result<_, _>>()?;
+    let planned = solution_columns(model, &solutions);
+    let interval =
+        radius.map(|r| Columns::new(vec!["interval_radius".into()], vec![r; solutions.len()]));
+    let mut blocks: Vec<&Columns> = std::iter::once(&targets).chain(&planned).collect();
+    blocks.extend(&interval);
+    data::write_csv(job.out, &blocks)?;
+    Ok(PlannedTargets {
+        solutions,
+        bounds: bounds(model, &options),
+        notes,
+    })
+}
+
+/// The model the pointwise inverse plans with: a history model at its steady state (every
+/// filter equal to the input), said in the note.
+pub fn steady_state(file: &ModelFile) -> (crate::model::history::SteadyState<'_>, Vec<String>) {
+    let notes = file
+        .history()
+        .map(|h| {
+            format!(
+                "the model sees the inputs' history ({}); the inputs found hold the tip there once settled (every filter equal to the input)",
+                h.memory
+            )
+        })
+        .into_iter()
+        .collect();
+    (file.steady_state(), notes)
+}
+
+/// The box, e.g. "P1_kpa 0-250, P2_kpa 0-250, P3_kpa 0-250".
+pub fn bounds(model: &dyn Differentiable, o: &InverseOptions) -> String {
+    model
+        .inputs()
+        .iter()
+        .enumerate()
+        .map(|(j, n)| format!("{n} {}-{}", o.lower[j], o.upper[j]))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// The demo's feed-forward check: each target, [`planned_columns`], the plant's outputs at the
+/// planned inputs (`x_mm_plant`, …), their distance from the target (`plant_error_mm`) and the
+/// inputs that made the target (`source_P1_kpa`, …).
+///
+/// # Errors
+/// [`PipelineError::Data`] when the file cannot be written.
+pub fn write_feedforward(
+    path: &Path,
+    model: &dyn Differentiable,
+    rows: &[PlannedTarget],
+) -> Result<(), PipelineError> {
+    let solutions: Vec<InverseSolution> = rows.iter().map(|r| r.solution.clone()).collect();
+    let planned = solution_columns(model, &solutions);
+    let targets = Columns::new(
+        model.outputs().to_vec(),
+        rows.iter().flat_map(|r| r.target.clone()).collect(),
+    );
+    let plant = Columns::new(
+        suffixed(model.outputs(), "_plant"),
+        rows.iter().flat_map(|r| r.plant.clone()).collect(),
+    );
+    let plant_error = Columns::new(
+        vec!["plant_error_mm".into()],
+        rows.iter().map(|r| r.plant_error).collect(),
+    );
+    let sources = Columns::new(
+        model
+            .inputs()
+            .iter()
+            .map(|n| format!("source_{n}"))
+            .collect(),
+        rows.iter().flat_map(|r| r.source_inputs.clone()).collect(),
+    );
+    let mut blocks: Vec<&Columns> = std::iter::once(&targets).chain(&planned).collect();
+    blocks.extend([&plant, &plant_error, &sources]);
+    Ok(data::write_csv(path, &blocks)?)
+}
