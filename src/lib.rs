@@ -26,7 +26,6 @@ pub use handcap_core::{
     control, data, fsio, hand, model, provenance, search, select, stats, DEFAULT_SEED,
 };
 
-pub mod base64;
 pub mod calib;
 pub mod capture;
 pub mod cli;

@@ -116,7 +116,10 @@ pub fn answer(source: &str) -> Option<String> {
     let auth = match url.user {
         Some(user) => format!(
             "Authorization: Basic {}\r\n",
-            crate::base64::base64(format!("{user}:{}", url.password.unwrap_or("")).as_bytes())
+            base64::Engine::encode(
+                &base64::engine::general_purpose::STANDARD,
+                format!("{user}:{}", url.password.unwrap_or("")).as_bytes()
+            )
         ),
         None => String::new(),
     };

@@ -4,8 +4,9 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
-use crate::base64::base64;
 use crate::fsio;
+use base64::engine::general_purpose::STANDARD as BASE64;
+use base64::Engine as _;
 
 /// An HTML page under construction.
 #[derive(Clone, Debug, Default)]
@@ -104,7 +105,7 @@ impl Page {
             Some("png") => std::fs::read(path).ok().map(|bytes| {
                 format!(
                     "<img src=\"data:image/png;base64,{}\" alt=\"{}\">",
-                    base64(&bytes),
+                    BASE64.encode(&bytes),
                     escape(caption)
                 )
             }),

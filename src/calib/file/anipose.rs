@@ -16,34 +16,59 @@ use crate::stereo::{StereoError, StereoRig};
 /// this camera's: the left camera's are zero, the right's are `R`, `T`, mm), then `[metadata]`
 /// with the calibration's reprojection RMS (px) as `error`.
 pub fn anipose_toml(cal: &StereoCalibration) -> String {
-    let list = |v: &[f64]| {
-        let items: Vec<String> = v.iter().map(|x| format!("{x:?}")).collect();
-        format!("[{}]", items.join(", "))
-    };
+    #[derive(serde::Serialize)]
+    struct Camera<'a> {
+        name: &'a str,
+        size: [i32; 2],
+        matrix: Vec<&'a [f64]>,
+        distortions: &'a [f64],
+        rotation: [f64; 3],
+        translation: [f64; 3],
+    }
+    #[derive(serde::Serialize)]
+    struct Metadata {
+        adjusted: bool,
+        error: f64,
+    }
+    #[derive(serde::Serialize)]
+    struct Group<'a> {
+        cam_0: Camera<'a>,
+        cam_1: Camera<'a>,
+        metadata: Metadata,
+    }
+    fn camera<'a>(
+        name: &'a str,
+        size: [i32; 2],
+        cam: &'a Intrinsics,
+        rotation: [f64; 3],
+        translation: [f64; 3],
+    ) -> Camera<'a> {
+        Camera {
+            name,
+            size,
+            matrix: cam.k.chunks(3).collect(),
+            distortions: &cam.dist,
+            rotation,
+            translation,
+        }
+    }
+    let size = cal.rig.image_size;
     let pose = &cal.rig.right_from_left;
-    let cameras = [
-        ("left", &cal.rig.left, [0.0; 3], [0.0; 3]),
-        (
+    let group = Group {
+        cam_0: camera("left", size, &cal.rig.left, [0.0; 3], [0.0; 3]),
+        cam_1: camera(
             "right",
+            size,
             &cal.rig.right,
             pose.rotation.scaled_axis().into(),
             pose.translation_array(),
         ),
-    ];
-    let mut out = String::new();
-    for (k, (name, cam, rotation, translation)) in cameras.iter().enumerate() {
-        let rows: Vec<String> = cam.k.chunks(3).map(list).collect();
-        out += &format!(
-            "[cam_{k}]\nname = \"{name}\"\nsize = [{}, {}]\nmatrix = [{}]\ndistortions = {}\nrotation = {}\ntranslation = {}\n\n",
-            cal.rig.image_size[0],
-            cal.rig.image_size[1],
-            rows.join(", "),
-            list(&cam.dist),
-            list(rotation),
-            list(translation),
-        );
-    }
-    out + &format!("[metadata]\nadjusted = false\nerror = {:?}\n", cal.rms_px)
+        metadata: Metadata {
+            adjusted: false,
+            error: cal.rms_px,
+        },
+    };
+    toml::to_string(&group).expect("numbers and names serialise as TOML")
 }
 
 /// Reads an Anipose/aniposelib `calibration.toml` of two cameras (as [`anipose_toml`] writes
