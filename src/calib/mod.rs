@@ -319,6 +319,7 @@ pub fn calibrate(
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<StereoCalibration, CalibError> {
     board.check()?;
+    // 1. The pairs, then the reference pair, and their images.
     let listing = pairs::list_pairs(dir).map_err(|source| CalibError::List {
         path: dir.to_path_buf(),
         source,
@@ -336,7 +337,79 @@ pub fn calibrate(
         .flat_map(|p| [p.left.as_path(), p.right.as_path()])
         .collect();
     let grays = read_all(&images)?;
+    // 2. The board in every image.
+    let (detector, found) = detect_boards(dir, &grays, board, &listing, options, progress)?;
+    let size = image_size(&all, &found, options)?;
+    // 3. Pairs with the board in both images, in a consistent corner order.
+    let (mut reports, mut usable) = usable_pairs(board, &listing, &found);
+    let needed = options.min_pairs.max(3);
+    if usable.len() < needed {
+        return Err(too_few(&reports, usable.len(), needed));
+    }
+    // 4. Given intrinsics against these images, before they fix the fit.
+    let given = given_intrinsics(board, size, &usable, options)?;
+    // 5. The fit, its outliers dropped, and its checks.
+    let rig = fit::without_outliers(board, size, &mut usable, &mut reports, options, needed)?;
+    for (u, e) in usable.iter().zip(&rig.per_view) {
+        reports[u.report].rms_px = Some(*e);
+    }
+    let epipolar_px = epipolar_error(&rig, &usable)?;
+    let board_check = board_check(board, &rig, &usable)?;
+    let (r1, r2, p1, p2, q) = rectify(&rig, size)?;
+    // 6. The hand frame's axes from the reference pair (its images follow the others').
+    let reference = listing
+        .reference
+        .as_ref()
+        .map(|pair| (pair, &found[2 * listing.pairs.len()].1));
+    let (hand_axes, hand_axes_note) = reference_axes(board, &rig, reference)?;
+    // 7. How sure all this is, and what to capture next.
+    let sure = how_sure(board, size, &rig, &usable, reference, options)?;
+    // 8. The gates: given intrinsics that fail their own fail the others through them, so
+    //    only the cause is said.
+    let fitted = gates::fitted(
+        board,
+        rig.rms,
+        &board_check,
+        rig.cams.right_from_left.translation.norm(),
+        sure.median_distance_mm,
+    );
+    let implausible = if given.is_empty() { fitted } else { given };
+    Ok(StereoCalibration {
+        board: *board,
+        detector,
+        rig: rig.cams,
+        e: rig.e,
+        f: rig.f,
+        r1,
+        r2,
+        p1,
+        p2,
+        q,
+        rms_px: rig.rms,
+        epipolar_px,
+        board_check,
+        uncertainty: sure.uncertainty,
+        bootstrap: sure.bootstrap,
+        guidance: sure.guidance,
+        pairs: reports,
+        unpaired: listing.unpaired.clone(),
+        hand_axes,
+        hand_axes_note,
+        implausible,
+        validation: sure.validation,
+    })
+}
 
+/// Step 2: the board in every image, by the detector that finds it in the most pairs; an
+/// error naming the board and what was seen instead when it is in none.
+fn detect_boards(
+    dir: &Path,
+    grays: &[opencv::core::Mat],
+    board: &BoardSpec,
+    listing: &pairs::PairListing,
+    options: &CalibOptions,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<(Detector, Vec<Found>), CalibError> {
     let done = std::sync::atomic::AtomicUsize::new(0);
     let detect_all = |detector: Detector| -> Result<Vec<Found>, CalibError> {
         grays
@@ -385,10 +458,19 @@ pub fn calibrate(
             dir: dir.to_path_buf(),
             cols: board.cols,
             rows: board.rows,
-            hint: suggest_board(&grays, board),
+            hint: suggest_board(grays, board),
         });
     }
-    let size = check_sizes(&all, &found)?;
+    Ok((detector, found))
+}
+
+/// The images' one size, which given intrinsics must have been calibrated at.
+fn image_size(
+    all: &[&ImagePair],
+    found: &[Found],
+    options: &CalibOptions,
+) -> Result<[i32; 2], CalibError> {
+    let size = check_sizes(all, found)?;
     for known in options.intrinsics.iter().flatten() {
         if known.image_size != size {
             return Err(CalibError::IntrinsicsSize {
@@ -400,8 +482,15 @@ pub fn calibrate(
             });
         }
     }
+    Ok(size)
+}
 
-    // Pairs with the board in both images, in a consistent corner order.
+/// Step 3: a report per pair, and the corners of those with the board in both images.
+fn usable_pairs(
+    board: &BoardSpec,
+    listing: &pairs::PairListing,
+    found: &[Found],
+) -> (Vec<PairReport>, Vec<PairCorners>) {
     let mut reports = Vec::new();
     let mut usable: Vec<PairCorners> = Vec::new();
     for (k, pair) in listing.pairs.iter().enumerate() {
@@ -430,45 +519,42 @@ pub fn calibrate(
         }
         reports.push(report);
     }
-    let needed = options.min_pairs.max(3);
-    if usable.len() < needed {
-        return Err(too_few(&reports, usable.len(), needed));
+    (reports, usable)
+}
+
+/// Step 4: what is implausible about given intrinsics under these images (nothing when none
+/// are given).
+fn given_intrinsics(
+    board: &BoardSpec,
+    size: [i32; 2],
+    usable: &[PairCorners],
+    options: &CalibOptions,
+) -> Result<Vec<String>, CalibError> {
+    if options.intrinsics.iter().all(Option::is_none) {
+        return Ok(Vec::new());
     }
+    let side = |c: usize| -> Vec<View> { usable.iter().map(|u| u.view(c)).collect() };
+    let (left, right) = (side(0), side(1));
+    let own =
+        |views: &[View]| -> Result<f64, CalibError> { Ok(single_camera(board, size, views)?.3) };
+    gates::known_intrinsics(
+        board,
+        size,
+        &options.intrinsics,
+        [&left, &right],
+        [own(&left)?, own(&right)?],
+    )
+}
 
-    // Given intrinsics against these images, before they fix the fit.
-    let mut implausible = Vec::new();
-    if options.intrinsics.iter().any(Option::is_some) {
-        let side = |c: usize| -> Vec<View> { usable.iter().map(|u| u.view(c)).collect() };
-        let (left, right) = (side(0), side(1));
-        let own = |views: &[View]| -> Result<f64, CalibError> {
-            Ok(single_camera(board, size, views)?.3)
-        };
-        implausible = gates::known_intrinsics(
-            board,
-            size,
-            &options.intrinsics,
-            [&left, &right],
-            [own(&left)?, own(&right)?],
-        )?;
-    }
-
-    let rig = fit::without_outliers(board, size, &mut usable, &mut reports, options, needed)?;
-    for (u, e) in usable.iter().zip(&rig.per_view) {
-        reports[u.report].rms_px = Some(*e);
-    }
-
-    let epipolar_px = epipolar_error(&rig, &usable)?;
-    let board_check = board_check(board, &rig, &usable)?;
-    let (r1, r2, p1, p2, q) = rectify(&rig, size)?;
-
-    // The reference pair's images follow the others' in `found`.
-    let reference = listing
-        .reference
-        .as_ref()
-        .map(|pair| (pair, &found[2 * listing.pairs.len()].1));
-    let (hand_axes, hand_axes_note) = match reference {
+/// Step 6: the hand frame's axes from the reference pair, and where they came from.
+fn reference_axes(
+    board: &BoardSpec,
+    rig: &fit::StereoFit,
+    reference: Option<(&ImagePair, &Option<Seen>)>,
+) -> Result<(Option<Rotation3<f64>>, String), CalibError> {
+    Ok(match reference {
         Some((pair, Some(corners))) => (
-            Some(hand_axes(board, &rig, corners.into())?),
+            Some(hand_axes(board, rig, corners.into())?),
             format!(
                 "from the reference pair {}: board x = hand x, board y = hand -z, board z = hand +y",
                 pair.left.display()
@@ -479,11 +565,32 @@ pub fn calibrate(
             format!("the board was not found in {}", pair.left.display()),
         ),
         None => (None, "no reference pair (left_ref/right_ref)".into()),
-    };
+    })
+}
 
-    // How sure all this is, at the finger's distance: the reference board's centre (the
-    // finger's base), else the median of the boards' centres.
-    let poses = uncertainty::board_poses(board, &rig.cams, &usable)?;
+/// Step 7's findings.
+struct HowSure {
+    uncertainty: Option<uncertainty::Uncertainty>,
+    validation: Option<validate::Validation>,
+    bootstrap: Option<Bootstrap>,
+    guidance: guidance::Guidance,
+    /// The median distance of the boards' centres from the left camera (mm).
+    median_distance_mm: f64,
+}
+
+/// Step 7: the calibration's standard deviations at the finger's distance (the reference
+/// board's centre, the finger's base; else the median of the boards' centres), checked against
+/// two halves of the pairs (`validate`) and by the bootstrap when asked, and what to capture
+/// next.
+fn how_sure(
+    board: &BoardSpec,
+    size: [i32; 2],
+    rig: &fit::StereoFit,
+    usable: &[PairCorners],
+    reference: Option<(&ImagePair, &Option<Seen>)>,
+    options: &CalibOptions,
+) -> Result<HowSure, CalibError> {
+    let poses = uncertainty::board_poses(board, &rig.cams, usable)?;
     let centre = |pose: &CamFromBoard| pose.apply(&board.centre()).coords;
     let at = match reference {
         Some((_, Some(corners))) => (
@@ -497,14 +604,14 @@ pub fn calibrate(
     };
     // Known intrinsics fix both cameras' (see [`stereo`]).
     let solved = options.intrinsics.iter().all(Option::is_none);
-    let free = [solved, solved];
     let base = at.0;
-    let uncertainty = uncertainty::estimate(board, &rig.cams, free, &usable, &poses, at)?;
+    let uncertainty =
+        uncertainty::estimate(board, &rig.cams, [solved, solved], usable, &poses, at)?;
     let validation = match (&uncertainty, options.validate) {
         (Some(u), true) => validate::validate(
             board,
             size,
-            &usable,
+            usable,
             &options.intrinsics,
             &validate::Full {
                 rig: &rig.cams,
@@ -517,45 +624,15 @@ pub fn calibrate(
         _ => None,
     };
     let bootstrap = (options.bootstrap > 0)
-        .then(|| bootstrap(board, size, &usable, options, &rig.cams))
+        .then(|| bootstrap(board, size, usable, options, &rig.cams))
         .transpose()?;
-    let guidance = guidance::advise(&rig.cams, &usable, &poses, uncertainty.as_ref());
-    // A fit from given intrinsics that fail their own gate fails the others through them:
-    // only the cause is said.
+    let guidance = guidance::advise(&rig.cams, usable, &poses, uncertainty.as_ref());
     let mut distances: Vec<f64> = poses.iter().map(|p| centre(p).norm()).collect();
-    let fitted = gates::fitted(
-        board,
-        rig.rms,
-        &board_check,
-        rig.cams.right_from_left.translation.norm(),
-        crate::stats::median(&mut distances).expect("pairs"),
-    );
-    if implausible.is_empty() {
-        implausible = fitted;
-    }
-
-    Ok(StereoCalibration {
-        board: *board,
-        detector,
-        rig: rig.cams,
-        e: rig.e,
-        f: rig.f,
-        r1,
-        r2,
-        p1,
-        p2,
-        q,
-        rms_px: rig.rms,
-        epipolar_px,
-        board_check,
+    Ok(HowSure {
         uncertainty,
+        validation,
         bootstrap,
         guidance,
-        pairs: reports,
-        unpaired: listing.unpaired.clone(),
-        hand_axes,
-        hand_axes_note,
-        implausible,
-        validation,
+        median_distance_mm: crate::stats::median(&mut distances).expect("pairs"),
     })
 }

@@ -224,11 +224,8 @@ pub fn triangulate(
 ) -> Result<Triangulation, TriangulateError> {
     let r_hand = hand_axes(calibration)?;
     let rig = &calibration.rig;
-    let (records, paths) = (&frames.records, &frames.paths);
-
     // 1. Markers in every frame.
     let found = find_all_markers(frames, rig, options, progress, interrupt)?;
-    let results = found.results;
     let mut summary = Summary {
         interrupted: interrupt.load(Ordering::SeqCst),
         steps_logged: log.steps.len(),
@@ -236,17 +233,54 @@ pub fn triangulate(
         video_ended: found.video_ended,
         ..Summary::default()
     };
-    count_frames(records, &results, &mut summary.frames);
+    count_frames(&frames.records, &found.results, &mut summary.frames);
+    // 2-3. Pairs, their steps and their tips.
+    let (pairs, records) =
+        pair_and_locate(frames, &found.results, log, rig, options, &mut summary)?;
+    let used: Vec<&PairRecord> = pairs.iter().filter(|p| p.status.used()).collect();
+    if used.is_empty() {
+        return Err(nothing_used(&pairs, &records, &summary, log, options));
+    }
+    summary.reproj_px = median_95_max(used.iter().filter_map(|p| p.reproj_px).collect());
+    summary.epipolar_px = epipolar_residuals(rig, &used)?;
+    for cam in 0..2 {
+        summary.centroid_only[cam] = used.iter().filter(|p| !p.fitted[cam]).count();
+    }
+    // 4. Each step's pairs and whether its row is doubtful.
+    let steps = Steps::of(&used, log, options);
+    // 5. The hand frame.
+    let hand_from_left = hand_frame(r_hand, &steps, &pairs, &records, log, options, &mut summary)?;
+    // 6. One row per step.
+    let rows = steps.rows(&hand_from_left, log, options, &mut summary);
+    Ok(Triangulation {
+        rows,
+        pairs,
+        summary,
+        hand_from_left,
+        extra_columns: log.extra_columns.clone(),
+        options: options.clone(),
+    })
+}
 
-    // 2-3. Pairs, their steps and their tips; then again on the frames' times less each
-    //    camera's delay, when the frames show it.
+/// Steps 2-3: the frames paired by time, each pair placed in the log's steps and located; then
+/// again on the frames' times less each camera's delay when the frames show it (or it is
+/// given). Returns the pairs and the frames' records on the times they were paired by; the
+/// summary gets the latency, the clock check and the pairs' counts.
+fn pair_and_locate(
+    frames: &FrameList,
+    results: &[FrameResult],
+    log: &PressureLog,
+    rig: &StereoRig,
+    options: &TriangulateOptions,
+    summary: &mut Summary,
+) -> Result<(Vec<PairRecord>, Vec<FrameRecord>), TriangulateError> {
     let located = |records: &[FrameRecord], guard_s: f64| {
         let pairing = frames::pair_frames(records, options.max_dt_s);
         let pairs = locate_pairs(
             records,
-            paths,
+            &frames.paths,
             &pairing.pairs,
-            &results,
+            results,
             log,
             rig,
             options,
@@ -255,16 +289,16 @@ pub fn triangulate(
         let clock = clock::check(records, &pairing.pairs, log, options.settle_s, guard_s);
         Ok::<_, TriangulateError>((pairing, pairs, clock))
     };
-    let (mut pairing, mut pairs, mut clock) = located(records, 0.0)?;
+    let mut records = frames.records.clone();
+    let (mut pairing, mut pairs, mut clock) = located(&records, 0.0)?;
     let periods = clock.period_ms.map(|p| p / 1e3);
     summary.latency = match options.latency_s {
         Some(s) => latency::Latency::given(s.map(|s| 1e3 * s)),
-        None => latency::measure(records, &results, &pairs, log, periods),
+        None => latency::measure(&records, results, &pairs, log, periods),
     };
     // The cut cannot tell a delay from one a whole step longer when the steps are even; the
     // pairs can: of the left/right offsets a few steps apart, the one with the most pairs
     // that agree in 3-D is kept.
-    let mut shifted: Option<Vec<FrameRecord>> = None;
     if summary.latency.corrected {
         let measured = summary.latency.clone();
         let tries: &[i32] = if measured.given {
@@ -272,109 +306,187 @@ pub fn triangulate(
         } else {
             &latency::STEPS_APART
         };
-        let mut most = 0;
+        let mut most = None;
         for &steps in tries {
             let candidate = measured.steps_apart(steps, log.median_step_s);
             let shifts = candidate.shifts_s();
-            let records: Vec<FrameRecord> = records
+            let shifted: Vec<FrameRecord> = frames
+                .records
                 .iter()
                 .map(|r| FrameRecord {
                     time_s: r.time_s - shifts[r.camera as usize],
                     ..r.clone()
                 })
                 .collect();
-            let found = located(&records, candidate.guard_s())?;
+            let found = located(&shifted, candidate.guard_s())?;
             let used = found.1.iter().filter(|p| p.status.used()).count();
-            if shifted.is_none() || used > most {
-                most = used;
+            if most.is_none_or(|m| used > m) {
+                most = Some(used);
                 (pairing, pairs, clock) = found;
-                shifted = Some(records);
+                records = shifted;
                 summary.latency = candidate;
             }
         }
     }
-    let records = shifted.as_deref().unwrap_or(records);
     summary.clock = clock;
     summary.pairs_formed = pairing.pairs.len();
     summary.unpaired = pairing.unpaired;
     for p in &pairs {
         *summary.pairs.entry(p.status.name()).or_default() += 1;
     }
-    let used: Vec<&PairRecord> = pairs.iter().filter(|p| p.status.used()).collect();
-    if used.is_empty() {
-        let counts: Vec<String> = summary
-            .pairs
-            .iter()
-            .map(|(k, v)| format!("{v} {k}"))
-            .collect();
-        // Frames too far apart to pair is the cause to say first: it empties every count.
-        let times = |side: Side| -> Vec<f64> {
-            let order = frames::in_time_order(records, side);
-            order.iter().map(|&i| records[i].time_s).collect()
-        };
-        let apart_s = crate::frame_times::skew(&times(Side::Left), &times(Side::Right));
-        let cause = if apart_s > options.max_dt_s {
-            let limit = format!("{:.3}", 1e3 * options.max_dt_s);
-            format!(
-                "; the left and right frames are {:.1} ms apart (median), more than --max-dt-ms {}: raise it to pair them, or check that both cameras are on one clock and neither lags",
-                1e3 * apart_s,
-                limit.trim_end_matches('0').trim_end_matches('.')
-            )
-        } else {
-            String::new()
-        };
-        let what = if counts.is_empty() {
-            "none formed".to_string()
-        } else {
-            counts.join(", ")
-        };
-        let cause = if cause.is_empty() {
-            timing_cause(&summary, log)
-        } else {
-            cause
-        };
-        return Err(TriangulateError::NothingUsed(format!(
-            "{} pairs of {} left and {} right frames: {what}{cause}",
-            pairs.len(),
-            summary.frames.listed[0],
-            summary.frames.listed[1],
-        )));
-    }
-    summary.reproj_px = median_95_max(used.iter().filter_map(|p| p.reproj_px).collect());
-    summary.epipolar_px = epipolar_residuals(rig, &used)?;
-    for cam in 0..2 {
-        summary.centroid_only[cam] = used.iter().filter(|p| !p.fitted[cam]).count();
-    }
+    Ok((pairs, records))
+}
 
-    // 4. Each step's pairs, their spread (in the left camera: distances do not depend on the
-    //    frame), and whether its row is doubtful; before the origin, which doubtful rows must
-    //    not place.
-    let mut by_step: Vec<Vec<&PairRecord>> = vec![Vec::new(); log.steps.len()];
-    for p in &used {
-        by_step[p.step.expect("used pairs have a step")].push(p);
-    }
-    let (spreads, flags): (Vec<f64>, Vec<Vec<&'static str>>) = by_step
+/// Why no pair could be used: the pairs' counts, and the cause to say first.
+fn nothing_used(
+    pairs: &[PairRecord],
+    records: &[FrameRecord],
+    summary: &Summary,
+    log: &PressureLog,
+    options: &TriangulateOptions,
+) -> TriangulateError {
+    let counts: Vec<String> = summary
+        .pairs
         .iter()
-        .enumerate()
-        .map(|(k, step_pairs)| {
-            let points: Vec<Vector3<f64>> =
-                step_pairs.iter().filter_map(|p| p.point_left_mm).collect();
-            let spread = spread(&points);
-            let mut flags = Vec::new();
-            if points.len() < options.min_frames {
-                flags.push("few_frames");
-            }
-            if spread > options.max_spread_mm {
-                flags.push("spread");
-            }
-            if log.end_s(k) - log.steps[k].time_s > 1.5 * log.median_step_s {
-                flags.push("long_step");
-            }
-            (spread, flags)
-        })
-        .unzip();
+        .map(|(k, v)| format!("{v} {k}"))
+        .collect();
+    // Frames too far apart to pair is the cause to say first: it empties every count.
+    let times = |side: Side| -> Vec<f64> {
+        let order = frames::in_time_order(records, side);
+        order.iter().map(|&i| records[i].time_s).collect()
+    };
+    let apart_s = crate::frame_times::skew(&times(Side::Left), &times(Side::Right));
+    let cause = if apart_s > options.max_dt_s {
+        let limit = format!("{:.3}", 1e3 * options.max_dt_s);
+        format!(
+            "; the left and right frames are {:.1} ms apart (median), more than --max-dt-ms {}: raise it to pair them, or check that both cameras are on one clock and neither lags",
+            1e3 * apart_s,
+            limit.trim_end_matches('0').trim_end_matches('.')
+        )
+    } else {
+        timing_cause(summary, log)
+    };
+    let what = if counts.is_empty() {
+        "none formed".to_string()
+    } else {
+        counts.join(", ")
+    };
+    TriangulateError::NothingUsed(format!(
+        "{} pairs of {} left and {} right frames: {what}{cause}",
+        pairs.len(),
+        summary.frames.listed[0],
+        summary.frames.listed[1],
+    ))
+}
 
-    // 5. The hand frame: the origin from the zero-pressure steps whose rows are not doubtful.
+/// The used pairs of each step of the log, their spread (in the left camera: distances do not
+/// depend on the frame) and the step's flags, found before the origin, which doubtful rows
+/// must not place.
+struct Steps<'a> {
+    pairs: Vec<Vec<&'a PairRecord>>,
+    spreads: Vec<f64>,
+    flags: Vec<Vec<&'static str>>,
+}
+
+impl<'a> Steps<'a> {
+    /// Step 4.
+    fn of(used: &[&'a PairRecord], log: &PressureLog, options: &TriangulateOptions) -> Self {
+        let mut pairs: Vec<Vec<&PairRecord>> = vec![Vec::new(); log.steps.len()];
+        for p in used {
+            pairs[p.step.expect("used pairs have a step")].push(p);
+        }
+        let (spreads, flags) = pairs
+            .iter()
+            .enumerate()
+            .map(|(k, step_pairs)| {
+                let points: Vec<Vector3<f64>> =
+                    step_pairs.iter().filter_map(|p| p.point_left_mm).collect();
+                let spread = spread(&points);
+                let mut flags = Vec::new();
+                if points.len() < options.min_frames {
+                    flags.push("few_frames");
+                }
+                if spread > options.max_spread_mm {
+                    flags.push("spread");
+                }
+                if log.end_s(k) - log.steps[k].time_s > 1.5 * log.median_step_s {
+                    flags.push("long_step");
+                }
+                (spread, flags)
+            })
+            .unzip();
+        Steps {
+            pairs,
+            spreads,
+            flags,
+        }
+    }
+
+    /// Step 6: one row per step with a used pair, the median of its pairs in the hand frame
+    /// (flagged `reach` beyond the finger's length from its base).
+    fn rows(
+        &self,
+        hand_from_left: &HandFromLeft,
+        log: &PressureLog,
+        options: &TriangulateOptions,
+        summary: &mut Summary,
+    ) -> Vec<Row> {
+        let mut rows = Vec::new();
+        for (k, step_pairs) in self.pairs.iter().enumerate() {
+            if step_pairs.is_empty() {
+                summary.steps_without_tip.push(k);
+                continue;
+            }
+            let tips: Vec<Vector3<f64>> = step_pairs
+                .iter()
+                .map(|p| {
+                    hand_from_left
+                        .apply(&p.point_left_mm.expect("used").into())
+                        .coords
+                })
+                .collect();
+            let tip = crate::stats::median_point(&tips);
+            let mut flags = self.flags[k].clone();
+            if (tip - Vector3::new(0.0, 0.0, options.finger_mm)).norm()
+                > options.finger_mm + options::REACH_MARGIN_MM
+            {
+                flags.push("reach");
+            }
+            rows.push(Row {
+                step: k,
+                pressures_kpa: log.steps[k].pressures_kpa,
+                tip_mm: tip.into(),
+                n_frames: tips.len(),
+                spread_mm: self.spreads[k],
+                reproj_px: step_pairs
+                    .iter()
+                    .filter_map(|p| p.reproj_px)
+                    .fold(0.0, f64::max),
+                dt_ms: step_pairs
+                    .iter()
+                    .map(|p| 1e3 * (p.left.time_s - p.right.time_s).abs())
+                    .fold(0.0, f64::max),
+                extra: log.steps[k].extra.clone(),
+                flags,
+            });
+        }
+        summary.rows = rows.len();
+        summary.rows_flagged = rows.iter().filter(|r| !r.flags.is_empty()).count();
+        rows
+    }
+}
+
+/// Step 5: the hand frame, its origin the median tip of the zero-pressure steps whose rows are
+/// not doubtful.
+fn hand_frame(
+    r_hand: nalgebra::Rotation3<f64>,
+    steps: &Steps,
+    pairs: &[PairRecord],
+    records: &[FrameRecord],
+    log: &PressureLog,
+    options: &TriangulateOptions,
+    summary: &mut Summary,
+) -> Result<HandFromLeft, TriangulateError> {
     let zero: Vec<usize> = (0..log.steps.len())
         .filter(|&k| {
             log.steps[k]
@@ -385,14 +497,14 @@ pub fn triangulate(
         .collect();
     let at_zero: Vec<Vector3<f64>> = zero
         .iter()
-        .filter(|&&k| flags[k].is_empty())
-        .flat_map(|&k| by_step[k].iter().filter_map(|p| p.point_left_mm))
+        .filter(|&&k| steps.flags[k].is_empty())
+        .flat_map(|&k| steps.pairs[k].iter().filter_map(|p| p.point_left_mm))
         .collect();
     if at_zero.is_empty() {
         return Err(TriangulateError::NoOrigin {
             zero: zero.len(),
             zero_kpa: options.zero_kpa,
-            why: no_origin_cause(&zero, &flags, &pairs, records, log, options, &summary),
+            why: no_origin_cause(&zero, &steps.flags, pairs, records, log, options, summary),
         });
     }
     let origin = crate::stats::median_point(&at_zero);
@@ -407,67 +519,16 @@ pub fn triangulate(
             / at_zero.len() as f64)
             .sqrt(),
     };
-    let hand_from_left = HandFromLeft::new(r_hand, -(r_hand * origin));
     summary.step_spread_mm = median_95_max(
-        by_step
+        steps
+            .pairs
             .iter()
-            .zip(&spreads)
+            .zip(&steps.spreads)
             .filter(|(pairs, _)| !pairs.is_empty())
             .map(|(_, &s)| s)
             .collect(),
     );
-
-    // 6. One row per step.
-    let mut rows = Vec::new();
-    for (k, ((step_pairs, flags), spread_mm)) in by_step.iter().zip(flags).zip(spreads).enumerate()
-    {
-        if step_pairs.is_empty() {
-            summary.steps_without_tip.push(k);
-            continue;
-        }
-        let tips: Vec<Vector3<f64>> = step_pairs
-            .iter()
-            .map(|p| {
-                hand_from_left
-                    .apply(&p.point_left_mm.expect("used").into())
-                    .coords
-            })
-            .collect();
-        let tip = crate::stats::median_point(&tips);
-        let mut flags = flags;
-        if (tip - Vector3::new(0.0, 0.0, options.finger_mm)).norm()
-            > options.finger_mm + options::REACH_MARGIN_MM
-        {
-            flags.push("reach");
-        }
-        rows.push(Row {
-            step: k,
-            pressures_kpa: log.steps[k].pressures_kpa,
-            tip_mm: tip.into(),
-            n_frames: tips.len(),
-            spread_mm,
-            reproj_px: step_pairs
-                .iter()
-                .filter_map(|p| p.reproj_px)
-                .fold(0.0, f64::max),
-            dt_ms: step_pairs
-                .iter()
-                .map(|p| 1e3 * (p.left.time_s - p.right.time_s).abs())
-                .fold(0.0, f64::max),
-            extra: log.steps[k].extra.clone(),
-            flags,
-        });
-    }
-    summary.rows = rows.len();
-    summary.rows_flagged = rows.iter().filter(|r| !r.flags.is_empty()).count();
-    Ok(Triangulation {
-        rows,
-        pairs,
-        summary,
-        hand_from_left,
-        extra_columns: log.extra_columns.clone(),
-        options: options.clone(),
-    })
+    Ok(HandFromLeft::new(r_hand, -(r_hand * origin)))
 }
 
 /// The hand frame's axes from the calibration, or why it has none.

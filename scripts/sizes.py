@@ -1,0 +1,118 @@
+#!/usr/bin/env python3
+"""Sizes the code is held to: functions in src/ and core/src/ over 120 lines, files over 600
+(but the solver's), and the command line's folder (src/cli/) over 1400 lines.
+
+    python3 scripts/sizes.py          # lists what is over, exits 1 when anything is
+    python3 scripts/sizes.py --all    # every function of 60 lines or more, and every file's size
+
+A function is counted from its `fn` line to its closing brace, comments and blank lines
+included, as a reader sees it; tests (`#[cfg(test)] mod tests`) are left out of the functions.
+"""
+import pathlib
+import re
+import sys
+
+ROOT = pathlib.Path(__file__).resolve().parent.parent
+FUNCTION_LINES = 120
+FILE_LINES = 600
+CLI_LINES = 1400
+# The one file allowed over FILE_LINES: the exact solver.
+SOLVER = "core/src/model/msvr/irwls.rs"
+
+FN = re.compile(r"^\s*(pub(\([^)]*\))?\s+)?(const\s+)?(async\s+)?(unsafe\s+)?fn\s+(\w+)")
+
+
+def code_only(line, in_block_comment):
+    """The line without comments and string contents (enough to count braces)."""
+    out, i = [], 0
+    while i < len(line):
+        if in_block_comment:
+            end = line.find("*/", i)
+            if end < 0:
+                return "".join(out), True
+            i, in_block_comment = end + 2, False
+            continue
+        if line.startswith("//", i):
+            break
+        if line.startswith("/*", i):
+            in_block_comment, i = True, i + 2
+            continue
+        c = line[i]
+        if c == '"':
+            j = i + 1
+            while j < len(line) and line[j] != '"':
+                j += 2 if line[j] == "\\" else 1
+            i = j + 1
+            continue
+        if c == "'" and re.match(r"'(\\.|[^\\'])'", line[i:]):
+            i += len(re.match(r"'(\\.|[^\\'])'", line[i:]).group(0))
+            continue
+        out.append(c)
+        i += 1
+    return "".join(out), in_block_comment
+
+
+def functions(path):
+    """(name, first line, length) of every function outside test modules."""
+    lines = path.read_text().split("\n")
+    found, stack, depth, block, test_depth = [], [], 0, False, None
+    pending_test = False
+    for n, line in enumerate(lines, 1):
+        code, block = code_only(line, block)
+        if "#[cfg(test)]" in line:
+            pending_test = True
+        m = FN.match(code)
+        if m and test_depth is None:
+            stack.append((m.group(6), n, depth))
+        if pending_test and re.match(r"\s*(pub\s+)?mod\s+\w+\s*\{", code):
+            test_depth, pending_test = depth, False
+        for c in code:
+            if c == "{":
+                depth += 1
+            elif c == "}":
+                depth -= 1
+                if stack and depth == stack[-1][2]:
+                    name, start, _ = stack.pop()
+                    found.append((name, start, n - start + 1))
+                if test_depth is not None and depth == test_depth:
+                    test_depth = None
+        # A declaration without a body (a trait's) is not a function to count.
+        if stack and code.rstrip().endswith(";") and stack[-1][1] == n and depth == stack[-1][2]:
+            stack.pop()
+    return found
+
+
+def main():
+    every = "--all" in sys.argv
+    files = sorted(
+        p for d in ("src", "core/src") for p in (ROOT / d).rglob("*.rs")
+    )
+    over = 0
+    long_functions = []
+    for path in files:
+        rel = str(path.relative_to(ROOT))
+        for name, start, length in functions(path):
+            if length > FUNCTION_LINES or (every and length >= 60):
+                long_functions.append((length, f"{rel}:{start} {name}"))
+    long_functions.sort(reverse=True)
+    print(f"functions over {FUNCTION_LINES} lines:")
+    for length, where in long_functions:
+        mark = "" if length > FUNCTION_LINES else "  (under the limit)"
+        print(f"  {length:5d}  {where}{mark}")
+        over += length > FUNCTION_LINES
+    print(f"files over {FILE_LINES} lines (but {SOLVER}):")
+    for path in files:
+        rel = str(path.relative_to(ROOT))
+        n = len(path.read_text().split("\n")) - 1
+        if (n > FILE_LINES and rel != SOLVER) or every:
+            print(f"  {n:5d}  {rel}")
+            over += n > FILE_LINES and rel != SOLVER
+    cli = sum(len(p.read_text().split("\n")) - 1 for p in (ROOT / "src/cli").rglob("*.rs"))
+    print(f"src/cli/: {cli} lines (at most {CLI_LINES})")
+    over += cli > CLI_LINES
+    print(f"{over} over")
+    sys.exit(1 if over else 0)
+
+
+if __name__ == "__main__":
+    main()
