@@ -156,261 +156,17 @@ pub fn run(
     session: &Session,
 ) -> Result<DemoOutcome, PipelineError> {
     let started = Instant::now();
-    let plan = Plan::new(config.quick, config.seed);
     std::fs::create_dir_all(out).map_err(io_error(out))?;
-    let provenance = session.provenance(Some(config.seed));
-    let mut timings: Vec<(String, f64)> = Vec::new();
-    let mut clock = Instant::now();
-    // A stage's time, shown as it ends; recorded in `timings` by each stage before the
-    // report's (which ends after `summary.json` is written).
-    let mut lap = |name: &str| {
-        let seconds = clock.elapsed().as_secs_f64();
-        session.emit(Event::StageTime { name, seconds });
-        clock = Instant::now();
-        (name.to_string(), seconds)
-    };
-    let stage = |step: usize, text: String| session.emit(Event::Stage { step, of: 7, text });
-
-    // 1. The virtual capture.
-    let capture = out.join("capture");
-    stage(
-        1,
-        format!(
-            "synth: the virtual micro-hand filmed by two webcams → {}",
-            capture.display()
-        ),
-    );
-    let synth_config = SynthConfig {
-        seed: config.seed,
-        grid_step_kpa: plan.grid_step_kpa,
-        sweep_step_kpa: plan.sweep_step_kpa,
-        ..SynthConfig::default()
-    };
-    let capture_config = CaptureConfig {
-        views: plan.views,
-        window_s: plan.window_s,
-        format: config.format,
-        realism: config.realism,
-        ..CaptureConfig::default()
-    };
-    let synthesized = super::synth::run(&capture, &synth_config, Some(&capture_config), session)?;
-    if synthesized.capture.is_some_and(|c| c.interrupted) {
-        return Err(PipelineError::Interrupted(
-            "interrupted while rendering the capture; run the demo again".into(),
-        ));
-    }
-    timings.push(lap("synth"));
-
-    // 2. Calibration.
-    stage(
-        2,
-        format!("calibrate: {} chessboard pairs → calib.yml", plan.views),
-    );
-    let calib_dir = capture.join("calib");
-    let board = super::calibrate::board(&calib_dir, &Default::default(), session)?;
-    let calib_path = out.join("calib.yml");
-    let calibrated = super::calibrate::run(
-        &calib_dir,
-        &board,
-        &CalibOptions {
-            validate: true,
-            ..CalibOptions::default()
-        },
-        &calib_path,
-        session,
-    )?;
-    session.emit(Event::Calibrated(&calibrated));
-    let cal = &calibrated.calibration;
-    let truth = read_calibration(&capture.join("truth/rig.yml"))?;
-    let calibration = check_calibration(cal, &truth);
-    timings.push(lap("calibrate"));
-
-    // 3. Triangulation.
-    stage(
-        3,
-        "triangulate: the red tip in every frame pair → dataset".into(),
-    );
-    let triangulated = super::triangulate::run(
-        &capture.join("frames"),
-        &calib_path,
-        &capture.join("pressures.csv"),
-        &plan.triangulate,
-        &out.join("triangulated/dataset.csv"),
-        session,
-    )?;
-    session.emit(Event::Triangulated(&triangulated));
-    let tri = &triangulated.triangulation;
-    let triangulation = check_tips(tri, &capture.join("truth/tips.csv"))?;
-    for t in &triangulation {
-        session.emit(Event::Note(format!(
-            "      tip vs truth, {}: RMS {:.4} mm, max {:.4} mm over {} steps; mean error {:.4} mm",
-            t.phase,
-            t.rms_mm,
-            t.max_mm,
-            t.rows,
-            Vector3::from(t.mean_mm).norm()
-        )));
-    }
-    timings.push(lap("triangulate"));
-
-    // 4. Models: from the triangulated data (the pipeline) and from the plant's own data.
-    stage(
-        4,
-        "model: MSVR, (C, ε, σ) by the paper's ant colony on 5-fold CV, and the previous model"
-            .into(),
-    );
-    let tri_dir = out.join("triangulated");
-    let plant_tests = [capture.join("sweep_a.csv"), capture.join("sweep_b.csv")];
-    let (tri_train, plant_train) = (tri_dir.join("dataset_train.csv"), capture.join("train.csv"));
-    let (tri_coarse, plant_coarse) = match plan.search_grid_kpa {
-        Some(step) => (
-            Some(coarse_rows(
-                &tri_train,
-                step,
-                &out.join("search/triangulated_train.csv"),
-            )?),
-            Some(coarse_rows(
-                &plant_train,
-                step,
-                &out.join("search/plant_train.csv"),
-            )?),
-        ),
-        None => (None, None),
-    };
-    let images = fit::run(
-        &job(
-            &plan,
-            tri_train.clone(),
-            tri_coarse.clone(),
-            [
-                tri_dir.join("dataset_sweep_a.csv"),
-                tri_dir.join("dataset_sweep_b.csv"),
-            ]
-            .into_iter()
-            .chain(plant_tests.iter().cloned())
-            .collect(),
-            out.join("model.json"),
-            out.join("model"),
-        ),
-        session,
-    )?;
-    session.emit(Event::Fitted(&images));
-    let plant_data = fit::run(
-        &job(
-            &plan,
-            plant_train,
-            plant_coarse,
-            plant_tests.to_vec(),
-            out.join("model_plant.json"),
-            out.join("model_plant"),
-        ),
-        session,
-    )?;
-    let mut scores = scores_of("triangulated frames", &images);
-    scores.extend(scores_of("the plant's data", &plant_data));
-    let intervals = [
-        ("triangulated frames", &images),
-        ("the plant's data", &plant_data),
-    ]
-    .into_iter()
-    .filter_map(|(trained_on, outcome)| {
-        Some(IntervalCheck {
-            trained_on: trained_on.to_string(),
-            intervals: outcome.report.intervals.clone()?,
-        })
-    })
-    .collect();
-    timings.push(lap("model"));
-
-    // 5. Feed-forward: planned pressures run through the virtual plant.
-    stage(
-        5,
-        format!(
-            "inverse: pressures planned for {} reachable targets, run through the virtual plant",
-            plan.targets
-        ),
-    );
-    let plant = Plant::new(synth_config.plant.clone());
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(config.seed ^ 0x494e_5645);
-    let sources: Vec<Vec<f64>> = (0..plan.targets)
-        .map(|_| (0..3).map(|_| rng.random_range(0.0..=250.0)).collect())
-        .collect();
-    let file = ModelFile::load(&out.join("model.json"))?;
-    let model = &file.model;
-    let planned = feedforward(model.differentiable(), &plant, &sources)?;
-    super::inverse::write_feedforward(
-        &out.join("inverse_check.csv"),
-        model.differentiable(),
-        &planned,
-    )?;
-    let mut inverse = vec![inverse_stats(
-        &format!(
-            "MSVR from the triangulated frames ({} kPa grid)",
-            plan.grid_step_kpa
-        ),
-        &planned,
-        file.interval_radius(0.9).ok(),
-    )];
-    if let (Some(step), Some(coarse)) = (plan.search_grid_kpa, &tri_coarse) {
-        // The same check with the same parameters fitted on the coarse grid alone: what the
-        // training grid's spacing costs.
-        let data = data::read_dataset(coarse, &names(&HAND_INPUTS), &names(&HAND_OUTPUTS))?;
-        let sparse = model.spec().fit(&data)?;
-        inverse.push(inverse_stats(
-            &format!(
-                "MSVR from the triangulated frames, {step} kPa grid only ({} rows)",
-                data.rows()
-            ),
-            &feedforward(sparse.differentiable(), &plant, &sources)?,
-            None,
-        ));
-    }
-    for c in &inverse {
-        session.emit(Event::Note(format!(
-            "      {}: plant tip error mean {:.4} mm, median {:.4}, 90 % {:.4}, max {:.4} ({} of {} reached by the model)",
-            c.model, c.mean_mm, c.median_mm, c.p90_mm, c.max_mm, c.reached_by_model, c.targets
-        )));
-    }
-    timings.push(lap("inverse"));
-
-    // 6. The finger in motion.
-    stage(
-        6,
-        format!(
-            "dynamic: {} trials of {} s of random excitation, triangulated per frame, static against input history",
-            plan.dynamic.trials, plan.dynamic.duration_s
-        ),
-    );
-    let dynamic = super::demo_dynamic::run(
-        &out.join("dynamic"),
-        &synth_config,
-        &capture_config,
-        plan.dynamic.clone(),
-        plan.dynamic_budget,
-        &calib_path,
-        session,
-    )?;
-    session.emit(Event::Note(format!(
-        "      per-frame tip vs truth: RMS {:.4} mm over {} of {} frames; held-out trial {}: {}",
-        dynamic.tip_rms_mm,
-        dynamic.unflagged,
-        dynamic.rows,
-        dynamic.held_out,
-        dynamic
-            .scores
-            .iter()
-            .map(|s| format!(
-                "{} from {} {:.4} mm",
-                s.model, s.trained_on, s.errors.euclid
-            ))
-            .collect::<Vec<_>>()
-            .join(", ")
-    )));
-    timings.push(lap("dynamic"));
-
-    // 7. The report.
-    stage(7, "report".into());
-    timings.push(("total".into(), started.elapsed().as_secs_f64()));
+    let mut demo = Demo::new(out, config, session);
+    demo.synth()?;
+    let (calibrated, calibration) = demo.calibrate()?;
+    let (triangulated, triangulation) = demo.triangulate()?;
+    let (scores, intervals, coarse) = demo.models()?;
+    let (file, planned, inverse) = demo.inverse(coarse.as_deref())?;
+    let dynamic = demo.dynamic()?;
+    demo.stage(7, "report".into());
+    demo.timings
+        .push(("total".into(), started.elapsed().as_secs_f64()));
     let summary = Summary {
         seed: config.seed,
         quick: config.quick,
@@ -421,37 +177,381 @@ pub fn run(
         intervals,
         inverse,
         dynamic,
-        provenance,
+        provenance: session.provenance(Some(config.seed)),
     };
-    let summary_path = out.join("summary.json");
-    let json = serde_json::to_string_pretty(&summary).expect("the summary serialises") + "\n";
-    fsio::write_bytes(&summary_path, json.as_bytes()).map_err(io_error(&summary_path))?;
-    // The stage times apart: summary.json is the same bytes for the same seed.
-    let timings_path = out.join("timings.json");
-    let json = serde_json::to_string_pretty(&serde_json::json!({ "stages_s": timings }))
-        .expect("the timings serialise")
-        + "\n";
-    fsio::write_bytes(&timings_path, json.as_bytes()).map_err(io_error(&timings_path))?;
-    let index = out.join("report/index.html");
-    let report_dir = out.join("report");
-    std::fs::create_dir_all(&report_dir).map_err(io_error(&report_dir))?;
-    super::demo_report::page(
-        out,
+    let index = demo.report(
         &summary,
-        &timings,
-        tri,
-        cal,
-        file.search.as_ref(),
+        &triangulated.triangulation,
+        &calibrated.calibration,
+        &file,
         &planned,
-    )
-    .write(&index)
-    .map_err(io_error(&index))?;
-    lap("report");
+    )?;
+    demo.lap("report");
     Ok(DemoOutcome {
         summary,
-        timings,
+        timings: demo.timings,
         index,
     })
+}
+
+/// A run under way: where it writes, its sizes, and each stage's time so far.
+struct Demo<'a> {
+    out: &'a Path,
+    config: DemoConfig,
+    plan: Plan,
+    synth: SynthConfig,
+    capture: CaptureConfig,
+    session: &'a Session<'a>,
+    /// Each stage's seconds, as `timings.json` holds them (the report's comes after).
+    timings: Vec<(String, f64)>,
+    clock: Instant,
+}
+
+impl<'a> Demo<'a> {
+    fn new(out: &'a Path, config: DemoConfig, session: &'a Session<'a>) -> Self {
+        let plan = Plan::new(config.quick, config.seed);
+        let synth = SynthConfig {
+            seed: config.seed,
+            grid_step_kpa: plan.grid_step_kpa,
+            sweep_step_kpa: plan.sweep_step_kpa,
+            ..SynthConfig::default()
+        };
+        let capture = CaptureConfig {
+            views: plan.views,
+            window_s: plan.window_s,
+            format: config.format,
+            realism: config.realism,
+            ..CaptureConfig::default()
+        };
+        Demo {
+            out,
+            config,
+            plan,
+            synth,
+            capture,
+            session,
+            timings: Vec::new(),
+            clock: Instant::now(),
+        }
+    }
+
+    fn stage(&self, step: usize, text: String) {
+        self.session.emit(Event::Stage { step, of: 7, text });
+    }
+
+    /// A stage ended: its time shown and recorded.
+    fn lap(&mut self, name: &str) {
+        let seconds = self.clock.elapsed().as_secs_f64();
+        self.session.emit(Event::StageTime { name, seconds });
+        self.clock = Instant::now();
+        self.timings.push((name.to_string(), seconds));
+    }
+
+    fn note(&self, text: String) {
+        self.session.emit(Event::Note(text));
+    }
+
+    fn capture_dir(&self) -> PathBuf {
+        self.out.join("capture")
+    }
+
+    /// 1. The virtual capture.
+    fn synth(&mut self) -> Result<(), PipelineError> {
+        let capture = self.capture_dir();
+        self.stage(
+            1,
+            format!(
+                "synth: the virtual micro-hand filmed by two webcams → {}",
+                capture.display()
+            ),
+        );
+        let synthesized =
+            super::synth::run(&capture, &self.synth, Some(&self.capture), self.session)?;
+        if synthesized.capture.is_some_and(|c| c.interrupted) {
+            return Err(PipelineError::Interrupted(
+                "interrupted while rendering the capture; run the demo again".into(),
+            ));
+        }
+        self.lap("synth");
+        Ok(())
+    }
+
+    /// 2. Calibration, against the rig's truth.
+    fn calibrate(
+        &mut self,
+    ) -> Result<(super::calibrate::Calibrated, CalibrationCheck), PipelineError> {
+        self.stage(
+            2,
+            format!(
+                "calibrate: {} chessboard pairs → calib.yml",
+                self.plan.views
+            ),
+        );
+        let capture = self.capture_dir();
+        let calib_dir = capture.join("calib");
+        let board = super::calibrate::board(&calib_dir, &Default::default(), self.session)?;
+        let calibrated = super::calibrate::run(
+            &calib_dir,
+            &board,
+            &CalibOptions {
+                validate: true,
+                ..CalibOptions::default()
+            },
+            &self.out.join("calib.yml"),
+            self.session,
+        )?;
+        self.session.emit(Event::Calibrated(&calibrated));
+        let truth = read_calibration(&capture.join("truth/rig.yml"))?;
+        let check = check_calibration(&calibrated.calibration, &truth);
+        self.lap("calibrate");
+        Ok((calibrated, check))
+    }
+
+    /// 3. Triangulation, against the true tips.
+    fn triangulate(
+        &mut self,
+    ) -> Result<(super::triangulate::Triangulated, Vec<TipCheck>), PipelineError> {
+        self.stage(
+            3,
+            "triangulate: the red tip in every frame pair → dataset".into(),
+        );
+        let capture = self.capture_dir();
+        let triangulated = super::triangulate::run(
+            &capture.join("frames"),
+            &self.out.join("calib.yml"),
+            &capture.join("pressures.csv"),
+            &self.plan.triangulate,
+            &self.out.join("triangulated/dataset.csv"),
+            self.session,
+        )?;
+        self.session.emit(Event::Triangulated(&triangulated));
+        let checks = check_tips(&triangulated.triangulation, &capture.join("truth/tips.csv"))?;
+        for t in &checks {
+            self.note(format!(
+                "      tip vs truth, {}: RMS {:.4} mm, max {:.4} mm over {} steps; mean error {:.4} mm",
+                t.phase,
+                t.rms_mm,
+                t.max_mm,
+                t.rows,
+                Vector3::from(t.mean_mm).norm()
+            ));
+        }
+        self.lap("triangulate");
+        Ok((triangulated, checks))
+    }
+
+    /// 4. Models: from the triangulated data (the pipeline) and from the plant's own data.
+    /// Returns their scores, intervals and the coarse rows the search scored (if any).
+    fn models(
+        &mut self,
+    ) -> Result<(Vec<Score>, Vec<IntervalCheck>, Option<PathBuf>), PipelineError> {
+        self.stage(
+            4,
+            "model: MSVR, (C, ε, σ) by the paper's ant colony on 5-fold CV, and the previous model"
+                .into(),
+        );
+        let (out, plan, capture) = (self.out, &self.plan, self.capture_dir());
+        let tri_dir = out.join("triangulated");
+        let plant_tests = [capture.join("sweep_a.csv"), capture.join("sweep_b.csv")];
+        let (tri_train, plant_train) =
+            (tri_dir.join("dataset_train.csv"), capture.join("train.csv"));
+        let coarse = |from: &Path, name: &str| {
+            plan.search_grid_kpa
+                .map(|step| coarse_rows(from, step, &out.join("search").join(name)))
+                .transpose()
+        };
+        let tri_coarse = coarse(&tri_train, "triangulated_train.csv")?;
+        let plant_coarse = coarse(&plant_train, "plant_train.csv")?;
+        let tri_tests = [
+            tri_dir.join("dataset_sweep_a.csv"),
+            tri_dir.join("dataset_sweep_b.csv"),
+        ];
+        let images = fit::run(
+            &job(
+                plan,
+                tri_train,
+                tri_coarse.clone(),
+                tri_tests
+                    .into_iter()
+                    .chain(plant_tests.iter().cloned())
+                    .collect(),
+                out.join("model.json"),
+                out.join("model"),
+            ),
+            self.session,
+        )?;
+        self.session.emit(Event::Fitted(&images));
+        let plant_data = fit::run(
+            &job(
+                plan,
+                plant_train,
+                plant_coarse,
+                plant_tests.to_vec(),
+                out.join("model_plant.json"),
+                out.join("model_plant"),
+            ),
+            self.session,
+        )?;
+        let fitted = [
+            ("triangulated frames", &images),
+            ("the plant's data", &plant_data),
+        ];
+        let scores = fitted
+            .iter()
+            .flat_map(|(trained_on, outcome)| scores_of(trained_on, outcome))
+            .collect();
+        let intervals = fitted
+            .iter()
+            .filter_map(|(trained_on, outcome)| {
+                Some(IntervalCheck {
+                    trained_on: trained_on.to_string(),
+                    intervals: outcome.report.intervals.clone()?,
+                })
+            })
+            .collect();
+        self.lap("model");
+        Ok((scores, intervals, tri_coarse))
+    }
+
+    /// 5. Feed-forward: pressures planned for reachable targets, run through the virtual
+    /// plant; with a coarse grid, the same check of a model fitted on it alone.
+    fn inverse(
+        &mut self,
+        coarse: Option<&Path>,
+    ) -> Result<(ModelFile, Vec<PlannedTarget>, Vec<InverseCheck>), PipelineError> {
+        let plan = &self.plan;
+        self.stage(
+            5,
+            format!(
+                "inverse: pressures planned for {} reachable targets, run through the virtual plant",
+                plan.targets
+            ),
+        );
+        let plant = Plant::new(self.synth.plant.clone());
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(self.config.seed ^ 0x494e_5645);
+        let sources: Vec<Vec<f64>> = (0..plan.targets)
+            .map(|_| (0..3).map(|_| rng.random_range(0.0..=250.0)).collect())
+            .collect();
+        let file = ModelFile::load(&self.out.join("model.json"))?;
+        let model = &file.model;
+        let planned = feedforward(model.differentiable(), &plant, &sources)?;
+        super::inverse::write_feedforward(
+            &self.out.join("inverse_check.csv"),
+            model.differentiable(),
+            &planned,
+        )?;
+        let mut checks = vec![inverse_stats(
+            &format!(
+                "MSVR from the triangulated frames ({} kPa grid)",
+                plan.grid_step_kpa
+            ),
+            &planned,
+            file.interval_radius(0.9).ok(),
+        )];
+        if let (Some(step), Some(coarse)) = (plan.search_grid_kpa, coarse) {
+            // The same check with the same parameters fitted on the coarse grid alone: what the
+            // training grid's spacing costs.
+            let data = data::read_dataset(coarse, &names(&HAND_INPUTS), &names(&HAND_OUTPUTS))?;
+            let sparse = model.spec().fit(&data)?;
+            checks.push(inverse_stats(
+                &format!(
+                    "MSVR from the triangulated frames, {step} kPa grid only ({} rows)",
+                    data.rows()
+                ),
+                &feedforward(sparse.differentiable(), &plant, &sources)?,
+                None,
+            ));
+        }
+        for c in &checks {
+            self.note(format!(
+                "      {}: plant tip error mean {:.4} mm, median {:.4}, 90 % {:.4}, max {:.4} ({} of {} reached by the model)",
+                c.model, c.mean_mm, c.median_mm, c.p90_mm, c.max_mm, c.reached_by_model, c.targets
+            ));
+        }
+        self.lap("inverse");
+        Ok((file, planned, checks))
+    }
+
+    /// 6. The finger in motion.
+    fn dynamic(&mut self) -> Result<super::demo_dynamic::DynamicCheck, PipelineError> {
+        let plan = &self.plan;
+        self.stage(
+            6,
+            format!(
+                "dynamic: {} trials of {} s of random excitation, triangulated per frame, static against input history",
+                plan.dynamic.trials, plan.dynamic.duration_s
+            ),
+        );
+        let dynamic = super::demo_dynamic::run(
+            &self.out.join("dynamic"),
+            &self.synth,
+            &self.capture,
+            plan.dynamic.clone(),
+            plan.dynamic_budget,
+            &self.out.join("calib.yml"),
+            self.session,
+        )?;
+        let scores: Vec<String> = dynamic
+            .scores
+            .iter()
+            .map(|s| {
+                format!(
+                    "{} from {} {:.4} mm",
+                    s.model, s.trained_on, s.errors.euclid
+                )
+            })
+            .collect();
+        self.note(format!(
+            "      per-frame tip vs truth: RMS {:.4} mm over {} of {} frames; held-out trial {}: {}",
+            dynamic.tip_rms_mm,
+            dynamic.unflagged,
+            dynamic.rows,
+            dynamic.held_out,
+            scores.join(", ")
+        ));
+        self.lap("dynamic");
+        Ok(dynamic)
+    }
+
+    /// 7. `summary.json` (the same bytes for the same seed), `timings.json` (the stage times
+    /// apart) and the report's page; returns the page's path.
+    fn report(
+        &self,
+        summary: &Summary,
+        triangulation: &Triangulation,
+        calibration: &StereoCalibration,
+        file: &ModelFile,
+        planned: &[PlannedTarget],
+    ) -> Result<PathBuf, PipelineError> {
+        let write_json = |name: &str, json: String| {
+            let path = self.out.join(name);
+            fsio::write_bytes(&path, (json + "\n").as_bytes()).map_err(io_error(&path))
+        };
+        write_json(
+            "summary.json",
+            serde_json::to_string_pretty(summary).expect("the summary serialises"),
+        )?;
+        write_json(
+            "timings.json",
+            serde_json::to_string_pretty(&serde_json::json!({ "stages_s": self.timings }))
+                .expect("the timings serialise"),
+        )?;
+        let report_dir = self.out.join("report");
+        let index = report_dir.join("index.html");
+        std::fs::create_dir_all(&report_dir).map_err(io_error(&report_dir))?;
+        super::demo_report::page(
+            self.out,
+            summary,
+            &self.timings,
+            triangulation,
+            calibration,
+            file.search.as_ref(),
+            planned,
+        )
+        .write(&index)
+        .map_err(io_error(&index))?;
+        Ok(index)
+    }
 }
 
 fn job(
