@@ -161,7 +161,11 @@ pub fn run(
     demo.synth()?;
     let (calibrated, calibration) = demo.calibrate()?;
     let (triangulated, triangulation) = demo.triangulate()?;
-    let (scores, intervals, coarse) = demo.models()?;
+    let Models {
+        scores,
+        intervals,
+        coarse,
+    } = demo.models()?;
     let (file, planned, inverse) = demo.inverse(coarse.as_deref())?;
     let dynamic = demo.dynamic()?;
     demo.stage(7, "report".into());
@@ -192,6 +196,14 @@ pub fn run(
         timings: demo.timings,
         index,
     })
+}
+
+/// What step 4 fitted: the models' scores and intervals, and the coarse rows the search scored
+/// (if any).
+struct Models {
+    scores: Vec<Score>,
+    intervals: Vec<IntervalCheck>,
+    coarse: Option<PathBuf>,
 }
 
 /// A run under way: where it writes, its sizes, and each stage's time so far.
@@ -255,7 +267,7 @@ impl<'a> Demo<'a> {
         self.out.join("capture")
     }
 
-    /// 1. The virtual capture.
+    /// Step 1: the virtual capture.
     fn synth(&mut self) -> Result<(), PipelineError> {
         let capture = self.capture_dir();
         self.stage(
@@ -276,7 +288,7 @@ impl<'a> Demo<'a> {
         Ok(())
     }
 
-    /// 2. Calibration, against the rig's truth.
+    /// Step 2: calibration, against the rig's truth.
     fn calibrate(
         &mut self,
     ) -> Result<(super::calibrate::Calibrated, CalibrationCheck), PipelineError> {
@@ -307,7 +319,7 @@ impl<'a> Demo<'a> {
         Ok((calibrated, check))
     }
 
-    /// 3. Triangulation, against the true tips.
+    /// Step 3: triangulation, against the true tips.
     fn triangulate(
         &mut self,
     ) -> Result<(super::triangulate::Triangulated, Vec<TipCheck>), PipelineError> {
@@ -340,11 +352,8 @@ impl<'a> Demo<'a> {
         Ok((triangulated, checks))
     }
 
-    /// 4. Models: from the triangulated data (the pipeline) and from the plant's own data.
-    /// Returns their scores, intervals and the coarse rows the search scored (if any).
-    fn models(
-        &mut self,
-    ) -> Result<(Vec<Score>, Vec<IntervalCheck>, Option<PathBuf>), PipelineError> {
+    /// Step 4: models from the triangulated data (the pipeline) and from the plant's own data.
+    fn models(&mut self) -> Result<Models, PipelineError> {
         self.stage(
             4,
             "model: MSVR, (C, ε, σ) by the paper's ant colony on 5-fold CV, and the previous model"
@@ -410,10 +419,14 @@ impl<'a> Demo<'a> {
             })
             .collect();
         self.lap("model");
-        Ok((scores, intervals, tri_coarse))
+        Ok(Models {
+            scores,
+            intervals,
+            coarse: tri_coarse,
+        })
     }
 
-    /// 5. Feed-forward: pressures planned for reachable targets, run through the virtual
+    /// Step 5, feed-forward: pressures planned for reachable targets, run through the virtual
     /// plant; with a coarse grid, the same check of a model fitted on it alone.
     fn inverse(
         &mut self,
@@ -472,7 +485,7 @@ impl<'a> Demo<'a> {
         Ok((file, planned, checks))
     }
 
-    /// 6. The finger in motion.
+    /// Step 6: the finger in motion.
     fn dynamic(&mut self) -> Result<super::demo_dynamic::DynamicCheck, PipelineError> {
         let plan = &self.plan;
         self.stage(
@@ -513,7 +526,7 @@ impl<'a> Demo<'a> {
         Ok(dynamic)
     }
 
-    /// 7. `summary.json` (the same bytes for the same seed), `timings.json` (the stage times
+    /// Step 7: `summary.json` (the same bytes for the same seed), `timings.json` (the stage times
     /// apart) and the report's page; returns the page's path.
     fn report(
         &self,
