@@ -13,9 +13,9 @@
 
 use std::path::Path;
 
-use opencv::core::{self, Mat, Point2f, Ptr, Size, TermCriteria, Vector};
+use opencv::core::{self, Mat, Point2f, Size, TermCriteria, Vector};
 use opencv::prelude::*;
-use opencv::{aruco, calib3d, imgcodecs, imgproc};
+use opencv::{calib3d, imgcodecs, imgproc};
 
 use rayon::prelude::*;
 
@@ -39,15 +39,6 @@ impl Detector {
             Detector::Charuco => {
                 "ChArUco (detectMarkers + interpolateCornersCharuco + cornerSubPix)"
             }
-        }
-    }
-
-    /// The detector tried first on `board`: the only one for a ChArUco board.
-    pub fn first_for(board: &BoardSpec) -> Self {
-        if board.is_charuco() {
-            Detector::Charuco
-        } else {
-            Detector::SectorBased
         }
     }
 }
@@ -92,11 +83,7 @@ impl Seen {
     }
 }
 
-/// The fewest corners a ChArUco view is kept with.
-pub const MIN_CHARUCO_CORNERS: usize = 4;
-
-/// `board`'s corners in `gray` by `detector` (which must be [`Detector::Charuco`] for a
-/// ChArUco board and another for a chessboard); `None` when not found.
+/// `board`'s corners in `gray` by `detector` (one of its pattern's); `None` when not found.
 ///
 /// # Errors
 /// An OpenCV failure (not "board not found", which is `Ok(None)`).
@@ -105,78 +92,15 @@ pub fn find_board(
     board: &BoardSpec,
     detector: Detector,
 ) -> opencv::Result<Option<Seen>> {
-    match board.charuco()? {
-        Some(charuco) => find_charuco(gray, board, &charuco),
-        None => Ok(
-            find_corners(gray, board.cols as i32, board.rows as i32, detector)?.map(Seen::whole),
-        ),
-    }
-}
-
-/// A ChArUco board's corners in `gray`: its markers, the corners between them, each refined.
-fn find_charuco(
-    gray: &Mat,
-    board: &BoardSpec,
-    charuco: &Ptr<aruco::CharucoBoard>,
-) -> opencv::Result<Option<Seen>> {
-    let crate::calib::Pattern::Charuco {
-        marker_mm,
-        dictionary,
-    } = board.pattern
-    else {
-        return Ok(None);
-    };
-    let mut markers = Vector::<Vector<Point2f>>::new();
-    let mut marker_ids = Vector::<i32>::new();
-    let mut rejected = Vector::<Vector<Point2f>>::new();
-    aruco::detect_markers(
-        gray,
-        &dictionary.opencv()?,
-        &mut markers,
-        &mut marker_ids,
-        &aruco::DetectorParameters::create()?,
-        &mut rejected,
-    )?;
-    if marker_ids.len() < 2 {
-        return Ok(None);
-    }
-    let (mut corners, mut ids) = (Vector::<Point2f>::new(), Vector::<i32>::new());
-    aruco::interpolate_corners_charuco(
-        &markers,
-        &marker_ids,
-        gray,
-        charuco,
-        &mut corners,
-        &mut ids,
-        &core::no_array(),
-        &core::no_array(),
-        2,
-    )?;
-    if ids.len() < MIN_CHARUCO_CORNERS {
-        return Ok(None);
-    }
-    let mut seen: Vec<(usize, [f32; 2])> = ids
-        .iter()
-        .zip(corners.iter())
-        .map(|(id, p)| (id as usize, [p.x, p.y]))
-        .collect();
-    seen.sort_by_key(|s| s.0);
-    let mut seen = Seen {
-        ids: seen.iter().map(|s| s.0).collect(),
-        px: seen.iter().map(|s| s.1).collect(),
-    };
-    // OpenCV refines to 0.1 px; again, to 1e-4, in a window that holds no marker edge: the
-    // gap between a corner and the markers beside it is (square − marker) / 2.
-    let square_px = square_px(board, &seen);
-    let gap_px = square_px * (board.square_mm - marker_mm) / (2.0 * board.square_mm);
-    let half = (gap_px.floor() as i32 - 1).clamp(2, 5);
-    let mut refined: Vector<Point2f> = seen.px.iter().map(|p| Point2f::new(p[0], p[1])).collect();
-    seen.px = refine(gray, &mut refined, half)?;
-    Ok(Some(seen))
+    board.pattern.kind().find(board, gray, detector)
 }
 
 /// `corners` refined by `corner_sub_pix` to 1e-4 px in a window of `half` pixels each side.
-fn refine(gray: &Mat, corners: &mut Vector<Point2f>, half: i32) -> opencv::Result<Vec<[f32; 2]>> {
+pub(super) fn refine(
+    gray: &Mat,
+    corners: &mut Vector<Point2f>,
+    half: i32,
+) -> opencv::Result<Vec<[f32; 2]>> {
     let criteria = TermCriteria::new(core::TermCriteria_COUNT + core::TermCriteria_EPS, 50, 1e-4)?;
     imgproc::corner_sub_pix(
         gray,
@@ -189,7 +113,7 @@ fn refine(gray: &Mat, corners: &mut Vector<Point2f>, half: i32) -> opencv::Resul
 }
 
 /// The median distance (px) between seen corners that are neighbours on the board.
-fn square_px(board: &BoardSpec, seen: &Seen) -> f64 {
+pub(super) fn square_px(board: &BoardSpec, seen: &Seen) -> f64 {
     let mut steps: Vec<f64> = Vec::new();
     for (id, p) in seen.ids.iter().zip(&seen.px) {
         for next in board.neighbours(*id) {
@@ -327,46 +251,4 @@ pub(super) fn check_sizes(all: &[&ImagePair], found: &[Found]) -> Result<[i32; 2
         }
     }
     Ok(size)
-}
-
-/// Other board sizes that are found in the first few images, as a hint.
-pub(super) fn suggest_board(grays: &[Mat], board: &BoardSpec) -> String {
-    if let crate::calib::Pattern::Charuco { dictionary, .. } = board.pattern {
-        return format!(
-            "; no two {} markers side by side were found: check --dictionary and that the images show the board",
-            dictionary.name()
-        );
-    }
-    let (c, r) = (board.cols as i32, board.rows as i32);
-    let candidates = [
-        (r, c),
-        (c - 1, r - 1),
-        (c + 1, r + 1),
-        (c - 1, r),
-        (c + 1, r),
-        (c, r - 1),
-        (c, r + 1),
-    ];
-    for (cols, rows) in candidates {
-        if cols < 3 || rows < 3 || cols == rows {
-            continue;
-        }
-        let works = grays.iter().take(4).any(|g| {
-            matches!(
-                find_corners(g, cols, rows, Detector::SectorBased),
-                Ok(Some(_))
-            )
-        });
-        if works {
-            let why = if (cols, rows) == (r, c) {
-                "columns and rows swapped"
-            } else if (cols, rows) == (c - 1, r - 1) {
-                "squares counted instead of inner corners"
-            } else {
-                "a different count"
-            };
-            return format!("; a {cols}x{rows} board is found ({why}): pass --board {cols}x{rows}");
-        }
-    }
-    "; no nearby size (transposed, ±1) is found either: check the images show the whole board with a white border".into()
 }

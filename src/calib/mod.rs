@@ -48,9 +48,12 @@ pub mod uncertainty;
 pub mod validate;
 pub mod video;
 
-pub use board::{BoardFlags, BoardSpec, Dictionary, Layout, Marker, Pattern};
+pub use board::{
+    BoardFlags, BoardKeys, BoardPattern, BoardSpec, Charuco, Chessboard, Dictionary, Layout,
+    Marker, Pattern, MIN_CHARUCO_CORNERS,
+};
 use checks::{board_check, board_pose, epipolar_error, hand_axes, rectify};
-use detect::{check_sizes, read_all, suggest_board};
+use detect::{check_sizes, read_all};
 use fit::{bootstrap, single_camera, stereo, StereoFit};
 use pairs::too_few;
 
@@ -429,12 +432,14 @@ fn detect_boards(
             .filter(|p| p[0].1.is_some() && p[1].1.is_some())
             .count()
     };
-    let mut detector = Detector::first_for(board);
+    let mut detector = board.first_detector();
     let mut found = detect_all(detector)?;
-    // The classic detector is slow to fail (about a second a 720p image): when the first finds
-    // no board at all (a wrong --board, most often), it is first tried on a few images spread
-    // over the set, and on all of them only if it finds the board there.
-    let worth_classic = || -> Result<bool, CalibError> {
+    // A fallback (the classic chessboard detector) is slow to fail (about a second a 720p
+    // image): when the first finds no board at all (a wrong --board, most often), it is first
+    // tried on a few images spread over the set, and on all of them only if it finds the board
+    // there.
+    let fallback = board.pattern.kind().detectors().get(1).copied();
+    let worth = |fallback: Detector| -> Result<bool, CalibError> {
         if found.iter().any(|f| f.1.is_some()) {
             return Ok(true);
         }
@@ -442,15 +447,17 @@ fn detect_boards(
         let sample: Vec<&opencv::core::Mat> = grays.iter().step_by(step).collect();
         let seen = sample
             .par_iter()
-            .map(|gray| detect::find_board(gray, board, Detector::Classic))
+            .map(|gray| detect::find_board(gray, board, fallback))
             .collect::<opencv::Result<Vec<_>>>()?;
         Ok(seen.iter().any(Option::is_some))
     };
-    if complete(&found) < options.min_pairs && !board.is_charuco() && worth_classic()? {
-        let classic = detect_all(Detector::Classic)?;
-        if complete(&classic) > complete(&found) {
-            detector = Detector::Classic;
-            found = classic;
+    if let Some(fallback) = fallback {
+        if complete(&found) < options.min_pairs && worth(fallback)? {
+            let other = detect_all(fallback)?;
+            if complete(&other) > complete(&found) {
+                detector = fallback;
+                found = other;
+            }
         }
     }
     if found.iter().all(|f| f.1.is_none()) {
@@ -458,7 +465,7 @@ fn detect_boards(
             dir: dir.to_path_buf(),
             cols: board.cols,
             rows: board.rows,
-            hint: suggest_board(grays, board),
+            hint: board.pattern.kind().not_found_hint(board, grays),
         });
     }
     Ok((detector, found))

@@ -87,20 +87,16 @@ pub fn match_corners(
     left: &Seen,
     right: &Seen,
 ) -> Result<(PairCorners, Option<String>), String> {
-    if !board.is_charuco() {
-        return match order_right_like_left(board, &left.px, &right.px) {
-            Some((right, reversed)) => Ok((
-                PairCorners {
-                    report: 0,
-                    ids: left.ids.clone(),
-                    left: left.px.clone(),
-                    right,
-                },
-                reversed.then(|| "right corners reversed to match the left".into()),
-            )),
-            None => Err("corners run differently in the left and right images (mirrored?)".into()),
-        };
-    }
+    board.pattern.kind().match_pair(board, left, right)
+}
+
+/// The corners both images show by their ids (a board whose corners are known by what is
+/// printed beside them), with a note when not all are; refused when too few or in one line.
+pub(crate) fn by_ids(
+    board: &BoardSpec,
+    left: &Seen,
+    right: &Seen,
+) -> Result<(PairCorners, Option<String>), String> {
     let mut pair = PairCorners {
         report: 0,
         ids: Vec::new(),
@@ -148,7 +144,7 @@ fn collinear(board: &BoardSpec, ids: &[usize]) -> bool {
 /// The right image's corners in the left image's order: as detected, or reversed when they
 /// run the other way (first → last corner and along the first row). `None` when neither order
 /// agrees.
-fn order_right_like_left(
+pub(crate) fn order_right_like_left(
     board: &BoardSpec,
     left: &[[f32; 2]],
     right: &[[f32; 2]],
@@ -187,7 +183,7 @@ pub(super) fn too_few(reports: &[PairReport], found: usize, needed: usize) -> Ca
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::calib::{Dictionary, Pattern};
+    use crate::calib::{Charuco, Dictionary, Pattern};
 
     fn seen(ids: impl Iterator<Item = usize>) -> Seen {
         let ids: Vec<usize> = ids.collect();
@@ -201,10 +197,10 @@ mod tests {
             cols: 9,
             rows: 6,
             square_mm: 10.0,
-            pattern: Pattern::Charuco {
+            pattern: Pattern::Charuco(Charuco {
                 marker_mm: 7.5,
                 dictionary: Dictionary::DEFAULT,
-            },
+            }),
         };
         // Ids 10-29 on the left, 20-39 on the right: 20-29 in both, matched pixel to pixel.
         let (pair, note) = match_corners(&board, &seen(10..30), &seen(20..40)).unwrap();

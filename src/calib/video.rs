@@ -20,7 +20,7 @@ use opencv::imgproc;
 use opencv::prelude::*;
 use rayon::prelude::*;
 
-use super::detect::{find_board, Detector, Seen};
+use super::detect::{find_board, Seen};
 use super::{BoardSpec, CalibError};
 use crate::session::frames::FrameList;
 use crate::video::{Frame, VideoReader};
@@ -153,7 +153,7 @@ pub fn pick_pairs(
             numbers[k + 1][0] == numbers[k][0] + 1 && numbers[k + 1][1] == numbers[k][1] + 1
         })
         .collect();
-    let detector = Detector::first_for(board);
+    let detector = board.first_detector();
     let done = std::sync::atomic::AtomicUsize::new(0);
     let mut still: Vec<(usize, BothImages, [i32; 2])> = Vec::new();
     let mut seen = 0;

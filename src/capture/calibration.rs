@@ -10,7 +10,7 @@ use opencv::core::Vector;
 use opencv::prelude::*;
 
 use super::{motion, BoardPairs, CaptureError, Grabbed};
-use crate::calib::detect::{find_board, Detector, Seen};
+use crate::calib::detect::{find_board, Seen};
 use crate::calib::video::{footprint, new_place, STILL_PX};
 use crate::fsio;
 
@@ -44,7 +44,7 @@ fn corners(spec: &BoardPairs, bytes: &[u8]) -> Option<(Seen, [i32; 2])> {
         opencv::imgcodecs::IMREAD_GRAYSCALE,
     )
     .ok()?;
-    let found = find_board(&gray, &spec.board, Detector::first_for(&spec.board)).ok()??;
+    let found = find_board(&gray, &spec.board, spec.board.first_detector()).ok()??;
     Some((found, [gray.cols(), gray.rows()]))
 }
 

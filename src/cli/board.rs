@@ -64,11 +64,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             .map_err(|e| anyhow::anyhow!("writing {}: {e}", path.display()))?;
     }
     let [w, h] = print::page_mm(&board);
-    let sizes = if board.is_charuco() {
-        "square_mm and marker_mm"
-    } else {
-        "square_mm"
-    };
+    let sizes = board.pattern.kind().measured();
     println!(
         "wrote {} ({board}; {w:.0} × {h:.0} mm) and {}: print at 100 % (no fit to page), measure a square, correct {sizes} if the printer scaled them, and put the file in the calibration folder as board.yml",
         a.out.display(),

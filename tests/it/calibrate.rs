@@ -442,7 +442,7 @@ fn the_repository_calib_folder_stays_valid() {
 /// Each rule of a board description refuses its value with a line saying what to give.
 #[test]
 fn every_board_rule_is_checked() {
-    use handcap::calib::{BoardSpec, Dictionary, Layout, Pattern};
+    use handcap::calib::{BoardSpec, Charuco, Dictionary, Layout, Pattern};
     let board = BoardSpec::chessboard;
     let charuco = |squares: &str, square_mm, marker_mm, dictionary: &str| {
         let layout: Layout = squares.parse().unwrap();
@@ -450,10 +450,10 @@ fn every_board_rule_is_checked() {
             cols: layout.cols,
             rows: layout.rows,
             square_mm,
-            pattern: Pattern::Charuco {
+            pattern: Pattern::Charuco(Charuco {
                 marker_mm,
                 dictionary: dictionary.parse().unwrap(),
-            },
+            }),
         }
     };
     assert!(board(9, 6, 10.0).check().is_ok());

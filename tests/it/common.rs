@@ -390,10 +390,10 @@ pub fn charuco_board() -> handcap::calib::BoardSpec {
         cols: 9,
         rows: 6,
         square_mm: 10.0,
-        pattern: handcap::calib::Pattern::Charuco {
+        pattern: handcap::calib::Pattern::Charuco(handcap::calib::Charuco {
             marker_mm: 7.5,
             dictionary: handcap::calib::Dictionary::DEFAULT,
-        },
+        }),
     }
 }
 

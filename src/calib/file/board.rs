@@ -6,7 +6,7 @@ use opencv::core;
 use opencv::prelude::*;
 
 use super::reason;
-use crate::calib::{BoardSpec, CalibError, Dictionary, Pattern};
+use crate::calib::{BoardKeys, BoardSpec, CalibError, Pattern};
 use crate::opencv_yaml::FileStorage;
 
 /// The board description's file name inside a calibration directory.
@@ -35,24 +35,7 @@ pub fn read_board_text(text: &str) -> Result<BoardSpec, CalibError> {
 /// size and their dictionary.
 pub fn board_yaml(board: &BoardSpec) -> String {
     let mut fs = FileStorage::new();
-    match board.pattern {
-        Pattern::Chessboard => {
-            fs.int("inner_corners_cols", board.cols as i64)
-                .int("inner_corners_rows", board.rows as i64)
-                .real("square_mm", board.square_mm);
-        }
-        Pattern::Charuco {
-            marker_mm,
-            dictionary,
-        } => {
-            fs.string("pattern", "charuco")
-                .int("squares_x", board.cols as i64 + 1)
-                .int("squares_y", board.rows as i64 + 1)
-                .real("square_mm", board.square_mm)
-                .real("marker_mm", marker_mm)
-                .string("dictionary", dictionary.name());
-        }
-    }
+    board.pattern.kind().write_keys(board, &mut fs);
     fs.text().to_string()
 }
 
@@ -83,59 +66,39 @@ fn board_error(path: &Path, what: &str) -> CalibError {
 fn board_from(source: &str, mode: i32, path: &Path) -> Result<BoardSpec, CalibError> {
     let bad = |what: String| board_error(path, &what);
     let fs = core::FileStorage::new(source, mode, "").map_err(|e| bad(reason(&e)))?;
-    let number = |key: &str| -> Result<f64, CalibError> {
-        let node = fs.get(key).map_err(|e| bad(reason(&e)))?;
+    Pattern::read(&Keys(fs)).map_err(bad)
+}
+
+/// A board file's keys, read through OpenCV's FileStorage.
+struct Keys(core::FileStorage);
+
+impl BoardKeys for Keys {
+    fn number(&self, key: &str) -> Result<f64, String> {
+        let node = self.0.get(key).map_err(|e| reason(&e))?;
         if node.empty().unwrap_or(true)
             || !node.is_real().unwrap_or(false) && !node.is_int().unwrap_or(false)
         {
-            return Err(bad(format!("no number for {key}")));
+            return Err(format!("no number for {key}"));
         }
-        node.to_f64().map_err(|e| bad(reason(&e)))
-    };
-    let count = |key: &str| -> Result<usize, CalibError> {
-        let v = number(key)?;
+        node.to_f64().map_err(|e| reason(&e))
+    }
+
+    fn count(&self, key: &str) -> Result<usize, String> {
+        let v = self.number(key)?;
         if v.fract() != 0.0 || v < 0.0 {
-            return Err(bad(format!("{key} is {v}, not a whole number")));
+            return Err(format!("{key} is {v}, not a whole number"));
         }
         Ok(v as usize)
-    };
-    let text = |key: &str| -> Result<Option<String>, CalibError> {
-        let node = fs.get(key).map_err(|e| bad(reason(&e)))?;
+    }
+
+    fn text(&self, key: &str) -> Result<Option<String>, String> {
+        let node = self.0.get(key).map_err(|e| reason(&e))?;
         if node.empty().unwrap_or(true) {
             return Ok(None);
         }
         if !node.is_string().unwrap_or(false) {
-            return Err(bad(format!("{key} is not a text")));
+            return Err(format!("{key} is not a text"));
         }
-        node.to_string().map(Some).map_err(|e| bad(reason(&e)))
-    };
-    match text("pattern")?.as_deref() {
-        None | Some("chessboard") => Ok(BoardSpec::chessboard(
-            count("inner_corners_cols")?,
-            count("inner_corners_rows")?,
-            number("square_mm")?,
-        )),
-        Some("charuco") => {
-            let squares = |key: &str| -> Result<usize, CalibError> {
-                match count(key)? {
-                    0 => Err(bad(format!("{key} is 0"))),
-                    n => Ok(n - 1),
-                }
-            };
-            let dictionary = match text("dictionary")? {
-                Some(name) => name.parse::<Dictionary>().map_err(&bad)?,
-                None => return Err(bad("no dictionary (e.g. DICT_5X5_100)".into())),
-            };
-            Ok(BoardSpec {
-                cols: squares("squares_x")?,
-                rows: squares("squares_y")?,
-                square_mm: number("square_mm")?,
-                pattern: Pattern::Charuco {
-                    marker_mm: number("marker_mm")?,
-                    dictionary,
-                },
-            })
-        }
-        Some(other) => Err(bad(format!("pattern {other:?}: chessboard or charuco"))),
+        node.to_string().map(Some).map_err(|e| reason(&e))
     }
 }

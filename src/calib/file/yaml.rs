@@ -10,7 +10,7 @@ use super::{
     camera_matrix, distortion_coefficients, read_anipose_toml, read_calibration_json, reason,
     uncertainty_note, uncertainty_values, CalibrationFile,
 };
-use crate::calib::{KnownIntrinsics, PairReport, Pattern, StereoCalibration};
+use crate::calib::{KnownIntrinsics, PairReport, StereoCalibration};
 use crate::cv;
 use crate::geometry::{rotation_from_rows, rotation_rows, HandFromLeft, Intrinsics, RightFromLeft};
 use crate::opencv_yaml::FileStorage;
@@ -75,14 +75,7 @@ pub fn calibration_yaml(cal: &StereoCalibration, provenance: &Provenance) -> Str
         .real("board_planarity_rms_mm", cal.board_check.planarity_rms_mm)
         .real("baseline_mm", cal.rig.right_from_left.translation.norm());
     fs.string("board", &cal.board.layout().to_string());
-    if let Pattern::Charuco {
-        marker_mm,
-        dictionary,
-    } = cal.board.pattern
-    {
-        fs.real("marker_mm", marker_mm)
-            .string("dictionary", dictionary.name());
-    }
+    cal.board.pattern.kind().calibration_keys(&mut fs);
     for (key, rows, cols, data) in uncertainty_values(cal) {
         match data.as_slice() {
             [x] => fs.real(&key, *x),

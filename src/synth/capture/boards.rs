@@ -52,7 +52,7 @@ pub(super) fn board_poses(
         if boards.len() == c.views {
             break;
         }
-        let partial = c.board.is_charuco() && boards.len() % 2 == 1;
+        let partial = c.board.pattern.kind().seen_in_part() && boards.len() % 2 == 1;
         let distance = rng.random_range(110.0..230.0);
         let spread = distance * if partial { 0.6 } else { 0.35 };
         let side = Vector3::x();

@@ -1,21 +1,29 @@
-//! The printed calibration board: a chessboard or a ChArUco board, its corners, their ids and
-//! where they lie on it.
+//! The printed calibration board: its geometry as data, and what is printed in its squares
+//! behind one trait.
 //!
-//! Both kinds are described by their grid of inner corners (`cols × rows`, row by row) and the
-//! square's side. A corner's id is its index in that order: for a chessboard every corner is
-//! seen or none is; a ChArUco board (ArUco markers in its white squares, OpenCV's layout and
-//! corner ids) may be seen in part, and each corner is known by the markers beside it. The board
-//! frame's origin is the first inner corner, x along a row, y down the columns (mm).
+//! Every board is described by its grid of inner corners (`cols × rows`, row by row) and the
+//! square's side ([`BoardSpec`]). A corner's id is its index in that order; the board frame's
+//! origin is the first inner corner, x along a row, y down the columns (mm). What is printed
+//! in the squares ([`Pattern`]: a chessboard, or a ChArUco board's markers) decides how the
+//! board is found, how a pair's corners are matched, its file's keys and how it is drawn: the
+//! pattern's own file answers each ([`BoardPattern`]), and nothing else asks which it is. A new
+//! pattern is its own file, a variant of [`Pattern`] (with its `--board` prefix and file name
+//! in [`Pattern::read`] and [`Layout`]), and its test.
+
+mod charuco;
+mod chessboard;
 
 use std::fmt;
 use std::str::FromStr;
 
-use opencv::aruco;
-use opencv::core::{Mat, Point3f, Ptr, Vector};
-use opencv::prelude::*;
+use opencv::core::{Mat, Point3f, Vector};
 use serde::Serialize;
 
-use super::CalibError;
+use super::detect::{Detector, Seen};
+use super::{CalibError, PairCorners};
+use crate::opencv_yaml::FileStorage;
+pub use charuco::{Charuco, Dictionary, MIN_CHARUCO_CORNERS};
+pub use chessboard::Chessboard;
 
 /// The printed board: inner corners along a row and down a column, square size, pattern.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
@@ -26,17 +34,100 @@ pub struct BoardSpec {
     pub pattern: Pattern,
 }
 
-/// What is printed in the squares.
+/// What is printed in the squares: the registry of patterns.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 #[serde(rename_all = "kebab-case", tag = "kind")]
 pub enum Pattern {
     /// Black and white squares only: found whole or not at all.
-    Chessboard,
-    /// An ArUco marker of `dictionary` in each white square, `marker_mm` a side.
-    Charuco {
-        marker_mm: f64,
-        dictionary: Dictionary,
-    },
+    Chessboard(Chessboard),
+    /// An ArUco marker in each white square.
+    Charuco(Charuco),
+}
+
+impl Pattern {
+    /// What the pattern does.
+    pub fn kind(&self) -> &dyn BoardPattern {
+        match self {
+            Pattern::Chessboard(p) => p,
+            Pattern::Charuco(p) => p,
+        }
+    }
+
+    /// The board `keys` describe, by their `pattern` key (none: a chessboard).
+    ///
+    /// # Errors
+    /// What is missing or wrong, in words.
+    pub fn read(keys: &dyn BoardKeys) -> Result<BoardSpec, String> {
+        match keys.text("pattern")?.as_deref() {
+            None | Some("chessboard") => Chessboard::read(keys),
+            Some("charuco") => Charuco::read(keys),
+            Some(other) => Err(format!("pattern {other:?}: chessboard or charuco")),
+        }
+    }
+}
+
+/// A board file's keys, as a pattern reads them (each error says what is missing or wrong).
+pub trait BoardKeys {
+    fn number(&self, key: &str) -> Result<f64, String>;
+    /// A whole number ≥ 0.
+    fn count(&self, key: &str) -> Result<usize, String>;
+    /// A text, `None` when the key is absent.
+    fn text(&self, key: &str) -> Result<Option<String>, String>;
+}
+
+/// What a printed pattern does for its board. Every place that depends on what is printed in
+/// the squares asks it: calibration (detection, a pair's corners), the files, the printed
+/// SVG, the synthetic camera's rendering.
+pub trait BoardPattern {
+    /// Its own requirements on the board, beyond the grid's.
+    ///
+    /// # Errors
+    /// [`CalibError::BadBoard`] saying what to change.
+    fn check(&self, board: &BoardSpec) -> Result<(), CalibError>;
+    /// Whether the board is found in part (its corners known by what is printed beside them),
+    /// so that views may leave the image in part.
+    fn seen_in_part(&self) -> bool;
+    /// The detectors tried: the first on every image, a later one only when the first finds
+    /// too few pairs.
+    fn detectors(&self) -> &'static [Detector];
+    /// The board's corners in `gray` by `detector`, in ascending id; `None` when not found.
+    ///
+    /// # Errors
+    /// An OpenCV failure (not "board not found", which is `Ok(None)`).
+    fn find(
+        &self,
+        board: &BoardSpec,
+        gray: &Mat,
+        detector: Detector,
+    ) -> opencv::Result<Option<Seen>>;
+    /// The corners both images of a pair show, in one order, and a note; or why the pair
+    /// cannot be used.
+    ///
+    /// # Errors
+    /// The reason, in words.
+    fn match_pair(
+        &self,
+        board: &BoardSpec,
+        left: &Seen,
+        right: &Seen,
+    ) -> Result<(PairCorners, Option<String>), String>;
+    /// A hint when the board was found in no image (starting with "; ").
+    fn not_found_hint(&self, board: &BoardSpec, grays: &[Mat]) -> String;
+    /// What is printed besides the squares, in the board frame (for printing and rendering).
+    ///
+    /// # Errors
+    /// An OpenCV failure.
+    fn markers(&self, board: &BoardSpec) -> opencv::Result<Vec<Marker>>;
+    /// `board.yml`'s keys.
+    fn write_keys(&self, board: &BoardSpec, fs: &mut FileStorage);
+    /// The pattern's keys in a calibration file, beside the board's layout.
+    fn calibration_keys(&self, fs: &mut FileStorage);
+    /// The printed sizes a user measures and corrects (`square_mm`, `marker_mm`).
+    fn measured(&self) -> &'static str;
+    /// The board in words.
+    fn describe(&self, board: &BoardSpec) -> String;
+    /// The options that describe the board, its lengths written by `mm` (the print's caption).
+    fn options(&self, board: &BoardSpec, mm: &dyn Fn(f64) -> String) -> String;
 }
 
 /// `--board`: `9x6` (a chessboard's inner corners) or `charuco:10x7` (a ChArUco board's
@@ -95,80 +186,6 @@ impl fmt::Display for Layout {
     }
 }
 
-/// One of OpenCV's predefined ArUco dictionaries, by its name.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Dictionary(i32);
-
-/// OpenCV's predefined dictionaries (`cv::aruco::PREDEFINED_DICTIONARY_NAME`).
-const DICTIONARIES: [(&str, i32); 21] = [
-    ("DICT_4X4_50", aruco::DICT_4X4_50),
-    ("DICT_4X4_100", aruco::DICT_4X4_100),
-    ("DICT_4X4_250", aruco::DICT_4X4_250),
-    ("DICT_4X4_1000", aruco::DICT_4X4_1000),
-    ("DICT_5X5_50", aruco::DICT_5X5_50),
-    ("DICT_5X5_100", aruco::DICT_5X5_100),
-    ("DICT_5X5_250", aruco::DICT_5X5_250),
-    ("DICT_5X5_1000", aruco::DICT_5X5_1000),
-    ("DICT_6X6_50", aruco::DICT_6X6_50),
-    ("DICT_6X6_100", aruco::DICT_6X6_100),
-    ("DICT_6X6_250", aruco::DICT_6X6_250),
-    ("DICT_6X6_1000", aruco::DICT_6X6_1000),
-    ("DICT_7X7_50", aruco::DICT_7X7_50),
-    ("DICT_7X7_100", aruco::DICT_7X7_100),
-    ("DICT_7X7_250", aruco::DICT_7X7_250),
-    ("DICT_7X7_1000", aruco::DICT_7X7_1000),
-    ("DICT_ARUCO_ORIGINAL", aruco::DICT_ARUCO_ORIGINAL),
-    ("DICT_APRILTAG_16h5", aruco::DICT_APRILTAG_16h5),
-    ("DICT_APRILTAG_25h9", aruco::DICT_APRILTAG_25h9),
-    ("DICT_APRILTAG_36h10", aruco::DICT_APRILTAG_36h10),
-    ("DICT_APRILTAG_36h11", aruco::DICT_APRILTAG_36h11),
-];
-
-impl Dictionary {
-    /// Anipose's default, and the one `calib/charuco-10x7.svg` is printed with.
-    pub const DEFAULT: Dictionary = Dictionary(aruco::DICT_5X5_100);
-
-    pub fn name(self) -> &'static str {
-        DICTIONARIES
-            .iter()
-            .find(|d| d.1 == self.0)
-            .map(|d| d.0)
-            .expect("a predefined dictionary")
-    }
-
-    /// OpenCV's dictionary.
-    ///
-    /// # Errors
-    /// An OpenCV failure.
-    pub fn opencv(self) -> opencv::Result<Ptr<aruco::Dictionary>> {
-        aruco::get_predefined_dictionary_i32(self.0)
-    }
-}
-
-impl FromStr for Dictionary {
-    type Err = String;
-
-    fn from_str(s: &str) -> Result<Self, String> {
-        DICTIONARIES
-            .iter()
-            .find(|d| d.0.eq_ignore_ascii_case(s.trim()))
-            .map(|d| Dictionary(d.1))
-            .ok_or_else(|| {
-                let names: Vec<&str> = DICTIONARIES.iter().map(|d| d.0).collect();
-                format!(
-                    "unknown ArUco dictionary {s:?}; one of {}",
-                    names.join(", ")
-                )
-            })
-    }
-}
-
-impl Serialize for Dictionary {
-    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
-        s.serialize_str(self.name())
-    }
-}
-
 /// One ArUco marker of a ChArUco board: its square ((i, j) along a row and down a column; the
 /// square whose top-left corner is the first inner corner is (0, 0), so the board's squares run
 /// from (−1, −1)), its corners in the board frame (mm; top-left, top-right, bottom-right, bottom-left of the
@@ -188,21 +205,17 @@ impl BoardSpec {
             cols,
             rows,
             square_mm,
-            pattern: Pattern::Chessboard,
+            pattern: Pattern::Chessboard(Chessboard {}),
         }
     }
 
     /// What `--board` names this board by.
     pub fn layout(&self) -> Layout {
         Layout {
-            charuco: self.is_charuco(),
+            charuco: matches!(self.pattern, Pattern::Charuco(_)),
             cols: self.cols,
             rows: self.rows,
         }
-    }
-
-    pub fn is_charuco(&self) -> bool {
-        matches!(self.pattern, Pattern::Charuco { .. })
     }
 
     /// The number of inner corners.
@@ -222,43 +235,13 @@ impl BoardSpec {
                 self.cols, self.rows
             )));
         }
-        if self.cols == self.rows && !self.is_charuco() {
-            return Err(CalibError::BadBoard(format!(
-                "{layout}: a square chessboard has no orientation; use one with different counts (or a ChArUco board)"
-            )));
-        }
         if !(self.square_mm.is_finite() && self.square_mm > 0.0) {
             return Err(CalibError::BadBoard(format!(
                 "square size {} mm: give the printed square's side in mm",
                 self.square_mm
             )));
         }
-        if let Pattern::Charuco {
-            marker_mm,
-            dictionary,
-        } = self.pattern
-        {
-            if !(marker_mm.is_finite() && marker_mm > 0.0 && marker_mm < self.square_mm) {
-                return Err(CalibError::BadBoard(format!(
-                    "marker size {marker_mm} mm with {} mm squares: give the printed marker's side (--marker-mm), smaller than the square",
-                    self.square_mm
-                )));
-            }
-            let have = dictionary.opencv()?.bytes_list().rows() as usize;
-            let need = self.marker_count();
-            if need > have {
-                return Err(CalibError::BadBoard(format!(
-                    "{layout} has {need} markers but {} has only {have}: give a dictionary with more (e.g. --dictionary DICT_5X5_250) or use a smaller board",
-                    dictionary.name()
-                )));
-            }
-        }
-        Ok(())
-    }
-
-    /// A ChArUco board's markers: one in each white square.
-    fn marker_count(&self) -> usize {
-        (self.cols + 1) * (self.rows + 1) / 2
+        self.pattern.kind().check(self)
     }
 
     /// The centre of the inner corners, in the board's frame (mm).
@@ -305,76 +288,17 @@ impl BoardSpec {
         right.into_iter().chain(below)
     }
 
-    /// OpenCV's ChArUco board (its unit mm); `None` for a chessboard.
-    ///
-    /// # Errors
-    /// An OpenCV failure.
-    pub fn charuco(&self) -> opencv::Result<Option<Ptr<aruco::CharucoBoard>>> {
-        let Pattern::Charuco {
-            marker_mm,
-            dictionary,
-        } = self.pattern
-        else {
-            return Ok(None);
-        };
-        aruco::CharucoBoard::create(
-            (self.cols + 1) as i32,
-            (self.rows + 1) as i32,
-            self.square_mm as f32,
-            marker_mm as f32,
-            &dictionary.opencv()?,
-        )
-        .map(Some)
+    /// The detector every image is searched by first.
+    pub fn first_detector(&self) -> Detector {
+        self.pattern.kind().detectors()[0]
     }
 
-    /// A ChArUco board's markers where OpenCV places them (none for a chessboard), for
-    /// rendering and printing.
+    /// What is printed besides the squares, in the board frame (for printing and rendering).
     ///
     /// # Errors
     /// An OpenCV failure.
     pub fn markers(&self) -> opencv::Result<Vec<Marker>> {
-        let (Some(board), Pattern::Charuco { dictionary, .. }) = (self.charuco()?, self.pattern)
-        else {
-            return Ok(Vec::new());
-        };
-        let dictionary = dictionary.opencv()?;
-        let side = dictionary.marker_size() as usize + 2;
-        let s = self.square_mm;
-        let ids = board.ids();
-        board
-            .obj_points()
-            .iter()
-            .zip(ids.iter())
-            .map(|(points, id)| {
-                // OpenCV's board frame has its origin at the board's outer corner, one square
-                // before the first inner corner.
-                let corners: [[f64; 2]; 4] = std::array::from_fn(|k| {
-                    let p = points.get(k).expect("a marker has 4 corners");
-                    [f64::from(p.x) - s, f64::from(p.y) - s]
-                });
-                let centre = corners
-                    .iter()
-                    .fold([0.0; 2], |a, c| [a[0] + c[0] / 4.0, a[1] + c[1] / 4.0]);
-                let mut image = Mat::default();
-                aruco::draw_marker(&dictionary, id, side as i32, &mut image, 1)?;
-                let white = (0..side * side)
-                    .map(|k| {
-                        image
-                            .at_2d::<u8>((k / side) as i32, (k % side) as i32)
-                            .map(|v| *v > 127)
-                    })
-                    .collect::<opencv::Result<_>>()?;
-                Ok(Marker {
-                    square: (
-                        (centre[0] / s).floor() as i64,
-                        (centre[1] / s).floor() as i64,
-                    ),
-                    corners,
-                    side,
-                    white,
-                })
-            })
-            .collect()
+        self.pattern.kind().markers(self)
     }
 }
 
@@ -399,13 +323,10 @@ impl BoardFlags {
         let square_mm = self.square_mm.unwrap_or(base.square_mm);
         let pattern = if layout.charuco {
             let (base_marker, base_dictionary) = match base.pattern {
-                Pattern::Charuco {
-                    marker_mm,
-                    dictionary,
-                } => (Some(marker_mm), Some(dictionary)),
-                Pattern::Chessboard => (None, None),
+                Pattern::Charuco(c) => (Some(c.marker_mm), Some(c.dictionary)),
+                Pattern::Chessboard(_) => (None, None),
             };
-            Pattern::Charuco {
+            Pattern::Charuco(Charuco {
                 marker_mm: self.marker_mm.or(base_marker).ok_or_else(|| {
                     format!("--board {layout} needs --marker-mm, the printed marker's side (mm)")
                 })?,
@@ -413,14 +334,14 @@ impl BoardFlags {
                     .dictionary
                     .or(base_dictionary)
                     .unwrap_or(Dictionary::DEFAULT),
-            }
+            })
         } else {
             if self.marker_mm.is_some() || self.dictionary.is_some() {
                 return Err(format!(
                     "--marker-mm and --dictionary describe a ChArUco board, but the board is the chessboard {layout}: give --board charuco:SXxSY"
                 ));
             }
-            Pattern::Chessboard
+            Pattern::Chessboard(Chessboard {})
         };
         Ok(BoardSpec {
             cols: layout.cols,
@@ -438,15 +359,11 @@ impl BoardFlags {
         if let Some(s) = self.square_mm.filter(|&s| s != written.square_mm) {
             return Some(format!("--square-mm {s}"));
         }
-        if let Pattern::Charuco {
-            marker_mm,
-            dictionary,
-        } = written.pattern
-        {
-            if let Some(m) = self.marker_mm.filter(|&m| m != marker_mm) {
+        if let Pattern::Charuco(c) = written.pattern {
+            if let Some(m) = self.marker_mm.filter(|&m| m != c.marker_mm) {
                 return Some(format!("--marker-mm {m}"));
             }
-            if let Some(d) = self.dictionary.filter(|&d| d != dictionary) {
+            if let Some(d) = self.dictionary.filter(|&d| d != c.dictionary) {
                 return Some(format!("--dictionary {}", d.name()));
             }
         }
@@ -465,24 +382,6 @@ impl BoardFlags {
 
 impl fmt::Display for BoardSpec {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self.pattern {
-            Pattern::Chessboard => write!(
-                f,
-                "{}x{} inner corners, {} mm squares",
-                self.cols, self.rows, self.square_mm
-            ),
-            Pattern::Charuco {
-                marker_mm,
-                dictionary,
-            } => write!(
-                f,
-                "ChArUco {}x{} squares of {} mm, {} mm markers of {}",
-                self.cols + 1,
-                self.rows + 1,
-                self.square_mm,
-                marker_mm,
-                dictionary.name()
-            ),
-        }
+        f.write_str(&self.pattern.kind().describe(self))
     }
 }
