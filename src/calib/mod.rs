@@ -49,8 +49,8 @@ pub mod validate;
 pub mod video;
 
 pub use board::{
-    BoardFlags, BoardKeys, BoardPattern, BoardSpec, Charuco, Chessboard, Dictionary, Layout,
-    Marker, Pattern, MIN_CHARUCO_CORNERS,
+    BoardKeys, BoardPattern, BoardSpec, Charuco, Chessboard, Dictionary, Layout, Marker,
+    PartialBoard, Pattern, MIN_CHARUCO_CORNERS,
 };
 use checks::{board_check, board_pose, epipolar_error, hand_axes, rectify};
 use detect::{check_sizes, read_all};

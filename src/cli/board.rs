@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use crate::calib::{file, print, BoardFlags, Dictionary, Layout};
+use crate::calib::{file, print, Dictionary, Layout, PartialBoard};
 
 /// The printed board, as flags.
 #[derive(clap::Args, Clone, Debug, Default)]
@@ -25,8 +25,8 @@ pub struct BoardArgs {
 }
 
 impl BoardArgs {
-    pub fn flags(&self) -> BoardFlags {
-        BoardFlags {
+    pub fn flags(&self) -> PartialBoard {
+        PartialBoard {
             layout: self.board,
             square_mm: self.square_mm,
             marker_mm: self.marker_mm,
@@ -36,7 +36,7 @@ impl BoardArgs {
 
     /// Whether any board flag was given.
     pub fn any(&self) -> bool {
-        self.flags() != BoardFlags::default()
+        self.flags() != PartialBoard::default()
     }
 }
 

@@ -124,7 +124,7 @@ pub fn one_line(e: &anyhow::Error) -> String {
 
 /// The library's parameter names (`field=value`, as the Python estimator takes them) and the
 /// flags that set them here: the one place the command line maps them.
-const FLAGS: [(&str, &str); 18] = [
+const FLAGS: [(&str, &str); 22] = [
     ("c", "--c"),
     ("epsilon", "--epsilon"),
     ("sigma", "--sigma"),
@@ -143,6 +143,10 @@ const FLAGS: [(&str, &str); 18] = [
     ("gain", "--gain"),
     ("max_rate", "--max-rate"),
     ("smoothness", "--smoothness"),
+    ("board", "--board"),
+    ("square_mm", "--square-mm"),
+    ("marker_mm", "--marker-mm"),
+    ("dictionary", "--dictionary"),
 ];
 
 /// `text` with each `field=value` of [`FLAGS`] written as the flag (`basis=exact` →

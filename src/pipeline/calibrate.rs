@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 
 use super::outputs::{self, Output};
 use super::{io_error, PipelineError, Session, Task};
-use crate::calib::{self, file, BoardFlags, BoardSpec, CalibOptions, StereoCalibration};
+use crate::calib::{self, file, BoardSpec, CalibOptions, PartialBoard, StereoCalibration};
 use crate::fsio;
 
 /// What the stage did and wrote.
@@ -26,30 +26,30 @@ pub struct Calibrated {
 /// [`PipelineError::Request`] when a flag contradicts it, or the flags do not fit together.
 pub fn board(
     dir: &Path,
-    flags: &BoardFlags,
+    given: &PartialBoard,
     session: &Session,
 ) -> Result<BoardSpec, PipelineError> {
     let path = dir.join(file::BOARD_FILE);
     let base = if path.exists() {
         let written = file::read_board(&path)?;
-        if let Some(flag) = flags.contradiction(&written) {
+        if let Some(part) = given.contradiction(&written) {
             return Err(PipelineError::Request(format!(
-                "{flag} contradicts {} ({written}); correct the file or drop the flag",
+                "{part} contradicts {} ({written}); correct the file or drop the option",
                 path.display()
             )));
         }
         written
     } else {
         let b = file::default_board();
-        if !flags.complete() {
+        if !given.complete() {
             session.emit(super::Event::Note(format!(
-                "no {} and no --board/--square-mm: assuming the printed board of calib/board.yml ({b})",
+                "no {} and no board described: assuming the printed board of calib/board.yml ({b})",
                 path.display()
             )));
         }
         b
     };
-    flags.over(&base).map_err(PipelineError::Request)
+    given.over(&base).map_err(PipelineError::Request)
 }
 
 /// Calibrates from the pairs in `dir` and writes `out` (OpenCV YAML) and the figures beside it.

@@ -302,22 +302,22 @@ impl BoardSpec {
     }
 }
 
-/// What a command line says of the board (`--board`, `--square-mm`, `--marker-mm`,
-/// `--dictionary`); each `None` is taken from a board file.
+/// A board described in part (by a command line, a caller): each `None` is taken from a board
+/// file. Messages name the parts as `board=`, `square_mm=`, `marker_mm=`, `dictionary=`.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct BoardFlags {
+pub struct PartialBoard {
     pub layout: Option<Layout>,
     pub square_mm: Option<f64>,
     pub marker_mm: Option<f64>,
     pub dictionary: Option<Dictionary>,
 }
 
-impl BoardFlags {
-    /// The board the flags describe over `base` (a board file's, or the default one).
+impl PartialBoard {
+    /// The board these parts describe over `base` (a board file's, or the default one).
     ///
     /// # Errors
-    /// A usage message: marker flags for a chessboard, or a ChArUco board without its marker
-    /// size.
+    /// What does not fit: marker parts for a chessboard, or a ChArUco board without its
+    /// marker size.
     pub fn over(&self, base: &BoardSpec) -> Result<BoardSpec, String> {
         let layout = self.layout.unwrap_or(base.layout());
         let square_mm = self.square_mm.unwrap_or(base.square_mm);
@@ -328,7 +328,7 @@ impl BoardFlags {
             };
             Pattern::Charuco(Charuco {
                 marker_mm: self.marker_mm.or(base_marker).ok_or_else(|| {
-                    format!("--board {layout} needs --marker-mm, the printed marker's side (mm)")
+                    format!("board={layout} needs marker_mm=MM, the printed marker's side (mm)")
                 })?,
                 dictionary: self
                     .dictionary
@@ -338,7 +338,7 @@ impl BoardFlags {
         } else {
             if self.marker_mm.is_some() || self.dictionary.is_some() {
                 return Err(format!(
-                    "--marker-mm and --dictionary describe a ChArUco board, but the board is the chessboard {layout}: give --board charuco:SXxSY"
+                    "marker_mm=… and dictionary=… describe a ChArUco board, but the board is the chessboard {layout}: give board=charuco:SXxSY"
                 ));
             }
             Pattern::Chessboard(Chessboard {})
@@ -351,26 +351,26 @@ impl BoardFlags {
         })
     }
 
-    /// The first flag that says otherwise than `written` (a board file), as the user typed it.
+    /// The first part that says otherwise than `written` (a board file), as `name=value`.
     pub fn contradiction(&self, written: &BoardSpec) -> Option<String> {
         if let Some(l) = self.layout.filter(|&l| l != written.layout()) {
-            return Some(format!("--board {l}"));
+            return Some(format!("board={l}"));
         }
         if let Some(s) = self.square_mm.filter(|&s| s != written.square_mm) {
-            return Some(format!("--square-mm {s}"));
+            return Some(format!("square_mm={s}"));
         }
         if let Pattern::Charuco(c) = written.pattern {
             if let Some(m) = self.marker_mm.filter(|&m| m != c.marker_mm) {
-                return Some(format!("--marker-mm {m}"));
+                return Some(format!("marker_mm={m}"));
             }
             if let Some(d) = self.dictionary.filter(|&d| d != c.dictionary) {
-                return Some(format!("--dictionary {}", d.name()));
+                return Some(format!("dictionary={}", d.name()));
             }
         }
         None
     }
 
-    /// Whether the flags describe a board whole, without a file.
+    /// Whether the parts describe a board whole, without a file.
     pub fn complete(&self) -> bool {
         match self.layout {
             Some(l) if l.charuco => self.square_mm.is_some() && self.marker_mm.is_some(),
