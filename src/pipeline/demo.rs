@@ -19,31 +19,24 @@ use std::time::Instant;
 use nalgebra::Vector3;
 use rand::{Rng, SeedableRng};
 
+use super::demo_checks::{check_calibration, check_tips, feedforward, inverse_stats};
+use super::demo_plan::{job, Plan};
 use super::demo_summary::{
     CalibrationCheck, IntervalCheck, InverseCheck, Score, Summary, TipCheck,
 };
-use super::fit::{self, FitJob, FitOutcome, Selection};
+use super::fit::{self, FitOutcome};
 use super::{io_error, Event, PipelineError, Session};
-use crate::calib::file::{read_calibration, CalibrationFile};
+use crate::calib::file::read_calibration;
 use crate::calib::{CalibOptions, StereoCalibration};
 use crate::data::{self, names, HAND_INPUTS, HAND_OUTPUTS};
 use crate::fsio;
 use crate::model::file::ModelFile;
-use crate::model::history::HistoryChoice;
-use crate::model::inverse::{self, InverseOptions, PlannedTarget};
-use crate::model::msvr::fitness::FitnessKind;
-use crate::model::msvr::folds::FoldsBy;
-use crate::model::msvr::tune::BasisChoice;
-use crate::model::msvr::MsvrParams;
-use crate::model::Differentiable;
-use crate::search::aco_paper::AcoPaper;
-use crate::search::Method;
-use crate::session::protocol::DynamicDesign;
+use crate::model::inverse::PlannedTarget;
 use crate::synth::capture::{CaptureConfig, Realism};
 use crate::synth::image_format::ImageFormat;
 use crate::synth::plant::Plant;
 use crate::synth::SynthConfig;
-use crate::triangulate::{TriangulateOptions, Triangulation};
+use crate::triangulate::Triangulation;
 
 /// What to run.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -57,82 +50,6 @@ pub struct DemoConfig {
     pub format: ImageFormat,
     /// What the virtual lab adds to ideal frames.
     pub realism: Realism,
-}
-
-/// The sizes of a run.
-struct Plan {
-    views: usize,
-    grid_step_kpa: f64,
-    sweep_step_kpa: f64,
-    /// The search scores candidates on the grid points at this step only (none: all of them),
-    /// so that a dense grid keeps the search fast; the fit uses every row.
-    search_grid_kpa: Option<f64>,
-    /// Frames kept per step: stamped this far into it (s).
-    window_s: [f64; 2],
-    triangulate: TriangulateOptions,
-    aco: AcoPaper,
-    targets: usize,
-    /// The dynamic session (its seed the run's), and its model searches' candidate budget.
-    dynamic: DynamicDesign,
-    dynamic_budget: Option<usize>,
-}
-
-impl Plan {
-    fn new(quick: bool, seed: u64) -> Self {
-        let aco = AcoPaper {
-            seed,
-            ..AcoPaper::default()
-        };
-        if quick {
-            Plan {
-                views: 8,
-                grid_step_kpa: 125.0,
-                sweep_step_kpa: 50.0,
-                search_grid_kpa: None,
-                window_s: CaptureConfig::default().window_s,
-                triangulate: TriangulateOptions::default(),
-                aco: AcoPaper {
-                    ants: 8,
-                    max_iter: 6,
-                    ..aco
-                },
-                targets: 20,
-                dynamic: DynamicDesign {
-                    duration_s: 5.0,
-                    trials: 3,
-                    seed,
-                    ..DynamicDesign::default()
-                },
-                dynamic_budget: Some(40),
-            }
-        } else {
-            // A 25 kPa training grid (1331 steps): the 50 kPa grid of the paper leaves 0.18 mm of
-            // interpolation error between its levels, too much for feed-forward. One or two
-            // frames per camera and step (the finger holds still, so a pair may be up to 50 ms
-            // apart) keep the capture to about 3300 frames.
-            Plan {
-                views: 20,
-                grid_step_kpa: 25.0,
-                sweep_step_kpa: 10.0,
-                search_grid_kpa: Some(50.0),
-                window_s: [0.10, 0.14],
-                triangulate: TriangulateOptions {
-                    max_dt_s: 0.05,
-                    min_frames: 1,
-                    ..TriangulateOptions::default()
-                },
-                aco,
-                targets: 100,
-                dynamic: DynamicDesign {
-                    duration_s: 10.0,
-                    trials: 3,
-                    seed,
-                    ..DynamicDesign::default()
-                },
-                dynamic_budget: None,
-            }
-        }
-    }
 }
 
 /// What the demo did: the summary it wrote to `summary.json`.
@@ -567,39 +484,6 @@ impl<'a> Demo<'a> {
     }
 }
 
-fn job(
-    plan: &Plan,
-    data: PathBuf,
-    search_on: Option<PathBuf>,
-    tests: Vec<PathBuf>,
-    out: PathBuf,
-    report: PathBuf,
-) -> FitJob {
-    FitJob {
-        data,
-        inputs: names(&HAND_INPUTS),
-        outputs: names(&HAND_OUTPUTS),
-        params: MsvrParams::default(),
-        selection: Selection::Search {
-            method: Method::AcoPaper(plan.aco),
-            budget: None,
-            fitness: FitnessKind::Cv { folds: 5 },
-            folds_by: FoldsBy::Auto,
-            seed: plan.aco.seed,
-        },
-        search_on,
-        intervals: false,
-        tests,
-        out,
-        report: Some(report),
-        max_rows: None,
-        basis: BasisChoice::Auto,
-        time: None,
-        group: None,
-        history: HistoryChoice::None,
-    }
-}
-
 fn scores_of(trained_on: &str, outcome: &FitOutcome) -> Vec<Score> {
     outcome
         .report
@@ -622,131 +506,4 @@ fn coarse_rows(from: &Path, step_kpa: f64, to: &Path) -> Result<PathBuf, Pipelin
         pressures.iter().all(on_grid)
     })?;
     Ok(to.to_path_buf())
-}
-
-fn feedforward(
-    model: &dyn Differentiable,
-    plant: &Plant,
-    sources: &[Vec<f64>],
-) -> Result<Vec<PlannedTarget>, PipelineError> {
-    let options = InverseOptions::within_training_range(model, |_| Some((0.0, 250.0)));
-    Ok(inverse::feedforward_check(
-        model,
-        |p| plant.tip([p[0], p[1], p[2]]).ok().map(|t| t.to_vec()),
-        sources,
-        &options,
-    )?)
-}
-
-/// `radius`: the model's 90 % interval radius, whose coverage of the plant's tips around the
-/// model's is measured.
-fn inverse_stats(model: &str, rows: &[PlannedTarget], radius: Option<f64>) -> InverseCheck {
-    let mut e: Vec<f64> = rows.iter().map(|r| r.plant_error).collect();
-    let [median_mm, p90_mm, max_mm] =
-        crate::stats::quantiles(&mut e, [0.5, 0.9, 1.0]).expect("targets were planned");
-    InverseCheck {
-        model: model.to_string(),
-        targets: rows.len(),
-        reached_by_model: rows.iter().filter(|r| r.solution.reached).count(),
-        mean_mm: e.iter().sum::<f64>() / e.len() as f64,
-        median_mm,
-        p90_mm,
-        max_mm,
-        interval: radius.map(|r| {
-            let within = rows
-                .iter()
-                .filter(|t| {
-                    let d2: f64 = t
-                        .plant
-                        .iter()
-                        .zip(&t.solution.achieved)
-                        .map(|(a, b)| (a - b).powi(2))
-                        .sum();
-                    d2.sqrt() <= r
-                })
-                .count();
-            (r, within as f64 / rows.len() as f64)
-        }),
-    }
-}
-
-fn check_calibration(cal: &StereoCalibration, truth: &CalibrationFile) -> CalibrationCheck {
-    let t = &truth.rig;
-    let mut intrinsics = 0.0f64;
-    for (got, want) in [(&cal.rig.left.k, &t.left.k), (&cal.rig.right.k, &t.right.k)] {
-        for i in [0, 4, 2, 5] {
-            intrinsics = intrinsics.max(100.0 * ((got[i] - want[i]) / want[i]).abs());
-        }
-    }
-    let (got, want) = (&cal.rig.right_from_left, &t.right_from_left);
-    let (gt, tt) = (got.translation, want.translation);
-    CalibrationCheck {
-        pairs_used: cal.used().count(),
-        rms_px: cal.rms_px,
-        epipolar_px: cal.epipolar_px,
-        intrinsics_error_pct: intrinsics,
-        baseline_error_pct: 100.0 * (gt.norm() - tt.norm()).abs() / tt.norm(),
-        rotation_error_deg: (got.rotation.inverse() * want.rotation)
-            .angle()
-            .to_degrees(),
-        hand_axes_error_deg: cal
-            .hand_axes
-            .zip(truth.r_hand)
-            .map(|(g, w)| (g.inverse() * w).angle().to_degrees()),
-        baseline_sd_pct: cal
-            .uncertainty
-            .as_ref()
-            .map(|u| 100.0 * u.parameters.baseline_mm / gt.norm()),
-        tip_sd: cal.uncertainty.as_ref().map(|u| u.tip),
-        advice: cal.guidance.advice.clone(),
-        validation: cal.validation.clone(),
-    }
-}
-
-/// RMS and largest Euclidean error of the rows against `truth/tips.csv`, per phase and overall.
-fn check_tips(tri: &Triangulation, truth: &Path) -> Result<Vec<TipCheck>, PipelineError> {
-    let column = |name: &str| tri.extra_columns.iter().position(|c| c == name);
-    let (Some(step_col), Some(phase_col)) = (column("step"), column("phase")) else {
-        return Err(PipelineError::Check(
-            "the synthetic log has step and phase columns".into(),
-        ));
-    };
-    let truth_tips = data::read_columns(truth, &names(&["step", "x_mm", "y_mm", "z_mm"]))?;
-    let tips: std::collections::HashMap<u64, [f64; 3]> = truth_tips
-        .iter_rows()
-        .map(|r| (r[0] as u64, [r[1], r[2], r[3]]))
-        .collect();
-    let mut by_phase: Vec<(String, Vec<[f64; 3]>)> = Vec::new();
-    for row in tri.rows.iter().filter(|r| r.flags.is_empty()) {
-        let step = &row.extra[step_col];
-        let t = step
-            .parse::<u64>()
-            .ok()
-            .and_then(|k| tips.get(&k))
-            .ok_or_else(|| {
-                PipelineError::Check(format!("step {step} not in {}", truth.display()))
-            })?;
-        let e: [f64; 3] = std::array::from_fn(|k| row.tip_mm[k] - t[k]);
-        let phase = &row.extra[phase_col];
-        match by_phase.iter_mut().find(|(p, _)| p == phase) {
-            Some((_, v)) => v.push(e),
-            None => by_phase.push((phase.clone(), vec![e])),
-        }
-    }
-    let all: Vec<[f64; 3]> = by_phase.iter().flat_map(|(_, v)| v.clone()).collect();
-    by_phase.push(("all".into(), all));
-    Ok(by_phase
-        .into_iter()
-        .map(|(phase, errors)| {
-            let n = errors.len() as f64;
-            let size: Vec<f64> = errors.iter().map(|e| Vector3::from(*e).norm()).collect();
-            TipCheck {
-                rows: errors.len(),
-                rms_mm: (size.iter().map(|x| x * x).sum::<f64>() / n).sqrt(),
-                max_mm: size.iter().copied().fold(0.0, f64::max),
-                mean_mm: std::array::from_fn(|k| errors.iter().map(|e| e[k]).sum::<f64>() / n),
-                phase,
-            }
-        })
-        .collect())
 }

@@ -12,7 +12,9 @@
 
 pub mod calibrate;
 pub mod demo;
+mod demo_checks;
 pub mod demo_dynamic;
+mod demo_plan;
 mod demo_report;
 pub mod demo_summary;
 pub mod fit;

@@ -1,0 +1,153 @@
+//! The demo's checks against the virtual plant's truth: the calibration's parameters, each
+//! triangulated tip, the inverse's pressures run through the plant.
+
+use std::path::Path;
+
+use nalgebra::Vector3;
+
+use super::demo_summary::{CalibrationCheck, InverseCheck, TipCheck};
+use super::PipelineError;
+use crate::calib::file::CalibrationFile;
+use crate::calib::StereoCalibration;
+use crate::data::{self, names};
+use crate::model::inverse::{self, InverseOptions, PlannedTarget};
+use crate::model::Differentiable;
+use crate::synth::plant::Plant;
+use crate::triangulate::Triangulation;
+
+pub(super) fn feedforward(
+    model: &dyn Differentiable,
+    plant: &Plant,
+    sources: &[Vec<f64>],
+) -> Result<Vec<PlannedTarget>, PipelineError> {
+    let options = InverseOptions::within_training_range(model, |_| Some((0.0, 250.0)));
+    Ok(inverse::feedforward_check(
+        model,
+        |p| plant.tip([p[0], p[1], p[2]]).ok().map(|t| t.to_vec()),
+        sources,
+        &options,
+    )?)
+}
+
+/// `radius`: the model's 90 % interval radius, whose coverage of the plant's tips around the
+/// model's is measured.
+pub(super) fn inverse_stats(
+    model: &str,
+    rows: &[PlannedTarget],
+    radius: Option<f64>,
+) -> InverseCheck {
+    let mut e: Vec<f64> = rows.iter().map(|r| r.plant_error).collect();
+    let [median_mm, p90_mm, max_mm] =
+        crate::stats::quantiles(&mut e, [0.5, 0.9, 1.0]).expect("targets were planned");
+    InverseCheck {
+        model: model.to_string(),
+        targets: rows.len(),
+        reached_by_model: rows.iter().filter(|r| r.solution.reached).count(),
+        mean_mm: e.iter().sum::<f64>() / e.len() as f64,
+        median_mm,
+        p90_mm,
+        max_mm,
+        interval: radius.map(|r| {
+            let within = rows
+                .iter()
+                .filter(|t| {
+                    let d2: f64 = t
+                        .plant
+                        .iter()
+                        .zip(&t.solution.achieved)
+                        .map(|(a, b)| (a - b).powi(2))
+                        .sum();
+                    d2.sqrt() <= r
+                })
+                .count();
+            (r, within as f64 / rows.len() as f64)
+        }),
+    }
+}
+
+pub(super) fn check_calibration(
+    cal: &StereoCalibration,
+    truth: &CalibrationFile,
+) -> CalibrationCheck {
+    let t = &truth.rig;
+    let mut intrinsics = 0.0f64;
+    for (got, want) in [(&cal.rig.left.k, &t.left.k), (&cal.rig.right.k, &t.right.k)] {
+        for i in [0, 4, 2, 5] {
+            intrinsics = intrinsics.max(100.0 * ((got[i] - want[i]) / want[i]).abs());
+        }
+    }
+    let (got, want) = (&cal.rig.right_from_left, &t.right_from_left);
+    let (gt, tt) = (got.translation, want.translation);
+    CalibrationCheck {
+        pairs_used: cal.used().count(),
+        rms_px: cal.rms_px,
+        epipolar_px: cal.epipolar_px,
+        intrinsics_error_pct: intrinsics,
+        baseline_error_pct: 100.0 * (gt.norm() - tt.norm()).abs() / tt.norm(),
+        rotation_error_deg: (got.rotation.inverse() * want.rotation)
+            .angle()
+            .to_degrees(),
+        hand_axes_error_deg: cal
+            .hand_axes
+            .zip(truth.r_hand)
+            .map(|(g, w)| (g.inverse() * w).angle().to_degrees()),
+        baseline_sd_pct: cal
+            .uncertainty
+            .as_ref()
+            .map(|u| 100.0 * u.parameters.baseline_mm / gt.norm()),
+        tip_sd: cal.uncertainty.as_ref().map(|u| u.tip),
+        advice: cal.guidance.advice.clone(),
+        validation: cal.validation.clone(),
+    }
+}
+
+/// RMS and largest Euclidean error of the rows against `truth/tips.csv`, per phase and overall.
+pub(super) fn check_tips(
+    tri: &Triangulation,
+    truth: &Path,
+) -> Result<Vec<TipCheck>, PipelineError> {
+    let column = |name: &str| tri.extra_columns.iter().position(|c| c == name);
+    let (Some(step_col), Some(phase_col)) = (column("step"), column("phase")) else {
+        return Err(PipelineError::Check(
+            "the synthetic log has step and phase columns".into(),
+        ));
+    };
+    let truth_tips = data::read_columns(truth, &names(&["step", "x_mm", "y_mm", "z_mm"]))?;
+    let tips: std::collections::HashMap<u64, [f64; 3]> = truth_tips
+        .iter_rows()
+        .map(|r| (r[0] as u64, [r[1], r[2], r[3]]))
+        .collect();
+    let mut by_phase: Vec<(String, Vec<[f64; 3]>)> = Vec::new();
+    for row in tri.rows.iter().filter(|r| r.flags.is_empty()) {
+        let step = &row.extra[step_col];
+        let t = step
+            .parse::<u64>()
+            .ok()
+            .and_then(|k| tips.get(&k))
+            .ok_or_else(|| {
+                PipelineError::Check(format!("step {step} not in {}", truth.display()))
+            })?;
+        let e: [f64; 3] = std::array::from_fn(|k| row.tip_mm[k] - t[k]);
+        let phase = &row.extra[phase_col];
+        match by_phase.iter_mut().find(|(p, _)| p == phase) {
+            Some((_, v)) => v.push(e),
+            None => by_phase.push((phase.clone(), vec![e])),
+        }
+    }
+    let all: Vec<[f64; 3]> = by_phase.iter().flat_map(|(_, v)| v.clone()).collect();
+    by_phase.push(("all".into(), all));
+    Ok(by_phase
+        .into_iter()
+        .map(|(phase, errors)| {
+            let n = errors.len() as f64;
+            let size: Vec<f64> = errors.iter().map(|e| Vector3::from(*e).norm()).collect();
+            TipCheck {
+                rows: errors.len(),
+                rms_mm: (size.iter().map(|x| x * x).sum::<f64>() / n).sqrt(),
+                max_mm: size.iter().copied().fold(0.0, f64::max),
+                mean_mm: std::array::from_fn(|k| errors.iter().map(|e| e[k]).sum::<f64>() / n),
+                phase,
+            }
+        })
+        .collect())
+}
