@@ -1,0 +1,129 @@
+use super::*;
+
+fn history(memory: Memory) -> History {
+    History {
+        time: "t".into(),
+        group: Some("g".into()),
+        inputs: vec!["u".into()],
+        memory,
+    }
+}
+
+fn one_input(values: &[f64]) -> Columns {
+    Columns::new(vec!["u".into()], values.to_vec())
+}
+
+#[test]
+fn ema_by_hand_per_group_with_irregular_steps() {
+    let h = history(Memory::Ema { tau: vec![1.0] });
+    // Group 0: a step from 0 to 1 seen at t = 0, 1, 3; group 1 interleaved, held at 5.
+    let series = Series {
+        time: vec![0.0, 0.0, 1.0, 1.0, 3.0],
+        group: Some(vec![0.0, 1.0, 0.0, 1.0, 0.0]),
+    };
+    let f = h
+        .features(&one_input(&[0.0, 5.0, 1.0, 5.0, 1.0]), &series)
+        .unwrap();
+    assert_eq!(f.names, ["u", "u@ema1"]);
+    let e1 = 1.0 - (-1.0f64).exp();
+    let e3 = e1 + (1.0 - e1) * (1.0 - (-2.0f64).exp());
+    let expected = [0.0, 0.0, 5.0, 5.0, 1.0, e1, 5.0, 5.0, 1.0, e3];
+    for (v, e) in f.values.iter().zip(expected) {
+        assert!((v - e).abs() < 1e-15, "{:?}", f.values);
+    }
+}
+
+#[test]
+fn lags_start_at_the_first_row() {
+    let h = history(Memory::Lags { rows: 2 });
+    let series = Series {
+        time: vec![0.0, 1.0, 2.0, 3.0],
+        group: None,
+    };
+    let h = History { group: None, ..h };
+    let f = h
+        .features(&one_input(&[1.0, 2.0, 3.0, 4.0]), &series)
+        .unwrap();
+    assert_eq!(f.names, ["u", "u@lag1", "u@lag2"]);
+    assert_eq!(
+        f.values,
+        [1.0, 1.0, 1.0, 2.0, 1.0, 1.0, 3.0, 2.0, 1.0, 4.0, 3.0, 2.0]
+    );
+}
+
+#[test]
+fn time_must_increase_within_a_group() {
+    let series = Series {
+        time: vec![0.0, 1.0, 1.0],
+        group: Some(vec![3.0, 3.0, 3.0]),
+    };
+    let e = series.check().unwrap_err();
+    assert_eq!(e.row(), Some(2));
+    assert_eq!(
+        e.to_string(),
+        "time 1 repeats the previous row's 1 in group 3: rows must be in time order within each group"
+    );
+    // Another group may restart the clock.
+    let ok = Series {
+        time: vec![0.0, 1.0, 0.0],
+        group: Some(vec![3.0, 3.0, 4.0]),
+    };
+    assert_eq!(ok.check().unwrap().len(), 2);
+}
+
+#[test]
+fn short_groups_are_refused() {
+    let h = history(Memory::Lags { rows: 3 });
+    let series = Series {
+        time: vec![0.0, 1.0, 2.0, 0.0, 1.0, 2.0, 3.0],
+        group: Some(vec![1.0, 1.0, 1.0, 2.0, 2.0, 2.0, 2.0]),
+    };
+    let e = h
+        .features(&one_input(&[0.0, 1.0, 2.0, 0.0, 1.0, 2.0, 3.0]), &series)
+        .unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        "group 1: 3 rows, but lags:3 needs at least 4 per group"
+    );
+}
+
+#[test]
+fn time_constants_follow_the_sampling() {
+    let series = Series {
+        time: (0..200).map(|i| 0.05 * i as f64).collect(),
+        group: None,
+    };
+    // 0.5 × 0.05 = 0.025, then × 4; each ladder starting × 2 later; nothing longer than
+    // half the 9.95 s span.
+    assert_eq!(
+        series.time_constant_ladders().unwrap(),
+        [
+            vec![0.025, 0.1, 0.4],
+            vec![0.05, 0.2, 0.8],
+            vec![0.1, 0.4, 1.6],
+            vec![0.2, 0.8, 3.2],
+            vec![0.4, 1.6]
+        ]
+    );
+    let short = Series {
+        time: vec![0.0, 1.0, 2.0],
+        group: None,
+    };
+    // A 2 s span: constants up to 1 s.
+    assert_eq!(
+        short.time_constant_ladders().unwrap(),
+        [vec![0.5], vec![1.0]]
+    );
+}
+
+#[test]
+fn choices_parse() {
+    assert_eq!(
+        "ema:0.25,1,4".parse::<HistoryChoice>(),
+        Ok(HistoryChoice::Ema(vec![0.25, 1.0, 4.0]))
+    );
+    assert_eq!("lags:3".parse(), Ok(HistoryChoice::Lags(3)));
+    for bad in ["ema:", "ema:-1", "lags:0", "lag:2", "ema:1,x"] {
+        assert!(bad.parse::<HistoryChoice>().is_err(), "{bad}");
+    }
+}

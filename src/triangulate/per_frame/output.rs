@@ -1,0 +1,127 @@
+//! What `--per-frame` writes: the rows as CSV (all, and per phase), the summary; and the rows'
+//! errors against a truth.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use nalgebra::Vector3;
+
+use super::{FrameRow, PerFrame};
+use crate::data::{Csv, HAND_INPUTS, HAND_OUTPUTS};
+use crate::provenance::Provenance;
+use crate::session::pressures::{PressureLog, MEASURED_COLUMNS};
+use crate::triangulate::output::{beside, first_appearances, phase_path};
+use crate::triangulate::TriangulateError;
+
+impl PerFrame {
+    /// The rows as CSV: `time_s`, the log's other columns, the pressures in force, the tip,
+    /// `frame`, `reproj_px`, `flag`.
+    pub fn csv(&self, log: &PressureLog, keep: impl Fn(&FrameRow) -> bool) -> String {
+        let mut header = vec!["time_s".to_string()];
+        header.extend(log.extra_columns.iter().cloned());
+        header.extend(
+            HAND_INPUTS
+                .into_iter()
+                .chain(HAND_OUTPUTS)
+                .chain(["frame", "reproj_px", "flag"])
+                .map(String::from),
+        );
+        let mut csv = Csv::new(header);
+        let number = |v: Option<f64>| v.map_or_else(String::new, crate::data::format_number);
+        let measured: Option<Vec<usize>> = MEASURED_COLUMNS
+            .iter()
+            .map(|name| log.extra_columns.iter().position(|c| c == name))
+            .collect();
+        for r in self.rows.iter().filter(|r| keep(r)) {
+            let mut record = vec![format!("{:.6}", r.time_s)];
+            match r.step {
+                Some(k) => {
+                    let step = &log.steps[k];
+                    record.extend(step.extra.iter().cloned());
+                    // The pressures measured while the command held, where a streaming
+                    // regulator reported them; else the command's.
+                    let measured: Option<Vec<String>> = measured.as_ref().and_then(|cols| {
+                        let m: Vec<String> = cols.iter().map(|&c| step.extra[c].clone()).collect();
+                        m.iter().all(|v| !v.trim().is_empty()).then_some(m)
+                    });
+                    match measured {
+                        Some(m) => record.extend(m),
+                        None => record.extend(step.pressures_kpa.map(crate::data::format_number)),
+                    }
+                }
+                None => record.extend(std::iter::repeat_n(
+                    String::new(),
+                    log.extra_columns.len() + 3,
+                )),
+            }
+            let tip = r
+                .tip_mm
+                .filter(|_| r.flags.is_empty() || r.flags == ["reach"]);
+            record.extend((0..3).map(|c| number(tip.map(|t| t[c]))));
+            record.push(r.frame.to_string());
+            record.push(crate::data::format_fixed(r.reproj_px, 4));
+            record.push(r.flags.join(";"));
+            csv.row(record);
+        }
+        csv.into_string()
+    }
+
+    /// Writes `out` (every row), `OUT_<phase>.csv` per phase of the log, and
+    /// `OUT_summary.json`; returns the files written.
+    ///
+    /// # Errors
+    /// [`TriangulateError::Write`] naming the file.
+    pub fn write(
+        &self,
+        out: &Path,
+        log: &PressureLog,
+        provenance: &Provenance,
+    ) -> Result<Vec<PathBuf>, TriangulateError> {
+        let write = |path: &Path, text: &str| {
+            crate::fsio::write_bytes(path, text.as_bytes()).map_err(|e| TriangulateError::Write {
+                path: path.to_path_buf(),
+                message: e.to_string(),
+            })
+        };
+        let mut written = vec![out.to_path_buf()];
+        write(out, &self.csv(log, |_| true))?;
+        if let Some(col) = log.extra_columns.iter().position(|c| c == "phase") {
+            let phase_of = |r: &FrameRow| r.step.map(|k| log.steps[k].extra[col].as_str());
+            for phase in first_appearances(self.rows.iter().filter_map(phase_of)) {
+                let path = phase_path(out, phase);
+                write(&path, &self.csv(log, |r| phase_of(r) == Some(phase)))?;
+                written.push(path);
+            }
+        }
+        let path = beside(out, "_summary.json");
+        written.push(path.clone());
+        let json = serde_json::json!({
+            "per_frame": true,
+            "summary": self.summary,
+            "hand_from_left": {
+                "R_hand": self.hand_from_left.rotation_rows(),
+                "t_hand": self.hand_from_left.translation_array(),
+            },
+            "options": self.options,
+            "provenance": provenance,
+            "files": crate::fsio::file_names(&written),
+        });
+        write(
+            &path,
+            &(serde_json::to_string_pretty(&json).expect("serialisable") + "\n"),
+        )?;
+        Ok(written)
+    }
+}
+
+/// The rows' tips against a truth table with a `frame` column (the synth's
+/// `truth/per_frame.csv`): per matched unflagged row, the distance (mm).
+pub fn errors_against(rows: &[FrameRow], truth: &BTreeMap<usize, [f64; 3]>) -> Vec<f64> {
+    rows.iter()
+        .filter(|r| r.flags.is_empty())
+        .filter_map(|r| {
+            let (tip, want) = (r.tip_mm?, truth.get(&r.frame)?);
+            Some((Vector3::from(tip) - Vector3::from(*want)).norm())
+        })
+        .collect()
+}
