@@ -24,7 +24,44 @@ pub(super) fn page(
     search: Option<&SearchSummary>,
     planned: &[PlannedTarget],
 ) -> Page {
+    let report = Report {
+        out,
+        s,
+        timings,
+        tri,
+        cal,
+        search,
+        planned,
+    };
     let mut page = Page::new("handcap demo: the virtual micro-hand, end to end");
+    summary_section(&mut page, &report);
+    calibration_section(&mut page, &report);
+    detection_section(&mut page, &report);
+    triangulation_section(&mut page, &report);
+    aco_section(&mut page, &report);
+    sweeps_section(&mut page, &report);
+    errors_section(&mut page, &report);
+    intervals_section(&mut page, &report);
+    inverse_section(&mut page, &report);
+    dynamic_section(&mut page, &report);
+    manifest_section(&mut page, &report);
+    page
+}
+
+/// What the page is made of.
+struct Report<'a> {
+    out: &'a Path,
+    s: &'a Summary,
+    timings: &'a [(String, f64)],
+    tri: &'a Triangulation,
+    cal: &'a StereoCalibration,
+    search: Option<&'a SearchSummary>,
+    planned: &'a [PlannedTarget],
+}
+
+/// The page's "summary" section.
+fn summary_section(page: &mut Page, r: &Report) {
+    let (s, timings, tri, cal) = (r.s, r.timings, r.tri, r.cal);
     let c = &s.calibration;
     let all = s.triangulation.iter().find(|t| t.phase == "all");
     page.paragraph(&format!(
@@ -76,7 +113,12 @@ pub(super) fn page(
             vec!["total".into(), String::new(), timing(timings, "total")],
         ],
     );
+}
 
+/// The page's "calibration" section.
+fn calibration_section(page: &mut Page, r: &Report) {
+    let (out, s, cal) = (r.out, r.s, r.cal);
+    let c = &s.calibration;
     page.section("calibration", "Calibration")
         .paragraph(&format!(
             "{} chessboard pairs used. Reprojection RMS {:.3} px, mean epipolar distance {:.3} px; the boards triangulate back to {:.4} ± {:.4} squares, {:.3} mm off their plane. {} Against the true rig: focal lengths and principal points within {:.3} %, baseline within {:.3} %, rotation within {:.4}°, hand axes within {}.",
@@ -121,7 +163,11 @@ pub(super) fn page(
         })
         .figure(&out.join("calib_pairs.svg"), "Reprojection error of each chessboard pair (left and right image).")
         .figure(&out.join("calib_rectified.png"), "A pair rectified with the calibration: corresponding points lie on the same horizontal line.");
+}
 
+/// The page's "detection" section.
+fn detection_section(page: &mut Page, r: &Report) {
+    let (out, tri) = (r.out, r.tri);
     let f = &tri.summary.frames;
     page.section("detection", "Tip detection")
         .paragraph(&format!(
@@ -144,7 +190,12 @@ pub(super) fn page(
             tri.summary.latency.describe().join("; ")
         ))
         .figure(&out.join("triangulated/dataset_clock.svg"), "Right − left time of each frame pair over the session (unwrapped across frame periods) and the straight line of its drift.");
+}
 
+/// The page's "triangulation" section.
+fn triangulation_section(page: &mut Page, r: &Report) {
+    let (s, tri) = (r.s, r.tri);
+    let f = &tri.summary.frames;
     page.section("triangulation", "Triangulated tip against the truth")
         .paragraph(&format!(
             "Each row of the dataset is the median of a pressure step's frame pairs, in the hand frame (axes from the reference pair, origin from the zero-pressure steps). Error: Euclidean distance from the settled tip the virtual plant reports. The mean error is what every row shares: mostly the rest position's own error, since each tip is measured from it. {}",
@@ -170,7 +221,11 @@ pub(super) fn page(
                 vec![t.phase.clone(), t.rows.to_string(), f4(t.rms_mm), f4(t.max_mm), format!("{:+.4}, {:+.4}, {:+.4}", m[0], m[1], m[2])]
             }).collect::<Vec<_>>(),
         );
+}
 
+/// The page's "aco" section.
+fn aco_section(page: &mut Page, r: &Report) {
+    let (out, search) = (r.out, r.search);
     let m = out.join("model");
     page.section("aco", "ACO convergence (paper's Figures 7-8)")
         .paragraph("The paper's digit-encoded ant colony choosing (C, ε, σ), each ant scored by 5-fold cross-validated MAE on the triangulated training grid's 50 kPa points (the paper's 216 steps); the model is then fitted on every step of the grid.")
@@ -186,7 +241,12 @@ pub(super) fn page(
         )))
         .figure(&m.join("fig7_min_mae.svg"), "Figure 7: the best ant's error per iteration.")
         .figure(&m.join("fig8_mean_mae.svg"), "Figure 8: the mean error of the ants per iteration.");
+}
 
+/// The page's "sweeps" section.
+fn sweeps_section(page: &mut Page, r: &Report) {
+    let out = r.out;
+    let m = out.join("model");
     page.section("sweeps", "The two test sweeps (paper's Figures 9-14)")
         .paragraph("Held-out sweeps (never trained on): A, P1 = P2 = 0 with P3 from 0 to 250 kPa; B, P1 = 0 with P2 = P3 from 0 to 250 kPa. Points: triangulated tips; curves: MSVR and the previous physics model (default and calibrated constants).");
     for (sweep, name) in [
@@ -204,14 +264,22 @@ pub(super) fn page(
             &format!("{name}: each model's Euclidean tip error (mm, log scale)."),
         );
     }
+}
 
+/// The page's "errors" section.
+fn errors_section(page: &mut Page, r: &Report) {
+    let s = r.s;
     page.section("errors", "Held-out errors")
         .paragraph("MAE: mean over steps and coordinates of |measured − predicted| (the paper's measure); Euclidean: mean distance. Models trained on the triangulated frames and, for comparison, on the plant's own data (its exact tips with 0.02 mm noise); tested on the triangulated sweeps (dataset_*) and on the plant's sweeps.")
         .table(
             &["trained on", "model", "test", "MAE (mm)", "mean Euclidean (mm)", "max Euclidean (mm)"],
             &s.scores.iter().map(|x| vec![x.trained_on.clone(), x.model.clone(), x.test.clone(), f4(x.errors.mae), f4(x.errors.euclid), f4(x.errors.max_euclid)]).collect::<Vec<_>>(),
         );
+}
 
+/// The page's "intervals" section.
+fn intervals_section(page: &mut Page, r: &Report) {
+    let s = r.s;
     page.section("intervals", "Prediction intervals")
         .paragraph("Conformal radii of the tip's Euclidean error, from the training rows held out by the cross-validation's folds: the measured tip lies within the radius of the prediction that share of the time. The guarantee is marginal, over rows exchangeable with the held-out grid points, not for each input: the sweeps run along the edges of the pressure box (P1 = 0), where the model has neighbours on one side only, and with 24-26 rows each their coverage moves by about 6 points from chance alone.")
         .table(
@@ -227,7 +295,11 @@ pub(super) fn page(
                 ])
             }).collect::<Vec<_>>(),
         );
+}
 
+/// The page's "inverse" section.
+fn inverse_section(page: &mut Page, r: &Report) {
+    let (s, planned) = (r.s, r.planned);
     page.section("inverse", "Inverse model: feed-forward on the virtual plant")
         .paragraph("Targets: the plant's tip at random pressures in [0, 250] kPa (so each is reachable). The inverse model plans pressures for each target (bounded Levenberg-Marquardt on the MSVR with its analytic gradient, several starts); the virtual plant runs the planned pressures; the error is the distance of the plant's tip from the target — sensorless feed-forward, measured. It cannot be smaller than the forward model's own error at those pressures, which the training grid's spacing sets: the second row fits the same parameters to the 50 kPa points alone.")
         .table(
@@ -244,7 +316,11 @@ pub(super) fn page(
             ]).collect::<Vec<_>>(),
         )
         .paragraph("All targets: inverse_check.csv. The last column: the share of planned tips whose plant tip lies within the model's 90 % interval of the model's own tip there. The interval is calibrated on triangulated tips, so it cannot see what every triangulated row shares (the hand frame's origin, the triangulation table's mean error), nor the inverse's own error; against the plant's truth it covers less than its level.");
+}
 
+/// The page's "dynamic" section.
+fn dynamic_section(page: &mut Page, r: &Report) {
+    let (out, s) = (r.out, r.s);
     let d = &s.dynamic;
     page.section("dynamic", "The finger in motion: per-frame tips and input history")
         .paragraph(&format!(
@@ -271,7 +347,11 @@ pub(super) fn page(
             &format!("The held-out trial: the tip's {axis} against time, the truth at each frame's instant, the triangulated rows, and both models' predictions from the commanded pressures."),
         );
     }
+}
 
+/// The page's "manifest" section.
+fn manifest_section(page: &mut Page, r: &Report) {
+    let (s, timings) = (r.s, r.timings);
     page.section("manifest", "Run manifest")
         .table(
             &["item", "value"],
@@ -283,7 +363,6 @@ pub(super) fn page(
             ],
         )
         .paragraph("Files: capture/ (images, pressures.csv, truth/), calib.yml, triangulated/ (dataset and its diagnostics), search/ (the rows the search scored), model.json and model/ (report.md, metrics.csv, history.csv, figures), model_plant/, inverse_check.csv, summary.json (the same bytes for the same seed), timings.json (the stage times).");
-    page
 }
 
 fn triple(v: &[f64], digits: usize) -> String {
