@@ -81,9 +81,8 @@ pub(super) fn validate(
 ) -> Result<Option<Validation>, CalibError> {
     let Full {
         rig: full_rig,
-        uncertainty: full_uncertainty,
-        poses,
         base,
+        ..
     } = *full;
     let n = usable.len();
     if n < 2 * MIN_HALF {
@@ -142,7 +141,47 @@ pub(super) fn validate(
     let rms = |v: [f64; 3]| v.map(|s| (s / count.max(1) as f64).sqrt());
     let ratio = (seen.iter().sum::<f64>() / predicted.iter().sum::<f64>()).sqrt();
 
-    // The full calibration's deviation over the volume, against the distance from the boards.
+    let (map, base_distance_mm) = deviation_map(board, usable, full, &volume)?;
+
+    let mut warnings = Vec::new();
+    if ratio > 2.0 {
+        warnings.push(format!(
+            "the halves disagree {ratio:.1} × more than the stated deviations allow: they are too small (corner errors that are not independent, from JPEG or blur, or a lens the 5-coefficient model does not fit); take the bootstrap's (`--bootstrap 200`) or scale them by {ratio:.1}"
+        ));
+    }
+    let far = FAR_SQUARES * board.square_mm;
+    if base_distance_mm > far {
+        warnings.push(format!(
+            "the finger's base is {base_distance_mm:.0} mm from the nearest board corner the calibration saw (more than {FAR_SQUARES} squares): the lens model is extrapolated there; take pairs with the board where the finger works"
+        ));
+    }
+    Ok(Some(Validation {
+        splits: SPLITS,
+        half_pairs: [n - n / 2, n / 2],
+        disagreement_mm: rms(seen),
+        predicted_mm: rms(predicted),
+        ratio,
+        map,
+        base_distance_mm,
+        warnings,
+    }))
+}
+
+/// The full calibration's deviation of a tip (mm, its norm) at each point of `volume` against
+/// the point's distance from the nearest board corner the calibration saw (sorted by distance),
+/// and that distance for the finger's base.
+fn deviation_map(
+    board: &BoardSpec,
+    usable: &[PairCorners],
+    full: &Full,
+    volume: &[Vector3<f64>],
+) -> Result<(Vec<(f64, f64)>, f64), CalibError> {
+    let Full {
+        rig: full_rig,
+        uncertainty: full_uncertainty,
+        poses,
+        base,
+    } = *full;
     let corners: Vec<Vector3<f64>> = poses
         .iter()
         .zip(usable)
@@ -169,27 +208,5 @@ pub(super) fn validate(
         .collect::<Result<Vec<_>, CalibError>>()?;
     map.sort_by(|a, b| a.0.total_cmp(&b.0));
     let base_distance_mm = nearest(&base);
-
-    let mut warnings = Vec::new();
-    if ratio > 2.0 {
-        warnings.push(format!(
-            "the halves disagree {ratio:.1} × more than the stated deviations allow: they are too small (corner errors that are not independent, from JPEG or blur, or a lens the 5-coefficient model does not fit); take the bootstrap's (`--bootstrap 200`) or scale them by {ratio:.1}"
-        ));
-    }
-    let far = FAR_SQUARES * board.square_mm;
-    if base_distance_mm > far {
-        warnings.push(format!(
-            "the finger's base is {base_distance_mm:.0} mm from the nearest board corner the calibration saw (more than {FAR_SQUARES} squares): the lens model is extrapolated there; take pairs with the board where the finger works"
-        ));
-    }
-    Ok(Some(Validation {
-        splits: SPLITS,
-        half_pairs: [n - n / 2, n / 2],
-        disagreement_mm: rms(seen),
-        predicted_mm: rms(predicted),
-        ratio,
-        map,
-        base_distance_mm,
-        warnings,
-    }))
+    Ok((map, base_distance_mm))
 }

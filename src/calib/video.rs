@@ -126,6 +126,25 @@ pub(crate) fn new_place(f: &[f64; 6], picked: &[[f64; 6]]) -> bool {
     })
 }
 
+/// Diverse pairs among the still ones (the board somewhere new in each), in time order: at most
+/// `max_pairs` of their numbers.
+fn diverse(
+    board: &BoardSpec,
+    still: &[(usize, BothImages, [i32; 2])],
+    max_pairs: usize,
+) -> Vec<usize> {
+    let mut places: Vec<[f64; 6]> = Vec::new();
+    let mut picked = Vec::new();
+    for (k, corners, size) in still {
+        let place = footprint(board, &corners[0], *size);
+        if picked.len() < max_pairs && new_place(&place, &places) {
+            places.push(place);
+            picked.push(*k);
+        }
+    }
+    picked
+}
+
 /// Picks still, diverse board pairs from the videos of `dir` and writes them into `out_dir`
 /// (module docs); `progress(done, total)` counts pairs searched.
 ///
@@ -208,16 +227,7 @@ pub fn pick_pairs(
     }
     drop(videos);
 
-    // Diverse ones among the still pairs, in time order.
-    let mut places: Vec<[f64; 6]> = Vec::new();
-    let mut picked = Vec::new();
-    for (k, corners, size) in &still {
-        let place = footprint(board, &corners[0], *size);
-        if picked.len() < max_pairs && new_place(&place, &places) {
-            places.push(place);
-            picked.push(*k);
-        }
-    }
+    let picked = diverse(board, &still, max_pairs);
     if picked.is_empty() {
         return Err(CalibError::NoVideoPairs {
             left: left_path,

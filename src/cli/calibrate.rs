@@ -196,29 +196,34 @@ pub fn print_summary(done: &Calibrated) {
         c.board_check.planarity_rms_mm
     );
     if let Some(v) = &c.validation {
-        let axes = |v: [f64; 3]| format!("{:.4}/{:.4}/{:.4}", v[0], v[1], v[2]);
-        println!(
-            "validation ({} splits into halves of {}/{} pairs): the halves' tips disagree by {} mm RMS (x/y/depth) over ±{} mm around the finger, their covariances predict {} mm: ratio {:.2} (about 1 when the stated deviations are honest)",
-            v.splits,
-            v.half_pairs[0],
-            v.half_pairs[1],
-            axes(v.disagreement_mm),
-            validate::VOLUME_MM,
-            axes(v.predicted_mm),
-            v.ratio
-        );
-        if let (Some(near), Some(far)) = (v.map.first(), v.map.last()) {
-            println!(
-                "  tip position sd {:.4} mm {:.0} mm from the nearest board corner seen, {:.4} mm at {:.0} mm; the finger's base is {:.0} mm from one",
-                near.1, near.0, far.1, far.0, v.base_distance_mm
-            );
-        }
-        for w in &v.warnings {
-            println!("  warning: {w}");
-        }
+        print_validation(v);
     }
     println!("hand axes: {}", c.hand_axes_note);
     for a in &g.advice {
         println!("advice: {a}");
+    }
+}
+
+/// `--validate`'s check of the stated deviations against two halves of the pairs.
+fn print_validation(v: &validate::Validation) {
+    let axes = |v: [f64; 3]| format!("{:.4}/{:.4}/{:.4}", v[0], v[1], v[2]);
+    println!(
+        "validation ({} splits into halves of {}/{} pairs): the halves' tips disagree by {} mm RMS (x/y/depth) over ±{} mm around the finger, their covariances predict {} mm: ratio {:.2} (about 1 when the stated deviations are honest)",
+        v.splits,
+        v.half_pairs[0],
+        v.half_pairs[1],
+        axes(v.disagreement_mm),
+        validate::VOLUME_MM,
+        axes(v.predicted_mm),
+        v.ratio
+    );
+    if let (Some(near), Some(far)) = (v.map.first(), v.map.last()) {
+        println!(
+            "  tip position sd {:.4} mm {:.0} mm from the nearest board corner seen, {:.4} mm at {:.0} mm; the finger's base is {:.0} mm from one",
+            near.1, near.0, far.1, far.0, v.base_distance_mm
+        );
+    }
+    for w in &v.warnings {
+        println!("  warning: {w}");
     }
 }

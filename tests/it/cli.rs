@@ -3,7 +3,8 @@
 use std::path::Path;
 
 use crate::common::{
-    handcap, handcap_err, handcap_ok, handcap_usage, read_json, real_time, tempdir, write,
+    handcap, handcap_err, handcap_ok, handcap_signalled, handcap_usage, read_json, real_time,
+    tempdir, write,
 };
 
 fn synth(dir: &Path, out: &str, seed: &str) {
@@ -535,43 +536,21 @@ fn searches_write_history_and_are_deterministic() {
 
 #[test]
 fn ctrl_c_ends_the_search_and_keeps_the_best_model() {
-    use std::io::BufRead;
     let _cores = real_time();
     let dir = tempdir();
     let d = dir.path();
     synth(d, "data", "1");
-    // `handcap model` interrupted once its stdout has said `line`: (stdout, the process's end).
-    let interrupted_after = |line: &str| {
-        let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_handcap"))
-            .args([
-                "model",
-                "data/train.csv",
-                "--max-iter",
-                "10000",
-                "--out",
-                "m.json",
-                "--report",
-                "rep",
-            ])
-            .current_dir(d)
-            .stdout(std::process::Stdio::piped())
-            .stderr(std::process::Stdio::piped())
-            .spawn()
-            .unwrap();
-        let mut lines = std::io::BufReader::new(child.stdout.take().unwrap()).lines();
-        let mut stdout: String = lines
-            .by_ref()
-            .map_while(Result::ok)
-            .take_while(|l| !l.starts_with(line))
-            .map(|l| l + "\n")
-            .collect();
-        // SAFETY: a signal to our own child.
-        unsafe {
-            libc::kill(child.id() as i32, libc::SIGINT);
-        }
-        stdout.extend(lines.map_while(Result::ok).map(|l| l + "\n"));
-        (stdout, child.wait_with_output().unwrap())
-    };
+    let model = [
+        "model",
+        "data/train.csv",
+        "--max-iter",
+        "10000",
+        "--out",
+        "m.json",
+        "--report",
+        "rep",
+    ];
+    let interrupted_after = |line: &str| handcap_signalled(d, &model, line, libc::SIGINT);
     // As the search starts (the folds' line): interrupted, with the first iteration's best
     // when it ended, or with nothing written when no candidate was scored yet; never an error.
     let (_, out) = interrupted_after("folds:");
@@ -607,7 +586,6 @@ fn ctrl_c_ends_the_search_and_keeps_the_best_model() {
 /// fit at once, exit 130, with nothing written; before, the fit ran on to its end.
 #[test]
 fn sigterm_ends_a_long_fit_at_once_with_nothing_written() {
-    use std::io::BufRead;
     let _cores = real_time();
     let dir = tempdir();
     let d = dir.path();
@@ -626,27 +604,12 @@ fn sigterm_ends_a_long_fit_at_once_with_nothing_written() {
         text += &format!("{},{},{},{},{},{}\n", p[0], p[1], p[2], y[0], y[1], y[2]);
     }
     write(d, "big.csv", &text);
-    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_handcap"))
-        .args([
-            "model", "big.csv", "--search", "none", "--basis", "exact", "--out", "m.json",
-        ])
-        .current_dir(d)
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
     // The basis line comes before the fits (intervals, then the model): about 6 s of work.
-    let mut lines = std::io::BufReader::new(child.stdout.take().unwrap()).lines();
-    let ready = lines
-        .by_ref()
-        .map_while(Result::ok)
-        .any(|l| l.starts_with("basis:"));
-    assert!(ready, "no basis line");
-    // SAFETY: a signal to our own child.
-    unsafe {
-        libc::kill(child.id() as i32, libc::SIGTERM);
-    }
-    let out = child.wait_with_output().unwrap();
+    let args = [
+        "model", "big.csv", "--search", "none", "--basis", "exact", "--out", "m.json",
+    ];
+    let (stdout, out) = handcap_signalled(d, &args, "basis:", libc::SIGTERM);
+    assert!(stdout.contains("basis:"), "no basis line: {stdout}");
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(130), "{err}");
     assert!(

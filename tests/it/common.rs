@@ -51,6 +51,34 @@ pub fn handcap(dir: &Path, args: &[&str]) -> Output {
         .expect("run handcap")
 }
 
+/// Runs `handcap` in `dir` and sends it `signal` once its stdout has a line starting with
+/// `ready` (at its end when none does): (its whole stdout, the process's end).
+pub fn handcap_signalled(dir: &Path, args: &[&str], ready: &str, signal: i32) -> (String, Output) {
+    use std::io::BufRead;
+    let mut child = Command::new(env!("CARGO_BIN_EXE_handcap"))
+        .args(args)
+        .current_dir(dir)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("run handcap");
+    let mut lines = std::io::BufReader::new(child.stdout.take().unwrap()).lines();
+    let mut stdout = String::new();
+    for line in lines.by_ref().map_while(Result::ok) {
+        stdout += &line;
+        stdout.push('\n');
+        if line.starts_with(ready) {
+            break;
+        }
+    }
+    // SAFETY: a signal to our own child.
+    unsafe {
+        libc::kill(child.id() as i32, signal);
+    }
+    stdout.extend(lines.map_while(Result::ok).map(|l| l + "\n"));
+    (stdout, child.wait_with_output().expect("handcap ends"))
+}
+
 /// Runs `handcap` and asserts it succeeded; returns stdout.
 pub fn handcap_ok(dir: &Path, args: &[&str]) -> String {
     let out = handcap(dir, args);
