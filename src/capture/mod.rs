@@ -112,6 +112,46 @@ pub struct CaptureOptions {
     pub flash: Option<String>,
 }
 
+impl CaptureOptions {
+    /// Settings that cannot work, named as `field=value`.
+    ///
+    /// # Errors
+    /// What is wrong and what to do, in words.
+    pub fn check(&self) -> Result<(), String> {
+        for (name, value) in [
+            ("fps", self.fps),
+            ("width", f64::from(self.width)),
+            ("height", f64::from(self.height)),
+        ] {
+            if value.is_nan() || value <= 0.0 {
+                return Err(format!("{name}={value} must be positive"));
+            }
+        }
+        if self.sources[0].trim() == self.sources[1].trim() {
+            return Err(format!(
+                "the left and right cameras are the same source ({}); give each camera its own",
+                url::redact(&self.sources[0])
+            ));
+        }
+        if self.stall_s.is_nan() || self.stall_s <= 0.0 {
+            return Err(format!(
+                "stall_s={}: give a positive number of seconds",
+                self.stall_s
+            ));
+        }
+        if let Some(d) = self.duration_s.filter(|&d| d.is_nan() || d <= 0.0) {
+            return Err(format!("duration_s={d} must be positive"));
+        }
+        if let Some(c) = &self.calibration {
+            c.board.check().map_err(|e| e.to_string())?;
+            if c.pairs == 0 {
+                return Err("pairs=0: take at least 1".into());
+            }
+        }
+        Ok(())
+    }
+}
+
 /// How the regulator is told each step.
 #[derive(Clone, Debug)]
 pub enum Regulator {

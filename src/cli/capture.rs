@@ -79,67 +79,10 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
-    if !(a.fps > 0.0 && a.width > 0 && a.height > 0) {
-        super::usage!("--fps, --width and --height must be positive");
-    }
-    if a.left.trim() == a.right.trim() {
-        super::usage!(
-            "--left and --right are the same source ({}); give each camera its own",
-            capture::url::redact(&a.left)
-        );
-    }
-    if a.stall_s <= 0.0 {
-        super::usage!("--stall-s {}: give a positive number of seconds", a.stall_s);
-    }
-    if let Some(d) = a.duration_s.filter(|&d| d <= 0.0) {
-        super::usage!("--duration-s {d} must be positive");
-    }
-    let protocol = match (&a.protocol, &a.set_pressure, &a.regulator) {
-        (Some(path), Some(command), _) => Some((
-            protocol::read(path)?,
-            capture::Regulator::PerStep(command.clone()),
-        )),
-        (Some(path), None, Some(command)) => Some((
-            protocol::read(path)?,
-            capture::Regulator::Streaming(command.clone()),
-        )),
-        (Some(_), None, None) => {
-            super::usage!("--protocol needs --set-pressure (a command per step) or --regulator (one process, a line per step)")
-        }
-        _ => None,
-    };
-    if protocol.is_none() && a.duration_s.is_none() && !a.calib {
+    let options = options(&a)?;
+    if options.protocol.is_none() && a.duration_s.is_none() && !a.calib {
         println!("filming until Ctrl-C (no --protocol, no --duration-s); log the regulator on the clock capture.json describes");
     }
-    if a.board.any() && !a.calib {
-        super::usage!("--board, --square-mm, --marker-mm and --dictionary describe the calibration board: add --calib");
-    }
-    let calibration = match a.board.flags().over(&crate::calib::file::default_board()) {
-        Ok(board) => a.calib.then_some(capture::BoardPairs {
-            board,
-            pairs: a.pairs,
-            reference: a.reference,
-        }),
-        Err(e) => super::usage!("{e}"),
-    };
-    if let Some(c) = &calibration {
-        c.board.check()?;
-        if c.pairs == 0 {
-            super::usage!("--pairs must be at least 1");
-        }
-    }
-    let options = CaptureOptions {
-        sources: [a.left.clone(), a.right.clone()],
-        width: a.width,
-        height: a.height,
-        fps: a.fps,
-        protocol,
-        duration_s: a.duration_s,
-        stall_s: a.stall_s,
-        calibration,
-        on_abort: a.on_abort.clone(),
-        flash: a.flash.clone(),
-    };
     let bar = ProgressBar::new_spinner()
         .with_style(ProgressStyle::with_template("{spinner} {elapsed} {msg}").expect("template"));
     let steps = options.protocol.as_ref().map_or(0, |(s, _)| s.len());
@@ -148,25 +91,16 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .as_ref()
         .map(|c| if c.reference { 1 } else { c.pairs });
     let say = |s: &Stats| match wanted {
-        Some(n) => format!(
-            "board pairs {}/{n}{}{}",
-            s.board_pairs,
-            if s.board_refused.is_empty() {
-                String::new()
-            } else {
-                format!(" ({})", s.board_refused)
-            },
-            s.board_delay_ms.map_or(String::new(), |ms| format!(
-                "; the right camera sees the board {ms:+.0} ms after the left"
-            ))
-        ),
+        Some(n) => board_line(s, n),
         None => line(s, steps),
     };
     let live = |s: &Stats| {
         bar.set_message(say(s));
         bar.tick();
     };
-    let summary = capture::capture(&a.out, &options, &live, super::interrupt_flag())?;
+    let summary = super::with_session(|session| {
+        crate::pipeline::capture::run(&a.out, &options, session, &live)
+    })?;
     bar.finish_and_clear();
     for (side, refused) in ["left", "right"].iter().zip(&summary.refused) {
         if !refused.is_empty() {
@@ -174,19 +108,18 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         }
     }
     println!("{}", say(&summary.stats));
+    let out = a.out.display();
     if wanted.is_some() {
         println!(
             "wrote {out}/calib/ ({} pairs and board.yml), {out}/capture.json; then: handcap calibrate {out}/calib",
             summary.stats.board_pairs,
-            out = a.out.display()
         );
     } else {
         println!(
             "wrote {out}/frames/ ({} left, {} right frames), {out}/frames/frames.csv{}, {out}/capture.json",
             summary.stats.frames[0],
             summary.stats.frames[1],
-            if steps > 0 { format!(", {out}/pressures.csv", out = a.out.display()) } else { String::new() },
-            out = a.out.display()
+            if steps > 0 { format!(", {out}/pressures.csv") } else { String::new() },
         );
     }
     if let Some(flash) = &summary.flash {
@@ -202,10 +135,75 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             summary.stats.steps_done
         );
     }
-    let kept = "every frame before it is kept and listed";
     if let Some(result) = &summary.on_abort {
         eprintln!("ran --on-abort: {result}");
     }
+    ended(&summary, &a.out)
+}
+
+/// The session's settings from the flags: the protocol read with how the regulator is told it,
+/// the calibration board.
+fn options(a: &Args) -> anyhow::Result<CaptureOptions> {
+    let protocol = match (&a.protocol, &a.set_pressure, &a.regulator) {
+        (Some(path), Some(command), _) => Some((
+            protocol::read(path)?,
+            capture::Regulator::PerStep(command.clone()),
+        )),
+        (Some(path), None, Some(command)) => Some((
+            protocol::read(path)?,
+            capture::Regulator::Streaming(command.clone()),
+        )),
+        (Some(_), None, None) => {
+            super::usage!("--protocol needs --set-pressure (a command per step) or --regulator (one process, a line per step)")
+        }
+        _ => None,
+    };
+    if a.board.any() && !a.calib {
+        super::usage!("--board, --square-mm, --marker-mm and --dictionary describe the calibration board: add --calib");
+    }
+    let calibration = match a.board.flags().over(&crate::calib::file::default_board()) {
+        Ok(board) => a.calib.then_some(capture::BoardPairs {
+            board,
+            pairs: a.pairs,
+            reference: a.reference,
+        }),
+        Err(e) => super::usage!("{e}"),
+    };
+    Ok(CaptureOptions {
+        sources: [a.left.clone(), a.right.clone()],
+        width: a.width,
+        height: a.height,
+        fps: a.fps,
+        protocol,
+        duration_s: a.duration_s,
+        stall_s: a.stall_s,
+        calibration,
+        on_abort: a.on_abort.clone(),
+        flash: a.flash.clone(),
+    })
+}
+
+/// A calibration capture's live line: the pairs taken, why the last look was refused, the
+/// cameras' delay.
+fn board_line(s: &Stats, wanted: usize) -> String {
+    format!(
+        "board pairs {}/{wanted}{}{}",
+        s.board_pairs,
+        if s.board_refused.is_empty() {
+            String::new()
+        } else {
+            format!(" ({})", s.board_refused)
+        },
+        s.board_delay_ms.map_or(String::new(), |ms| format!(
+            "; the right camera sees the board {ms:+.0} ms after the left"
+        ))
+    )
+}
+
+/// How the session ended, as the command's result: a session ended early is an error saying
+/// why (everything filmed is kept).
+fn ended(summary: &capture::CaptureSummary, out: &std::path::Path) -> anyhow::Result<()> {
+    let kept = "every frame before it is kept and listed";
     let over = summary.stats.over_hold;
     match &summary.ending {
         Ending::ProtocolDone if over > 0 => bail!(
@@ -216,7 +214,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         ),
         Ending::ProtocolDone | Ending::Duration | Ending::PairsTaken => Ok(()),
         Ending::Interrupted => {
-            Err(super::Interrupted(format!("interrupted: {kept} in {}", a.out.display())).into())
+            Err(super::Interrupted(format!("interrupted: {kept} in {}", out.display())).into())
         }
         Ending::CameraStopped {
             side,

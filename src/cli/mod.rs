@@ -124,7 +124,7 @@ pub fn one_line(e: &anyhow::Error) -> String {
 
 /// The library's parameter names (`field=value`, as the Python estimator takes them) and the
 /// flags that set them here: the one place the command line maps them.
-const FLAGS: [(&str, &str); 22] = [
+const FLAGS: [(&str, &str); 28] = [
     ("c", "--c"),
     ("epsilon", "--epsilon"),
     ("sigma", "--sigma"),
@@ -147,6 +147,12 @@ const FLAGS: [(&str, &str); 22] = [
     ("square_mm", "--square-mm"),
     ("marker_mm", "--marker-mm"),
     ("dictionary", "--dictionary"),
+    ("fps", "--fps"),
+    ("width", "--width"),
+    ("height", "--height"),
+    ("stall_s", "--stall-s"),
+    ("duration_s", "--duration-s"),
+    ("pairs", "--pairs"),
 ];
 
 /// `text` with each `field=value` of [`FLAGS`] written as the flag (`basis=exact` →

@@ -11,6 +11,7 @@
 //! callback that receives progress and results. Nothing here prints.
 
 pub mod calibrate;
+pub mod capture;
 pub mod demo;
 mod demo_checks;
 pub mod demo_dynamic;
@@ -121,6 +122,8 @@ pub(crate) fn create_parent(path: &std::path::Path) -> std::io::Result<()> {
 pub enum PipelineError {
     #[error(transparent)]
     Synth(#[from] crate::synth::SynthError),
+    #[error(transparent)]
+    Capture(#[from] crate::capture::CaptureError),
     #[error(transparent)]
     Calib(#[from] crate::calib::CalibError),
     #[error(transparent)]
