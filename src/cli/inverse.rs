@@ -156,13 +156,13 @@ fn one_target(a: &Args, target: &[f64], limits: Limits, level: Option<f64>) -> a
         describe(model.outputs(), &s.achieved),
         s.error
     );
-    match level.map(|level| (level, file.interval_radius(level))) {
-        Some((level, Ok(r))) => println!(
+    let mut notes = Vec::new();
+    match (level, inverse::interval_radius(&file, level, &mut notes)) {
+        (Some(level), Some(r)) => println!(
             "the real tip lies within {r:.4} of it {} % of the time (conformal interval, marginal over inputs like the held-out ones)",
             level * 100.0
         ),
-        Some((_, Err(e))) => eprintln!("note: no interval around the planned tips: {e}"),
-        None => {}
+        _ => notes.iter().for_each(|n| eprintln!("note: {n}")),
     }
     Ok(())
 }

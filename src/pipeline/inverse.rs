@@ -125,14 +125,7 @@ pub fn plan_targets(job: &Targets) -> Result<PlannedTargets, PipelineError> {
     let (steady, mut notes) = steady_state(&file);
     let model: &dyn Differentiable = &steady;
     let options = job.limits.options(model)?;
-    let radius = match job.level.map(|level| file.interval_radius(level)) {
-        Some(Ok(r)) => Some(r),
-        Some(Err(e)) => {
-            notes.push(format!("no interval around the planned tips: {e}"));
-            None
-        }
-        None => None,
-    };
+    let radius = interval_radius(&file, job.level, &mut notes);
     let targets = data::read_columns(job.targets, model.outputs())?;
     let solutions: Vec<InverseSolution> = targets
         .iter_rows()
@@ -149,6 +142,22 @@ pub fn plan_targets(job: &Targets) -> Result<PlannedTargets, PipelineError> {
         bounds: bounds(model, &options),
         notes,
     })
+}
+
+/// The model's conformal radius at `level` around each planned tip (a conformal radius is the
+/// same for every input); `None` without a level, or with a note saying why there is none.
+pub fn interval_radius(
+    file: &ModelFile,
+    level: Option<f64>,
+    notes: &mut Vec<String>,
+) -> Option<f64> {
+    match file.interval_radius(level?) {
+        Ok(r) => Some(r),
+        Err(e) => {
+            notes.push(format!("no interval around the planned tips: {e}"));
+            None
+        }
+    }
 }
 
 /// The model the pointwise inverse plans with: a history model at its steady state (every
