@@ -7,6 +7,7 @@
 //! within half a frame period; `triangulate` takes it from `capture.json` instead of measuring
 //! the delays from the tip's motion.
 
+use std::fmt;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
@@ -54,6 +55,28 @@ impl FlashLatency {
             [Some(l), Some(r)] => Some([l, r]),
             _ => None,
         }
+    }
+}
+
+impl fmt::Display for FlashLatency {
+    /// What the flash measured, one line.
+    fn fmt(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        let one = |k: usize| match (self.latency_ms[k], self.within_ms[k]) {
+            (Some(ms), Some(within)) => format!("{ms:.0} ms (± {within:.0})"),
+            _ => "not seen".into(),
+        };
+        let mut line = format!(
+            "camera latency from the flash: left {}, right {}",
+            one(0),
+            one(1)
+        );
+        if self.both_ms().is_some() {
+            line += "; triangulate takes them from capture.json";
+        }
+        for why in &self.unmeasured {
+            line += &format!("; {why}");
+        }
+        f.write_str(&line)
     }
 }
 

@@ -3,10 +3,10 @@
 
 use std::path::PathBuf;
 
-use anyhow::bail;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::capture::{self, CaptureOptions, Ending, Stats};
+use crate::capture::{self, CaptureOptions, Stats};
+use crate::pipeline::capture as stage;
 use crate::session::protocol;
 
 #[derive(clap::Args)]
@@ -85,60 +85,24 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     }
     let bar = ProgressBar::new_spinner()
         .with_style(ProgressStyle::with_template("{spinner} {elapsed} {msg}").expect("template"));
-    let steps = options.protocol.as_ref().map_or(0, |(s, _)| s.len());
-    let wanted = options
-        .calibration
-        .as_ref()
-        .map(|c| if c.reference { 1 } else { c.pairs });
-    let say = |s: &Stats| match wanted {
-        Some(n) => board_line(s, n),
-        None => line(s, steps),
-    };
     let live = |s: &Stats| {
-        bar.set_message(say(s));
+        bar.set_message(stage::live_line(s, &options));
         bar.tick();
     };
-    let summary = super::with_session(|session| {
-        crate::pipeline::capture::run(&a.out, &options, session, &live)
-    })?;
+    let summary = super::with_session(|session| stage::run(&a.out, &options, session, &live))?;
     bar.finish_and_clear();
-    for (side, refused) in ["left", "right"].iter().zip(&summary.refused) {
-        if !refused.is_empty() {
-            println!("{side} camera: the backend refused {}", refused.join(", "));
+    print!(
+        "{}",
+        stage::Filmed {
+            summary: &summary,
+            out: &a.out,
+            options: &options,
         }
-    }
-    println!("{}", say(&summary.stats));
-    let out = a.out.display();
-    if wanted.is_some() {
-        println!(
-            "wrote {out}/calib/ ({} pairs and board.yml), {out}/capture.json; then: handcap calibrate {out}/calib",
-            summary.stats.board_pairs,
-        );
-    } else {
-        println!(
-            "wrote {out}/frames/ ({} left, {} right frames), {out}/frames/frames.csv{}, {out}/capture.json",
-            summary.stats.frames[0],
-            summary.stats.frames[1],
-            if steps > 0 { format!(", {out}/pressures.csv") } else { String::new() },
-        );
-    }
-    if let Some(flash) = &summary.flash {
-        println!("{}", flash_line(flash));
-    }
-    if matches!(
-        options.protocol,
-        Some((_, capture::Regulator::Streaming(_)))
-    ) {
-        let [median, latest] = summary.stats.command_late_ms;
-        println!(
-            "regulator: {} lines written, {median:.2} ms after they were due (median), {latest:.2} ms at most",
-            summary.stats.steps_done
-        );
-    }
+    );
     if let Some(result) = &summary.on_abort {
         eprintln!("ran --on-abort: {result}");
     }
-    ended(&summary, &a.out)
+    Ok(stage::ended(&summary, &a.out)?)
 }
 
 /// The session's settings from the flags: the protocol read with how the regulator is told it,
@@ -181,107 +145,4 @@ fn options(a: &Args) -> anyhow::Result<CaptureOptions> {
         on_abort: a.on_abort.clone(),
         flash: a.flash.clone(),
     })
-}
-
-/// A calibration capture's live line: the pairs taken, why the last look was refused, the
-/// cameras' delay.
-fn board_line(s: &Stats, wanted: usize) -> String {
-    format!(
-        "board pairs {}/{wanted}{}{}",
-        s.board_pairs,
-        if s.board_refused.is_empty() {
-            String::new()
-        } else {
-            format!(" ({})", s.board_refused)
-        },
-        s.board_delay_ms.map_or(String::new(), |ms| format!(
-            "; the right camera sees the board {ms:+.0} ms after the left"
-        ))
-    )
-}
-
-/// How the session ended, as the command's result: a session ended early is an error saying
-/// why (everything filmed is kept).
-fn ended(summary: &capture::CaptureSummary, out: &std::path::Path) -> anyhow::Result<()> {
-    let kept = "every frame before it is kept and listed";
-    let over = summary.stats.over_hold;
-    match &summary.ending {
-        Ending::ProtocolDone if over > 0 => bail!(
-            "{over} of {} steps: the --set-pressure command returned only after the step's hold was over (commands took {:.0} ms median, {:.0} ms at most), so the finger never settled in them and triangulate finds no row there; hold each step longer than the regulator takes; {kept}",
-            summary.stats.steps_done,
-            summary.stats.command_ms[0],
-            summary.stats.command_ms[1]
-        ),
-        Ending::ProtocolDone | Ending::Duration | Ending::PairsTaken => Ok(()),
-        Ending::Interrupted => {
-            Err(super::Interrupted(format!("interrupted: {kept} in {}", out.display())).into())
-        }
-        Ending::CameraStopped {
-            side,
-            time_s,
-            frames,
-        } => bail!(
-            "the {} camera stopped delivering at {time_s:.2} s, after {frames} frames; {kept}",
-            side.name()
-        ),
-        Ending::CommandFailed { step, message } => {
-            bail!("--set-pressure failed at step {step}: {message}; {kept}")
-        }
-        Ending::FlashFailed { message } => bail!("--flash failed: {message}; {kept}"),
-        Ending::WriteFailed { message } => bail!(
-            "{message}; the session stopped{}, and {kept} (free space, or film to another disk)",
-            if summary.on_abort.is_some() { " and --on-abort ran" } else { "" }
-        ),
-        // Never the end of a session `capture` returns: the first while filming, the second
-        // is returned as an error.
-        Ending::Filming | Ending::ThreadFailed { .. } => {
-            bail!("the session ended unexpectedly; {kept}")
-        }
-    }
-}
-
-/// The live line: frames, rates, drops, frames stamped late, skew, steps.
-fn line(s: &Stats, steps: usize) -> String {
-    let progress = match (steps, s.over_hold) {
-        (0, _) => String::new(),
-        (_, 0) => format!(", step {}/{steps}", s.steps_done),
-        (_, over) => format!(
-            ", step {}/{steps} ({over} of them unsettled: the command took longer than the hold)",
-            s.steps_done
-        ),
-    };
-    let late = if s.late.iter().sum::<usize>() > 0 {
-        format!(
-            ", stamped late {}/{} (up to {:.0} ms: frames queued, the machine or network fell behind; triangulate leaves them out)",
-            s.late[0],
-            s.late[1],
-            s.late_max_ms[0].max(s.late_max_ms[1])
-        )
-    } else {
-        String::new()
-    };
-    format!(
-        "left {} frames {:.1} fps, right {} frames {:.1} fps, drops {}/{}{late}, left/right skew {:.1} ms (median){progress}",
-        s.frames[0], s.fps[0], s.frames[1], s.fps[1], s.drops[0], s.drops[1], s.skew_ms
-    )
-}
-
-/// What the flash measured.
-fn flash_line(f: &crate::capture::flash::FlashLatency) -> String {
-    let one = |k: usize| match (f.latency_ms[k], f.within_ms[k]) {
-        (Some(ms), Some(within)) => format!("{ms:.0} ms (± {within:.0})"),
-        _ => "not seen".into(),
-    };
-    let mut line = format!(
-        "camera latency from the flash: left {}, right {}",
-        one(0),
-        one(1)
-    );
-    if f.both_ms().is_some() {
-        line += "; triangulate takes them from capture.json";
-    }
-    for why in &f.unmeasured {
-        line += &format!("; {why}");
-    }
-    line
 }

@@ -7,11 +7,8 @@ use anyhow::bail;
 
 use super::usage;
 
-use crate::model::file::ModelFile;
-use crate::model::inverse::solve;
-use crate::model::Differentiable;
 use crate::pipeline::inverse::{self, Limits};
-use crate::pipeline::trajectory::{self, How};
+use crate::pipeline::trajectory;
 
 #[derive(clap::Args)]
 #[command(group(clap::ArgGroup::new("what").required(true).args(["target", "targets", "trajectory"])))]
@@ -84,23 +81,22 @@ fn interval_level(s: &str) -> Result<f64, String> {
     }
 }
 
-fn describe(names: &[String], values: &[f64]) -> String {
-    names
-        .iter()
-        .zip(values)
-        .map(|(n, v)| format!("{n} {v:.4}"))
-        .collect::<Vec<_>>()
-        .join(", ")
-}
-
 pub fn run(a: Args) -> anyhow::Result<()> {
     let limits = Limits {
         max_kpa: a.max_kpa,
         reach: a.reach,
     };
     let level = (a.interval > 0.0).then_some(a.interval);
+    let notes = |notes: &[String]| notes.iter().for_each(|n| eprintln!("note: {n}"));
     match (&a.target, &a.targets, &a.trajectory) {
-        (Some(target), None, None) => one_target(&a, target, limits, level),
+        (Some(target), None, None) => {
+            let planned = inverse::plan_one(&a.model, target, limits, level)?;
+            notes(&planned.notes);
+            if !planned.solution.reached {
+                bail!("{planned}");
+            }
+            print!("{planned}");
+        }
         (None, Some(targets), None) => {
             let out = a.out.as_ref().expect("clap requires --out with --targets");
             let planned = inverse::plan_targets(&inverse::Targets {
@@ -110,112 +106,37 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 limits,
                 level,
             })?;
-            for note in &planned.notes {
-                eprintln!("note: {note}");
-            }
-            let solutions = &planned.solutions;
-            let missed = solutions.iter().filter(|s| !s.reached).count();
-            let mean = solutions.iter().map(|s| s.error).sum::<f64>() / solutions.len() as f64;
-            println!(
-                "{} targets: {} reached within {}, {missed} out of reach (nearest points written); mean model error {mean:.5}",
-                solutions.len(),
-                solutions.len() - missed,
-                a.reach
-            );
+            notes(&planned.notes);
+            println!("{planned}");
             println!("wrote {}", out.display());
-            Ok(())
         }
-        (None, None, Some(target)) => along(&a, target, limits),
-        _ => usage!("give --target X,Y,Z or --targets FILE.csv --out FILE.csv"),
-    }
-}
-
-/// `--target X,Y,Z`: the inputs printed, or the nearest reachable point when out of reach.
-fn one_target(a: &Args, target: &[f64], limits: Limits, level: Option<f64>) -> anyhow::Result<()> {
-    let file = ModelFile::load(&a.model)?;
-    let (steady, notes) = inverse::steady_state(&file);
-    for note in notes {
-        eprintln!("note: {note}");
-    }
-    let model: &dyn Differentiable = &steady;
-    let options = limits.options(model)?;
-    let s = solve(model, target, &options)?;
-    if !s.reached {
-        bail!(
-            "target ({}) is out of reach within {}: the nearest reachable point is ({}), {:.4} away, at {}",
-            describe(model.outputs(), target),
-            inverse::bounds(model, &options),
-            describe(model.outputs(), &s.achieved),
-            s.error,
-            describe(model.inputs(), &s.inputs)
-        );
-    }
-    println!("{}", describe(model.inputs(), &s.inputs));
-    println!(
-        "model tip: {} (error {:.5})",
-        describe(model.outputs(), &s.achieved),
-        s.error
-    );
-    let mut notes = Vec::new();
-    match (level, inverse::interval_radius(&file, level, &mut notes)) {
-        (Some(level), Some(r)) => println!(
-            "the real tip lies within {r:.4} of it {} % of the time (conformal interval, marginal over inputs like the held-out ones)",
-            level * 100.0
-        ),
-        _ => notes.iter().for_each(|n| eprintln!("note: {n}")),
-    }
-    Ok(())
-}
-
-/// `--trajectory`: the dynamic inverse, or with `--previous` and `--measured` a repetition of
-/// learning.
-fn along(a: &Args, target: &std::path::Path, limits: Limits) -> anyhow::Result<()> {
-    let learn = match (&a.previous, &a.measured) {
-        (Some(p), Some(m)) => Some((p.as_path(), m.as_path())),
-        (None, None) => None,
-        _ => usage!("--previous and --measured go together: the commands played and the outputs measured while they were"),
-    };
-    let out = a
-        .out
-        .as_ref()
-        .expect("clap requires --out with --trajectory");
-    let planned = trajectory::run(&trajectory::Request {
-        model: &a.model,
-        target,
-        out,
-        learn,
-        gain: a.gain,
-        max_rate: a.max_rate,
-        smoothness: a.smoothness,
-        limits,
-    })?;
-    let rows = planned.rows;
-    match &planned.how {
-        How::Anticipated { memory, rms, pointwise_rms } => println!(
-            "planned {rows} rows along the path with the model's history ({memory}): predicted tracking RMS {rms:.4} (the pointwise inverse of the settled map, played at the same times: {pointwise_rms:.4})"
-        ),
-        How::Pointwise { rms } => println!(
-            "planned {rows} rows, each the pointwise inverse (the model has no history: it cannot anticipate the actuator's lag); model error RMS {rms:.4}"
-        ),
-        How::Learned { measured, rms, largest } => println!(
-            "the run learned from ({}): tracking RMS {rms:.4}, largest {largest:.4} over {rows} rows; next commands planned with gain {}",
-            measured.display(),
-            a.gain
+        (None, None, Some(target)) => {
+            let learn = match (&a.previous, &a.measured) {
+                (Some(p), Some(m)) => Some((p.as_path(), m.as_path())),
+                (None, None) => None,
+                _ => usage!("--previous and --measured go together: the commands played and the outputs measured while they were"),
+            };
+            let planned = trajectory::run(&trajectory::Request {
+                model: &a.model,
+                target,
+                out: a
+                    .out
+                    .as_ref()
+                    .expect("clap requires --out with --trajectory"),
+                learn,
+                gain: a.gain,
+                max_rate: a.max_rate,
+                smoothness: a.smoothness,
+                limits,
+            })?;
+            print!("{planned}");
+            if let Some(warning) = planned.warning() {
+                eprintln!("warning: {warning}");
+            }
+        }
+        _ => usage!(
+            "give --target X,Y,Z, --targets FILE.csv or --trajectory FILE.csv, with --out FILE.csv"
         ),
     }
-    let learned = matches!(planned.how, How::Learned { .. });
-    if planned.missed > 0 && !learned {
-        eprintln!(
-            "warning: {} of {rows} rows are out of the model's reach within the box (or its lag) at their times: followed as closely as it allows, reached=0 in {}",
-            planned.missed,
-            out.display()
-        );
-    }
-    println!(
-        "wrote {} and {}.svg/.png (the path: target, the model's prediction{})",
-        out.display(),
-        planned.figure.display(),
-        if learned { ", the run measured" } else { "" }
-    );
     Ok(())
 }

@@ -76,11 +76,6 @@ pub enum Command {
 #[error("{0}")]
 pub struct Usage(pub String);
 
-/// Work stopped by Ctrl-C after keeping what was finished (exit 130, as shells report SIGINT).
-#[derive(Debug, thiserror::Error)]
-#[error("{0}")]
-pub struct Interrupted(pub String);
-
 /// `Err(Usage)` with a formatted message.
 macro_rules! usage {
     ($($arg:tt)*) => {
@@ -94,8 +89,7 @@ pub fn exit_code(e: &anyhow::Error) -> u8 {
     use crate::pipeline::PipelineError;
     if e.is::<Usage>() || matches!(e.downcast_ref(), Some(PipelineError::Request(_))) {
         2
-    } else if e.is::<Interrupted>()
-        || matches!(e.downcast_ref(), Some(PipelineError::Interrupted(_)))
+    } else if matches!(e.downcast_ref(), Some(PipelineError::Interrupted(_)))
         || e.chain().any(|c| {
             matches!(
                 c.downcast_ref(),
@@ -122,40 +116,19 @@ pub fn one_line(e: &anyhow::Error) -> String {
     flags(&line.replace('\n', " "))
 }
 
-/// The library's parameter names (`field=value`, as the Python estimator takes them) and the
-/// flags that set them here: the one place the command line maps them.
-const FLAGS: [(&str, &str); 28] = [
-    ("c", "--c"),
-    ("epsilon", "--epsilon"),
-    ("sigma", "--sigma"),
-    ("basis", "--basis"),
-    ("folds", "--folds"),
-    ("folds_by", "--folds-by"),
-    ("groups", "--group-by"),
-    ("history", "--history"),
-    ("fitness", "--fitness"),
-    ("budget", "--budget"),
-    ("max_rows", "--max-rows"),
-    ("intervals", "--intervals"),
-    ("pressures", "--pressures"),
-    ("max_kpa", "--max-kpa"),
-    ("reach", "--reach"),
-    ("gain", "--gain"),
-    ("max_rate", "--max-rate"),
-    ("smoothness", "--smoothness"),
-    ("board", "--board"),
-    ("square_mm", "--square-mm"),
-    ("marker_mm", "--marker-mm"),
-    ("dictionary", "--dictionary"),
-    ("fps", "--fps"),
-    ("width", "--width"),
-    ("height", "--height"),
-    ("stall_s", "--stall-s"),
-    ("duration_s", "--duration-s"),
-    ("pairs", "--pairs"),
-];
+/// The library's parameter names (`field=value`, as the Python estimator takes them) set by a
+/// flag of the same name here (`max_kpa` → `--max-kpa`): the one place the command line maps
+/// them, with [`RENAMED`].
+const FIELDS: &str =
+    "c epsilon sigma basis folds folds_by history fitness budget max_rows intervals \
+    pressures max_kpa reach gain max_rate smoothness board square_mm marker_mm \
+    dictionary fps width height stall_s duration_s pairs settle_s search search_on \
+    hysteresis_kpa baseline_mm distance_mm groups";
 
-/// `text` with each `field=value` of [`FLAGS`] written as the flag (`basis=exact` →
+/// The parameters whose flag has another name.
+const RENAMED: [(&str, &str); 1] = [("groups", "--group-by")];
+
+/// `text` with each `field=value` of [`FIELDS`] written as the flag (`basis=exact` →
 /// `--basis exact`; `intervals=true` → `--intervals`).
 pub fn flags(text: &str) -> String {
     let mut out = String::with_capacity(text.len());
@@ -166,13 +139,22 @@ pub fn flags(text: &str) -> String {
             .last()
             .is_none_or(|c| !(c.is_alphanumeric() || c == '_' || c == '-'));
         if at_boundary {
-            for (field, flag) in FLAGS {
+            for field in FIELDS.split_whitespace() {
                 let Some(value) = rest.strip_prefix(field).and_then(|r| r.strip_prefix('=')) else {
                     continue;
                 };
+                let flag = RENAMED.iter().find(|(f, _)| *f == field).map_or_else(
+                    || format!("--{}", field.replace('_', "-")),
+                    |(_, flag)| flag.to_string(),
+                );
+                let flag = flag.as_str();
                 if let Some(after) = value.strip_prefix("true") {
                     out.push_str(flag);
                     rest = after;
+                } else if value.is_empty() || value.starts_with(' ') {
+                    // `field=` alone names the parameter without a value.
+                    out.push_str(flag);
+                    rest = value;
                 } else {
                     out.push_str(flag);
                     out.push(' ');
@@ -227,7 +209,6 @@ pub fn level(s: &str) -> Result<f64, String> {
 /// libraries (about 250 shared objects, 0.2 s).
 pub fn main(cameras: fn(Command) -> anyhow::Result<()>) -> ExitCode {
     restore_sigpipe();
-    quiet_ffmpeg();
     let args = match Cli::try_parse() {
         Ok(args) => args,
         // clap's refusal on one line, as every handcap error: its message, without the usage
@@ -283,43 +264,6 @@ pub fn run_cameras(command: Command) -> anyhow::Result<()> {
         | Command::Protocol(_) => {
             unreachable!("`main` runs the modelling commands itself")
         }
-    }
-}
-
-/// Replaces this process with `handcap-cameras` (the same directory, the same arguments): the
-/// commands that call OpenCV are built into that binary only.
-///
-/// # Errors
-/// When `handcap-cameras` cannot be started (not installed beside `handcap`).
-pub fn hand_to_cameras(_: Command) -> anyhow::Result<()> {
-    let exe = std::env::current_exe()?;
-    let cameras = exe.with_file_name(format!("handcap-cameras{}", std::env::consts::EXE_SUFFIX));
-    let mut command = std::process::Command::new(&cameras);
-    command.args(std::env::args_os().skip(1));
-    #[cfg(unix)]
-    let error = {
-        use std::os::unix::process::CommandExt;
-        command.arg0("handcap").exec()
-    };
-    #[cfg(not(unix))]
-    let error = match command.status() {
-        Ok(status) => std::process::exit(status.code().unwrap_or(1)),
-        Err(e) => e,
-    };
-    Err(anyhow::anyhow!(
-        "cannot start {} ({error}): the camera commands are built into that binary, which installs beside handcap (cargo install --path . installs both)",
-        cameras.display()
-    ))
-}
-
-/// Keeps FFmpeg's own log lines (a corrupt JPEG, a stream's HTTP status) off stderr, where they
-/// would bury handcap's one line; handcap says what failed. OpenCV reads this variable when it
-/// first loads FFmpeg; one the user set is left as it is.
-fn quiet_ffmpeg() {
-    const LEVEL: &str = "OPENCV_FFMPEG_LOGLEVEL";
-    if std::env::var_os(LEVEL).is_none() {
-        // AV_LOG_QUIET. Set before any thread starts (nothing else reads the environment yet).
-        std::env::set_var(LEVEL, "-8");
     }
 }
 
@@ -403,9 +347,9 @@ impl Ui {
             Event::Note(line) => println!("{}", flags(&line)),
             Event::Stage { step, of, text } => println!("[{step}/{of}] {text}"),
             Event::StageTime { name, seconds } => println!("      {name} done in {seconds:.1} s"),
-            Event::Calibrated(c) => calibrate::print_summary(c),
-            Event::Triangulated(t) => triangulate::print_summary(t),
-            Event::Fitted(f) => model::print_summary(f),
+            Event::Calibrated(c) => print!("{}", flags(&c.to_string())),
+            Event::Triangulated(t) => print!("{}", flags(&t.to_string())),
+            Event::Fitted(f) => print!("{}", flags(&f.to_string())),
         }
     }
 }
@@ -454,6 +398,10 @@ mod tests {
         assert_eq!(
             super::flags("fit it with intervals=true; epsilon=0.5, c=10, basic=1"),
             "fit it with --intervals; --epsilon 0.5, --c 10, basic=1"
+        );
+        assert_eq!(
+            super::flags("hysteresis_kpa= applies to search=grid"),
+            "--hysteresis-kpa applies to --search grid"
         );
     }
 

@@ -9,14 +9,13 @@ use crate::data::{HAND_INPUTS, HAND_OUTPUTS};
 use crate::model::history::HistoryChoice;
 use crate::model::msvr::fitness::FitnessKind;
 use crate::model::msvr::folds::FoldsBy;
-use crate::model::msvr::tune::BasisChoice;
+use crate::model::msvr::tune::{BasisChoice, Pinned};
 use crate::model::msvr::{Loss, MsvrParams, DEFAULT_MAX_ITER, DEFAULT_TOL, PAPER_TABLE2};
-use crate::pipeline::fit::{self, FitJob, FitOutcome, Selection};
-use crate::report;
+use crate::pipeline::fit::{self, FitJob, Selection};
 use crate::search::aco_paper::AcoPaper;
 use crate::search::aco_r::AcoR;
 use crate::search::grid::Grid;
-use crate::search::{Method, Search, SearchStop};
+use crate::search::{Method, SearchStop};
 use crate::DEFAULT_SEED;
 
 /// How the hyper-parameters are chosen.
@@ -111,15 +110,16 @@ pub struct Args {
     /// 200 up to 700, 120 above]
     #[arg(long)]
     budget: Option<usize>,
-    /// Penalty C, with --search none (default: the paper's Table 2)
-    #[arg(long = "c", default_value_t = PAPER_TABLE2.c)]
-    c: f64,
-    /// Tube radius ε in output units, with --search none (default: the paper's Table 2)
-    #[arg(long, default_value_t = PAPER_TABLE2.epsilon)]
-    epsilon: f64,
-    /// RBF width σ in inputs scaled to [0, 1], with --search none (default: the paper's Table 2)
-    #[arg(long, default_value_t = PAPER_TABLE2.sigma)]
-    sigma: f64,
+    /// Penalty C: held at this value while a search chooses the others; with --search none
+    /// used as given [default: the paper's Table 2]
+    #[arg(long = "c")]
+    c: Option<f64>,
+    /// Tube radius ε in output units, as --c
+    #[arg(long)]
+    epsilon: Option<f64>,
+    /// RBF width σ in inputs scaled to [0, 1], as --c
+    #[arg(long)]
+    sigma: Option<f64>,
     /// MSVR solver: relative tolerance on the objective's decrease
     #[arg(long, default_value_t = DEFAULT_TOL)]
     solver_tol: f64,
@@ -161,29 +161,6 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         FitnessArg::Cv => FitnessKind::Cv { folds: a.folds },
         FitnessArg::Train => FitnessKind::Train,
     };
-    if a.folds < 2 {
-        usage!(
-            "--folds {}: cross-validation needs 2 folds or more",
-            a.folds
-        );
-    }
-    if a.search_on.is_some() && a.search == SearchKind::None {
-        usage!("--search-on gives the rows a search scores candidates on: use it with a --search");
-    }
-    let folds_given = a.group_by.is_some() || a.folds_by != FoldsBy::Auto;
-    let names_runs = a.time.is_some() && a.folds_by == FoldsBy::Auto;
-    if folds_given && !names_runs && a.fitness != FitnessArg::Cv {
-        usage!("--folds-by and --group-by cut the folds of cross-validation (the search's, the basis' and the intervals'): use them with --fitness cv");
-    }
-    if a.time.is_none() && a.history != HistoryChoice::Auto {
-        usage!(
-            "--history {} builds on the rows' times: give --time COLUMN",
-            a.history
-        );
-    }
-    if a.time.is_some() && a.history == HistoryChoice::Auto && a.fitness == FitnessArg::Train {
-        usage!("--history auto compares feature sets by cross-validation: use --fitness cv, or name the history (--history none, ema, lags:K)");
-    }
     // The runs a time series restarts in: the groups the folds hold out together.
     let group = a.group_by.clone().or(match &a.folds_by {
         FoldsBy::Column(c) if a.time.is_some() => Some(c.clone()),
@@ -204,28 +181,33 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         })),
         SearchKind::Grid => Some(Method::Grid(Grid::default())),
     };
-    if a.budget.is_some() && !matches!(a.search, SearchKind::AcoR | SearchKind::Grid) {
-        usage!("--budget is the candidate budget of --search aco-r and grid");
-    }
-    let least = AcoR::default().archive;
-    if let (Some(budget), SearchKind::AcoR) = (a.budget, a.search) {
-        if budget < least {
-            usage!("--budget {budget}: must be at least {least} candidates: the first fill of the colony's archive");
-        }
-    }
     let loss = match a.loss {
         LossArg::Auto if a.search == SearchKind::AcoPaper => Loss::Quadratic,
         LossArg::Auto | LossArg::Robust => Loss::Robust,
         LossArg::Quadratic => Loss::Quadratic,
     };
+    if a.budget.is_some() && !matches!(a.search, SearchKind::AcoR | SearchKind::Grid) {
+        usage!("--budget is the candidate budget of --search aco-r and grid");
+    }
+    // All three given: nothing is left to search.
+    let method = method.filter(|_| a.c.is_none() || a.epsilon.is_none() || a.sigma.is_none());
     let job = FitJob {
         data: a.data,
         inputs: a.inputs,
         outputs: a.outputs,
-        params: MsvrParams::new(a.c, a.epsilon, a.sigma)
-            .tol(a.solver_tol)
-            .max_iter(a.solver_max_iter)
-            .loss(loss),
+        params: MsvrParams::new(
+            a.c.unwrap_or(PAPER_TABLE2.c),
+            a.epsilon.unwrap_or(PAPER_TABLE2.epsilon),
+            a.sigma.unwrap_or(PAPER_TABLE2.sigma),
+        )
+        .tol(a.solver_tol)
+        .max_iter(a.solver_max_iter)
+        .loss(loss),
+        pinned: Pinned {
+            c: a.c,
+            epsilon: a.epsilon,
+            sigma: a.sigma,
+        },
         selection: match method {
             None => Selection::Fixed {
                 folds: a.folds,
@@ -254,7 +236,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         history: a.history,
     };
     let outcome = super::with_session(|s| fit::run(&job, s))?;
-    print_summary(&outcome);
+    print!("{}", super::flags(&outcome.to_string()));
     println!("wrote {}", job.out.display());
     if let Some(dir) = &job.report {
         println!("wrote {}/", dir.display());
@@ -264,87 +246,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .as_ref()
         .is_some_and(|s| s.summary.stop == SearchStop::Interrupted)
     {
-        return Err(super::Interrupted(format!(
+        return Err(crate::pipeline::PipelineError::Interrupted(format!(
             "interrupted: {} holds the model with the best parameters found before Ctrl-C",
             job.out.display()
         ))
         .into());
     }
     Ok(())
-}
-
-pub fn print_summary(outcome: &FitOutcome) {
-    let r = &outcome.report;
-    if let Some(searched) = &outcome.search {
-        let (s, counters) = (&searched.summary, &searched.counters);
-        println!(
-            "search {}: {} iterations ({:?}), best {} {:.5}",
-            s.method.name(),
-            s.iterations,
-            s.stop,
-            s.fitness,
-            s.best_fitness
-        );
-        println!(
-            "  {} candidates scored ({} stopped early by racing), {} fits, {} memo hits, {} kernel cache hits, {:.1} s",
-            counters.evaluations,
-            counters.raced,
-            counters.fits,
-            counters.memo_hits,
-            counters.kernel_hits,
-            searched.seconds
-        );
-        if s.stop == SearchStop::Interrupted {
-            println!("  interrupted: the model uses the best parameters found so far");
-        }
-    }
-    let f = &r.fit;
-    let settings: Vec<String> = r
-        .spec
-        .settings()
-        .iter()
-        .skip(1)
-        .map(|(name, value)| format!("{name} = {value}"))
-        .collect();
-    println!(
-        "{} on {}: {} rows, {}",
-        r.spec.settings()[0].1,
-        r.training_file,
-        f.rows,
-        settings.join(", ")
-    );
-    println!(
-        "  {} iterations, objective {:.6e}, {} terms, {} ({:?})",
-        f.iterations,
-        f.objective,
-        f.support_vectors,
-        if f.converged {
-            "converged"
-        } else {
-            "NOT converged: raise --solver-max-iter"
-        },
-        f.stop
-    );
-    println!(
-        "  training error (not a test): MAE {:.4}, mean Euclidean {:.4}",
-        r.train_errors.mae, r.train_errors.euclid
-    );
-    if let Some(p) = &r.previous {
-        let (c, cal) = (&p.calibrated, &p.calibration);
-        println!(
-            "previous model calibrated on {} rows: α₀ {:.2}°, K {:.2} N, P_th {:.1} kPa, arms {:.3} × {:.3}; RMS {:.4} ({})",
-            cal.rows,
-            c.braid_angle_deg,
-            c.load_n,
-            c.threshold_kpa,
-            c.arm_x,
-            c.arm_y,
-            cal.rms_mm,
-            if cal.converged { "converged" } else { "NOT converged" }
-        );
-    }
-    if !r.tests.is_empty() {
-        println!("held-out errors (output units):");
-        print!("{}", report::errors_table(&r.tests, &r.outputs));
-    }
 }

@@ -2,11 +2,7 @@
 
 use std::path::PathBuf;
 
-use anyhow::Context;
-
-use crate::data::{self, Columns};
-use crate::model::file::ModelFile;
-use crate::pipeline::outputs::{self, Output};
+use crate::pipeline::predict;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -25,39 +21,10 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
-    outputs::check(&[&a.model, &a.inputs], &[Output::new(&a.out, "--out")])?;
-    let file = ModelFile::load(&a.model)?;
-    let radius = a
-        .interval
-        .map(|level| file.interval_radius(level))
-        .transpose()
-        .with_context(|| format!("{}: --interval", a.model.display()))?;
-    let model = file.model.predictor();
-    let (given, x) = file.read_inputs(&a.inputs)?;
-    let outside = model.outside(&x);
-    if let (Some((j, v)), Some((min, max))) = (outside.farthest, model.training_range()) {
-        eprintln!(
-            "warning: {} of {} rows lie outside the training range (farthest: {} = {v}, trained on {}-{}); far from its data an RBF model flattens to a constant, so those predictions are guesses",
-            outside.rows,
-            x.rows(),
-            model.inputs()[j],
-            min[j],
-            max[j]
-        );
+    let done = predict::run(&a.model, &a.inputs, &a.out, a.interval)?;
+    if let Some(warning) = &done.warning {
+        eprintln!("warning: {warning}");
     }
-    let y = model.predict(&x)?;
-    let mut blocks = vec![&given, &y];
-    let interval = radius.map(|r| Columns::new(vec!["interval_radius".into()], vec![r; x.rows()]));
-    blocks.extend(&interval);
-    data::write_csv(&a.out, &blocks)?;
-    match (a.interval, radius) {
-        (Some(level), Some(r)) => println!(
-            "wrote {} ({} rows; {} % interval radius {r:.4}, the same for every row: marginal coverage over rows like the held-out ones)",
-            a.out.display(),
-            x.rows(),
-            level * 100.0
-        ),
-        _ => println!("wrote {} ({} rows)", a.out.display(), x.rows()),
-    }
+    println!("{done}");
     Ok(())
 }

@@ -25,15 +25,8 @@ pub struct Args {
     /// muscle, with rest holds at 0, 0, 0 kPa first, between trials and last
     #[arg(long, conflicts_with_all = ["grid_step_kpa", "sweep_step_kpa", "hold_s"])]
     dynamic: bool,
-    /// Length of each dynamic trial (s)
-    #[arg(long, requires = "dynamic", default_value_t = DynamicDesign::default().duration_s, value_parser = super::finite)]
-    duration_s: f64,
-    /// Dynamic commands per second (at most 200)
-    #[arg(long, requires = "dynamic", default_value_t = DynamicDesign::default().rate_hz, value_parser = super::finite)]
-    rate_hz: f64,
-    /// Dynamic trials (phases dyn_1 … dyn_N)
-    #[arg(long, requires = "dynamic", default_value_t = DynamicDesign::default().trials)]
-    trials: usize,
+    #[command(flatten)]
+    design: DynamicArgs,
     /// Highest dynamic command (kPa)
     #[arg(long, requires = "dynamic", default_value_t = DynamicDesign::default().max_kpa, value_parser = super::finite)]
     max_kpa: f64,
@@ -48,13 +41,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     }
     outputs::check(&[], &[Output::new(&a.out, "--out")])?;
     let steps = if a.dynamic {
-        protocol::dynamic(&DynamicDesign {
-            duration_s: a.duration_s,
-            rate_hz: a.rate_hz,
-            trials: a.trials,
-            seed: a.seed,
-            max_kpa: a.max_kpa,
-        })?
+        protocol::dynamic(&a.design.with(a.seed, a.max_kpa))?
     } else {
         protocol::paper_steps(a.grid_step_kpa, a.sweep_step_kpa, a.hold_s)?
     };
@@ -65,8 +52,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             "wrote {} ({} commands at {} Hz in {} trials, {seconds:.0} s with the rest holds; seed {})",
             a.out.display(),
             steps.len(),
-            a.rate_hz,
-            a.trials,
+            a.design.rate_hz,
+            a.design.trials,
             a.seed
         );
     } else {
@@ -78,4 +65,31 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// A dynamic excitation's length, rate and trials (protocol and synth).
+#[derive(clap::Args)]
+pub struct DynamicArgs {
+    /// Length of each dynamic trial (s)
+    #[arg(long, requires = "dynamic", default_value_t = DynamicDesign::default().duration_s, value_parser = super::finite)]
+    duration_s: f64,
+    /// Dynamic commands per second (at most 200)
+    #[arg(long, requires = "dynamic", default_value_t = DynamicDesign::default().rate_hz, value_parser = super::finite)]
+    rate_hz: f64,
+    /// Dynamic trials (phases dyn_1 … dyn_N)
+    #[arg(long, requires = "dynamic", default_value_t = DynamicDesign::default().trials)]
+    trials: usize,
+}
+
+impl DynamicArgs {
+    /// The design, seeded, commands up to `max_kpa`.
+    pub fn with(&self, seed: u64, max_kpa: f64) -> DynamicDesign {
+        DynamicDesign {
+            duration_s: self.duration_s,
+            rate_hz: self.rate_hz,
+            trials: self.trials,
+            seed,
+            max_kpa,
+        }
+    }
 }

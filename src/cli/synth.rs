@@ -4,7 +4,7 @@
 
 use std::path::PathBuf;
 
-use anyhow::{bail, Context};
+use anyhow::Context;
 
 use crate::pipeline::synth;
 use crate::session::protocol::{self, DynamicDesign};
@@ -75,15 +75,8 @@ pub struct Args {
     /// should give)
     #[arg(long, conflicts_with_all = ["no_images", "window_ms"])]
     dynamic: bool,
-    /// Length of each dynamic trial (s)
-    #[arg(long, requires = "dynamic", default_value_t = 20.0, value_parser = super::finite)]
-    duration_s: f64,
-    /// Dynamic commands per second
-    #[arg(long, requires = "dynamic", default_value_t = 30.0, value_parser = super::finite)]
-    rate_hz: f64,
-    /// Dynamic trials (phases dyn_1 … dyn_N)
-    #[arg(long, requires = "dynamic", default_value_t = 4)]
-    trials: usize,
+    #[command(flatten)]
+    design: super::protocol::DynamicArgs,
     /// A protocol file to play instead (as `handcap protocol` writes it, e.g. a trajectory's
     /// commands between rest holds), filmed as a dynamic session, without board pairs: the rig
     /// is the one a synth run of the same seed and rig flags calibrates
@@ -108,21 +101,13 @@ pub struct FrameArgs {
     jpeg_quality: u8,
     /// JPEG colour resolution: 420 (half each way, as webcams and OpenCV write) or 444 (full)
     #[arg(long, value_enum, default_value = "420")]
-    chroma: ChromaArg,
+    chroma: Chroma,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, clap::ValueEnum)]
 pub enum FormatArg {
     Png,
     Jpeg,
-}
-
-#[derive(Clone, Copy, Debug, PartialEq, clap::ValueEnum)]
-pub enum ChromaArg {
-    #[value(name = "420")]
-    Half,
-    #[value(name = "444")]
-    Full,
 }
 
 impl FrameArgs {
@@ -133,10 +118,7 @@ impl FrameArgs {
             None if self.clean => ImageFormat::Png,
             _ => ImageFormat::Jpeg {
                 quality: self.jpeg_quality,
-                chroma: match self.chroma {
-                    ChromaArg::Half => Chroma::Half,
-                    ChromaArg::Full => Chroma::Full,
-                },
+                chroma: self.chroma,
             },
         };
         let realism = if self.clean {
@@ -149,12 +131,6 @@ impl FrameArgs {
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
-    if !a.no_images && !a.dynamic && a.protocol.is_none() && a.hysteresis_kpa != 0.0 {
-        bail!("--hysteresis-kpa applies to the datasets and dynamic sessions only; add --no-images or --dynamic, or drop it to render images");
-    }
-    if !(a.baseline_mm > 0.0 && a.distance_mm >= 80.0 && a.distance_mm <= 400.0) {
-        bail!("--baseline-mm must be positive and --distance-mm lie in 80-400 mm");
-    }
     let config = SynthConfig {
         seed: a.seed,
         noise_mm: a.noise_mm,
@@ -200,13 +176,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         dynamic: match &played {
             Some(steps) => Some(DynamicSession::Played(steps.clone())),
             None => a.dynamic.then(|| {
-                DynamicSession::Design(DynamicDesign {
-                    duration_s: a.duration_s,
-                    rate_hz: a.rate_hz,
-                    trials: a.trials,
-                    seed: a.seed,
-                    ..DynamicDesign::default()
-                })
+                DynamicSession::Design(a.design.with(a.seed, DynamicDesign::default().max_kpa))
             }),
         },
         dynamics: if a.dynamic || a.protocol.is_some() {
@@ -218,28 +188,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     });
     let done = super::with_session(|s| synth::run(&a.out, &config, capture_config.as_ref(), s))
         .with_context(|| format!("synth into {}", a.out.display()))?;
-    super::print_written(&done.datasets);
-    if let Some(c) = &done.capture {
-        let boards = if c.board_pairs > 0 {
-            format!(
-                "{}/calib/ ({} board pairs + the reference pair), ",
-                a.out.display(),
-                c.board_pairs
-            )
-        } else {
-            String::new()
-        };
-        println!(
-            "wrote {boards}{out}/frames/ ({} left, {} right frames over {} pressure steps), pressures.csv, truth/ in {:.1} s",
-            c.left_frames,
-            c.right_frames,
-            c.steps,
-            done.seconds,
-            out = a.out.display(),
-        );
-        if c.interrupted {
-            return Err(super::Interrupted("interrupted: the images written so far are complete, the rest are missing; run again to finish".into()).into());
-        }
+    print!("{done}");
+    if done.capture.as_ref().is_some_and(|c| c.interrupted) {
+        return Err(crate::pipeline::PipelineError::Interrupted("interrupted: the images written so far are complete, the rest are missing; run again to finish".into()).into());
     }
     Ok(())
 }

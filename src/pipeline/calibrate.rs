@@ -1,10 +1,14 @@
 //! The calibrate stage: chessboard pairs → the calibration file and its figures.
 
+use std::fmt;
 use std::path::{Path, PathBuf};
 
 use super::outputs::{self, Output};
 use super::{io_error, PipelineError, Session, Task};
-use crate::calib::{self, file, BoardSpec, CalibOptions, PartialBoard, StereoCalibration};
+use crate::calib::uncertainty::{self, ParameterSd};
+use crate::calib::{
+    self, file, validate, BoardSpec, CalibOptions, PartialBoard, StereoCalibration,
+};
 use crate::fsio;
 
 /// What the stage did and wrote.
@@ -181,4 +185,146 @@ fn pick_from_videos(
         picked.dir.display()
     )));
     Ok(Some(picked))
+}
+
+impl fmt::Display for Calibrated {
+    /// What the calibration found, as `handcap calibrate` prints it.
+    fn fmt(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        let c = &self.calibration;
+        for image in &c.unpaired {
+            writeln!(f, "skipped {}: no partner image", image.display())?;
+        }
+        writeln!(
+            f,
+            "{} pairs used, {} rejected; detector: {}",
+            c.used().count(),
+            c.rejected().count(),
+            c.detector.name()
+        )?;
+        for p in &c.pairs {
+            match (&p.rms_px, &p.rejected) {
+                (Some([l, r]), _) => writeln!(
+                    f,
+                    "  {:>6}  left {l:.3} px  right {r:.3} px{}",
+                    p.name,
+                    p.note
+                        .as_ref()
+                        .map(|n| format!("  ({n})"))
+                        .unwrap_or_default()
+                )?,
+                (_, Some(why)) => writeln!(f, "  {:>6}  rejected: {why}", p.name)?,
+                _ => {}
+            }
+        }
+        let baseline = c.rig.right_from_left.translation.norm();
+        writeln!(
+            f,
+            "RMS {:.3} px, epipolar {:.3} px, baseline {baseline:.2} mm, f {:.1}/{:.1} px",
+            c.rms_px,
+            c.epipolar_px,
+            c.rig.left.fx(),
+            c.rig.right.fx()
+        )?;
+        let parameters = |sd: &ParameterSd| {
+            let camera = |sd: Option<[f64; 9]>| match sd {
+                Some(sd) => format!(
+                    "fx ±{:.2} fy ±{:.2} cx ±{:.2} cy ±{:.2} px",
+                    sd[0], sd[1], sd[2], sd[3]
+                ),
+                None => "fixed".into(),
+            };
+            let [rx, ry, rz] = sd.rotation_deg;
+            format!(
+            "left {}; right {}; baseline ±{:.3} mm ({:.3} %), rotation ±{rx:.3}/{ry:.3}/{rz:.3}° about x/y/z",
+            camera(sd.intrinsics[0]),
+            camera(sd.intrinsics[1]),
+            sd.baseline_mm,
+            100.0 * sd.baseline_mm / baseline
+        )
+        };
+        match &c.uncertainty {
+            Some(u) => {
+                writeln!(
+                    f,
+                    "1 sd (covariance of the fit, corners ±{:.3} px): {}",
+                    u.corner_sd_px,
+                    parameters(&u.parameters)
+                )?;
+                let t = &u.tip;
+                let axes = |v: [f64; 3]| format!("±{:.3}/{:.3}/{:.3} mm", v[0], v[1], v[2]);
+                writeln!(f,
+                "tip at {} ({:.0} mm away), x/y/depth: position {} and a {} mm move {} from the calibration; {} per {} px of marker noise",
+                u.at,
+                nalgebra::Vector3::from(u.at_mm).norm(),
+                axes(t.position),
+                uncertainty::DISPLACEMENT_MM,
+                axes(t.displacement),
+                axes(t.marker),
+                uncertainty::MARKER_NOISE_PX
+            )?;
+            }
+            None => writeln!(f, "{}", file::uncertainty_note(c))?,
+        }
+        if let Some(b) = &c.bootstrap {
+            writeln!(
+                f,
+                "1 sd (bootstrap, {} rounds, seed {}): {}",
+                b.rounds,
+                b.seed,
+                parameters(&b.parameters)
+            )?;
+        }
+        let g = &c.guidance;
+        let coverage = g.coverage();
+        writeln!(f,
+        "coverage {:.0} % / {:.0} % of the image (left / right, # = corners seen); board tilt sd {:.0}° about x, {:.0}° about y",
+        100.0 * coverage[0],
+        100.0 * coverage[1],
+        g.tilt_sd_deg[0],
+        g.tilt_sd_deg[1]
+    )?;
+        for (l, r) in g.map(0).iter().zip(g.map(1)) {
+            writeln!(f, "  {l}  {r}")?;
+        }
+        writeln!(
+            f,
+            "boards triangulate to {:.4} ± {:.4} squares, {:.3} mm off-plane RMS",
+            c.board_check.neighbour_mean_squares,
+            c.board_check.neighbour_sd_squares,
+            c.board_check.planarity_rms_mm
+        )?;
+        if let Some(v) = &c.validation {
+            validation(f, v)?;
+        }
+        writeln!(f, "hand axes: {}", c.hand_axes_note)?;
+        for a in &g.advice {
+            writeln!(f, "advice: {a}")?;
+        }
+        Ok(())
+    }
+}
+
+/// The validation: the stated deviations checked against two halves of the pairs.
+fn validation(f: &mut fmt::Formatter, v: &validate::Validation) -> fmt::Result {
+    let axes = |v: [f64; 3]| format!("{:.4}/{:.4}/{:.4}", v[0], v[1], v[2]);
+    writeln!(f,
+        "validation ({} splits into halves of {}/{} pairs): the halves' tips disagree by {} mm RMS (x/y/depth) over ±{} mm around the finger, their covariances predict {} mm: ratio {:.2} (about 1 when the stated deviations are honest)",
+        v.splits,
+        v.half_pairs[0],
+        v.half_pairs[1],
+        axes(v.disagreement_mm),
+        validate::VOLUME_MM,
+        axes(v.predicted_mm),
+        v.ratio
+    )?;
+    if let (Some(near), Some(far)) = (v.map.first(), v.map.last()) {
+        writeln!(f,
+            "  tip position sd {:.4} mm {:.0} mm from the nearest board corner seen, {:.4} mm at {:.0} mm; the finger's base is {:.0} mm from one",
+            near.1, near.0, far.1, far.0, v.base_distance_mm
+        )?;
+    }
+    for w in &v.warnings {
+        writeln!(f, "  warning: {w}")?;
+    }
+    Ok(())
 }

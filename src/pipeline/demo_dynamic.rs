@@ -22,7 +22,7 @@ use crate::model::file::ModelFile;
 use crate::model::history::HistoryChoice;
 use crate::model::msvr::fitness::FitnessKind;
 use crate::model::msvr::folds::FoldsBy;
-use crate::model::msvr::tune::BasisChoice;
+use crate::model::msvr::tune::{BasisChoice, Pinned};
 use crate::model::msvr::MsvrParams;
 use crate::model::Errors;
 use crate::plot::{self, LinePlot, Mark, Series};
@@ -204,6 +204,7 @@ fn job(data: &Path, test: &Path, out: &Path, history: bool, search: Search) -> F
         inputs: names(&HAND_INPUTS),
         outputs: names(&HAND_OUTPUTS),
         params: MsvrParams::default(),
+        pinned: Pinned::default(),
         selection: Selection::Search {
             method: Method::AcoR(AcoR {
                 seed,

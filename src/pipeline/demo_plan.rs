@@ -7,7 +7,7 @@ use crate::data::{names, HAND_INPUTS, HAND_OUTPUTS};
 use crate::model::history::HistoryChoice;
 use crate::model::msvr::fitness::FitnessKind;
 use crate::model::msvr::folds::FoldsBy;
-use crate::model::msvr::tune::BasisChoice;
+use crate::model::msvr::tune::{BasisChoice, Pinned};
 use crate::model::msvr::MsvrParams;
 use crate::search::aco_paper::AcoPaper;
 use crate::search::Method;
@@ -104,6 +104,7 @@ pub(super) fn job(
         inputs: names(&HAND_INPUTS),
         outputs: names(&HAND_OUTPUTS),
         params: MsvrParams::default(),
+        pinned: Pinned::default(),
         selection: Selection::Search {
             method: Method::AcoPaper(plan.aco),
             budget: None,

@@ -1,6 +1,7 @@
 //! The fit stage: the model chosen, fitted and calibrated by [`crate::select`] on the files'
 //! rows, scored with the previous model on held-out files, then the report and the model file.
 
+use std::fmt;
 use std::path::{Path, PathBuf};
 
 use super::outputs::{self, Output};
@@ -16,7 +17,7 @@ use crate::report::{
     self, Comparison, IntervalReport, ModelReport, NamedModel, PreviousSummary, TestCoverageReport,
     TestResult,
 };
-use crate::search::IterationRecord;
+use crate::search::{IterationRecord, Search, SearchStop};
 use crate::select::{self, Listener, Plan, SelectError, Selected, Table};
 
 pub use crate::select::Selection;
@@ -29,6 +30,8 @@ pub struct FitJob {
     /// The fixed parameters (`Selection::Fixed`) and the solver controls (always).
     pub params: MsvrParams,
     pub selection: Selection,
+    /// Parameters a search holds at [`FitJob::params`]' values.
+    pub pinned: Pinned,
     /// The rows a search scores candidates on, when not the training data.
     pub search_on: Option<PathBuf>,
     pub tests: Vec<PathBuf>,
@@ -55,7 +58,7 @@ impl FitJob {
         Plan {
             params: self.params,
             selection: self.selection.clone(),
-            pinned: Pinned::default(),
+            pinned: self.pinned,
             basis: self.basis,
             history: self.history.clone(),
             time: self.time.clone(),
@@ -133,6 +136,15 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
     job.params
         .check()
         .map_err(|e| PipelineError::Request(format!("model parameters: {e}")))?;
+    job.plan()
+        .check()
+        .map_err(|e| PipelineError::Request(e.to_string()))?;
+    if job.search_on.is_some() && !job.selection.searched() {
+        return Err(PipelineError::Request(
+            "search_on=FILE gives the rows a search scores candidates on: use it with a search"
+                .into(),
+        ));
+    }
     outputs::check(&job.inputs(), &job.outputs())?;
     note_flagged(job, session)?;
     let train = read_table(&job.data, job, true)?;
@@ -379,4 +391,91 @@ pub(crate) fn file_name(path: &Path) -> String {
         || path.display().to_string(),
         |f| f.to_string_lossy().into_owned(),
     )
+}
+
+impl fmt::Display for FitOutcome {
+    /// The search, the fit and the held-out errors, as `handcap model` prints them.
+    fn fmt(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        let r = &self.report;
+        if let Some(searched) = &self.search {
+            let (s, counters) = (&searched.summary, &searched.counters);
+            writeln!(
+                f,
+                "search {}: {} iterations ({:?}), best {} {:.5}",
+                s.method.name(),
+                s.iterations,
+                s.stop,
+                s.fitness,
+                s.best_fitness
+            )?;
+            writeln!(f,
+            "  {} candidates scored ({} stopped early by racing), {} fits, {} memo hits, {} kernel cache hits, {:.1} s",
+            counters.evaluations,
+            counters.raced,
+            counters.fits,
+            counters.memo_hits,
+            counters.kernel_hits,
+            searched.seconds
+        )?;
+            if s.stop == SearchStop::Interrupted {
+                writeln!(
+                    f,
+                    "  interrupted: the model uses the best parameters found so far"
+                )?;
+            }
+        }
+        let fit = &r.fit;
+        let settings: Vec<String> = r
+            .spec
+            .settings()
+            .iter()
+            .skip(1)
+            .map(|(name, value)| format!("{name} = {value}"))
+            .collect();
+        writeln!(
+            f,
+            "{} on {}: {} rows, {}",
+            r.spec.settings()[0].1,
+            r.training_file,
+            fit.rows,
+            settings.join(", ")
+        )?;
+        writeln!(
+            f,
+            "  {} iterations, objective {:.6e}, {} terms, {} ({:?})",
+            fit.iterations,
+            fit.objective,
+            fit.support_vectors,
+            if fit.converged {
+                "converged"
+            } else {
+                "NOT converged: raise the solver's iteration cap"
+            },
+            fit.stop
+        )?;
+        writeln!(
+            f,
+            "  training error (not a test): MAE {:.4}, mean Euclidean {:.4}",
+            r.train_errors.mae, r.train_errors.euclid
+        )?;
+        if let Some(p) = &r.previous {
+            let (c, cal) = (&p.calibrated, &p.calibration);
+            writeln!(f,
+            "previous model calibrated on {} rows: α₀ {:.2}°, K {:.2} N, P_th {:.1} kPa, arms {:.3} × {:.3}; RMS {:.4} ({})",
+            cal.rows,
+            c.braid_angle_deg,
+            c.load_n,
+            c.threshold_kpa,
+            c.arm_x,
+            c.arm_y,
+            cal.rms_mm,
+            if cal.converged { "converged" } else { "NOT converged" }
+        )?;
+        }
+        if !r.tests.is_empty() {
+            writeln!(f, "held-out errors (output units):")?;
+            write!(f, "{}", report::errors_table(&r.tests, &r.outputs))?;
+        }
+        Ok(())
+    }
 }

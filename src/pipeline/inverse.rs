@@ -3,6 +3,7 @@
 //! the same columns with the plant's answer beside them, and [`super::trajectory`] the same
 //! along a path: the columns are named by [`planned_columns`] alone.
 
+use std::fmt;
 use std::path::Path;
 
 use super::outputs::{self, Output};
@@ -104,6 +105,8 @@ pub struct Targets<'a> {
 /// What [`plan_targets`] planned.
 pub struct PlannedTargets {
     pub solutions: Vec<InverseSolution>,
+    /// The reach a target counts as reached within.
+    pub reach: f64,
     /// The box searched, e.g. "P1_kpa 0-250, P2_kpa 0-250, P3_kpa 0-250".
     pub bounds: String,
     /// What the user should know about the plan (the model's history, a missing interval).
@@ -139,9 +142,110 @@ pub fn plan_targets(job: &Targets) -> Result<PlannedTargets, PipelineError> {
     data::write_csv(job.out, &blocks)?;
     Ok(PlannedTargets {
         solutions,
+        reach: job.limits.reach,
         bounds: bounds(model, &options),
         notes,
     })
+}
+
+impl fmt::Display for PlannedTargets {
+    /// How many targets were reached, one line.
+    fn fmt(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        let n = self.solutions.len();
+        let missed = self.solutions.iter().filter(|s| !s.reached).count();
+        let mean = self.solutions.iter().map(|s| s.error).sum::<f64>() / n as f64;
+        write!(
+            f,
+            "{n} targets: {} reached within {}, {missed} out of reach (nearest points written); mean model error {mean:.5}",
+            n - missed,
+            self.reach
+        )
+    }
+}
+
+/// What [`plan_one`] planned for a single target.
+pub struct PlannedOne {
+    pub solution: InverseSolution,
+    pub target: Vec<f64>,
+    pub inputs: Vec<String>,
+    pub outputs: Vec<String>,
+    /// The box searched ([`bounds`]).
+    pub bounds: String,
+    /// The interval's level and radius around the planned tip, when there is one.
+    pub interval: Option<(f64, f64)>,
+    /// What the user should know (the model's history, a missing interval).
+    pub notes: Vec<String>,
+}
+
+/// One target planned (a history model at its steady state).
+///
+/// # Errors
+/// An unreadable model file, limits out of range, or a failed solve.
+pub fn plan_one(
+    model: &Path,
+    target: &[f64],
+    limits: Limits,
+    level: Option<f64>,
+) -> Result<PlannedOne, PipelineError> {
+    let file = ModelFile::load(model)?;
+    let (steady, mut notes) = steady_state(&file);
+    let model: &dyn Differentiable = &steady;
+    let options = limits.options(model)?;
+    let solution = inverse::solve(model, target, &options)?;
+    let interval = level.zip(interval_radius(&file, level, &mut notes));
+    Ok(PlannedOne {
+        solution,
+        target: target.to_vec(),
+        inputs: model.inputs().to_vec(),
+        outputs: model.outputs().to_vec(),
+        bounds: bounds(model, &options),
+        interval,
+        notes,
+    })
+}
+
+/// `names` and `values`, e.g. "P1_kpa 120.0000, P2_kpa 0.0000".
+fn named(names: &[String], values: &[f64]) -> String {
+    names
+        .iter()
+        .zip(values)
+        .map(|(n, v)| format!("{n} {v:.4}"))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+impl fmt::Display for PlannedOne {
+    /// The inputs found and the model's tip there (with its interval); out of reach, the
+    /// nearest reachable point.
+    fn fmt(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        let s = &self.solution;
+        if !s.reached {
+            return write!(
+                f,
+                "target ({}) is out of reach within {}: the nearest reachable point is ({}), {:.4} away, at {}",
+                named(&self.outputs, &self.target),
+                self.bounds,
+                named(&self.outputs, &s.achieved),
+                s.error,
+                named(&self.inputs, &s.inputs)
+            );
+        }
+        writeln!(f, "{}", named(&self.inputs, &s.inputs))?;
+        writeln!(
+            f,
+            "model tip: {} (error {:.5})",
+            named(&self.outputs, &s.achieved),
+            s.error
+        )?;
+        if let Some((level, r)) = self.interval {
+            writeln!(
+                f,
+                "the real tip lies within {r:.4} of it {} % of the time (conformal interval, marginal over inputs like the held-out ones)",
+                level * 100.0
+            )?;
+        }
+        Ok(())
+    }
 }
 
 /// The model's conformal radius at `level` around each planned tip (a conformal radius is the

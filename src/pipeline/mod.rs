@@ -18,9 +18,11 @@ pub mod demo_dynamic;
 mod demo_plan;
 mod demo_report;
 pub mod demo_summary;
+pub mod export;
 pub mod fit;
 pub mod inverse;
 pub mod outputs;
+pub mod predict;
 pub mod synth;
 pub mod trajectory;
 pub mod triangulate;
@@ -167,6 +169,10 @@ pub enum PipelineError {
     /// An input or output place that cannot be used (not a directory, not writable).
     #[error("{0}")]
     Place(String),
+    /// A session that ended before its work did (a camera lost, a command failed); what it
+    /// recorded is kept.
+    #[error("{0}")]
+    Stopped(String),
     /// Ctrl-C stopped the work; what was finished is kept.
     #[error("{0}")]
     Interrupted(String),

@@ -1,5 +1,6 @@
 //! The synth stage: the datasets and, with a capture configuration, the rendered capture.
 
+use std::fmt;
 use std::path::{Path, PathBuf};
 
 use super::{io_error, PipelineError, Session, Task};
@@ -8,6 +9,7 @@ use crate::synth::{self as plant_data, SynthConfig};
 
 /// What the stage wrote.
 pub struct Synthesized {
+    pub out: PathBuf,
     pub datasets: Vec<PathBuf>,
     /// The capture, when one was rendered; `interrupted` says it is incomplete.
     pub capture: Option<CaptureSummary>,
@@ -19,13 +21,15 @@ pub struct Synthesized {
 /// summary says `interrupted`.
 ///
 /// # Errors
-/// [`PipelineError::Synth`] for bad settings or a file that cannot be written.
+/// [`PipelineError::Request`] for settings that do not fit together; [`PipelineError::Synth`]
+/// for bad settings or a file that cannot be written.
 pub fn run(
     out: &Path,
     config: &SynthConfig,
     capture_config: Option<&CaptureConfig>,
     session: &Session,
 ) -> Result<Synthesized, PipelineError> {
+    check(config, capture_config)?;
     let started = std::time::Instant::now();
     let provenance = session.provenance(Some(config.seed));
     // A dynamic session's dataset is its per-frame truth; the settled grid is the steps'.
@@ -37,6 +41,7 @@ pub fn run(
     };
     let Some(capture_config) = capture_config else {
         return Ok(Synthesized {
+            out: out.to_path_buf(),
             datasets,
             capture: None,
             seconds: started.elapsed().as_secs_f64(),
@@ -61,8 +66,53 @@ pub fn run(
         &provenance,
     )?;
     Ok(Synthesized {
+        out: out.to_path_buf(),
         datasets,
         capture: Some(summary),
         seconds: started.elapsed().as_secs_f64(),
     })
+}
+
+/// Refuses a hysteresis on rendered steps (their settled map has none) and a rig the finger
+/// would not be seen from.
+fn check(config: &SynthConfig, capture: Option<&CaptureConfig>) -> Result<(), PipelineError> {
+    let refuse = |why: &str| Err(PipelineError::Request(why.to_string()));
+    let Some(capture) = capture else {
+        return Ok(());
+    };
+    if capture.dynamic.is_none() && config.plant.hysteresis_kpa != 0.0 {
+        return refuse("hysteresis_kpa= applies to the datasets and dynamic sessions only: write no images or a dynamic session, or drop it to render images");
+    }
+    let rig = &capture.rig;
+    if !(rig.baseline_mm > 0.0 && (80.0..=400.0).contains(&rig.distance_mm)) {
+        return refuse("baseline_mm= must be positive and distance_mm= lie in 80-400 mm");
+    }
+    Ok(())
+}
+
+impl fmt::Display for Synthesized {
+    /// The files written, and with a capture how many frames over how many steps.
+    fn fmt(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        for path in &self.datasets {
+            writeln!(f, "wrote {}", path.display())?;
+        }
+        let Some(c) = &self.capture else {
+            return Ok(());
+        };
+        let out = self.out.display();
+        if c.board_pairs > 0 {
+            write!(
+                f,
+                "wrote {out}/calib/ ({} board pairs + the reference pair), {out}/frames/",
+                c.board_pairs
+            )?;
+        } else {
+            write!(f, "wrote {out}/frames/")?;
+        }
+        writeln!(
+            f,
+            " ({} left, {} right frames over {} pressure steps), pressures.csv, truth/ in {:.1} s",
+            c.left_frames, c.right_frames, c.steps, self.seconds
+        )
+    }
 }

@@ -3,6 +3,7 @@
 //! commands played and the outputs measured, the next repetition's (iterative learning
 //! control). The commands file has [`super::inverse::planned_columns`] after the time.
 
+use std::fmt;
 use std::path::{Path, PathBuf};
 
 use super::inverse::{planned_columns, Limits};
@@ -32,6 +33,8 @@ pub struct Request<'a> {
 
 /// What [`run`] planned.
 pub struct Planned {
+    /// The commands file written.
+    pub out: PathBuf,
     pub rows: usize,
     pub how: How,
     /// Rows out of the model's reach at their times (flagged `reached` 0).
@@ -56,7 +59,51 @@ pub enum How {
         measured: PathBuf,
         rms: f64,
         largest: f64,
+        /// The share of the error corrected.
+        gain: f64,
     },
+}
+
+impl Planned {
+    /// Rows out of reach, when the plan (not a learning step) has some.
+    pub fn warning(&self) -> Option<String> {
+        (self.missed > 0 && !matches!(self.how, How::Learned { .. })).then(|| format!(
+            "{} of {} rows are out of the model's reach within the box (or its lag) at their times: followed as closely as it allows, reached=0 in {}",
+            self.missed,
+            self.rows,
+            self.out.display()
+        ))
+    }
+}
+
+impl fmt::Display for Planned {
+    /// How the commands were planned and what was written.
+    fn fmt(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        let rows = self.rows;
+        match &self.how {
+            How::Anticipated { memory, rms, pointwise_rms } => writeln!(f,
+                "planned {rows} rows along the path with the model's history ({memory}): predicted tracking RMS {rms:.4} (the pointwise inverse of the settled map, played at the same times: {pointwise_rms:.4})"
+            ),
+            How::Pointwise { rms } => writeln!(f,
+                "planned {rows} rows, each the pointwise inverse (the model has no history: it cannot anticipate the actuator's lag); model error RMS {rms:.4}"
+            ),
+            How::Learned { measured, rms, largest, gain } => writeln!(f,
+                "the run learned from ({}): tracking RMS {rms:.4}, largest {largest:.4} over {rows} rows; next commands planned with gain {gain}",
+                measured.display(),
+            ),
+        }?;
+        writeln!(
+            f,
+            "wrote {} and {}.svg/.png (the path: target, the model's prediction{})",
+            self.out.display(),
+            self.figure.display(),
+            if matches!(self.how, How::Learned { .. }) {
+                ", the run measured"
+            } else {
+                ""
+            }
+        )
+    }
 }
 
 /// An input file that cannot be used.
@@ -194,6 +241,7 @@ pub fn run(r: &Request) -> Result<Planned, PipelineError> {
                 measured: measured.to_path_buf(),
                 rms: trajectory::rms(&errors),
                 largest: errors.iter().copied().fold(0.0, f64::max),
+                gain: r.gain,
             };
             (plan, how, Some(seen))
         }
@@ -207,6 +255,7 @@ pub fn run(r: &Request) -> Result<Planned, PipelineError> {
         seen.as_deref(),
     )?;
     Ok(Planned {
+        out: r.out.to_path_buf(),
         rows: time.len(),
         how,
         missed: plan.reached.iter().filter(|&&r| !r).count(),

@@ -1,6 +1,7 @@
 //! The triangulate stage: frames, calibration and pressure log → the dataset and the files
 //! beside it.
 
+use std::fmt;
 use std::path::{Path, PathBuf};
 
 use super::outputs::{self, Output};
@@ -11,6 +12,7 @@ use crate::capture::CAPTURE_FILE;
 use crate::session::frames::FrameList;
 use crate::session::pressures::{read_pressure_log, PressureLog};
 use crate::triangulate::per_frame::{self, PerFrame};
+use crate::triangulate::summary::FrameCounts;
 use crate::triangulate::{self, output, TriangulateOptions, Triangulation};
 
 /// What the stage did and wrote.
@@ -209,4 +211,174 @@ pub fn run_per_frame(
     let provenance = provenance(session, frames, calib, pressures)?;
     let written = per_frame.write(out, &log, &provenance)?;
     Ok(TriangulatedPerFrame { per_frame, written })
+}
+
+/// What became of the frames, one line.
+fn frames_line(c: &FrameCounts) -> String {
+    format!(
+        "frames: {} left, {} right; marker missing in {} / {}, several candidates in {} / {}, unreadable {} / {}, no file {} / {}",
+        c.listed[0],
+        c.listed[1],
+        c.marker_missing[0],
+        c.marker_missing[1],
+        c.several_candidates[0],
+        c.several_candidates[1],
+        c.unreadable[0],
+        c.unreadable[1],
+        c.no_file[0],
+        c.no_file[1],
+    )
+}
+
+impl fmt::Display for TriangulatedPerFrame {
+    /// What a per-frame run found, in a few lines.
+    fn fmt(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        let s = &self.per_frame.summary;
+        writeln!(f, "{}", frames_line(&s.frames))?;
+        let flagged: Vec<String> = s.flagged.iter().map(|(k, v)| format!("{v} {k}")).collect();
+        writeln!(
+            f,
+            "rows: {} (one per left frame), {} with a tip and no flag{}",
+            s.rows,
+            s.good_rows,
+            if flagged.is_empty() {
+                String::new()
+            } else {
+                format!("; flagged: {}", flagged.join(", "))
+            }
+        )?;
+        if s.clock_frames > 0 {
+            writeln!(f,
+            "clock: the right camera's stamps run {:+.2} ms ahead of the left's (from the motion of {} frames); tracks interpolated across it",
+            s.clock_offset_ms, s.clock_frames
+        )?;
+        } else {
+            writeln!(
+                f,
+                "clock: too little motion to measure the cameras' offset; stamps taken as they are"
+            )?;
+        }
+        writeln!(f,
+        "origin: {} rows of the first rest hold, spread {:.4} mm RMS; reprojection {:.3} / {:.3} / {:.3} px (median / 95 % / max)",
+        s.origin_rows, s.origin_spread_mm, s.reproj_px[0], s.reproj_px[1], s.reproj_px[2]
+    )
+    }
+}
+
+impl fmt::Display for Triangulated {
+    /// What the frames gave, step by step, as `handcap triangulate` prints it.
+    fn fmt(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        let t = &self.triangulation;
+        let s = &t.summary;
+        writeln!(f, "{}", frames_line(&s.frames))?;
+        let frames = &s.frames;
+        if let Some(first) = &frames.first_unreadable {
+            writeln!(f, "  first unreadable: {first}")?;
+        }
+        if frames.stamped_late.iter().sum::<usize>() > 0 {
+            writeln!(f,
+            "  stamped late (they arrived faster than the camera makes them: they had waited in a queue, the capture machine or network fell behind), left out of the pairs: {} left, {} right frames, up to {:.0} ms",
+            frames.stamped_late[0], frames.stamped_late[1], frames.late_max_ms
+        )?;
+        }
+        let pairs: Vec<String> = s.pairs.iter().map(|(k, v)| format!("{v} {k}")).collect();
+        writeln!(
+            f,
+            "pairs: {} formed ({} left, {} right frames unpaired): {}",
+            s.pairs_formed,
+            s.unpaired[0],
+            s.unpaired[1],
+            pairs.join(", ")
+        )?;
+        writeln!(
+            f,
+            "reprojection of used pairs: median {:.3} px, 95 % {:.3} px, max {:.3} px",
+            s.reproj_px[0], s.reproj_px[1], s.reproj_px[2]
+        )?;
+        let [mean, sd, p95] = s.epipolar_px;
+        writeln!(f,
+        "epipolar residual of the used pairs: mean {mean:+.3} px, sd {sd:.3} px, 95 % within {p95:.3} px (a mean away from 0 or a wide spread: a biased detection or a drifted calibration)"
+    )?;
+        if s.centroid_only[0] + s.centroid_only[1] > 0 {
+            writeln!(f,
+            "  marker placed by its colour centroid only (the sub-pixel fit did not settle) in {} left, {} right used frames",
+            s.centroid_only[0], s.centroid_only[1]
+        )?;
+        }
+        for end in s.video_ended.iter().flatten() {
+            writeln!(f,
+            "  {} ends after {} frames, before the last {} frames frames.csv lists for it (cut short?): those are counted missing",
+            end.path.display(),
+            end.frames,
+            end.missing
+        )?;
+        }
+        let decoded: Vec<String> = ["left", "right"]
+            .iter()
+            .zip(&s.decoded_video)
+            .filter_map(|(side, codec)| codec.as_ref().map(|c| format!("{side} {c}")))
+            .collect();
+        if !decoded.is_empty() {
+            writeln!(f,
+            "  videos not Motion-JPEG ({}): their frames reach the marker's fit decoded, their colour's sampling unknown (MPEG-4 copies of a lab capture: tip 0.11 mm RMS against 0.04 from its JPEGs); record the webcam's own Motion-JPEG stream (ffmpeg -input_format mjpeg … -c:v copy) for the full accuracy",
+            decoded.join(", ")
+        )?;
+        }
+        let mut latency = s.latency.describe().into_iter();
+        writeln!(f, "{}", latency.next().expect("a first line"))?;
+        for line in latency {
+            writeln!(f, "  {line}")?;
+        }
+        let c = &s.clock;
+        writeln!(f,
+        "clock: a pair's frames {:.1} ms apart (median, 95 % within {:.1}), drift {:+.1} ms over the session; frame periods {}; frames dropped within steps {}/{}",
+        c.skew_ms[0], c.skew_ms[1], c.drift_ms, c.periods(), c.dropped[0], c.dropped[1]
+    )?;
+        if let Some([median, largest]) = c.command_ms {
+            writeln!(f,
+            "  the regulator's commands took {median:.0} ms (median), {largest:.0} ms at most; settling counted from their end"
+        )?;
+        }
+        if !c.settling_only.is_empty() {
+            writeln!(f,
+            "  {} steps were filmed only while settling (no frame later than settle_s={} after the command returned): hold each step longer{}",
+            c.settling_only.len(),
+            t.options.settle_s,
+            if c.command_ms.is_some_and(|[_, largest]| largest > 1e3 * t.options.settle_s) {
+                ", or make the regulator's command return sooner"
+            } else {
+                ""
+            }
+        )?;
+        }
+        writeln!(
+            f,
+            "hand origin: {} pairs over {} zero-pressure steps, spread {:.4} mm",
+            s.origin.pairs, s.origin.zero_steps, s.origin.spread_mm
+        )?;
+        writeln!(f,
+        "steps: {} logged, {} rows ({} flagged), {} without a tip; spread of a step's pairs: median {:.4} mm, 95 % {:.4} mm, max {:.4} mm",
+        s.steps_logged,
+        s.rows,
+        s.rows_flagged,
+        s.steps_without_tip.len(),
+        s.step_spread_mm[0],
+        s.step_spread_mm[1],
+        s.step_spread_mm[2],
+    )?;
+        for r in t.rows.iter().filter(|r| !r.flags.is_empty()).take(10) {
+            writeln!(
+                f,
+                "  flagged step {} ({}, {}, {} kPa): {} ({} pairs, spread {:.3} mm)",
+                r.step,
+                r.pressures_kpa[0],
+                r.pressures_kpa[1],
+                r.pressures_kpa[2],
+                r.flags.join(", "),
+                r.n_frames,
+                r.spread_mm
+            )?;
+        }
+        Ok(())
+    }
 }

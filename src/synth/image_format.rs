@@ -11,14 +11,16 @@ pub enum ImageFormat {
 }
 
 /// Resolution of a JPEG's colour planes.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, clap::ValueEnum)]
 pub enum Chroma {
     /// 4:2:0, half the resolution both ways: what USB webcams' MJPEG streams and most cameras
     /// write (OpenCV's encoder, libjpeg-turbo).
     #[serde(rename = "4:2:0")]
+    #[value(name = "420")]
     Half,
     /// 4:4:4, full resolution (the `image` crate's encoder).
     #[serde(rename = "4:4:4")]
+    #[value(name = "444")]
     Full,
 }
 

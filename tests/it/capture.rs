@@ -264,7 +264,9 @@ fn capture_refuses_bad_protocols_and_cameras_and_keeps_what_a_stopped_camera_gav
     let msg = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{msg}");
     assert!(
-        msg.contains("--flash failed") && msg.contains("no light") && msg.lines().count() == 1,
+        msg.contains("the flash command failed")
+            && msg.contains("no light")
+            && msg.lines().count() == 1,
         "{msg}"
     );
     let json = read_json(&d.join("dark/capture.json"));
@@ -435,7 +437,7 @@ fn a_write_failure_ends_the_session_vented_with_every_step_logged() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{err}");
     assert!(
-        err.contains("frames") && err.contains("--on-abort ran"),
+        err.contains("frames") && err.contains("the abort command ran"),
         "{err}"
     );
     assert!(d.join("vented").is_file(), "the regulator was not vented");
@@ -469,7 +471,7 @@ fn commands_slower_than_their_hold_are_said_and_fail_the_session() {
     assert_eq!(out.status.code(), Some(1), "{said}");
     assert!(
         said.contains(
-            "12 of 12 steps: the --set-pressure command returned only after the step's hold"
+            "12 of 12 steps: the regulator's command returned only after the step's hold"
         ),
         "{said}"
     );

@@ -160,6 +160,73 @@ pub struct Plan {
 }
 
 impl Plan {
+    /// Refuses a plan whose parts do not fit together, naming them as `field=value`: too few
+    /// folds, folds cut for a fitness that has none, a history without times or compared
+    /// without cross-validation, a budget the method has no use for or cannot start with.
+    ///
+    /// # Errors
+    /// [`SelectError::Parameter`] saying what to change.
+    pub fn check(&self) -> Result<(), SelectError> {
+        let refuse = |why: String| Err(SelectError::Parameter(why));
+        let (folds, folds_by, fitness) = match &self.selection {
+            Selection::Fixed { folds, folds_by } => (*folds, folds_by, None),
+            Selection::Search {
+                fitness, folds_by, ..
+            } => match fitness {
+                FitnessKind::Cv { folds } => (*folds, folds_by, Some(fitness)),
+                FitnessKind::Train => (2, folds_by, Some(fitness)),
+            },
+        };
+        if folds < 2 {
+            return refuse(format!(
+                "folds={folds}: cross-validation needs 2 folds or more"
+            ));
+        }
+        let train = fitness == Some(&FitnessKind::Train);
+        // With a time series a column of runs is the groups history restarts in, folds or not.
+        let names_runs = matches!(folds_by, FoldsBy::Column(c) if self.group.as_ref() == Some(c));
+        if train && *folds_by != FoldsBy::Auto && !(self.time.is_some() && names_runs) {
+            return refuse(format!("folds_by={folds_by} cuts the folds of cross-validation (the search's, the basis' and the intervals'): use it with fitness=cv"));
+        }
+        match (&self.time, &self.history) {
+            (None, HistoryChoice::Auto) => {}
+            (None, history) => {
+                return refuse(format!(
+                    "history={history} builds on the rows' times: give them (time=COLUMN)"
+                ))
+            }
+            (Some(_), HistoryChoice::Auto) if train => return refuse("history=auto compares feature sets by cross-validation: use fitness=cv, or name the history (history=none, ema, lags:K)".into()),
+            _ => {}
+        }
+        if let (
+            Selection::Search {
+                method: Method::AcoPaper(_),
+                ..
+            },
+            Some((name, value)),
+        ) = (&self.selection, self.pinned.values().next())
+        {
+            return refuse(format!("{name}={value} is held by search=aco-r and search=grid; the paper's colony searches all three of its digits"));
+        }
+        if let Selection::Search {
+            method,
+            budget: Some(budget),
+            ..
+        } = &self.selection
+        {
+            match method {
+                Method::AcoPaper(_) => {
+                    return refuse(format!("budget={budget} is the candidate budget of search=aco-r and search=grid; the paper's colony runs its ants and iterations"))
+                }
+                Method::AcoR(m) if *budget < m.archive => {
+                    return refuse(format!("budget={budget}: must be at least {} candidates: the first fill of the colony's archive", m.archive))
+                }
+                _ => {}
+            }
+        }
+        Ok(())
+    }
+
     fn seed(&self) -> Option<u64> {
         self.selection.seed()
     }

@@ -74,6 +74,7 @@ type Tried = (Option<History>, Chosen, Scoring);
 
 impl Run<'_> {
     pub(super) fn check(&self) -> Result<(), SelectError> {
+        self.plan.check()?;
         self.plan
             .params
             .check()

@@ -32,7 +32,7 @@ pub const GRID_LEVELS: usize = 30;
 /// Consecutive rows closer than this share of random pairs are near copies.
 pub const NEAR_COPY_RATIO: f64 = 0.15;
 
-/// What `--folds-by` asks for.
+/// How cross-validation's folds are to be cut (`folds_by`).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum FoldsBy {
     Auto,
@@ -51,6 +51,17 @@ impl std::str::FromStr for FoldsBy {
             "" => return Err("give auto, shuffle, blocks or a column name".into()),
             column => FoldsBy::Column(column.to_string()),
         })
+    }
+}
+
+impl std::fmt::Display for FoldsBy {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            FoldsBy::Auto => f.write_str("auto"),
+            FoldsBy::Shuffle => f.write_str("shuffle"),
+            FoldsBy::Blocks => f.write_str("blocks"),
+            FoldsBy::Column(c) => f.write_str(c),
+        }
     }
 }
 

@@ -149,7 +149,7 @@ pub struct Pinned {
 
 impl Pinned {
     /// (name, value) of each pinned parameter.
-    fn values(&self) -> impl Iterator<Item = (&'static str, f64)> {
+    pub fn values(&self) -> impl Iterator<Item = (&'static str, f64)> {
         Hyper::AXES
             .into_iter()
             .zip([self.c, self.epsilon, self.sigma])

@@ -1,0 +1,75 @@
+//! The predict stage: a fitted model's outputs for a file of inputs, with the interval radius
+//! at a level when asked.
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+use super::outputs::{self, Output};
+use super::PipelineError;
+use crate::data::{self, Columns};
+use crate::model::file::ModelFile;
+
+/// What [`run`] wrote.
+pub struct Predicted {
+    pub out: PathBuf,
+    pub rows: usize,
+    /// The interval's level and radius, when asked.
+    pub interval: Option<(f64, f64)>,
+    /// Rows outside the training range, said when there are some.
+    pub warning: Option<String>,
+}
+
+/// Writes `out`: the inputs of `inputs` (and the columns beside them) with the model's
+/// outputs, and `interval_radius` at `level`.
+///
+/// # Errors
+/// An output that would replace an input, an unreadable model or inputs file, a model without
+/// intervals asked for one.
+pub fn run(
+    model: &Path,
+    inputs: &Path,
+    out: &Path,
+    level: Option<f64>,
+) -> Result<Predicted, PipelineError> {
+    outputs::check(&[model, inputs], &[Output::new(out, "the predictions")])?;
+    let file = ModelFile::load(model)?;
+    let radius = level
+        .map(|level| file.interval_radius(level))
+        .transpose()
+        .map_err(|e| PipelineError::Input(format!("{}: interval: {e}", model.display())))?;
+    let predictor = file.model.predictor();
+    let (given, x) = file.read_inputs(inputs)?;
+    let outside = predictor.outside(&x);
+    let warning = match (outside.farthest, predictor.training_range()) {
+        (Some((j, v)), Some((min, max))) => Some(format!(
+            "{} of {} rows lie outside the training range (farthest: {} = {v}, trained on {}-{}); far from its data an RBF model flattens to a constant, so those predictions are guesses",
+            outside.rows,
+            x.rows(),
+            predictor.inputs()[j],
+            min[j],
+            max[j]
+        )),
+        _ => None,
+    };
+    let y = predictor.predict(&x)?;
+    let interval = radius.map(|r| Columns::new(vec!["interval_radius".into()], vec![r; x.rows()]));
+    let mut blocks = vec![&given, &y];
+    blocks.extend(&interval);
+    data::write_csv(out, &blocks)?;
+    Ok(Predicted {
+        out: out.to_path_buf(),
+        rows: x.rows(),
+        interval: level.zip(radius),
+        warning,
+    })
+}
+
+impl fmt::Display for Predicted {
+    fn fmt(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        write!(f, "wrote {} ({} rows", self.out.display(), self.rows)?;
+        if let Some((level, r)) = self.interval {
+            write!(f, "; {} % interval radius {r:.4}, the same for every row: marginal coverage over rows like the held-out ones", level * 100.0)?;
+        }
+        write!(f, ")")
+    }
+}
