@@ -8,6 +8,7 @@
 //! mid-message, and a step it was told is logged) and then kills the command's whole group.
 
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 use super::{Clock, Ending, COMMAND_TIMEOUT_S};
@@ -167,78 +168,23 @@ pub(super) fn drive_streaming(
     steps: &[protocol::Step],
     command: &str,
     clock: &Clock,
-    log: &std::sync::Mutex<Vec<Commanded>>,
+    log: &Mutex<Vec<Commanded>>,
     stop: &AtomicBool,
 ) -> Option<Ending> {
-    use std::io::{BufRead, Write};
-    use std::os::unix::process::CommandExt;
-    let step_of = |k: usize| steps.get(k).map_or(0, |s| s.step);
     let failed = |k: usize, message: String| {
         Some(Ending::CommandFailed {
-            step: step_of(k),
+            step: steps.get(k).map_or(0, |s| s.step),
             message,
         })
     };
-    let mut child = match std::process::Command::new("sh")
-        .arg("-c")
-        .arg(command)
-        .process_group(0)
-        .stdin(std::process::Stdio::piped())
-        .stdout(std::process::Stdio::piped())
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-    {
-        Ok(child) => child,
-        Err(e) => return failed(0, format!("`{command}` could not run: {e}")),
+    let (mut regulator, output) = match Streamed::spawn(command) {
+        Ok(started) => started,
+        Err(why) => return failed(0, why),
     };
-    let group = child.id();
-    let mut input = child.stdin.take().expect("piped");
-    // SAFETY: the descriptor is the child's input, ours alone; non-blocking so that a regulator
-    // that stops reading is seen, not waited on forever.
-    unsafe {
-        let fd = std::os::fd::AsRawFd::as_raw_fd(&input);
-        let flags = libc::fcntl(fd, libc::F_GETFL);
-        libc::fcntl(fd, libc::F_SETFL, flags | libc::O_NONBLOCK);
-    }
     // What it prints: measured pressures, or the first line that is not one.
-    let garbage: std::sync::Mutex<Option<String>> = std::sync::Mutex::new(None);
-    let output = child.stdout.take().expect("piped");
-    let mut stderr = child.stderr.take().expect("piped");
-    let ending = std::thread::scope(|scope| {
-        let garbage = &garbage;
-        scope.spawn(move || {
-            for (n, line) in std::io::BufReader::new(output).lines().enumerate() {
-                let Ok(line) = line else { break };
-                if line.trim().is_empty() {
-                    continue;
-                }
-                match parse_measured(&line) {
-                    Some(p) => {
-                        if let Some(last) = log.lock().expect("log").last_mut() {
-                            last.measured = Some(p);
-                        }
-                    }
-                    None => {
-                        *garbage.lock().expect("garbage") = Some(format!(
-                            "`{command}` printed line {}: {:?}, not `time_s P1_kpa P2_kpa P3_kpa` (a measured pressure)",
-                            n + 1,
-                            line.chars().take(80).collect::<String>()
-                        ));
-                        break;
-                    }
-                }
-            }
-        });
-        let ended = |child: &mut std::process::Child, stderr: &mut std::process::ChildStderr| {
-            let status = child.try_wait().ok().flatten()?;
-            let mut error = String::new();
-            use std::io::Read;
-            let _ = stderr.read_to_string(&mut error);
-            Some(format!(
-                "`{command}` exited with {status}: {}",
-                error.trim()
-            ))
-        };
+    let garbage: Mutex<Option<String>> = Mutex::new(None);
+    std::thread::scope(|scope| {
+        scope.spawn(|| read_measured(output, command, log, &garbage));
         let mut told = || -> Option<Ending> {
             let mut due = 0.0;
             // When its input was last seen read to the end.
@@ -252,18 +198,13 @@ pub(super) fn drive_streaming(
                     if let Some(why) = garbage.lock().expect("garbage").take() {
                         return failed(k.saturating_sub(1), why);
                     }
-                    if let Some(why) = ended(&mut child, &mut stderr) {
+                    if let Some(why) = regulator.exited() {
                         return failed(k, why);
                     }
-                    if unread(&input) == 0 {
+                    if unread(&regulator.input) == 0 {
                         drained_s = clock.now_s();
                     } else if clock.now_s() - drained_s > STREAM_STALL_S {
-                        return failed(
-                            k.saturating_sub(1),
-                            format!(
-                                "`{command}` has not read its input for {STREAM_STALL_S} s (stalled)"
-                            ),
-                        );
+                        return failed(k.saturating_sub(1), regulator.stalled());
                     }
                     let left = due - clock.now_s();
                     if left <= 0.0 {
@@ -273,27 +214,10 @@ pub(super) fn drive_streaming(
                 }
                 let [p1, p2, p3] = step.pressures.map(crate::data::format_number);
                 let time_s = clock.now_s();
-                let line = format!("{time_s:.6} {p1} {p2} {p3}\n");
-                let mut written = 0;
-                let bytes = line.as_bytes();
-                while written < bytes.len() {
-                    match input.write(&bytes[written..]) {
-                        Ok(n) => written += n,
-                        Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
-                            if clock.now_s() - time_s > STREAM_STALL_S {
-                                return failed(k, format!("`{command}` has not read its input for {STREAM_STALL_S} s (stalled)"));
-                            }
-                            if stop.load(Ordering::SeqCst) {
-                                return None;
-                            }
-                            std::thread::sleep(Duration::from_millis(1));
-                        }
-                        Err(e) => {
-                            let why = ended(&mut child, &mut stderr)
-                                .unwrap_or_else(|| format!("`{command}` stopped reading: {e}"));
-                            return failed(k, why);
-                        }
-                    }
+                match regulator.write(&format!("{time_s:.6} {p1} {p2} {p3}\n"), clock, stop) {
+                    Ok(()) => {}
+                    Err(Some(why)) => return failed(k, why),
+                    Err(None) => return None,
                 }
                 log.lock().expect("log").push(Commanded {
                     time_s,
@@ -313,8 +237,115 @@ pub(super) fn drive_streaming(
             Some(Ending::ProtocolDone)
         };
         let ending = told();
-        // Its input closed (end of file), then a grace to exit, then its group killed: its
-        // output ends, and the reader with it.
+        regulator.close();
+        ending
+    })
+}
+
+/// The regulator process of [`drive_streaming`], its input written without blocking.
+struct Streamed<'a> {
+    command: &'a str,
+    child: std::process::Child,
+    input: std::process::ChildStdin,
+    stderr: std::process::ChildStderr,
+}
+
+impl<'a> Streamed<'a> {
+    /// Starts `command` in its own process group, its input non-blocking; its output is
+    /// returned for the reader.
+    fn spawn(command: &'a str) -> Result<(Self, std::process::ChildStdout), String> {
+        use std::os::unix::process::CommandExt;
+        use std::process::Stdio;
+        let mut child = std::process::Command::new("sh")
+            .arg("-c")
+            .arg(command)
+            .process_group(0)
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .map_err(|e| format!("`{command}` could not run: {e}"))?;
+        let input = child.stdin.take().expect("piped");
+        // SAFETY: the descriptor is the child's input, ours alone; non-blocking so that a
+        // regulator that stops reading is seen, not waited on forever.
+        unsafe {
+            let fd = std::os::fd::AsRawFd::as_raw_fd(&input);
+            let flags = libc::fcntl(fd, libc::F_GETFL);
+            libc::fcntl(fd, libc::F_SETFL, flags | libc::O_NONBLOCK);
+        }
+        let output = child.stdout.take().expect("piped");
+        let stderr = child.stderr.take().expect("piped");
+        Ok((
+            Streamed {
+                command,
+                child,
+                input,
+                stderr,
+            },
+            output,
+        ))
+    }
+
+    /// Why it ended, once it has: its exit status and what it said on stderr.
+    fn exited(&mut self) -> Option<String> {
+        let status = self.child.try_wait().ok().flatten()?;
+        let mut error = String::new();
+        let _ = std::io::Read::read_to_string(&mut self.stderr, &mut error);
+        Some(format!(
+            "`{}` exited with {status}: {}",
+            self.command,
+            error.trim()
+        ))
+    }
+
+    fn stalled(&self) -> String {
+        format!(
+            "`{}` has not read its input for {STREAM_STALL_S} s (stalled)",
+            self.command
+        )
+    }
+
+    /// Writes `line` whole; `Err(None)` on the session's stop, `Err(Some(why))` when the
+    /// regulator stalls or stops reading.
+    fn write(
+        &mut self,
+        line: &str,
+        clock: &Clock,
+        stop: &AtomicBool,
+    ) -> Result<(), Option<String>> {
+        use std::io::Write;
+        let started = clock.now_s();
+        let bytes = line.as_bytes();
+        let mut written = 0;
+        while written < bytes.len() {
+            match self.input.write(&bytes[written..]) {
+                Ok(n) => written += n,
+                Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
+                    if clock.now_s() - started > STREAM_STALL_S {
+                        return Err(Some(self.stalled()));
+                    }
+                    if stop.load(Ordering::SeqCst) {
+                        return Err(None);
+                    }
+                    std::thread::sleep(Duration::from_millis(1));
+                }
+                Err(e) => {
+                    let why = self
+                        .exited()
+                        .unwrap_or_else(|| format!("`{}` stopped reading: {e}", self.command));
+                    return Err(Some(why));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Its input closed (end of file), then a grace to exit, then its group killed: its output
+    /// ends, and the reader with it.
+    fn close(self) {
+        let Streamed {
+            mut child, input, ..
+        } = self;
         drop(input);
         let waited = Instant::now();
         while child.try_wait().ok().flatten().is_none()
@@ -322,11 +353,37 @@ pub(super) fn drive_streaming(
         {
             std::thread::sleep(Duration::from_millis(10));
         }
-        kill_group(group);
+        kill_group(child.id());
         let _ = child.wait();
-        ending
-    });
-    ending
+    }
+}
+
+/// Reads what the regulator prints: each measured pressure goes beside the command last
+/// logged; the first line that is not one is kept in `garbage`, and reading stops.
+fn read_measured(
+    output: std::process::ChildStdout,
+    command: &str,
+    log: &Mutex<Vec<Commanded>>,
+    garbage: &Mutex<Option<String>>,
+) {
+    use std::io::BufRead;
+    for (n, line) in std::io::BufReader::new(output).lines().enumerate() {
+        let Ok(line) = line else { break };
+        if line.trim().is_empty() {
+            continue;
+        }
+        let Some(p) = parse_measured(&line) else {
+            *garbage.lock().expect("garbage") = Some(format!(
+                "`{command}` printed line {}: {:?}, not `time_s P1_kpa P2_kpa P3_kpa` (a measured pressure)",
+                n + 1,
+                line.chars().take(80).collect::<String>()
+            ));
+            break;
+        };
+        if let Some(last) = log.lock().expect("log").last_mut() {
+            last.measured = Some(p);
+        }
+    }
 }
 
 /// Kills the process group led by `leader`, a child started with `process_group(0)`: the

@@ -81,7 +81,7 @@ fn check(config: &SynthConfig, capture: Option<&CaptureConfig>) -> Result<(), Pi
         return Ok(());
     };
     if capture.dynamic.is_none() && config.plant.hysteresis_kpa != 0.0 {
-        return refuse("hysteresis_kpa= applies to the datasets and dynamic sessions only: write no images or a dynamic session, or drop it to render images");
+        return refuse("hysteresis_kpa= applies to the datasets and dynamic sessions only: add no_images=true or dynamic=true, or drop it to render images");
     }
     let rig = &capture.rig;
     if !(rig.baseline_mm > 0.0 && (80.0..=400.0).contains(&rig.distance_mm)) {

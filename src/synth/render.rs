@@ -248,132 +248,27 @@ impl View {
     /// (motion blur; one pose for a still finger).
     pub fn finger(&self, poses: &[Finger]) -> Canvas {
         let mut canvas = self.backdrop();
-        // Per pose, pixel boxes of every piece (capsules, then the bead): a sample tests only
-        // the pieces whose box holds its pixel.
-        let boxes: Vec<Vec<Option<[f64; 4]>>> = poses
-            .iter()
-            .map(|finger| {
-                let mut b: Vec<Option<[f64; 4]>> = finger
-                    .axis
-                    .windows(2)
-                    .map(|s| self.pixel_box(s, FINGER_RADIUS_MM))
-                    .collect();
-                b.push(self.pixel_box(&[finger.tip], BEAD_RADIUS_MM));
-                b
-            })
-            .collect();
-        let Some(bounds) = boxes.iter().flatten().flatten().copied().reduce(|a, b| {
-            [
-                a[0].min(b[0]),
-                a[1].min(b[1]),
-                a[2].max(b[2]),
-                a[3].max(b[3]),
-            ]
-        }) else {
+        let boxes = self.piece_boxes(poses);
+        let Some((x0, y0, x1, y1)) = self.region(&boxes) else {
             return canvas;
         };
-        let (w, h) = (self.width(), self.height());
-        let clip = |v: f64, max: usize| v.clamp(0.0, max as f64 - 1.0) as usize;
-        if bounds[2] < 0.0 || bounds[3] < 0.0 || bounds[0] >= w as f64 || bounds[1] >= h as f64 {
-            return canvas;
-        }
-        let (x0, y0, x1, y1) = (
-            clip(bounds[0], w),
-            clip(bounds[1], h),
-            clip(bounds[2], w),
-            clip(bounds[3], h),
-        );
         canvas.detail = Some((x0, y0, x1, y1));
+        let w = self.width();
         let lamp = Vector3::from(LAMP).normalize();
-        let n_poses = poses.len();
         canvas.rgb[3 * w * y0..3 * w * (y1 + 1)]
             .par_chunks_mut(3 * w)
             .enumerate()
             .for_each(|(dj, row)| {
                 let j = y0 + dj;
-                let (top, bottom) = (j as f64 - 0.5, j as f64 + 0.5);
-                let in_row: Vec<Vec<(usize, [f64; 4])>> = boxes
-                    .iter()
-                    .map(|boxes| {
-                        boxes
-                            .iter()
-                            .enumerate()
-                            .filter_map(|(k, b)| b.map(|b| (k, b)))
-                            .filter(|(_, b)| b[1] <= bottom && b[3] >= top)
-                            .collect()
-                    })
-                    .collect();
-                let mut pieces: Vec<Vec<usize>> = vec![Vec::new(); n_poses];
+                let in_row = row_boxes(&boxes, j);
+                let mut pieces: Vec<Vec<usize>> = vec![Vec::new(); poses.len()];
                 for i in x0..=x1 {
-                    let (left, right) = (i as f64 - 0.5, i as f64 + 0.5);
-                    // A piece can be hit inside this pixel only if the pixel's centre ray
-                    // passes within its radius plus the pixel's half-diagonal at that depth;
-                    // every ray through the pixel hits it if the centre ray passes within its
-                    // radius minus that.
                     let centre = self.ray(i, j, 0.5, 0.5);
-                    let mut covered = n_poses == 1;
-                    for ((finger, in_row), pieces) in poses.iter().zip(&in_row).zip(&mut pieces) {
-                        let bead = finger.axis.len() - 1;
-                        let mut inside = false;
-                        let mut near = |k: usize| {
-                            let (a, b, r) = if k == bead {
-                                (finger.tip, finger.tip, BEAD_RADIUS_MM)
-                            } else {
-                                (finger.axis[k], finger.axis[k + 1], FINGER_RADIUS_MM)
-                            };
-                            let (gap, depth) = ray_segment_gap(&self.eye, &centre, &a, &b);
-                            let margin = 1.2 * depth.max(0.0) / self.camera.intrinsics.fx();
-                            inside |= k != bead && gap <= r - margin;
-                            gap <= r + margin
-                        };
-                        pieces.clear();
-                        pieces.extend(
-                            in_row
-                                .iter()
-                                .filter(|(_, b)| b[0] <= right && b[2] >= left)
-                                .map(|&(k, _)| k)
-                                .filter(|&k| near(k)),
-                        );
-                        covered &= inside && !pieces.contains(&bead);
-                    }
+                    let covered = self.pieces_near(poses, &in_row, i, &centre, &mut pieces);
                     if pieces.iter().all(Vec::is_empty) {
                         continue;
                     }
-                    // What one ray sees of the finger (tube or bead), shaded.
-                    let surface = |pose: usize, d: &Vector3<f64>| {
-                        let finger = &poses[pose];
-                        let bead = finger.axis.len() - 1;
-                        let (normal, albedo) = finger.hit(&self.eye, d, &pieces[pose], bead)?;
-                        let shade = AMBIENT + (1.0 - AMBIENT) * (-normal.dot(d)).max(0.0);
-                        let shine = if albedo == BEAD && self.specular > 0.0 {
-                            let half = (lamp - d).normalize();
-                            self.specular * normal.dot(&half).max(0.0).powi(SHININESS)
-                        } else {
-                            0.0
-                        };
-                        Some(albedo.map(|a| a * shade + shine))
-                    };
-                    let mut sum = [0.0; 3];
-                    let mut hits = 0;
-                    if covered {
-                        // Inside the tube's silhouette, away from the bead: the shading varies
-                        // slowly, so the centre ray stands for the pixel's samples.
-                        if let Some(colour) = surface(0, &centre) {
-                            (sum, hits) = (colour, 1);
-                        }
-                    } else {
-                        let mut sample = 0;
-                        for_samples(|a, b| {
-                            let pose = sample % n_poses;
-                            sample += 1;
-                            if let Some(colour) = surface(pose, &self.ray(i, j, a, b)) {
-                                for k in 0..3 {
-                                    sum[k] += colour[k];
-                                }
-                                hits += 1;
-                            }
-                        });
-                    }
+                    let (sum, hits) = self.seen(poses, &pieces, covered, &centre, [i, j], &lamp);
                     if hits == 0 {
                         continue;
                     }
@@ -391,6 +286,137 @@ impl View {
                 }
             });
         canvas
+    }
+
+    /// Per pose, the pixel box of every piece (capsules, then the bead): a sample tests only
+    /// the pieces whose box holds its pixel.
+    fn piece_boxes(&self, poses: &[Finger]) -> Vec<Vec<Option<[f64; 4]>>> {
+        poses
+            .iter()
+            .map(|finger| {
+                let mut b: Vec<Option<[f64; 4]>> = finger
+                    .axis
+                    .windows(2)
+                    .map(|s| self.pixel_box(s, FINGER_RADIUS_MM))
+                    .collect();
+                b.push(self.pixel_box(&[finger.tip], BEAD_RADIUS_MM));
+                b
+            })
+            .collect()
+    }
+
+    /// The pixels (x0, y0, x1, y1, inclusive) the boxes cover in the image; `None` when they
+    /// miss it.
+    fn region(&self, boxes: &[Vec<Option<[f64; 4]>>]) -> Option<(usize, usize, usize, usize)> {
+        let bounds = boxes.iter().flatten().flatten().copied().reduce(|a, b| {
+            [
+                a[0].min(b[0]),
+                a[1].min(b[1]),
+                a[2].max(b[2]),
+                a[3].max(b[3]),
+            ]
+        })?;
+        let (w, h) = (self.width(), self.height());
+        let clip = |v: f64, max: usize| v.clamp(0.0, max as f64 - 1.0) as usize;
+        if bounds[2] < 0.0 || bounds[3] < 0.0 || bounds[0] >= w as f64 || bounds[1] >= h as f64 {
+            return None;
+        }
+        Some((
+            clip(bounds[0], w),
+            clip(bounds[1], h),
+            clip(bounds[2], w),
+            clip(bounds[3], h),
+        ))
+    }
+
+    /// Per pose, the pieces the pixel (`i`, its row's) may see, into `pieces`: a piece can be
+    /// hit inside the pixel only if the pixel's centre ray passes within its radius plus the
+    /// pixel's half-diagonal at that depth; every ray through the pixel hits it if the centre
+    /// ray passes within its radius minus that. True when every ray sees the tube of the one
+    /// pose, away from the bead (the pixel is covered).
+    fn pieces_near(
+        &self,
+        poses: &[Finger],
+        in_row: &[Vec<(usize, [f64; 4])>],
+        i: usize,
+        centre: &Vector3<f64>,
+        pieces: &mut [Vec<usize>],
+    ) -> bool {
+        let (left, right) = (i as f64 - 0.5, i as f64 + 0.5);
+        let mut covered = poses.len() == 1;
+        for ((finger, in_row), pieces) in poses.iter().zip(in_row).zip(pieces) {
+            let bead = finger.axis.len() - 1;
+            let mut inside = false;
+            let mut near = |k: usize| {
+                let (a, b, r) = if k == bead {
+                    (finger.tip, finger.tip, BEAD_RADIUS_MM)
+                } else {
+                    (finger.axis[k], finger.axis[k + 1], FINGER_RADIUS_MM)
+                };
+                let (gap, depth) = ray_segment_gap(&self.eye, centre, &a, &b);
+                let margin = 1.2 * depth.max(0.0) / self.camera.intrinsics.fx();
+                inside |= k != bead && gap <= r - margin;
+                gap <= r + margin
+            };
+            pieces.clear();
+            pieces.extend(
+                in_row
+                    .iter()
+                    .filter(|(_, b)| b[0] <= right && b[2] >= left)
+                    .map(|&(k, _)| k)
+                    .filter(|&k| near(k)),
+            );
+            covered &= inside && !pieces.contains(&bead);
+        }
+        covered
+    }
+
+    /// The shaded colours the pixel's rays see of the finger, summed, and how many hit it: the
+    /// centre ray alone for a covered pixel (the shading varies slowly there), else the S × S
+    /// samples, sample k seeing pose k mod `poses.len()`.
+    fn seen(
+        &self,
+        poses: &[Finger],
+        pieces: &[Vec<usize>],
+        covered: bool,
+        centre: &Vector3<f64>,
+        [i, j]: [usize; 2],
+        lamp: &Vector3<f64>,
+    ) -> ([f64; 3], usize) {
+        // What one ray sees of the finger (tube or bead), shaded.
+        let surface = |pose: usize, d: &Vector3<f64>| {
+            let finger = &poses[pose];
+            let bead = finger.axis.len() - 1;
+            let (normal, albedo) = finger.hit(&self.eye, d, &pieces[pose], bead)?;
+            let shade = AMBIENT + (1.0 - AMBIENT) * (-normal.dot(d)).max(0.0);
+            let shine = if albedo == BEAD && self.specular > 0.0 {
+                let half = (lamp - d).normalize();
+                self.specular * normal.dot(&half).max(0.0).powi(SHININESS)
+            } else {
+                0.0
+            };
+            Some(albedo.map(|a| a * shade + shine))
+        };
+        let mut sum = [0.0; 3];
+        let mut hits = 0;
+        if covered {
+            if let Some(colour) = surface(0, centre) {
+                (sum, hits) = (colour, 1);
+            }
+        } else {
+            let mut sample = 0;
+            for_samples(|a, b| {
+                let pose = sample % poses.len();
+                sample += 1;
+                if let Some(colour) = surface(pose, &self.ray(i, j, a, b)) {
+                    for k in 0..3 {
+                        sum[k] += colour[k];
+                    }
+                    hits += 1;
+                }
+            });
+        }
+        (sum, hits)
     }
 
     /// Something passing between the camera and the bead (a gloved finger, a tool): a dark rod
@@ -490,6 +516,22 @@ fn for_samples(mut f: impl FnMut(f64, f64)) {
             );
         }
     }
+}
+
+/// Per pose, the pieces whose boxes reach into pixel row `j`, with their boxes.
+fn row_boxes(boxes: &[Vec<Option<[f64; 4]>>], j: usize) -> Vec<Vec<(usize, [f64; 4])>> {
+    let (top, bottom) = (j as f64 - 0.5, j as f64 + 0.5);
+    boxes
+        .iter()
+        .map(|boxes| {
+            boxes
+                .iter()
+                .enumerate()
+                .filter_map(|(k, b)| b.map(|b| (k, b)))
+                .filter(|(_, b)| b[1] <= bottom && b[3] >= top)
+                .collect()
+        })
+        .collect()
 }
 
 #[cfg(test)]

@@ -358,56 +358,99 @@ fn detection_row(p: &PairRecord) -> opencv::Result<Option<Mat>> {
         return Ok(None);
     }
     let reprojected = p.reprojected_px;
-    let crop =
-        |img: &Mat, centre: [f64; 2], reproj: Option<[f64; 2]>| -> opencv::Result<(Mat, Rect)> {
-            let x0 = (centre[0].round() as i32 - CROP / 2).clamp(0, img.cols() - CROP);
-            let y0 = (centre[1].round() as i32 - CROP / 2).clamp(0, img.rows() - CROP);
-            let rect = Rect::new(x0, y0, CROP, CROP);
-            let roi = Mat::roi(img, rect)?.try_clone()?;
-            let mut big = Mat::default();
-            imgproc::resize(
-                &roi,
-                &mut big,
-                Size::new(CROP * ZOOM, CROP * ZOOM),
-                0.0,
-                0.0,
-                imgproc::INTER_NEAREST,
-            )?;
-            // Sub-pixel drawing: coordinates in 1/16 px.
-            let at = |q: [f64; 2]| {
-                Point::new(
-                    (((q[0] - f64::from(x0)) * f64::from(ZOOM) + f64::from(ZOOM - 1) / 2.0) * 16.0)
-                        .round() as i32,
-                    (((q[1] - f64::from(y0)) * f64::from(ZOOM) + f64::from(ZOOM - 1) / 2.0) * 16.0)
-                        .round() as i32,
-                )
-            };
-            if let Some(q) = reproj {
-                imgproc::circle(
-                    &mut big,
-                    at(q),
-                    9 * 16,
-                    bgr(255.0, 0.0, 255.0),
-                    1,
-                    imgproc::LINE_AA,
-                    4,
-                )?;
-            }
-            let c = at(centre);
-            let arm = 7 * 16;
-            for (a, b) in [
-                (Point::new(c.x - arm, c.y), Point::new(c.x + arm, c.y)),
-                (Point::new(c.x, c.y - arm), Point::new(c.x, c.y + arm)),
-            ] {
-                imgproc::line(&mut big, a, b, bgr(0.0, 220.0, 0.0), 1, imgproc::LINE_AA, 4)?;
-            }
-            Ok((big, rect))
-        };
-    let (lc, rect) = crop(&left, centres[0], reprojected.map(|r| r[0]))?;
-    let (rc, _) = crop(&right, centres[1], reprojected.map(|r| r[1]))?;
+    let (lc, rect) = zoomed_crop(&left, centres[0], reprojected.map(|r| r[0]))?;
+    let (rc, _) = zoomed_crop(&right, centres[1], reprojected.map(|r| r[1]))?;
+    let padded = overview(&left, rect)?;
+    let gap =
+        Mat::new_rows_cols_with_default(CROP * ZOOM, 8, core::CV_8UC3, bgr(255.0, 255.0, 255.0))?;
+    let mut row = Mat::default();
+    let parts: Vector<Mat> = [lc, gap.try_clone()?, rc, gap, padded]
+        .into_iter()
+        .collect();
+    core::hconcat(&parts, &mut row)?;
+    let mut framed = Mat::default();
+    core::copy_make_border(
+        &row,
+        &mut framed,
+        HEADER,
+        6,
+        0,
+        0,
+        core::BORDER_CONSTANT,
+        bgr(255.0, 255.0, 255.0),
+    )?;
+    imgproc::put_text(
+        &mut framed,
+        &caption(p),
+        Point::new(6, 17),
+        imgproc::FONT_HERSHEY_SIMPLEX,
+        0.5,
+        bgr(0.0, 0.0, 0.0),
+        1,
+        imgproc::LINE_AA,
+        false,
+    )?;
+    Ok(Some(framed))
+}
+
+/// The [`CROP`]-pixel square around `centre`, enlarged [`ZOOM`] times: the centre found as a
+/// green cross, the reprojected point (when there is one) as a magenta circle; and where it
+/// lies in the image.
+fn zoomed_crop(
+    img: &Mat,
+    centre: [f64; 2],
+    reproj: Option<[f64; 2]>,
+) -> opencv::Result<(Mat, Rect)> {
+    let x0 = (centre[0].round() as i32 - CROP / 2).clamp(0, img.cols() - CROP);
+    let y0 = (centre[1].round() as i32 - CROP / 2).clamp(0, img.rows() - CROP);
+    let rect = Rect::new(x0, y0, CROP, CROP);
+    let roi = Mat::roi(img, rect)?.try_clone()?;
+    let mut big = Mat::default();
+    imgproc::resize(
+        &roi,
+        &mut big,
+        Size::new(CROP * ZOOM, CROP * ZOOM),
+        0.0,
+        0.0,
+        imgproc::INTER_NEAREST,
+    )?;
+    // Sub-pixel drawing: coordinates in 1/16 px.
+    let at = |q: [f64; 2]| {
+        Point::new(
+            (((q[0] - f64::from(x0)) * f64::from(ZOOM) + f64::from(ZOOM - 1) / 2.0) * 16.0).round()
+                as i32,
+            (((q[1] - f64::from(y0)) * f64::from(ZOOM) + f64::from(ZOOM - 1) / 2.0) * 16.0).round()
+                as i32,
+        )
+    };
+    if let Some(q) = reproj {
+        imgproc::circle(
+            &mut big,
+            at(q),
+            9 * 16,
+            bgr(255.0, 0.0, 255.0),
+            1,
+            imgproc::LINE_AA,
+            4,
+        )?;
+    }
+    let c = at(centre);
+    let arm = 7 * 16;
+    for (a, b) in [
+        (Point::new(c.x - arm, c.y), Point::new(c.x + arm, c.y)),
+        (Point::new(c.x, c.y - arm), Point::new(c.x, c.y + arm)),
+    ] {
+        imgproc::line(&mut big, a, b, bgr(0.0, 220.0, 0.0), 1, imgproc::LINE_AA, 4)?;
+    }
+    Ok((big, rect))
+}
+
+/// The whole left image, [`OVERVIEW`] wide, the crop's place outlined in green, padded to
+/// [`OVERVIEW`]'s height.
+fn overview(left: &Mat, rect: Rect) -> opencv::Result<Mat> {
     let mut overview = Mat::default();
     imgproc::resize(
-        &left,
+        left,
         &mut overview,
         Size::new(OVERVIEW.width, OVERVIEW.width * left.rows() / left.cols()),
         0.0,
@@ -440,47 +483,22 @@ fn detection_row(p: &PairRecord) -> opencv::Result<Option<Mat>> {
         core::BORDER_CONSTANT,
         bgr(255.0, 255.0, 255.0),
     )?;
-    let gap =
-        Mat::new_rows_cols_with_default(CROP * ZOOM, 8, core::CV_8UC3, bgr(255.0, 255.0, 255.0))?;
-    let mut row = Mat::default();
-    let parts: Vector<Mat> = [lc, gap.try_clone()?, rc, gap, padded]
-        .into_iter()
-        .collect();
-    core::hconcat(&parts, &mut row)?;
-    let mut framed = Mat::default();
-    core::copy_make_border(
-        &row,
-        &mut framed,
-        HEADER,
-        6,
-        0,
-        0,
-        core::BORDER_CONSTANT,
-        bgr(255.0, 255.0, 255.0),
-    )?;
-    // What became of the pair: used (or resolved among candidates), else why it was not.
+    Ok(padded)
+}
+
+/// The pair's frames, step, what became of it (used, or resolved among candidates, else why
+/// it was not) and its reprojection error.
+fn caption(p: &PairRecord) -> String {
     let verdict = if p.status.used() {
         p.status.name().to_string()
     } else {
         format!("rejected ({})", p.status.name().replace('_', " "))
     };
-    let caption = format!(
+    format!(
         "left {} / right {}  step {}  {verdict}  reprojection {} px",
         p.left.index,
         p.right.index,
         p.step.map_or("-".into(), |k| k.to_string()),
         p.reproj_px.map_or("-".into(), |e| format!("{e:.2}")),
-    );
-    imgproc::put_text(
-        &mut framed,
-        &caption,
-        Point::new(6, 17),
-        imgproc::FONT_HERSHEY_SIMPLEX,
-        0.5,
-        bgr(0.0, 0.0, 0.0),
-        1,
-        imgproc::LINE_AA,
-        false,
-    )?;
-    Ok(Some(framed))
+    )
 }

@@ -106,8 +106,8 @@ fn synth_writes_the_capture_layout_and_refuses_bad_settings() {
 "
     ));
 
-    let msg = handcap_err(d, &["synth", "--out", "x", "--hysteresis-kpa", "5"]);
-    assert!(msg.contains("--no-images"), "{msg}");
+    let msg = handcap_usage(d, &["synth", "--out", "x", "--hysteresis-kpa", "5"]);
+    assert!(msg.contains("add --no-images or --dynamic"), "{msg}");
     let msg = handcap_err(
         d,
         &[&["synth", "--out", "x", "--board", "6x6"], &small[..]].concat(),

@@ -189,10 +189,10 @@ impl Plan {
             return refuse(format!("folds_by={folds_by} cuts the folds of cross-validation (the search's, the basis' and the intervals'): use it with fitness=cv"));
         }
         match (&self.time, &self.history) {
-            (None, HistoryChoice::Auto) => {}
+            (None, HistoryChoice::Auto | HistoryChoice::None) => {}
             (None, history) => {
                 return refuse(format!(
-                    "history={history} builds on the rows' times: give them (time=COLUMN)"
+                    "history={history} builds on the rows' times: give time=COLUMN"
                 ))
             }
             (Some(_), HistoryChoice::Auto) if train => return refuse("history=auto compares feature sets by cross-validation: use fitness=cv, or name the history (history=none, ema, lags:K)".into()),

@@ -28,6 +28,7 @@
 //!    flagged `reach`.
 
 mod output;
+mod rows;
 
 pub use output::errors_against;
 use std::collections::BTreeMap;
@@ -40,7 +41,7 @@ use serde::Serialize;
 use super::locate::combinations;
 use super::marker::MAX_CANDIDATES;
 use super::summary::{count_frames, FrameCounts};
-use super::{find_all_markers, options, FrameResult, TriangulateError, TriangulateOptions};
+use super::{find_all_markers, FrameResult, TriangulateError, TriangulateOptions};
 use crate::calib::file::CalibrationFile;
 use crate::geometry::HandFromLeft;
 use crate::session::frames::{FrameList, FrameRecord};
@@ -251,96 +252,15 @@ pub fn triangulate_per_frame(
         None => centres(i),
     };
     let located = locate_all(rig, options, &left, &right, &chosen, offset_s);
-    let mut rows = Vec::with_capacity(left.order.len());
-    let mut points: Vec<Option<Vector3<f64>>> = Vec::with_capacity(left.order.len());
-    for (k, &i) in left.order.iter().enumerate() {
-        let t = left.times[k];
-        let step = log.steps.partition_point(|s| s.time_s <= t).checked_sub(1);
-        let mut row = FrameRow {
-            frame: records[i].index,
-            time_s: t,
-            step,
-            tip_mm: None,
-            reproj_px: None,
-            flags: Vec::new(),
-        };
-        if step.is_none() {
-            row.flags.push("outside_log");
-        }
-        match &located[k] {
-            Ok(found) => {
-                row.reproj_px = Some(found.reproj_px);
-                points.push(Some(found.point));
-            }
-            Err(flag) => {
-                row.flags.push(flag);
-                points.push(None);
-            }
-        }
-        rows.push(row);
-    }
+    let (mut rows, points) = rows::frame_rows(&left, records, log, located);
 
     // 6. The hand frame from the first rest hold.
-    let rest_steps = log
-        .steps
-        .iter()
-        .take_while(|s| s.pressures_kpa.iter().all(|p| p.abs() <= options.zero_kpa))
-        .count();
-    let at_rest: Vec<Vector3<f64>> = rows
-        .iter()
-        .zip(&points)
-        .filter(|(r, _)| r.step.is_some_and(|k| k < rest_steps))
-        .filter_map(|(_, p)| *p)
-        .collect();
-    if at_rest.is_empty() {
-        let why = if rest_steps == 0 {
-            "the log does not start with one: a session filmed per frame starts at rest, its first command 0, 0, 0 kPa held a few seconds (handcap protocol --dynamic writes one)".to_string()
-        } else {
-            let in_rest = rows
-                .iter()
-                .filter(|r| r.step.is_some_and(|k| k < rest_steps));
-            let mut why: BTreeMap<&str, usize> = BTreeMap::new();
-            for r in in_rest {
-                for f in &r.flags {
-                    *why.entry(f).or_default() += 1;
-                }
-            }
-            let said: Vec<String> = why.iter().map(|(f, n)| format!("{n} {f}")).collect();
-            format!(
-                "its left frames: {}",
-                if said.is_empty() {
-                    "none".into()
-                } else {
-                    said.join(", ")
-                }
-            )
-        };
-        return Err(TriangulateError::NoOrigin {
-            zero: rest_steps,
-            zero_kpa: options.zero_kpa,
-            why: format!("no tip in the first rest hold: {why}"),
-        });
-    }
-    let origin = crate::stats::median_point(&at_rest);
-    summary.origin_left_mm = origin.into();
-    summary.origin_rows = at_rest.len();
-    summary.origin_spread_mm = (at_rest
-        .iter()
-        .map(|p| (p - origin).norm_squared())
-        .sum::<f64>()
-        / at_rest.len() as f64)
-        .sqrt();
-    let hand_from_left = HandFromLeft::new(r_hand, -(r_hand * origin));
-    let base = Vector3::new(0.0, 0.0, options.finger_mm);
-    for (row, point) in rows.iter_mut().zip(&points) {
-        if let Some(p) = point {
-            let tip = hand_from_left.apply(&(*p).into()).coords;
-            if (tip - base).norm() > options.finger_mm + options::REACH_MARGIN_MM {
-                row.flags.push("reach");
-            }
-            row.tip_mm = Some(tip.into());
-        }
-    }
+    let origin = rows::rest_origin(&rows, &points, log, options)?;
+    summary.origin_left_mm = origin.point.into();
+    summary.origin_rows = origin.rows;
+    summary.origin_spread_mm = origin.spread_mm;
+    let hand_from_left = HandFromLeft::new(r_hand, -(r_hand * origin.point));
+    rows::in_hand_frame(&mut rows, &points, &hand_from_left, options);
     summary.rows = rows.len();
     summary.good_rows = rows.iter().filter(|r| r.flags.is_empty()).count();
     for f in rows.iter().flat_map(|r| &r.flags) {

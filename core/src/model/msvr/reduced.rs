@@ -217,7 +217,6 @@ pub fn solve(
         |f: &Mat<f64>, bias: &[f64]| Mat::from_fn(n, q, |i, j| y[(i, j)] - f[(i, j)] - bias[j]);
     let mut resid = residuals(&f, &bias);
     let mut objective = tube.data_term(resid.as_ref());
-    let quadratic_weight = 2.0 * tube.c;
     let mut iterations = 0;
     let stop = loop {
         if iterations == max_iter {
@@ -232,59 +231,8 @@ pub fn solve(
         let parts: Vec<Option<(f64, f64)>> = (0..n)
             .map(|i| tube.step_row(row_norm(resid.as_ref(), i)))
             .collect();
-        let support: Vec<(usize, f64)> = parts
-            .iter()
-            .enumerate()
-            .filter_map(|(i, p)| p.map(|(inv, _)| (i, 1.0 / inv)))
-            .collect();
         // 2. The step target.
-        let (w_star, bias_star) = if support.is_empty() {
-            (Mat::zeros(r, q), bias.clone())
-        } else {
-            let not_quadratic: Vec<(usize, f64)> = parts
-                .iter()
-                .enumerate()
-                .filter_map(|(i, p)| {
-                    let a = p.map_or(0.0, |(inv, _)| 1.0 / inv);
-                    (a != quadratic_weight).then_some((i, quadratic_weight - a))
-                })
-                .collect();
-            // Right-hand side Φ̃ᵀ A Y' over the support; the matrix from G and the rows outside
-            // the quadratic zone when they are fewer, else in the same pass over the support.
-            let targets = Mat::from_fn(support.len(), q, |a, j| {
-                let (i, weight) = support[a];
-                let (_, shrink) = parts[i].expect("support rows have a part");
-                weight * (y[(i, j)] - shrink * resid[(i, j)])
-            });
-            let mut system = Mat::<f64>::zeros(r + 1, r + 1);
-            let mut rhs = Mat::<f64>::zeros(r + 1, q);
-            let features = &problem.features;
-            if not_quadratic.len() < support.len() {
-                system.copy_from(gram);
-                system *= faer::Scale(quadratic_weight);
-                features.accumulate(&not_quadratic, Some((-1.0, system.as_mut())), None, par);
-                features.accumulate(&support, None, Some((targets.as_ref(), rhs.as_mut())), par);
-            } else {
-                features.accumulate(
-                    &support,
-                    Some((1.0, system.as_mut())),
-                    Some((targets.as_ref(), rhs.as_mut())),
-                    par,
-                );
-            }
-            for j in 0..r {
-                system[(j, j)] += 1.0;
-            }
-            let llt = system.llt(Side::Lower).map_err(|_| NotPositiveDefinite {
-                pivot: 0,
-                size: r + 1,
-            })?;
-            let solution = llt.solve(&rhs);
-            (
-                solution.as_ref().submatrix(0, 0, r, q).to_owned(),
-                (0..q).map(|j| solution[(r, j)]).collect::<Vec<f64>>(),
-            )
-        };
+        let (w_star, bias_star) = step_target(problem, gram, &parts, resid.as_ref(), &bias, par)?;
         // 3. The line search.
         let f_star = problem.features.times(w_star.as_ref(), par);
         let delta = &w_star - &w;
@@ -323,4 +271,71 @@ pub fn solve(
         stop,
         outside,
     })
+}
+
+/// Step 2 of [`solve`]: the weights and bias that minimise the weighted quadratic model of the
+/// loss, each row weighted and its target pulled in as `parts` say (`None` inside the tube);
+/// `w = 0` and the bias kept when every row is inside.
+fn step_target(
+    problem: &ReducedProblem,
+    gram: MatRef<'_, f64>,
+    parts: &[Option<(f64, f64)>],
+    resid: MatRef<'_, f64>,
+    bias: &[f64],
+    par: Par,
+) -> Result<(Mat<f64>, Vec<f64>), NotPositiveDefinite> {
+    let (r, tube, y) = (problem.features.width(), problem.tube, problem.targets);
+    let q = y.ncols();
+    let quadratic_weight = 2.0 * tube.c;
+    let support: Vec<(usize, f64)> = parts
+        .iter()
+        .enumerate()
+        .filter_map(|(i, p)| p.map(|(inv, _)| (i, 1.0 / inv)))
+        .collect();
+    if support.is_empty() {
+        return Ok((Mat::zeros(r, q), bias.to_vec()));
+    }
+    let not_quadratic: Vec<(usize, f64)> = parts
+        .iter()
+        .enumerate()
+        .filter_map(|(i, p)| {
+            let a = p.map_or(0.0, |(inv, _)| 1.0 / inv);
+            (a != quadratic_weight).then_some((i, quadratic_weight - a))
+        })
+        .collect();
+    // Right-hand side Φ̃ᵀ A Y' over the support; the matrix from G and the rows outside the
+    // quadratic zone when they are fewer, else in the same pass over the support.
+    let targets = Mat::from_fn(support.len(), q, |a, j| {
+        let (i, weight) = support[a];
+        let (_, shrink) = parts[i].expect("support rows have a part");
+        weight * (y[(i, j)] - shrink * resid[(i, j)])
+    });
+    let mut system = Mat::<f64>::zeros(r + 1, r + 1);
+    let mut rhs = Mat::<f64>::zeros(r + 1, q);
+    let features = &problem.features;
+    if not_quadratic.len() < support.len() {
+        system.copy_from(gram);
+        system *= faer::Scale(quadratic_weight);
+        features.accumulate(&not_quadratic, Some((-1.0, system.as_mut())), None, par);
+        features.accumulate(&support, None, Some((targets.as_ref(), rhs.as_mut())), par);
+    } else {
+        features.accumulate(
+            &support,
+            Some((1.0, system.as_mut())),
+            Some((targets.as_ref(), rhs.as_mut())),
+            par,
+        );
+    }
+    for j in 0..r {
+        system[(j, j)] += 1.0;
+    }
+    let llt = system.llt(Side::Lower).map_err(|_| NotPositiveDefinite {
+        pivot: 0,
+        size: r + 1,
+    })?;
+    let solution = llt.solve(&rhs);
+    Ok((
+        solution.as_ref().submatrix(0, 0, r, q).to_owned(),
+        (0..q).map(|j| solution[(r, j)]).collect::<Vec<f64>>(),
+    ))
 }

@@ -1,0 +1,139 @@
+//! The per-frame rows: each left frame's step and located point, the hand frame's origin from
+//! the first rest hold, and the points in the hand frame.
+
+use std::collections::BTreeMap;
+
+use nalgebra::Vector3;
+
+use super::{FrameRow, Located, Track};
+use crate::geometry::HandFromLeft;
+use crate::session::frames::FrameRecord;
+use crate::session::pressures::PressureLog;
+use crate::triangulate::{options, TriangulateError, TriangulateOptions};
+
+/// Step 4-5's rows: one per left frame, in time order, with its step in the log, and the
+/// point located there (in the left camera's frame) or the flag saying why there is none.
+pub(super) fn frame_rows(
+    left: &Track,
+    records: &[FrameRecord],
+    log: &PressureLog,
+    located: Vec<Result<Located, &'static str>>,
+) -> (Vec<FrameRow>, Vec<Option<Vector3<f64>>>) {
+    let mut rows = Vec::with_capacity(left.order.len());
+    let mut points = Vec::with_capacity(left.order.len());
+    for ((k, &i), found) in left.order.iter().enumerate().zip(located) {
+        let t = left.times[k];
+        let step = log.steps.partition_point(|s| s.time_s <= t).checked_sub(1);
+        let mut row = FrameRow {
+            frame: records[i].index,
+            time_s: t,
+            step,
+            tip_mm: None,
+            reproj_px: None,
+            flags: Vec::new(),
+        };
+        if step.is_none() {
+            row.flags.push("outside_log");
+        }
+        match found {
+            Ok(found) => {
+                row.reproj_px = Some(found.reproj_px);
+                points.push(Some(found.point));
+            }
+            Err(flag) => {
+                row.flags.push(flag);
+                points.push(None);
+            }
+        }
+        rows.push(row);
+    }
+    (rows, points)
+}
+
+/// The hand frame's origin: the median tip over the first rest hold, its rows and spread.
+pub(super) struct RestOrigin {
+    pub point: Vector3<f64>,
+    pub rows: usize,
+    pub spread_mm: f64,
+}
+
+/// Step 6: the origin from the rows of the log's first rest hold (the steps at 0 kPa it
+/// starts with).
+///
+/// # Errors
+/// [`TriangulateError::NoOrigin`] when the log does not start at rest, or no frame of the
+/// rest hold has a tip (its frames' flags counted).
+pub(super) fn rest_origin(
+    rows: &[FrameRow],
+    points: &[Option<Vector3<f64>>],
+    log: &PressureLog,
+    options: &TriangulateOptions,
+) -> Result<RestOrigin, TriangulateError> {
+    let rest_steps = log
+        .steps
+        .iter()
+        .take_while(|s| s.pressures_kpa.iter().all(|p| p.abs() <= options.zero_kpa))
+        .count();
+    let in_rest = |r: &FrameRow| r.step.is_some_and(|k| k < rest_steps);
+    let at_rest: Vec<Vector3<f64>> = rows
+        .iter()
+        .zip(points)
+        .filter(|(r, _)| in_rest(r))
+        .filter_map(|(_, p)| *p)
+        .collect();
+    if at_rest.is_empty() {
+        let why = if rest_steps == 0 {
+            "the log does not start with one: a session filmed per frame starts at rest, its first command 0, 0, 0 kPa held a few seconds (handcap protocol --dynamic writes one)".to_string()
+        } else {
+            let mut why: BTreeMap<&str, usize> = BTreeMap::new();
+            for f in rows.iter().filter(|r| in_rest(r)).flat_map(|r| &r.flags) {
+                *why.entry(f).or_default() += 1;
+            }
+            let said: Vec<String> = why.iter().map(|(f, n)| format!("{n} {f}")).collect();
+            format!(
+                "its left frames: {}",
+                if said.is_empty() {
+                    "none".into()
+                } else {
+                    said.join(", ")
+                }
+            )
+        };
+        return Err(TriangulateError::NoOrigin {
+            zero: rest_steps,
+            zero_kpa: options.zero_kpa,
+            why: format!("no tip in the first rest hold: {why}"),
+        });
+    }
+    let point = crate::stats::median_point(&at_rest);
+    let spread_mm = (at_rest
+        .iter()
+        .map(|p| (p - point).norm_squared())
+        .sum::<f64>()
+        / at_rest.len() as f64)
+        .sqrt();
+    Ok(RestOrigin {
+        point,
+        rows: at_rest.len(),
+        spread_mm,
+    })
+}
+
+/// Each located point in the hand frame; a tip beyond the finger's reach flagged `reach`.
+pub(super) fn in_hand_frame(
+    rows: &mut [FrameRow],
+    points: &[Option<Vector3<f64>>],
+    hand_from_left: &HandFromLeft,
+    options: &TriangulateOptions,
+) {
+    let base = Vector3::new(0.0, 0.0, options.finger_mm);
+    for (row, point) in rows.iter_mut().zip(points) {
+        if let Some(p) = point {
+            let tip = hand_from_left.apply(&(*p).into()).coords;
+            if (tip - base).norm() > options.finger_mm + options::REACH_MARGIN_MM {
+                row.flags.push("reach");
+            }
+            row.tip_mm = Some(tip.into());
+        }
+    }
+}
