@@ -7,7 +7,8 @@
 //!    row's instant.
 //! 3. model: the last trial held out; MSVR on the present pressures (static) and with input
 //!    history (`--time time_s --group-by phase`), both from the triangulated rows, and the
-//!    history model from the plant's own per-frame truth (what the camera path costs).
+//!    same history model (its history and parameters) fitted on the plant's own per-frame
+//!    truth (what the camera path costs).
 //! 4. the held-out trial's trajectory: truth, measured, both models (`DIR/dynamic/trajectory_*`).
 
 use std::collections::BTreeMap;
@@ -19,7 +20,7 @@ use super::fit::{self, FitJob, Selection};
 use super::{PipelineError, Session};
 use crate::data::{self, names, Csv, HAND_INPUTS, HAND_OUTPUTS};
 use crate::model::file::ModelFile;
-use crate::model::history::HistoryChoice;
+use crate::model::history::{HistoryChoice, Memory};
 use crate::model::msvr::fitness::FitnessKind;
 use crate::model::msvr::folds::FoldsBy;
 use crate::model::msvr::tune::{BasisChoice, Pinned};
@@ -130,7 +131,14 @@ pub fn run(
     };
     let fitted_static = fit(&train, &test, "static", false)?;
     let fitted_history = fit(&train, &test, "history", true)?;
-    let fitted_truth = fit(&truth_train, &truth_test, "history_truth", true)?;
+    let same = same_model(
+        &fitted_history,
+        &truth_train,
+        &truth_test,
+        &dir.join("history_truth"),
+        folds,
+    );
+    let fitted_truth = fit::run(&same, session)?;
     let score = |model: &str, trained_on: &str, outcome: &fit::FitOutcome| DynamicScore {
         model: model.into(),
         trained_on: trained_on.into(),
@@ -229,6 +237,43 @@ fn job(data: &Path, test: &Path, out: &Path, history: bool, search: Search) -> F
         } else {
             HistoryChoice::None
         },
+    }
+}
+
+/// `fitted`'s model (its history and parameters) fitted on other rows as they are, without a
+/// search: what the same model makes of them.
+fn same_model(
+    fitted: &fit::FitOutcome,
+    data: &Path,
+    test: &Path,
+    out: &Path,
+    folds: usize,
+) -> FitJob {
+    let crate::model::ModelSpec::Msvr(params) = fitted.report.spec;
+    let memory = fitted
+        .report
+        .history
+        .as_ref()
+        .and_then(|h| h.used.as_ref())
+        .map(|h| &h.memory);
+    let history = match memory {
+        None => HistoryChoice::None,
+        Some(Memory::Ema { tau }) => HistoryChoice::Ema(tau.clone()),
+        Some(Memory::Lags { rows }) => HistoryChoice::Lags(*rows),
+    };
+    let search = Search {
+        seed: 0,
+        folds,
+        budget: None,
+    };
+    FitJob {
+        params,
+        selection: Selection::Fixed {
+            folds,
+            folds_by: FoldsBy::Column("phase".into()),
+        },
+        history,
+        ..job(data, test, out, true, search)
     }
 }
 
