@@ -334,7 +334,7 @@ fn dynamic_section(page: &mut Page, r: &Report) {
             &[vec![d.rows.to_string(), format!("{} ({:.1} %)", d.unflagged, 100.0 * d.unflagged as f64 / d.rows.max(1) as f64), f4(d.tip_rms_mm), f4(d.tip_max_mm)]],
         )
         .paragraph(&format!(
-            "Trial {} held out whole; the models trained on the others (the search's folds are whole trials). The history model chose `{}` (exponentially filtered pressures, time constants in s).",
+            "Trial {} held out whole; the models trained on the others (the search's folds are whole trials). The history model chose `{}` (exponentially filtered pressures, time constants in s); the last row is that same model (its history and C, ε, σ) fitted on the plant's per-frame truth: what the camera path costs.",
             d.held_out, d.history
         ))
         .table(

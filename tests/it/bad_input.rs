@@ -664,6 +664,15 @@ fn model_options_out_of_range_say_the_range_and_labels_group_runs() {
             "must be at least 12 candidates",
         ),
         ("--folds 1", "needs 2 folds or more"),
+        (
+            "--search aco-paper --c 5",
+            "--c 5 is held by --search aco-r and --search grid",
+        ),
+        (
+            "--search aco-paper --budget 50",
+            "--budget is the candidate budget",
+        ),
+        ("--history ema", "give --time COLUMN"),
         ("--search none --c -1", "C = -1: must be finite and > 0"),
         (
             "--search none --epsilon 1e300",
@@ -680,6 +689,14 @@ fn model_options_out_of_range_say_the_range_and_labels_group_runs() {
         out.contains("3-fold") || out.contains("3 folds") || out.contains("prediction intervals"),
         "{out}"
     );
+    // A value given with a search is held there while the search chooses the others.
+    let said = handcap_ok(
+        d,
+        &words(&model("--search aco-r --budget 12 --c 7.5 --max-rows 60")),
+    );
+    assert!(said.contains("search aco-r: "), "{said}");
+    let params = &read_json(&d.join("m.json"))["model"]["params"];
+    assert_eq!(params["c"].as_f64(), Some(7.5), "{params}");
     // A time series whose runs are named, not numbered; extreme and repeated time constants.
     let mut text = String::from("t_s,run,u,y\n");
     for run in 0..5 {
