@@ -123,15 +123,19 @@ pub(super) fn uniform(key: u64, k: u64) -> f64 {
 /// one SplitMix64 output, each the sum of four 5-bit uniforms, centred and scaled (Irwin-Hall;
 /// 125 levels, tails cut at ±3.4σ — finer than the 8-bit output it perturbs).
 fn pixel_noise(key: u64, k: u64) -> [f32; 3] {
+    /// The 125 levels: a sum s of four uniforms on 0..=31 (mean 62, variance
+    /// 4 · (32² − 1)/12 = 341) is (s − 62) / √341, looked up rather than divided per pixel.
+    static LEVELS: std::sync::LazyLock<[f32; 125]> =
+        std::sync::LazyLock::new(|| std::array::from_fn(|s| (s as f32 - 62.0) / 341f32.sqrt()));
     let bits = splitmix(key.wrapping_add(k.wrapping_mul(0x9e37_79b9_7f4a_7c15)));
-    // Sum of four uniforms on 0..=31: mean 62, variance 4 · (32² − 1)/12 = 341. The 5-bit
-    // fields (four per channel, from bit 20 c) added in pairs in one word: each pair's sum
-    // (at most 62) in its own 10 bits.
+    // The 5-bit fields (four per channel, from bit 20 c) added in pairs in one word: each
+    // pair's sum (at most 62) in its own 10 bits.
     const FIELDS: u64 = 0x007C_1F07_C1F0_7C1F;
     let pairs = (bits & FIELDS) + ((bits >> 5) & FIELDS);
+    let levels = &*LEVELS;
     std::array::from_fn(|c| {
         let sum = ((pairs >> (20 * c)) & 0x3FF) + ((pairs >> (20 * c + 10)) & 0x3FF);
-        (sum as f32 - 62.0) / 341f32.sqrt()
+        levels[sum as usize]
     })
 }
 
