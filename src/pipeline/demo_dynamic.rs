@@ -122,12 +122,11 @@ pub fn run(
     // Folds are whole phases: the training trials and the rest holds.
     let folds = design.trials.min(5);
     let fit = |data: &Path, test: &Path, name: &str, history: bool| {
-        let search = Search {
-            seed: synth.seed,
-            folds,
-            budget,
-        };
-        fit::run(&job(data, test, &dir.join(name), history, search), session)
+        let selection = searched(synth.seed, folds, budget);
+        fit::run(
+            &job(data, test, &dir.join(name), history, selection),
+            session,
+        )
     };
     let fitted_static = fit(&train, &test, "static", false)?;
     let fitted_history = fit(&train, &test, "history", true)?;
@@ -190,22 +189,24 @@ pub fn run(
     })
 }
 
-/// How the dynamic part's models are searched: `folds` phases as folds, at most `budget`
-/// candidates (`None`: `handcap model`'s default).
-struct Search {
-    seed: u64,
-    folds: usize,
-    budget: Option<usize>,
+/// How the dynamic part's models are searched: `handcap model`'s default (ACO-R), `folds`
+/// phases as folds, at most `budget` candidates (`None`: `handcap model`'s default).
+fn searched(seed: u64, folds: usize, budget: Option<usize>) -> Selection {
+    Selection::Search {
+        method: Method::AcoR(AcoR {
+            seed,
+            ..AcoR::default()
+        }),
+        budget,
+        fitness: FitnessKind::Cv { folds },
+        folds_by: FoldsBy::Column("phase".into()),
+        seed,
+    }
 }
 
-/// The model search of the dynamic part: `handcap model`'s default (ACO-R, robust loss), with
-/// input history or without.
-fn job(data: &Path, test: &Path, out: &Path, history: bool, search: Search) -> FitJob {
-    let Search {
-        seed,
-        folds,
-        budget,
-    } = search;
+/// A model of the dynamic part (robust loss, the folds whole phases), with input history or
+/// without, its parameters chosen as `selection` says.
+fn job(data: &Path, test: &Path, out: &Path, history: bool, selection: Selection) -> FitJob {
     let group = history.then(|| "phase".to_string());
     FitJob {
         data: data.to_path_buf(),
@@ -213,16 +214,7 @@ fn job(data: &Path, test: &Path, out: &Path, history: bool, search: Search) -> F
         outputs: names(&HAND_OUTPUTS),
         params: MsvrParams::default(),
         pinned: Pinned::default(),
-        selection: Selection::Search {
-            method: Method::AcoR(AcoR {
-                seed,
-                ..AcoR::default()
-            }),
-            budget,
-            fitness: FitnessKind::Cv { folds },
-            folds_by: FoldsBy::Column("phase".into()),
-            seed,
-        },
+        selection,
         search_on: None,
         intervals: false,
         tests: vec![test.to_path_buf()],
@@ -261,19 +253,14 @@ fn same_model(
         Some(Memory::Ema { tau }) => HistoryChoice::Ema(tau.clone()),
         Some(Memory::Lags { rows }) => HistoryChoice::Lags(*rows),
     };
-    let search = Search {
-        seed: 0,
+    let fixed = Selection::Fixed {
         folds,
-        budget: None,
+        folds_by: FoldsBy::Column("phase".into()),
     };
     FitJob {
         params,
-        selection: Selection::Fixed {
-            folds,
-            folds_by: FoldsBy::Column("phase".into()),
-        },
         history,
-        ..job(data, test, out, true, search)
+        ..job(data, test, out, true, fixed)
     }
 }
 

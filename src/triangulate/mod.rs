@@ -449,6 +449,19 @@ fn median_95_max(mut values: Vec<f64>) -> [f64; 3] {
     crate::stats::quantiles(&mut values, [0.5, 0.95, 1.0]).unwrap_or([0.0; 3])
 }
 
+/// The hand frame's origin from the tips seen at rest: their median, and their RMS distance
+/// from it (mm), how still they were. `points` is not empty.
+fn origin_of(points: &[Vector3<f64>]) -> (Vector3<f64>, f64) {
+    let origin = crate::stats::median_point(points);
+    let spread = (points
+        .iter()
+        .map(|p| (p - origin).norm_squared())
+        .sum::<f64>()
+        / points.len() as f64)
+        .sqrt();
+    (origin, spread)
+}
+
 /// The largest distance of a point from the points' median (mm); 0 for no points.
 fn spread(points: &[Vector3<f64>]) -> f64 {
     if points.is_empty() {

@@ -6,7 +6,7 @@ use nalgebra::Vector3;
 
 use super::options::{self, TriangulateOptions};
 use super::summary::{Origin, Summary};
-use super::{median_95_max, spread, PairRecord, Row, TriangulateError};
+use super::{median_95_max, origin_of, spread, PairRecord, Row, TriangulateError};
 use crate::geometry::HandFromLeft;
 use crate::session::frames::{self, FrameRecord};
 use crate::session::pressures::PressureLog;
@@ -186,17 +186,12 @@ pub(super) fn hand_frame(
             why: no_origin_cause(&zero, &steps.flags, pairs, records, log, options, summary),
         });
     }
-    let origin = crate::stats::median_point(&at_zero);
+    let (origin, spread_mm) = origin_of(&at_zero);
     summary.origin = Origin {
         left_mm: origin.into(),
         zero_steps: zero.len(),
         pairs: at_zero.len(),
-        spread_mm: (at_zero
-            .iter()
-            .map(|p| (p - origin).norm_squared())
-            .sum::<f64>()
-            / at_zero.len() as f64)
-            .sqrt(),
+        spread_mm,
     };
     summary.step_spread_mm = median_95_max(
         steps

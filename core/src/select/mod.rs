@@ -168,21 +168,26 @@ impl Plan {
     /// [`SelectError::Parameter`] saying what to change.
     pub fn check(&self) -> Result<(), SelectError> {
         let refuse = |why: String| Err(SelectError::Parameter(why));
-        let (folds, folds_by, fitness) = match &self.selection {
-            Selection::Fixed { folds, folds_by } => (*folds, folds_by, None),
+        // The folds cross-validation cuts (none for the training fitness), and how.
+        let (folds, folds_by) = match &self.selection {
+            Selection::Fixed { folds, folds_by }
+            | Selection::Search {
+                fitness: FitnessKind::Cv { folds },
+                folds_by,
+                ..
+            } => (Some(*folds), folds_by),
             Selection::Search {
-                fitness, folds_by, ..
-            } => match fitness {
-                FitnessKind::Cv { folds } => (*folds, folds_by, Some(fitness)),
-                FitnessKind::Train => (2, folds_by, Some(fitness)),
-            },
+                fitness: FitnessKind::Train,
+                folds_by,
+                ..
+            } => (None, folds_by),
         };
-        if folds < 2 {
+        if let Some(folds) = folds.filter(|&k| k < 2) {
             return refuse(format!(
                 "folds={folds}: cross-validation needs 2 folds or more"
             ));
         }
-        let train = fitness == Some(&FitnessKind::Train);
+        let train = folds.is_none();
         // With a time series a column of runs is the groups history restarts in, folds or not.
         let names_runs = matches!(folds_by, FoldsBy::Column(c) if self.group.as_ref() == Some(c));
         if train && *folds_by != FoldsBy::Auto && !(self.time.is_some() && names_runs) {

@@ -105,13 +105,7 @@ pub(super) fn rest_origin(
             why: format!("no tip in the first rest hold: {why}"),
         });
     }
-    let point = crate::stats::median_point(&at_rest);
-    let spread_mm = (at_rest
-        .iter()
-        .map(|p| (p - point).norm_squared())
-        .sum::<f64>()
-        / at_rest.len() as f64)
-        .sqrt();
+    let (point, spread_mm) = crate::triangulate::origin_of(&at_rest);
     Ok(RestOrigin {
         point,
         rows: at_rest.len(),
