@@ -4,7 +4,8 @@
 //! Stages: synth (images, log, truth: `DIR/capture/`) → calibrate (`DIR/calib.yml`) →
 //! triangulate (`DIR/triangulated/`) → model: MSVR with the default search and fitness, and the
 //! previous model, from the triangulated data (`DIR/model.json`, `DIR/model/`) and, for
-//! comparison, from the plant's own data (`DIR/model_plant/`) → inverse: pressures planned for
+//! comparison, the same model (its parameters) fitted on the plant's own data
+//! (`DIR/model_plant/`) → inverse: pressures planned for
 //! targets the virtual plant can reach, run through the plant (`DIR/inverse_check.csv`) →
 //! `DIR/report/index.html` and `DIR/summary.json`.
 //!
@@ -24,7 +25,7 @@ use super::demo_plan::{job, Plan};
 use super::demo_summary::{
     CalibrationCheck, IntervalCheck, InverseCheck, Score, Summary, TipCheck,
 };
-use super::fit::{self, FitOutcome};
+use super::fit::{self, FitJob, FitOutcome, Selection};
 use super::{io_error, Event, PipelineError, Session};
 use crate::calib::file::read_calibration;
 use crate::calib::{CalibOptions, StereoCalibration};
@@ -32,6 +33,7 @@ use crate::data::{self, names, HAND_INPUTS, HAND_OUTPUTS};
 use crate::fsio;
 use crate::model::file::ModelFile;
 use crate::model::inverse::PlannedTarget;
+use crate::model::msvr::folds::FoldsBy;
 use crate::synth::capture::{CaptureConfig, Realism};
 use crate::synth::image_format::ImageFormat;
 use crate::synth::plant::Plant;
@@ -287,7 +289,6 @@ impl<'a> Demo<'a> {
                 .transpose()
         };
         let tri_coarse = coarse(&tri_train, "triangulated_train.csv")?;
-        let plant_coarse = coarse(&plant_train, "plant_train.csv")?;
         let tri_tests = [
             tri_dir.join("dataset_sweep_a.csv"),
             tri_dir.join("dataset_sweep_b.csv"),
@@ -307,17 +308,26 @@ impl<'a> Demo<'a> {
             self.session,
         )?;
         self.session.emit(Event::Fitted(&images));
-        let plant_data = fit::run(
-            &job(
+        // The same model (the parameters the search chose) fitted on the plant's own rows:
+        // what the camera path costs, without a second search.
+        let crate::model::ModelSpec::Msvr(params) = images.report.spec;
+        let plant_job = FitJob {
+            params,
+            selection: Selection::Fixed {
+                folds: 5,
+                folds_by: FoldsBy::Auto,
+            },
+            intervals: true,
+            ..job(
                 plan,
                 plant_train,
-                plant_coarse,
+                None,
                 plant_tests.to_vec(),
                 out.join("model_plant.json"),
                 out.join("model_plant"),
-            ),
-            self.session,
-        )?;
+            )
+        };
+        let plant_data = fit::run(&plant_job, self.session)?;
         let fitted = [
             ("triangulated frames", &images),
             ("the plant's data", &plant_data),

@@ -270,7 +270,7 @@ fn sweeps_section(page: &mut Page, r: &Report) {
 fn errors_section(page: &mut Page, r: &Report) {
     let s = r.s;
     page.section("errors", "Held-out errors")
-        .paragraph("MAE: mean over steps and coordinates of |measured − predicted| (the paper's measure); Euclidean: mean distance. Models trained on the triangulated frames and, for comparison, on the plant's own data (its exact tips with 0.02 mm noise); tested on the triangulated sweeps (dataset_*) and on the plant's sweeps.")
+        .paragraph("MAE: mean over steps and coordinates of |measured − predicted| (the paper's measure); Euclidean: mean distance. Models trained on the triangulated frames and, for comparison, the same model (the C, ε, σ the search chose) trained on the plant's own data (its exact tips with 0.02 mm noise): what the camera path costs; tested on the triangulated sweeps (dataset_*) and on the plant's sweeps.")
         .table(
             &["trained on", "model", "test", "MAE (mm)", "mean Euclidean (mm)", "max Euclidean (mm)"],
             &s.scores.iter().map(|x| vec![x.trained_on.clone(), x.model.clone(), x.test.clone(), f4(x.errors.mae), f4(x.errors.euclid), f4(x.errors.max_euclid)]).collect::<Vec<_>>(),

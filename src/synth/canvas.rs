@@ -33,22 +33,26 @@ impl Canvas {
         }
         let key = splitmix(seed ^ splitmix(image));
         let gain = gain as f32;
+        let normals = &*NORMALS;
         let mut out = vec![0u8; self.rgb.len()];
         out.par_chunks_mut(3 * w)
             .zip(self.rgb.par_chunks(3 * w))
             .enumerate()
-            .for_each_init(Vec::new, |noise, (row, (out, values))| {
-                let first = (row * w) as u64;
-                noise.resize(3 * w, 0f32);
-                for (x, n) in (first..).zip(noise.chunks_exact_mut(3)) {
-                    n.copy_from_slice(&pixel_noise(key, x));
-                }
-                // One pass the compiler can vectorise.
-                for ((o, &v), &n) in out.iter_mut().zip(values).zip(noise.iter()) {
+            .for_each(|(row, (out, values))| {
+                // The row's noise: a window of the table at an offset keyed by the image and
+                // the row.
+                let start =
+                    splitmix(key ^ splitmix(row as u64)) % (NORMALS_LEN - values.len()) as u64;
+                let noise = &normals[start as usize..][..values.len()];
+                // One pass the compiler vectorises.
+                for ((o, &v), &n) in out.iter_mut().zip(values).zip(noise) {
                     let signal = v * gain;
                     let variance =
                         READ_NOISE_DN * READ_NOISE_DN + SHOT_NOISE_DN * signal.clamp(0.0, 255.0);
-                    *o = ((signal + variance.sqrt() * n).clamp(0.0, 255.0) + 0.5) as u8;
+                    let developed = (signal + variance.sqrt() * n).clamp(0.0, 255.0);
+                    // Rounded to the nearest level through the float's mantissa: adding
+                    // 1.5 · 2²³ leaves the integer in the low bits (`as u8` would not vectorise).
+                    *o = (developed + 12_582_912.0).to_bits() as u8;
                 }
             });
         out
@@ -70,23 +74,25 @@ impl Canvas {
         };
         let (w, h) = (self.width, self.height);
         let (ya, yb) = (y0.saturating_sub(r), (y1 + r).min(h - 1));
-        let at = |x: usize, d: usize, max: usize| (x + d).saturating_sub(r).min(max - 1);
-        // Horizontal pass over the rows the vertical pass will read.
+        let span = 3 * (x1 - x0 + 1);
+        // Horizontal pass over the rows the vertical pass will read: each row padded with r
+        // pixels each side (the edge pixel repeated), so that each weight adds one shifted run.
         let src = &self.rgb;
         let weights = &weights;
-        let span = 3 * (x1 - x0 + 1);
         let mut horizontal = vec![0f32; (yb - ya + 1) * span];
         horizontal
             .par_chunks_mut(span)
             .enumerate()
-            .for_each(|(dy, out)| {
-                let row = &src[3 * w * (ya + dy)..3 * w * (ya + dy + 1)];
-                for (x, out) in (x0..=x1).zip(out.chunks_exact_mut(3)) {
-                    for (k, weight) in weights.iter().enumerate() {
-                        let p = &row[3 * at(x, k, w)..][..3];
-                        for c in 0..3 {
-                            out[c] += weight * p[c];
-                        }
+            .for_each_init(Vec::new, |padded, (dy, out)| {
+                let row = &src[3 * w * (ya + dy)..][..3 * w];
+                padded.clear();
+                for x in x0 as isize - r as isize..=(x1 + r) as isize {
+                    let x = x.clamp(0, w as isize - 1) as usize;
+                    padded.extend_from_slice(&row[3 * x..3 * x + 3]);
+                }
+                for (k, weight) in weights.iter().enumerate() {
+                    for (o, p) in out.iter_mut().zip(&padded[3 * k..]) {
+                        *o += weight * p;
                     }
                 }
             });
@@ -94,14 +100,15 @@ impl Canvas {
             .par_chunks_mut(3 * w)
             .enumerate()
             .for_each(|(dy, row)| {
-                let y = y0 + dy;
-                for k in 0..span {
-                    row[3 * x0 + k] = (0..=2 * r)
-                        .map(|t| {
-                            let yy = at(y, t, h).clamp(ya, yb);
-                            weights[t] * horizontal[(yy - ya) * span + k]
-                        })
-                        .sum();
+                let out = &mut row[3 * x0..][..span];
+                out.fill(0.0);
+                for (t, weight) in weights.iter().enumerate() {
+                    // Row y0 + dy + t − r, the edge row repeated.
+                    let y = (y0 + dy + t).saturating_sub(r).clamp(ya, yb);
+                    let from = &horizontal[(y - ya) * span..][..span];
+                    for (o, p) in out.iter_mut().zip(from) {
+                        *o += weight * p;
+                    }
                 }
             });
     }
@@ -118,6 +125,19 @@ pub(super) fn splitmix(mut z: u64) -> u64 {
 pub(super) fn uniform(key: u64, k: u64) -> f64 {
     (splitmix(key ^ splitmix(k)) >> 11) as f64 / (1u64 << 53) as f64
 }
+
+/// The sensor noise's table: 2²⁰ approximately standard normal numbers, made once (from
+/// [`pixel_noise`] with a fixed key). A row of an image takes a window of it at an offset keyed
+/// by the image and the row: one hash a row instead of one a pixel, and the rows of an image,
+/// and the images, still independent to any test of a bead's place (a window overlaps another
+/// row's only at a shifted offset).
+const NORMALS_LEN: usize = 1 << 20;
+static NORMALS: std::sync::LazyLock<Vec<f32>> = std::sync::LazyLock::new(|| {
+    (0..NORMALS_LEN as u64 / 3 + 1)
+        .flat_map(|k| pixel_noise(0x004e_4f49_5345, k))
+        .take(NORMALS_LEN)
+        .collect()
+});
 
 /// Three approximately standard normal numbers (one per colour channel) for pixel `k`: from
 /// one SplitMix64 output, each the sum of four 5-bit uniforms, centred and scaled (Irwin-Hall;

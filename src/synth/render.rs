@@ -332,7 +332,7 @@ impl View {
     /// Per pose, the pieces the pixel (`i`, its row's) may see, into `pieces`: a piece can be
     /// hit inside the pixel only if the pixel's centre ray passes within its radius plus the
     /// pixel's half-diagonal at that depth; every ray through the pixel hits it if the centre
-    /// ray passes within its radius minus that. True when every ray sees the tube of the one
+    /// ray passes within its radius minus that. True when every ray sees the tube of every
     /// pose, away from the bead (the pixel is covered).
     fn pieces_near(
         &self,
@@ -343,7 +343,7 @@ impl View {
         pieces: &mut [Vec<usize>],
     ) -> bool {
         let (left, right) = (i as f64 - 0.5, i as f64 + 0.5);
-        let mut covered = poses.len() == 1;
+        let mut covered = true;
         for ((finger, in_row), pieces) in poses.iter().zip(in_row).zip(pieces) {
             let bead = finger.axis.len() - 1;
             let mut inside = false;
@@ -372,7 +372,7 @@ impl View {
     }
 
     /// The shaded colours the pixel's rays see of the finger, summed, and how many hit it: the
-    /// centre ray alone for a covered pixel (the shading varies slowly there), else the S × S
+    /// centre ray of each pose for a covered pixel (the shading varies slowly there), else the S × S
     /// samples, sample k seeing pose k mod `poses.len()`.
     fn seen(
         &self,
@@ -400,8 +400,13 @@ impl View {
         let mut sum = [0.0; 3];
         let mut hits = 0;
         if covered {
-            if let Some(colour) = surface(0, centre) {
-                (sum, hits) = (colour, 1);
+            for pose in 0..poses.len() {
+                if let Some(colour) = surface(pose, centre) {
+                    for k in 0..3 {
+                        sum[k] += colour[k];
+                    }
+                    hits += 1;
+                }
             }
         } else {
             let mut sample = 0;
