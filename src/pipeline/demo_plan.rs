@@ -80,7 +80,7 @@ impl Plan {
                 aco,
                 targets: 100,
                 dynamic: DynamicDesign {
-                    duration_s: 10.0,
+                    duration_s: 8.0,
                     trials: 3,
                     seed,
                     ..DynamicDesign::default()

@@ -21,12 +21,12 @@ pub struct Canvas {
 }
 
 impl Canvas {
-    /// Blurs where detail was drawn, applies `gain`, adds noise keyed by (`seed`, `image`) and
-    /// rounds to 8-bit RGB.
+    /// Blurs where detail was drawn (in place: what was drawn stays marked as `detail`),
+    /// applies `gain`, adds noise keyed by (`seed`, `image`) and rounds to 8-bit RGB.
     ///
     /// Blurring only the detail is exact where the rest is the smooth backdrop (a 5-pixel
     /// Gaussian changes it by under 0.01 DN).
-    pub fn develop(mut self, gain: f64, seed: u64, image: u64) -> Vec<u8> {
+    pub fn develop(&mut self, gain: f64, seed: u64, image: u64) -> Vec<u8> {
         let w = self.width;
         if let Some(rect) = self.detail {
             self.blur(rect, BLUR_SIGMA_PX);

@@ -19,6 +19,8 @@
 //! finger and background share one illumination field (a horizontal gradient, a soft hot spot and
 //! vignetting, drawn from the seed).
 
+use std::sync::Mutex;
+
 use nalgebra::{Point3, Vector3};
 use rayon::prelude::*;
 
@@ -45,6 +47,9 @@ pub struct View {
     backdrop: Vec<f32>,
     eye: Point3<f64>,
     specular: f64,
+    /// Canvases developed and handed back ([`View::recycle`]): the next frames draw on them,
+    /// restoring only what was drawn, instead of copying the whole backdrop each time.
+    spare: Mutex<Vec<Canvas>>,
 }
 
 /// What a view shows besides the finger and the boards, and how the bead shines.
@@ -140,6 +145,7 @@ impl View {
             backdrop: backdrop.rgb,
             eye,
             specular: surroundings.specular,
+            spare: Mutex::default(),
         }
     }
 
@@ -166,13 +172,31 @@ impl View {
         self.camera.ray_direction(x, y).into_inner()
     }
 
-    /// The background alone.
+    /// The background alone: a spare canvas with what was drawn on it restored, or a copy.
     pub fn backdrop(&self) -> Canvas {
-        Canvas {
-            width: self.width(),
-            height: self.height(),
-            rgb: self.backdrop.clone(),
-            detail: None,
+        let spare = self.spare.lock().map_or(None, |mut spare| spare.pop());
+        let Some(mut canvas) = spare else {
+            return Canvas {
+                width: self.width(),
+                height: self.height(),
+                rgb: self.backdrop.clone(),
+                detail: None,
+            };
+        };
+        if let Some((x0, y0, x1, y1)) = canvas.detail.take() {
+            let w = self.width();
+            for y in y0..=y1 {
+                let row = 3 * (y * w + x0)..3 * (y * w + x1 + 1);
+                canvas.rgb[row.clone()].copy_from_slice(&self.backdrop[row]);
+            }
+        }
+        canvas
+    }
+
+    /// Takes back a canvas of this view once developed, for a later frame to draw on.
+    pub fn recycle(&self, canvas: Canvas) {
+        if let Ok(mut spare) = self.spare.lock() {
+            spare.push(canvas);
         }
     }
 

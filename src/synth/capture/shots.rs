@@ -90,7 +90,7 @@ impl Studio<'_> {
     /// Renders shot `id` (its number in the fixed order seeds its sensor noise).
     fn render(&self, id: usize, shot: &Shot) -> Result<Rendered, SynthError> {
         let (c, ext) = (self.config, self.config.format.extension());
-        let (side, path, canvas, time) = match shot {
+        let (side, path, mut canvas, time) = match shot {
             Shot::Board {
                 camera,
                 name,
@@ -128,6 +128,7 @@ impl Studio<'_> {
             * (1.0 + c.realism.flicker * (std::f64::consts::TAU * 100.0 * time + phase).sin());
         let size = [canvas.width as u32, canvas.height as u32];
         let rgb = canvas.develop(gain, self.seed, id as u64);
+        self.views[side as usize].recycle(canvas);
         Ok(Rendered { path, size, rgb })
     }
 }
