@@ -18,6 +18,7 @@
 use nalgebra::{Point3, Vector3};
 use rand::seq::SliceRandom;
 use rand::SeedableRng;
+use rayon::prelude::*;
 use serde::Serialize;
 
 use super::{stereo, uncertainty, BoardSpec, CalibError, KnownIntrinsics, PairCorners};
@@ -104,32 +105,41 @@ pub(super) fn validate(
         })
         .collect();
 
+    // The halves of every split (drawn in order, so the seed gives the same ones), each
+    // calibrated on its own: in parallel, the splits' sums taken in order after.
     let mut order: Vec<usize> = (0..n).collect();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-    let (mut seen, mut predicted) = ([0.0f64; 3], [0.0f64; 3]);
-    let mut count = 0usize;
-    for split in 0..SPLITS {
-        let halves: [Vec<PairCorners>; 2] = if split == 0 {
-            [0, 1].map(|h| usable.iter().skip(h).step_by(2).cloned().collect())
-        } else {
-            order.shuffle(&mut rng);
-            let (a, b) = order.split_at(n / 2);
-            [a, b].map(|rows| rows.iter().map(|&k| usable[k].clone()).collect())
-        };
-        let mut fits = Vec::new();
-        for half in &halves {
+    let halves: Vec<Vec<PairCorners>> = (0..SPLITS)
+        .flat_map(|split| {
+            if split == 0 {
+                [0, 1].map(|h| usable.iter().skip(h).step_by(2).cloned().collect())
+            } else {
+                order.shuffle(&mut rng);
+                let (a, b) = order.split_at(n / 2);
+                [a, b].map(|rows| rows.iter().map(|&k| usable[k].clone()).collect())
+            }
+        })
+        .collect();
+    let fits = halves
+        .par_iter()
+        .map(|half| {
             let rig = stereo(board, size, half, known)?.cams;
             let poses = uncertainty::board_poses(board, &rig, half)?;
             let at = (base, String::new());
-            let Some(u) = uncertainty::estimate(board, &rig, free, half, &poses, at)? else {
-                return Ok(None);
-            };
-            fits.push((rig, u));
-        }
+            let u = uncertainty::estimate(board, &rig, free, half, &poses, at)?;
+            Ok(u.map(|u| (rig, u)))
+        })
+        .collect::<Result<Vec<_>, CalibError>>()?;
+    let Some(fits) = fits.into_iter().collect::<Option<Vec<_>>>() else {
+        return Ok(None);
+    };
+    let (mut seen, mut predicted) = ([0.0f64; 3], [0.0f64; 3]);
+    let mut count = 0usize;
+    for split in fits.chunks(2) {
         for px in &pixels {
-            let [a, b] = [&fits[0], &fits[1]].map(|(rig, _)| rig.triangulate(&[px[0]], &[px[1]]));
+            let [a, b] = [&split[0], &split[1]].map(|(rig, _)| rig.triangulate(&[px[0]], &[px[1]]));
             let (a, b) = (a?[0], b?[0]);
-            let [sa, sb] = [&fits[0], &fits[1]].map(|(rig, u)| u.point_sd(rig, &a));
+            let [sa, sb] = [&split[0], &split[1]].map(|(rig, u)| u.point_sd(rig, &a));
             let (sa, sb) = (sa?.position, sb?.position);
             for axis in 0..3 {
                 seen[axis] += (a[axis] - b[axis]).powi(2);

@@ -79,13 +79,15 @@ impl Plan {
                 },
                 aco,
                 targets: 100,
+                // Three trials of 8 s: about 700 training rows, whose searches take 120
+                // candidates each (`handcap model`'s default from 700 rows; 200 below).
                 dynamic: DynamicDesign {
                     duration_s: 8.0,
                     trials: 3,
                     seed,
                     ..DynamicDesign::default()
                 },
-                dynamic_budget: None,
+                dynamic_budget: Some(120),
             }
         }
     }
