@@ -471,9 +471,15 @@ fn png_and_both_jpeg_chromas_give_the_same_tips() {
             "tips' moves from the PNG's to {:?}: {rms:.4} mm RMS, {max:.4} mm at most",
             formats[k]
         );
-        // Measured: to 4:4:4 0.005 mm RMS, 0.009 at most; to 4:2:0 0.010 and 0.018 (and
-        // 0.012, 0.022 between the two JPEGs).
-        assert!(max < 0.02, "{:?}: {max} mm", formats[k]);
+        // Measured over seeds 33-36: to 4:4:4 0.005 mm RMS, 0.007-0.012 at most; to 4:2:0
+        // 0.011-0.018 mm RMS, 0.019-0.033 at most (the sensor noise drawn per pixel, as
+        // before the table: 0.010-0.019 and 0.018-0.039). The largest move of a dozen steps
+        // is one draw of the noise; the RMS is the figure.
+        assert!(
+            rms < 0.02 && max < 0.04,
+            "{:?}: {rms} mm RMS, {max} mm",
+            formats[k]
+        );
     }
 }
 
