@@ -19,14 +19,11 @@ use handcap_core::data::{Columns, Dataset};
 use handcap_core::model::file::{ModelFile, ModelFileError};
 use handcap_core::model::history::{HistoryChoice, Series};
 use handcap_core::model::inverse::{self, InverseOptions};
-use handcap_core::model::msvr::fitness::FitnessKind;
 use handcap_core::model::msvr::folds::FoldsBy;
 use handcap_core::model::msvr::tune::{BasisChoice, Pinned};
 use handcap_core::model::msvr::{self, Loss, MsvrParams, MIN_FIT_ROWS};
 use handcap_core::model::{Differentiable, Predict, StoredModel};
 use handcap_core::provenance::Provenance;
-use handcap_core::search::aco_r::AcoR;
-use handcap_core::search::Method;
 use handcap_core::select::{self, Plan, Selection, Table};
 
 /// A core message in Python's words: its parameters are named `field=value` already, but
@@ -301,16 +298,7 @@ fn fit(
     };
     let searched = c.is_none() || epsilon.is_none() || sigma.is_none();
     let selection = if searched {
-        Selection::Search {
-            method: Method::AcoR(AcoR {
-                seed,
-                ..AcoR::default()
-            }),
-            budget,
-            fitness: FitnessKind::Cv { folds },
-            folds_by,
-            seed,
-        }
+        Selection::aco_r(seed, budget, folds, folds_by)
     } else {
         Selection::Fixed { folds, folds_by }
     };

@@ -21,14 +21,11 @@ use super::{PipelineError, Session};
 use crate::data::{self, names, Csv, HAND_INPUTS, HAND_OUTPUTS};
 use crate::model::file::ModelFile;
 use crate::model::history::{HistoryChoice, Memory};
-use crate::model::msvr::fitness::FitnessKind;
 use crate::model::msvr::folds::FoldsBy;
 use crate::model::msvr::tune::{BasisChoice, Pinned};
 use crate::model::msvr::MsvrParams;
 use crate::model::Errors;
 use crate::plot::{self, LinePlot, Mark, Series};
-use crate::search::aco_r::AcoR;
-use crate::search::Method;
 use crate::session::protocol::DynamicDesign;
 use crate::synth::capture::{CaptureConfig, DynamicSession};
 use crate::synth::dynamics::Dynamics;
@@ -122,7 +119,9 @@ pub fn run(
     // Folds are whole phases: the training trials and the rest holds.
     let folds = design.trials.min(5);
     let fit = |data: &Path, test: &Path, name: &str, history: bool| {
-        let selection = searched(synth.seed, folds, budget);
+        // `handcap model`'s default search, the phases as folds.
+        let selection =
+            Selection::aco_r(synth.seed, budget, folds, FoldsBy::Column("phase".into()));
         fit::run(
             &job(data, test, &dir.join(name), history, selection),
             session,
@@ -187,21 +186,6 @@ pub fn run(
         history,
         scores,
     })
-}
-
-/// How the dynamic part's models are searched: `handcap model`'s default (ACO-R), `folds`
-/// phases as folds, at most `budget` candidates (`None`: `handcap model`'s default).
-fn searched(seed: u64, folds: usize, budget: Option<usize>) -> Selection {
-    Selection::Search {
-        method: Method::AcoR(AcoR {
-            seed,
-            ..AcoR::default()
-        }),
-        budget,
-        fitness: FitnessKind::Cv { folds },
-        folds_by: FoldsBy::Column("phase".into()),
-        seed,
-    }
 }
 
 /// A model of the dynamic part (robust loss, the folds whole phases), with input history or

@@ -136,6 +136,22 @@ impl Selection {
     pub fn searched(&self) -> bool {
         matches!(self, Selection::Search { .. })
     }
+
+    /// `handcap model`'s default search: ACO_R with its own settings and `seed`, at most
+    /// `budget` candidates (`None`: by the rows), cross-validated on `folds` folds cut
+    /// `folds_by`.
+    pub fn aco_r(seed: u64, budget: Option<usize>, folds: usize, folds_by: FoldsBy) -> Selection {
+        Selection::Search {
+            method: Method::AcoR(crate::search::aco_r::AcoR {
+                seed,
+                ..Default::default()
+            }),
+            budget,
+            fitness: FitnessKind::Cv { folds },
+            folds_by,
+            seed,
+        }
+    }
 }
 
 /// What to select.
