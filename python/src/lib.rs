@@ -287,6 +287,7 @@ fn fit(
         },
         series,
         lines: (1..=x.nrows() as u64).collect(),
+        context: None,
         fold_columns: groups
             .clone()
             .map(|g| vec![("groups".to_string(), g)])

@@ -225,11 +225,13 @@ fn note_flagged(job: &FitJob, session: &Session) -> Result<(), PipelineError> {
 /// and with `folds` the columns the folds may be cut by.
 fn read_table(path: &Path, job: &FitJob, folds: bool) -> Result<Table, PipelineError> {
     let data = data::read_dataset(path, &job.inputs, &job.outputs)?;
-    let (series, lines) = match &job.time {
-        None => (None, Vec::new()),
+    let (series, lines, context) = match &job.time {
+        None => (None, Vec::new(), None),
         Some(time) => {
-            let (series, lines) = history::read_series(path, time, job.group.as_deref())?;
-            (Some(series), lines)
+            let group = job.group.as_deref();
+            let (series, lines) = history::read_series(path, time, group)?;
+            let context = history::Context::read(path, &job.inputs, time, group)?;
+            (Some(series), lines, Some(context))
         }
     };
     let fold_columns = match &job.selection {
@@ -242,6 +244,7 @@ fn read_table(path: &Path, job: &FitJob, folds: bool) -> Result<Table, PipelineE
         data,
         series,
         lines,
+        context,
         fold_columns,
     };
     table.check_series(false)?;

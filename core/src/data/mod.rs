@@ -298,6 +298,7 @@ pub fn read_columns_with_lines(
 pub fn numeric_columns(path: &Path, skip: &[String]) -> Result<Vec<(String, Vec<f64>)>, DataError> {
     let columns = each_row(
         path,
+        Flagged::Skip,
         |header| {
             let flag = flag_column(header);
             Ok(header
@@ -307,7 +308,7 @@ pub fn numeric_columns(path: &Path, skip: &[String]) -> Result<Vec<(String, Vec<
                 .map(|(j, name)| (j, name.to_string(), Some(Vec::new())))
                 .collect::<Vec<(usize, String, Option<Vec<f64>>)>>())
         },
-        |columns, _, record| {
+        |columns, _, record, _| {
             for (j, _, values) in columns.iter_mut() {
                 let number = record[*j].parse::<f64>().ok().filter(|v| v.is_finite());
                 match (values.as_mut(), number) {
@@ -361,8 +362,9 @@ fn read_selected(
     let mut row = vec![0.0; names.len()];
     each_row(
         path,
+        Flagged::Skip,
         |header| column_index(path, header, names),
-        |index, line, record| {
+        |index, line, record, _| {
             for (slot, (&col, name)) in row.iter_mut().zip(index.iter().zip(names)) {
                 *slot = parse_cell(path, line, name, &record[col])?;
             }
@@ -373,14 +375,23 @@ fn read_selected(
     .map(drop)
 }
 
-/// Reads a file's header, gives it to `setup`, then gives each data row (blank and flagged
-/// rows skipped, a row of the wrong length refused) with its file line to `row`, with what
-/// `setup` made of the header (the chosen columns' positions, or a state the rows build);
-/// returns that.
+/// Whether a reader gives the rows a `flag` column marks.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Flagged {
+    Skip,
+    /// Given, with their flag, to a reader that takes what they hold.
+    Give,
+}
+
+/// Reads a file's header, gives it to `setup`, then gives each data row (blank rows skipped,
+/// flagged rows as `flagged` says, a row of the wrong length refused) with its file line and
+/// whether it is flagged to `row`, with what `setup` made of the header (the chosen columns'
+/// positions, or a state the rows build); returns that.
 fn each_row<C>(
     path: &Path,
+    flagged: Flagged,
     setup: impl FnOnce(&csv::StringRecord) -> Result<C, DataError>,
-    mut row: impl FnMut(&mut C, u64, &csv::StringRecord) -> Result<(), DataError>,
+    mut row: impl FnMut(&mut C, u64, &csv::StringRecord, bool) -> Result<(), DataError>,
 ) -> Result<C, DataError> {
     let bytes = read_file(path)?;
     let mut lines = Lines::new(&bytes);
@@ -400,7 +411,8 @@ fn each_row<C>(
     let flag = flag_column(&header);
     for record in records {
         let record = record.map_err(|e| csv_error(path, e, &mut lines))?;
-        if is_blank(&record) || is_flagged(flag, &record) {
+        let is_flagged = is_flagged(flag, &record);
+        if is_blank(&record) || (is_flagged && flagged == Flagged::Skip) {
             continue;
         }
         let line = lines.of(record.position());
@@ -415,7 +427,7 @@ fn each_row<C>(
                 ),
             });
         }
-        row(&mut made, line, &record)?;
+        row(&mut made, line, &record, is_flagged)?;
     }
     Ok(made)
 }
@@ -432,18 +444,25 @@ pub fn read_labels(path: &Path, name: &str) -> Result<(Vec<f64>, Vec<u64>), Data
     let names = [name.to_string()];
     each_row(
         path,
+        Flagged::Skip,
         |header| column_index(path, header, &names),
-        |index, line, record| {
+        |index, line, record, _| {
             cells.push(record[index[0]].to_string());
             lines.push(line);
             Ok(())
         },
     )?;
+    Ok((label_values(&cells), lines))
+}
+
+/// Labels as numbers: themselves when every one is a number, else each distinct label's rank
+/// of first appearance.
+fn label_values(cells: &[String]) -> Vec<f64> {
     let numbers: Option<Vec<f64>> = cells
         .iter()
         .map(|c| c.parse::<f64>().ok().filter(|v| v.is_finite()))
         .collect();
-    let labels = numbers.unwrap_or_else(|| {
+    numbers.unwrap_or_else(|| {
         let mut seen: std::collections::HashMap<&str, f64> = std::collections::HashMap::new();
         cells
             .iter()
@@ -452,8 +471,62 @@ pub fn read_labels(path: &Path, name: &str) -> Result<(Vec<f64>, Vec<u64>), Data
                 *seen.entry(c.as_str()).or_insert(next)
             })
             .collect()
-    });
-    Ok((labels, lines))
+    })
+}
+
+/// What [`read_through_flags`] reads.
+pub struct EveryRow {
+    pub columns: Columns,
+    /// The label column's values, as [`read_labels`] gives them.
+    pub labels: Option<Vec<f64>>,
+    pub lines: Vec<u64>,
+}
+
+/// The named columns and, with `label`, a column of labels of every row, flagged rows
+/// included, with each row's file line: what was in force at every
+/// row of a time series, for filters that must run through the rows whose outputs were not
+/// seen (a camera frame without its tip still had its pressures). A flagged row whose cells
+/// are not all numbers is passed over; any other row is read as [`read_columns`] reads it.
+///
+/// # Errors
+/// As [`read_columns`].
+pub fn read_through_flags(
+    path: &Path,
+    names: &[String],
+    label: Option<&str>,
+) -> Result<EveryRow, DataError> {
+    let all: Vec<String> = names
+        .iter()
+        .cloned()
+        .chain(label.map(str::to_string))
+        .collect();
+    let (mut values, mut cells, mut lines) = (Vec::new(), Vec::new(), Vec::new());
+    let mut row = vec![0.0; names.len()];
+    each_row(
+        path,
+        Flagged::Give,
+        |header| column_index(path, header, &all),
+        |index, line, record, flagged| {
+            for (slot, (&col, name)) in row.iter_mut().zip(index.iter().zip(names)) {
+                match parse_cell(path, line, name, &record[col]) {
+                    Ok(v) => *slot = v,
+                    Err(_) if flagged => return Ok(()),
+                    Err(e) => return Err(e),
+                }
+            }
+            values.extend_from_slice(&row);
+            if label.is_some() {
+                cells.push(record[index[names.len()]].to_string());
+            }
+            lines.push(line);
+            Ok(())
+        },
+    )?;
+    Ok(EveryRow {
+        columns: Columns::new(names.to_vec(), values),
+        labels: label.map(|_| label_values(&cells)),
+        lines,
+    })
 }
 
 /// Copies the header and the rows of `from` whose `columns` satisfy `keep` into `to`

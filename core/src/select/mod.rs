@@ -23,7 +23,9 @@ use std::sync::atomic::AtomicBool;
 use crate::control::Since;
 use crate::data::{self, DataError, Dataset};
 use crate::model::file::ModelFile;
-use crate::model::history::{self, History, HistoryChoice, HistoryDecision, HistoryError, Series};
+use crate::model::history::{
+    series_error, Context, History, HistoryChoice, HistoryDecision, HistoryError, Series,
+};
 use crate::model::interval::Intervals;
 use crate::model::msvr::fitness::FitnessKind;
 use crate::model::msvr::folds::{FoldsBy, FoldsError};
@@ -47,6 +49,9 @@ pub struct Table {
     pub series: Option<Series>,
     /// Each row's line in its file, for errors (row numbers for rows from memory).
     pub lines: Vec<u64>,
+    /// Every row of the file the history's filters run through, flagged rows too (`None`:
+    /// the rows above are all there were).
+    pub context: Option<Context>,
     /// Columns the folds may be cut by, one value per row: the `folds_by` column, or for
     /// `folds_by=auto` every numeric column that is neither input nor output.
     pub fold_columns: Vec<(String, Vec<f64>)>,
@@ -58,8 +63,15 @@ impl Table {
     /// # Errors
     /// [`DataError::Input`] naming the row's line when the series cannot carry the history.
     pub fn with(&self, history: Option<&History>) -> Result<Dataset, DataError> {
-        match (history, &self.series) {
-            (Some(h), Some(series)) => h
+        match (history, &self.series, &self.context) {
+            (Some(h), _, Some(context)) => Ok(Dataset {
+                source: self.data.source.clone(),
+                inputs: h
+                    .features_at(context, &self.lines)
+                    .map_err(|e| series_error(&self.data.source, &context.lines, e))?,
+                outputs: self.data.outputs.clone(),
+            }),
+            (Some(h), Some(series), None) => h
                 .dataset(&self.data, series)
                 .map_err(|e| self.series_error(e)),
             _ => Ok(self.data.clone()),
@@ -90,7 +102,7 @@ impl Table {
 
     /// A history error as a data error naming the file and the row's line.
     pub fn series_error(&self, e: HistoryError) -> DataError {
-        history::series_error(&self.data.source, &self.lines, e)
+        series_error(&self.data.source, &self.lines, e)
     }
 
     /// The rows [`Plan::max_rows`] keeps (evenly spaced), then of those the `at_most` a search

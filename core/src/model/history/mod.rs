@@ -25,7 +25,9 @@ use serde::{Deserialize, Serialize};
 
 use super::{Differentiable, Predict};
 use crate::data::{self, Columns, DataError, Dataset};
-pub use series::{read_series, series_error, useless_time_constant, Series, TimeScale, TAU_REACH};
+pub use series::{
+    read_series, series_error, useless_time_constant, Context, Series, TimeScale, TAU_REACH,
+};
 
 /// The first automatic time constant, in median sampling intervals: half of one, so the first
 /// filter mostly holds the previous input (the direction of approach, which hysteresis
@@ -363,17 +365,34 @@ impl History {
         })
     }
 
-    /// Reads the inputs, time and group of a CSV file and builds the features.
+    /// The features of a file's rows at `lines` (those a model sees), built over every row of
+    /// its `context`, flagged rows included.
+    ///
+    /// # Errors
+    /// As [`History::features`], about the context's rows.
+    pub fn features_at(&self, context: &Context, lines: &[u64]) -> Result<Columns, HistoryError> {
+        let all = self.features(&context.inputs, &context.series)?;
+        let rows = context.rows_at(lines);
+        let width = all.width();
+        let values = rows
+            .iter()
+            .flat_map(|&r| all.values[r * width..(r + 1) * width].iter().copied())
+            .collect();
+        Ok(Columns::new(all.names, values))
+    }
+
+    /// Reads the inputs, time and group of a CSV file and builds the features of its
+    /// unflagged rows, through the flagged ones.
     ///
     /// # Errors
     /// [`DataError`]: the file's own, a missing time or group column (saying the model needs
     /// it), or a [`HistoryError`] named by the file line.
     pub fn read_features(&self, path: &Path) -> Result<(Columns, Columns), DataError> {
-        let inputs = data::read_columns(path, &self.inputs)?;
-        let series = read_series(path, &self.time, self.group.as_deref())?;
+        let (inputs, lines) = data::read_columns_with_lines(path, &self.inputs)?;
+        let context = Context::read(path, &self.inputs, &self.time, self.group.as_deref())?;
         let features = self
-            .features(&inputs, &series.0)
-            .map_err(|e| series_error(path, &series.1, e))?;
+            .features_at(&context, &lines)
+            .map_err(|e| series_error(path, &context.lines, e))?;
         Ok((inputs, features))
     }
 }

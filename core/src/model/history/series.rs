@@ -5,7 +5,7 @@ use std::collections::HashMap;
 use std::path::Path;
 
 use super::{HistoryError, AUTO_COUNT, AUTO_FIRST_STEPS, AUTO_LADDERS, AUTO_RATIO, AUTO_SHIFT};
-use crate::data::{self, DataError};
+use crate::data::{self, Columns, DataError};
 
 /// The time (and group) of each row of a time series.
 #[derive(Clone, Debug, PartialEq)]
@@ -192,6 +192,68 @@ pub fn read_series(
         group: group.map(|(labels, _)| labels),
     };
     Ok((series, lines))
+}
+
+/// A file's rows as the history's filters run through them: every row's inputs and time (and
+/// group), flagged rows too, whose inputs were in force although their outputs were not seen
+/// (a frame without the tip), with each row's file line. Built over these, a filter does not
+/// bridge a flagged row and a lag counts it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Context {
+    pub inputs: Columns,
+    pub series: Series,
+    pub lines: Vec<u64>,
+}
+
+impl Context {
+    /// Reads `inputs`, `time` and `group` of every row of `path`, flagged rows included.
+    ///
+    /// # Errors
+    /// As [`read_series`].
+    pub fn read(
+        path: &Path,
+        inputs: &[String],
+        time: &str,
+        group: Option<&str>,
+    ) -> Result<Context, DataError> {
+        // The columns alone first, so a missing one is named as the history's.
+        read_series(path, time, group)?;
+        let names: Vec<String> = inputs.iter().cloned().chain([time.to_string()]).collect();
+        let every = data::read_through_flags(path, &names, group)?;
+        let d = inputs.len();
+        let mut values = Vec::with_capacity(every.lines.len() * d);
+        let mut time = Vec::with_capacity(every.lines.len());
+        for row in every.columns.values.chunks_exact(d + 1) {
+            values.extend_from_slice(&row[..d]);
+            time.push(row[d]);
+        }
+        Ok(Context {
+            inputs: Columns::new(inputs.to_vec(), values),
+            series: Series {
+                time,
+                group: every.labels,
+            },
+            lines: every.lines,
+        })
+    }
+
+    /// The rows of the context at file lines `lines` (increasing, each one of the context's).
+    ///
+    /// # Panics
+    /// If a line is not one of the context's rows.
+    pub fn rows_at(&self, lines: &[u64]) -> Vec<usize> {
+        let mut at = 0;
+        lines
+            .iter()
+            .map(|line| {
+                at += self.lines[at..]
+                    .iter()
+                    .position(|l| l == line)
+                    .expect("every line read is in the context");
+                at
+            })
+            .collect()
+    }
 }
 
 /// A [`HistoryError`] of a file's series, named by the row's file line.

@@ -127,3 +127,36 @@ fn choices_parse() {
         assert!(bad.parse::<HistoryChoice>().is_err(), "{bad}");
     }
 }
+
+#[test]
+fn features_of_a_file_run_through_its_flagged_rows() {
+    // A frame without the tip (flagged, no outputs) still had its input: the lag after it is
+    // that input, and the filter sees it, rather than bridging the gap. A flagged row that
+    // has no input is passed over. Groups are labels ("a", "b").
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("log.csv");
+    std::fs::write(
+        &path,
+        "t,g,u,y,flag\n0,a,1,10,\n1,a,2,,gap\n2,a,3,30,\n3,a,,,gap\n4,a,5,50,\n0,b,7,70,\n1,b,8,80,\n",
+    )
+    .unwrap();
+    let lags = History {
+        group: Some("g".into()),
+        ..history(Memory::Lags { rows: 1 })
+    };
+    let (inputs, f) = lags.read_features(&path).unwrap();
+    assert_eq!(inputs.values, [1.0, 3.0, 5.0, 7.0, 8.0]);
+    // Row t = 2 lags to the flagged 2, not to 1; t = 4 to 3 (the row without an input is
+    // passed over); group b starts afresh.
+    assert_eq!(f.values, [1.0, 1.0, 3.0, 2.0, 5.0, 3.0, 7.0, 7.0, 8.0, 7.0]);
+    let ema = History {
+        group: Some("g".into()),
+        ..history(Memory::Ema { tau: vec![1.0] })
+    };
+    let (_, f) = ema.read_features(&path).unwrap();
+    let gain = 1.0 - (-1.0f64).exp();
+    // The filter at t = 1 (flagged) and t = 2.
+    let at1 = 1.0 + gain * (2.0 - 1.0);
+    let at2 = at1 + gain * (3.0 - at1);
+    assert!((f.values[3] - at2).abs() < 1e-12, "{:?}", f.values);
+}
