@@ -127,8 +127,16 @@ pub fn run(
             session,
         )
     };
-    let fitted_static = fit(&train, &test, "static", false)?;
     let fitted_history = fit(&train, &test, "history", true)?;
+    // `auto` searched the present inputs first, to compare: the static model is that search's
+    // (C, ε, σ) fitted again, not searched a second time.
+    let fitted_static = match present_inputs(&fitted_history) {
+        Some(params) => {
+            let fixed = job(&train, &test, &dir.join("static"), false, phases(folds));
+            fit::run(&FitJob { params, ..fixed }, session)?
+        }
+        None => fit(&train, &test, "static", false)?,
+    };
     let same = same_model(
         &fitted_history,
         &truth_train,
@@ -237,14 +245,25 @@ fn same_model(
         Some(Memory::Ema { tau }) => HistoryChoice::Ema(tau.clone()),
         Some(Memory::Lags { rows }) => HistoryChoice::Lags(*rows),
     };
-    let fixed = Selection::Fixed {
-        folds,
-        folds_by: FoldsBy::Column("phase".into()),
-    };
     FitJob {
         params,
         history,
-        ..job(data, test, out, true, fixed)
+        ..job(data, test, out, true, phases(folds))
+    }
+}
+
+/// The (C, ε, σ) the search of `fitted`'s `auto` chose on the present inputs alone.
+fn present_inputs(fitted: &fit::FitOutcome) -> Option<MsvrParams> {
+    let history = fitted.report.history.as_ref()?;
+    let present = history.tried.iter().find(|t| t.memory.is_none())?;
+    present.params
+}
+
+/// Given parameters, scored on `folds` whole phases.
+fn phases(folds: usize) -> Selection {
+    Selection::Fixed {
+        folds,
+        folds_by: FoldsBy::Column("phase".into()),
     }
 }
 

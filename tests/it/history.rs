@@ -139,7 +139,11 @@ fn a_lagging_plant_is_modelled_from_its_inputs_history() {
     let taus = decision["used"]["memory"]["tau"].as_array().unwrap().len();
     assert_eq!(inputs, 2 * (1 + taus));
     let stat = fit("none", "static.json");
-    assert!(read_json(&d.join("static.json"))["history"]["used"].is_null());
+    let static_file = read_json(&d.join("static.json"));
+    assert!(static_file["history"]["used"].is_null());
+    // `auto` keeps what its present-input search chose: the static model's own parameters
+    // (the demo fits its static model from them rather than searching twice).
+    assert_eq!(tried[0]["params"], static_file["model"]["params"]);
     assert!(
         history <= 0.5 * stat,
         "held-out MAE with history {history:.4}, static {stat:.4}"

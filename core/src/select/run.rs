@@ -274,6 +274,7 @@ impl Run<'_> {
                     screened.push(HistoryTrial {
                         memory: Some(memory.clone()),
                         fitness,
+                        params: Some(params),
                     });
                     if best.as_ref().is_none_or(|(_, f, _)| fitness < *f) {
                         best = Some((memory.clone(), fitness, scored));
@@ -372,7 +373,7 @@ impl Run<'_> {
             history::decide(
                 tried
                     .iter()
-                    .map(|(h, c, _)| (h.clone(), c.fitness.unwrap_or(f64::NAN)))
+                    .map(|(h, c, _)| (h.clone(), c.fitness.unwrap_or(f64::NAN), c.params))
                     .collect(),
                 screened,
                 &format!("history={}", self.plan.history),

@@ -23,6 +23,7 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
+use super::msvr::MsvrParams;
 use super::{Differentiable, Predict};
 use crate::data::{self, Columns, DataError, Dataset};
 pub use series::{
@@ -214,6 +215,10 @@ pub struct HistoryTrial {
     pub memory: Option<Memory>,
     /// The best cross-validated fitness of its search (or of the given parameters).
     pub fitness: f64,
+    /// The (C, ε, σ) its search chose (or it was screened at); absent in files written
+    /// before they were kept.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub params: Option<MsvrParams>,
 }
 
 /// `auto` keeps history when its cross-validated error is lower than the present inputs' by
@@ -223,19 +228,20 @@ pub const AUTO_GAIN: f64 = 0.02;
 /// The choice between the present inputs and a history, from their cross-validated fitness:
 /// the history when it is lower by more than [`AUTO_GAIN`] (or asked for alone).
 pub fn decide(
-    tried: Vec<(Option<History>, f64)>,
+    tried: Vec<(Option<History>, f64, MsvrParams)>,
     screened: Vec<HistoryTrial>,
     asked: &str,
 ) -> HistoryDecision {
     let trials: Vec<HistoryTrial> = tried
         .iter()
-        .map(|(h, fitness)| HistoryTrial {
+        .map(|(h, fitness, params)| HistoryTrial {
             memory: h.as_ref().map(|h| h.memory.clone()),
             fitness: *fitness,
+            params: Some(*params),
         })
         .collect();
     match tried.as_slice() {
-        [(None, s), (Some(h), f)] => {
+        [(None, s, _), (Some(h), f, _)] => {
             let kept = *f < s * (1.0 - AUTO_GAIN);
             let verdict = if kept {
                 format!(
@@ -257,7 +263,7 @@ pub fn decide(
             }
         }
         _ => HistoryDecision {
-            used: tried.into_iter().next().and_then(|(h, _)| h),
+            used: tried.into_iter().next().and_then(|(h, ..)| h),
             reason: asked.to_string(),
             tried: Vec::new(),
             screened,
