@@ -51,7 +51,7 @@ pub mod video;
 
 pub use board::{
     BoardKeys, BoardPattern, BoardSpec, Charuco, Chessboard, Dictionary, Layout, Marker,
-    PartialBoard, Pattern, MIN_CHARUCO_CORNERS,
+    PartialBoard, Pattern,
 };
 use checks::{board_check, epipolar_error, rectify};
 use detect::read_all;

@@ -474,7 +474,7 @@ impl<'a> Recorder<'a> {
             self.flash = Some(watch.measure(times));
         }
         self.rows.sort_by_key(|r| (r.0 as u8, r.1));
-        let log = shared.log.lock().expect("log").clone();
+        let log = std::mem::take(&mut *shared.log.lock().expect("log"));
         let ending = self.ending.take().unwrap_or(Ending::Interrupted);
         let on_abort = vent(self.options, &ending);
         let summary = self.summary(ending, on_abort, &log, &shared);

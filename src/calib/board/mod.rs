@@ -22,7 +22,7 @@ use serde::Serialize;
 use super::detect::{Detector, Seen};
 use super::{CalibError, PairCorners};
 use crate::opencv_yaml::FileStorage;
-pub use charuco::{Charuco, Dictionary, MIN_CHARUCO_CORNERS};
+pub use charuco::{Charuco, Dictionary};
 pub use chessboard::Chessboard;
 
 /// The printed board: inner corners along a row and down a column, square size, pattern.
