@@ -365,14 +365,27 @@ fn read_selected(
         Flagged::Skip,
         |header| column_index(path, header, names),
         |index, line, record, _| {
-            for (slot, (&col, name)) in row.iter_mut().zip(index.iter().zip(names)) {
-                *slot = parse_cell(path, line, name, &record[col])?;
-            }
+            parse_row(path, line, names, index, record, &mut row)?;
             sink(line, &row);
             Ok(())
         },
     )
     .map(drop)
+}
+
+/// The cells of `names` (at `index` in the header) of one record as numbers, into `row`.
+fn parse_row(
+    path: &Path,
+    line: u64,
+    names: &[String],
+    index: &[usize],
+    record: &csv::StringRecord,
+    row: &mut [f64],
+) -> Result<(), DataError> {
+    for (slot, (&col, name)) in row.iter_mut().zip(index.iter().zip(names)) {
+        *slot = parse_cell(path, line, name, &record[col])?;
+    }
+    Ok(())
 }
 
 /// Whether a reader gives the rows a `flag` column marks.
@@ -507,12 +520,10 @@ pub fn read_through_flags(
         Flagged::Give,
         |header| column_index(path, header, &all),
         |index, line, record, flagged| {
-            for (slot, (&col, name)) in row.iter_mut().zip(index.iter().zip(names)) {
-                match parse_cell(path, line, name, &record[col]) {
-                    Ok(v) => *slot = v,
-                    Err(_) if flagged => return Ok(()),
-                    Err(e) => return Err(e),
-                }
+            match parse_row(path, line, names, index, record, &mut row) {
+                Ok(()) => {}
+                Err(_) if flagged => return Ok(()),
+                Err(e) => return Err(e),
             }
             values.extend_from_slice(&row);
             if label.is_some() {

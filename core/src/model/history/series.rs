@@ -164,34 +164,47 @@ pub fn read_series(
     time: &str,
     group: Option<&str>,
 ) -> Result<(Series, Vec<u64>), DataError> {
-    let needs = |name: &'static str| {
-        move |e: DataError| {
-            match e {
-            DataError::MissingColumn {
-                path,
-                name: missing,
-                available,
-            } => DataError::Input {
-                path,
-                line: 0,
-                message: format!(
-                    "no column `{missing}`, which the model's input history needs as its {name} (the header has: {available})"
-                ),
-            },
-            e => e,
-        }
-        }
-    };
-    let (times, lines) =
-        data::read_columns_with_lines(path, &[time.to_string()]).map_err(needs("time"))?;
+    let (times, lines) = data::read_columns_with_lines(path, &[time.to_string()])
+        .map_err(|e| history_column(e, time, group))?;
     let group = group
-        .map(|g| data::read_labels(path, g).map_err(needs("group")))
+        .map(|g| data::read_labels(path, g).map_err(|e| history_column(e, time, Some(g))))
         .transpose()?;
     let series = Series {
         time: times.values,
         group: group.map(|(labels, _)| labels),
     };
     Ok((series, lines))
+}
+
+/// A missing time or group column said as what the model's input history needs; other errors
+/// as they are.
+fn history_column(e: DataError, time: &str, group: Option<&str>) -> DataError {
+    let DataError::MissingColumn {
+        path,
+        name,
+        available,
+    } = e
+    else {
+        return e;
+    };
+    let role = if name == time {
+        "time"
+    } else if Some(name.as_str()) == group {
+        "group"
+    } else {
+        return DataError::MissingColumn {
+            path,
+            name,
+            available,
+        };
+    };
+    DataError::Input {
+        path,
+        line: 0,
+        message: format!(
+            "no column `{name}`, which the model's input history needs as its {role} (the header has: {available})"
+        ),
+    }
 }
 
 /// A file's rows as the history's filters run through them: every row's inputs and time (and
@@ -216,10 +229,9 @@ impl Context {
         time: &str,
         group: Option<&str>,
     ) -> Result<Context, DataError> {
-        // The columns alone first, so a missing one is named as the history's.
-        read_series(path, time, group)?;
         let names: Vec<String> = inputs.iter().cloned().chain([time.to_string()]).collect();
-        let every = data::read_through_flags(path, &names, group)?;
+        let every = data::read_through_flags(path, &names, group)
+            .map_err(|e| history_column(e, time, group))?;
         let d = inputs.len();
         let mut values = Vec::with_capacity(every.lines.len() * d);
         let mut time = Vec::with_capacity(every.lines.len());
