@@ -14,8 +14,9 @@
 //! 4. Each left frame: the right camera's two frames around its instant (less δ) and the tip
 //!    in them interpolated linearly in time to it — never the nearest frame, which at tens of
 //!    mm/s is off by more than the error budget. Every combination of candidates (left ×
-//!    right before × right after) is triangulated and reprojected as for a step's pair; exactly
-//!    one consistent → the row's tip. Else the row is flagged, its tip left empty: `no_image`,
+//!    right before × right after, the two right ones within 30 px of each other: one object)
+//!    is triangulated and reprojected as for a step's pair; exactly one consistent → the row's
+//!    tip. Else the row is flagged, its tip left empty: `no_image`,
 //!    `no_marker_left`, `no_marker_right`, `gap` (no right frame within one and a half periods
 //!    on one side), `reprojection`, `ambiguous`.
 //! 5. The pressures in force at the row's time: the log's command held until the next
@@ -58,7 +59,7 @@ const EPIPOLAR_CAP_PX: f64 = 2.0;
 /// clock offset.
 const MOVING_PX: f64 = 0.3;
 /// The farthest the tip may move from one right frame to the next to be taken for the same
-/// candidate by the spline (px).
+/// candidate (px).
 const NEIGHBOUR_PX: f64 = 30.0;
 
 /// One row: a left frame's instant.
@@ -382,10 +383,20 @@ fn locate_at(
         a.checked_sub(1),
         Some(b + 1).filter(|&k| k < right.times.len()),
     );
-    let cr: Vec<[f64; 2]> = ca
+    // The right candidates in the two frames taken for one object: those near enough to be
+    // (a red object in one frame and the bead in the next, interpolated, would lie anywhere
+    // between them, and on the epipolar line when the bead is about to appear).
+    let pairs: Vec<([f64; 2], [f64; 2])> = ca
         .iter()
         .flat_map(|&p| cb.iter().map(move |&q| (p, q)))
-        .map(|(p, q)| match (nearest(before, p), nearest(after, q)) {
+        .filter(|(p, q)| (p[0] - q[0]).hypot(p[1] - q[1]) <= NEIGHBOUR_PX)
+        .collect();
+    if pairs.is_empty() {
+        return Err("no_marker_right");
+    }
+    let cr: Vec<[f64; 2]> = pairs
+        .iter()
+        .map(|&(p, q)| match (nearest(before, p), nearest(after, q)) {
             (Some(o), Some(r)) if right.evenly_around(a, b) => catmull_rom([o, p, q, r], s),
             _ => lerp(p, q, s),
         })
@@ -397,7 +408,7 @@ fn locate_at(
             point: c.point,
             reproj_px: c.reproj_px,
             left_px: cl[c.left],
-            right: [(a, ca[c.right / cb.len()]), (b, cb[c.right % cb.len()])],
+            right: [(a, pairs[c.right].0), (b, pairs[c.right].1)],
         }),
         [] => Err("reprojection"),
         _ => Err("ambiguous"),
@@ -499,4 +510,61 @@ fn clock_offset(
         }
     }
     Ok((delta, n))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::{Intrinsics, RightFromLeft};
+    use nalgebra::Rotation3;
+
+    #[test]
+    fn a_right_frame_with_another_red_object_only_is_not_paired_with_the_bead_after_it() {
+        // Rectified cameras 60 mm apart; the tip 300 mm ahead. In the right camera a red
+        // object 20 px below the tip's epipolar line is seen in every frame, the tip in all
+        // but the one just before the left frame's instant (hidden). Interpolated 98 % of the
+        // way from the object to the tip, the right point lies 0.4 px off the epipolar line
+        // and 7.7 px off the tip along it: a consistent pair, 5 mm deep in error.
+        let camera = Intrinsics::new(900.0, 900.0, 640.0, 360.0, vec![0.0; 5]);
+        let rig = StereoRig {
+            image_size: [1280, 720],
+            left: camera.clone(),
+            right: camera,
+            right_from_left: RightFromLeft::new(
+                Rotation3::identity(),
+                Vector3::new(-60.0, 0.0, 0.0),
+            ),
+        };
+        let tip = Vector3::new(5.0, 10.0, 300.0);
+        let [left_px] = rig.project(Side::Left, &[tip]).unwrap()[..] else {
+            unreachable!()
+        };
+        let [right_px] = rig.project(Side::Right, &[tip]).unwrap()[..] else {
+            unreachable!()
+        };
+        let other = [right_px[0] + 384.0, right_px[1] + 20.0];
+        // Records: the left frame (0), then four right frames 1/30 s apart (1-4).
+        let period = 1.0 / 30.0;
+        let right = Track {
+            order: vec![1, 2, 3, 4],
+            times: (0..4).map(|k| k as f64 * period).collect(),
+            period_s: period,
+            jitter_s: None,
+        };
+        let centres = |i: usize| -> Result<Vec<[f64; 2]>, &'static str> {
+            Ok(match i {
+                0 => vec![left_px],
+                2 => vec![other],
+                _ => vec![right_px, other],
+            })
+        };
+        let t = (1.0 + 0.98) * period;
+        let options = TriangulateOptions::default();
+        let found = locate_at(&rig, &options, &right, &centres, 0, t);
+        assert!(found.is_err(), "a tip at {:?}", found.map(|f| f.point));
+        // With the tip seen in both frames around the instant, it is found.
+        let both = |i: usize| if i == 2 { centres(3) } else { centres(i) };
+        let found = locate_at(&rig, &options, &right, &both, 0, t).expect("the tip");
+        assert!((found.point - tip).norm() < 0.01, "{:?}", found.point);
+    }
 }
