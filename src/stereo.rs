@@ -59,6 +59,23 @@ pub enum StereoError {
     OpenCv(#[from] opencv::Error),
 }
 
+#[cfg(test)]
+impl StereoRig {
+    /// Two identical 1280 × 720 cameras (f 900 px, no distortion), rectified, 60 mm apart.
+    pub(crate) fn rectified_for_tests() -> StereoRig {
+        let camera = Intrinsics::new(900.0, 900.0, 640.0, 360.0, vec![0.0; 5]);
+        StereoRig {
+            image_size: [1280, 720],
+            left: camera.clone(),
+            right: camera,
+            right_from_left: RightFromLeft::new(
+                nalgebra::Rotation3::identity(),
+                Vector3::new(-60.0, 0.0, 0.0),
+            ),
+        }
+    }
+}
+
 impl StereoRig {
     /// The intrinsics of one camera.
     pub fn camera(&self, side: Side) -> &Intrinsics {

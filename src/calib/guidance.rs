@@ -228,21 +228,7 @@ pub fn advise(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::{Intrinsics, RightFromLeft};
     use nalgebra::{Rotation3, Vector3};
-
-    fn rig() -> StereoRig {
-        let camera = Intrinsics::new(900.0, 900.0, 640.0, 360.0, vec![0.0; 5]);
-        StereoRig {
-            image_size: [1280, 720],
-            left: camera.clone(),
-            right: camera,
-            right_from_left: RightFromLeft::new(
-                Rotation3::identity(),
-                Vector3::new(-60.0, 0.0, 0.0),
-            ),
-        }
-    }
 
     fn facing(tilt_x_deg: f64, tilt_y_deg: f64) -> CamFromBoard {
         CamFromBoard::new(
@@ -264,7 +250,7 @@ mod tests {
             right: middle,
         }];
         let poses: Vec<CamFromBoard> = [-20.0, 0.0, 20.0].map(|t| facing(t, 0.0)).to_vec();
-        let g = advise(&rig(), &pairs, &poses, None);
+        let g = advise(&StereoRig::rectified_for_tests(), &pairs, &poses, None);
         assert!(g.coverage()[0] < 0.2, "{:?}", g.coverage());
         assert_eq!(g.map(0)[0], "........");
         let text = g.advice.join("\n");

@@ -515,8 +515,6 @@ fn clock_offset(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geometry::{Intrinsics, RightFromLeft};
-    use nalgebra::Rotation3;
 
     #[test]
     fn a_right_frame_with_another_red_object_only_is_not_paired_with_the_bead_after_it() {
@@ -525,16 +523,7 @@ mod tests {
         // but the one just before the left frame's instant (hidden). Interpolated 98 % of the
         // way from the object to the tip, the right point lies 0.4 px off the epipolar line
         // and 7.7 px off the tip along it: a consistent pair, 5 mm deep in error.
-        let camera = Intrinsics::new(900.0, 900.0, 640.0, 360.0, vec![0.0; 5]);
-        let rig = StereoRig {
-            image_size: [1280, 720],
-            left: camera.clone(),
-            right: camera,
-            right_from_left: RightFromLeft::new(
-                Rotation3::identity(),
-                Vector3::new(-60.0, 0.0, 0.0),
-            ),
-        };
+        let rig = StereoRig::rectified_for_tests();
         let tip = Vector3::new(5.0, 10.0, 300.0);
         let [left_px] = rig.project(Side::Left, &[tip]).unwrap()[..] else {
             unreachable!()
