@@ -4,7 +4,10 @@
 //! 32 pairs on every core, as `handcap triangulate` runs them.
 //! Target (issue 16): at least 150 frame pairs per second at 1280×720, decode included.
 //!
-//! Run: `cargo bench --bench triangulate`.
+//! Run: `cargo bench --bench triangulate`. The fit's iterations depend on the frame, so frames
+//! each commit renders with its own renderer do not compare: with `HANDCAP_BENCH_FRAMES=DIR`
+//! the frames are read from DIR (rendered there when missing), the same bytes for every commit
+//! benchmarked against it.
 
 use std::hint::black_box;
 use std::path::{Path, PathBuf};
@@ -41,10 +44,17 @@ fn bench(c: &mut Criterion) {
         4,
     );
     let dir = tempfile::tempdir().unwrap();
+    let kept = std::env::var_os("HANDCAP_BENCH_FRAMES").map(PathBuf::from);
+    let base = kept.as_deref().unwrap_or(dir.path());
+    std::fs::create_dir_all(base).unwrap();
     let files: Vec<PathBuf> = [(&rig.left, "left"), (&rig.right, "right")]
         .iter()
         .enumerate()
         .map(|(k, (cam, name))| {
+            let path = base.join(format!("{name}_00000.jpg"));
+            if path.is_file() {
+                return path;
+            }
             let keep_clear = [500.0, 200.0, 800.0, 500.0];
             let surroundings = Surroundings {
                 wall: Some(clutter::wall(1280, 720, k as u64, k == 1, keep_clear)),
@@ -54,7 +64,6 @@ fn bench(c: &mut Criterion) {
             let rgb = view
                 .finger(std::slice::from_ref(&finger))
                 .develop(1.0, 7, k as u64);
-            let path = dir.path().join(format!("{name}_00000.jpg"));
             std::fs::write(&path, ImageFormat::WEBCAM.encode(1280, 720, &rgb)).unwrap();
             path
         })
