@@ -248,8 +248,16 @@ impl fmt::Display for TriangulatedPerFrame {
             }
         )?;
         if s.clock_frames > 0 {
+            let drift = if s.clock_drift_ms == 0.0 {
+                String::new()
+            } else {
+                format!(
+                    " mid-session, drifting {:+.2} ms from the first frame to the last",
+                    s.clock_drift_ms
+                )
+            };
             writeln!(f,
-            "clock: the right camera's stamps run {:+.2} ms ahead of the left's (from the motion of {} frames); tracks interpolated across it",
+            "clock: the right camera's stamps run {:+.2} ms ahead of the left's{drift} (from the motion of {} frames); tracks interpolated across it",
             s.clock_offset_ms, s.clock_frames
         )?;
         } else {

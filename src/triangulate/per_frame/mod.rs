@@ -11,6 +11,8 @@
 //!    interpolated to the left frames' instants shifted by δ, the δ (within one frame period)
 //!    whose interpolated pairs lie closest to their epipolar lines (a robust sum of squared
 //!    distances, undistorted px, over the frames where the tip moves). Without motion δ = 0.
+//!    The same in runs of 60 moving frames: when the δ of the runs lie on a line whose slope
+//!    is more than 3 standard errors from 0, the stamps drift apart and δ follows that line.
 //! 4. Each left frame: the right camera's two frames around its instant (less δ) and the tip
 //!    in them interpolated linearly in time to it — never the nearest frame, which at tens of
 //!    mm/s is off by more than the error budget. Every combination of candidates (left ×
@@ -61,6 +63,8 @@ const EPIPOLAR_CAP_PX: f64 = 2.0;
 /// The tip must move at least this between two right frames (px) for the frame to tell the
 /// clock offset.
 const MOVING_PX: f64 = 0.3;
+/// Moving frames per run whose clock offset is measured on its own, to see a drift.
+const DRIFT_FRAMES: usize = 60;
 /// The farthest the tip may move from one right frame to the next to be taken for the same
 /// candidate (px).
 const NEIGHBOUR_PX: f64 = 30.0;
@@ -94,8 +98,12 @@ pub struct PerFrameSummary {
     pub good_rows: usize,
     /// Rows per flag.
     pub flagged: BTreeMap<&'static str, usize>,
-    /// The right camera's stamps run this far ahead of the left's (ms), as the motion shows.
+    /// The right camera's stamps run this far ahead of the left's (ms), as the motion shows, at
+    /// the middle of the moving frames.
     pub clock_offset_ms: f64,
+    /// How much that offset grows from the first left frame to the last (ms): 0 unless the
+    /// motion shows the stamps drifting apart.
+    pub clock_drift_ms: f64,
     /// How many moving frames told the offset (0: not measured, taken as 0).
     pub clock_frames: usize,
     /// Per camera, the RMS of its stamps about its regular frame clock (ms), when they lie on
@@ -248,11 +256,22 @@ pub fn triangulate_per_frame(
     summary.stamp_jitter_ms = [&left, &right].map(|t| t.jitter_s.map(|s| 1e3 * s));
 
     // 3. The clock offset, from the candidates a first pass on the stamps chose.
-    let first = locate_all(rig, options, &left, &right, &centres, 0.0);
+    let first = locate_all(
+        rig,
+        options,
+        &left,
+        &right,
+        &centres,
+        &ClockOffset::default(),
+    );
     let seen = seen_in(&left, &right, &first);
-    let (offset_s, clock_frames) = clock_offset(rig, &left, &right, &seen)?;
-    summary.clock_offset_ms = 1e3 * offset_s;
-    summary.clock_frames = clock_frames;
+    let clock = clock_offset(rig, &left, &right, &seen)?;
+    summary.clock_offset_ms = 1e3 * clock.offset_s;
+    summary.clock_drift_ms = match (left.times.first(), left.times.last()) {
+        (Some(a), Some(b)) => 1e3 * clock.drift * (b - a),
+        _ => 0.0,
+    };
+    summary.clock_frames = clock.frames;
 
     // 4-5. Each left frame's tip (left camera) and its step, from the tracks smoothed.
     let smoothed = smoothed_tracks(&left, &right, &seen);
@@ -260,7 +279,7 @@ pub fn triangulate_per_frame(
         Some(c) => Ok(vec![*c]),
         None => centres(i),
     };
-    let located = locate_all(rig, options, &left, &right, &chosen, offset_s);
+    let located = locate_all(rig, options, &left, &right, &chosen, &clock);
     let (mut rows, points) = rows::frame_rows(&left, records, log, located);
 
     // 6. The hand frame from the first rest hold.
@@ -341,7 +360,7 @@ struct Located {
     right: [(usize, [f64; 2]); 2],
 }
 
-/// Every left frame's tip at its instant plus `offset_s` on the right camera's clock, in
+/// Every left frame's tip at its instant on the right camera's clock (`clock`), in
 /// parallel; or the flag saying why there is none.
 fn locate_all(
     rig: &StereoRig,
@@ -349,14 +368,14 @@ fn locate_all(
     left: &Track,
     right: &Track,
     centres: &(dyn Fn(usize) -> Result<Vec<[f64; 2]>, &'static str> + Sync),
-    offset_s: f64,
+    clock: &ClockOffset,
 ) -> Vec<Result<Located, &'static str>> {
     use rayon::prelude::*;
     let found: Vec<Result<Vec<Located>, &'static str>> = left
         .order
         .par_iter()
         .zip(&left.times)
-        .map(|(&i, &t)| locate_at(rig, options, right, centres, i, t + offset_s))
+        .map(|(&i, &t)| locate_at(rig, options, right, centres, i, t + clock.at(t)))
         .collect();
     // The single tip of each frame, for its neighbours to be told by.
     let single: Vec<Option<Vector3<f64>>> = found
@@ -488,15 +507,35 @@ fn lerp(p: [f64; 2], q: [f64; 2], s: f64) -> [f64; 2] {
     [p[0] + (q[0] - p[0]) * s, p[1] + (q[1] - p[1]) * s]
 }
 
-/// The offset δ (s) to add to a left instant to find it on the right camera's clock, and how
-/// many moving frames told it (see the module docs, step 3), from the centres a pass without
-/// an offset saw.
+/// The offset between the cameras' clocks: a left instant `t` is `t + at(t)` on the right
+/// camera's clock.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct ClockOffset {
+    /// The offset at `mid_s` (s).
+    offset_s: f64,
+    mid_s: f64,
+    /// How fast the offset grows (s per s): the stamps of one camera drift against the other's.
+    drift: f64,
+    /// How many moving frames told it (0: not measured, no offset).
+    frames: usize,
+}
+
+impl ClockOffset {
+    fn at(&self, t: f64) -> f64 {
+        self.offset_s + self.drift * (t - self.mid_s)
+    }
+}
+
+/// The clock offset (see the module docs, step 3) from the centres a pass without an offset
+/// saw: one δ for the whole session, then one for each run of [`DRIFT_FRAMES`] moving frames;
+/// a line through those is the offset when its slope is more than 3 standard errors from 0
+/// (a drift: stamps from each camera's own clock, or videos whose frame rates are off).
 fn clock_offset(
     rig: &StereoRig,
     left: &Track,
     right: &Track,
     seen: &Seen,
-) -> Result<(f64, usize), TriangulateError> {
+) -> Result<ClockOffset, TriangulateError> {
     // The centres seen, undistorted once: the left frame's, and the right track's frames'.
     let [left_px, right_px] = seen;
     let undistort =
@@ -513,59 +552,110 @@ fn clock_offset(
         undistort(right_px, Side::Right)?,
     );
     let f = rig.fundamental();
-    let cost = |delta: f64| -> (f64, usize) {
-        let (mut sum, mut n) = (0.0, 0);
-        for (k, l) in ul.iter().enumerate() {
-            let Some(l) = l else { continue };
-            let Ok((a, b, s)) = right.around(left.times[k] + delta) else {
-                continue;
-            };
-            let (Some(p), Some(q)) = (ur[a], ur[b]) else {
-                continue;
-            };
-            if (p[0] - q[0]).hypot(p[1] - q[1]) < MOVING_PX {
-                continue;
-            }
-            let r = lerp(p, q, s);
-            let line = f * Vector3::new(l[0], l[1], 1.0);
-            let d = (line[0] * r[0] + line[1] * r[1] + line[2]) / line[0].hypot(line[1]);
-            sum += d.abs().min(EPIPOLAR_CAP_PX).powi(2);
-            n += 1;
+    // Left frame k's capped squared epipolar distance at offset δ, where the tip moves.
+    let frame_cost = |k: usize, delta: f64| -> Option<f64> {
+        let l = ul[k]?;
+        let (a, b, s) = right.around(left.times[k] + delta).ok()?;
+        let (p, q) = (ur[a]?, ur[b]?);
+        if (p[0] - q[0]).hypot(p[1] - q[1]) < MOVING_PX {
+            return None;
         }
-        (if n > 0 { sum / n as f64 } else { f64::INFINITY }, n)
+        let r = lerp(p, q, s);
+        let line = f * Vector3::new(l[0], l[1], 1.0);
+        let d = (line[0] * r[0] + line[1] * r[1] + line[2]) / line[0].hypot(line[1]);
+        Some(d.abs().min(EPIPOLAR_CAP_PX).powi(2))
     };
-    // A scan over one period each way in tenths of a millisecond, then the parabola through the
-    // best and its neighbours.
-    let step = 1e-4;
-    let reach = (right.period_s / step).ceil() as i64;
-    let scanned: Vec<(f64, f64, usize)> = (-reach..=reach)
-        .map(|k| {
-            let delta = k as f64 * step;
-            let (c, n) = cost(delta);
-            (delta, c, n)
+    // The δ within one period of `centre` that fits frames `ks` best, and how many told it:
+    // a scan in tenths of a millisecond, then the parabola through the best and its
+    // neighbours (ties to the nearer `centre`).
+    let scan = |ks: &[usize], centre: f64| -> Option<(f64, usize)> {
+        let step = 1e-4;
+        let reach = (right.period_s / step).ceil() as i64;
+        let scanned: Vec<(f64, f64, usize)> = (-reach..=reach)
+            .map(|j| {
+                let delta = centre + j as f64 * step;
+                let costs: Vec<f64> = ks.iter().filter_map(|&k| frame_cost(k, delta)).collect();
+                let n = costs.len();
+                let mean = if n > 0 {
+                    costs.iter().sum::<f64>() / n as f64
+                } else {
+                    f64::INFINITY
+                };
+                (delta, mean, n)
+            })
+            .collect();
+        let best = (0..scanned.len()).min_by(|&a, &b| {
+            let near = |x: f64| (x - centre).abs();
+            scanned[a]
+                .1
+                .total_cmp(&scanned[b].1)
+                .then(near(scanned[a].0).total_cmp(&near(scanned[b].0)))
+        })?;
+        let n = scanned[best].2;
+        if n < 20 || !scanned[best].1.is_finite() {
+            return None;
+        }
+        let mut delta = scanned[best].0;
+        if best > 0 && best + 1 < scanned.len() {
+            let (a, b, c) = (scanned[best - 1].1, scanned[best].1, scanned[best + 1].1);
+            let curvature = a - 2.0 * b + c;
+            if curvature > 0.0 && a.is_finite() && c.is_finite() {
+                delta += step * 0.5 * (a - c) / curvature;
+            }
+        }
+        Some((delta, n))
+    };
+    let all: Vec<usize> = (0..ul.len()).collect();
+    let Some((delta, frames)) = scan(&all, 0.0) else {
+        return Ok(ClockOffset::default());
+    };
+    let constant = ClockOffset {
+        offset_s: delta,
+        mid_s: 0.0,
+        drift: 0.0,
+        frames,
+    };
+    // The offset in runs of moving frames, and the line through them.
+    let moving: Vec<usize> = all
+        .into_iter()
+        .filter(|&k| frame_cost(k, delta).is_some())
+        .collect();
+    let runs: Vec<(f64, f64)> = moving
+        .chunks_exact(DRIFT_FRAMES)
+        .filter_map(|run| {
+            let (d, _) = scan(run, delta)?;
+            let t = run.iter().map(|&k| left.times[k]).sum::<f64>() / run.len() as f64;
+            Some((t, d))
         })
         .collect();
-    let Some(best) = (0..scanned.len()).min_by(|&a, &b| {
-        scanned[a]
-            .1
-            .total_cmp(&scanned[b].1)
-            .then(scanned[a].0.abs().total_cmp(&scanned[b].0.abs()))
-    }) else {
-        return Ok((0.0, 0));
-    };
-    let n = scanned[best].2;
-    if n < 20 || !scanned[best].1.is_finite() {
-        return Ok((0.0, 0));
+    if runs.len() < 3 {
+        return Ok(constant);
     }
-    let mut delta = scanned[best].0;
-    if best > 0 && best + 1 < scanned.len() {
-        let (a, b, c) = (scanned[best - 1].1, scanned[best].1, scanned[best + 1].1);
-        let curvature = a - 2.0 * b + c;
-        if curvature > 0.0 && a.is_finite() && c.is_finite() {
-            delta += step * 0.5 * (a - c) / curvature;
-        }
+    let m = runs.len() as f64;
+    let (t_mean, d_mean) = (
+        runs.iter().map(|r| r.0).sum::<f64>() / m,
+        runs.iter().map(|r| r.1).sum::<f64>() / m,
+    );
+    let stt: f64 = runs.iter().map(|r| (r.0 - t_mean).powi(2)).sum();
+    let slope = runs
+        .iter()
+        .map(|r| (r.0 - t_mean) * (r.1 - d_mean))
+        .sum::<f64>()
+        / stt;
+    let residual: f64 = runs
+        .iter()
+        .map(|r| (r.1 - d_mean - slope * (r.0 - t_mean)).powi(2))
+        .sum();
+    let slope_se = (residual / (m - 2.0) / stt).sqrt();
+    if slope.abs() <= 3.0 * slope_se {
+        return Ok(constant);
     }
-    Ok((delta, n))
+    Ok(ClockOffset {
+        offset_s: d_mean,
+        mid_s: t_mean,
+        drift: slope,
+        frames,
+    })
 }
 
 #[cfg(test)]
@@ -652,7 +742,14 @@ mod tests {
             })
         };
         let options = TriangulateOptions::default();
-        let found = locate_all(&rig, &options, &left, &right, &centres, 0.0);
+        let found = locate_all(
+            &rig,
+            &options,
+            &left,
+            &right,
+            &centres,
+            &ClockOffset::default(),
+        );
         let middle = found[1].as_ref().expect("the bead, not `ambiguous`");
         assert!(
             (middle.point - tip(period)).norm() < 0.01,
