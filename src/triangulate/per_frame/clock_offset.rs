@@ -1,0 +1,167 @@
+//! The offset between the cameras' clocks, from the motion itself (the module docs' step 3).
+
+use nalgebra::Vector3;
+
+use super::{lerp, Seen, Track};
+use crate::stereo::{Side, StereoRig};
+use crate::triangulate::TriangulateError;
+
+/// Epipolar distances above this count as this in the clock's fit (px): detections gone wrong
+/// must not pull it.
+const EPIPOLAR_CAP_PX: f64 = 2.0;
+/// The tip must move at least this between two right frames (px) for the frame to tell the
+/// clock offset.
+const MOVING_PX: f64 = 0.3;
+/// Moving frames per run whose clock offset is measured on its own, to see a drift.
+const DRIFT_FRAMES: usize = 60;
+
+/// The offset between the cameras' clocks: a left instant `t` is `t + at(t)` on the right
+/// camera's clock.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub(super) struct ClockOffset {
+    /// The offset at `mid_s` (s).
+    pub offset_s: f64,
+    pub mid_s: f64,
+    /// How fast the offset grows (s per s): the stamps of one camera drift against the other's.
+    pub drift: f64,
+    /// How many moving frames told it (0: not measured, no offset).
+    pub frames: usize,
+}
+
+impl ClockOffset {
+    pub fn at(&self, t: f64) -> f64 {
+        self.offset_s + self.drift * (t - self.mid_s)
+    }
+}
+
+/// The clock offset (see the module docs, step 3) from the centres a pass without an offset
+/// saw: one δ for the whole session, then one for each run of [`DRIFT_FRAMES`] moving frames;
+/// a line through those is the offset when its slope is more than 3 standard errors from 0
+/// (a drift: stamps from each camera's own clock, or videos whose frame rates are off).
+pub(super) fn clock_offset(
+    rig: &StereoRig,
+    left: &Track,
+    right: &Track,
+    seen: &Seen,
+) -> Result<ClockOffset, TriangulateError> {
+    // The centres seen, undistorted once: the left frame's, and the right track's frames'.
+    let [left_px, right_px] = seen;
+    let undistort =
+        |px: &[Option<[f64; 2]>], side: Side| -> Result<Vec<Option<[f64; 2]>>, TriangulateError> {
+            let seen: Vec<[f64; 2]> = px.iter().flatten().copied().collect();
+            let mut undistorted = rig.undistorted(side, &seen)?.into_iter();
+            Ok(px
+                .iter()
+                .map(|p| p.and_then(|_| undistorted.next()))
+                .collect())
+        };
+    let (ul, ur) = (
+        undistort(left_px, Side::Left)?,
+        undistort(right_px, Side::Right)?,
+    );
+    let f = rig.fundamental();
+    // Left frame k's capped squared epipolar distance at offset δ, where the tip moves.
+    let frame_cost = |k: usize, delta: f64| -> Option<f64> {
+        let l = ul[k]?;
+        let (a, b, s) = right.around(left.times[k] + delta).ok()?;
+        let (p, q) = (ur[a]?, ur[b]?);
+        if (p[0] - q[0]).hypot(p[1] - q[1]) < MOVING_PX {
+            return None;
+        }
+        let r = lerp(p, q, s);
+        let line = f * Vector3::new(l[0], l[1], 1.0);
+        let d = (line[0] * r[0] + line[1] * r[1] + line[2]) / line[0].hypot(line[1]);
+        Some(d.abs().min(EPIPOLAR_CAP_PX).powi(2))
+    };
+    // The δ within one period of `centre` that fits frames `ks` best, and how many told it:
+    // a scan in tenths of a millisecond, then the parabola through the best and its
+    // neighbours (ties to the nearer `centre`).
+    let scan = |ks: &[usize], centre: f64| -> Option<(f64, usize)> {
+        let step = 1e-4;
+        let reach = (right.period_s / step).ceil() as i64;
+        let scanned: Vec<(f64, f64, usize)> = (-reach..=reach)
+            .map(|j| {
+                let delta = centre + j as f64 * step;
+                let costs: Vec<f64> = ks.iter().filter_map(|&k| frame_cost(k, delta)).collect();
+                let n = costs.len();
+                let mean = if n > 0 {
+                    costs.iter().sum::<f64>() / n as f64
+                } else {
+                    f64::INFINITY
+                };
+                (delta, mean, n)
+            })
+            .collect();
+        let best = (0..scanned.len()).min_by(|&a, &b| {
+            let near = |x: f64| (x - centre).abs();
+            scanned[a]
+                .1
+                .total_cmp(&scanned[b].1)
+                .then(near(scanned[a].0).total_cmp(&near(scanned[b].0)))
+        })?;
+        let n = scanned[best].2;
+        if n < 20 || !scanned[best].1.is_finite() {
+            return None;
+        }
+        let mut delta = scanned[best].0;
+        if best > 0 && best + 1 < scanned.len() {
+            let (a, b, c) = (scanned[best - 1].1, scanned[best].1, scanned[best + 1].1);
+            let curvature = a - 2.0 * b + c;
+            if curvature > 0.0 && a.is_finite() && c.is_finite() {
+                delta += step * 0.5 * (a - c) / curvature;
+            }
+        }
+        Some((delta, n))
+    };
+    let all: Vec<usize> = (0..ul.len()).collect();
+    let Some((delta, frames)) = scan(&all, 0.0) else {
+        return Ok(ClockOffset::default());
+    };
+    let constant = ClockOffset {
+        offset_s: delta,
+        mid_s: 0.0,
+        drift: 0.0,
+        frames,
+    };
+    // The offset in runs of moving frames, and the line through them.
+    let moving: Vec<usize> = all
+        .into_iter()
+        .filter(|&k| frame_cost(k, delta).is_some())
+        .collect();
+    let runs: Vec<(f64, f64)> = moving
+        .chunks_exact(DRIFT_FRAMES)
+        .filter_map(|run| {
+            let (d, _) = scan(run, delta)?;
+            let t = run.iter().map(|&k| left.times[k]).sum::<f64>() / run.len() as f64;
+            Some((t, d))
+        })
+        .collect();
+    if runs.len() < 3 {
+        return Ok(constant);
+    }
+    let m = runs.len() as f64;
+    let (t_mean, d_mean) = (
+        runs.iter().map(|r| r.0).sum::<f64>() / m,
+        runs.iter().map(|r| r.1).sum::<f64>() / m,
+    );
+    let stt: f64 = runs.iter().map(|r| (r.0 - t_mean).powi(2)).sum();
+    let slope = runs
+        .iter()
+        .map(|r| (r.0 - t_mean) * (r.1 - d_mean))
+        .sum::<f64>()
+        / stt;
+    let residual: f64 = runs
+        .iter()
+        .map(|r| (r.1 - d_mean - slope * (r.0 - t_mean)).powi(2))
+        .sum();
+    let slope_se = (residual / (m - 2.0) / stt).sqrt();
+    if slope.abs() <= 3.0 * slope_se {
+        return Ok(constant);
+    }
+    Ok(ClockOffset {
+        offset_s: d_mean,
+        mid_s: t_mean,
+        drift: slope,
+        frames,
+    })
+}
