@@ -12,8 +12,25 @@ const EPIPOLAR_CAP_PX: f64 = 2.0;
 /// The tip must move at least this between two right frames (px) for the frame to tell the
 /// clock offset.
 const MOVING_PX: f64 = 0.3;
-/// Moving frames per run whose clock offset is measured on its own, to see a drift.
-const DRIFT_FRAMES: usize = 60;
+/// Moving frames per run whose clock offset is measured on its own, to see a drift (one
+/// second of motion; a run's δ needs 20), and the fewest runs that can show one.
+const DRIFT_FRAMES: usize = 30;
+const DRIFT_RUNS: usize = 5;
+
+/// Student's t at 99.5 % (a two-sided test at 1 %) for 1-30 degrees of freedom; beyond, the
+/// normal's 2.576 plus the first term of the Cornish-Fisher expansion.
+fn student_t_995(dof: usize) -> f64 {
+    const T: [f64; 30] = [
+        63.657, 9.925, 5.841, 4.604, 4.032, 3.707, 3.499, 3.355, 3.250, 3.169, 3.106, 3.055, 3.012,
+        2.977, 2.947, 2.921, 2.898, 2.878, 2.861, 2.845, 2.831, 2.819, 2.807, 2.797, 2.787, 2.779,
+        2.771, 2.763, 2.756, 2.750,
+    ];
+    match dof {
+        0 => f64::INFINITY,
+        1..=30 => T[dof - 1],
+        _ => 2.576 + 5.2 / dof as f64,
+    }
+}
 
 /// The offset between the cameras' clocks: a left instant `t` is `t + at(t)` on the right
 /// camera's clock.
@@ -36,8 +53,8 @@ impl ClockOffset {
 
 /// The clock offset (see the module docs, step 3) from the centres a pass without an offset
 /// saw: one δ for the whole session, then one for each run of [`DRIFT_FRAMES`] moving frames;
-/// a line through those is the offset when its slope is more than 3 standard errors from 0
-/// (a drift: stamps from each camera's own clock, or videos whose frame rates are off).
+/// a line through those is the offset when its slope differs from 0 at the 1 % level (Student's
+/// t; a drift: stamps from each camera's own clock, or videos whose frame rates are off).
 pub(super) fn clock_offset(
     rig: &StereoRig,
     left: &Track,
@@ -82,13 +99,11 @@ pub(super) fn clock_offset(
         let scanned: Vec<(f64, f64, usize)> = (-reach..=reach)
             .map(|j| {
                 let delta = centre + j as f64 * step;
-                let costs: Vec<f64> = ks.iter().filter_map(|&k| frame_cost(k, delta)).collect();
-                let n = costs.len();
-                let mean = if n > 0 {
-                    costs.iter().sum::<f64>() / n as f64
-                } else {
-                    f64::INFINITY
-                };
+                let (sum, n) = ks
+                    .iter()
+                    .filter_map(|&k| frame_cost(k, delta))
+                    .fold((0.0, 0), |(sum, n), c| (sum + c, n + 1));
+                let mean = if n > 0 { sum / n as f64 } else { f64::INFINITY };
                 (delta, mean, n)
             })
             .collect();
@@ -136,7 +151,7 @@ pub(super) fn clock_offset(
             Some((t, d))
         })
         .collect();
-    if runs.len() < 3 {
+    if runs.len() < DRIFT_RUNS {
         return Ok(constant);
     }
     let m = runs.len() as f64;
@@ -155,7 +170,7 @@ pub(super) fn clock_offset(
         .map(|r| (r.1 - d_mean - slope * (r.0 - t_mean)).powi(2))
         .sum();
     let slope_se = (residual / (m - 2.0) / stt).sqrt();
-    if slope.abs() <= 3.0 * slope_se {
+    if slope.abs() <= student_t_995(runs.len() - 2) * slope_se {
         return Ok(constant);
     }
     Ok(ClockOffset {
@@ -164,4 +179,18 @@ pub(super) fn clock_offset(
         drift: slope,
         frames,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_t_quantile_falls_with_the_degrees_of_freedom_towards_the_normals() {
+        let t: Vec<f64> = (1..=200).map(student_t_995).collect();
+        assert!(t.windows(2).all(|w| w[1] < w[0]), "{t:?}");
+        assert!((t[9] - 3.169).abs() < 1e-9);
+        assert!(t[199] > 2.576 && t[199] < 2.61, "{}", t[199]);
+        assert_eq!(student_t_995(0), f64::INFINITY);
+    }
 }

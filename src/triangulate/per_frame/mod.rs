@@ -11,8 +11,8 @@
 //!    interpolated to the left frames' instants shifted by δ, the δ (within one frame period)
 //!    whose interpolated pairs lie closest to their epipolar lines (a robust sum of squared
 //!    distances, undistorted px, over the frames where the tip moves). Without motion δ = 0.
-//!    The same in runs of 60 moving frames: when the δ of the runs lie on a line whose slope
-//!    is more than 3 standard errors from 0, the stamps drift apart and δ follows that line.
+//!    The same in runs of 30 moving frames: when the δ of five runs or more lie on a line
+//!    whose slope differs from 0 at the 1 % level, the stamps drift apart and δ follows it.
 //! 4. Each left frame: the right camera's two frames around its instant (less δ) and the tip
 //!    in them interpolated linearly in time to it — never the nearest frame, which at tens of
 //!    mm/s is off by more than the error budget. Every combination of candidates (left ×
