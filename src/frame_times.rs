@@ -12,6 +12,8 @@
 //! and were stamped when read) shows in the frames queued behind it: they arrive faster than
 //! the camera makes them ([`late`]).
 
+use crate::stats::Line;
+
 /// The camera's frame period from its `times` (sorted, s); 0 with fewer than two times.
 ///
 /// A camera that films all the time gives intervals of one period (a drop's double interval
@@ -108,21 +110,15 @@ pub fn regular(times: &[f64], period: f64) -> Option<(Vec<f64>, f64)> {
         .map(|t| ((t - times[0]) / period).round())
         .collect();
     let fit = |keep: &dyn Fn(usize) -> bool| -> Option<(f64, f64)> {
-        let idx: Vec<usize> = (0..times.len()).filter(|&k| keep(k)).collect();
-        let n = idx.len() as f64;
-        if n < 3.0 {
+        let points: Vec<(f64, f64)> = (0..times.len())
+            .filter(|&k| keep(k))
+            .map(|k| (slots[k], times[k]))
+            .collect();
+        if points.len() < 3 {
             return None;
         }
-        let (mx, my) = (
-            idx.iter().map(|&k| slots[k]).sum::<f64>() / n,
-            idx.iter().map(|&k| times[k]).sum::<f64>() / n,
-        );
-        let sxx: f64 = idx.iter().map(|&k| (slots[k] - mx).powi(2)).sum();
-        let sxy: f64 = idx.iter().map(|&k| (slots[k] - mx) * (times[k] - my)).sum();
-        (sxx > 0.0).then(|| {
-            let b = sxy / sxx;
-            (my - b * mx, b)
-        })
+        let line = Line::fit(&points)?;
+        Some((line.at(0.0), line.slope))
     };
     let (a, b) = fit(&|_| true)?;
     let (a, b) = fit(&|k| (times[k] - a - b * slots[k]).abs() <= period / 4.0)?;

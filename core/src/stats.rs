@@ -4,7 +4,7 @@
 //! an even count. [`upper_median`] is the upper of the two middle values (`v[n / 2]` of the
 //! sorted values): always one of the data, which a robust threshold or a reference element
 //! needs. Both return `None` for no values, as do [`quantiles`] (nearest rank) for summaries
-//! and [`mean_sd`].
+//! and [`mean_sd`]. [`Line`] is the least-squares line through points.
 
 use std::cmp::Ordering;
 
@@ -66,6 +66,41 @@ pub fn mean_sd(values: &[f64]) -> Option<(f64, f64)> {
     Some((mean, var.sqrt()))
 }
 
+/// The least-squares line through points (x, y): it passes through their means.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Line {
+    pub mean_x: f64,
+    pub mean_y: f64,
+    pub slope: f64,
+    /// Σ (x − x̄)², for the slope's standard error.
+    pub sxx: f64,
+}
+
+impl Line {
+    /// The line through `points`; `None` for fewer than two or when every x is the same.
+    pub fn fit(points: &[(f64, f64)]) -> Option<Line> {
+        if points.len() < 2 {
+            return None;
+        }
+        let n = points.len() as f64;
+        let mean_x = points.iter().map(|p| p.0).sum::<f64>() / n;
+        let mean_y = points.iter().map(|p| p.1).sum::<f64>() / n;
+        let sxx: f64 = points.iter().map(|p| (p.0 - mean_x).powi(2)).sum();
+        let sxy: f64 = points.iter().map(|p| (p.0 - mean_x) * (p.1 - mean_y)).sum();
+        (sxx > 0.0).then(|| Line {
+            mean_x,
+            mean_y,
+            slope: sxy / sxx,
+            sxx,
+        })
+    }
+
+    /// The line's y at `x`.
+    pub fn at(&self, x: f64) -> f64 {
+        self.mean_y + self.slope * (x - self.mean_x)
+    }
+}
+
 /// The per-coordinate [`median`] of points; the origin for no points.
 pub fn median_point(points: &[Vector3<f64>]) -> Vector3<f64> {
     let coordinate = |k: usize| {
@@ -78,6 +113,16 @@ pub fn median_point(points: &[Vector3<f64>]) -> Vector3<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_line_goes_through_the_means_with_the_least_squares_slope() {
+        let line = Line::fit(&[(0.0, 1.0), (1.0, 3.0), (2.0, 5.0), (3.0, 7.5)]).unwrap();
+        assert!((line.slope - 2.15).abs() < 1e-12, "{line:?}");
+        assert!((line.at(1.5) - 4.125).abs() < 1e-12, "{line:?}");
+        assert!((line.sxx - 5.0).abs() < 1e-12);
+        assert_eq!(Line::fit(&[(1.0, 2.0)]), None);
+        assert_eq!(Line::fit(&[(1.0, 2.0), (1.0, 3.0)]), None);
+    }
 
     #[test]
     fn conventions() {

@@ -24,6 +24,7 @@ use serde::Serialize;
 use super::pairing::{place, Placement};
 use crate::session::frames::{in_time_order, FrameRecord};
 use crate::session::pressures::PressureLog;
+use crate::stats::Line;
 use crate::stereo::Side;
 
 /// What the timestamps say (module docs).
@@ -139,19 +140,9 @@ pub fn check(
         recent.push_back(unwrapped);
         c.series.push((*t, 1e3 * unwrapped));
     }
-    if c.series.len() >= 2 {
-        let n = c.series.len() as f64;
-        let (mt, md) = c
-            .series
-            .iter()
-            .fold((0.0, 0.0), |(a, b), (t, d)| (a + t / n, b + d / n));
-        let (sxy, sxx) = c.series.iter().fold((0.0, 0.0), |(a, b), (t, d)| {
-            (a + (t - mt) * (d - md), b + (t - mt).powi(2))
-        });
+    if let Some(line) = Line::fit(&c.series) {
         let span = c.series[c.series.len() - 1].0 - c.series[0].0;
-        if sxx > 0.0 {
-            c.drift_ms = sxy / sxx * span;
-        }
+        c.drift_ms = line.slope * span;
     }
     // Steps whose every pair was settling.
     let mut settling = vec![false; log.steps.len()];

@@ -27,7 +27,7 @@
 use rayon::prelude::*;
 use serde::Serialize;
 
-use super::{FrameResult, PairRecord};
+use super::{distance_px, FrameResult, PairRecord};
 use crate::session::frames::FrameRecord;
 use crate::session::pressures::PressureLog;
 use crate::stereo::Side;
@@ -306,7 +306,7 @@ fn marker_track(
                         .map(|j| anchors[j].1)?;
                     moving
                         .into_iter()
-                        .min_by(|a, b| distance(*a, at).total_cmp(&distance(*b, at)))
+                        .min_by(|a, b| distance_px(*a, at).total_cmp(&distance_px(*b, at)))
                         .map(|c| (t, c))
                 }
             }
@@ -383,7 +383,7 @@ fn lead(track: &[(f64, [f64; 2])], times: &[f64], log: &PressureLog, d: f64, per
     let mut leads: Vec<f64> = (1..log.steps.len())
         .filter_map(|k| {
             let (from, to) = (levels[k - 1]?, levels[k]?);
-            let way = distance(from, to);
+            let way = distance_px(from, to);
             if way < MIN_MOVE_PX {
                 return None;
             }
@@ -392,7 +392,7 @@ fn lead(track: &[(f64, [f64; 2])], times: &[f64], log: &PressureLog, d: f64, per
             let b = times.partition_point(|&t| t < cut + half_step);
             let first = track[a..b]
                 .iter()
-                .find(|t| distance(t.1, from) > 0.1 * way)?;
+                .find(|t| distance_px(t.1, from) > 0.1 * way)?;
             Some(cut - first.0 + period)
         })
         .collect();
@@ -440,17 +440,13 @@ fn segment(track: &[(f64, [f64; 2])], times: &[f64], log: &PressureLog, d: f64) 
         .collect();
     let moves = medians
         .windows(2)
-        .filter(|w| matches!(w, [Some(p), Some(m)] if distance(*p, *m) >= MIN_MOVE_PX))
+        .filter(|w| matches!(w, [Some(p), Some(m)] if distance_px(*p, *m) >= MIN_MOVE_PX))
         .count();
     Segmented {
         cost,
         moves,
         medians,
     }
-}
-
-fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
-    (a[0] - b[0]).hypot(a[1] - b[1])
 }
 
 #[cfg(test)]

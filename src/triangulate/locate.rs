@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
+use super::distance_px;
 use super::marker::{self, Markers};
 use super::pairing::{self, Placement};
 use super::{
@@ -169,13 +170,12 @@ pub(super) fn combinations(
         rig.project(Side::Left, &points)?,
         rig.project(Side::Right, &points)?,
     );
-    let dist = |p: [f64; 2], q: [f64; 2]| (p[0] - q[0]).hypot(p[1] - q[1]);
     Ok(combos
         .iter()
         .enumerate()
         .map(|(k, &(i, j))| {
             let p = points[k];
-            let err = dist(pl[k], cl[i]).max(dist(pr[k], cr[j]));
+            let err = distance_px(pl[k], cl[i]).max(distance_px(pr[k], cr[j]));
             Combination {
                 left: i,
                 right: j,

@@ -444,6 +444,11 @@ fn examine(
     )))
 }
 
+/// The distance between two image points (px).
+fn distance_px(a: [f64; 2], b: [f64; 2]) -> f64 {
+    (a[0] - b[0]).hypot(a[1] - b[1])
+}
+
 /// Median, 95th percentile and largest of `values` (zeros for none).
 fn median_95_max(mut values: Vec<f64>) -> [f64; 3] {
     crate::stats::quantiles(&mut values, [0.5, 0.95, 1.0]).unwrap_or([0.0; 3])

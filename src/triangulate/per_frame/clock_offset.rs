@@ -3,8 +3,9 @@
 use nalgebra::Vector3;
 
 use super::{lerp, Seen, Track};
+use crate::stats::Line;
 use crate::stereo::{Side, StereoRig};
-use crate::triangulate::TriangulateError;
+use crate::triangulate::{distance_px, TriangulateError};
 
 /// Epipolar distances above this count as this in the clock's fit (px): detections gone wrong
 /// must not pull it.
@@ -82,7 +83,7 @@ pub(super) fn clock_offset(
         let l = ul[k]?;
         let (a, b, s) = right.around(left.times[k] + delta).ok()?;
         let (p, q) = (ur[a]?, ur[b]?);
-        if (p[0] - q[0]).hypot(p[1] - q[1]) < MOVING_PX {
+        if distance_px(p, q) < MOVING_PX {
             return None;
         }
         let r = lerp(p, q, s);
@@ -154,29 +155,18 @@ pub(super) fn clock_offset(
     if runs.len() < DRIFT_RUNS {
         return Ok(constant);
     }
-    let m = runs.len() as f64;
-    let (t_mean, d_mean) = (
-        runs.iter().map(|r| r.0).sum::<f64>() / m,
-        runs.iter().map(|r| r.1).sum::<f64>() / m,
-    );
-    let stt: f64 = runs.iter().map(|r| (r.0 - t_mean).powi(2)).sum();
-    let slope = runs
-        .iter()
-        .map(|r| (r.0 - t_mean) * (r.1 - d_mean))
-        .sum::<f64>()
-        / stt;
-    let residual: f64 = runs
-        .iter()
-        .map(|r| (r.1 - d_mean - slope * (r.0 - t_mean)).powi(2))
-        .sum();
-    let slope_se = (residual / (m - 2.0) / stt).sqrt();
-    if slope.abs() <= student_t_995(runs.len() - 2) * slope_se {
+    let Some(line) = Line::fit(&runs) else {
+        return Ok(constant);
+    };
+    let residual: f64 = runs.iter().map(|&(t, d)| (d - line.at(t)).powi(2)).sum();
+    let slope_se = (residual / (runs.len() - 2) as f64 / line.sxx).sqrt();
+    if line.slope.abs() <= student_t_995(runs.len() - 2) * slope_se {
         return Ok(constant);
     }
     Ok(ClockOffset {
-        offset_s: d_mean,
-        mid_s: t_mean,
-        drift: slope,
+        offset_s: line.mean_y,
+        mid_s: line.mean_x,
+        drift: line.slope,
         frames,
     })
 }

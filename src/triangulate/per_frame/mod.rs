@@ -50,7 +50,7 @@ use clock_offset::{clock_offset, ClockOffset};
 use super::locate::combinations;
 use super::marker::MAX_CANDIDATES;
 use super::summary::{count_frames, FrameCounts};
-use super::{find_all_markers, FrameResult, TriangulateError, TriangulateOptions};
+use super::{distance_px, find_all_markers, FrameResult, TriangulateError, TriangulateOptions};
 use crate::calib::file::CalibrationFile;
 use crate::geometry::HandFromLeft;
 use crate::session::frames::{FrameList, FrameRecord};
@@ -441,7 +441,7 @@ fn locate_at(
         let found = centres(right.order[pos?]).ok()?;
         found
             .into_iter()
-            .map(|c| ((c[0] - to[0]).hypot(c[1] - to[1]), c))
+            .map(|c| (distance_px(c, to), c))
             .filter(|(d, _)| *d <= NEIGHBOUR_PX)
             .min_by(|x, y| x.0.total_cmp(&y.0))
             .map(|(_, c)| c)
@@ -456,7 +456,7 @@ fn locate_at(
     let pairs: Vec<([f64; 2], [f64; 2])> = ca
         .iter()
         .flat_map(|&p| cb.iter().map(move |&q| (p, q)))
-        .filter(|(p, q)| (p[0] - q[0]).hypot(p[1] - q[1]) <= NEIGHBOUR_PX)
+        .filter(|&(p, q)| distance_px(p, q) <= NEIGHBOUR_PX)
         .collect();
     if pairs.is_empty() {
         return Err("no_marker_right");
