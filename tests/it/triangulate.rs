@@ -1106,11 +1106,13 @@ fn per_frame_rows_follow_the_moving_tip_at_each_frames_instant() {
 }
 
 /// Stamps that drift apart over the session (the right camera's 20 ms ahead at its end, as from
-/// each camera's own clock): the drift is told by the motion and followed, the tips as good as
-/// without it (0.027 mm RMS; with one offset for the whole session the ends were 10 ms off:
-/// 0.085 mm RMS, 0.64 mm at worst).
+/// each camera's own clock), on cameras whose delays differ by 60 ms, more than a frame period
+/// (5 and 65 ms): the offset and the drift are told by the motion and followed, the tips as
+/// good as without them (0.027 mm RMS; with one offset for the whole session the ends were 10 ms
+/// off: 0.085 mm RMS, 0.64 mm at worst; with offsets looked for within one period only, 33 ms
+/// was found for 56).
 #[test]
-fn per_frame_follows_stamps_that_drift_apart() {
+fn per_frame_follows_stamps_offset_by_more_than_a_frame_and_drifting_apart() {
     let dir = tempdir();
     let d = dir.path();
     dynamic_session_with(
@@ -1122,6 +1124,8 @@ fn per_frame_follows_stamps_that_drift_apart() {
             "2",
             "--clock-drift-ms",
             "20",
+            "--latency-ms",
+            "5,65",
         ],
     );
     let out = triangulate_per_frame(d);
@@ -1130,6 +1134,35 @@ fn per_frame_follows_stamps_that_drift_apart() {
     // The synth's drift runs over the whole session, the left frames' a little less of it.
     let drift = summary["summary"]["clock_drift_ms"].as_f64().unwrap();
     assert!((drift - 20.0).abs() <= 3.0, "drift {drift} ms");
+    // The offset is told mid-session, as the stamps' mean lead (each stamp less its exposure).
+    let offset = summary["summary"]["clock_offset_ms"].as_f64().unwrap();
+    let stamps: std::collections::HashMap<(String, String), f64> =
+        csv_rows(&d.join("s/frames/frames.csv"))
+            .into_iter()
+            .map(|r| {
+                (
+                    (r["camera"].clone(), r["frame"].clone()),
+                    r["time_s"].parse().unwrap(),
+                )
+            })
+            .collect();
+    let truth_frames = csv_rows(&d.join("s/truth/frames.csv"));
+    let lead = |camera: &str| -> f64 {
+        let leads: Vec<f64> = truth_frames
+            .iter()
+            .filter(|r| r["camera"] == camera)
+            .filter_map(|r| {
+                let stamp = stamps.get(&(r["camera"].clone(), r["frame"].clone()))?;
+                Some(stamp - r["exposure_s"].parse::<f64>().unwrap())
+            })
+            .collect();
+        1e3 * leads.iter().sum::<f64>() / leads.len() as f64
+    };
+    let true_offset = lead("right") - lead("left");
+    assert!(
+        (offset - true_offset).abs() <= 3.0,
+        "clock offset {offset} ms, truth {true_offset}"
+    );
     let truth = truth_by_frame(d);
     let (mut squares, mut good) = (0.0, 0);
     for r in csv_rows(&d.join("dyn.csv")) {

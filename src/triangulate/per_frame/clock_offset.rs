@@ -13,6 +13,9 @@ const EPIPOLAR_CAP_PX: f64 = 2.0;
 /// The tip must move at least this between two right frames (px) for the frame to tell the
 /// clock offset.
 const MOVING_PX: f64 = 0.3;
+/// The largest clock offset looked for (s): two webcams' delays differ by tens of
+/// milliseconds (one more than a frame period is common), a network camera's by more.
+const MAX_OFFSET_S: f64 = 0.5;
 /// Moving frames per run whose clock offset is measured on its own, to see a drift (one
 /// second of motion; a run's δ needs 20), and the fewest runs that can show one.
 const DRIFT_FRAMES: usize = 30;
@@ -91,12 +94,11 @@ pub(super) fn clock_offset(
         let d = (line[0] * r[0] + line[1] * r[1] + line[2]) / line[0].hypot(line[1]);
         Some(d.abs().min(EPIPOLAR_CAP_PX).powi(2))
     };
-    // The δ within one period of `centre` that fits frames `ks` best, and how many told it:
-    // a scan in tenths of a millisecond, then the parabola through the best and its
-    // neighbours (ties to the nearer `centre`).
-    let scan = |ks: &[usize], centre: f64| -> Option<(f64, usize)> {
-        let step = 1e-4;
-        let reach = (right.period_s / step).ceil() as i64;
+    // The δ within `reach` of `centre` that fits frames `ks` best, and how many told it: a
+    // scan every `step`, then the parabola through the best and its neighbours (ties to the
+    // nearer `centre`).
+    let scan = |ks: &[usize], centre: f64, reach: f64, step: f64| -> Option<(f64, usize)> {
+        let reach = (reach / step).ceil() as i64;
         let scanned: Vec<(f64, f64, usize)> = (-reach..=reach)
             .map(|j| {
                 let delta = centre + j as f64 * step;
@@ -129,8 +131,14 @@ pub(super) fn clock_offset(
         }
         Some((delta, n))
     };
+    // A millisecond's scan over every offset looked for, then tenths of one around its best.
+    let (fine, coarse) = (1e-4, 1e-3);
+    let fit = |ks: &[usize], centre: f64, reach: f64| -> Option<(f64, usize)> {
+        let (rough, _) = scan(ks, centre, reach, coarse)?;
+        scan(ks, rough, 2.0 * coarse, fine)
+    };
     let all: Vec<usize> = (0..ul.len()).collect();
-    let Some((delta, frames)) = scan(&all, 0.0) else {
+    let Some((delta, frames)) = fit(&all, 0.0, MAX_OFFSET_S.max(right.period_s)) else {
         return Ok(ClockOffset::default());
     };
     let constant = ClockOffset {
@@ -147,7 +155,7 @@ pub(super) fn clock_offset(
     let runs: Vec<(f64, f64)> = moving
         .chunks_exact(DRIFT_FRAMES)
         .filter_map(|run| {
-            let (d, _) = scan(run, delta)?;
+            let (d, _) = fit(run, delta, right.period_s)?;
             let t = run.iter().map(|&k| left.times[k]).sum::<f64>() / run.len() as f64;
             Some((t, d))
         })
