@@ -21,15 +21,17 @@
 //!    in them interpolated in time to it (a Catmull-Rom spline through them and the frames on
 //!    either side, at their own times, so across a dropped frame too; linearly where a side
 //!    has no such frame) — never the nearest frame, which at tens of mm/s is off by more than
-//!    the error budget. Every combination of candidates (left ×
-//!    right before × right after, the two right ones within 30 px of each other: one object)
-//!    is triangulated and reprojected as for a step's pair; exactly one consistent → the row's
-//!    tip. Several (a faint red fleck beside the bead on its epipolar line, a red object seen
-//!    by both cameras): the one within 1 mm of where the frames around it put the tip
-//!    (interpolated between the neighbours with one tip each, or extrapolated from two on
-//!    one side). Else the row is flagged, its tip left empty: `no_image`,
-//!    `no_marker_left`, `no_marker_right`, `gap` (no right frame within two and a half periods
-//!    on one side: two dropped in a row), `reprojection`, `ambiguous`.
+//!    the error budget. Every combination of candidates (left × right before × right after,
+//!    the two right ones within 30 px of each other: one object) is triangulated and
+//!    reprojected as for a step's pair; exactly one consistent → the row's tip. None: one of
+//!    the two right frames left out as if dropped (the bead hidden in it), the frames on
+//!    either side taken instead, where exactly one of the two ways gives tips. Several (a
+//!    faint red fleck beside the bead on its epipolar line, a red object seen by both
+//!    cameras): the one within 1 mm of where the frames around it put the tip (interpolated
+//!    between the neighbours with one tip each, or extrapolated from two on one side). Else
+//!    the row is flagged, its tip left empty: `no_image`, `no_marker_left`,
+//!    `no_marker_right`, `gap` (no right frame within two and a half periods on one side: two
+//!    dropped in a row), `reprojection`, `ambiguous`.
 //! 5. The pressures in force at the row's time: the log's command held until the next
 //!    (the last held on), or what a streaming regulator measured while it held, where the log
 //!    has that (`P1_measured_kpa`, …); a row before the first command is flagged
@@ -430,7 +432,10 @@ fn expected_tip(times: &[f64], single: &[Option<Vector3<f64>>], k: usize) -> Opt
 }
 
 /// The tips at left frame `i` and its instant `t` on the right camera's clock: every
-/// consistent combination of candidates (one or more).
+/// consistent combination of candidates (one or more), from the right frames around `t`; when
+/// those give none, from the frames around `t` with one of the two left out, as if dropped
+/// (the bead hidden in it, or the frame unreadable), where exactly one of the two ways gives
+/// tips.
 fn locate_at(
     rig: &StereoRig,
     options: &TriangulateOptions,
@@ -440,14 +445,52 @@ fn locate_at(
     t: f64,
 ) -> Result<Vec<Located>, &'static str> {
     let cl = centres(i)?;
-    let (a, b, s) = right.around(t)?;
-    let (ca, cb) = (centres(right.order[a])?, centres(right.order[b])?);
+    let (a, b, _) = right.around(t)?;
     if cl.is_empty() {
         return Err("no_marker_left");
     }
+    let between = |a: usize, b: usize| locate_between(rig, options, right, centres, &cl, a, b, t);
+    let flag = match between(a, b) {
+        Ok(found) => return Ok(found),
+        Err(flag) => flag,
+    };
+    let close =
+        |a: usize, b: usize| right.times[b] - right.times[a] <= MAX_GAP_PERIODS * right.period_s;
+    let wider = [
+        a.checked_sub(1).map(|o| (o, b)),
+        Some(b + 1)
+            .filter(|&r| r < right.times.len())
+            .map(|r| (a, r)),
+    ];
+    let mut found = wider
+        .into_iter()
+        .flatten()
+        .filter(|&(a, b)| close(a, b))
+        .filter_map(|(a, b)| between(a, b).ok());
+    match (found.next(), found.next()) {
+        (Some(tips), None) => Ok(tips),
+        _ => Err(flag),
+    }
+}
+
+/// The consistent tips of the left candidates `cl` with the right track between its frames
+/// `a` and `b`, at `t`.
+#[allow(clippy::too_many_arguments)]
+fn locate_between(
+    rig: &StereoRig,
+    options: &TriangulateOptions,
+    right: &Track,
+    centres: &dyn Fn(usize) -> Result<Vec<[f64; 2]>, &'static str>,
+    cl: &[[f64; 2]],
+    a: usize,
+    b: usize,
+    t: f64,
+) -> Result<Vec<Located>, &'static str> {
+    let (ca, cb) = (centres(right.order[a])?, centres(right.order[b])?);
     if ca.is_empty() || cb.is_empty() {
         return Err("no_marker_right");
     }
+    let s = (t - right.times[a]) / (right.times[b] - right.times[a]);
     // The candidate nearest `to` in the track's frame at `pos`, when there is one.
     let nearest = |pos: Option<usize>, to: [f64; 2]| -> Option<[f64; 2]> {
         let found = centres(right.order[pos?]).ok()?;
@@ -483,7 +526,7 @@ fn locate_at(
             _ => lerp(p, q, s),
         })
         .collect();
-    let combos = combinations(rig, &cl, &cr, options).map_err(|_| "reprojection")?;
+    let combos = combinations(rig, cl, &cr, options).map_err(|_| "reprojection")?;
     let consistent: Vec<Located> = combos
         .iter()
         .filter(|c| c.consistent)
@@ -550,12 +593,15 @@ mod tests {
     }
 
     #[test]
-    fn a_right_frame_with_another_red_object_only_is_not_paired_with_the_bead_after_it() {
+    fn a_right_frame_that_lost_the_bead_is_left_out_not_paired_with_another_red_object() {
         // Rectified cameras 60 mm apart; the tip 300 mm ahead. In the right camera a red
         // object 20 px below the tip's epipolar line is seen in every frame, the tip in all
         // but the one just before the left frame's instant (hidden). Interpolated 98 % of the
         // way from the object to the tip, the right point lies 0.4 px off the epipolar line
-        // and 7.7 px off the tip along it: a consistent pair, 5 mm deep in error.
+        // and 7.7 px off the tip along it: a consistent pair, 5 mm deep in error, that an
+        // earlier version returned. The hidden frame is left out instead, as if dropped, and
+        // the tip comes from the frames on either side of it; hidden in two frames in a row, the
+        // row has no tip.
         let rig = StereoRig::rectified_for_tests();
         let tip = Vector3::new(5.0, 10.0, 300.0);
         let [left_px] = rig.project(Side::Left, &[tip]).unwrap()[..] else {
@@ -565,34 +611,40 @@ mod tests {
             unreachable!()
         };
         let other = [right_px[0] + 384.0, right_px[1] + 20.0];
-        // Records: the left frame (0), then four right frames 1/30 s apart (1-4).
+        // Records: the left frame (0), then five right frames 1/30 s apart (1-5).
         let period = 1.0 / 30.0;
         let right = Track {
-            order: vec![1, 2, 3, 4],
-            times: (0..4).map(|k| k as f64 * period).collect(),
+            order: vec![1, 2, 3, 4, 5],
+            times: (0..5).map(|k| k as f64 * period).collect(),
             period_s: period,
             jitter_s: None,
         };
-        let centres = |i: usize| -> Result<Vec<[f64; 2]>, &'static str> {
-            Ok(match i {
-                0 => vec![left_px],
-                2 => vec![other],
-                _ => vec![right_px, other],
-            })
+        let hidden_in = |frames: &'static [usize]| {
+            move |i: usize| -> Result<Vec<[f64; 2]>, &'static str> {
+                Ok(match i {
+                    0 => vec![left_px],
+                    i if frames.contains(&i) => vec![other],
+                    _ => vec![right_px, other],
+                })
+            }
         };
         let t = (1.0 + 0.98) * period;
         let options = TriangulateOptions::default();
-        let found = locate_at(&rig, &options, &right, &centres, 0, t);
+        let found = locate_at(&rig, &options, &right, &hidden_in(&[2]), 0, t).expect("the tip");
+        assert_eq!(found.len(), 1);
+        assert!((found[0].point - tip).norm() < 0.01, "{:?}", found[0].point);
+        assert_eq!([found[0].right[0].0, found[0].right[1].0], [0, 2]);
+        let found = locate_at(&rig, &options, &right, &hidden_in(&[2, 3]), 0, t);
         assert!(
             found.is_err(),
             "a tip at {:?}",
             found.map(|f| f.iter().map(|c| c.point).collect::<Vec<_>>())
         );
-        // With the tip seen in both frames around the instant, it is found.
-        let both = |i: usize| if i == 2 { centres(3) } else { centres(i) };
-        let found = locate_at(&rig, &options, &right, &both, 0, t).expect("the tip");
+        // With the tip seen in both frames around the instant, it is found from them.
+        let found = locate_at(&rig, &options, &right, &hidden_in(&[]), 0, t).expect("the tip");
         assert_eq!(found.len(), 1);
         assert!((found[0].point - tip).norm() < 0.01, "{:?}", found[0].point);
+        assert_eq!([found[0].right[0].0, found[0].right[1].0], [1, 2]);
     }
 
     #[test]
