@@ -31,7 +31,11 @@
 //!    between the neighbours with one tip each, or extrapolated from two on one side). Else
 //!    the row is flagged, its tip left empty: `no_image`, `no_marker_left`,
 //!    `no_marker_right`, `gap` (no right frame within two and a half periods on one side: two
-//!    dropped in a row), `reprojection`, `ambiguous`.
+//!    dropped in a row), `reprojection`, `ambiguous`, `fast` (the tip jumped between frames:
+//!    where the parabolas through either camera's frames around the instant part by more than
+//!    1 px, as when a pressure step's line and lag are shorter than a frame, no curve through
+//!    the frames says where it was, and a smeared frame's centre is not its instant's; such
+//!    tracks are not smoothed either).
 //! 5. The pressures in force at the row's time: the log's command held until the next
 //!    (the last held on), or what a streaming regulator measured while it held, where the log
 //!    has that (`P1_measured_kpa`, …); a row before the first command is flagged
@@ -65,11 +69,22 @@ use crate::session::frames::{FrameList, FrameRecord};
 use crate::session::pressures::PressureLog;
 use crate::stereo::{Side, StereoRig};
 
+/// A frame record's marker candidates (px), or why it has none.
+type Centres<'a> = dyn Fn(usize) -> Result<Vec<[f64; 2]>, &'static str> + Sync + 'a;
+
 /// The longest a right frame may be from its neighbour for the track to be interpolated
 /// between them, in frame periods: one frame dropped (a webcam under load drops some; across
 /// one the spline still holds: a PNG session dropping one right frame in 20 gives 38 more rows
 /// and 0.0196 mm RMS over all, against 0.0184 without them).
 const MAX_GAP_PERIODS: f64 = 2.5;
+/// The most a track may be unsure of the tip between two frames ([`track_spread_px`], px):
+/// 1.4 × the most seen on dynamic sessions (0.70 px at 150 commands/s; 0.3-0.7 over seven
+/// sessions, either camera), a tenth of what a step whose line and lag are shorter than a frame
+/// gives (up to 15 px).
+const MAX_SPREAD_PX: f64 = 1.0;
+/// How far a frame's candidate may be from its neighbour's for the track's spread to be
+/// measured through it (px): a step that jumps within a frame moves the tip tens of pixels.
+const JUMP_PX: f64 = 3.0 * NEIGHBOUR_PX;
 /// The farthest the tip may move from one right frame to the next to be taken for the same
 /// candidate (px).
 const NEIGHBOUR_PX: f64 = 30.0;
@@ -199,6 +214,36 @@ impl Track {
             return Err("gap");
         }
         Ok((after - 1, after, (t - a) / (b - a)))
+    }
+
+    /// The candidate of the frame at `pos` nearest `to`, when one is within [`JUMP_PX`]: a
+    /// neighbour farther than [`NEIGHBOUR_PX`] is no pair to interpolate between but still
+    /// tells a jump.
+    fn nearest(&self, pos: usize, to: [f64; 2], centres: &Centres<'_>) -> Option<[f64; 2]> {
+        centres(*self.order.get(pos)?)
+            .ok()?
+            .into_iter()
+            .map(|c| (distance_px(c, to), c))
+            .filter(|(d, _)| *d <= JUMP_PX)
+            .min_by(|x, y| x.0.total_cmp(&y.0))
+            .map(|(_, c)| c)
+    }
+
+    /// How unsure the track is around its frame at `pos`, seen at `at` ([`jerk_px`] over the
+    /// two frames on either side, their candidates nearest `at`); `None` without them.
+    fn jerk_around(&self, pos: usize, at: [f64; 2], centres: &Centres<'_>) -> Option<f64> {
+        let first = pos.checked_sub(2)?;
+        let points: Option<Vec<[f64; 2]>> = (first..first + 5)
+            .map(|j| {
+                if j == pos {
+                    Some(at)
+                } else {
+                    self.nearest(j, at, centres)
+                }
+            })
+            .collect();
+        let times = self.times.get(first..first + 5)?;
+        Some(jerk_px(&points?, times))
     }
 
     /// The times of the frames `a - 1`, `a`, `b`, `b + 1` for a spline between `a` and `b`,
@@ -347,6 +392,8 @@ fn smoothed_tracks(
                 let gap = track.times[j + 1] - track.times[j];
                 (gap - track.period_s).abs() <= 0.25 * track.period_s
             });
+            let window =
+                window.filter(|w| jerk_px(w, &track.times[k - 2..=k + 2]) <= MAX_SPREAD_PX);
             if let (Some(w), true) = (window, even) {
                 let c = std::array::from_fn(|a| {
                     w.iter().zip(WEIGHTS).map(|(p, wt)| wt * p[a]).sum::<f64>() / 35.0
@@ -376,7 +423,7 @@ fn locate_all(
     options: &TriangulateOptions,
     left: &Track,
     right: &Track,
-    centres: &(dyn Fn(usize) -> Result<Vec<[f64; 2]>, &'static str> + Sync),
+    centres: &Centres<'_>,
     clock: &ClockOffset,
 ) -> Vec<Result<Located, &'static str>> {
     use rayon::prelude::*;
@@ -399,16 +446,22 @@ fn locate_all(
         .enumerate()
         .map(|(k, f)| {
             let mut tips = f?;
-            if tips.len() == 1 {
-                return Ok(tips.remove(0));
-            }
-            let expected = expected_tip(&left.times, &single, k).ok_or("ambiguous")?;
-            let mut near = tips
-                .into_iter()
-                .filter(|c| (c.point - expected).norm() <= TRACK_MM);
-            match (near.next(), near.next()) {
-                (Some(c), None) => Ok(c),
-                _ => Err("ambiguous"),
+            let tip = if tips.len() == 1 {
+                tips.remove(0)
+            } else {
+                let expected = expected_tip(&left.times, &single, k).ok_or("ambiguous")?;
+                let mut near = tips
+                    .into_iter()
+                    .filter(|c| (c.point - expected).norm() <= TRACK_MM);
+                match (near.next(), near.next()) {
+                    (Some(c), None) => c,
+                    _ => return Err("ambiguous"),
+                }
+            };
+            // The left frame's centre, smeared over a jump, is no better than the right's.
+            match left.jerk_around(k, tip.left_px, centres) {
+                Some(jerk) if jerk > MAX_SPREAD_PX => Err("fast"),
+                _ => Ok(tip),
             }
         })
         .collect()
@@ -440,7 +493,7 @@ fn locate_at(
     rig: &StereoRig,
     options: &TriangulateOptions,
     right: &Track,
-    centres: &dyn Fn(usize) -> Result<Vec<[f64; 2]>, &'static str>,
+    centres: &Centres<'_>,
     i: usize,
     t: f64,
 ) -> Result<Vec<Located>, &'static str> {
@@ -480,7 +533,7 @@ fn locate_between(
     rig: &StereoRig,
     options: &TriangulateOptions,
     right: &Track,
-    centres: &dyn Fn(usize) -> Result<Vec<[f64; 2]>, &'static str>,
+    centres: &Centres<'_>,
     cl: &[[f64; 2]],
     a: usize,
     b: usize,
@@ -491,16 +544,6 @@ fn locate_between(
         return Err("no_marker_right");
     }
     let s = (t - right.times[a]) / (right.times[b] - right.times[a]);
-    // The candidate nearest `to` in the track's frame at `pos`, when there is one.
-    let nearest = |pos: Option<usize>, to: [f64; 2]| -> Option<[f64; 2]> {
-        let found = centres(right.order[pos?]).ok()?;
-        found
-            .into_iter()
-            .map(|c| (distance_px(c, to), c))
-            .filter(|(d, _)| *d <= NEIGHBOUR_PX)
-            .min_by(|x, y| x.0.total_cmp(&y.0))
-            .map(|(_, c)| c)
-    };
     let (before, after) = (
         a.checked_sub(1),
         Some(b + 1).filter(|&k| k < right.times.len()),
@@ -516,16 +559,30 @@ fn locate_between(
     if pairs.is_empty() {
         return Err("no_marker_right");
     }
-    let cr: Vec<[f64; 2]> = pairs
+    // Each pair's point at `t`: on the spline where the track is sure enough of the tip
+    // between the two frames, on their line where a side has no frame to bend it (never across
+    // a frame left out: nothing would say the tip did not jump there).
+    let wide = right.times[b] - right.times[a] > 1.5 * right.period_s;
+    let nearest = |pos: Option<usize>, to: [f64; 2]| right.nearest(pos?, to, centres);
+    let cr: Vec<Option<[f64; 2]>> = pairs
         .iter()
-        .map(|&(p, q)| match (nearest(before, p), nearest(after, q)) {
-            (Some(o), Some(r)) => match right.knots(a, b) {
-                Some(knots) => catmull_rom([o, p, q, r], knots, t),
-                None => lerp(p, q, s),
+        .map(
+            |&(p, q)| match (nearest(before, p), nearest(after, q), right.knots(a, b)) {
+                (Some(o), Some(r), Some(knots)) => {
+                    let points = [o, p, q, r];
+                    (track_spread_px(points, knots) <= MAX_SPREAD_PX)
+                        .then(|| catmull_rom(points, knots, t))
+                }
+                _ => (!wide).then(|| lerp(p, q, s)),
             },
-            _ => lerp(p, q, s),
-        })
+        )
         .collect();
+    let kept: Vec<usize> = (0..pairs.len()).filter(|&k| cr[k].is_some()).collect();
+    if kept.is_empty() {
+        return Err(if wide { "gap" } else { "fast" });
+    }
+    let pairs: Vec<([f64; 2], [f64; 2])> = kept.iter().map(|&k| pairs[k]).collect();
+    let cr: Vec<[f64; 2]> = kept.iter().filter_map(|&k| cr[k]).collect();
     let combos = combinations(rig, cl, &cr, options).map_err(|_| "reprojection")?;
     let consistent: Vec<Located> = combos
         .iter()
@@ -541,6 +598,40 @@ fn locate_between(
         return Err("reprojection");
     }
     Ok(consistent)
+}
+
+/// How unsure a track is of the tip between its middle two `points` (at times `knots`): how far
+/// apart the parabolas through the first three and through the last three pass midway between
+/// the two (px). Where the tip moves smoothly they agree to the error of a moving bead's centre;
+/// where it jumps between frames (a pressure step whose line and lag are shorter than a frame)
+/// they part by pixels, and neither the frames' centres (smeared over the jump) nor any curve
+/// through them says where the tip was.
+fn track_spread_px(points: [[f64; 2]; 4], knots: [f64; 4]) -> f64 {
+    let mid = 0.5 * (knots[1] + knots[2]);
+    let parabola = |first: usize| -> [f64; 2] {
+        let weight = |i: usize| {
+            (first..first + 3)
+                .filter(|&j| j != i)
+                .fold(1.0, |w, j| w * (mid - knots[j]) / (knots[i] - knots[j]))
+        };
+        std::array::from_fn(|axis| {
+            (first..first + 3)
+                .map(|i| weight(i) * points[i][axis])
+                .sum()
+        })
+    };
+    distance_px(parabola(0), parabola(1))
+}
+
+/// How unsure a track of five frames is around the middle one: the larger
+/// [`track_spread_px`] of the two intervals beside it.
+fn jerk_px(points: &[[f64; 2]], times: &[f64]) -> f64 {
+    (0..2)
+        .map(|k| {
+            let four = |v: &[[f64; 2]]| std::array::from_fn(|i| v[k + i]);
+            track_spread_px(four(points), std::array::from_fn(|i| times[k + i]))
+        })
+        .fold(0.0, f64::max)
 }
 
 /// The Catmull-Rom spline through four points at times `knots`, at `t` between the middle
@@ -568,6 +659,18 @@ pub(super) fn lerp(p: [f64; 2], q: [f64; 2], s: f64) -> [f64; 2] {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    const PERIOD: f64 = 1.0 / 30.0;
+
+    /// `count` frames of one camera, records `first`…, at (k + `phase`) periods.
+    fn regular_track(first: usize, count: usize, phase: f64) -> Track {
+        Track {
+            order: (first..first + count).collect(),
+            times: (0..count).map(|k| (k as f64 + phase) * PERIOD).collect(),
+            period_s: PERIOD,
+            jitter_s: None,
+        }
+    }
 
     #[test]
     fn the_spline_follows_a_tip_of_constant_acceleration_across_uneven_frames() {
@@ -611,14 +714,8 @@ mod tests {
             unreachable!()
         };
         let other = [right_px[0] + 384.0, right_px[1] + 20.0];
-        // Records: the left frame (0), then five right frames 1/30 s apart (1-5).
-        let period = 1.0 / 30.0;
-        let right = Track {
-            order: vec![1, 2, 3, 4, 5],
-            times: (0..5).map(|k| k as f64 * period).collect(),
-            period_s: period,
-            jitter_s: None,
-        };
+        // Records: the left frame (0), then six right frames 1/30 s apart (1-6).
+        let right = regular_track(1, 6, 0.0);
         let hidden_in = |frames: &'static [usize]| {
             move |i: usize| -> Result<Vec<[f64; 2]>, &'static str> {
                 Ok(match i {
@@ -628,13 +725,13 @@ mod tests {
                 })
             }
         };
-        let t = (1.0 + 0.98) * period;
+        let t = (2.0 + 0.98) * PERIOD;
         let options = TriangulateOptions::default();
-        let found = locate_at(&rig, &options, &right, &hidden_in(&[2]), 0, t).expect("the tip");
+        let found = locate_at(&rig, &options, &right, &hidden_in(&[3]), 0, t).expect("the tip");
         assert_eq!(found.len(), 1);
         assert!((found[0].point - tip).norm() < 0.01, "{:?}", found[0].point);
-        assert_eq!([found[0].right[0].0, found[0].right[1].0], [0, 2]);
-        let found = locate_at(&rig, &options, &right, &hidden_in(&[2, 3]), 0, t);
+        assert_eq!([found[0].right[0].0, found[0].right[1].0], [1, 3]);
+        let found = locate_at(&rig, &options, &right, &hidden_in(&[3, 4]), 0, t);
         assert!(
             found.is_err(),
             "a tip at {:?}",
@@ -644,7 +741,57 @@ mod tests {
         let found = locate_at(&rig, &options, &right, &hidden_in(&[]), 0, t).expect("the tip");
         assert_eq!(found.len(), 1);
         assert!((found[0].point - tip).norm() < 0.01, "{:?}", found[0].point);
-        assert_eq!([found[0].right[0].0, found[0].right[1].0], [1, 2]);
+        assert_eq!([found[0].right[0].0, found[0].right[1].0], [2, 3]);
+    }
+
+    #[test]
+    fn a_tip_that_jumps_between_frames_is_flagged_fast_not_interpolated() {
+        // A pressure step whose line and lag are shorter than a frame: the tip, 300 mm ahead of
+        // rectified cameras, jumps 4 mm (12 px) along x with τ = 5 ms just before the third
+        // left frame. Frames catch it exactly (no blur); the right camera's half a period
+        // earlier. No curve through the right frames says where the tip was mid-jump: the rows
+        // beside the jump are `fast`, the others right. Without the spread check the second
+        // row's tip is 1.2 mm off.
+        let rig = StereoRig::rectified_for_tests();
+        let jump = 1.9 * PERIOD;
+        let tip = |t: f64| {
+            let moved = if t > jump {
+                1.0 - (-(t - jump) / 0.005).exp()
+            } else {
+                0.0
+            };
+            Vector3::new(5.0 + 4.0 * moved, 10.0, 300.0)
+        };
+        let project = |side: Side, t: f64| rig.project(side, &[tip(t)]).unwrap()[0];
+        // Records 0-5: left frames; 6-12: right frames half a period earlier.
+        let (left, right) = (regular_track(0, 6, 0.0), regular_track(6, 7, -0.5));
+        let centres = |i: usize| -> Result<Vec<[f64; 2]>, &'static str> {
+            Ok(vec![match i {
+                0..=5 => project(Side::Left, left.times[i]),
+                _ => project(Side::Right, right.times[i - 6]),
+            }])
+        };
+        let options = TriangulateOptions::default();
+        let found = locate_all(
+            &rig,
+            &options,
+            &left,
+            &right,
+            &centres,
+            &ClockOffset::default(),
+        );
+        for (k, row) in found.iter().enumerate() {
+            match row {
+                Ok(c) => {
+                    let error = (c.point - tip(left.times[k])).norm();
+                    assert!(error < 0.05, "row {k}: {error} mm off");
+                }
+                Err(flag) => assert_eq!(*flag, "fast", "row {k}"),
+            }
+        }
+        assert_eq!(found[2].as_ref().err(), Some(&"fast"));
+        let flags: Vec<_> = found.iter().map(|r| r.as_ref().err()).collect();
+        assert!(found[0].is_ok() && found[5].is_ok(), "{flags:?}");
     }
 
     #[test]
@@ -654,30 +801,20 @@ mod tests {
         // row and so on its epipolar line: a second consistent tip, 17 mm deeper.
         let rig = StereoRig::rectified_for_tests();
         let tip = |t: f64| Vector3::new(5.0 + 30.0 * t, 10.0, 300.0);
-        let period = 1.0 / 30.0;
         let project = |side: Side, t: f64| rig.project(side, &[tip(t)]).unwrap()[0];
-        let track = |order: Vec<usize>, times: Vec<f64>| Track {
-            order,
-            times,
-            period_s: period,
-            jitter_s: None,
-        };
-        // Records 0-2: left frames; 3-6: right frames half a period later.
-        let left_times: Vec<f64> = (0..3).map(|k| k as f64 * period).collect();
-        let right_times: Vec<f64> = (0..4).map(|k| (k as f64 - 0.5) * period).collect();
-        let left = track(vec![0, 1, 2], left_times.clone());
-        let right = track(vec![3, 4, 5, 6], right_times.clone());
+        // Records 0-2: left frames; 3-6: right frames half a period earlier.
+        let (left, right) = (regular_track(0, 3, 0.0), regular_track(3, 4, -0.5));
         let centres = |i: usize| -> Result<Vec<[f64; 2]>, &'static str> {
             Ok(match i {
                 0..=2 => {
-                    let bead = project(Side::Left, left_times[i]);
+                    let bead = project(Side::Left, left.times[i]);
                     if i == 1 {
                         vec![bead, [bead[0] + 10.0, bead[1]]]
                     } else {
                         vec![bead]
                     }
                 }
-                _ => vec![project(Side::Right, right_times[i - 3])],
+                _ => vec![project(Side::Right, right.times[i - 3])],
             })
         };
         let options = TriangulateOptions::default();
@@ -691,14 +828,14 @@ mod tests {
         );
         let middle = found[1].as_ref().expect("the bead, not `ambiguous`");
         assert!(
-            (middle.point - tip(period)).norm() < 0.01,
+            (middle.point - tip(PERIOD)).norm() < 0.01,
             "{:?} against {:?}",
             middle.point,
-            tip(period)
+            tip(PERIOD)
         );
         // Alone, the middle frame has two consistent tips.
-        let both = locate_at(&rig, &options, &right, &centres, 1, period).unwrap();
+        let both = locate_at(&rig, &options, &right, &centres, 1, PERIOD).unwrap();
         assert_eq!(both.len(), 2);
-        assert!(both.iter().any(|c| (c.point - tip(period)).norm() > 5.0));
+        assert!(both.iter().any(|c| (c.point - tip(PERIOD)).norm() > 5.0));
     }
 }
