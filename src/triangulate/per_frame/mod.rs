@@ -564,25 +564,30 @@ fn locate_between(
     // a frame left out: nothing would say the tip did not jump there).
     let wide = right.times[b] - right.times[a] > 1.5 * right.period_s;
     let nearest = |pos: Option<usize>, to: [f64; 2]| right.nearest(pos?, to, centres);
-    let cr: Vec<Option<[f64; 2]>> = pairs
-        .iter()
-        .map(
-            |&(p, q)| match (nearest(before, p), nearest(after, q), right.knots(a, b)) {
-                (Some(o), Some(r), Some(knots)) => {
-                    let points = [o, p, q, r];
-                    (track_spread_px(points, knots) <= MAX_SPREAD_PX)
-                        .then(|| catmull_rom(points, knots, t))
+    let at_t = |(p, q): ([f64; 2], [f64; 2])| -> Result<[f64; 2], &'static str> {
+        match (nearest(before, p), nearest(after, q), right.knots(a, b)) {
+            (Some(o), Some(r), Some(knots)) => {
+                let points = [o, p, q, r];
+                if track_spread_px(points, knots) <= MAX_SPREAD_PX {
+                    Ok(catmull_rom(points, knots, t))
+                } else {
+                    Err("fast")
                 }
-                _ => (!wide).then(|| lerp(p, q, s)),
-            },
-        )
-        .collect();
-    let kept: Vec<usize> = (0..pairs.len()).filter(|&k| cr[k].is_some()).collect();
-    if kept.is_empty() {
-        return Err(if wide { "gap" } else { "fast" });
+            }
+            _ if wide => Err("gap"),
+            _ => Ok(lerp(p, q, s)),
+        }
+    };
+    let tried: Vec<_> = pairs.into_iter().map(|pair| (pair, at_t(pair))).collect();
+    // Why a pair was not used, to name a row that has no tip for it.
+    let unused = tried.iter().find_map(|(_, c)| c.err());
+    let (pairs, cr): (Vec<_>, Vec<_>) = tried
+        .into_iter()
+        .filter_map(|(pair, c)| Some((pair, c.ok()?)))
+        .unzip();
+    if pairs.is_empty() {
+        return Err(unused.unwrap_or("no_marker_right"));
     }
-    let pairs: Vec<([f64; 2], [f64; 2])> = kept.iter().map(|&k| pairs[k]).collect();
-    let cr: Vec<[f64; 2]> = kept.iter().filter_map(|&k| cr[k]).collect();
     let combos = combinations(rig, cl, &cr, options).map_err(|_| "reprojection")?;
     let consistent: Vec<Located> = combos
         .iter()
@@ -595,7 +600,7 @@ fn locate_between(
         })
         .collect();
     if consistent.is_empty() {
-        return Err("reprojection");
+        return Err(unused.unwrap_or("reprojection"));
     }
     Ok(consistent)
 }
