@@ -60,8 +60,7 @@ use serde::Serialize;
 
 use clock_offset::{clock_offset, ClockOffset};
 use track::{
-    catmull_rom, lerp, smoothed_tracks, track_spread_px, Track, MAX_GAP_PERIODS, MAX_SPREAD_PX,
-    NEIGHBOUR_PX,
+    catmull_rom, lerp, smoothed_tracks, track_spread_px, Track, MAX_SPREAD_PX, NEIGHBOUR_PX,
 };
 
 use super::locate::combinations;
@@ -184,18 +183,16 @@ pub fn triangulate_per_frame(
     summary.stamp_jitter_ms = [&left, &right].map(|t| t.jitter_s.map(|s| 1e3 * s));
 
     // 3. The clock offset, from the candidates a first pass on the stamps chose; again from a
-    //    pass at that offset when it moved by a quarter period or more.
-    let mut clock = ClockOffset::default();
-    let mut seen = seen_in(&left, &right, &[]);
-    for _ in 0..2 {
-        let pass = locate_all(rig, options, &left, &right, &centres, &clock);
-        seen = seen_in(&left, &right, &pass);
-        let again = clock_offset(rig, &left, &right, &seen)?;
-        let settled = (again.offset_s - clock.offset_s).abs() < 0.25 * right.period_s;
-        clock = again;
-        if settled {
-            break;
-        }
+    //    pass at that offset when it is a quarter period or more.
+    let measure = |clock: &ClockOffset| -> Result<(Seen, ClockOffset), TriangulateError> {
+        let pass = locate_all(rig, options, &left, &right, &centres, clock);
+        let seen = seen_in(&left, &right, &pass);
+        let clock = clock_offset(rig, &left, &right, &seen)?;
+        Ok((seen, clock))
+    };
+    let (mut seen, mut clock) = measure(&ClockOffset::default())?;
+    if clock.offset_s.abs() >= 0.25 * right.period_s {
+        (seen, clock) = measure(&clock)?;
     }
     summary.clock_offset_ms = 1e3 * clock.offset_s;
     summary.clock_drift_ms = match (left.times.first(), left.times.last()) {
@@ -353,8 +350,6 @@ fn locate_at(
         Ok(found) => return Ok(found),
         Err(flag) => flag,
     };
-    let close =
-        |a: usize, b: usize| right.times[b] - right.times[a] <= MAX_GAP_PERIODS * right.period_s;
     let wider = [
         a.checked_sub(1).map(|o| (o, b)),
         Some(b + 1)
@@ -364,7 +359,7 @@ fn locate_at(
     let mut found = wider
         .into_iter()
         .flatten()
-        .filter(|&(a, b)| close(a, b))
+        .filter(|&(a, b)| right.close(a, b))
         .filter_map(|(a, b)| between(a, b).ok());
     match (found.next(), found.next()) {
         (Some(tips), None) => Ok(tips),
@@ -408,7 +403,7 @@ fn locate_between(
     // Each pair's point at `t`: on the spline where the track is sure enough of the tip
     // between the two frames, on their line where a side has no frame to bend it (never across
     // a frame left out: nothing would say the tip did not jump there).
-    let wide = right.times[b] - right.times[a] > 1.5 * right.period_s;
+    let wide = right.periods_apart(a, b) > 1.5;
     let nearest = |pos: Option<usize>, to: [f64; 2]| right.nearest(pos?, to, centres);
     let at_t = |(p, q): ([f64; 2], [f64; 2])| -> Result<[f64; 2], &'static str> {
         match (nearest(before, p), nearest(after, q), right.knots(a, b)) {
@@ -456,6 +451,17 @@ mod tests {
     use super::*;
 
     const PERIOD: f64 = 1.0 / 30.0;
+
+    /// Every left frame's tip from `locate_all` on the stamps as they are (no clock offset).
+    fn locate_on_stamps(
+        rig: &StereoRig,
+        left: &Track,
+        right: &Track,
+        centres: &Centres<'_>,
+    ) -> Vec<Result<Located, &'static str>> {
+        let options = TriangulateOptions::default();
+        locate_all(rig, &options, left, right, centres, &ClockOffset::default())
+    }
 
     /// `count` frames of one camera, records `first`…, at (k + `phase`) periods.
     fn regular_track(first: usize, count: usize, phase: f64) -> Track {
@@ -543,15 +549,7 @@ mod tests {
                 _ => project(Side::Right, right.times[i - 6]),
             }])
         };
-        let options = TriangulateOptions::default();
-        let found = locate_all(
-            &rig,
-            &options,
-            &left,
-            &right,
-            &centres,
-            &ClockOffset::default(),
-        );
+        let found = locate_on_stamps(&rig, &left, &right, &centres);
         for (k, row) in found.iter().enumerate() {
             match row {
                 Ok(c) => {
@@ -589,15 +587,7 @@ mod tests {
                 _ => vec![project(Side::Right, right.times[i - 3])],
             })
         };
-        let options = TriangulateOptions::default();
-        let found = locate_all(
-            &rig,
-            &options,
-            &left,
-            &right,
-            &centres,
-            &ClockOffset::default(),
-        );
+        let found = locate_on_stamps(&rig, &left, &right, &centres);
         let middle = found[1].as_ref().expect("the bead, not `ambiguous`");
         assert!(
             (middle.point - tip(PERIOD)).norm() < 0.01,
@@ -606,7 +596,15 @@ mod tests {
             tip(PERIOD)
         );
         // Alone, the middle frame has two consistent tips.
-        let both = locate_at(&rig, &options, &right, &centres, 1, PERIOD).unwrap();
+        let both = locate_at(
+            &rig,
+            &TriangulateOptions::default(),
+            &right,
+            &centres,
+            1,
+            PERIOD,
+        )
+        .unwrap();
         assert_eq!(both.len(), 2);
         assert!(both.iter().any(|c| (c.point - tip(PERIOD)).norm() > 5.0));
     }

@@ -87,11 +87,22 @@ impl Track {
         if after == 0 || after == self.times.len() {
             return Err("gap");
         }
-        let (a, b) = (self.times[after - 1], self.times[after]);
-        if b - a > MAX_GAP_PERIODS * self.period_s {
+        let (a, b) = (after - 1, after);
+        if !self.close(a, b) {
             return Err("gap");
         }
-        Ok((after - 1, after, (t - a) / (b - a)))
+        Ok((a, b, (t - self.times[a]) / (self.times[b] - self.times[a])))
+    }
+
+    /// How many frame periods apart the frames at `a` and `b` are.
+    pub(super) fn periods_apart(&self, a: usize, b: usize) -> f64 {
+        (self.times[b] - self.times[a]) / self.period_s
+    }
+
+    /// Whether the frames at `a` and `b` are close enough for the track to be interpolated
+    /// between them ([`MAX_GAP_PERIODS`]).
+    pub(super) fn close(&self, a: usize, b: usize) -> bool {
+        self.periods_apart(a, b) <= MAX_GAP_PERIODS
     }
 
     /// The candidate of the frame at `pos` nearest `to`, when one is within [`JUMP_PX`]: a
@@ -141,9 +152,7 @@ impl Track {
             a.checked_sub(1)?,
             Some(b + 1).filter(|&r| r < self.times.len())?,
         );
-        let knots = [o, a, b, r].map(|k| self.times[k]);
-        let near = |x: f64, y: f64| y - x <= MAX_GAP_PERIODS * self.period_s;
-        (near(knots[0], knots[1]) && near(knots[2], knots[3])).then_some(knots)
+        (self.close(o, a) && self.close(b, r)).then(|| [o, a, b, r].map(|k| self.times[k]))
     }
 }
 
@@ -161,18 +170,16 @@ pub(super) fn smoothed_tracks(
     for (track, seen) in [left, right].into_iter().zip(seen) {
         for k in 2..track.times.len().saturating_sub(2) {
             let window: Option<Vec<[f64; 2]>> = (k - 2..=k + 2).map(|j| seen[j]).collect();
-            let even = (k - 2..k + 2).all(|j| {
-                let gap = track.times[j + 1] - track.times[j];
-                (gap - track.period_s).abs() <= 0.25 * track.period_s
+            let even = (k - 2..k + 2).all(|j| (track.periods_apart(j, j + 1) - 1.0).abs() <= 0.25);
+            let smooth =
+                |w: &Vec<[f64; 2]>| jerk_px(w, &track.times[k - 2..=k + 2]) <= MAX_SPREAD_PX;
+            let Some(w) = window.filter(|w| even && smooth(w)) else {
+                continue;
+            };
+            let c = std::array::from_fn(|a| {
+                w.iter().zip(WEIGHTS).map(|(p, wt)| wt * p[a]).sum::<f64>() / 35.0
             });
-            let window =
-                window.filter(|w| jerk_px(w, &track.times[k - 2..=k + 2]) <= MAX_SPREAD_PX);
-            if let (Some(w), true) = (window, even) {
-                let c = std::array::from_fn(|a| {
-                    w.iter().zip(WEIGHTS).map(|(p, wt)| wt * p[a]).sum::<f64>() / 35.0
-                });
-                out.insert(track.order[k], c);
-            }
+            out.insert(track.order[k], c);
         }
     }
     out
