@@ -120,8 +120,7 @@ pub(super) fn history_section(h: &HistoryDecision) -> String {
     if !h.screened.is_empty() {
         let _ = writeln!(
             s,
-            "Each ladder of time constants searched; the one of shortest memory within {:.0} % of the best was tried against the present inputs:\n",
-            100.0 * crate::model::history::LADDER_TOLERANCE
+            "Time constants screened at the present-input model's parameters (σ widened by √copies); the best was searched:\n"
         );
         let _ = writeln!(s, "| history | cross-validated fitness |");
         let _ = writeln!(s, "|---|---|");

@@ -64,8 +64,8 @@ enum Pass {
     /// One of several compared by cross-validated fitness (given parameters are scored too);
     /// the basis grows after the comparison, for the kept set only.
     Compared,
-    /// The present inputs as `history=auto`'s reference: compared, and searched with half
-    /// the default budget.
+    /// The present inputs as `history=auto`'s reference, and each of its ladders of time
+    /// constants: compared, and searched with half the default budget.
     Reference,
 }
 
@@ -228,8 +228,8 @@ impl Run<'_> {
         self.interrupt.load(Ordering::Relaxed)
     }
 
-    /// Step 3: each feature set's parameters; `auto`'s ladders each searched, the one of
-    /// shortest memory within [`history::LADDER_TOLERANCE`] of the best kept.
+    /// Step 3: each feature set's parameters; `auto`'s ladders each searched, the best one
+    /// kept.
     pub(super) fn choose_each(
         &self,
         present: &Scoring,
@@ -249,19 +249,24 @@ impl Run<'_> {
             let chosen = self.choose(&scored, initial.clone(), pass)?;
             tried.push((None, chosen, scored));
         }
-        // `auto`'s ladders each searched on the same folds (the screen this replaces, at the
-        // present inputs' parameters, ranked them no better than chance: on the demo's dynamic
-        // session the ladder it picked searched to 0.60 where another gave 0.52, and held out
-        // 0.79 mm against 0.45).
+        // `auto`'s ladders each searched on the same folds, the best kept: scoring them at
+        // the present inputs' parameters instead ranked them no better than chance (on the
+        // demo's dynamic session the ladder it picked searched to 0.60 where another gave
+        // 0.52, and held out 0.79 mm against 0.45).
         let ladders: &[Memory] = match (tried.first(), candidates.memories.as_slice()) {
             (_, [only]) => std::slice::from_ref(only),
             (Some(_), ladders) if !self.interrupted() => ladders,
             _ => &[],
         };
-        let pass = if compare { Pass::Compared } else { Pass::Only };
-        let mut searched: Vec<(Tried, f64)> = Vec::new();
+        // Several ladders each get the present inputs' half budget.
+        let pass = match (compare, ladders.len()) {
+            (false, _) => Pass::Only,
+            (true, 1) => Pass::Compared,
+            (true, _) => Pass::Reference,
+        };
+        let mut best: Option<Tried> = None;
         for memory in ladders {
-            if self.interrupted() && !(searched.is_empty() && tried.is_empty()) {
+            if self.interrupted() && (best.is_some() || !tried.is_empty()) {
                 break;
             }
             let h = self.history(memory.clone());
@@ -280,16 +285,12 @@ impl Run<'_> {
                     params: Some(chosen.params),
                 });
             }
-            searched.push(((Some(h), chosen, scored), fitness));
+            let better = |(_, b, _): &Tried| fitness < b.fitness.unwrap_or(f64::INFINITY);
+            if best.as_ref().is_none_or(better) {
+                best = Some((Some(h), chosen, scored));
+            }
         }
-        let best = searched
-            .iter()
-            .map(|(_, f)| *f)
-            .fold(f64::INFINITY, f64::min);
-        let kept = searched
-            .into_iter()
-            .find(|(_, f)| *f <= best * (1.0 + history::LADDER_TOLERANCE));
-        tried.extend(kept.map(|(t, _)| t));
+        tried.extend(best);
         Ok((tried, screened))
     }
 

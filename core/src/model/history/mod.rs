@@ -38,7 +38,7 @@ pub const AUTO_FIRST_STEPS: f64 = 0.5;
 pub const AUTO_RATIO: f64 = 4.0;
 /// Automatic time constants in a ladder at most (fewer when a group is short).
 pub const AUTO_COUNT: usize = 3;
-/// Ladders `auto` searches, shortest first: slow actuators (a trunk's seconds of lag at 12 Hz) need the longer
+/// Ladders `auto` screens: slow actuators (a trunk's seconds of lag at 12 Hz) need the longer
 /// ones, settled steps the shortest.
 pub const AUTO_LADDERS: usize = 5;
 /// The ratio between successive ladders' first constants: half of [`AUTO_RATIO`]'s steps, so a
@@ -202,9 +202,8 @@ pub struct HistoryDecision {
     /// Each feature set searched on the same folds (the present inputs first).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub tried: Vec<HistoryTrial>,
-    /// `auto`'s ladders of time constants, each searched on the same folds; the one of
-    /// shortest memory within [`LADDER_TOLERANCE`] of the best is the history tried against
-    /// the present inputs.
+    /// `auto`'s ladders of time constants, each searched (half the default budget) on the
+    /// same folds; the best is the history tried against the present inputs.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub screened: Vec<HistoryTrial>,
 }
@@ -216,7 +215,7 @@ pub struct HistoryTrial {
     pub memory: Option<Memory>,
     /// The best cross-validated fitness of its search (or of the given parameters).
     pub fitness: f64,
-    /// The (C, ε, σ) its search chose (or it was scored at); absent in files written
+    /// The (C, ε, σ) its search chose (or it was screened at); absent in files written
     /// before they were kept.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub params: Option<MsvrParams>,
@@ -225,18 +224,6 @@ pub struct HistoryTrial {
 /// `auto` keeps history when its cross-validated error is lower than the present inputs' by
 /// more than this share (more features cost time and an extra column for every user).
 pub const AUTO_GAIN: f64 = 0.02;
-
-/// `auto` searches each ladder of time constants and keeps the one of shortest memory whose
-/// cross-validated error is within this share of the best ladder's: the search's error
-/// differs between ladders by a few per cent where held-out data does not tell them apart, and
-/// a model leaning on a longer past has more to extrapolate when the future drifts. Measured
-/// with every ladder searched: the tendon arm's best, ema 1, 4, 16 steps, is 3.5 % below
-/// ema 0.5, 2, 8 (12.25 against 12.69) yet holds out its later block at 16.1 mm against 10.8;
-/// the demo's dynamic session needs no tolerance (its shortest ladder is 13 % worse) and the
-/// soft trunk's best is its shortest. Set with those figures in view; the principled
-/// version, the one-standard-error rule on fold-paired differences, needs each fold's error,
-/// which the search does not keep.
-pub const LADDER_TOLERANCE: f64 = 0.05;
 
 /// The choice between the present inputs and a history, from their cross-validated fitness:
 /// the history when it is lower by more than [`AUTO_GAIN`] (or asked for alone).
