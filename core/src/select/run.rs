@@ -10,7 +10,7 @@ use crate::model::interval::Intervals;
 use crate::model::msvr::fitness::{Dealing, FitnessKind};
 use crate::model::msvr::folds::{self, FoldPlan};
 use crate::model::msvr::tune::{self, BasisChoice, BasisDecision, Chosen, TuneError};
-use crate::model::msvr::{self, Basis, Hyper, MIN_FIT_ROWS};
+use crate::model::msvr::{self, Basis, Hyper, MsvrParams, MIN_FIT_ROWS};
 use crate::search::{Search, SearchError};
 
 /// One selection under way.
@@ -64,8 +64,8 @@ enum Pass {
     /// One of several compared by cross-validated fitness (given parameters are scored too);
     /// the basis grows after the comparison, for the kept set only.
     Compared,
-    /// The present inputs as `history=auto`'s reference, and each of its ladders of time
-    /// constants: compared, and searched with half the default budget.
+    /// The present inputs as `history=auto`'s reference: compared, and searched with half
+    /// the default budget (its parameters also start the screen of time constants).
     Reference,
 }
 
@@ -228,8 +228,8 @@ impl Run<'_> {
         self.interrupt.load(Ordering::Relaxed)
     }
 
-    /// Step 3: each feature set's parameters; `auto`'s ladders each searched, the best one
-    /// kept.
+    /// Step 3: each feature set's parameters; `auto`'s ladders screened at the present
+    /// inputs' parameters (σ widened by √(copies of the inputs)), the best one searched.
     pub(super) fn choose_each(
         &self,
         present: &Scoring,
@@ -249,48 +249,56 @@ impl Run<'_> {
             let chosen = self.choose(&scored, initial.clone(), pass)?;
             tried.push((None, chosen, scored));
         }
-        // `auto`'s ladders each searched on the same folds, the best kept: scoring them at
-        // the present inputs' parameters instead ranked them no better than chance (on the
-        // demo's dynamic session the ladder it picked searched to 0.60 where another gave
-        // 0.52, and held out 0.79 mm against 0.45).
-        let ladders: &[Memory] = match (tried.first(), candidates.memories.as_slice()) {
-            (_, [only]) => std::slice::from_ref(only),
-            (Some(_), ladders) if !self.interrupted() => ladders,
-            _ => &[],
-        };
-        // Several ladders each get the present inputs' half budget.
-        let pass = match (compare, ladders.len()) {
-            (false, _) => Pass::Only,
-            (true, 1) => Pass::Compared,
-            (true, _) => Pass::Reference,
-        };
-        let mut best: Option<Tried> = None;
-        for memory in ladders {
-            if self.interrupted() && (best.is_some() || !tried.is_empty()) {
-                break;
+        let memory = match (tried.first(), candidates.memories.as_slice()) {
+            (_, []) => None,
+            (_, [only]) => Some((only.clone(), None)),
+            (Some((_, reference, _)), ladders) if !self.interrupted() => {
+                let mut best: Option<(Memory, f64, Scoring)> = None;
+                for memory in ladders {
+                    let h = self.history(memory.clone());
+                    let copies = 1 + memory.blocks();
+                    let params = MsvrParams {
+                        sigma: reference.params.sigma * (copies as f64).sqrt(),
+                        ..reference.params
+                    };
+                    let scored = self.scoring_with(present, Some(&h))?;
+                    let (fitness, _) = tune::cross_validate(
+                        &scored.scored,
+                        scored.fitness,
+                        &scored.plan,
+                        &params,
+                    )?;
+                    self.listener.note(format!(
+                        "input history: {memory} screened at the present inputs' parameters: {fitness:.5}"
+                    ));
+                    screened.push(HistoryTrial {
+                        memory: Some(memory.clone()),
+                        fitness,
+                        params: Some(params),
+                    });
+                    if best.as_ref().is_none_or(|(_, f, _)| fitness < *f) {
+                        best = Some((memory.clone(), fitness, scored));
+                    }
+                }
+                best.map(|(m, _, scored)| (m, Some(scored)))
             }
-            let h = self.history(memory.clone());
+            _ => None,
+        };
+        if let Some((memory, scored)) = memory.filter(|_| !self.interrupted() || tried.is_empty()) {
+            let h = self.history(memory);
             self.listener.note(format!(
                 "input history: {} ({} model inputs)",
                 h.memory,
                 h.feature_names().len()
             ));
-            let scored = self.scoring_with(present, Some(&h))?;
-            let chosen = self.choose(&scored, initial.clone(), pass)?;
-            let fitness = chosen.fitness.unwrap_or(f64::INFINITY);
-            if ladders.len() > 1 {
-                screened.push(HistoryTrial {
-                    memory: Some(memory.clone()),
-                    fitness,
-                    params: Some(chosen.params),
-                });
-            }
-            let better = |(_, b, _): &Tried| fitness < b.fitness.unwrap_or(f64::INFINITY);
-            if best.as_ref().is_none_or(better) {
-                best = Some((Some(h), chosen, scored));
-            }
+            let scored = match scored {
+                Some(scored) => scored,
+                None => self.scoring_with(present, Some(&h))?,
+            };
+            let pass = if compare { Pass::Compared } else { Pass::Only };
+            let chosen = self.choose(&scored, initial, pass)?;
+            tried.push((Some(h), chosen, scored));
         }
-        tried.extend(best);
         Ok((tried, screened))
     }
 

@@ -202,8 +202,8 @@ pub struct HistoryDecision {
     /// Each feature set searched on the same folds (the present inputs first).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub tried: Vec<HistoryTrial>,
-    /// `auto`'s ladders of time constants, each searched (half the default budget) on the
-    /// same folds; the best is the history tried against the present inputs.
+    /// `auto`'s screen of time-constant ladders: each scored at the present-input model's
+    /// (C, ε) and its σ widened by √(copies of the inputs); the best was searched.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub screened: Vec<HistoryTrial>,
 }
