@@ -8,7 +8,8 @@
 //! 2. the rows and folds every set is scored on (`Scoring`: at most
 //!    [`crate::model::msvr::tune::SEARCH_ROWS`] evenly spaced rows, the folds cut from the present inputs);
 //! 3. each set's parameters chosen ([`crate::model::msvr::tune::choose`]: the search, or the given ones), `auto`'s
-//!    ladders of time constants screened at the present inputs' parameters first;
+//!    ladders of time constants screened on a small grid around the present inputs'
+//!    parameters first;
 //! 4. the set kept ([`history::decide`]) and `auto`'s basis grown for it;
 //! 5. the intervals: from the held-out predictions steps 3-4 made (no further fit), or from
 //!    one more fit per fold for runs (dealt to the folds in blocks of consecutive runs), after

@@ -202,8 +202,9 @@ pub struct HistoryDecision {
     /// Each feature set searched on the same folds (the present inputs first).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub tried: Vec<HistoryTrial>,
-    /// `auto`'s screen of time-constant ladders: each scored at the present-input model's
-    /// (C, ε) and its σ widened by √(copies of the inputs); the best was searched.
+    /// `auto`'s screen of time-constant ladders: each scored on a small grid around the
+    /// present-input model's (C, ε, σ), σ widened by √(copies of the inputs), at its best
+    /// point; the best ladder was searched.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub screened: Vec<HistoryTrial>,
 }
