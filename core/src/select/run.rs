@@ -56,9 +56,9 @@ impl Scoring {
     }
 }
 
-/// The screen of `auto`'s ladders scores each at the present inputs' (C, ε, σ) with σ widened
-/// by √(copies of the inputs) and then times each of these, and C times each of
-/// [`SCREEN_C`]: the best of the six. The parameters that suit the present inputs need not
+/// The screen of `auto`'s ladders scores each around the present inputs' (C, ε, σ): σ widened
+/// by √(copies of the inputs) and multiplied by each of these, C by each of [`SCREEN_C`]; a
+/// ladder scores the best of the six. The parameters that suit the present inputs need not
 /// suit a history's features. At those parameters alone the demo's dynamic session scored its
 /// five ladders 0.800-0.840, and the pick (ema 0.267, 1.07 s) searched to 0.670 and held its
 /// trial out at 1.00 mm. On the grid they spread 0.614-0.801; the pick (ema 0.0167, 0.0667,
