@@ -120,7 +120,7 @@ pub(super) fn history_section(h: &HistoryDecision) -> String {
     if !h.screened.is_empty() {
         let _ = writeln!(
             s,
-            "Time constants screened on a small grid around the present-input model's parameters (σ widened by √copies, then ×½, 1, 2; C ×1, 10), each at its best point; the best was searched:\n"
+            "Time constants screened on a small grid around the present-input model's parameters (σ widened by √copies, then ×½, 1; C ×1, 10), each at its best point; the best was searched:\n"
         );
         let _ = writeln!(s, "| history | cross-validated fitness |");
         let _ = writeln!(s, "|---|---|");
