@@ -29,8 +29,8 @@
 //! dark yet still the finger's hue, read as red beside the bead and pulled it towards the
 //! finger (0.086 px at quality 100 in the unit scene, 0.29 px in the demo's right camera at
 //! rest). G − B barely shares JPEG noise with redness (correlation 0.06) and a red bead has
-//! little of it. A Gaussian bead, as before, fits a
-//! bead of 3 px about as well but not a larger one: flat-topped, its image biased the Gaussian
+//! little of it. A Gaussian bead, as before, fits a bead of 3 px about as well but not a
+//! larger one: flat-topped, its image biased the Gaussian
 //! by its phase against the samples (radius 5, 7, 9 px: 0.10, 0.15, 0.74 px off, in a window
 //! it outgrew; the disc: 0.04, 0.02, 0.02), and a closer camera or a larger bead is what a lab
 //! may well have. On the lab captures the disc also does better (seeds 31-35: 0.030-0.048 mm
@@ -38,17 +38,18 @@
 //!
 //! k and m are taken first from the samples beyond the bead (1.5 radii + 3 px from the
 //! centroid), m shrunk towards 0 unless the background's G − B varies beyond JPEG's noise
-//! (`HUE_PRIOR`), not fitted with it: the bead is as dark as it is red, so beside a plain wall k · Y alone can
-//! stand for the bead, and a joint fit then settled nowhere (on JPEG 4:2:0 renders of a bead
-//! alone, 14 of 60 at quality 85 and 25 of 60 at 100 fell back to the centroid; with k from
-//! the background all are fitted). The stored samples are recovered from the decoded pixels by
-//! undoing libjpeg's interpolation (least squares over an 80 px region, exact away from its
-//! edges), and the residuals are weighed by the quantisation noise the file's own chroma table
-//! implies (each 8 × 8 block's coefficients are rounded to their steps q: uniform noise of
-//! variance q²/12 per coefficient, so the coarse high frequencies count little): generalised
-//! least squares. A and b are solved linearly for each (c, ρ, β), and those by
-//! Levenberg-Marquardt. The disc is symmetric about c, as the bead's image is. PNG frames have
-//! no sampling and no quantisation: the same fit with unit weights on the pixels.
+//! (`HUE_PRIOR`), not fitted with it: the bead is as dark as it is red, so beside a plain
+//! wall k · Y alone can stand for the bead, and a joint fit then settled nowhere (on JPEG
+//! 4:2:0 renders of a bead alone, 14 of 60 at quality 85 and 25 of 60 at 100 fell back to the
+//! centroid; with k from the background all are fitted). The stored samples are recovered
+//! from the decoded pixels by undoing libjpeg's interpolation (least squares over an 80 px
+//! region, exact away from its edges), and the residuals are weighed by the quantisation
+//! noise the file's own chroma table implies (each 8 × 8 block's coefficients are rounded to
+//! their steps q: uniform noise of variance q²/12 per coefficient, so the coarse high
+//! frequencies count little): generalised least squares. A and b are solved linearly for
+//! each (c, ρ, β), and those by Levenberg-Marquardt. The disc is symmetric about c, as the
+//! bead's image is. PNG frames have no sampling and no quantisation: the same fit with unit
+//! weights on the pixels.
 
 use std::cell::RefCell;
 use std::rc::Rc;

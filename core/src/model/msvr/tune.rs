@@ -228,16 +228,42 @@ pub fn cross_validate(
     folds: &FoldPlan,
     params: &MsvrParams,
 ) -> Result<(f64, Option<Mat<f64>>), TuneError> {
-    super::check_memory(data.rows(), params.basis)?;
-    let scorer = Fitness::new(
+    let scorer = scorer(data, fitness, folds, params)?;
+    let score = scorer.evaluate(&[params.hyper()], f64::INFINITY)[0];
+    Ok((score, scorer.held_out_of(&params.hyper())))
+}
+
+/// The cross-validated fitness of each of `hypers` with `solver`'s other controls, on the
+/// folds of `folds`: one scorer for them all, so the folds, the distances and each σ's kernel
+/// are made once and the candidates scored in parallel.
+///
+/// # Errors
+/// [`TuneError`] when the folds cannot be cut.
+pub fn cross_validate_each(
+    data: &Dataset,
+    fitness: FitnessKind,
+    folds: &FoldPlan,
+    solver: &MsvrParams,
+    hypers: &[Hyper],
+) -> Result<Vec<f64>, TuneError> {
+    Ok(scorer(data, fitness, folds, solver)?.evaluate(hypers, f64::INFINITY))
+}
+
+/// What scores `solver`'s candidates on `data` by `fitness` over the folds of `folds`.
+fn scorer(
+    data: &Dataset,
+    fitness: FitnessKind,
+    folds: &FoldPlan,
+    solver: &MsvrParams,
+) -> Result<Fitness, TuneError> {
+    super::check_memory(data.rows(), solver.basis)?;
+    Ok(Fitness::new(
         data,
         fitness,
         crate::DEFAULT_SEED,
         folds.labels.as_deref(),
-        params,
-    )?;
-    let score = scorer.evaluate(&[params.hyper()], f64::INFINITY)[0];
-    Ok((score, scorer.held_out_of(&params.hyper())))
+        solver,
+    )?)
 }
 
 /// Held-out predictions of `params` on `data`: every row predicted by the model fitted without
