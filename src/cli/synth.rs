@@ -39,7 +39,7 @@ pub struct Args {
     sweep_step_kpa: f64,
     /// Board pairs to render for calibration (of a ChArUco board, every other one partly out
     /// of view)
-    #[arg(long, default_value_t = CaptureConfig::default().views)]
+    #[arg(long, default_value_t = crate::synth::capture::VIEWS)]
     views: usize,
     #[command(flatten)]
     board: super::board::BoardArgs,

@@ -107,6 +107,56 @@ pub fn run(
         (errors.iter().map(|e| e * e).sum::<f64>() / errors.len().max(1) as f64).sqrt();
 
     // 3. Models, the last trial held out.
+    let models = fit_models(
+        dir,
+        synth.seed,
+        budget,
+        &design,
+        &dataset,
+        &truth_path,
+        session,
+    )?;
+
+    // 4. The held-out trajectory.
+    trajectory_figures(dir, &models.test, &models.truth_test, &models.held_out)?;
+    Ok(DynamicCheck {
+        design,
+        dynamics: Dynamics::PNEUMATIC,
+        rows: done.per_frame.summary.rows,
+        unflagged: done.per_frame.summary.good_rows,
+        tip_rms_mm,
+        tip_max_mm: errors.iter().copied().fold(0.0, f64::max),
+        clock_offset_ms: done.per_frame.summary.clock_offset_ms,
+        held_out: models.held_out,
+        history: models.history,
+        scores: models.scores,
+    })
+}
+
+/// The models of step 3 and what they score on the held-out trial.
+struct Models {
+    /// The trial held out.
+    held_out: String,
+    scores: Vec<DynamicScore>,
+    /// The history the model chose.
+    history: String,
+    /// The held-out trial's rows: triangulated, and the truth.
+    test: PathBuf,
+    truth_test: PathBuf,
+}
+
+/// Step 3: the last trial of `dataset` (and of the truth, `truth_path`) held out; MSVR on the
+/// present pressures and with input history from the triangulated rows, and the same history
+/// model fitted on the truth.
+fn fit_models(
+    dir: &Path,
+    seed: u64,
+    budget: Option<usize>,
+    design: &DynamicDesign,
+    dataset: &Path,
+    truth_path: &Path,
+    session: &Session,
+) -> Result<Models, PipelineError> {
     let held_out = format!("dyn_{}", design.trials);
     let split = |from: &Path, stem: &str| -> Result<[PathBuf; 2], PipelineError> {
         let train = dir.join(format!("{stem}_train.csv"));
@@ -114,14 +164,13 @@ pub fn run(
         split_rows(from, &train, &test, |phase| phase == held_out)?;
         Ok([train, test])
     };
-    let [train, test] = split(&dataset, "triangulated")?;
-    let [truth_train, truth_test] = split(&truth_path, "truth")?;
+    let [train, test] = split(dataset, "triangulated")?;
+    let [truth_train, truth_test] = split(truth_path, "truth")?;
     // Folds are whole phases: the training trials and the rest holds.
     let folds = design.trials.min(5);
     let fit = |data: &Path, test: &Path, name: &str, history: bool| {
         // `handcap model`'s default search, the phases as folds.
-        let selection =
-            Selection::aco_r(synth.seed, budget, folds, FoldsBy::Column("phase".into()));
+        let selection = Selection::aco_r(seed, budget, folds, FoldsBy::Column("phase".into()));
         fit::run(
             &job(data, test, &dir.join(name), history, selection),
             session,
@@ -179,20 +228,12 @@ pub fn run(
         .as_ref()
         .and_then(|h| h.used.as_ref())
         .map_or("none".to_string(), |h| h.memory.to_string());
-
-    // 4. The held-out trajectory.
-    trajectory_figures(dir, &test, &truth_test, &held_out)?;
-    Ok(DynamicCheck {
-        design,
-        dynamics: Dynamics::PNEUMATIC,
-        rows: done.per_frame.summary.rows,
-        unflagged: done.per_frame.summary.good_rows,
-        tip_rms_mm,
-        tip_max_mm: errors.iter().copied().fold(0.0, f64::max),
-        clock_offset_ms: done.per_frame.summary.clock_offset_ms,
+    Ok(Models {
         held_out,
-        history,
         scores,
+        history,
+        test,
+        truth_test,
     })
 }
 

@@ -65,10 +65,17 @@ pub enum How {
 }
 
 impl Planned {
-    /// Rows out of reach, when the plan (not a learning step) has some.
+    /// Rows out of reach, when the plan has some (for a learning step: of the reference the
+    /// model aims at, the target moved by the error measured).
     pub fn warning(&self) -> Option<String> {
-        (self.missed > 0 && !matches!(self.how, How::Learned { .. })).then(|| format!(
-            "{} of {} rows are out of the model's reach within the box (or its lag) at their times: followed as closely as it allows, reached=0 in {}",
+        let what = match self.how {
+            How::Learned { .. } => {
+                " have their corrected reference (the target moved by the error measured)"
+            }
+            _ => " are",
+        };
+        (self.missed > 0).then(|| format!(
+            "{} of {} rows{what} out of the model's reach within the box (or its lag) at their times: followed as closely as it allows, reached=0 in {}",
             self.missed,
             self.rows,
             self.out.display()
@@ -236,7 +243,7 @@ pub fn run(r: &Request) -> Result<Planned, PipelineError> {
                 &seen,
                 r.gain,
                 &options,
-            );
+            )?;
             let how = How::Learned {
                 measured: measured.to_path_buf(),
                 rms: trajectory::rms(&errors),

@@ -54,9 +54,9 @@ pub(super) fn first_appearances<'a>(phases: impl Iterator<Item = &'a str>) -> Ve
 }
 
 /// Whether `path` is a file a triangulation into `out` writes: one of [`BESIDE`], or a
-/// per-phase file ([`phase_path`]) that holds a dataset (its header's first columns are the
-/// dataset's), so that a stale listing never removes another file.
-fn ours(out: &Path, path: &Path) -> bool {
+/// per-phase file ([`phase_path`]) that holds a dataset (its header is a step dataset's or a
+/// per-frame one's), so that a stale listing never removes another file.
+pub(super) fn ours(out: &Path, path: &Path) -> bool {
     let name = |p: &Path| p.file_name().map(|n| n.to_string_lossy().into_owned());
     let (Some(name), Some(stem)) = (name(path), name(&beside(out, ""))) else {
         return false;
@@ -67,10 +67,18 @@ fn ours(out: &Path, path: &Path) -> bool {
     {
         return true;
     }
+    let dataset = |bytes: Vec<u8>| {
+        let header = bytes.split(|&b| b == b'\n').next().unwrap_or_default();
+        header.starts_with(DATASET_HEAD.as_bytes())
+            || (header.starts_with(b"time_s,") && header.ends_with(PER_FRAME_TAIL.as_bytes()))
+    };
     name.starts_with(&format!("{stem}_"))
         && name.ends_with(".csv")
-        && std::fs::read(path).is_ok_and(|bytes| bytes.starts_with(DATASET_HEAD.as_bytes()))
+        && std::fs::read(path).is_ok_and(dataset)
 }
+
+/// The last columns of a per-frame dataset's header.
+const PER_FRAME_TAIL: &str = "x_mm,y_mm,z_mm,frame,reproj_px,flag";
 
 /// The dataset's first columns, which every dataset and per-phase file starts with.
 const DATASET_HEAD: &str = "P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm,n_frames,spread_mm,reproj_px,dt_ms";

@@ -899,6 +899,26 @@ fn dynamic_protocol(d: &Path) {
     );
 }
 
+/// `capture` of [`long_cameras`]' videos into `out` for 3.5 s, [`dynamic_protocol`]'s
+/// commands streamed to `regulator`.
+fn streaming_session<'a>(out: &'a str, regulator: &'a str) -> [&'a str; 13] {
+    [
+        "capture",
+        "--left",
+        "cams/frames/left.avi",
+        "--right",
+        "cams/frames/right.avi",
+        "--out",
+        out,
+        "--protocol",
+        "p.csv",
+        "--regulator",
+        regulator,
+        "--duration-s",
+        "3.5",
+    ]
+}
+
 /// `--regulator`: one process told every command on its input at the command's time; what it
 /// prints back is logged as measured beside the command in force.
 #[test]
@@ -912,22 +932,7 @@ fn a_streaming_regulator_is_told_each_command_on_time_and_its_measurements_logge
     assert_eq!(protocol.len(), 22, "rest, 20 commands, rest");
     // It records what it reads, and answers each line with half the pressures as measured.
     let regulator = "while read t a b c; do echo \"$t $a $b $c\" >> told.txt; echo \"$t $(echo \"$a/2\" | bc -l) $b $c\"; done";
-    let args = [
-        "capture",
-        "--left",
-        "cams/frames/left.avi",
-        "--right",
-        "cams/frames/right.avi",
-        "--out",
-        "s",
-        "--protocol",
-        "p.csv",
-        "--regulator",
-        regulator,
-        "--duration-s",
-        "3.5",
-    ];
-    let out = handcap_ok(d, &args);
+    let out = handcap_ok(d, &streaming_session("s", regulator));
     assert!(out.contains("regulator: 22 lines written"), "{out}");
     let told: Vec<String> = std::fs::read_to_string(d.join("told.txt"))
         .unwrap()
@@ -967,6 +972,39 @@ fn a_streaming_regulator_is_told_each_command_on_time_and_its_measurements_logge
     }
 }
 
+/// Hostile probes 3 and 5 (issue 61): a regulator whose output is block-buffered (Python
+/// without a flush) had 1 of 183 rows measured, its lines all landing on the last command; one
+/// that logs on its error output filled the pipe and was aborted as stalled after 64 KB.
+#[test]
+fn hostile_a_buffered_and_chatty_regulator_is_measured_whole() {
+    let _cores = real_time();
+    let dir = tempdir();
+    let d = dir.path();
+    long_cameras(d);
+    dynamic_protocol(d);
+    // Answers each line with its time and half the first pressure, on an output buffered
+    // until it exits, and logs 4 KB to its error output per line (88 KB in all).
+    let script = "import sys\n\
+        out = open(1, 'w', buffering=65536, closefd=False)\n\
+        for line in sys.stdin:\n\
+        \x20   t, a, b, c = line.split()\n\
+        \x20   sys.stderr.write('set ' * 1024)\n\
+        \x20   print(t, float(a) / 2, b, c, file=out)\n\
+        out.flush()\n";
+    crate::common::write(d, "regulator.py", script);
+    let out = handcap_ok(d, &streaming_session("s", "python3 regulator.py"));
+    assert!(out.contains("regulator: 22 lines written"), "{out}");
+    let log = csv_rows(&d.join("s/pressures.csv"));
+    assert_eq!(log.len(), 22);
+    for l in &log {
+        let (m, c): (f64, f64) = (
+            l["P1_measured_kpa"].parse().unwrap(),
+            l["P1_kpa"].parse().unwrap(),
+        );
+        assert!((m - c / 2.0).abs() < 1e-6, "{m} measured for {c}");
+    }
+}
+
 /// A streaming regulator that prints garbage, dies or stops reading ends the session with one
 /// line naming what it did, the commands before it logged.
 #[test]
@@ -991,6 +1029,25 @@ fn a_streaming_regulator_that_fails_ends_the_session_with_everything_kept() {
             "stalls",
             "sleep 30",
             "has not read its input for 2 s (stalled)",
+        ),
+        // Hostile probe 3 (issue 61): any value a regulator printed was logged.
+        (
+            "not_a_pressure",
+            "read t a b c; echo \"$t 99999 0 0\"; sleep 10",
+            "99999 kPa is not a pressure a regulator measures (-20 to 330 kPa)",
+        ),
+        // Hostile probe 5: a line without a newline grew memory without bound; a regulator
+        // that exited while a child held its error output blocked the session until the child
+        // ended.
+        (
+            "endless_line",
+            "read l; head -c 3000000 /dev/zero | tr '\\0' a; sleep 10",
+            "printed line 1: a line longer than 1024 bytes",
+        ),
+        (
+            "child_holds_stderr",
+            "read l; sleep 1000 & echo valve fault >&2; exit 4",
+            "exited with exit status: 4: valve fault",
         ),
     ];
     for (name, regulator, says) in cases {

@@ -618,3 +618,69 @@ fn sigterm_ends_a_long_fit_at_once_with_nothing_written() {
     );
     assert!(!d.join("m.json").exists(), "a model was written");
 }
+
+/// Hostile probe 9 and issue 61: a `handcap-cameras` that is `handcap` (a link or a copy) made
+/// `handcap board` exec itself for ever; a truncated one segfaulted with no handcap message; one
+/// of another build ran as if it were of this one.
+#[cfg(unix)]
+#[test]
+fn hostile_a_camera_binary_that_is_not_this_builds_is_refused() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = tempdir();
+    let d = dir.path();
+    let light = d.join("handcap");
+    let cameras = d.join("handcap-cameras");
+    std::fs::copy(env!("CARGO_BIN_EXE_handcap"), &light).unwrap();
+    let run_board = || {
+        std::process::Command::new(&light)
+            .args(["board", "--out", "b.svg"])
+            .current_dir(d)
+            .output()
+            .unwrap()
+    };
+    let board = |expect: &str| {
+        let out = run_board();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{err}");
+        assert!(
+            err.contains(expect) && err.contains("cargo build --release"),
+            "{err}"
+        );
+        assert_eq!(err.lines().count(), 1, "{err}");
+        assert!(!d.join("b.svg").exists());
+    };
+    std::os::unix::fs::symlink(&light, &cameras).unwrap();
+    board("is handcap itself");
+    std::fs::remove_file(&cameras).unwrap();
+    std::fs::copy(&light, &cameras).unwrap();
+    board("is handcap itself");
+    // Cut short: half of the real camera binary.
+    let real = std::fs::read(env!("CARGO_BIN_EXE_handcap-cameras")).unwrap();
+    std::fs::write(&cameras, &real[..real.len() / 2]).unwrap();
+    std::fs::set_permissions(&cameras, std::fs::Permissions::from_mode(0o755)).unwrap();
+    board("cut short");
+    // Another build: told an identity that is not its own.
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_handcap-cameras"))
+        .args(["board", "--out", "b.svg"])
+        .env(handcap::BUILD_ID_VAR, "0.0.0-another")
+        .current_dir(d)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("another build") && err.contains("0.0.0-another"),
+        "{err}"
+    );
+    assert!(!d.join("b.svg").exists());
+    // Of this build: handed over as ever.
+    std::fs::write(&cameras, &real).unwrap();
+    std::fs::set_permissions(&cameras, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let out = run_board();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(d.join("b.svg").exists());
+}

@@ -4,8 +4,11 @@
 use std::path::Path;
 use std::process::Command;
 
+use handcap::model::file::ModelFile;
+use handcap::model::Differentiable;
+
 use crate::common::{csv_rows, handcap_err, handcap_ok, tempdir, write};
-use crate::history::{fit_lagging, lagging_plant};
+use crate::history::{fit_lagging, lagging_plant, COLUMNS};
 
 /// Reads `time_s` then the inputs per line, one series: `reset_at` the first row's inputs (as
 /// `handcap predict` starts a group), `step` by each row's time difference; prints the outputs.
@@ -118,7 +121,11 @@ fn the_c_header_predicts_what_handcap_predict_does() {
     let d = dir.path();
     write(d, "train.csv", &lagging_plant(1, 4, 80));
     write(d, "test.csv", &lagging_plant(2, 1, 80));
-    for (history, model) in [("ema:0.2,0.8", "history.json"), ("none", "static.json")] {
+    for (history, model) in [
+        ("ema:0.2,0.8", "history.json"),
+        ("lags:2", "lags.json"),
+        ("none", "static.json"),
+    ] {
         fit_lagging(d, history, model);
         let said = handcap_ok(d, &["export", model, "--c", "model.h"]);
         assert!(said.contains("wrote model.h"), "{said}");
@@ -147,11 +154,24 @@ fn the_c_header_predicts_what_handcap_predict_does() {
             "{model}: C against predict, {differs:e} relative"
         );
 
-        // The settled map and its Jacobian: the map as `predict` gives it for held inputs, the
-        // Jacobian as the map's central differences.
+        // The settled map and its Jacobian: against the Rust model's (issue 61: they were
+        // checked only against the header's own finite differences), and the Jacobian against
+        // the map's central differences.
         let settled = run(&exe, true, &rows);
-        for line in &settled {
-            let (jac, fd) = (&line[2..6], &line[6..10]);
+        let file = ModelFile::load(&d.join(model)).unwrap();
+        let steady = file.steady_state();
+        for (line, row) in settled.iter().zip(&rows) {
+            let (map, jac, fd) = (&line[..2], &line[2..6], &line[6..10]);
+            let (mut out, mut rust_jac) = ([0.0; 2], [0.0; 4]);
+            steady.predict_with_jacobian(&row[1..], &mut out, &mut rust_jac);
+            assert!(
+                relative(map, &out) <= 1e-12,
+                "{model}: {map:?} against {out:?}"
+            );
+            assert!(
+                relative(jac, &rust_jac) <= 1e-10,
+                "{model}: Jacobian {jac:?} against the Rust model's {rust_jac:?}"
+            );
             // fd is column by column (input-major), jac row-major (output-major).
             let fd_rows = [fd[0], fd[2], fd[1], fd[3]];
             let differs = relative(jac, &fd_rows);
@@ -186,4 +206,115 @@ fn export_refuses_what_is_not_a_model_and_writes_nothing() {
         "{err}"
     );
     assert!(!d.join("model.h").exists());
+}
+
+/// Calls the header's functions on the inputs that have no answer and prints what they return:
+/// a negative, an infinite and a NaN `dt_s`, an infinite and a NaN input, then a step whose
+/// outputs must equal a fresh filter's (the state left as it was), and inputs outside the
+/// training range.
+const HOSTILE: &str = r#"
+#include <math.h>
+#include <stdio.h>
+#include "model.h"
+int main(void) {
+    double state[HANDCAP_STATE_LEN], fresh[HANDCAP_STATE_LEN], u[HANDCAP_N_INPUTS];
+    double y[HANDCAP_N_OUTPUTS], z[HANDCAP_N_OUTPUTS], jac[HANDCAP_N_OUTPUTS * HANDCAP_N_INPUTS];
+    double dts[3];
+    int i, k, r;
+    dts[0] = -0.1; dts[1] = INFINITY; dts[2] = NAN;
+    for (i = 0; i < HANDCAP_N_INPUTS; i++) u[i] = 100.0;
+    handcap_reset_at(state, u);
+    handcap_reset_at(fresh, u);
+    for (i = 0; i < HANDCAP_N_INPUTS; i++) u[i] = 120.0;
+    for (k = 0; k < 3; k++) {
+        r = handcap_step(state, dts[k], u, y);
+        printf("dt %d %d\n", r, isnan(y[0]) != 0);
+    }
+    u[0] = INFINITY;
+    r = handcap_step(state, 0.1, u, y);
+    printf("inf %d %d\n", r, isnan(y[0]) != 0);
+    r = handcap_predict(u, y);
+    printf("inf-predict %d %d\n", r, isnan(y[0]) != 0);
+    r = handcap_jacobian(u, jac);
+    printf("inf-jacobian %d %d\n", r, isnan(jac[0]) != 0);
+    u[0] = NAN;
+    r = handcap_step(state, 0.1, u, y);
+    printf("nan %d %d\n", r, isnan(y[0]) != 0);
+    u[0] = 120.0;
+    handcap_step(state, 0.1, u, y);
+    handcap_step(fresh, 0.1, u, z);
+    printf("kept %d\n", y[0] == z[0] && y[1] == z[1]);
+    printf("inside %d\n", handcap_step(state, 0.1, u, y));
+    u[0] = 1e4;
+    r = handcap_step(state, 0.1, u, y);
+    k = handcap_predict(u, z);
+    printf("outside %d %d %d\n", r, k, isfinite(y[0]) && isfinite(z[0]));
+    return 0;
+}
+"#;
+
+/// Hostile probe 7 (issue 61): `handcap_step` with a negative or infinite `dt` extrapolated its
+/// filters, an infinite input gave the bias as a finite tip, a NaN poisoned the state until a
+/// reset, nothing said an input was outside the training range; a `/*` in a name or path and a
+/// model without support vectors broke the compile; the header carried the machine's absolute
+/// paths.
+#[test]
+fn hostile_c_header_refuses_what_has_no_answer_and_always_compiles() {
+    let dir = tempdir();
+    let d = dir.path();
+    write(d, "train.csv", &lagging_plant(1, 4, 80));
+    fit_lagging(d, "ema:0.2,0.8", "history.json");
+    let model = d.join("history.json");
+    handcap_ok(d, &["export", model.to_str().unwrap(), "--c", "model.h"]);
+    let header = std::fs::read_to_string(d.join("model.h")).unwrap();
+    let home = d.to_str().unwrap();
+    assert!(!header.contains(home), "the header names {home}");
+    write(d, "hostile.c", HOSTILE);
+    let exe = d.join("hostile");
+    let cc = Command::new("cc")
+        .current_dir(d)
+        .args(["-std=c99", "-pedantic", "-Wall", "-Wextra", "-Werror"])
+        .args(["hostile.c", "-lm", "-o"])
+        .arg(&exe)
+        .output()
+        .unwrap();
+    assert!(
+        cc.status.success(),
+        "{}",
+        String::from_utf8_lossy(&cc.stderr)
+    );
+    let out = String::from_utf8(Command::new(&exe).output().unwrap().stdout).unwrap();
+    assert_eq!(
+        out,
+        "dt -1 1\ndt -1 1\ndt -1 1\ninf -1 1\ninf-predict -1 1\ninf-jacobian -1 1\n\
+         nan -1 1\nkept 1\ninside 0\noutside 1 1 1\n"
+    );
+
+    // A `/*` in the names and the path, and a model without support vectors (its file
+    // emptied of them: a constant, the bias): the strict compile passes.
+    let odd = std::fs::read_to_string(d.join("train.csv"))
+        .unwrap()
+        .replacen("P1_kpa", "P1/*a*/_kpa", 1);
+    std::fs::create_dir(d.join("runs")).unwrap();
+    write(&d.join("runs"), "odd.csv", &odd);
+    let mut args = vec!["model", "runs/odd.csv", "--inputs", "P1/*a*/_kpa,P2_kpa"];
+    args.extend(&COLUMNS[2..]);
+    args.extend(["--search", "none", "--c", "100", "--epsilon", "0.01"]);
+    args.extend(["--sigma", "2", "--out", "runs/*odd.json"]);
+    handcap_ok(d, &args);
+    let mut json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("runs/*odd.json")).unwrap()).unwrap();
+    json["model"]["support_vectors"] = serde_json::json!([]);
+    json["model"]["coefficients"] = serde_json::json!([]);
+    write(&d.join("runs"), "*empty.json", &json.to_string());
+    handcap_ok(d, &["export", "runs/*empty.json", "--c", "model.h"]);
+    let header = std::fs::read_to_string(d.join("model.h")).unwrap();
+    assert!(header.contains("#define HANDCAP_N_CENTRES 0"), "{header}");
+    let exe = compile(d);
+    let settled = run(&exe, true, &[vec![0.0, 50.0, 50.0]]);
+    let file = ModelFile::load(&d.join("runs/*empty.json")).unwrap();
+    let mut bias = [0.0; 2];
+    file.steady_state()
+        .predict_with_jacobian(&[50.0, 50.0], &mut bias, &mut [0.0; 4]);
+    assert_eq!(&settled[0][..2], &bias[..]);
 }

@@ -401,7 +401,25 @@ proptest! {
 #[test]
 fn tampered_model_files_are_refused_naming_what_is_wrong() {
     let sample: serde_json::Value = serde_json::from_str(HISTORY_MODEL).unwrap();
-    let cases: [(&str, serde_json::Value, &str); 10] = [
+    let cases: [(&str, serde_json::Value, &str); 13] = [
+        // Hostile probe 10 (issue 61): without its history, the filters' states were planned
+        // as free commands (and exported as inputs); a time or group column named as an input
+        // or output was accepted, and later blamed on the target.
+        (
+            "/history/used",
+            serde_json::Value::Null,
+            "\"a@ema0.5\" is a history's feature, but the file has no history",
+        ),
+        (
+            "/history/used/time",
+            serde_json::json!("y"),
+            "time or group column \"y\" is also an input or an output",
+        ),
+        (
+            "/history/used/group",
+            serde_json::json!("b"),
+            "time or group column \"b\" is also an input or an output",
+        ),
         (
             "/history/used/memory/tau",
             serde_json::json!([0.5, 2.0]),

@@ -397,6 +397,33 @@ fn bad_trajectories_get_one_line_and_nothing_is_written() {
     let err = learn_from("other.csv");
     assert!(err.contains("no column `y_mm`"), "{err}");
     assert!(!d.join("next.csv").exists());
+    // Hostile probe 10 (issue 61): a model that does not describe the run (here: another
+    // finger's, 10 m away) was learned from, and its plan reported every row reached.
+    let shifted: String = crate::history::lagging_plant(1, 4, 60)
+        .lines()
+        .enumerate()
+        .map(|(k, line)| match k {
+            0 => format!("{line}\n"),
+            _ => {
+                let mut cells: Vec<String> = line.split(',').map(String::from).collect();
+                for c in &mut cells[4..] {
+                    *c = (c.parse::<f64>().unwrap() + 1e4).to_string();
+                }
+                cells.join(",") + "\n"
+            }
+        })
+        .collect();
+    write(d, "train.csv", &shifted);
+    crate::history::fit_lagging(d, "ema:0.2", "other_finger.json");
+    write(d, "on_target.csv", "t_s,x_mm,y_mm\n0,1,1\n0.3,1,1\n");
+    let args = ["inverse", "other_finger.json", "--trajectory", "path.csv"];
+    let learn = ["--previous", "c.csv", "--measured", "on_target.csv"];
+    let err = handcap_err(d, &[&args[..], &learn, &["--out", "next.csv"]].concat());
+    assert!(
+        err.contains("the model predicts the run played") && err.contains("fit the model"),
+        "{err}"
+    );
+    assert!(!d.join("next.csv").exists());
     // A target far out of reach: followed as closely as the box allows, flagged, said.
     write(d, "far.csv", "t_s,x_mm,y_mm\n0,1,1\n0.1,500,500\n0.2,1,1\n");
     let out = crate::common::handcap(
@@ -468,4 +495,63 @@ fn synth_plays_a_protocol_file_as_a_dynamic_session() {
     );
     let err = handcap_err(d, &["synth", "--out", "bad", "--protocol", "bad.csv"]);
     assert!(err.contains("bad.csv") && err.contains("line 2"), "{err}");
+}
+
+/// Hostile probe 2 (issue 61): a model without history plans each row's pointwise inverse, and
+/// `--max-rate` held nothing back (5,000+ kPa/s, rest to ~90 kPa in the first 33 ms). Every
+/// change, the first row's from rest included, is now within the limit.
+#[test]
+fn hostile_slew_limit_holds_without_history() {
+    let dir = tempdir();
+    let d = dir.path();
+    // With the finger at rest among the rows, the box holds 0 kPa: the first command can leave
+    // rest as slowly as the limit asks.
+    let mut train = crate::history::lagging_plant(1, 4, 60);
+    train.push_str("4,0.00,0.0000,0.0000,0.000000,-2.000000\n");
+    write(d, "train.csv", &train);
+    let mut args = vec!["model", "train.csv"];
+    args.extend(crate::history::COLUMNS);
+    args.extend(["--search", "none", "--c", "100", "--epsilon", "0.01"]);
+    args.extend(["--sigma", "2", "--out", "static.json"]);
+    handcap_ok(d, &args);
+    // Targets that jump: the training log's outputs, one every 1/30 s.
+    let mut path = String::from("time_s,x_mm,y_mm\n");
+    for (k, row) in csv_rows(&d.join("train.csv")).iter().take(40).enumerate() {
+        let _ = writeln!(
+            path,
+            "{:.6},{},{}",
+            k as f64 / RATE,
+            row["x_mm"],
+            row["y_mm"]
+        );
+    }
+    write(d, "jumps.csv", &path);
+    let args = ["inverse", "static.json", "--trajectory", "jumps.csv"];
+    handcap_ok(
+        d,
+        &[&args[..], &["--max-rate", "100", "--out", "c.csv"]].concat(),
+    );
+    let rows = csv_rows(&d.join("c.csv"));
+    let mut last = [0.0; 2];
+    let mut fastest: f64 = 0.0;
+    for (k, row) in rows.iter().enumerate() {
+        let p = [
+            row["P1_kpa"].parse::<f64>().unwrap(),
+            row["P2_kpa"].parse().unwrap(),
+        ];
+        for i in 0..2 {
+            fastest = fastest.max((p[i] - last[i]).abs() * RATE);
+        }
+        last = p;
+        assert!(
+            k > 0 || p.iter().all(|v| v.abs() <= 100.0 / RATE + 1e-6),
+            "{p:?}"
+        );
+    }
+    // The file's pressures are rounded to 0.1 Pa: 0.006 kPa/s at most between two rows.
+    assert!(fastest <= 100.01, "fastest change {fastest} kPa/s");
+    assert!(
+        last.iter().any(|&v| v > 10.0),
+        "the commands moved: {last:?}"
+    );
 }

@@ -13,6 +13,13 @@
 //! handcap_jacobian(p, jac);             /* ∂tip/∂p there, row-major outputs × inputs */
 //! ```
 //!
+//! Each function says what it computed from: `HANDCAP_OK` (0) inside the training range,
+//! `HANDCAP_OUTSIDE` (1) where an input lies outside it (the model extrapolates: trust it less),
+//! `HANDCAP_REFUSED` (−1) for an input that is not finite or a `dt_s` that is negative or not
+//! finite: the outputs are NaN and the filters' state is left as it was (an infinite input would
+//! otherwise give the bias as a finite tip, a NaN poison the state until a reset, and a negative
+//! `dt_s` extrapolate the filters).
+//!
 //! The functions compute what [`Predict::predict_row`](crate::model::Predict) and
 //! [`Differentiable`](crate::model::Differentiable) compute, in the same order (the numbers are
 //! printed so they read back to the same `f64`), so the header agrees with `handcap predict` to
@@ -63,11 +70,19 @@ pub fn c_header(file: &ModelFile, source: &str) -> String {
  *   handcap_step(state, dt_s, inputs, out) the filters advance by dt_s, then the outputs
  *   handcap_predict(inputs, out)           the outputs settled at held inputs
  *   handcap_jacobian(inputs, jac)          d outputs / d inputs there, row-major outputs x inputs
+ * step, predict and jacobian return HANDCAP_OK (0) inside the training range, HANDCAP_OUTSIDE
+ * (1) where an input lies outside it (the model extrapolates), HANDCAP_REFUSED (-1) for an
+ * input that is not finite or a dt_s that is negative or not finite: the outputs are then NaN
+ * and the state is left as it was.
  */
 #ifndef HANDCAP_MODEL_H
 #define HANDCAP_MODEL_H
 
 #include <math.h>
+
+#define HANDCAP_OK 0
+#define HANDCAP_OUTSIDE 1
+#define HANDCAP_REFUSED (-1)
 
 #define HANDCAP_N_INPUTS {d}
 #define HANDCAP_N_OUTPUTS {q}
@@ -80,46 +95,22 @@ pub fn c_header(file: &ModelFile, source: &str) -> String {
 static const char *const handcap_input_names[HANDCAP_N_INPUTS] = {{{input_strings}}};
 static const char *const handcap_output_names[HANDCAP_N_OUTPUTS] = {{{output_strings}}};
 ",
-        source = comment(source),
+        source = comment(&file_name(source)),
         version = comment(&file.provenance.handcap_version),
         sigma = msvr.params.sigma,
         input_names = comment(&inputs.join(", ")),
         output_names = comment(&msvr.outputs.join(", ")),
         memory_doc = comment(&memory_doc),
-        command = comment(&file.provenance.command.join(" ")),
+        command = comment(&portable_command(&file.provenance.command)),
         state_len = (blocks * d).max(1),
         input_strings = strings(inputs),
         output_strings = strings(&msvr.outputs),
     );
-    array(
-        &mut h,
-        "handcap_min_",
-        "HANDCAP_N_FEATURES",
-        &msvr.scaler.min,
-        features,
-    );
-    array(
-        &mut h,
-        "handcap_max_",
-        "HANDCAP_N_FEATURES",
-        &msvr.scaler.max,
-        features,
-    );
-    array(&mut h, "handcap_bias_", "HANDCAP_N_OUTPUTS", &msvr.bias, q);
-    array(
-        &mut h,
-        "handcap_centres_",
-        "HANDCAP_N_CENTRES * HANDCAP_N_FEATURES",
-        msvr.support_vectors(),
-        features,
-    );
-    array(
-        &mut h,
-        "handcap_beta_",
-        "HANDCAP_N_CENTRES * HANDCAP_N_OUTPUTS",
-        msvr.coefficients(),
-        q,
-    );
+    array(&mut h, "handcap_min_", &msvr.scaler.min, features);
+    array(&mut h, "handcap_max_", &msvr.scaler.max, features);
+    array(&mut h, "handcap_bias_", &msvr.bias, q);
+    array(&mut h, "handcap_centres_", msvr.support_vectors(), features);
+    array(&mut h, "handcap_beta_", msvr.coefficients(), q);
     let _ = writeln!(
         h,
         "static const double handcap_sigma_ = {:e};",
@@ -142,14 +133,43 @@ static const char *const handcap_output_names[HANDCAP_N_OUTPUTS] = {{{output_str
 /// The kernel expansion at the features, and its Jacobian over them: as `Msvr::predict_row`
 /// and `Msvr::predict_with_jacobian`.
 const EXPANSION: &str = "
+/* Every output (and if jac is not 0, every derivative) NaN: what was asked has no answer. */
+static inline int handcap_refuse_(double *out, double *jac)
+{
+    int j;
+    for (j = 0; j < HANDCAP_N_OUTPUTS; j++)
+        out[j] = NAN;
+    if (jac)
+        for (j = 0; j < HANDCAP_N_OUTPUTS * HANDCAP_N_FEATURES; j++)
+            jac[j] = NAN;
+    return HANDCAP_REFUSED;
+}
+
+/* HANDCAP_OK when every value is finite and inside the training range, HANDCAP_OUTSIDE when
+ * one is outside it, HANDCAP_REFUSED when one is not finite. */
+static inline int handcap_check_(const double *f, int n)
+{
+    int j, outside = 0;
+    for (j = 0; j < n; j++) {
+        if (!isfinite(f[j]))
+            return HANDCAP_REFUSED;
+        if (f[j] < handcap_min_[j] || f[j] > handcap_max_[j])
+            outside = 1;
+    }
+    return outside ? HANDCAP_OUTSIDE : HANDCAP_OK;
+}
+
 /* The outputs at the features f, and if jac is not 0 their derivatives over f (outputs x
- * features, row-major). */
-static inline void handcap_expand_(const double *f, double *out, double *jac)
+ * features, row-major); what handcap_check_ says of f. */
+static inline int handcap_expand_(const double *f, double *out, double *jac)
 {
     const double sigma2 = handcap_sigma_ * handcap_sigma_;
     const double gamma = 1.0 / (2.0 * sigma2);
+    const int checked = handcap_check_(f, HANDCAP_N_FEATURES);
     double s[HANDCAP_N_FEATURES];
     int i, j, o;
+    if (checked == HANDCAP_REFUSED)
+        return handcap_refuse_(out, jac);
     for (j = 0; j < HANDCAP_N_FEATURES; j++)
         s[j] = (f[j] - handcap_min_[j]) / (handcap_max_[j] - handcap_min_[j]);
     for (o = 0; o < HANDCAP_N_OUTPUTS; o++)
@@ -175,6 +195,7 @@ static inline void handcap_expand_(const double *f, double *out, double *jac)
         for (o = 0; o < HANDCAP_N_OUTPUTS; o++)
             for (j = 0; j < HANDCAP_N_FEATURES; j++)
                 jac[o * HANDCAP_N_FEATURES + j] /= sigma2 * (handcap_max_[j] - handcap_min_[j]);
+    return checked;
 }
 ";
 
@@ -188,26 +209,27 @@ static inline void handcap_settled_(const double *inputs, double *f)
         f[j] = inputs[j % HANDCAP_N_INPUTS];
 }
 
-static inline void handcap_predict(const double *inputs, double *outputs)
+static inline int handcap_predict(const double *inputs, double *outputs)
 {
     double f[HANDCAP_N_FEATURES];
     handcap_settled_(inputs, f);
-    handcap_expand_(f, outputs, 0);
+    return handcap_expand_(f, outputs, 0);
 }
 
-static inline void handcap_jacobian(const double *inputs, double *jac)
+static inline int handcap_jacobian(const double *inputs, double *jac)
 {
     double f[HANDCAP_N_FEATURES], out[HANDCAP_N_OUTPUTS];
     double full[HANDCAP_N_OUTPUTS * HANDCAP_N_FEATURES];
-    int o, j;
+    int o, j, checked;
     handcap_settled_(inputs, f);
-    handcap_expand_(f, out, full);
+    checked = handcap_expand_(f, out, full);
     for (o = 0; o < HANDCAP_N_OUTPUTS; o++) {
         for (j = 0; j < HANDCAP_N_INPUTS; j++)
-            jac[o * HANDCAP_N_INPUTS + j] = 0.0;
+            jac[o * HANDCAP_N_INPUTS + j] = checked == HANDCAP_REFUSED ? NAN : 0.0;
         for (j = 0; j < HANDCAP_N_FEATURES; j++)
             jac[o * HANDCAP_N_INPUTS + j % HANDCAP_N_INPUTS] += full[o * HANDCAP_N_FEATURES + j];
     }
+    return checked;
 }
 ";
 
@@ -260,20 +282,28 @@ static inline void handcap_reset(double *state)
         state[j] = 0.0;
 }}
 
-static inline void handcap_step(double *state, double dt_s, const double *inputs, double *outputs)
+static inline int handcap_step(double *state, double dt_s, const double *inputs, double *outputs)
 {{
     double f[HANDCAP_N_FEATURES];
     int j;
+    if (!(dt_s >= 0.0) || !isfinite(dt_s)
+        || handcap_check_(inputs, HANDCAP_N_INPUTS) == HANDCAP_REFUSED)
+        return handcap_refuse_(outputs, 0);
 {advance}
-    handcap_expand_(f, outputs, 0);
+    return handcap_expand_(f, outputs, 0);
 }}
 "
     )
 }
 
-/// `static const double NAME[LEN] = {...};`, `per_line` numbers a line.
-fn array(h: &mut String, name: &str, len: &str, values: &[f64], per_line: usize) {
-    let _ = writeln!(h, "static const double {name}[{len}] = {{");
+/// `static const double NAME[LEN] = {...};`, `per_line` numbers a line. C has no empty
+/// arrays: none (a model without support vectors) is one unused 0.
+fn array(h: &mut String, name: &str, values: &[f64], per_line: usize) {
+    if values.is_empty() {
+        let _ = writeln!(h, "static const double {name}[1] = {{0.0}}; /* none */");
+        return;
+    }
+    let _ = writeln!(h, "static const double {name}[{}] = {{", values.len());
     for row in values.chunks(per_line.max(1)) {
         let _ = writeln!(h, "    {},", list(row, ", "));
     }
@@ -289,9 +319,33 @@ fn list(values: &[f64], separator: &str) -> String {
         .join(separator)
 }
 
-/// Text safe inside a C comment.
+/// Text safe inside a C comment: neither its end nor the start of another (`-Wcomment`).
 fn comment(text: &str) -> String {
-    text.replace("*/", "* /").replace(['\n', '\r'], " ")
+    text.replace("*/", "* /")
+        .replace("/*", "/ *")
+        .replace(['\n', '\r'], " ")
+}
+
+/// A path's file name (the header names no folder of the machine it was made on).
+fn file_name(path: &str) -> String {
+    std::path::Path::new(path)
+        .file_name()
+        .map_or_else(|| path.to_string(), |n| n.to_string_lossy().into_owned())
+}
+
+/// The fitting command with every absolute path (alone or as `--flag=/path`) as its file name.
+fn portable_command(command: &[String]) -> String {
+    command
+        .iter()
+        .map(|arg| match arg.split_once('=') {
+            Some((flag, value)) if flag.starts_with("--") && value.starts_with('/') => {
+                format!("{flag}={}", file_name(value))
+            }
+            _ if arg.starts_with('/') => file_name(arg),
+            _ => arg.clone(),
+        })
+        .collect::<Vec<_>>()
+        .join(" ")
 }
 
 /// Names as C string literals.

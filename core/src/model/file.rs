@@ -203,14 +203,40 @@ impl ModelFile {
         if let Some(name) = model.outputs().iter().find(|o| model.inputs().contains(o)) {
             return Err(format!("{name:?} is both an input and an output"));
         }
-        if let Some(history) = self.history() {
-            validate_history(history, model.inputs())?;
+        match self.history() {
+            Some(history) => {
+                validate_history(history, model.inputs())?;
+                let named = [&history.time].into_iter().chain(&history.group);
+                let columns = || history.inputs.iter().chain(model.outputs());
+                if let Some(name) = named.into_iter().find(|n| columns().any(|c| c == *n)) {
+                    return Err(format!(
+                        "the history's time or group column {name:?} is also an input or an output"
+                    ));
+                }
+            }
+            // Filtered inputs without the history that builds them would be planned and
+            // exported as free inputs.
+            None => {
+                if let Some(name) = model.inputs().iter().find(|n| is_history_feature(n)) {
+                    return Err(format!(
+                        "input {name:?} is a history's feature, but the file has no history"
+                    ));
+                }
+            }
         }
         if let Some(intervals) = &self.intervals {
             intervals.validate()?;
         }
         Ok(())
     }
+}
+
+/// Whether `name` is one of a history's feature names (`<input>@ema<τ>`, `<input>@lag<k>`).
+fn is_history_feature(name: &str) -> bool {
+    name.rsplit_once('@').is_some_and(|(_, suffix)| {
+        let number = |s: Option<&str>| s.is_some_and(|v| v.parse::<f64>().is_ok());
+        number(suffix.strip_prefix("ema")) || number(suffix.strip_prefix("lag"))
+    })
 }
 
 /// `names` has no name twice.

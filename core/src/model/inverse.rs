@@ -86,6 +86,11 @@ pub enum InverseError {
         lower: f64,
         upper: f64,
     },
+    /// Learning from a run the model does not describe: its prediction of the commands played
+    /// is farther from what was measured than [`super::trajectory::MODEL_MISS`] times the run's
+    /// own extent.
+    #[error("the model predicts the run played {miss:.3e} (RMS) from what was measured, more than {} times the run's extent ({extent:.3e}): learning from it would chase the model's error; fit the model on this finger again", super::trajectory::MODEL_MISS)]
+    ModelMisses { miss: f64, extent: f64 },
 }
 
 /// Solves for the inputs that put `model`'s outputs at `target`.

@@ -230,7 +230,8 @@ pub fn pointwise(
 }
 
 /// Plans commands along `targets` from rest, starting from `start` (the [`pointwise`] plan):
-/// the module docs' least squares. A model without history keeps `start`.
+/// the module docs' least squares. A model without history keeps `start`, within the box and
+/// the rate limit.
 pub fn plan(
     dynamic: Dynamic<'_>,
     time: &[f64],
@@ -238,14 +239,30 @@ pub fn plan(
     start: &PathPlan,
     options: &PlanOptions,
 ) -> PathPlan {
+    let along = dynamic.along(time);
     if dynamic.history.is_none() {
-        return start.clone();
+        let mut u = start.inputs.clone();
+        project(&mut u, time, 0, options);
+        return along.finish(targets, u, options.inverse.reach);
     }
-    refine(&dynamic.along(time), targets, start.inputs.clone(), options)
+    refine(&along, targets, start.inputs.clone(), options)
 }
 
+/// How far a model may miss the run it learns from, in units of the run's extent (the RMS
+/// distance of the targets and of the outputs measured from the targets' mean, plus the
+/// reach): learning shrinks the error only where the model's map is within a few times the
+/// plant's (module docs), and a model whose prediction of the run lies ten extents away is not
+/// a model of this finger.
+pub const MODEL_MISS: f64 = 10.0;
+
 /// One repetition of learning (module docs): the commands `previous` were played and the
-/// outputs `measured` (`n × q`, at the rows' times) seen; `gain` is γ.
+/// outputs `measured` (`n × q`, at the rows' times) seen; `gain` is γ. The plan's `reached`
+/// says whether each row's prediction reached the reference the model aims at (the target
+/// moved by the error measured).
+///
+/// # Errors
+/// [`InverseError::ModelMisses`] when the model's prediction of the run played is farther from
+/// what was measured than [`MODEL_MISS`] extents.
 pub fn learn(
     dynamic: Dynamic<'_>,
     time: &[f64],
@@ -254,18 +271,35 @@ pub fn learn(
     measured: &[f64],
     gain: f64,
     options: &PlanOptions,
-) -> PathPlan {
+) -> Result<PathPlan, InverseError> {
     let q = dynamic.model.outputs().len();
+    let along = dynamic.along(time);
+    let predicted = along.predict(previous);
+    let (miss, extent) = (
+        rms(&distances(&predicted, measured, q)),
+        run_extent(targets, measured, q) + options.inverse.reach,
+    );
+    if miss.is_nan() || miss > MODEL_MISS * extent {
+        return Err(InverseError::ModelMisses { miss, extent });
+    }
     let error: Vec<f64> = targets.iter().zip(measured).map(|(t, m)| t - m).collect();
     let error = smooth_rows(&error, q, 2);
-    let along = dynamic.along(time);
-    let reference: Vec<f64> = along
-        .predict(previous)
+    let reference: Vec<f64> = predicted
         .iter()
         .zip(&error)
         .map(|(p, e)| p + gain * e)
         .collect();
-    refine(&along, &reference, previous.to_vec(), options)
+    Ok(refine(&along, &reference, previous.to_vec(), options))
+}
+
+/// The RMS distance of the targets and of the outputs measured from the targets' mean.
+fn run_extent(targets: &[f64], measured: &[f64], q: usize) -> f64 {
+    let n = (targets.len() / q).max(1);
+    let mean: Vec<f64> = (0..q)
+        .map(|o| targets.iter().skip(o).step_by(q).sum::<f64>() / n as f64)
+        .collect();
+    let centre: Vec<f64> = mean.iter().copied().cycle().take(targets.len()).collect();
+    rms(&distances(targets, &centre, q)) + rms(&distances(measured, &centre, q))
 }
 
 /// A centred moving average of each column over ±`half` rows (fewer at the ends): zero phase.
@@ -484,16 +518,26 @@ fn solve_window(
     }
 }
 
-/// The box and the rate limit, rows from `from` on, in time order.
+/// The box and the rate limit, rows from `from` on, in time order. The first row leaves rest
+/// (every input 0) one step before it, so its change from rest is limited as every other row's
+/// (where the box excludes what the limit allows, the box wins there).
 fn project(u: &mut [f64], time: &[f64], from: usize, options: &PlanOptions) {
-    let d = options.inverse.lower.len();
+    let (lower, upper) = (&options.inverse.lower, &options.inverse.upper);
+    let d = lower.len();
+    let first_step = time.get(1).map_or(f64::INFINITY, |t1| t1 - time[0]);
     for k in from..time.len() {
         for i in 0..d {
-            let mut v = u[k * d + i].clamp(options.inverse.lower[i], options.inverse.upper[i]);
-            if let (Some(rate), true) = (&options.rate, k > 0) {
-                let step = rate[i] * (time[k] - time[k - 1]);
-                let last = u[(k - 1) * d + i];
+            let mut v = u[k * d + i].clamp(lower[i], upper[i]);
+            if let Some(rate) = &options.rate {
+                let (last, dt) = match k {
+                    0 => (0.0, first_step),
+                    _ => (u[(k - 1) * d + i], time[k] - time[k - 1]),
+                };
+                let step = rate[i] * dt;
                 v = v.clamp(last - step, last + step);
+                if k == 0 {
+                    v = v.clamp(lower[i], upper[i]);
+                }
             }
             u[k * d + i] = v;
         }

@@ -153,11 +153,16 @@ impl Realism {
     };
 }
 
+/// Board pairs a capture renders for calibration by default ([`CaptureConfig::views`]): a
+/// constant of its own, so that the command line's default needs no board read (through
+/// OpenCV) and the modelling binary links no OpenCV.
+pub const VIEWS: usize = 20;
+
 impl Default for CaptureConfig {
     fn default() -> Self {
         CaptureConfig {
             rig: RigConfig::default(),
-            views: 20,
+            views: VIEWS,
             calibration_images: true,
             board: crate::calib::file::default_board(),
             step_s: 0.3,

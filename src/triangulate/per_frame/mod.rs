@@ -43,7 +43,8 @@
 //! 6. The hand frame: axes from the calibration, origin the median tip over the rows in the
 //!    log's first rest hold (the steps at 0, 0, 0 kPa before anything else: the finger rested
 //!    before the session; later rest holds still creep). A tip beyond the finger's reach is
-//!    flagged `reach`.
+//!    flagged `reach`; a tip that rests on a region's plain centroid in a frame it used (the
+//!    sub-pixel fit did not settle there) `centroid`. Both keep their tips.
 
 mod clock_offset;
 mod output;
@@ -208,7 +209,11 @@ pub fn triangulate_per_frame(
         None => centres(i),
     };
     let located = locate_all(rig, options, &left, &right, &chosen, &clock);
+    let centroid_only = centroid_only(&left, &right, &seen, results, &located);
     let (mut rows, points) = rows::frame_rows(&left, records, log, located);
+    for (row, _) in rows.iter_mut().zip(centroid_only).filter(|(_, c)| *c) {
+        row.flags.push(CENTROID);
+    }
 
     // 6. The hand frame from the first rest hold.
     let origin = rows::rest_origin(&rows, &points, log, options)?;
@@ -233,6 +238,41 @@ pub fn triangulate_per_frame(
 
 /// Per camera, per position in its track, the centre a pass chose there (left, right).
 pub(super) type Seen = [Vec<Option<[f64; 2]>>; 2];
+
+/// The flag of a row whose tip rests on a region's plain centroid in either camera (the
+/// sub-pixel fit did not settle there: ≈ 0.2 px of JPEG chroma bias). Its tip is written all
+/// the same, for a user who would rather have it.
+pub const CENTROID: &str = "centroid";
+
+/// Per row of `located`, whether a frame it was seen in (the left frame, the right frames
+/// around its instant) was seen as a region whose sub-pixel fit did not settle.
+fn centroid_only(
+    left: &Track,
+    right: &Track,
+    seen: &Seen,
+    results: &[FrameResult],
+    located: &[Result<Located, &'static str>],
+) -> Vec<bool> {
+    let unfitted = |track: &Track, camera: usize, pos: usize| {
+        let (Some(Some(px)), Some(FrameResult::Markers(m))) = (
+            seen[camera].get(pos),
+            track.order.get(pos).and_then(|&i| results.get(i)),
+        ) else {
+            return false;
+        };
+        m.blobs.iter().any(|b| b.centre_px == *px && !b.fitted)
+    };
+    located
+        .iter()
+        .enumerate()
+        .map(|(k, found)| match found {
+            Ok(found) => {
+                unfitted(left, 0, k) || found.right.iter().any(|&(p, _)| unfitted(right, 1, p))
+            }
+            Err(_) => false,
+        })
+        .collect()
+}
 
 /// The centres the located frames were seen as, in each track.
 fn seen_in(left: &Track, right: &Track, located: &[Result<Located, &'static str>]) -> Seen {
@@ -471,6 +511,53 @@ mod tests {
             period_s: PERIOD,
             jitter_s: None,
         }
+    }
+
+    /// Issue 61: a row whose tip rests on a region's plain centroid (the sub-pixel fit did not
+    /// settle in one of the frames it used) was written as any other, with no flag and no count.
+    #[test]
+    fn a_tip_on_a_plain_centroid_is_flagged_centroid() {
+        let rig = StereoRig::rectified_for_tests();
+        let tip = Vector3::new(5.0, 10.0, 300.0);
+        let px = |side| rig.project(side, &[tip]).unwrap()[0];
+        let (left_px, right_px) = (px(Side::Left), px(Side::Right));
+        // Records: five left frames (0-4), then six right frames (5-10), all on one clock;
+        // right frame 6 (track position 1) was not fitted.
+        let (left, right) = (regular_track(0, 5, 0.0), regular_track(5, 6, 0.0));
+        let blob = |centre_px, fitted| super::super::marker::Blob {
+            centre_px,
+            fitted,
+            area_px: 30,
+            peak: 100.0,
+            elongation: 1.0,
+        };
+        let results: Vec<FrameResult> = (0..11)
+            .map(|i| {
+                let blobs = match i {
+                    0..5 => vec![blob(left_px, true)],
+                    _ => vec![blob(right_px, i != 6)],
+                };
+                FrameResult::Markers(super::super::marker::Markers {
+                    blobs,
+                    discarded: 0,
+                })
+            })
+            .collect();
+        let centres = |i: usize| -> Result<Vec<[f64; 2]>, &'static str> {
+            Ok(vec![if i < 5 { left_px } else { right_px }])
+        };
+        let located = locate_on_stamps(&rig, &left, &right, &centres);
+        assert!(located.iter().all(Result::is_ok));
+        let seen = seen_in(&left, &right, &located);
+        let flagged = centroid_only(&left, &right, &seen, &results, &located);
+        // Each row uses the right frames around its instant: the first uses frame 6, the last
+        // does not.
+        let uses_6: Vec<bool> = located
+            .iter()
+            .map(|f| f.as_ref().unwrap().right.iter().any(|&(p, _)| p == 1))
+            .collect();
+        assert_eq!(flagged, uses_6);
+        assert!(flagged[0] && !flagged[4], "{flagged:?}");
     }
 
     #[test]

@@ -6,11 +6,12 @@ use std::path::{Path, PathBuf};
 
 use nalgebra::Vector3;
 
-use super::{FrameRow, PerFrame};
+use super::rows::REACH;
+use super::{FrameRow, PerFrame, CENTROID};
 use crate::data::{Csv, HAND_INPUTS, HAND_OUTPUTS};
 use crate::provenance::Provenance;
 use crate::session::pressures::{PressureLog, MEASURED_COLUMNS};
-use crate::triangulate::output::{beside, first_appearances, phase_path};
+use crate::triangulate::output::{beside, first_appearances, ours, phase_path};
 use crate::triangulate::TriangulateError;
 
 impl PerFrame {
@@ -56,7 +57,7 @@ impl PerFrame {
             }
             let tip = r
                 .tip_mm
-                .filter(|_| r.flags.is_empty() || r.flags == ["reach"]);
+                .filter(|_| r.flags.iter().all(|f| [REACH, CENTROID].contains(f)));
             record.extend((0..3).map(|c| number(tip.map(|t| t[c]))));
             record.push(r.frame.to_string());
             record.push(crate::data::format_fixed(r.reproj_px, 4));
@@ -67,7 +68,8 @@ impl PerFrame {
     }
 
     /// Writes `out` (every row), `OUT_<phase>.csv` per phase of the log, and
-    /// `OUT_summary.json`; returns the files written.
+    /// `OUT_summary.json`; removes what a previous run into the same place wrote and this one
+    /// did not (its summary lists them); returns the files written.
     ///
     /// # Errors
     /// [`TriangulateError::Write`] naming the file.
@@ -83,6 +85,8 @@ impl PerFrame {
                 message: e.to_string(),
             })
         };
+        let path = beside(out, "_summary.json");
+        let previous = crate::fsio::listed_files(&path);
         let mut written = vec![out.to_path_buf()];
         write(out, &self.csv(log, |_| true))?;
         if let Some(col) = log.extra_columns.iter().position(|c| c == "phase") {
@@ -93,7 +97,6 @@ impl PerFrame {
                 written.push(path);
             }
         }
-        let path = beside(out, "_summary.json");
         written.push(path.clone());
         let json = serde_json::json!({
             "per_frame": true,
@@ -110,6 +113,8 @@ impl PerFrame {
             &path,
             &(serde_json::to_string_pretty(&json).expect("serialisable") + "\n"),
         )?;
+        let dir = out.parent().unwrap_or(Path::new("."));
+        crate::fsio::remove_stale(dir, &previous, &written, |p| ours(out, p));
         Ok(written)
     }
 }

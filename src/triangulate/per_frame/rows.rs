@@ -113,7 +113,10 @@ pub(super) fn rest_origin(
     })
 }
 
-/// Each located point in the hand frame; a tip beyond the finger's reach flagged `reach`.
+/// The flag of a tip beyond the finger's reach (its tip written all the same).
+pub(super) const REACH: &str = "reach";
+
+/// Each located point in the hand frame; a tip beyond the finger's reach flagged [`REACH`].
 pub(super) fn in_hand_frame(
     rows: &mut [FrameRow],
     points: &[Option<Vector3<f64>>],
@@ -125,7 +128,7 @@ pub(super) fn in_hand_frame(
         if let Some(p) = point {
             let tip = hand_from_left.apply(&(*p).into()).coords;
             if (tip - base).norm() > options.finger_mm + options::REACH_MARGIN_MM {
-                row.flags.push("reach");
+                row.flags.push(REACH);
             }
             row.tip_mm = Some(tip.into());
         }
