@@ -5,12 +5,14 @@
 use std::path::{Path, PathBuf};
 
 /// What the binaries are built from, relative to the package's root.
-const SOURCES: [&str; 6] = [
+const SOURCES: [&str; 8] = [
     "src",
     "core/src",
+    "model/src",
     "build.rs",
     "Cargo.toml",
     "core/Cargo.toml",
+    "model/Cargo.toml",
     "Cargo.lock",
 ];
 

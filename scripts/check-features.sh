@@ -8,7 +8,7 @@ cd "$(dirname "$0")/.."
 features() { cargo tree "$@" -f '{p} {f}' --prefix none | sed 's/ (\*)$//; s/ (proc-macro)//'; }
 # One after the other (two at once wait for each other's lock), and a failing `cargo tree` stops
 # the script rather than passing an empty list.
-command_build=$(features -p handcap -p handcap-core -p handcap-benches -e normal,build,dev)
+command_build=$(features -p handcap -p handcap-core -p handcap-model -p handcap-benches -e normal,build,dev)
 wheel_build=$(features -p handcap-python -e normal,build)
 awk '
     FNR == 1 { side++ }

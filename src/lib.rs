@@ -21,19 +21,17 @@
 //! - Every random choice takes an explicit seed, and the same command writes the same bytes.
 //! - Files are written atomically (temporary file, then rename) and never over an input.
 
-// The modelling core is its own crate (it builds without OpenCV); its modules keep their paths.
+// The modelling core is its own crate (it builds without OpenCV), and so are the modelling
+// commands, their reports and figures (the `handcap` binary is built from that crate alone);
+// their modules keep their paths.
 pub use handcap_core::{
     control, data, fsio, hand, model, provenance, search, select, stats, DEFAULT_SEED,
 };
+pub use handcap_model::{plot, report, BUILD_ID_VAR};
 
 /// This build's identity: the version and a hash of the sources (`build.rs`). `handcap` and
 /// the `handcap-cameras` it hands commands to must share it.
 pub const BUILD_ID: &str = env!("HANDCAP_BUILD_ID");
-
-/// The environment variable in which `handcap` tells `handcap-cameras` its [`BUILD_ID`] (not
-/// the name `build.rs` gives it at compile time: cargo sets that one for `cargo run` and
-/// `cargo test` too).
-pub const BUILD_ID_VAR: &str = "HANDCAP_HANDED_BY";
 
 pub mod calib;
 pub mod capture;
@@ -44,8 +42,6 @@ pub mod geometry;
 pub mod image;
 pub mod opencv_yaml;
 pub mod pipeline;
-pub mod plot;
-pub mod report;
 pub mod session;
 pub mod stereo;
 pub mod synth;

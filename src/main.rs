@@ -2,27 +2,35 @@
 //! (clap's, and options or outputs that do not go together), 130 interrupted by Ctrl-C, SIGTERM
 //! or SIGHUP (what was finished is kept).
 //!
-//! The modelling commands run in this binary, which does not link OpenCV (it starts in
-//! milliseconds); the others are handed to `handcap-cameras` beside it ([`handcap::cli::main`]).
+//! The modelling commands run in this binary, which is built from `handcap_model` alone and
+//! links no OpenCV library (it starts in milliseconds, on a machine without OpenCV too); every
+//! other command line (the camera commands, `--help`, `--version`) is handed to
+//! `handcap-cameras` beside it, whose command line has them all.
 
-use handcap::cli::Command;
+use handcap_model::cli;
+
+/// This build's identity (`build.rs`): the `handcap-cameras` handed a command must share it.
+const BUILD_ID: &str = env!("HANDCAP_BUILD_ID");
 
 fn main() -> std::process::ExitCode {
-    handcap::cli::main(hand_to_cameras)
+    match std::env::args_os().nth(1) {
+        Some(first) if cli::is_light(&first) => cli::main(|c: cli::Light| c.command.run()),
+        _ => cli::finish(hand_to_cameras()),
+    }
 }
 
 /// Replaces this process with `handcap-cameras` (the same directory, the same arguments): the
 /// commands that call OpenCV are built into that binary only. It is told this build's identity
-/// ([`handcap::BUILD_ID_VAR`]) and refuses to run for another build.
+/// ([`handcap_model::BUILD_ID_VAR`]) and refuses to run for another build.
 ///
 /// # Errors
 /// When `handcap-cameras` cannot be started (not installed beside `handcap`), is `handcap`
 /// itself (a link or a copy: it would hand the command to itself for ever), or is truncated.
-fn hand_to_cameras(_: Command) -> anyhow::Result<()> {
+fn hand_to_cameras() -> anyhow::Result<()> {
     let exe = std::env::current_exe()?;
     let cameras = exe.with_file_name(format!("handcap-cameras{}", std::env::consts::EXE_SUFFIX));
     let rebuild = "cargo build --release builds both; cargo install --path . installs both";
-    if std::env::var_os(handcap::BUILD_ID_VAR).is_some() || same_file(&exe, &cameras) {
+    if std::env::var_os(handcap_model::BUILD_ID_VAR).is_some() || same_file(&exe, &cameras) {
         anyhow::bail!(
             "{} is handcap itself (a link or a copy), not the camera binary: {rebuild}",
             cameras.display()
@@ -34,7 +42,7 @@ fn hand_to_cameras(_: Command) -> anyhow::Result<()> {
     let mut command = std::process::Command::new(&cameras);
     command
         .args(std::env::args_os().skip(1))
-        .env(handcap::BUILD_ID_VAR, handcap::BUILD_ID);
+        .env(handcap_model::BUILD_ID_VAR, BUILD_ID);
     #[cfg(unix)]
     let error = {
         use std::os::unix::process::CommandExt;

@@ -8,7 +8,7 @@ fn main() -> std::process::ExitCode {
         return std::process::ExitCode::FAILURE;
     }
     quiet_ffmpeg();
-    handcap::cli::main(handcap::cli::run_cameras)
+    handcap::cli::main()
 }
 
 /// This binary and the `handcap` that handed it the command are of one build (the same

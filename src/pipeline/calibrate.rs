@@ -26,7 +26,7 @@ pub struct Calibrated {
 /// 6x9 instead of 9x6 turns the hand frame by 90°.
 ///
 /// # Errors
-/// [`PipelineError::Calib`] when `dir/board.yml` exists but cannot be read;
+/// [`PipelineError::Camera`] (a calibration error) when `dir/board.yml` exists but cannot be read;
 /// [`PipelineError::Request`] when a flag contradicts it, or the flags do not fit together.
 pub fn board(
     dir: &Path,

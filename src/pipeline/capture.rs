@@ -13,7 +13,7 @@ use crate::capture::{self, CaptureOptions, CaptureSummary, Ending, Stats};
 /// runs, `capture.json`).
 ///
 /// # Errors
-/// [`PipelineError::Request`] for settings that cannot work; [`PipelineError::Capture`] for a
+/// [`PipelineError::Request`] for settings that cannot work; [`PipelineError::Camera`] (a capture error) for a
 /// camera that does not open, `out` holding a capture, a file that cannot be written.
 pub fn run(
     out: &Path,

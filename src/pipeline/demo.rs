@@ -231,7 +231,7 @@ impl<'a> Demo<'a> {
             &self.out.join("calib.yml"),
             self.session,
         )?;
-        self.session.emit(Event::Calibrated(&calibrated));
+        self.session.emit(Event::Outcome(&calibrated));
         let truth = read_calibration(&capture.join("truth/rig.yml"))?;
         let check = check_calibration(&calibrated.calibration, &truth);
         self.lap("calibrate");
@@ -255,7 +255,7 @@ impl<'a> Demo<'a> {
             &self.out.join("triangulated/dataset.csv"),
             self.session,
         )?;
-        self.session.emit(Event::Triangulated(&triangulated));
+        self.session.emit(Event::Outcome(&triangulated));
         let checks = check_tips(&triangulated.triangulation, &capture.join("truth/tips.csv"))?;
         for t in &checks {
             self.note(format!(

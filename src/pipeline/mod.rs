@@ -18,181 +18,30 @@ pub mod demo_dynamic;
 mod demo_plan;
 mod demo_report;
 pub mod demo_summary;
-pub mod export;
-pub mod fit;
-pub mod inverse;
-pub mod outputs;
-pub mod predict;
 pub mod synth;
-pub mod trajectory;
 pub mod triangulate;
 
-use std::sync::atomic::{AtomicBool, Ordering};
+// The modelling stages and what every stage shares, from the OpenCV-free crate.
+pub use handcap_model::pipeline::{
+    create_parent, export, fit, inverse, io_error, outputs, predict, trajectory, Event,
+    PipelineError, Session, Task,
+};
 
-use crate::provenance::Provenance;
-use crate::search::IterationRecord;
-
-/// A long task that reports `(done, total)`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum Task {
-    /// Rendering the virtual capture's images.
-    Render,
-    /// Finding chessboard corners.
-    Detect,
-    /// Finding the tip in frames.
-    Frames,
-    /// The final fit's solver iterations (of its cap).
-    Fit,
+/// The camera stages' errors, each a [`PipelineError::Camera`] (shown as itself).
+macro_rules! camera_errors {
+    ($($error:ty),*) => {$(
+        impl From<$error> for PipelineError {
+            fn from(e: $error) -> Self {
+                PipelineError::Camera(Box::new(e))
+            }
+        }
+    )*};
 }
-
-/// What a stage reports while it works.
-pub enum Event<'a> {
-    /// Progress of a counted task.
-    Count {
-        task: Task,
-        done: usize,
-        total: usize,
-    },
-    /// A counted task ended.
-    Finished(Task),
-    /// A search iteration ended; `cap` is the most iterations the search runs.
-    Iteration {
-        record: &'a IterationRecord,
-        cap: usize,
-    },
-    /// A search ended.
-    SearchEnded,
-    /// A sentence for the user (e.g. rows left out of a file).
-    Note(String),
-    /// The demo starts stage `step` of `of`.
-    Stage {
-        step: usize,
-        of: usize,
-        text: String,
-    },
-    /// A stage ended after `seconds`.
-    StageTime {
-        name: &'a str,
-        seconds: f64,
-    },
-    /// A stage's outcome, for a front end that shows each as it comes (the demo).
-    Calibrated(&'a calibrate::Calibrated),
-    Triangulated(&'a triangulate::Triangulated),
-    Fitted(&'a fit::FitOutcome),
-}
-
-/// What every stage is handed by its caller.
-pub struct Session<'a> {
-    /// The command line, for provenance.
-    pub command: Vec<String>,
-    /// Set by Ctrl-C.
-    pub interrupt: &'a AtomicBool,
-    /// Receives progress and results; called from worker threads too.
-    pub events: &'a (dyn Fn(Event) + Sync),
-}
-
-impl Session<'_> {
-    pub(crate) fn emit(&self, event: Event) {
-        (self.events)(event);
-    }
-
-    pub(crate) fn interrupted(&self) -> bool {
-        self.interrupt.load(Ordering::SeqCst)
-    }
-
-    /// A `(done, total)` callback for `task`.
-    pub(crate) fn counter(&self, task: Task) -> impl Fn(usize, usize) + Sync + '_ {
-        move |done, total| self.emit(Event::Count { task, done, total })
-    }
-
-    /// Provenance of this run, with `seed` when it draws random numbers.
-    pub(crate) fn provenance(&self, seed: Option<u64>) -> Provenance {
-        Provenance::new(self.command.clone(), seed)
-    }
-}
-
-/// Creates the directory a file is written into, when it has one.
-pub(crate) fn create_parent(path: &std::path::Path) -> std::io::Result<()> {
-    match path.parent().filter(|p| !p.as_os_str().is_empty()) {
-        Some(parent) => std::fs::create_dir_all(parent),
-        None => Ok(()),
-    }
-}
-
-/// Errors of a stage: the failing library's own, or a file the stage itself writes.
-#[derive(Debug, thiserror::Error)]
-pub enum PipelineError {
-    #[error(transparent)]
-    Synth(#[from] crate::synth::SynthError),
-    #[error(transparent)]
-    Capture(#[from] crate::capture::CaptureError),
-    #[error(transparent)]
-    Calib(#[from] crate::calib::CalibError),
-    #[error(transparent)]
-    Stereo(#[from] crate::stereo::StereoError),
-    #[error(transparent)]
-    Triangulate(#[from] crate::triangulate::TriangulateError),
-    #[error(transparent)]
-    Session(#[from] crate::session::SessionError),
-    #[error(transparent)]
-    Data(#[from] crate::data::DataError),
-    #[error(transparent)]
-    Msvr(#[from] crate::model::msvr::MsvrError),
-    #[error(transparent)]
-    Tune(#[from] crate::model::msvr::tune::TuneError),
-    #[error(transparent)]
-    Select(crate::select::SelectError),
-    #[error(transparent)]
-    Folds(#[from] crate::model::msvr::folds::FoldsError),
-    #[error(transparent)]
-    Previous(#[from] crate::model::previous::PreviousError),
-    #[error(transparent)]
-    Model(#[from] crate::model::ModelError),
-    #[error(transparent)]
-    Inverse(#[from] crate::model::inverse::InverseError),
-    #[error(transparent)]
-    ModelFile(#[from] crate::model::file::ModelFileError),
-    #[error(transparent)]
-    Report(#[from] crate::report::ReportError),
-    #[error("{path}: {source}")]
-    Io {
-        path: std::path::PathBuf,
-        source: std::io::Error,
-    },
-    /// A request that cannot be carried out as asked: settings that contradict each other or
-    /// the data, an output that would replace an input (a front end's usage error).
-    #[error("{0}")]
-    Request(String),
-    /// An input file whose content cannot be used (the file, and the line where there is one).
-    #[error("{0}")]
-    Input(String),
-    /// An input or output place that cannot be used (not a directory, not writable).
-    #[error("{0}")]
-    Place(String),
-    /// A session that ended before its work did (a camera lost, a command failed); what it
-    /// recorded is kept.
-    #[error("{0}")]
-    Stopped(String),
-    /// Ctrl-C stopped the work; what was finished is kept.
-    #[error("{0}")]
-    Interrupted(String),
-    /// A failure after the main result was written.
-    #[error("{source} (written all the same: {})", written.display())]
-    Partial {
-        source: Box<PipelineError>,
-        written: std::path::PathBuf,
-    },
-    /// A demo result that contradicts the ground truth it is checked against.
-    #[error("{0}")]
-    Check(String),
-}
-
-/// The error for an I/O failure on `path`.
-pub(crate) fn io_error(
-    path: &std::path::Path,
-) -> impl FnOnce(std::io::Error) -> PipelineError + '_ {
-    move |source| PipelineError::Io {
-        path: path.to_path_buf(),
-        source,
-    }
-}
+camera_errors!(
+    crate::synth::SynthError,
+    crate::capture::CaptureError,
+    crate::calib::CalibError,
+    crate::stereo::StereoError,
+    crate::triangulate::TriangulateError,
+    crate::session::SessionError
+);

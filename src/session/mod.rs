@@ -5,7 +5,7 @@
 
 pub mod frames;
 pub mod pressures;
-pub mod protocol;
+pub use handcap_model::session::protocol;
 
 use std::path::PathBuf;
 

@@ -1096,7 +1096,12 @@ fn a_dynamic_protocol_outside_its_rules_is_one_line() {
     for (flags, says) in [
         (
             ["--rate-hz", "300"],
-            "--rate-hz 300: the command rate must be more than 0 and at most 200 Hz",
+            "--rate-hz 300: the command rate must be at least one an hour",
+        ),
+        // Hostile probe 11 (issue 61): holds capture then refused were written.
+        (
+            ["--rate-hz", "1e-9"],
+            "the command rate must be at least one an hour (each command is held one period, at most 3600 s) and at most 200 Hz",
         ),
         (
             ["--duration-s", "0"],

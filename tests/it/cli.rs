@@ -619,6 +619,31 @@ fn sigterm_ends_a_long_fit_at_once_with_nothing_written() {
     assert!(!d.join("m.json").exists(), "a model was written");
 }
 
+/// Issue 61: `handcap` (model, predict, inverse, export, protocol) links no OpenCV library, so
+/// a modelling machine without OpenCV runs it: its NEEDED list, as `readelf -d` reads it.
+#[cfg(target_os = "linux")]
+#[test]
+fn the_light_binary_links_no_opencv() {
+    let dynamic = std::process::Command::new("readelf")
+        .args(["-d", env!("CARGO_BIN_EXE_handcap")])
+        .output()
+        .expect("readelf (binutils, which the linker comes with)");
+    assert!(dynamic.status.success());
+    let text = String::from_utf8_lossy(&dynamic.stdout);
+    let needed: Vec<&str> = text.lines().filter(|l| l.contains("(NEEDED)")).collect();
+    assert!(!needed.is_empty(), "{text}");
+    assert!(
+        needed.iter().all(|l| !l.contains("opencv")),
+        "handcap needs OpenCV: {needed:#?}"
+    );
+    // The camera binary does (the check reads what it means to).
+    let cameras = std::process::Command::new("readelf")
+        .args(["-d", env!("CARGO_BIN_EXE_handcap-cameras")])
+        .output()
+        .unwrap();
+    assert!(String::from_utf8_lossy(&cameras.stdout).contains("libopencv_core"));
+}
+
 /// Hostile probe 9 and issue 61: a `handcap-cameras` that is `handcap` (a link or a copy) made
 /// `handcap board` exec itself for ever; a truncated one segfaulted with no handcap message; one
 /// of another build ran as if it were of this one.

@@ -384,6 +384,46 @@ fn exercise(file: &ModelFile) {
     for level in [0.5, 0.9, 0.95] {
         let _ = file.interval_radius(level);
     }
+    // Issue 61: the fuzzing never reached the export, the trajectory inverse or the learning
+    // step. A short path, planned, then learned from a run measured beside it.
+    let _ = handcap::model::export::c_header(file, "m.json");
+    exercise_trajectory(file, &steady, options);
+}
+
+/// The dynamic inverse and one learning step on a four-row path of `file`'s outputs.
+fn exercise_trajectory(
+    file: &ModelFile,
+    steady: &dyn handcap::model::Differentiable,
+    inverse: handcap::model::inverse::InverseOptions,
+) {
+    use handcap::model::trajectory::{self, Dynamic, PlanOptions};
+    let q = steady.outputs().len();
+    let dynamic = Dynamic {
+        model: file.model.differentiable(),
+        history: file.history(),
+    };
+    let time = [0.0, 0.1, 0.2, 0.3];
+    let targets: Vec<f64> = (0..4 * q).map(|k| 0.1 * k as f64).collect();
+    let options = PlanOptions {
+        rate: Some(vec![100.0; steady.inputs().len()]),
+        inverse,
+        smoothness: 0.1,
+        max_iter: 5,
+    };
+    let Ok(start) = trajectory::pointwise(dynamic, steady, &time, &targets, &options) else {
+        return;
+    };
+    let plan = trajectory::plan(dynamic, &time, &targets, &start, &options);
+    let measured: Vec<f64> = targets.iter().map(|t| t + 0.05).collect();
+    let _ = trajectory::learn(
+        dynamic,
+        &time,
+        &targets,
+        &plan.inputs,
+        &measured,
+        0.5,
+        &options,
+    );
 }
 
 proptest! {

@@ -373,6 +373,16 @@ fn bad_trajectories_get_one_line_and_nothing_is_written() {
             "c.csv",
         ],
     );
+    // Hostile probe 11 (issue 61): `time_s` was refused for a model whose time column is
+    // `t_s`, though the help says either. The commands keep the path's name.
+    write(
+        d,
+        "path_time_s.csv",
+        "time_s,x_mm,y_mm\n0,1,1\n0.1,1,1\n0.2,1,1\n0.3,1,1\n",
+    );
+    let args = ["inverse", "m.json", "--trajectory", "path_time_s.csv"];
+    handcap_ok(d, &[&args[..], &["--out", "c_time_s.csv"]].concat());
+    assert_eq!(csv_rows(&d.join("c_time_s.csv"))[3]["time_s"], "0.3");
     let learn_from = |measured: &str| {
         let args = [
             "inverse",

@@ -80,13 +80,16 @@ impl Default for DynamicDesign {
 /// A dynamic protocol's steps: rest, then each trial and a rest after it (see the module docs).
 ///
 /// # Errors
-/// [`ProtocolError::Dynamic`] for a rate above [`MAX_RATE_HZ`], a duration that is not positive
+/// [`ProtocolError::Dynamic`] for a rate above [`MAX_RATE_HZ`] or below one command an hour
+/// ([`MAX_HOLD_S`]), a duration that is not positive
 /// (or over a day), no trial, or a box outside 0-300 kPa.
 pub fn dynamic(d: &DynamicDesign) -> Result<Vec<Step>, ProtocolError> {
     use rand::{Rng, SeedableRng};
     let bad = |why: String| Err(ProtocolError::Dynamic(why));
-    if !(d.rate_hz > 0.0 && d.rate_hz <= MAX_RATE_HZ) {
-        return bad(format!("--rate-hz {}: the command rate must be more than 0 and at most {MAX_RATE_HZ} Hz (what a regulator updates at)", d.rate_hz));
+    // At least one command an hour: each is held one period, and capture holds a command at
+    // most MAX_HOLD_S.
+    if !(d.rate_hz >= 1.0 / MAX_HOLD_S && d.rate_hz <= MAX_RATE_HZ) {
+        return bad(format!("--rate-hz {}: the command rate must be at least one an hour (each command is held one period, at most {MAX_HOLD_S} s) and at most {MAX_RATE_HZ} Hz (what a regulator updates at)", d.rate_hz));
     }
     if !(d.duration_s > 0.0 && d.duration_s <= 86_400.0) {
         return bad(format!(

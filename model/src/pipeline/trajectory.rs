@@ -200,7 +200,8 @@ pub fn run(r: &Request) -> Result<Planned, PipelineError> {
         model: file.model.differentiable(),
         history: file.history(),
     };
-    let time_column = file.history().map_or("time_s", |h| h.time.as_str());
+    let time_column = time_column(r.target, file.history().map(|h| h.time.as_str()))?;
+    let time_column = time_column.as_str();
     let (names_in, names_out) = (steady.inputs().to_vec(), steady.outputs().to_vec());
     let (time, targets) = read_timed(r.target, time_column, &names_out)?;
     let rate = names_in
@@ -267,6 +268,18 @@ pub fn run(r: &Request) -> Result<Planned, PipelineError> {
         how,
         missed: plan.reached.iter().filter(|&&r| !r).count(),
         figure,
+    })
+}
+
+/// The target's time column: the model's (a history model's time column) when the file has
+/// it, else `time_s` (the name every handcap file in time uses); the model's when neither is
+/// there (the error then names it). The commands, and the runs learned from, use the same.
+fn time_column(target: &Path, model: Option<&str>) -> Result<String, PipelineError> {
+    let header = data::header(target)?;
+    let has = |name: &str| header.iter().any(|h| h == name);
+    Ok(match model {
+        Some(name) if has(name) || !has("time_s") => name.to_string(),
+        _ => "time_s".to_string(),
     })
 }
 

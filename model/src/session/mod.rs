@@ -1,0 +1,3 @@
+//! Session files the modelling side writes: the pressure protocol.
+
+pub mod protocol;
