@@ -10,8 +10,11 @@
 # 3. Each repetition: the commands played on the virtual finger between rest holds
 #    (`synth --protocol`, same seed: the same rig), triangulated per frame, and the run's tip
 #    (on the commands' clock) taught back (`inverse --previous --measured`).
-# Prints the tracking RMS of every run (against the target, from the triangulated frames) and
-# writes OUT/errors.csv. Needs target/release/handcap (built here when missing) and awk.
+# Prints the tracking RMS of every run against the target twice: from the triangulated frames
+# the loop learns from (what a lab sees; the cameras' own error and bias are in it, and learning
+# from them learns their bias too), and from the virtual finger's truth at every exposure (what
+# the finger did: the figure to judge the loop by). Writes OUT/errors.csv with both. Needs
+# target/release/handcap (built here when missing) and awk.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out=${1:-closed-loop}
@@ -45,9 +48,23 @@ awk -v cx="$cx" -v cy="$cy" -v cz="$cz" 'BEGIN {
     }
 }' > "$out/target.csv"
 
+# The tracking RMS after the lead-in of a run's rows (time_s,x_mm,y_mm,z_mm,flag on the
+# commands' clock): each unflagged row against the target interpolated to its time.
+tracking_rms() {
+    awk -F, 'FNR == 1 { next }
+        NR == FNR { t[++n] = $1; x[n] = $2; y[n] = $3; z[n] = $4; next }
+        $5 == "" && $1 >= 1.5 && $1 <= t[n] {
+            while (j < n - 1 && t[j + 1] < $1) j++
+            if (j < 1) j = 1
+            w = ($1 - t[j]) / (t[j + 1] - t[j])
+            dx = $2 - (x[j] + w * (x[j + 1] - x[j])); dy = $3 - (y[j] + w * (y[j + 1] - y[j]))
+            dz = $4 - (z[j] + w * (z[j + 1] - z[j])); s += dx * dx + dy * dy + dz * dz; m++ }
+        END { printf "%.4f", sqrt(s / m) }' "$out/target.csv" "$1"
+}
+
 # 3. Plan, then play, measure and learn.
 $h inverse "$out/model.json" --trajectory "$out/target.csv" --out "$out/commands_0.csv"
-echo "repetition,tracking_rms_mm" > "$out/errors.csv"
+echo "repetition,tracking_rms_triangulated_mm,tracking_rms_truth_mm" > "$out/errors.csv"
 for ((r = 0; r <= reps; r++)); do
     # The commands as a protocol: a rest hold (the hand frame's origin), the path, a rest.
     awk -F, -v rest="$rest_s" 'NR == 1 { print "step,phase,P1_kpa,P2_kpa,P3_kpa,hold_s"; print "0,rest,0,0,0," rest; next }
@@ -63,18 +80,13 @@ for ((r = 0; r <= reps; r++)); do
         "$out/run_$r.csv" > "$out/measured_$r.csv"
     $h inverse "$out/model.json" --trajectory "$out/target.csv" --previous "$out/commands_$r.csv" \
         --measured "$out/measured_$r.csv" --out "$out/commands_$((r + 1)).csv" > /dev/null
-    # The tracking RMS after the lead-in: each unflagged frame against the target interpolated
-    # to its time.
-    rms=$(awk -F, 'FNR == 1 { next }
-        NR == FNR { t[++n] = $1; x[n] = $2; y[n] = $3; z[n] = $4; next }
-        $5 == "" && $1 >= 1.5 && $1 <= t[n] {
-            while (j < n - 1 && t[j + 1] < $1) j++
-            if (j < 1) j = 1
-            w = ($1 - t[j]) / (t[j + 1] - t[j])
-            dx = $2 - (x[j] + w * (x[j + 1] - x[j])); dy = $3 - (y[j] + w * (y[j + 1] - y[j]))
-            dz = $4 - (z[j] + w * (z[j + 1] - z[j])); s += dx * dx + dy * dy + dz * dz; m++ }
-        END { printf "%.4f", sqrt(s / m) }' "$out/target.csv" "$out/measured_$r.csv")
-    echo "repetition $r: tracking RMS $rms mm after the lead-in (triangulated frames against the target)"
-    echo "$r,$rms" >> "$out/errors.csv"
+    # The finger's truth at each left exposure of the path, on the commands' clock.
+    awk -F, -v rest="$rest_s" 'NR == 1 { for (i = 1; i <= NF; i++) c[$i] = i; print "time_s,x_mm,y_mm,z_mm,flag"; next }
+        $c["phase"] == "path" { printf "%.6f,%s,%s,%s,\n", $c["exposure_s"] - rest, $c["x_mm"], $c["y_mm"], $c["z_mm"] }' \
+        "$out/run_$r/truth/per_frame.csv" > "$out/truth_$r.csv"
+    seen=$(tracking_rms "$out/measured_$r.csv")
+    truth=$(tracking_rms "$out/truth_$r.csv")
+    echo "repetition $r: tracking RMS after the lead-in $truth mm (the finger's truth), $seen mm (the triangulated frames it learned from)"
+    echo "$r,$seen,$truth" >> "$out/errors.csv"
 done
 echo "wrote $out/errors.csv"

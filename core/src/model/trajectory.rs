@@ -199,6 +199,19 @@ pub fn distances(a: &[f64], b: &[f64], q: usize) -> Vec<f64> {
         .collect()
 }
 
+/// The half-width of the Q-filter on the error measured (s): ±2 rows of a 30 Hz path, so that
+/// a path sampled faster or slower is filtered over the same time.
+pub const ERROR_SMOOTHING_S: f64 = 2.0 / 30.0;
+
+/// The shortest window [`plan`] and [`learn`] solve at once (s; 60 rows at 30 Hz), however short
+/// the model's memory.
+pub const MIN_WINDOW_S: f64 = 2.0;
+
+/// `seconds` of `time` in rows at its median step (at least 1).
+fn rows_in(seconds: f64, time: &[f64]) -> usize {
+    ((seconds / median_step(time)).round() as usize).max(1)
+}
+
 /// The median time step of `time` (positive).
 fn median_step(time: &[f64]) -> f64 {
     let mut steps: Vec<f64> = time.windows(2).map(|w| w[1] - w[0]).collect();
@@ -283,7 +296,7 @@ pub fn learn(
         return Err(InverseError::ModelMisses { miss, extent });
     }
     let error: Vec<f64> = targets.iter().zip(measured).map(|(t, m)| t - m).collect();
-    let error = smooth_rows(&error, q, 2);
+    let error = smooth_rows(&error, q, rows_in(ERROR_SMOOTHING_S, time));
     let reference: Vec<f64> = predicted
         .iter()
         .zip(&error)
@@ -324,7 +337,9 @@ fn refine(
     options: &PlanOptions,
 ) -> PathPlan {
     let n = along.time.len();
-    let window = (4 * along.dynamic.memory_rows(along.time)).max(60).min(n);
+    let window = (4 * along.dynamic.memory_rows(along.time))
+        .max(rows_in(MIN_WINDOW_S, along.time))
+        .min(n);
     let keep = if window == n { n } else { window / 2 };
     project(&mut u, along.time, 0, options);
     let mut s = 0;
