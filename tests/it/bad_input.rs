@@ -758,4 +758,33 @@ fn many_unused_columns_are_scanned_in_one_pass() {
     write(d, "wide.csv", &text);
     let out = handcap_ok(d, &words("model wide.csv --search none --out m.json"));
     assert!(out.contains("wrote m.json"), "{out}");
+    one_pass_over_a_pipe(&text, unused);
+}
+
+/// Issue 61: the test above passed on the per-column code too (only slower). Here the file is a
+/// FIFO written once: read in one pass, every column comes back; read once per column, the
+/// second read finds the pipe's end (an empty file) and fails.
+#[cfg(unix)]
+fn one_pass_over_a_pipe(text: &str, unused: usize) {
+    use std::os::unix::fs::OpenOptionsExt;
+    let dir = tempdir();
+    let fifo = dir.path().join("wide.csv");
+    let made = std::process::Command::new("mkfifo").arg(&fifo).status();
+    assert!(made.is_ok_and(|s| s.success()), "mkfifo");
+    let reader = {
+        let fifo = fifo.clone();
+        std::thread::spawn(move || handcap::data::numeric_columns(&fifo, &[]))
+    };
+    std::fs::write(&fifo, text).unwrap();
+    // Any further reader gets the end of the pipe at once (a writer opened, then closed).
+    while !reader.is_finished() {
+        let opened = std::fs::OpenOptions::new()
+            .write(true)
+            .custom_flags(libc::O_NONBLOCK)
+            .open(&fifo);
+        drop(opened);
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    let columns = reader.join().unwrap().expect("read in one pass");
+    assert_eq!(columns.len(), 6 + unused);
 }
