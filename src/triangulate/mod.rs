@@ -86,6 +86,10 @@ pub enum TriangulateError {
     },
     #[error("no frame pair gave a tip position: {0}")]
     NothingUsed(String),
+    /// Per frame: the two cameras' frames cannot make pairs at all (one camera's frames none or
+    /// unreadable, or their times far apart); said before any row blames the rest hold.
+    #[error("{index}: {why}")]
+    Unpaired { index: PathBuf, why: String },
     #[error(transparent)]
     Stereo(#[from] crate::stereo::StereoError),
     #[error(transparent)]

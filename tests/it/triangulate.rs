@@ -1263,3 +1263,65 @@ fn per_frame_refuses_a_log_without_a_rest_hold_and_stamps_that_go_back() {
     );
     assert!(!d.join("dyn.csv").exists());
 }
+
+/// Hostile probe 11 (issue 61): a per-frame session with one camera, with the right frames
+/// missing, or with clocks 10 s apart was refused as if its rest hold had no tip. Each is said
+/// for what it is, naming the frame list.
+#[test]
+fn hostile_per_frame_says_why_the_cameras_cannot_pair() {
+    let dir = tempdir();
+    let d = dir.path();
+    dynamic_session(d);
+    let index = d.join("s/frames/frames.csv");
+    let listed = std::fs::read_to_string(&index).unwrap();
+    let refusal = |text: &str| {
+        std::fs::write(&index, text).unwrap();
+        let msg = handcap_err(
+            d,
+            &[
+                "triangulate",
+                "s/frames",
+                "--calib",
+                "calib.yml",
+                "--per-frame",
+                "--out",
+                "dyn.csv",
+            ],
+        );
+        assert!(!d.join("dyn.csv").exists());
+        assert!(msg.contains("frames.csv") && !msg.contains("rest"), "{msg}");
+        msg
+    };
+    // The left camera alone.
+    let left: Vec<&str> = listed.lines().filter(|l| !l.contains(",right,")).collect();
+    let msg = refusal(&(left.join("\n") + "\n"));
+    assert!(msg.contains("lists no right frames"), "{msg}");
+    // The right camera's stamps 10 s later.
+    let late: Vec<String> = listed
+        .lines()
+        .map(|l| match l.split(',').collect::<Vec<_>>()[..] {
+            [frame, "right", t] => format!("{frame},right,{}", t.parse::<f64>().unwrap() + 10.0),
+            _ => l.to_string(),
+        })
+        .collect();
+    let msg = refusal(&(late.join("\n") + "\n"));
+    assert!(msg.contains("do not overlap in time"), "{msg}");
+    // The right frames' files gone.
+    std::fs::write(&index, &listed).unwrap();
+    for entry in std::fs::read_dir(d.join("s/frames")).unwrap() {
+        let path = entry.unwrap().path();
+        if path
+            .file_name()
+            .unwrap()
+            .to_string_lossy()
+            .starts_with("right_")
+        {
+            std::fs::remove_file(path).unwrap();
+        }
+    }
+    let msg = refusal(&listed);
+    assert!(
+        msg.contains("none of the") && msg.contains("right frames"),
+        "{msg}"
+    );
+}

@@ -154,8 +154,8 @@ impl Realism {
 }
 
 /// Board pairs a capture renders for calibration by default ([`CaptureConfig::views`]): a
-/// constant of its own, so that the command line's default needs no board read (through
-/// OpenCV) and the modelling binary links no OpenCV.
+/// constant of its own, so that building the command line (every run of `handcap-cameras`) reads
+/// no board through OpenCV for `synth --views`'s default.
 pub const VIEWS: usize = 20;
 
 impl Default for CaptureConfig {

@@ -15,7 +15,7 @@ const EPIPOLAR_CAP_PX: f64 = 2.0;
 const MOVING_PX: f64 = 0.3;
 /// The largest clock offset looked for (s): two webcams' delays differ by tens of
 /// milliseconds (one more than a frame period is common), a network camera's by more.
-const MAX_OFFSET_S: f64 = 0.5;
+pub(super) const MAX_OFFSET_S: f64 = 0.5;
 /// Moving frames per run whose clock offset is measured on its own, to see a drift (one
 /// second of motion; a run's δ needs 20), and the fewest runs that can show one.
 const DRIFT_FRAMES: usize = 30;

@@ -161,6 +161,13 @@ pub fn triangulate_per_frame(
         Track::of(records, Side::Left, shift[0], index)?,
         Track::of(records, Side::Right, shift[1], index)?,
     );
+    let unpaired = |why: String| TriangulateError::Unpaired {
+        index: index.to_path_buf(),
+        why,
+    };
+    if let Some(why) = apart(&left, &right) {
+        return Err(unpaired(why));
+    }
     let found = find_all_markers(frames, rig, options, progress, interrupt)?;
     let results = &found.results;
     let mut summary = PerFrameSummary {
@@ -168,6 +175,17 @@ pub fn triangulate_per_frame(
         ..PerFrameSummary::default()
     };
     count_frames(records, results, &mut summary.frames);
+    let c = &summary.frames;
+    let unread = |k: usize| c.no_file[k] + c.unreadable[k];
+    if let Some(cam) = (0..2).find(|&k| c.listed[k] > 0 && unread(k) == c.listed[k]) {
+        return Err(unpaired(format!(
+            "none of the {} {} frames it lists can be read ({} missing, {} unreadable): check the folder and the file names (LEFT_NNNNN.EXT)",
+            c.listed[cam],
+            [Side::Left, Side::Right][cam].name(),
+            c.no_file[cam],
+            c.unreadable[cam]
+        )));
+    }
 
     let centres = |i: usize| -> Result<Vec<[f64; 2]>, &'static str> {
         match &results[i] {
@@ -234,6 +252,26 @@ pub fn triangulate_per_frame(
         hand_from_left,
         options: options.clone(),
     })
+}
+
+/// Why the two tracks cannot make pairs, if they cannot: a camera without frames, or their
+/// times apart by more than the clock offset is looked for within.
+fn apart(left: &Track, right: &Track) -> Option<String> {
+    let span = |t: &Track| Some((*t.times.first()?, *t.times.last()?));
+    let (l, r) = match (span(left), span(right)) {
+        (None, _) => {
+            return Some("lists no left frames: a per-frame session needs both cameras'".into())
+        }
+        (_, None) => {
+            return Some("lists no right frames: a per-frame session needs both cameras'".into())
+        }
+        (Some(l), Some(r)) => (l, r),
+    };
+    let gap = (r.0 - l.1).max(l.0 - r.1);
+    (gap > clock_offset::MAX_OFFSET_S).then(|| format!(
+        "the cameras' frames do not overlap in time (left {:.3}-{:.3} s, right {:.3}-{:.3} s), more than the {} s the clock offset is looked for within: check each camera's clock, or give their delays (--latency-ms)",
+        l.0, l.1, r.0, r.1, clock_offset::MAX_OFFSET_S
+    ))
 }
 
 /// Per camera, per position in its track, the centre a pass chose there (left, right).
