@@ -1014,20 +1014,20 @@ fn dynamic_session_with(d: &Path, args: &[&str]) {
     handcap_ok(d, &["calibrate", "s/calib", "--out", "calib.yml"]);
 }
 
-/// `triangulate s/frames --calib calib.yml --per-frame --out dyn.csv` in `d`: its output.
+/// `triangulate s/frames --calib calib.yml --per-frame --out dyn.csv`.
+const PER_FRAME: [&str; 7] = [
+    "triangulate",
+    "s/frames",
+    "--calib",
+    "calib.yml",
+    "--per-frame",
+    "--out",
+    "dyn.csv",
+];
+
+/// [`PER_FRAME`] in `d`: its output.
 fn triangulate_per_frame(d: &Path) -> String {
-    handcap_ok(
-        d,
-        &[
-            "triangulate",
-            "s/frames",
-            "--calib",
-            "calib.yml",
-            "--per-frame",
-            "--out",
-            "dyn.csv",
-        ],
-    )
+    handcap_ok(d, &PER_FRAME)
 }
 
 type Row = std::collections::HashMap<String, String>;
@@ -1276,18 +1276,7 @@ fn hostile_per_frame_says_why_the_cameras_cannot_pair() {
     let listed = std::fs::read_to_string(&index).unwrap();
     let refusal = |text: &str| {
         std::fs::write(&index, text).unwrap();
-        let msg = handcap_err(
-            d,
-            &[
-                "triangulate",
-                "s/frames",
-                "--calib",
-                "calib.yml",
-                "--per-frame",
-                "--out",
-                "dyn.csv",
-            ],
-        );
+        let msg = handcap_err(d, &PER_FRAME);
         assert!(!d.join("dyn.csv").exists());
         assert!(msg.contains("frames.csv") && !msg.contains("rest"), "{msg}");
         msg
