@@ -13,8 +13,9 @@ use crate::capture::{self, CaptureOptions, CaptureSummary, Ending, Stats};
 /// runs, `capture.json`).
 ///
 /// # Errors
-/// [`PipelineError::Request`] for settings that cannot work; [`PipelineError::Camera`] (a capture error) for a
-/// camera that does not open, `out` holding a capture, a file that cannot be written.
+/// [`PipelineError::Request`] for settings that cannot work; [`PipelineError::Camera`] (a
+/// capture error) for a camera that does not open, `out` holding a capture, a file that cannot
+/// be written.
 pub fn run(
     out: &Path,
     options: &CaptureOptions,

@@ -21,8 +21,8 @@ pub struct Synthesized {
 /// summary says `interrupted`.
 ///
 /// # Errors
-/// [`PipelineError::Request`] for settings that do not fit together; [`PipelineError::Camera`] (a synth error)
-/// for bad settings or a file that cannot be written.
+/// [`PipelineError::Request`] for settings that do not fit together; [`PipelineError::Camera`]
+/// (a synth error) for bad settings or a file that cannot be written.
 pub fn run(
     out: &Path,
     config: &SynthConfig,
