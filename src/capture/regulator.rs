@@ -531,7 +531,7 @@ mod tests {
     use super::{run_command, AtomicBool, CommandEnd, MEASURED_KPA};
 
     #[test]
-    fn what_a_regulator_measures_lies_about_what_it_is_told() {
+    fn the_measured_range_reaches_a_tenth_above_the_supply() {
         let told = 1.1 * crate::hand::MAX_PRESSURE_KPA;
         assert!((MEASURED_KPA.end() - told).abs() < 1e-9);
     }

@@ -67,14 +67,19 @@ pub(super) fn ours(out: &Path, path: &Path) -> bool {
     {
         return true;
     }
-    let dataset = |bytes: Vec<u8>| {
-        let header = bytes.split(|&b| b == b'\n').next().unwrap_or_default();
-        header.starts_with(DATASET_HEAD.as_bytes())
-            || (header.starts_with(b"time_s,") && header.ends_with(PER_FRAME_TAIL.as_bytes()))
+    // The header alone is read: a dataset may be large.
+    let header = || {
+        let mut line = Vec::new();
+        let file = std::fs::File::open(path).ok()?;
+        std::io::BufRead::read_until(&mut std::io::BufReader::new(file), b'\n', &mut line).ok()?;
+        Some(line)
     };
-    name.starts_with(&format!("{stem}_"))
-        && name.ends_with(".csv")
-        && std::fs::read(path).is_ok_and(dataset)
+    let dataset = |line: Vec<u8>| {
+        let line = line.strip_suffix(b"\n").unwrap_or(&line);
+        line.starts_with(DATASET_HEAD.as_bytes())
+            || (line.starts_with(b"time_s,") && line.ends_with(PER_FRAME_TAIL.as_bytes()))
+    };
+    name.starts_with(&format!("{stem}_")) && name.ends_with(".csv") && header().is_some_and(dataset)
 }
 
 /// The last columns of a per-frame dataset's header.

@@ -393,8 +393,8 @@ fn the_dynamic_inverse_anticipates_the_lag_and_learning_closes_the_rest() {
 /// ILC, handed this finger's map and each muscle's true lead, reaches 0.0266 and 0.0552: handcap
 /// times its corrections by the model's muscles, not this finger's, and converges more slowly
 /// (the bar, no worse than the textbook, is not met; a per-input lag estimated from each
-/// run helped at 6.5 s and stalled at 3.5: 0.038 and 0.104 mm). What holds is asserted: every repetition better
-/// than the one before, and within twice the textbook's error.
+/// run helped at 6.5 s and stalled at 3.5: 0.038 and 0.104 mm). What holds is asserted: every
+/// repetition better than the one before, and within twice the textbook's error.
 #[test]
 fn learning_holds_on_a_finger_the_model_does_not_know() {
     let dir = tempdir();

@@ -178,12 +178,10 @@ pub fn triangulate_per_frame(
     let c = &summary.frames;
     let unread = |k: usize| c.no_file[k] + c.unreadable[k];
     if let Some(cam) = (0..2).find(|&k| c.listed[k] > 0 && unread(k) == c.listed[k]) {
+        let name = [Side::Left, Side::Right][cam].name();
         return Err(unpaired(format!(
-            "none of the {} {} frames it lists can be read ({} missing, {} unreadable): check the folder and the file names (LEFT_NNNNN.EXT)",
-            c.listed[cam],
-            [Side::Left, Side::Right][cam].name(),
-            c.no_file[cam],
-            c.unreadable[cam]
+            "none of the {} {name} frames it lists can be read ({} missing, {} unreadable): check the folder and the file names ({name}_NNNNN.EXT)",
+            c.listed[cam], c.no_file[cam], c.unreadable[cam]
         )));
     }
 
@@ -258,14 +256,14 @@ pub fn triangulate_per_frame(
 /// times apart by more than the clock offset is looked for within.
 fn apart(left: &Track, right: &Track) -> Option<String> {
     let span = |t: &Track| Some((*t.times.first()?, *t.times.last()?));
-    let (l, r) = match (span(left), span(right)) {
-        (None, _) => {
-            return Some("lists no left frames: a per-frame session needs both cameras'".into())
-        }
-        (_, None) => {
-            return Some("lists no right frames: a per-frame session needs both cameras'".into())
-        }
-        (Some(l), Some(r)) => (l, r),
+    let (Some(l), Some(r)) = (span(left), span(right)) else {
+        let missing = match span(left) {
+            None => Side::Left.name(),
+            Some(_) => Side::Right.name(),
+        };
+        return Some(format!(
+            "lists no {missing} frames: a per-frame session needs both cameras'"
+        ));
     };
     let gap = (r.0 - l.1).max(l.0 - r.1);
     (gap > clock_offset::MAX_OFFSET_S).then(|| format!(
