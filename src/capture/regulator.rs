@@ -150,6 +150,7 @@ pub(super) fn pressures_csv(log: &[Commanded]) -> String {
     crate::session::pressures::pressures_csv(log.iter().map(|c| Logged {
         time_s: c.time_s,
         command_end_s: Some(c.end_s),
+        hold_s: c.step.hold_s,
         pressures_kpa: c.step.pressures,
         step: c.step.step,
         phase: &c.step.phase,

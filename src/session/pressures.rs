@@ -1,8 +1,9 @@
 //! The regulator's log, `pressures.csv`: one row per commanded step, `time_s` (when the
 //! command was given, on the capture computer's clock), `P1_kpa,P2_kpa,P3_kpa`, optionally
-//! `command_end_s` (when the command returned), and any other columns (e.g. `step`, `phase`),
-//! which are copied to the dataset. A step lasts until the next row; the last one lasts the
-//! log's median step. `capture` and `synth` write it ([`pressures_csv`]), `triangulate` reads
+//! `command_end_s` (when the command returned), optionally `hold_s` (how long the protocol
+//! held it), and any other columns (e.g. `step`, `phase`), which are copied to the dataset. A
+//! step lasts until the next row; the last one its `hold_s`, or the log's median step where the
+//! log does not say. `capture` and `synth` write it ([`pressures_csv`]), `triangulate` reads
 //! it ([`read_pressure_log`]).
 
 use std::path::{Path, PathBuf};
@@ -17,6 +18,8 @@ pub struct LogStep {
     /// When the regulator's command returned ([`COMMAND_END_COLUMN`]; `time_s` when the log
     /// does not say): settling counts from here.
     pub command_end_s: f64,
+    /// How long the protocol held it ([`HOLD_COLUMN`]), when the log says.
+    pub hold_s: Option<f64>,
     pub pressures_kpa: [f64; 3],
     /// The row's other columns, as written.
     pub extra: Vec<String>,
@@ -34,23 +37,31 @@ pub struct PressureLog {
 }
 
 impl PressureLog {
-    /// When step `k` ends: the next command, or the median step after the last one.
+    /// When step `k` ends: the next command, or its hold after the last one.
     pub fn end_s(&self, k: usize) -> f64 {
         self.steps
             .get(k + 1)
-            .map_or(self.steps[k].time_s + self.median_step_s, |s| s.time_s)
+            .map_or(self.steps[k].time_s + self.last_hold_s(), |s| s.time_s)
+    }
+
+    /// How long the last step was held: its `hold_s`, or the log's median step.
+    fn last_hold_s(&self) -> f64 {
+        self.steps
+            .last()
+            .and_then(|s| s.hold_s)
+            .unwrap_or(self.median_step_s)
     }
 
     /// When the regulator holds step `k`'s pressures: from its command's return (its start,
-    /// when the log does not say) to the next command's return (or the median step after the
-    /// last). A regulator that takes 175 ms to answer starts moving the finger then, not when
+    /// when the log does not say) to the next command's return (or the last step's hold after
+    /// its return). A regulator that takes 175 ms to answer starts moving the finger then, not when
     /// it was told.
     pub fn held_s(&self, k: usize) -> (f64, f64) {
         let start = self.steps[k].command_end_s;
         let end = self
             .steps
             .get(k + 1)
-            .map_or(start + self.median_step_s, |s| s.command_end_s);
+            .map_or(start + self.last_hold_s(), |s| s.command_end_s);
         (start, end)
     }
 }
@@ -60,6 +71,9 @@ pub const PRESSURE_COLUMNS: [&str; 3] = ["P1_kpa", "P2_kpa", "P3_kpa"];
 /// The optional column of when each step's command returned (s, the log's clock), as
 /// `handcap capture` writes it.
 pub const COMMAND_END_COLUMN: &str = "command_end_s";
+/// The optional column of how long the protocol held each step (s): the log's last row says
+/// when the session's commands ended.
+pub const HOLD_COLUMN: &str = "hold_s";
 
 /// Reads the log.
 ///
@@ -76,8 +90,11 @@ pub fn read_pressure_log(path: &Path) -> Result<PressureLog, SessionError> {
     ];
     let header = table.header.clone();
     let end_col = header.iter().position(|h| h == COMMAND_END_COLUMN);
+    let hold_col = header.iter().position(|h| h == HOLD_COLUMN);
     let extra_idx: Vec<usize> = (0..header.len())
-        .filter(|i| *i != time_col && !p_cols.contains(i) && Some(*i) != end_col)
+        .filter(|&i| {
+            i != time_col && !p_cols.contains(&i) && ![end_col, hold_col].contains(&Some(i))
+        })
         .collect();
     let mut steps: Vec<LogStep> = Vec::new();
     for (line, record) in table.records()? {
@@ -122,9 +139,19 @@ pub fn read_pressure_log(path: &Path) -> Result<PressureLog, SessionError> {
             }
             None => time_s,
         };
+        let hold_s = match hold_col {
+            Some(col) => match number(col)? {
+                hold if hold > 0.0 => Some(hold),
+                hold => {
+                    return table.fail(line, format!("{HOLD_COLUMN} {hold} must be more than 0"))
+                }
+            },
+            None => None,
+        };
         steps.push(LogStep {
             time_s,
             command_end_s,
+            hold_s,
             pressures_kpa: [number(p_cols[0])?, number(p_cols[1])?, number(p_cols[2])?],
             extra: extra_idx.iter().map(|&i| record[i].to_string()).collect(),
         });
@@ -145,11 +172,12 @@ pub fn read_pressure_log(path: &Path) -> Result<PressureLog, SessionError> {
     })
 }
 
-/// One row of the log as written: `phase` and `step` go in their columns, `command_end_s` when
-/// the command's return was recorded.
+/// One row of the log as written: `phase`, `step` and the protocol's `hold_s` go in their
+/// columns, `command_end_s` when the command's return was recorded.
 pub struct Logged<'a> {
     pub time_s: f64,
     pub command_end_s: Option<f64>,
+    pub hold_s: f64,
     pub pressures_kpa: [f64; 3],
     pub step: usize,
     pub phase: &'a str,
@@ -166,14 +194,18 @@ pub fn pressures_csv<'a>(rows: impl IntoIterator<Item = Logged<'a>>) -> String {
     let with_measured = rows.peek().is_some_and(|r| r.measured_kpa.is_some());
     let mut header = vec!["time_s"];
     header.extend(PRESSURE_COLUMNS);
-    header.extend(["step", "phase"]);
+    header.extend(["step", "phase", HOLD_COLUMN]);
     header.extend(with_end.then_some(COMMAND_END_COLUMN));
     header.extend(MEASURED_COLUMNS.iter().filter(|_| with_measured));
     let mut csv = Csv::new(header);
     for r in rows {
         let mut row = vec![format!("{:.6}", r.time_s)];
         row.extend(r.pressures_kpa.map(|p| p.to_string()));
-        row.extend([r.step.to_string(), r.phase.to_string()]);
+        row.extend([
+            r.step.to_string(),
+            r.phase.to_string(),
+            r.hold_s.to_string(),
+        ]);
         if with_end {
             row.push(
                 r.command_end_s

@@ -189,6 +189,7 @@ mod tests {
                 .map(|&time_s| LogStep {
                     time_s,
                     command_end_s: time_s,
+                    hold_s: None,
                     pressures_kpa: [0.0; 3],
                     extra: Vec::new(),
                 })

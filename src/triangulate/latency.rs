@@ -461,6 +461,7 @@ mod tests {
                 .map(|k| LogStep {
                     time_s: k as f64 * step_s,
                     command_end_s: k as f64 * step_s,
+                    hold_s: None,
                     pressures_kpa: [0.0; 3],
                     extra: Vec::new(),
                 })

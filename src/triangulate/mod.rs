@@ -17,8 +17,9 @@
 //!    error; several → ambiguous, rejected. Nothing is guessed (`locate`).
 //! 4. A step's row is flagged (`flag` column, `;`-separated) when it has fewer than
 //!    `min_frames` pairs (`few_frames`), its pairs disagree by more than `max_spread_mm`
-//!    (`spread`), its step lasted over 1.5 times the log's median step (`long_step`: a gap
-//!    in the log, so frames of an unlogged step may be in it), or (after the hand frame) its
+//!    (`spread`), its step lasted over 1.5 times its `hold_s` (the log's median step where the
+//!    log has no `hold_s`) (`long_step`: a gap in the log, so frames of an unlogged step may
+//!    be in it), or (after the hand frame) its
 //!    tip lies further from the finger's base than the finger is long (`reach`: the base
 //!    `finger_mm` up the z axis from the rest tip). `handcap model` leaves flagged rows out.
 //! 5. The hand frame: axes `R_hand` from the calibration (its reference pair), origin the

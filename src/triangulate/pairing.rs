@@ -53,6 +53,7 @@ mod tests {
                 .map(|k| LogStep {
                     time_s: 0.3 * k as f64,
                     command_end_s: 0.3 * k as f64,
+                    hold_s: None,
                     pressures_kpa: [0.0; 3],
                     extra: Vec::new(),
                 })

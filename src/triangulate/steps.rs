@@ -88,7 +88,8 @@ impl<'a> Steps<'a> {
                 if spread > options.max_spread_mm {
                     flags.push("spread");
                 }
-                if log.end_s(k) - log.steps[k].time_s > 1.5 * log.median_step_s {
+                let planned = log.steps[k].hold_s.unwrap_or(log.median_step_s);
+                if log.end_s(k) - log.steps[k].time_s > 1.5 * planned {
                     flags.push("long_step");
                 }
                 (spread, flags)

@@ -70,6 +70,7 @@ pub(super) fn pressures_csv(steps: &[Step], starts: &[f64]) -> String {
         crate::session::pressures::Logged {
             time_s,
             command_end_s: None,
+            hold_s: s.hold_s,
             pressures_kpa: s.pressures,
             step: s.step,
             phase: &s.phase,

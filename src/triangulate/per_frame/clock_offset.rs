@@ -2,7 +2,7 @@
 
 use nalgebra::Vector3;
 
-use super::{lerp, Seen, Track};
+use super::{lerp, Track, NEIGHBOUR_PX};
 use crate::stats::Line;
 use crate::stereo::{Side, StereoRig};
 use crate::triangulate::{distance_px, TriangulateError};
@@ -16,10 +16,15 @@ const MOVING_PX: f64 = 0.3;
 /// The largest clock offset looked for (s): two webcams' delays differ by tens of
 /// milliseconds (one more than a frame period is common), a network camera's by more.
 pub(super) const MAX_OFFSET_S: f64 = 0.5;
-/// Moving frames per run whose clock offset is measured on its own, to see a drift (one
-/// second of motion; a run's δ needs 20), and the fewest runs that can show one.
+/// The fewest moving frames the session's offset is told by, and a run's.
+const MIN_FRAMES: usize = 20;
+const MIN_RUN_FRAMES: usize = 10;
+/// Left frames per run whose clock offset is measured on its own, to see a drift (a second at
+/// 30 fps), and the fewest runs that can show one.
 const DRIFT_FRAMES: usize = 30;
 const DRIFT_RUNS: usize = 5;
+/// How far the refinement of a drift's line looks (s): a few times a run's error.
+const REFINE_S: f64 = 0.02;
 
 /// Student's t at 99.5 % (a two-sided test at 1 %) for 1-30 degrees of freedom; beyond, the
 /// normal's 2.576 plus the first term of the Cornish-Fisher expansion.
@@ -55,59 +60,91 @@ impl ClockOffset {
     }
 }
 
-/// The clock offset (see the module docs, step 3) from the centres a pass without an offset
-/// saw: one δ for the whole session, then one for each run of [`DRIFT_FRAMES`] moving frames;
-/// a line through those is the offset when its slope differs from 0 at the 1 % level (Student's
-/// t; a drift: stamps from each camera's own clock, or videos whose frame rates are off).
+/// Per camera, per position in its track, the marker candidates found there (px).
+pub(super) type Candidates = [Vec<Vec<[f64; 2]>>; 2];
+
+/// The clock offset (see the module docs, step 3) from every candidate of every frame: one δ
+/// for the whole session, then one for each run of [`DRIFT_FRAMES`] moving frames; a line
+/// through those is the offset when its slope differs from 0 at the 1 % level (Student's t; a
+/// drift: stamps from each camera's own clock, or videos whose frame rates are off).
 pub(super) fn clock_offset(
     rig: &StereoRig,
     left: &Track,
     right: &Track,
-    seen: &Seen,
+    candidates: &Candidates,
 ) -> Result<ClockOffset, TriangulateError> {
-    // The centres seen, undistorted once: the left frame's, and the right track's frames'.
-    let [left_px, right_px] = seen;
+    // The candidates, undistorted once.
     let undistort =
-        |px: &[Option<[f64; 2]>], side: Side| -> Result<Vec<Option<[f64; 2]>>, TriangulateError> {
-            let seen: Vec<[f64; 2]> = px.iter().flatten().copied().collect();
-            let mut undistorted = rig.undistorted(side, &seen)?.into_iter();
+        |px: &[Vec<[f64; 2]>], side: Side| -> Result<Vec<Vec<[f64; 2]>>, TriangulateError> {
+            let all: Vec<[f64; 2]> = px.iter().flatten().copied().collect();
+            let mut undistorted = rig.undistorted(side, &all)?.into_iter();
             Ok(px
                 .iter()
-                .map(|p| p.and_then(|_| undistorted.next()))
+                .map(|c| c.iter().filter_map(|_| undistorted.next()).collect())
                 .collect())
         };
     let (ul, ur) = (
-        undistort(left_px, Side::Left)?,
-        undistort(right_px, Side::Right)?,
+        undistort(&candidates[0], Side::Left)?,
+        undistort(&candidates[1], Side::Right)?,
     );
     let f = rig.fundamental();
-    // Left frame k's capped squared epipolar distance at offset δ, where the tip moves.
+    // Left frame k's capped squared epipolar distance at offset δ, where the tip moves: the
+    // least over its candidates and the right frames' around the instant, each candidate of the
+    // one before taken with its nearest in the one after (one object), where that moved (a still
+    // red object is no clock; a candidate gone wrong costs the cap at most).
     let frame_cost = |k: usize, delta: f64| -> Option<f64> {
-        let l = ul[k]?;
         let (a, b, s) = right.around(left.times[k] + delta).ok()?;
-        let (p, q) = (ur[a]?, ur[b]?);
-        if distance_px(p, q) < MOVING_PX {
-            return None;
-        }
-        let r = lerp(p, q, s);
-        let line = f * Vector3::new(l[0], l[1], 1.0);
-        let d = (line[0] * r[0] + line[1] * r[1] + line[2]) / line[0].hypot(line[1]);
-        Some(d.abs().min(EPIPOLAR_CAP_PX).powi(2))
+        let nearest = |p: [f64; 2]| {
+            let q = ur[b]
+                .iter()
+                .copied()
+                .min_by(|&q, &r| distance_px(p, q).total_cmp(&distance_px(p, r)))?;
+            (MOVING_PX..=NEIGHBOUR_PX)
+                .contains(&distance_px(p, q))
+                .then(|| lerp(p, q, s))
+        };
+        let moving: Vec<[f64; 2]> = ur[a].iter().filter_map(|&p| nearest(p)).collect();
+        ul[k]
+            .iter()
+            .flat_map(|l| {
+                let line = f * Vector3::new(l[0], l[1], 1.0);
+                let norm = line[0].hypot(line[1]);
+                moving.iter().map(move |r| {
+                    let d = (line[0] * r[0] + line[1] * r[1] + line[2]) / norm;
+                    d.abs().min(EPIPOLAR_CAP_PX).powi(2)
+                })
+            })
+            .min_by(f64::total_cmp)
     };
-    // The δ within `reach` of `centre` that fits frames `ks` best, and how many told it: a
-    // scan every `step`, then the parabola through the best and its neighbours (ties to the
-    // nearer `centre`).
-    let scan = |ks: &[usize], centre: f64, reach: f64, step: f64| -> Option<(f64, usize)> {
+    // The x within `reach` of `centre` that fits frames `ks` best, each at the offset
+    // `offset(t, x)` at its time t, and how many told it: a scan every `step`, then the
+    // parabola through the best and its neighbours (ties to the nearer `centre`).
+    type Offset<'a> = &'a dyn Fn(f64, f64) -> f64;
+    let scan = |ks: &[usize],
+                offset: Offset,
+                centre: f64,
+                reach: f64,
+                step: f64|
+     -> Option<(f64, usize)> {
+        let least = if ks.len() > DRIFT_FRAMES {
+            MIN_FRAMES
+        } else {
+            MIN_RUN_FRAMES
+        };
         let reach = (reach / step).ceil() as i64;
         let scanned: Vec<(f64, f64, usize)> = (-reach..=reach)
             .map(|j| {
-                let delta = centre + j as f64 * step;
+                let x = centre + j as f64 * step;
                 let (sum, n) = ks
                     .iter()
-                    .filter_map(|&k| frame_cost(k, delta))
+                    .filter_map(|&k| frame_cost(k, offset(left.times[k], x)))
                     .fold((0.0, 0), |(sum, n), c| (sum + c, n + 1));
-                let mean = if n > 0 { sum / n as f64 } else { f64::INFINITY };
-                (delta, mean, n)
+                let mean = if n >= least {
+                    sum / n as f64
+                } else {
+                    f64::INFINITY
+                };
+                (x, mean, n)
             })
             .collect();
         let best = (0..scanned.len()).min_by(|&a, &b| {
@@ -118,24 +155,25 @@ pub(super) fn clock_offset(
                 .then(near(scanned[a].0).total_cmp(&near(scanned[b].0)))
         })?;
         let n = scanned[best].2;
-        if n < 20 || !scanned[best].1.is_finite() {
+        if !scanned[best].1.is_finite() {
             return None;
         }
-        let mut delta = scanned[best].0;
+        let mut x = scanned[best].0;
         if best > 0 && best + 1 < scanned.len() {
             let (a, b, c) = (scanned[best - 1].1, scanned[best].1, scanned[best + 1].1);
             let curvature = a - 2.0 * b + c;
             if curvature > 0.0 && a.is_finite() && c.is_finite() {
-                delta += step * 0.5 * (a - c) / curvature;
+                x += step * 0.5 * (a - c) / curvature;
             }
         }
-        Some((delta, n))
+        Some((x, n))
     };
-    // A millisecond's scan over every offset looked for, then tenths of one around its best.
+    // The one offset for frames `ks`: a millisecond's scan over every offset looked for, then
+    // tenths of one around its best.
     let (fine, coarse) = (1e-4, 1e-3);
     let fit = |ks: &[usize], centre: f64, reach: f64| -> Option<(f64, usize)> {
-        let (rough, _) = scan(ks, centre, reach, coarse)?;
-        scan(ks, rough, 2.0 * coarse, fine)
+        let (rough, _) = scan(ks, &|_, x| x, centre, reach, coarse)?;
+        scan(ks, &|_, x| x, rough, 2.0 * coarse, fine)
     };
     let all: Vec<usize> = (0..ul.len()).collect();
     let Some((delta, frames)) = fit(&all, 0.0, MAX_OFFSET_S.max(right.period_s)) else {
@@ -147,19 +185,28 @@ pub(super) fn clock_offset(
         drift: 0.0,
         frames,
     };
-    // The offset in runs of moving frames, and the line through them.
-    let moving: Vec<usize> = all
-        .into_iter()
-        .filter(|&k| frame_cost(k, delta).is_some())
-        .collect();
-    let runs: Vec<(f64, f64)> = moving
+    // The offset in runs of a second of frames, those where the tip moves: each looked for over
+    // every offset first (a fast
+    // clock carries the stamps tens of milliseconds a second away from the session's δ), a
+    // line through those that a run which fits a wrong offset does not pull (Theil-Sen), then
+    // each run again within a period of that line.
+    let runs: Vec<(f64, &[usize])> = all
         .chunks_exact(DRIFT_FRAMES)
-        .filter_map(|run| {
-            let (d, _) = fit(run, delta, right.period_s)?;
+        .map(|run| {
             let t = run.iter().map(|&k| left.times[k]).sum::<f64>() / run.len() as f64;
-            Some((t, d))
+            (t, run)
         })
         .collect();
+    let offsets = |centre: &dyn Fn(f64) -> f64, reach: f64| -> Vec<(f64, f64)> {
+        runs.iter()
+            .filter_map(|&(t, run)| Some((t, fit(run, centre(t), reach)?.0)))
+            .collect()
+    };
+    let rough = offsets(&|_| delta, MAX_OFFSET_S.max(right.period_s));
+    let Some(robust) = theil_sen(&rough) else {
+        return Ok(constant);
+    };
+    let runs = offsets(&robust, right.period_s);
     if runs.len() < DRIFT_RUNS {
         return Ok(constant);
     }
@@ -171,12 +218,43 @@ pub(super) fn clock_offset(
     if line.slope.abs() <= student_t_995(runs.len() - 2) * slope_se {
         return Ok(constant);
     }
+    // The line refined on every frame: its offset, then its slope, in tenths of a millisecond
+    // at the session's ends (runs of a second, each off by a few ms where the tip starts, tell
+    // the line to some ms only).
+    let half_span = (left.times[left.times.len() - 1] - left.times[0]) / 2.0;
+    let (mid, mut offset_s, mut drift) = (line.mean_x, line.mean_y, line.slope);
+    for _ in 0..2 {
+        let shift = |t: f64, x: f64| offset_s + x + drift * (t - mid);
+        offset_s += scan(&all, &shift, 0.0, REFINE_S, fine).map_or(0.0, |(x, _)| x);
+        let tilt = |t: f64, x: f64| offset_s + x * (t - mid);
+        let step = fine / half_span;
+        drift = scan(&all, &tilt, drift, REFINE_S / half_span, step).map_or(drift, |(x, _)| x);
+    }
     Ok(ClockOffset {
-        offset_s: line.mean_y,
-        mid_s: line.mean_x,
-        drift: line.slope,
+        offset_s,
+        mid_s: mid,
+        drift,
         frames,
     })
+}
+
+/// The Theil-Sen line through `points`: the median of the slopes between every two, through
+/// the median of each point less that slope (`None` for fewer than [`DRIFT_RUNS`] points).
+fn theil_sen(points: &[(f64, f64)]) -> Option<impl Fn(f64) -> f64> {
+    if points.len() < DRIFT_RUNS {
+        return None;
+    }
+    let mut slopes: Vec<f64> = points
+        .iter()
+        .enumerate()
+        .flat_map(|(i, a)| points[i + 1..].iter().map(move |b| (a, b)))
+        .filter(|(a, b)| a.0 != b.0)
+        .map(|(a, b)| (b.1 - a.1) / (b.0 - a.0))
+        .collect();
+    let slope = crate::stats::upper_median(&mut slopes)?;
+    let mut intercepts: Vec<f64> = points.iter().map(|p| p.1 - slope * p.0).collect();
+    let intercept = crate::stats::upper_median(&mut intercepts)?;
+    Some(move |x: f64| intercept + slope * x)
 }
 
 #[cfg(test)]
@@ -190,5 +268,15 @@ mod tests {
         assert!((t[9] - 3.169).abs() < 1e-9);
         assert!(t[199] > 2.576 && t[199] < 2.61, "{}", t[199]);
         assert_eq!(student_t_995(0), f64::INFINITY);
+    }
+
+    #[test]
+    fn the_robust_line_is_not_pulled_by_a_run_that_fit_a_wrong_offset() {
+        let mut points: Vec<(f64, f64)> =
+            (0..8).map(|i| (i as f64, 0.1 + 0.05 * i as f64)).collect();
+        points[3].1 += 0.4;
+        let line = theil_sen(&points).unwrap();
+        assert!((line(0.0) - 0.1).abs() < 1e-12 && (line(10.0) - 0.6).abs() < 1e-12);
+        assert!(theil_sen(&points[..DRIFT_RUNS - 1]).is_none());
     }
 }

@@ -23,7 +23,11 @@ pub(super) fn frame_rows(
     let mut points = Vec::with_capacity(left.order.len());
     for ((k, &i), found) in left.order.iter().enumerate().zip(located) {
         let t = left.times[k];
-        let step = log.steps.partition_point(|s| s.time_s <= t).checked_sub(1);
+        let step = log
+            .steps
+            .partition_point(|s| s.time_s <= t)
+            .checked_sub(1)
+            .filter(|&k| t < log.end_s(k));
         let mut row = FrameRow {
             frame: records[i].index,
             time_s: t,
