@@ -285,7 +285,7 @@ fn no_origin_cause(
 
 /// What in the session's timing leaves no settled frame, as "; …" (empty when nothing): when
 /// most pairs were settling or straddling a command, the regulator's commands taking a large
-/// share of each step, or camera delays measured that large.
+/// share of each step, and camera delays measured that large — each said, as both can be.
 fn timing_cause(summary: &Summary, log: &PressureLog) -> String {
     let count = |k: &str| summary.pairs.get(k).copied().unwrap_or(0);
     let formed: usize = summary.pairs.values().sum();
@@ -293,17 +293,64 @@ fn timing_cause(summary: &Summary, log: &PressureLog) -> String {
         return String::new();
     }
     let step_ms = 1e3 * log.median_step_s;
-    if let Some([median, _]) = summary.clock.command_ms {
-        if median >= 0.25 * step_ms {
-            return format!(
-                "; the regulator's commands took {median:.0} ms (median) of {step_ms:.0} ms steps, and the finger settles after a command returns: hold each step longer or speed up the regulator"
+    let large = |ms: f64| ms >= 0.25 * step_ms;
+    let mut said = String::new();
+    if let Some([median, _]) = summary
+        .clock
+        .command_ms
+        .filter(|[median, _]| large(*median))
+    {
+        said += &format!(
+            "; the regulator's commands took {median:.0} ms (median) of {step_ms:.0} ms steps, and the finger settles after a command returns: hold each step longer or speed up the regulator"
+        );
+    }
+    let delays = summary.latency.cameras.each_ref();
+    if let [Some(l), Some(r)] = delays.map(|d| d.as_ref().map(|d| d.delay_ms)) {
+        if !summary.latency.given && large(l.max(r)) {
+            said += &format!(
+                "; the cameras' delays were measured at {l:.0}/{r:.0} ms (left/right) of {step_ms:.0} ms steps: if they are not that late, give --latency-ms"
             );
         }
     }
-    match summary.latency.cameras.each_ref().map(|d| d.as_ref().map(|d| d.delay_ms)) {
-        [Some(l), Some(r)] if !summary.latency.given && l.max(r) >= 0.25 * step_ms => format!(
-            "; the cameras' delays were measured at {l:.0}/{r:.0} ms (left/right) of {step_ms:.0} ms steps: if they are not that late, give --latency-ms"
-        ),
-        _ => String::new(),
+    said
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::triangulate::latency::Delay;
+
+    /// Hostile probe 11 (issue 61): a camera 300 ms late and a regulator taking 180 ms of 600 ms
+    /// steps: the refusal named only the regulator.
+    #[test]
+    fn hostile_a_late_camera_and_a_slow_regulator_are_both_said() {
+        let mut summary = Summary::default();
+        summary.pairs.insert("settling", 9);
+        summary.pairs.insert("used", 1);
+        summary.clock.command_ms = Some([180.0, 190.0]);
+        let delay = |delay_ms| Delay {
+            delay_ms,
+            within_ms: 2.0,
+            moves: 10,
+            lead_ms: 0.0,
+        };
+        summary.latency.cameras = [Some(delay(20.0)), Some(delay(300.0))];
+        let log = PressureLog {
+            path: "p.csv".into(),
+            steps: Vec::new(),
+            extra_columns: Vec::new(),
+            median_step_s: 0.6,
+        };
+        let said = timing_cause(&summary, &log);
+        assert!(said.contains("commands took 180 ms"), "{said}");
+        assert!(said.contains("measured at 20/300 ms"), "{said}");
+        summary.clock.command_ms = Some([10.0, 12.0]);
+        let said = timing_cause(&summary, &log);
+        assert!(
+            !said.contains("regulator") && said.contains("20/300"),
+            "{said}"
+        );
+        summary.latency.given = true;
+        assert_eq!(timing_cause(&summary, &log), "");
     }
 }
