@@ -78,6 +78,13 @@ pub enum CaptureError {
         path: PathBuf,
         source: std::io::Error,
     },
+    #[error("{first}; the session stopped{}, and its lists could not be written either ({lists}): images on disk may be unlisted and commands unlogged; free space, or film to another disk", if *vented { " and the abort command ran" } else { "" })]
+    ListsLost {
+        /// The write failure that stopped the session.
+        first: String,
+        lists: Box<CaptureError>,
+        vented: bool,
+    },
     #[error("OpenCV: {0}")]
     OpenCv(#[from] opencv::Error),
     #[error("the {thread} thread failed ({message}); what was recorded until then is kept and listed in {}", out.display())]

@@ -270,7 +270,7 @@ impl<'a> Recorder<'a> {
             out,
             options,
             frames_dir: out.join("frames"),
-            files: SessionFiles::new(out, options),
+            files: SessionFiles::new(out, options)?,
             judge: options
                 .calibration
                 .clone()
@@ -459,8 +459,8 @@ impl<'a> Recorder<'a> {
         }
     }
 
-    /// The session's end: a write failure said as the ending (the regulator vented, the files
-    /// written as far as the disk allows), the flash measured, the regulator vented when the
+    /// The session's end: a write failure said as the ending (the regulator vented, the lists
+    /// written in the space kept for them), the flash measured, the regulator vented when the
     /// session was aborted, the files written in their final order.
     fn finish(mut self, shared: Shared) -> Result<CaptureSummary, CaptureError> {
         if let Some(e) = self.failure.take() {
@@ -478,12 +478,17 @@ impl<'a> Recorder<'a> {
         let ending = self.ending.take().unwrap_or(Ending::Interrupted);
         let on_abort = vent(self.options, &ending);
         let summary = self.summary(ending, on_abort, &log, &shared);
-        // After a write failure the disk may take some files and not others: the failure is
-        // said already, and what could be written is.
+        // After a write failure the lists go in the space kept for them; a disk that does
+        // not take them even then is said with the failure that stopped the session.
         if let Err(e) = self.files.finish(&self.rows, &log, &summary) {
-            if !matches!(summary.ending, Ending::WriteFailed { .. }) {
-                return Err(e);
-            }
+            return Err(match &summary.ending {
+                Ending::WriteFailed { message } => CaptureError::ListsLost {
+                    first: message.clone(),
+                    lists: Box::new(e),
+                    vented: summary.on_abort.is_some(),
+                },
+                _ => e,
+            });
         }
         if let Ending::ThreadFailed { thread, message } = &summary.ending {
             return Err(CaptureError::ThreadFailed {

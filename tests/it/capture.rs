@@ -1,7 +1,7 @@
 //! `handcap capture` with two video files standing in for the cameras, and `handcap protocol`.
 
 use std::collections::HashSet;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use crate::common::{
     board_videos, capture_with, csv_rows, handcap, handcap_err, handcap_ok, mjpeg_server,
@@ -1225,4 +1225,73 @@ fn a_streaming_regulator_keeps_its_times_beside_two_streams_and_a_busy_machine()
     assert!(out.contains("regulator: 62 lines written"), "{out}");
     let [l, r] = assert_consistent(&d.join("s"));
     assert!(l >= 100 && r >= 100, "{l} left, {r} right frames");
+}
+
+/// A tmpfs of `bytes` mounted at `dir` for the life of the guard, when this process may mount
+/// one (root); `None` otherwise.
+struct Tmpfs(PathBuf);
+
+impl Tmpfs {
+    fn mount(dir: &Path, bytes: usize) -> Option<Tmpfs> {
+        std::fs::create_dir_all(dir).unwrap();
+        let size = format!("size={bytes}");
+        let mounted = std::process::Command::new("mount")
+            .args(["-t", "tmpfs", "-o", &size, "tmpfs"])
+            .arg(dir)
+            .stderr(std::process::Stdio::null())
+            .status()
+            .is_ok_and(|s| s.success());
+        mounted.then(|| Tmpfs(dir.to_path_buf()))
+    }
+}
+
+impl Drop for Tmpfs {
+    fn drop(&mut self) {
+        let _ = std::process::Command::new("umount").arg(&self.0).status();
+    }
+}
+
+/// Hostile probe 8 (issue 61): a disk that fills mid-capture (a real one: a 3 MB tmpfs) left 23
+/// of 25 commands out of `pressures.csv`, 45 frames on disk unlisted and `capture.json` saying
+/// "filming", while the message said every frame was kept and listed. Space for the lists is
+/// kept from the start: every command told is logged, every image on disk listed and every
+/// listed one there, the regulator vented, the ending said. Runs only where a tmpfs can be
+/// mounted (root); says so otherwise.
+#[test]
+fn hostile_a_disk_full_mid_capture_leaves_the_lists_true() {
+    let _cores = real_time();
+    let dir = tempdir();
+    let d = dir.path();
+    let Some(_disk) = Tmpfs::mount(&d.join("disk"), 3 << 20) else {
+        println!("did not run: mounting a tmpfs needs root");
+        return;
+    };
+    long_cameras(d);
+    protocol(d, "p.csv", "1");
+    let command = recorder(d, 0.05);
+    let mut args = session_args("disk/s", "p.csv", &command).to_vec();
+    args.extend(["--on-abort", "touch vented"]);
+    let out = handcap(d, &args);
+    let err = String::from_utf8_lossy(&out.stderr);
+    println!("{err}");
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(d.join("vented").is_file(), "the regulator was not vented");
+    let s = d.join("disk/s");
+    let json: serde_json::Value = read_json(&s.join("capture.json"));
+    assert!(
+        json["summary"]["ending"]["write_failed"].is_object(),
+        "{json}"
+    );
+    let told = std::fs::read_to_string(d.join("told.txt")).unwrap();
+    assert_eq!(csv_rows(&s.join("pressures.csv")).len(), told.lines().count());
+    let listed = assert_consistent(&s);
+    assert!(listed[0] > 5, "{listed:?}");
+    let left: Vec<String> = std::fs::read_dir(&s)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(
+        left.iter().all(|n| ["frames", "capture.json", "pressures.csv"].contains(&n.as_str())),
+        "{left:?}"
+    );
 }
