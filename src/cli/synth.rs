@@ -49,6 +49,14 @@ pub struct Args {
     /// Distance from the cameras to the finger's tip region (mm)
     #[arg(long, default_value_t = RigConfig::default().distance_mm)]
     distance_mm: f64,
+    /// The cameras' image width and height (px)
+    #[arg(long, default_value_t = RigConfig::default().width)]
+    width: u32,
+    #[arg(long, default_value_t = RigConfig::default().height)]
+    height: u32,
+    /// The cameras' diagonal field of view (degrees): with the size, their focal length
+    #[arg(long, default_value_t = RigConfig::default().fov_diag_deg, value_parser = super::finite)]
+    fov_deg: f64,
     /// Relative amplitude of a slow exposure drift (0: exposure locked)
     #[arg(long, default_value_t = 0.0)]
     exposure_drift: f64,
@@ -161,6 +169,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         rig: RigConfig {
             baseline_mm: a.baseline_mm,
             distance_mm: a.distance_mm,
+            width: a.width,
+            height: a.height,
+            fov_diag_deg: a.fov_deg,
             ..RigConfig::default()
         },
         views: a.views,

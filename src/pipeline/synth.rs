@@ -87,6 +87,12 @@ fn check(config: &SynthConfig, capture: Option<&CaptureConfig>) -> Result<(), Pi
     if !(rig.baseline_mm > 0.0 && (80.0..=400.0).contains(&rig.distance_mm)) {
         return refuse("baseline_mm= must be positive and distance_mm= lie in 80-400 mm");
     }
+    if !((160..=8192).contains(&rig.width) && (120..=8192).contains(&rig.height)) {
+        return refuse("width= must lie in 160-8192 px and height= in 120-8192 px");
+    }
+    if !(20.0..=150.0).contains(&rig.fov_diag_deg) {
+        return refuse("fov_deg= must lie in 20-150 degrees");
+    }
     Ok(())
 }
 

@@ -1283,7 +1283,10 @@ fn hostile_a_disk_full_mid_capture_leaves_the_lists_true() {
         "{json}"
     );
     let told = std::fs::read_to_string(d.join("told.txt")).unwrap();
-    assert_eq!(csv_rows(&s.join("pressures.csv")).len(), told.lines().count());
+    assert_eq!(
+        csv_rows(&s.join("pressures.csv")).len(),
+        told.lines().count()
+    );
     let listed = assert_consistent(&s);
     assert!(listed[0] > 5, "{listed:?}");
     let left: Vec<String> = std::fs::read_dir(&s)
@@ -1291,7 +1294,8 @@ fn hostile_a_disk_full_mid_capture_leaves_the_lists_true() {
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
         .collect();
     assert!(
-        left.iter().all(|n| ["frames", "capture.json", "pressures.csv"].contains(&n.as_str())),
+        left.iter()
+            .all(|n| ["frames", "capture.json", "pressures.csv"].contains(&n.as_str())),
         "{left:?}"
     );
 }

@@ -8,7 +8,8 @@ use crate::stereo::{Side, StereoRig};
 use crate::triangulate::{distance_px, TriangulateError};
 
 /// Epipolar distances above this count as this in the clock's fit (px): detections gone wrong
-/// must not pull it.
+/// must not pull it. This and [`MOVING_PX`] are multiples of a bead centre's noise (0.02-0.1 px
+/// measured), which does not grow with the focal length: in pixels, unscaled.
 const EPIPOLAR_CAP_PX: f64 = 2.0;
 /// The tip must move at least this between two right frames (px) for the frame to tell the
 /// clock offset.
@@ -99,7 +100,7 @@ pub(super) fn clock_offset(
                 .iter()
                 .copied()
                 .min_by(|&q, &r| distance_px(p, q).total_cmp(&distance_px(p, r)))?;
-            (MOVING_PX..=NEIGHBOUR_PX)
+            (MOVING_PX..=right.px(NEIGHBOUR_PX))
                 .contains(&distance_px(p, q))
                 .then(|| lerp(p, q, s))
         };

@@ -160,8 +160,8 @@ pub fn triangulate_per_frame(
     let records = &frames.records;
     let shift = options.latency_s.unwrap_or([0.0; 2]);
     let (left, right) = (
-        Track::of(records, Side::Left, shift[0], index)?,
-        Track::of(records, Side::Right, shift[1], index)?,
+        Track::of(records, Side::Left, shift[0], rig.left.k[0], index)?,
+        Track::of(records, Side::Right, shift[1], rig.right.k[0], index)?,
     );
     let unpaired = |why: String| TriangulateError::Unpaired {
         index: index.to_path_buf(),
@@ -380,7 +380,7 @@ fn locate_all(
             };
             // The left frame's centre, smeared over a jump, is no better than the right's.
             match left.jerk_around(k, tip.left_px, centres) {
-                Some(jerk) if jerk > MAX_SPREAD_PX => Err("fast"),
+                Some(jerk) if jerk > left.px(MAX_SPREAD_PX) => Err("fast"),
                 _ => Ok(tip),
             }
         })
@@ -472,7 +472,7 @@ fn locate_between(
     let pairs: Vec<([f64; 2], [f64; 2])> = ca
         .iter()
         .flat_map(|&p| cb.iter().map(move |&q| (p, q)))
-        .filter(|&(p, q)| distance_px(p, q) <= NEIGHBOUR_PX)
+        .filter(|&(p, q)| distance_px(p, q) <= right.px(NEIGHBOUR_PX))
         .collect();
     if pairs.is_empty() {
         return Err("no_marker_right");
@@ -486,7 +486,7 @@ fn locate_between(
         match (nearest(before, p), nearest(after, q), right.knots(a, b)) {
             (Some(o), Some(r), Some(knots)) => {
                 let points = [o, p, q, r];
-                if track_spread_px(points, knots) <= MAX_SPREAD_PX {
+                if track_spread_px(points, knots) <= right.px(MAX_SPREAD_PX) {
                     Ok(catmull_rom(points, knots, t))
                 } else {
                     Err("fast")
@@ -547,6 +547,7 @@ mod tests {
             times: (0..count).map(|k| (k as f64 + phase) * PERIOD).collect(),
             period_s: PERIOD,
             jitter_s: None,
+            px_scale: 1.0,
         }
     }
 

@@ -14,6 +14,11 @@ use crate::triangulate::{distance_px, TriangulateError};
 /// one the spline still holds: a PNG session dropping one right frame in 20 gives 38 more rows
 /// and 0.0196 mm RMS over all, against 0.0184 without them).
 pub(super) const MAX_GAP_PERIODS: f64 = 2.5;
+/// The pixel limits below are a tip's motion in the image, measured on the synth's default rig
+/// (1280 × 720, 78° diagonal: a C920's focal length, [`REFERENCE_FOCAL_PX`]); a track scales them
+/// by its camera's focal length ([`Track::px`]), so that they mean the same motion of the finger
+/// at another resolution or lens (checked at 640 × 480 with 90° and 1920 × 1080 with 55°).
+pub(super) const REFERENCE_FOCAL_PX: f64 = 906.8;
 /// The most a track may be unsure of the tip between two frames ([`track_spread_px`], px):
 /// 1.4 × the most seen on dynamic sessions (0.70 px at 150 commands/s; 0.3-0.7 over seven
 /// sessions, either camera), a tenth of what a step whose line and lag are shorter than a frame
@@ -34,14 +39,18 @@ pub(super) struct Track {
     pub period_s: f64,
     /// The stamps' RMS about the regular clock (s), when they lie on one.
     pub jitter_s: Option<f64>,
+    /// The camera's focal length over [`REFERENCE_FOCAL_PX`].
+    pub px_scale: f64,
 }
 
 impl Track {
-    /// `index` names the frame list in messages.
+    /// `side`'s frames, their stamps shifted by `shift_s`, for a camera of focal length
+    /// `focal_px`; `index` names the frame list in messages.
     pub(super) fn of(
         records: &[FrameRecord],
         side: Side,
         shift_s: f64,
+        focal_px: f64,
         index: &Path,
     ) -> Result<Track, TriangulateError> {
         let mut order: Vec<usize> = (0..records.len())
@@ -77,7 +86,13 @@ impl Track {
             times,
             period_s,
             jitter_s,
+            px_scale: focal_px / REFERENCE_FOCAL_PX,
         })
+    }
+
+    /// A pixel limit measured on the reference rig, in this camera's pixels.
+    pub(super) fn px(&self, reference_px: f64) -> f64 {
+        reference_px * self.px_scale
     }
 
     /// The frames just before and after `t` (positions in the track) and where `t` lies
@@ -118,7 +133,7 @@ impl Track {
             .ok()?
             .into_iter()
             .map(|c| (distance_px(c, to), c))
-            .filter(|(d, _)| *d <= JUMP_PX)
+            .filter(|(d, _)| *d <= self.px(JUMP_PX))
             .min_by(|x, y| x.0.total_cmp(&y.0))
             .map(|(_, c)| c)
     }
@@ -171,8 +186,9 @@ pub(super) fn smoothed_tracks(
         for k in 2..track.times.len().saturating_sub(2) {
             let window: Option<Vec<[f64; 2]>> = (k - 2..=k + 2).map(|j| seen[j]).collect();
             let even = (k - 2..k + 2).all(|j| (track.periods_apart(j, j + 1) - 1.0).abs() <= 0.25);
-            let smooth =
-                |w: &Vec<[f64; 2]>| jerk_px(w, &track.times[k - 2..=k + 2]) <= MAX_SPREAD_PX;
+            let smooth = |w: &Vec<[f64; 2]>| {
+                jerk_px(w, &track.times[k - 2..=k + 2]) <= track.px(MAX_SPREAD_PX)
+            };
             let Some(w) = window.filter(|w| even && smooth(w)) else {
                 continue;
             };
