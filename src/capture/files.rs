@@ -40,6 +40,10 @@ const RESERVE_MIN_BYTES: usize = 1 << 20;
 
 impl Reserve {
     fn new(out: &Path) -> Result<Reserve, CaptureError> {
+        std::fs::create_dir_all(out).map_err(|source| CaptureError::Write {
+            path: out.to_path_buf(),
+            source,
+        })?;
         let mut reserve = Reserve {
             path: out.join(RESERVE_FILE),
             bytes: 0,

@@ -102,7 +102,7 @@ fn synth_writes_the_capture_layout_and_refuses_bad_settings() {
     let pressures = std::fs::read_to_string(d.join("cap/pressures.csv")).unwrap();
     assert_eq!(pressures.lines().count(), 1 + 8 + 2 + 2);
     assert!(pressures.starts_with(
-        "time_s,P1_kpa,P2_kpa,P3_kpa,step,phase
+        "time_s,P1_kpa,P2_kpa,P3_kpa,step,phase,hold_s
 "
     ));
 

@@ -65,16 +65,15 @@ impl ClockOffset {
 pub(super) type Candidates = [Vec<Vec<[f64; 2]>>; 2];
 
 /// The clock offset (see the module docs, step 3) from every candidate of every frame: one δ
-/// for the whole session, then one for each run of [`DRIFT_FRAMES`] moving frames; a line
-/// through those is the offset when its slope differs from 0 at the 1 % level (Student's t; a
-/// drift: stamps from each camera's own clock, or videos whose frame rates are off).
+/// for the whole session, then one for each run of [`DRIFT_FRAMES`] frames; a line through
+/// those is the offset when its slope differs from 0 at the 1 % level (Student's t; a drift:
+/// stamps from each camera's own clock, or videos whose frame rates are off).
 pub(super) fn clock_offset(
     rig: &StereoRig,
     left: &Track,
     right: &Track,
     candidates: &Candidates,
 ) -> Result<ClockOffset, TriangulateError> {
-    // The candidates, undistorted once.
     let undistort =
         |px: &[Vec<[f64; 2]>], side: Side| -> Result<Vec<Vec<[f64; 2]>>, TriangulateError> {
             let all: Vec<[f64; 2]> = px.iter().flatten().copied().collect();
@@ -84,17 +83,58 @@ pub(super) fn clock_offset(
                 .map(|c| c.iter().filter_map(|_| undistorted.next()).collect())
                 .collect())
         };
-    let (ul, ur) = (
-        undistort(&candidates[0], Side::Left)?,
-        undistort(&candidates[1], Side::Right)?,
-    );
-    let f = rig.fundamental();
-    // Left frame k's capped squared epipolar distance at offset δ, where the tip moves: the
-    // least over its candidates and the right frames' around the instant, each candidate of the
-    // one before taken with its nearest in the one after (one object), where that moved (a still
-    // red object is no clock; a candidate gone wrong costs the cap at most).
-    let frame_cost = |k: usize, delta: f64| -> Option<f64> {
-        let (a, b, s) = right.around(left.times[k] + delta).ok()?;
+    let clock = Epipolar {
+        left,
+        right,
+        undistorted: [
+            undistort(&candidates[0], Side::Left)?,
+            undistort(&candidates[1], Side::Right)?,
+        ],
+        fundamental: rig.fundamental(),
+    };
+    let all: Vec<usize> = (0..left.times.len()).collect();
+    let Some((delta, frames)) = clock.fit(&all, 0.0, MAX_OFFSET_S.max(right.period_s)) else {
+        return Ok(ClockOffset::default());
+    };
+    let constant = ClockOffset {
+        offset_s: delta,
+        mid_s: 0.0,
+        drift: 0.0,
+        frames,
+    };
+    Ok(clock
+        .drift(&all, delta)
+        .map_or(constant, |(offset_s, mid_s, drift)| ClockOffset {
+            offset_s,
+            mid_s,
+            drift,
+            frames,
+        }))
+}
+
+/// What tells the clock offset: the candidates undistorted, and the epipolar geometry.
+struct Epipolar<'a> {
+    left: &'a Track,
+    right: &'a Track,
+    undistorted: Candidates,
+    fundamental: nalgebra::Matrix3<f64>,
+}
+
+/// The offset of a frame at time t for a scanned value x.
+type Offset<'a> = &'a dyn Fn(f64, f64) -> f64;
+
+/// The scans' steps (s): a millisecond, then a tenth of one.
+const COARSE_S: f64 = 1e-3;
+const FINE_S: f64 = 1e-4;
+
+impl Epipolar<'_> {
+    /// Left frame k's capped squared epipolar distance at offset δ, where the tip moves: the
+    /// least over its candidates and the right frames' around the instant, each candidate of
+    /// the one before taken with its nearest in the one after (one object), where that moved (a
+    /// still red object is no clock; a candidate gone wrong costs the cap at most).
+    fn frame_cost(&self, k: usize, delta: f64) -> Option<f64> {
+        let (right, [ul, ur]) = (self.right, &self.undistorted);
+        let (a, b, s) = right.around(self.left.times[k] + delta).ok()?;
         let nearest = |p: [f64; 2]| {
             let q = ur[b]
                 .iter()
@@ -108,7 +148,7 @@ pub(super) fn clock_offset(
         ul[k]
             .iter()
             .flat_map(|l| {
-                let line = f * Vector3::new(l[0], l[1], 1.0);
+                let line = self.fundamental * Vector3::new(l[0], l[1], 1.0);
                 let norm = line[0].hypot(line[1]);
                 moving.iter().map(move |r| {
                     let d = (line[0] * r[0] + line[1] * r[1] + line[2]) / norm;
@@ -116,17 +156,19 @@ pub(super) fn clock_offset(
                 })
             })
             .min_by(f64::total_cmp)
-    };
-    // The x within `reach` of `centre` that fits frames `ks` best, each at the offset
-    // `offset(t, x)` at its time t, and how many told it: a scan every `step`, then the
-    // parabola through the best and its neighbours (ties to the nearer `centre`).
-    type Offset<'a> = &'a dyn Fn(f64, f64) -> f64;
-    let scan = |ks: &[usize],
-                offset: Offset,
-                centre: f64,
-                reach: f64,
-                step: f64|
-     -> Option<(f64, usize)> {
+    }
+
+    /// The x within `reach` of `centre` that fits frames `ks` best, each at the offset
+    /// `offset(t, x)` at its time t, and how many told it: a scan every `step`, then the
+    /// parabola through the best and its neighbours (ties to the nearer `centre`).
+    fn scan(
+        &self,
+        ks: &[usize],
+        offset: Offset,
+        centre: f64,
+        reach: f64,
+        step: f64,
+    ) -> Option<(f64, usize)> {
         let least = if ks.len() > DRIFT_FRAMES {
             MIN_FRAMES
         } else {
@@ -138,7 +180,7 @@ pub(super) fn clock_offset(
                 let x = centre + j as f64 * step;
                 let (sum, n) = ks
                     .iter()
-                    .filter_map(|&k| frame_cost(k, offset(left.times[k], x)))
+                    .filter_map(|&k| self.frame_cost(k, offset(self.left.times[k], x)))
                     .fold((0.0, 0), |(sum, n), c| (sum + c, n + 1));
                 let mean = if n >= least {
                     sum / n as f64
@@ -168,75 +210,64 @@ pub(super) fn clock_offset(
             }
         }
         Some((x, n))
-    };
-    // The one offset for frames `ks`: a millisecond's scan over every offset looked for, then
-    // tenths of one around its best.
-    let (fine, coarse) = (1e-4, 1e-3);
-    let fit = |ks: &[usize], centre: f64, reach: f64| -> Option<(f64, usize)> {
-        let (rough, _) = scan(ks, &|_, x| x, centre, reach, coarse)?;
-        scan(ks, &|_, x| x, rough, 2.0 * coarse, fine)
-    };
-    let all: Vec<usize> = (0..ul.len()).collect();
-    let Some((delta, frames)) = fit(&all, 0.0, MAX_OFFSET_S.max(right.period_s)) else {
-        return Ok(ClockOffset::default());
-    };
-    let constant = ClockOffset {
-        offset_s: delta,
-        mid_s: 0.0,
-        drift: 0.0,
-        frames,
-    };
-    // The offset in runs of a second of frames, those where the tip moves: each looked for over
-    // every offset first (a fast
-    // clock carries the stamps tens of milliseconds a second away from the session's δ), a
-    // line through those that a run which fits a wrong offset does not pull (Theil-Sen), then
-    // each run again within a period of that line.
-    let runs: Vec<(f64, &[usize])> = all
-        .chunks_exact(DRIFT_FRAMES)
-        .map(|run| {
-            let t = run.iter().map(|&k| left.times[k]).sum::<f64>() / run.len() as f64;
-            (t, run)
-        })
-        .collect();
-    let offsets = |centre: &dyn Fn(f64) -> f64, reach: f64| -> Vec<(f64, f64)> {
-        runs.iter()
-            .filter_map(|&(t, run)| Some((t, fit(run, centre(t), reach)?.0)))
-            .collect()
-    };
-    let rough = offsets(&|_| delta, MAX_OFFSET_S.max(right.period_s));
-    let Some(robust) = theil_sen(&rough) else {
-        return Ok(constant);
-    };
-    let runs = offsets(&robust, right.period_s);
-    if runs.len() < DRIFT_RUNS {
-        return Ok(constant);
     }
-    let Some(line) = Line::fit(&runs) else {
-        return Ok(constant);
-    };
-    let residual: f64 = runs.iter().map(|&(t, d)| (d - line.at(t)).powi(2)).sum();
-    let slope_se = (residual / (runs.len() - 2) as f64 / line.sxx).sqrt();
-    if line.slope.abs() <= student_t_995(runs.len() - 2) * slope_se {
-        return Ok(constant);
+
+    /// The one offset for frames `ks` within `reach` of `centre`: a millisecond's scan, then
+    /// tenths of one around its best.
+    fn fit(&self, ks: &[usize], centre: f64, reach: f64) -> Option<(f64, usize)> {
+        let (rough, _) = self.scan(ks, &|_, x| x, centre, reach, COARSE_S)?;
+        self.scan(ks, &|_, x| x, rough, 2.0 * COARSE_S, FINE_S)
     }
-    // The line refined on every frame: its offset, then its slope, in tenths of a millisecond
-    // at the session's ends (runs of a second, each off by a few ms where the tip starts, tell
-    // the line to some ms only).
-    let half_span = (left.times[left.times.len() - 1] - left.times[0]) / 2.0;
-    let (mid, mut offset_s, mut drift) = (line.mean_x, line.mean_y, line.slope);
-    for _ in 0..2 {
-        let shift = |t: f64, x: f64| offset_s + x + drift * (t - mid);
-        offset_s += scan(&all, &shift, 0.0, REFINE_S, fine).map_or(0.0, |(x, _)| x);
-        let tilt = |t: f64, x: f64| offset_s + x * (t - mid);
-        let step = fine / half_span;
-        drift = scan(&all, &tilt, drift, REFINE_S / half_span, step).map_or(drift, |(x, _)| x);
+
+    /// The drift, when the frames `all` (whose one offset is `delta`) show one: the offset at
+    /// the middle, that middle, and the slope. Each run of [`DRIFT_FRAMES`] frames (those where
+    /// the tip moves tell) is looked for over every offset first (a fast clock carries the
+    /// stamps tens of milliseconds a second away from the session's δ); a line through those
+    /// that a run which fits a wrong offset does not pull (Theil-Sen); each run again within a
+    /// period of that line; their line tested, then refined on every frame.
+    fn drift(&self, all: &[usize], delta: f64) -> Option<(f64, f64, f64)> {
+        let (left, right) = (self.left, self.right);
+        let runs: Vec<(f64, &[usize])> = all
+            .chunks_exact(DRIFT_FRAMES)
+            .map(|run| {
+                let t = run.iter().map(|&k| left.times[k]).sum::<f64>() / run.len() as f64;
+                (t, run)
+            })
+            .collect();
+        let offsets = |centre: &dyn Fn(f64) -> f64, reach: f64| -> Vec<(f64, f64)> {
+            runs.iter()
+                .filter_map(|&(t, run)| Some((t, self.fit(run, centre(t), reach)?.0)))
+                .collect()
+        };
+        let robust = theil_sen(&offsets(&|_| delta, MAX_OFFSET_S.max(right.period_s)))?;
+        let runs = offsets(&robust, right.period_s);
+        if runs.len() < DRIFT_RUNS {
+            return None;
+        }
+        let line = Line::fit(&runs)?;
+        let residual: f64 = runs.iter().map(|&(t, d)| (d - line.at(t)).powi(2)).sum();
+        let slope_se = (residual / (runs.len() - 2) as f64 / line.sxx).sqrt();
+        if line.slope.abs() <= student_t_995(runs.len() - 2) * slope_se {
+            return None;
+        }
+        // Runs of a second, each off by a few ms where the tip starts, tell the line to some
+        // ms: its offset, then its slope, refined on every frame to tenths of a millisecond at
+        // the session's ends.
+        let half_span = (left.times[left.times.len() - 1] - left.times[0]) / 2.0;
+        let (mid, mut offset_s, mut drift) = (line.mean_x, line.mean_y, line.slope);
+        for _ in 0..2 {
+            let shift = |t: f64, x: f64| offset_s + x + drift * (t - mid);
+            offset_s += self
+                .scan(all, &shift, 0.0, REFINE_S, FINE_S)
+                .map_or(0.0, |(x, _)| x);
+            let tilt = |t: f64, x: f64| offset_s + x * (t - mid);
+            let (reach, step) = (REFINE_S / half_span, FINE_S / half_span);
+            drift = self
+                .scan(all, &tilt, drift, reach, step)
+                .map_or(drift, |(x, _)| x);
+        }
+        Some((offset_s, mid, drift))
     }
-    Ok(ClockOffset {
-        offset_s,
-        mid_s: mid,
-        drift,
-        frames,
-    })
 }
 
 /// The Theil-Sen line through `points`: the median of the slopes between every two, through
