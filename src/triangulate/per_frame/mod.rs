@@ -23,7 +23,8 @@
 //!    either side, at their own times, so across a dropped frame too; linearly where a side
 //!    has no such frame) — never the nearest frame, which at tens of mm/s is off by more than
 //!    the error budget. Every combination of candidates (left × right before × right after,
-//!    the two right ones within 30 px of each other: one object) is triangulated and
+//!    the two right ones within 30 px of each other, at a C920's focal length, scaled by the
+//!    camera's: one object) is triangulated and
 //!    reprojected as for a step's pair; exactly one consistent → the row's tip. None: one of
 //!    the two right frames left out as if dropped (the bead hidden in it), the frames on
 //!    either side taken instead, where exactly one of the two ways gives tips. Several (a
