@@ -1,6 +1,7 @@
 //! The offset between the cameras' clocks, from the motion itself (the module docs' step 3).
 
 use nalgebra::Vector3;
+use rayon::prelude::*;
 
 use super::{lerp, Track, NEIGHBOUR_PX};
 use crate::stats::Line;
@@ -121,7 +122,7 @@ struct Epipolar<'a> {
 }
 
 /// The offset of a frame at time t for a scanned value x.
-type Offset<'a> = &'a dyn Fn(f64, f64) -> f64;
+type Offset<'a> = &'a (dyn Fn(f64, f64) -> f64 + Sync);
 
 /// The scans' steps (s): a millisecond, then a tenth of one.
 const COARSE_S: f64 = 1e-3;
@@ -176,6 +177,7 @@ impl Epipolar<'_> {
         };
         let reach = (reach / step).ceil() as i64;
         let scanned: Vec<(f64, f64, usize)> = (-reach..=reach)
+            .into_par_iter()
             .map(|j| {
                 let x = centre + j as f64 * step;
                 let (sum, n) = ks
