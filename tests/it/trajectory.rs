@@ -389,12 +389,13 @@ fn the_dynamic_inverse_anticipates_the_lag_and_learning_closes_the_rest() {
 /// model of the pneumatic plant learns on a finger whose dynamics it does not know: 50 ms of
 /// delay (30), lags of 0.3, 0.12, 0.22 s (0.15, 0.25, 0.4), 12 % creeping over 5 s (8 % over 3),
 /// and 8 kPa of play (none), scored against that finger's truth beside the textbook ILC tuned on
-/// it. Measured: after six repetitions 0.0437 and 0.0618 mm at 6.5 and 3.5 s, where the textbook
-/// ILC, handed this finger's map and each muscle's true lead, reaches 0.0266 and 0.0552: handcap
-/// times its corrections by the model's muscles, not this finger's, and converges more slowly
-/// (the bar, no worse than the textbook, is not met; a per-input lag estimated from each
-/// run helped at 6.5 s and stalled at 3.5: 0.038 and 0.104 mm). What holds is asserted: every
-/// repetition better than the one before, and within twice the textbook's error.
+/// it. Measured: after six repetitions 0.0323 and 0.0476 mm at 6.5 and 3.5 s, where the textbook
+/// ILC, handed this finger's map and each muscle's true lead, reaches 0.0266 and 0.0552. Each
+/// repetition shifts its error by how late this finger's outputs run against the model's
+/// prediction of them (before: 0.0437 and 0.0618; a gain of 0.7 or more stalls or diverges
+/// here). The bar, no worse than the textbook at both periods, is met at 3.5 s only;
+/// asserted: every repetition better than the one before, and within 1.3 times the textbook's
+/// error.
 #[test]
 fn learning_holds_on_a_finger_the_model_does_not_know() {
     let dir = tempdir();
@@ -423,7 +424,7 @@ fn learning_holds_on_a_finger_the_model_does_not_know() {
         }
         let last = *errors.last().unwrap();
         assert!(
-            last <= 2.0 * textbook[6],
+            last <= 1.3 * textbook[6],
             "after 6 repetitions {errors:.4?}, tuned textbook ILC {textbook:.4?}"
         );
     }

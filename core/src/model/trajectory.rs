@@ -17,8 +17,10 @@
 //! inverse is the plan.
 //!
 //! [`learn`]: one repetition of iterative learning control. The error of the run played with the
-//! previous commands, e = y* − y_measured, smoothed along time (the Q-filter), moves the
-//! reference the model's prediction of those commands aims at: r = ŷ(u_prev) + γ e; the next
+//! previous commands, e = y* − y_measured, smoothed along time (the Q-filter) and shifted by how
+//! late the outputs measured run against the model's prediction of them (a finger slower than
+//! the model: the error at k + late is what the commands at k left), moves the reference the
+//! model's prediction of those commands aims at: r = ŷ(u_prev) + γ e; the next
 //! commands are planned for r from u_prev (a Gauss-Newton step on the model's Jacobian along the
 //! path). Where the plant's map is the model's times (1 + δ), the error shrinks by |1 − γ(1 + δ)|
 //! a repetition: with γ = 0.5 it converges for δ from −100 % to +300 %, by 0.3-0.7 a
@@ -297,12 +299,45 @@ pub fn learn(
     }
     let error: Vec<f64> = targets.iter().zip(measured).map(|(t, m)| t - m).collect();
     let error = smooth_rows(&error, q, rows_in(ERROR_SMOOTHING_S, time));
+    // A finger slower than the model shows each command's effect later: the error at k + late
+    // is what the commands at k left.
+    let late = lateness(&predicted, measured, q, rows_in(MAX_LATE_S, time));
+    let n = error.len() / q;
+    let error: Vec<f64> = (0..n)
+        .flat_map(|k| {
+            let j = (k as i64 + late).clamp(0, n as i64 - 1) as usize;
+            error[j * q..(j + 1) * q].to_vec()
+        })
+        .collect();
     let reference: Vec<f64> = predicted
         .iter()
         .zip(&error)
         .map(|(p, e)| p + gain * e)
         .collect();
     Ok(refine(&along, &reference, previous.to_vec(), options))
+}
+
+/// The most the plant's outputs may lag (or lead) the model's prediction of them (s).
+const MAX_LATE_S: f64 = 0.3;
+
+/// How many rows the outputs `measured` lag the model's prediction of them (negative: lead),
+/// within ±`reach`: the shift that brings them closest (mean squared distance over the rows
+/// both cover).
+fn lateness(predicted: &[f64], measured: &[f64], q: usize, reach: usize) -> i64 {
+    let n = predicted.len() / q;
+    let cost = |shift: i64| -> f64 {
+        let rows = (0..n as i64).filter(|&k| (0..n as i64).contains(&(k + shift)));
+        let (sum, count) = rows.fold((0.0, 0usize), |(sum, count), k| {
+            let (a, b) = (k as usize * q, (k + shift) as usize * q);
+            let d = squared_distance(&predicted[a..a + q], &measured[b..b + q]);
+            (sum + d, count + 1)
+        });
+        sum / count.max(1) as f64
+    };
+    let reach = reach.min(n / 4) as i64;
+    (-reach..=reach)
+        .min_by(|&a, &b| cost(a).total_cmp(&cost(b)).then(a.abs().cmp(&b.abs())))
+        .unwrap_or(0)
 }
 
 /// The RMS distance of the targets and of the outputs measured from the targets' mean.
