@@ -44,12 +44,15 @@ impl PressureLog {
             .map_or(self.steps[k].time_s + self.last_hold_s(), |s| s.time_s)
     }
 
-    /// How long the last step was held: its `hold_s`, or the log's median step.
+    /// How long step `k` was meant to hold: its `hold_s`, or the log's median step where the
+    /// log does not say.
+    pub fn planned_s(&self, k: usize) -> f64 {
+        self.steps[k].hold_s.unwrap_or(self.median_step_s)
+    }
+
+    /// How long the last step was held ([`Self::planned_s`]).
     fn last_hold_s(&self) -> f64 {
-        self.steps
-            .last()
-            .and_then(|s| s.hold_s)
-            .unwrap_or(self.median_step_s)
+        self.planned_s(self.steps.len() - 1)
     }
 
     /// When the regulator holds step `k`'s pressures: from its command's return (its start,

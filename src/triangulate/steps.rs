@@ -88,8 +88,7 @@ impl<'a> Steps<'a> {
                 if spread > options.max_spread_mm {
                     flags.push("spread");
                 }
-                let planned = log.steps[k].hold_s.unwrap_or(log.median_step_s);
-                if log.end_s(k) - log.steps[k].time_s > 1.5 * planned {
+                if log.end_s(k) - log.steps[k].time_s > 1.5 * log.planned_s(k) {
                     flags.push("long_step");
                 }
                 (spread, flags)

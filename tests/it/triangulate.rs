@@ -1048,6 +1048,16 @@ fn squared_tip_error(row: &Row, truth: &Row) -> f64 {
         .sum()
 }
 
+/// Each unflagged row of `d/dyn.csv`: its tip's distance from the truth at its frame (mm).
+fn unflagged_tip_errors(d: &Path) -> Vec<f64> {
+    let truth = truth_by_frame(d);
+    csv_rows(&d.join("dyn.csv"))
+        .iter()
+        .filter(|r| r["flag"].is_empty())
+        .map(|r| squared_tip_error(r, &truth[&r["frame"]]).sqrt())
+        .collect()
+}
+
 /// `--per-frame` on a finger in motion: one row per left frame, the tip at its instant against
 /// the truth, the pressures then in force, the cameras' clock offset told by the motion.
 #[test]
@@ -1201,16 +1211,13 @@ fn per_frame_follows_stamps_offset_by_more_than_a_frame_drifting_apart_and_dropp
         (offset - true_offset).abs() <= 3.0,
         "clock offset {offset} ms, truth {true_offset}"
     );
-    let truth = truth_by_frame(d);
-    let (mut squares, mut good) = (0.0, 0);
-    for r in csv_rows(&d.join("dyn.csv")) {
-        if r["flag"].is_empty() {
-            squares += squared_tip_error(&r, &truth[&r["frame"]]);
-            good += 1;
-        }
-    }
-    let rms = (squares / good as f64).sqrt();
-    assert!(rms <= 0.03, "per-frame tip RMS {rms} mm over {good} rows");
+    let errors = unflagged_tip_errors(d);
+    let rms = handcap::model::trajectory::rms(&errors);
+    assert!(
+        rms <= 0.03,
+        "per-frame tip RMS {rms} mm over {} rows",
+        errors.len()
+    );
 }
 
 /// A per-frame session whose log does not start at rest, or whose stamps go back, is refused in
@@ -1381,14 +1388,9 @@ fn hostile_per_frame_follows_a_camera_clock_running_five_per_cent_fast() {
     let summary: serde_json::Value = read_json(&d.join("dyn_summary.json"));
     let drift = summary["summary"]["clock_drift_ms"].as_f64().unwrap();
     assert!((drift - 700.0).abs() <= 10.0, "drift {drift} ms");
-    let truth = truth_by_frame(d);
-    let errors: Vec<f64> = csv_rows(&d.join("dyn.csv"))
-        .iter()
-        .filter(|r| r["flag"].is_empty())
-        .map(|r| squared_tip_error(r, &truth[&r["frame"]]).sqrt())
-        .collect();
+    let errors = unflagged_tip_errors(d);
     assert!(errors.len() >= 350, "{} good rows of 420", errors.len());
-    let rms = (errors.iter().map(|e| e * e).sum::<f64>() / errors.len() as f64).sqrt();
+    let rms = handcap::model::trajectory::rms(&errors);
     let worst = errors.iter().copied().fold(0.0, f64::max);
     assert!(
         rms <= 0.03 && worst <= 0.3,

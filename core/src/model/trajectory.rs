@@ -306,8 +306,9 @@ pub fn learn(
     let error: Vec<f64> = (0..n)
         .flat_map(|k| {
             let j = (k as i64 + late).clamp(0, n as i64 - 1) as usize;
-            error[j * q..(j + 1) * q].to_vec()
+            &error[j * q..(j + 1) * q]
         })
+        .copied()
         .collect();
     let reference: Vec<f64> = predicted
         .iter()
