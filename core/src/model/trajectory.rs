@@ -9,8 +9,11 @@
 //! `g_i = 1 − exp(−Δt_i / τ)`; a lag: `u_{k−l}`), so the outputs' Jacobian over every command
 //! is the kernel's exact derivative through those weights.
 //!
-//! [`plan`]: min Σ_k ‖y_k − y*_k‖² + λ Σ_k ‖(u_k − u_{k−1}) / range‖² over the box, each input
-//! changing by at most its rate limit per second. Solved by projected Levenberg-Marquardt on
+//! [`plan`]: min Σ_k ‖y_k − y*_k‖² + λ (Δ₀/Δt)² Σ_k ‖(u_k − u_{k−1}) / range‖² over the box,
+//! each input changing by at most its rate limit per second. Δt is the path's median step and
+//! Δ₀ = 1/30 s ([`SMOOTHNESS_STEP_S`]): the cost is the sum over rows of ∫ ‖e‖² dt + λ Δ₀² ∫ ‖u̇ /
+//! range‖² dt divided by Δt, so a path sampled faster or slower is planned alike and λ means
+//! what it means on a 30 Hz path. Solved by projected Levenberg-Marquardt on
 //! receding windows (a few times the model's memory long; the first half of each window is
 //! kept, the rest planned again with the next), from the pointwise inverse of the steady state
 //! (the static feed-forward). A model without history has nothing to anticipate: the pointwise
@@ -53,7 +56,8 @@ pub struct PlanOptions {
     pub inverse: InverseOptions,
     /// Largest change of each input per unit of time (`None`: unlimited).
     pub rate: Option<Vec<f64>>,
-    /// λ: the weight of the commands' smoothness against the squared output error.
+    /// λ: the weight of the commands' smoothness against the squared output error, on a path
+    /// sampled at [`SMOOTHNESS_STEP_S`] (other steps are scaled to weigh the same over time).
     pub smoothness: f64,
     /// Levenberg-Marquardt iterations per window at most.
     pub max_iter: usize,
@@ -204,6 +208,10 @@ pub fn distances(a: &[f64], b: &[f64], q: usize) -> Vec<f64> {
 /// The half-width of the Q-filter on the error measured (s): ±2 rows of a 30 Hz path, so that
 /// a path sampled faster or slower is filtered over the same time.
 pub const ERROR_SMOOTHING_S: f64 = 2.0 / 30.0;
+
+/// The step λ is stated at (s): a 30 Hz path weighs its commands' successive differences by
+/// λ itself, a path of step Δt by λ (Δ₀/Δt)², the same weight over time.
+pub const SMOOTHNESS_STEP_S: f64 = 1.0 / 30.0;
 
 /// The shortest window [`plan`] and [`learn`] solve at once (s; 60 rows at 30 Hz), however short
 /// the model's memory.
@@ -504,6 +512,18 @@ impl Window<'_, '_> {
     }
 }
 
+/// Each input's weight on its squared successive differences along rows of `time`:
+/// λ (Δ₀/Δt)² / range².
+fn smoothness_weights(options: &PlanOptions, time: &[f64]) -> Vec<f64> {
+    let per_step = options.smoothness * (SMOOTHNESS_STEP_S / median_step(time)).powi(2);
+    let (lower, upper) = (&options.inverse.lower, &options.inverse.upper);
+    lower
+        .iter()
+        .zip(upper)
+        .map(|(l, u)| per_step / (u - l).max(1e-12).powi(2))
+        .collect()
+}
+
 /// Projected Levenberg-Marquardt over the commands of rows `rows` (the others held).
 fn solve_window(
     along: &Along<'_, '_>,
@@ -514,14 +534,11 @@ fn solve_window(
 ) {
     let d = along.dynamic.d();
     let (lower, upper) = (&options.inverse.lower, &options.inverse.upper);
-    let smooth = (0..d)
-        .map(|i| options.smoothness / (upper[i] - lower[i]).max(1e-12).powi(2))
-        .collect();
     let window = Window {
         along,
         targets,
         rows,
-        smooth,
+        smooth: smoothness_weights(options, along.time),
     };
     let (s, e) = rows;
     let mut cost = window.cost(u);
@@ -606,5 +623,34 @@ mod tests {
         let mut spike = vec![0.0; 9];
         spike[4] = 5.0;
         assert_eq!(smooth_rows(&spike, 1, 2)[4], 1.0);
+    }
+
+    /// A ramp of the same speed costs the same beside each row's squared error at 30 Hz and at
+    /// 120 Hz: the smoothness is weighed over time (with λ per row, 120 Hz would weigh the ramp
+    /// a sixteenth as much against the error).
+    #[test]
+    fn smoothness_weighs_a_ramp_the_same_at_any_sampling_rate() {
+        let options = PlanOptions {
+            inverse: InverseOptions {
+                lower: vec![0.0],
+                upper: vec![100.0],
+                grid: 1,
+                starts: 1,
+                max_iter: 1,
+                reach: 1.0,
+            },
+            rate: None,
+            smoothness: 0.1,
+            max_iter: 1,
+        };
+        let per_row = |hz: f64| {
+            let time: Vec<f64> = (0..=hz as usize).map(|k| k as f64 / hz).collect();
+            let w = smoothness_weights(&options, &time)[0];
+            let step = 50.0 / hz; // 50 kPa/s
+            w * step * step
+        };
+        let (slow, fast) = (per_row(30.0), per_row(120.0));
+        assert!((slow - fast).abs() < 1e-12 * slow, "{slow} against {fast}");
+        assert!((slow - 0.1 * (50.0_f64 / 30.0 / 100.0).powi(2)).abs() < 1e-15);
     }
 }

@@ -48,7 +48,8 @@ pub struct Args {
     /// Largest change of a `_kpa` command per second along a trajectory (a regulator's slew)
     #[arg(long, default_value_t = 600.0, value_parser = super::finite)]
     max_rate: f64,
-    /// Weight of the commands' smoothness along a trajectory (against the squared output error)
+    /// Weight of the commands' smoothness along a trajectory (against the squared output error),
+    /// as on a 30 Hz path (a path at another rate is weighed the same over time)
     #[arg(long, default_value_t = 0.1, value_parser = super::finite)]
     smoothness: f64,
     /// CSV to write: the targets, the inputs found, the model's outputs there, the error
