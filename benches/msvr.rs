@@ -24,7 +24,7 @@ use handcap::model::msvr::fitness::FitnessKind;
 use handcap::model::msvr::folds::{self, FoldsBy};
 use handcap::model::msvr::tune::BasisChoice;
 use handcap::model::msvr::PAPER_TABLE2;
-use handcap::model::msvr::{tune, Basis, Loss, MsvrParams, ValidMsvrParams};
+use handcap::model::msvr::{tune, Basis, Hyper, Loss, MsvrParams, ValidMsvrParams};
 use handcap::model::Predict;
 use handcap::search::aco_r::AcoR;
 use handcap::search::Method;
@@ -151,6 +151,7 @@ fn auto_once() -> (Dataset, ValidMsvrParams) {
         fitness: FitnessKind::Cv { folds: 5 },
         folds: &plan,
         search: None,
+        axes: &Hyper::AXES,
         pinned: tune::Pinned::default(),
         grow: true,
         score: false,
@@ -200,6 +201,7 @@ fn search(c: &mut Criterion) {
                 1,
                 &plan,
                 &solver,
+                &Hyper::AXES,
                 &tune::Pinned::default(),
                 &mut (),
                 &AtomicBool::new(false),

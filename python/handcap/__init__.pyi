@@ -34,6 +34,8 @@ class Model:
     @property
     def outputs(self) -> list[str]: ...
     @property
+    def family(self) -> str: ...
+    @property
     def hyper(self) -> Tuple[float, float, float]: ...
     @property
     def support_vectors(self) -> NDArray[np.float64]: ...
@@ -75,12 +77,14 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
     n_iter_: int
     n_features_in_: int
     model_: Model
+    family_: str
     search_: Optional[dict[str, Any]]
     def __init__(
         self,
         C: Optional[float] = None,
         epsilon: Optional[float] = None,
         sigma: Optional[float] = None,
+        model: str = "msvr",
         search: str = "aco-r",
         budget: Optional[int] = None,
         loss: str = "robust",

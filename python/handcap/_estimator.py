@@ -21,6 +21,11 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
     ----------
     C, epsilon, sigma : float or None
         Penalty, tube radius (output units) and RBF width (inputs scaled to [0, 1]); None: searched.
+    model : {"msvr", "krr", "auto"}
+        The paper's MSVR; kernel ridge ("krr": the squared loss and no tube, MSVR with epsilon 0,
+        searching C and sigma; `loss` does not apply and epsilon stays None); or "auto", both
+        searched on the same folds and the lower cross-validated error kept (within one standard
+        error of their fold differences, kernel ridge), as `handcap model --model auto`.
     search : {"aco-r", "none"}
         "none" requires C, epsilon and sigma.
     budget : int or None
@@ -55,15 +60,17 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
     intercept_ : (n_outputs,)
     n_iter_ : int, iterations of the final fit's solver.
     model_ : handcap.Model, the fitted model (save, inverse).
+    family_ : str, "msvr" or "krr": the family fitted.
     search_ : dict or None, what the search did.
     """
 
-    def __init__(self, C=None, epsilon=None, sigma=None, search="aco-r", budget=None,
-                 loss="robust", basis="auto", folds=5, history="auto", random_state=None,
-                 tol=1e-8, max_iter=500, intervals=False):
+    def __init__(self, C=None, epsilon=None, sigma=None, model="msvr", search="aco-r",
+                 budget=None, loss="robust", basis="auto", folds=5, history="auto",
+                 random_state=None, tol=1e-8, max_iter=500, intervals=False):
         self.C = C
         self.epsilon = epsilon
         self.sigma = sigma
+        self.model = model
         self.search = search
         self.budget = budget
         self.loss = loss
@@ -93,6 +100,8 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
             raise ValueError(f"search {self.search!r}: give 'aco-r' or 'none'")
         if self.search == "none" and any(h is None for h in hyper):
             raise ValueError("search='none' uses C, epsilon and sigma as given: set all three")
+        if self.model not in ("msvr", "krr", "auto"):
+            raise ValueError(f"model {self.model!r}: give 'msvr', 'krr' or 'auto'")
         self._single_output = y.ndim == 1
         Y = y.reshape(-1, 1) if self._single_output else y
         groups = _labels(groups, X.shape[0])
@@ -119,7 +128,7 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
         self.model_ = _core.fit(
             np.ascontiguousarray(X), np.ascontiguousarray(Y, dtype=np.float64),
             input_names=names, output_names=[f"y{j}" for j in range(Y.shape[1])],
-            c=None if self.C is None else float(self.C),
+            model=str(self.model), c=None if self.C is None else float(self.C),
             epsilon=None if self.epsilon is None else float(self.epsilon),
             sigma=None if self.sigma is None else float(self.sigma),
             loss=self.loss, basis=str(self.basis), budget=self.budget, folds=int(self.folds),
@@ -130,6 +139,7 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
         self.dual_coef_ = self.model_.dual_coef
         self.intercept_ = self.model_.intercept
         self.n_iter_ = self.model_.iterations
+        self.family_ = self.model_.family
         import json
         search = self.model_.search
         self.search_ = None if search is None else json.loads(search)

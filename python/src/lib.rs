@@ -24,6 +24,7 @@ use handcap_core::model::msvr::tune::{BasisChoice, Pinned};
 use handcap_core::model::msvr::{self, Loss, MsvrParams, MIN_FIT_ROWS};
 use handcap_core::model::{Differentiable, Predict, StoredModel};
 use handcap_core::provenance::Provenance;
+use handcap_core::select::family::FamilyChoice;
 use handcap_core::select::{self, Plan, Selection, Table};
 
 /// A core message in Python's words: its parameters are named `field=value` already, but
@@ -208,8 +209,8 @@ fn rows(message: String) -> String {
 /// history (`history`: auto, none, ema:τ1,τ2…, lags:k); `intervals` calibrates the conformal
 /// intervals when the search made no held-out predictions (k more fits). Returns the model.
 #[pyfunction]
-#[pyo3(signature = (x, y, *, input_names, output_names, c=None, epsilon=None, sigma=None,
-    loss="robust", basis="auto", budget=None, folds=5, groups=None, time=None, history="auto",
+#[pyo3(signature = (x, y, *, input_names, output_names, model="msvr", c=None, epsilon=None,
+    sigma=None, loss="robust", basis="auto", budget=None, folds=5, groups=None, time=None, history="auto",
     seed=2020, tol=msvr::DEFAULT_TOL, max_iter=msvr::DEFAULT_MAX_ITER, intervals=false))]
 #[allow(clippy::too_many_arguments)]
 fn fit(
@@ -218,6 +219,7 @@ fn fit(
     y: &Bound<'_, PyAny>,
     input_names: Vec<String>,
     output_names: Vec<String>,
+    model: &str,
     c: Option<f64>,
     epsilon: Option<f64>,
     sigma: Option<f64>,
@@ -247,6 +249,9 @@ fn fit(
     if input_names.len() != x.ncols() || output_names.len() != y.ncols() {
         return Err(value_error("one name per column of X and of y"));
     }
+    let family: FamilyChoice = model
+        .parse()
+        .map_err(|e: String| value_error(format!("model {e}")))?;
     let loss = match loss {
         "robust" => Loss::Robust,
         "quadratic" => Loss::Quadratic,
@@ -314,6 +319,7 @@ fn fit(
     let with_time = table.series.is_some();
     let request = FitRequest {
         plan: Plan {
+            family,
             params,
             selection,
             pinned: Pinned { c, epsilon, sigma },
@@ -567,6 +573,13 @@ impl Model {
     #[getter]
     fn outputs(&self) -> Vec<String> {
         self.file.model.predictor().outputs().to_vec()
+    }
+
+    /// The family the model is: "msvr" or "krr" (kernel ridge: MSVR with ε = 0 and the
+    /// squared loss).
+    #[getter]
+    fn family(&self) -> String {
+        self.file.family().to_string()
     }
 
     /// (C, ε, σ) of the fit.

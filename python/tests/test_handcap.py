@@ -283,6 +283,33 @@ def test_a_model_fitted_in_python_predicts_the_same_from_the_command_line(tmp_pa
                                rtol=1e-12, atol=0)
 
 
+def test_kernel_ridge_from_python_is_the_command_lines(tmp_path):
+    x, y = smooth(150, 4)
+    names = ["P1_kpa", "P2_kpa", "P3_kpa"]
+    model = handcap.MSVRRegressor(model="krr", budget=30, random_state=5).fit(
+        pd.DataFrame(x, columns=names), y)
+    assert model.family_ == "krr" and model.epsilon_ == 0.0
+    assert sorted(model.search_["space"]) == ["c", "sigma"], model.search_["space"]
+    write_csv(tmp_path / "train.csv", x, y, outputs=("y0", "y1", "y2"))
+    run("model", tmp_path / "train.csv", "--outputs", "y0,y1,y2", "--model", "krr", "--budget", 30,
+        "--seed", 5, "--out", tmp_path / "cli.json")
+    cli = handcap.load(tmp_path / "cli.json")
+    assert cli.family == "krr" and cli.hyper == (model.C_, model.epsilon_, model.sigma_)
+    xt, _ = smooth(40, 9)
+    np.testing.assert_allclose(cli.predict(xt), model.predict(pd.DataFrame(xt, columns=names)),
+                               rtol=1e-12, atol=0)
+    with pytest.raises(ValueError, match="epsilon=0.1 with model=krr: kernel ridge has no tube"):
+        handcap.MSVRRegressor(model="krr", epsilon=0.1).fit(x, y)
+    with pytest.raises(ValueError, match="give 'msvr', 'krr' or 'auto'"):
+        handcap.MSVRRegressor(model="svr").fit(x, y)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        results = check_estimator(handcap.MSVRRegressor(model="krr", budget=20), on_fail=None)
+    failed = [(r["check_name"], repr(r["exception"])) for r in results
+              if r["status"] == "failed"]
+    assert not failed, failed
+
+
 def dynamic_log(trials, seed):
     """A plant with a first-order lag (0.4 s) behind its two inputs, held in steps of 0.6 s:
     (frame of trial, t_s, P1_kpa, P2_kpa, x_mm, y_mm)."""

@@ -26,6 +26,7 @@ use crate::model::msvr::tune::{BasisChoice, Pinned};
 use crate::model::msvr::MsvrParams;
 use crate::model::Errors;
 use crate::plot::{self, LinePlot, Mark, Series};
+use crate::select::family::FamilyChoice;
 use crate::session::protocol::DynamicDesign;
 use crate::synth::capture::{CaptureConfig, DynamicSession};
 use crate::synth::dynamics::Dynamics;
@@ -245,6 +246,8 @@ fn job(data: &Path, test: &Path, out: &Path, history: bool, selection: Selection
         data: data.to_path_buf(),
         inputs: names(&HAND_INPUTS),
         outputs: names(&HAND_OUTPUTS),
+        // The paper's model, its headline.
+        family: FamilyChoice::Msvr,
         params: MsvrParams::default(),
         pinned: Pinned::default(),
         selection,

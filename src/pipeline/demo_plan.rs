@@ -11,6 +11,7 @@ use crate::model::msvr::tune::{BasisChoice, Pinned};
 use crate::model::msvr::MsvrParams;
 use crate::search::aco_paper::AcoPaper;
 use crate::search::Method;
+use crate::select::family::FamilyChoice;
 use crate::session::protocol::DynamicDesign;
 use crate::synth::capture::CaptureConfig;
 use crate::triangulate::TriangulateOptions;
@@ -108,6 +109,8 @@ pub(super) fn job(
         data,
         inputs: names(&HAND_INPUTS),
         outputs: names(&HAND_OUTPUTS),
+        // The paper's model, its headline.
+        family: FamilyChoice::Msvr,
         params: MsvrParams::default(),
         pinned: Pinned::default(),
         selection: Selection::Search {

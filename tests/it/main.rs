@@ -10,6 +10,7 @@ mod contract;
 mod data;
 mod docs;
 mod export;
+mod family;
 mod fuzz;
 mod geometry;
 mod history;

@@ -609,6 +609,7 @@ fn auto_folds_on_a_time_series_estimate_the_error_on_new_ramps() {
             7,
             plan,
             &MsvrParams::default(),
+            &Hyper::AXES,
             &tune::Pinned::default(),
             &mut (),
             &never(),

@@ -4,6 +4,7 @@
 //! { "format": "handcap-model", "version": 1, "kind": "msvr",
 //!   "model": { "inputs": [...], "outputs": [...], "params": {...}, "scaler": {...},
 //!              "support_vectors": [[...]], "coefficients": [[...]], "bias": [...], "fit": {...} },
+//!   "family": { "used": "krr", "reason": "model=auto: ...", "tried": [...] },
 //!   "history": { "used": { "time": "t_s", "group": "trial", "inputs": [...],
 //!                          "memory": { "kind": "ema", "tau": [0.6, 2.4] } }, "reason": "...", "tried": [...] },
 //!   "intervals": { "folds": { "scheme": "groups", ... }, "rows": 780,
@@ -28,6 +29,7 @@ use crate::model::interval::{IntervalError, Intervals};
 use crate::model::msvr::tune::{BasisDecision, SearchSummary};
 pub use crate::model::StoredModel;
 use crate::provenance::Provenance;
+use crate::select::family::{Family, FamilyDecision};
 
 /// The `format` field of every model file.
 pub const FORMAT: &str = "handcap-model";
@@ -68,6 +70,10 @@ pub struct ModelFile {
     /// The basis and why it was chosen; absent in files written before the reduced basis.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub basis: Option<BasisDecision>,
+    /// The family and why (`model=auto` compared them); absent in files written before
+    /// families: MSVR.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub family: Option<FamilyDecision>,
     /// The input history and why; absent when no time column was given.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub history: Option<HistoryDecision>,
@@ -93,10 +99,16 @@ impl ModelFile {
             model,
             search,
             basis,
+            family: None,
             history,
             intervals,
             provenance,
         }
+    }
+
+    /// The family of its model, as the file says (MSVR when it does not).
+    pub fn family(&self) -> Family {
+        self.family.as_ref().map_or(Family::Msvr, |d| d.used)
     }
 
     /// The prediction interval's radius at `level` (output units).

@@ -38,9 +38,11 @@ use crate::model::{self, ModelSpec, StoredModel};
 use crate::provenance::Provenance;
 use crate::search::{IterationRecord, Method, Observer};
 
+pub mod family;
 mod run;
 
-use run::Run;
+use family::{Family, FamilyChoice, FamilyDecision};
+use run::{Candidates, Run};
 
 /// Rows to select a model on: the dataset (present inputs and outputs), its time series, and
 /// the columns folds may be cut by.
@@ -169,6 +171,8 @@ impl Selection {
 
 /// What to select.
 pub struct Plan {
+    /// The family to fit, or `auto`'s choice by cross-validation.
+    pub family: FamilyChoice,
     /// The fixed parameters ([`Selection::Fixed`], and those [`Plan::pinned`]) and the solver
     /// controls (always).
     pub params: MsvrParams,
@@ -231,6 +235,20 @@ impl Plan {
             }
             (Some(_), HistoryChoice::Auto) if train => return refuse("history=auto compares feature sets by cross-validation: use fitness=cv, or name the history (history=none, ema, lags:K)".into()),
             _ => {}
+        }
+        if let Selection::Search {
+            method: Method::AcoPaper(_),
+            ..
+        } = &self.selection
+        {
+            if self.family == FamilyChoice::Krr {
+                return refuse("model=krr with search=aco-paper: the paper's colony searches MSVR's (C, ε, σ); use model=msvr (or auto), or search=aco-r or grid".into());
+            }
+        }
+        if let (FamilyChoice::Krr, Some(e)) = (self.family, self.pinned.epsilon) {
+            if e != 0.0 {
+                return refuse(format!("epsilon={e} with model=krr: kernel ridge has no tube (ε = 0); leave epsilon out, or use model=msvr"));
+            }
         }
         if let (
             Selection::Search {
@@ -319,6 +337,7 @@ pub enum SelectError {
 /// What [`select`] chose and fitted.
 pub struct Selected {
     pub model: StoredModel,
+    pub family: FamilyDecision,
     pub search: Option<Searched>,
     pub basis: BasisDecision,
     /// The choice between the present inputs and history (with a time series).
@@ -341,7 +360,7 @@ impl Selected {
     /// The model file of the selection, and the search it records the summary of (its
     /// iterations stay out of the file).
     pub fn into_file(self, provenance: Provenance) -> (ModelFile, Option<Searched>) {
-        let file = ModelFile::new(
+        let mut file = ModelFile::new(
             self.model,
             self.search.as_ref().map(|s| s.summary.clone()),
             Some(self.basis),
@@ -349,6 +368,7 @@ impl Selected {
             self.intervals,
             provenance,
         );
+        file.family = Some(self.family);
         (file, self.search)
     }
 }
@@ -368,6 +388,7 @@ pub fn select(
 ) -> Result<Selected, SelectError> {
     let run = Run {
         plan,
+        family: Family::Msvr,
         train,
         search_on,
         listener,
@@ -378,10 +399,54 @@ pub fn select(
     let candidates = run.candidates()?;
     let initial = run.initial_basis()?;
     let present = run.scoring()?;
-    let (tried, screened) = run.choose_each(&present, &candidates, initial)?;
-    let (decision, mut chosen, scored) = run.keep(tried, screened);
+    let families = run.families(&present);
+    let alone = families.len() == 1;
+    // The first family chooses the history; the others are searched on the features it kept.
+    let mut each: Vec<(Family, run::Kept)> = Vec::new();
+    for &family in &families {
+        let run = Run { family, ..run };
+        if !alone {
+            listener.note(format!("model: {} (model=auto)", family.title()));
+        }
+        let kept = match each.first() {
+            None => {
+                let (tried, screened) =
+                    run.choose_each(&present, &candidates, initial.clone(), alone)?;
+                run.keep(tried, screened)
+            }
+            Some((_, (decision, ..))) => {
+                let decision = decision.clone();
+                let only = Candidates::kept(decision.as_ref());
+                let (tried, _) = run.choose_each(&present, &only, initial.clone(), alone)?;
+                let (_, chosen, scored) = tried.into_iter().next().expect("one feature set");
+                (decision, chosen, scored)
+            }
+        };
+        each.push((family, kept));
+        if run.interrupted() {
+            break;
+        }
+    }
+    let (family, (decision, mut chosen, scored)) = match each.len() {
+        1 => {
+            let (family, kept) = each.pop().expect("one family");
+            (run.asked(family), kept)
+        }
+        _ => run.compare(each)?,
+    };
+    if plan.family == FamilyChoice::Auto {
+        listener.note(format!(
+            "model: {} ({})",
+            family.used.title(),
+            family.reason
+        ));
+    }
+    let run = Run {
+        family: family.used,
+        ..run
+    };
     let kept = decision.as_ref().and_then(|d| d.used.clone());
-    if candidates.compared() && run.grows(&chosen.basis) {
+    if (candidates.compared() || !alone) && run.grows(&chosen.basis) {
         run.grow(&mut chosen, &scored)?;
     }
     if !chosen.basis.tried.is_empty() {
@@ -418,6 +483,7 @@ pub fn select(
     };
     Ok(Selected {
         model,
+        family,
         train_errors,
         search: chosen.search,
         basis: chosen.basis,

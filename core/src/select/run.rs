@@ -2,6 +2,7 @@
 
 use std::sync::atomic::{AtomicBool, Ordering};
 
+use super::family::Family;
 use super::{radii_text, Iterations, Listener, Plan, SelectError, Selection, Table};
 use crate::control::Since;
 use crate::data::Dataset;
@@ -10,13 +11,15 @@ use crate::model::interval::Intervals;
 use crate::model::msvr::fitness::{Dealing, FitnessKind};
 use crate::model::msvr::folds::{self, FoldPlan};
 use crate::model::msvr::tune::{self, BasisChoice, BasisDecision, Chosen, TuneError};
-use crate::model::msvr::{self, Basis, Hyper, MIN_FIT_ROWS};
+use crate::model::msvr::{self, Basis, Hyper, MsvrParams, MIN_FIT_ROWS};
 use crate::search::{Search, SearchError};
 
 /// One selection under way.
 #[derive(Clone, Copy)]
 pub(super) struct Run<'a> {
     pub(super) plan: &'a Plan,
+    /// The family being selected.
+    pub(super) family: Family,
     pub(super) train: &'a Table,
     pub(super) search_on: Option<&'a Table>,
     pub(super) listener: &'a dyn Listener,
@@ -37,13 +40,28 @@ impl Candidates {
     pub(super) fn compared(&self) -> bool {
         self.static_first && !self.memories.is_empty()
     }
+
+    /// The one feature set `decision` kept (the present inputs without one): what a second
+    /// family is searched on, the history already chosen by the first.
+    pub(super) fn kept(decision: Option<&HistoryDecision>) -> Candidates {
+        match decision.and_then(|d| d.used.as_ref()) {
+            Some(h) => Candidates {
+                static_first: false,
+                memories: vec![h.memory.clone()],
+            },
+            None => Candidates {
+                static_first: true,
+                memories: Vec::new(),
+            },
+        }
+    }
 }
 
 /// The rows candidates are scored on and how cross-validation cuts them.
 pub(super) struct Scoring {
-    scored: Dataset,
-    plan: FoldPlan,
-    fitness: FitnessKind,
+    pub(super) scored: Dataset,
+    pub(super) plan: FoldPlan,
+    pub(super) fitness: FitnessKind,
 }
 
 impl Scoring {
@@ -86,6 +104,9 @@ enum Pass {
 
 /// A feature set tried: its history, its choice and the rows it was scored on.
 type Tried = (Option<History>, Chosen, Scoring);
+
+/// A family's selection: the history decision, its choice and the rows it was scored on.
+pub(super) type Kept = (Option<HistoryDecision>, Chosen, Scoring);
 
 impl Run<'_> {
     pub(super) fn check(&self) -> Result<(), SelectError> {
@@ -239,19 +260,28 @@ impl Run<'_> {
         })
     }
 
-    fn interrupted(&self) -> bool {
+    /// The solver's settings with what the family fixes.
+    fn solver(&self) -> MsvrParams {
+        self.family.solver(self.plan.params)
+    }
+
+    pub(super) fn interrupted(&self) -> bool {
         self.interrupt.load(Ordering::Relaxed)
     }
 
     /// Step 3: each feature set's parameters; `auto`'s ladders screened on a small grid around
     /// the present inputs' parameters ([`SCREEN_SIGMA`], [`SCREEN_C`]), the best one searched.
+    /// `alone`: the one family selected (else the basis grows after the families' comparison,
+    /// as after the feature sets').
     pub(super) fn choose_each(
         &self,
         present: &Scoring,
         candidates: &Candidates,
         initial: BasisDecision,
+        alone: bool,
     ) -> Result<(Vec<Tried>, Vec<HistoryTrial>), SelectError> {
         let compare = candidates.compared();
+        let only = if alone { Pass::Only } else { Pass::Compared };
         let mut tried: Vec<Tried> = Vec::new();
         let mut screened = Vec::new();
         if candidates.static_first {
@@ -260,7 +290,7 @@ impl Run<'_> {
                     .note("input history: none (the present inputs)".into());
             }
             let scored = self.scoring_with(present, None)?;
-            let pass = if compare { Pass::Reference } else { Pass::Only };
+            let pass = if compare { Pass::Reference } else { only };
             let chosen = self.choose(&scored, initial.clone(), pass)?;
             tried.push((None, chosen, scored));
         }
@@ -326,7 +356,7 @@ impl Run<'_> {
                 Some(scored) => scored,
                 None => self.scoring_with(present, Some(&h))?,
             };
-            let pass = if compare { Pass::Compared } else { Pass::Only };
+            let pass = if compare { Pass::Compared } else { only };
             let chosen = self.choose(&scored, initial, pass)?;
             tried.push((Some(h), chosen, scored));
         }
@@ -372,13 +402,14 @@ impl Run<'_> {
             fitness: scoring.fitness,
             folds: &scoring.plan,
             search,
+            axes: self.family.axes(),
             pinned: self.plan.pinned,
             grow: pass == Pass::Only && self.grows(&initial),
             score: pass != Pass::Only,
         };
         tune::choose(
             &choice,
-            &self.plan.params,
+            &self.solver(),
             initial,
             &mut observer,
             self.interrupt,

@@ -16,6 +16,7 @@ use crate::search::aco_paper::AcoPaper;
 use crate::search::aco_r::AcoR;
 use crate::search::grid::Grid;
 use crate::search::{Method, SearchStop};
+use crate::select::family::FamilyChoice;
 use crate::DEFAULT_SEED;
 
 /// How the hyper-parameters are chosen.
@@ -62,6 +63,11 @@ pub struct Args {
     /// Output columns, comma-separated
     #[arg(long, value_delimiter = ',', default_values = HAND_OUTPUTS)]
     outputs: Vec<String>,
+    /// The model: msvr (the paper's: C, ε and σ shared by the outputs), krr (kernel ridge: the
+    /// squared loss, no tube; C and σ), or auto (each searched on the same folds, the lower
+    /// cross-validated error kept; within one standard error, kernel ridge)
+    #[arg(long, default_value = "auto", value_parser = clap::value_parser!(FamilyChoice))]
+    model: FamilyChoice,
     /// How to choose C, ε and σ
     #[arg(long, value_enum, default_value = "aco-r")]
     search: SearchKind,
@@ -191,7 +197,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     }
     // All three given: nothing is left to search.
     let method = method.filter(|_| a.c.is_none() || a.epsilon.is_none() || a.sigma.is_none());
+    if a.model == FamilyChoice::Krr && a.loss == LossArg::Robust {
+        usage!("--loss robust with --model krr: kernel ridge's loss is the squared one; leave --loss out, or use --model msvr");
+    }
     let job = FitJob {
+        family: a.model,
         data: a.data,
         inputs: a.inputs,
         outputs: a.outputs,

@@ -18,6 +18,7 @@ use crate::report::{
     TestResult,
 };
 use crate::search::{IterationRecord, Search, SearchStop};
+use crate::select::family::FamilyChoice;
 use crate::select::{self, Listener, Plan, SelectError, Selected, Table};
 
 pub use crate::select::Selection;
@@ -27,6 +28,8 @@ pub struct FitJob {
     pub data: PathBuf,
     pub inputs: Vec<String>,
     pub outputs: Vec<String>,
+    /// The family to fit, or `auto`'s choice by cross-validation.
+    pub family: FamilyChoice,
     /// The fixed parameters (`Selection::Fixed`) and the solver controls (always).
     pub params: MsvrParams,
     pub selection: Selection,
@@ -56,6 +59,7 @@ impl FitJob {
     /// What [`select::select`] is asked.
     fn plan(&self) -> Plan {
         Plan {
+            family: self.family,
             params: self.params,
             selection: self.selection.clone(),
             pinned: self.pinned,
@@ -309,9 +313,10 @@ fn score(job: &FitJob, selected: &Selected, tests: &[Table]) -> Result<Scored, P
     let mut results = Vec::new();
     let mut coverage = Vec::new();
     for (name, test) in &scored.test_data {
-        for m in scored.models(selected) {
+        // The model fitted first, then the previous model's: the intervals are the first's.
+        for (k, m) in scored.models(selected).into_iter().enumerate() {
             let (errors, predicted) = model::evaluate_predicting(m.model, test)?;
-            if let (Some(i), "msvr") = (intervals, m.name) {
+            if let (Some(i), 0) = (intervals, k) {
                 let labels = group_column
                     .as_ref()
                     .and_then(|c| data::read_columns(&test.source, std::slice::from_ref(c)).ok());
@@ -338,10 +343,11 @@ fn score(job: &FitJob, selected: &Selected, tests: &[Table]) -> Result<Scored, P
 }
 
 impl Scored {
-    /// The models compared: MSVR, then the previous model (default, calibrated) on the hand.
+    /// The models compared: the one fitted (named by its family), then the previous model
+    /// (default, calibrated) on the hand.
     fn models<'a>(&'a self, selected: &'a Selected) -> Vec<NamedModel<'a>> {
         let mut models = vec![NamedModel {
-            name: "msvr",
+            name: selected.family.used.name(),
             model: selected.model.predictor(),
         }];
         if let Some((default, calibrated, _)) = &self.previous {
@@ -368,6 +374,7 @@ impl Scored {
             inputs: predictor.inputs().to_vec(),
             outputs: predictor.outputs().to_vec(),
             spec: selected.model.spec(),
+            family: selected.family.clone(),
             fit: selected.model.diagnostics().clone(),
             basis: selected.basis.clone(),
             history: selected.history.clone(),
@@ -429,7 +436,6 @@ impl fmt::Display for FitOutcome {
         }
         let fit = &r.fit;
         let settings: Vec<String> = r
-            .spec
             .settings()
             .iter()
             .skip(1)
@@ -438,7 +444,7 @@ impl fmt::Display for FitOutcome {
         writeln!(
             f,
             "{} on {}: {} rows, {}",
-            r.spec.settings()[0].1,
+            r.family.used.title(),
             r.training_file,
             fit.rows,
             settings.join(", ")

@@ -7,6 +7,7 @@ use super::{IntervalReport, ModelReport, PreviousSummary, SweepFigures, TestResu
 use crate::data::format_number;
 use crate::model::history::HistoryDecision;
 use crate::model::interval::Coverage;
+use crate::select::family::FamilyDecision;
 
 /// The previous model's constants, default and calibrated, and how the calibration went.
 pub(super) fn previous_section(p: &PreviousSummary) -> String {
@@ -82,6 +83,35 @@ pub fn errors_table(tests: &[TestResult], outputs: &[String]) -> String {
         );
     }
     out
+}
+
+/// The model's family: which, why, and each one `auto` searched.
+fn family_section(family: &FamilyDecision) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "Model: {} ({}).\n", family.used.title(), family.reason);
+    if !family.tried.is_empty() {
+        let _ = writeln!(
+            s,
+            "| model | cross-validated fitness | held-out MAE per fold | C | ε | σ |"
+        );
+        let _ = writeln!(s, "|---|---|---|---|---|---|");
+        for t in &family.tried {
+            let folds: Vec<String> = t.folds.iter().map(|v| format!("{v:.4}")).collect();
+            let p = &t.params;
+            let _ = writeln!(
+                s,
+                "| {} | {:.5} | {} | {:.4} | {:.4} | {:.4} |",
+                t.family.title(),
+                t.fitness,
+                folds.join(", "),
+                p.c,
+                p.epsilon,
+                p.sigma
+            );
+        }
+        s.push('\n');
+    }
+    s
 }
 
 /// Whether the model sees its inputs' history: what was used, why, and what was compared.
@@ -278,7 +308,8 @@ pub(super) fn markdown(r: &ModelReport, sweeps: &[SweepFigures]) -> String {
     let _ = writeln!(s, "# handcap model report\n");
     let _ = writeln!(
         s,
-        "MSVR fitted on `{}`: inputs {} → outputs {} (errors in output units; mm for the micro-hand).\n",
+        "{} fitted on `{}`: inputs {} → outputs {} (errors in output units; mm for the micro-hand).\n",
+        r.family.used.title(),
         r.training_file,
         r.inputs.join(", "),
         r.outputs.join(", ")
@@ -308,7 +339,7 @@ pub(super) fn markdown(r: &ModelReport, sweeps: &[SweepFigures]) -> String {
         );
     }
     let _ = writeln!(s, "## Fit\n");
-    let settings = r.spec.settings();
+    let settings = r.settings();
     let head: Vec<&str> = settings.iter().map(|(name, _)| *name).collect();
     let _ = writeln!(
         s,
@@ -341,6 +372,7 @@ pub(super) fn markdown(r: &ModelReport, sweeps: &[SweepFigures]) -> String {
         }
         s.push('\n');
     }
+    s += &family_section(&r.family);
     if let Some(h) = &r.history {
         s += &history_section(h);
     }

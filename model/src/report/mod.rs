@@ -20,6 +20,7 @@ use crate::model::previous::{Calibration, PreviousParams};
 use crate::model::{Errors, ModelSpec, Predict};
 use crate::provenance::Provenance;
 use crate::search::IterationRecord;
+use crate::select::family::{Family, FamilyDecision};
 
 use crate::plot as figures;
 pub mod html;
@@ -56,6 +57,8 @@ pub struct ModelReport {
     pub inputs: Vec<String>,
     pub outputs: Vec<String>,
     pub spec: ModelSpec,
+    /// The family the model is, and why.
+    pub family: FamilyDecision,
     pub fit: FitDiagnostics,
     /// The basis and why it was chosen.
     pub basis: BasisDecision,
@@ -71,6 +74,19 @@ pub struct ModelReport {
     /// Conformal prediction intervals: their calibration and coverage on the test files.
     pub intervals: Option<IntervalReport>,
     pub provenance: Provenance,
+}
+
+impl ModelReport {
+    /// The model's settings by name, as the log and the report show them: the family's name,
+    /// and for kernel ridge without what it fixes (ε = 0, the squared loss).
+    pub fn settings(&self) -> Vec<(&'static str, String)> {
+        let mut settings = self.spec.settings();
+        settings[0].1 = self.family.used.title().to_string();
+        if self.family.used == Family::Krr {
+            settings.retain(|(name, _)| !matches!(*name, "ε" | "loss"));
+        }
+        settings
+    }
 }
 
 /// The intervals as the report shows them (the model file also keeps the scores), and their

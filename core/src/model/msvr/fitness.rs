@@ -111,7 +111,7 @@ pub enum Dealing {
 /// The fold of every row. Groups (every row its own group when `groups` is `None`) are dealt
 /// to the folds as `dealing` says, so folds are balanced and a group is never split between
 /// training and held-out rows.
-fn assign_folds(
+pub fn assign_folds(
     n: usize,
     folds: usize,
     seed: u64,

@@ -70,4 +70,14 @@ impl Hyper {
         let [c, epsilon, sigma] = Hyper::AXES.map(|name| p.get(name).unwrap_or(f64::NAN));
         Hyper { c, epsilon, sigma }
     }
+
+    /// These values with those the point names in their place (a search whose box leaves an
+    /// axis out holds it at this value).
+    pub fn at(self, p: &Point) -> Hyper {
+        Hyper {
+            c: p.get("c").unwrap_or(self.c),
+            epsilon: p.get("epsilon").unwrap_or(self.epsilon),
+            sigma: p.get("sigma").unwrap_or(self.sigma),
+        }
+    }
 }

@@ -167,8 +167,8 @@ impl Pinned {
 /// held-out predictions.
 pub type Ran = (SearchSummary, SearchResult, Counters, Option<Mat<f64>>);
 
-/// Runs `method` on `data` with the given fitness, the [`Pinned`] hyper-parameters held;
-/// returns the summary, the full result, the work counters and the best tuple's held-out
+/// Runs `method` on `data` with the given fitness over the box's `axes` (the others held at
+/// `solver`'s values), the [`Pinned`] hyper-parameters held; returns the summary, the full result, the work counters and the best tuple's held-out
 /// predictions (for intervals; `None` with the training fitness).
 ///
 /// # Errors
@@ -181,6 +181,7 @@ pub fn run(
     seed: u64,
     folds: &FoldPlan,
     solver: &MsvrParams,
+    axes: &[&str],
     pinned: &Pinned,
     observer: &mut dyn Observer,
     interrupt: &AtomicBool,
@@ -188,15 +189,21 @@ pub fn run(
     super::check_memory(data.rows(), solver.basis)?;
     let labels = folds.labels.as_deref();
     let scorer = Fitness::new(data, fitness, seed, labels, &solver_for(method, solver))?;
+    let held = solver.hyper();
     let objective = |batch: &[Point], bar: f64| {
-        let batch: Vec<Hyper> = batch.iter().map(Hyper::from_point).collect();
+        let batch: Vec<Hyper> = batch.iter().map(|p| held.at(p)).collect();
         scorer.evaluate(&batch, bar)
     };
-    let space = method.uses_space().then(|| pinned.apply(space_for(data)));
+    let space = method.uses_space().then(|| {
+        let full = pinned.apply(space_for(data));
+        full.iter()
+            .filter(|(name, _)| axes.contains(name))
+            .collect::<SearchSpace>()
+    });
     // The paper's colony has its own digit box and ignores this one.
     let searched = space.clone().unwrap_or_default();
     let result = method.run(&searched, &objective, observer, interrupt)?;
-    let best = Hyper::from_point(&result.best);
+    let best = held.at(&result.best);
     let counters = scorer.counters();
     let summary = SearchSummary {
         method: *method,
@@ -318,6 +325,8 @@ pub struct Choice<'a> {
     /// The search (its budget set) and the seed of its folds; `None` keeps the solver's
     /// (C, ε, σ).
     pub search: Option<(Method, u64)>,
+    /// The axes the search moves (a family's); the others stay at the solver's values.
+    pub axes: &'a [&'a str],
     /// Hyper-parameters the search holds at the solver's values.
     pub pinned: Pinned,
     /// `auto`'s growth of a reduced starting basis ([`grow_basis`]) at the parameters chosen.
@@ -408,6 +417,7 @@ pub fn choose(
         *seed,
         folds,
         &solver,
+        choice.axes,
         &choice.pinned,
         observer,
         interrupt,

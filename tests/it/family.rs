@@ -1,0 +1,130 @@
+//! Model families (issue 62): `--model msvr|krr|auto`, what `auto` keeps and why, and the
+//! requests a family cannot take.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use crate::common::{handcap_ok, handcap_usage, read_json, tempdir, write, Lcg};
+
+/// `rows` rows of a smooth 2 → 2 map with near-Gaussian noise of standard deviation `noise`
+/// (a sum of three uniforms) on the outputs, and
+/// a share `gross` of the rows thrown off by 2-5 in both outputs (a transient, a lost marker).
+/// Columns: P1_kpa, P2_kpa, x_mm, y_mm.
+fn plant(seed: u64, rows: usize, noise: f64, gross: f64) -> String {
+    let mut rng = Lcg(seed);
+    let mut csv = String::from("P1_kpa,P2_kpa,x_mm,y_mm\n");
+    for _ in 0..rows {
+        let (a, b) = (200.0 * rng.next(), 200.0 * rng.next());
+        let mut y = [
+            2.0 * (a / 60.0).sin() + 0.01 * b,
+            1.5 * (b / 50.0).cos() - 0.005 * a,
+        ];
+        let off = if rng.next() < gross {
+            2.0 + 3.0 * rng.next()
+        } else {
+            0.0
+        };
+        for v in &mut y {
+            let bell = rng.next() + rng.next() + rng.next() - 1.5;
+            *v += off + 2.0 * noise * bell;
+        }
+        let _ = writeln!(csv, "{a:.4},{b:.4},{:.6},{:.6}", y[0], y[1]);
+    }
+    csv
+}
+
+/// `handcap model` of `train.csv` in `d` with `model` and a small search: the model file.
+fn fit(d: &Path, model: &str, out: &str) -> serde_json::Value {
+    let args = ["model", "train.csv", "--inputs", "P1_kpa,P2_kpa"];
+    let more = ["--outputs", "x_mm,y_mm", "--budget", "60", "--model", model];
+    handcap_ok(d, &[&args[..], &more, &["--out", out]].concat());
+    read_json(&d.join(out))
+}
+
+#[test]
+fn krr_is_fitted_without_a_tube_and_its_search_moves_c_and_sigma() {
+    let dir = tempdir();
+    let d = dir.path();
+    write(d, "train.csv", &plant(3, 150, 0.05, 0.0));
+    let file = fit(d, "krr", "krr.json");
+    assert_eq!(file["family"]["used"], "krr", "{}", file["family"]);
+    let params = &file["model"]["params"];
+    assert_eq!(params["epsilon"], 0.0);
+    assert_eq!(params["loss"], "quadratic");
+    let space = file["search"]["space"].as_object().unwrap();
+    let mut axes: Vec<&str> = space.keys().map(String::as_str).collect();
+    axes.sort_unstable();
+    assert_eq!(axes, ["c", "sigma"]);
+    // The model file serves predict as any other.
+    write(d, "probe.csv", "P1_kpa,P2_kpa\n50,60\n120,10\n");
+    handcap_ok(d, &["predict", "krr.json", "probe.csv", "--out", "p.csv"]);
+    assert_eq!(
+        std::fs::read_to_string(d.join("p.csv"))
+            .unwrap()
+            .lines()
+            .count(),
+        3
+    );
+}
+
+/// `auto` searches both families on the same folds: MSVR's robust tube keeps it where a
+/// fifth of the rows are thrown off (the squared loss follows them), kernel ridge where the
+/// noise is plain and MSVR's tube buys nothing beyond a standard error.
+#[test]
+fn auto_keeps_msvr_against_gross_errors_and_kernel_ridge_on_plain_noise() {
+    let dir = tempdir();
+    let d = dir.path();
+    for (gross, expected) in [(0.2, "msvr"), (0.0, "krr")] {
+        write(d, "train.csv", &plant(5, 200, 0.1, gross));
+        let file = fit(d, "auto", "auto.json");
+        let family = &file["family"];
+        assert_eq!(family["used"], expected, "{gross}: {family}");
+        let tried = family["tried"].as_array().unwrap();
+        assert_eq!(tried.len(), 2);
+        for t in tried {
+            assert_eq!(t["folds"].as_array().unwrap().len(), 5, "{t}");
+        }
+        let reason = family["reason"].as_str().unwrap();
+        assert!(reason.starts_with("model=auto: "), "{reason}");
+    }
+}
+
+#[test]
+fn a_family_that_cannot_take_the_request_says_which_option() {
+    let dir = tempdir();
+    let d = dir.path();
+    write(d, "train.csv", &plant(7, 60, 0.05, 0.0));
+    let base = [
+        "model",
+        "train.csv",
+        "--inputs",
+        "P1_kpa,P2_kpa",
+        "--outputs",
+        "x_mm,y_mm",
+    ];
+    let err = handcap_usage(d, &[&base[..], &["--model", "svr"]].concat());
+    assert!(
+        err.contains("--model") && err.contains("auto, msvr or krr"),
+        "{err}"
+    );
+    let err = handcap_usage(
+        d,
+        &[&base[..], &["--model", "krr", "--epsilon", "0.1"]].concat(),
+    );
+    assert!(
+        err.contains("no tube") && err.contains("--model msvr"),
+        "{err}"
+    );
+    let err = handcap_usage(
+        d,
+        &[&base[..], &["--model", "krr", "--loss", "robust"]].concat(),
+    );
+    assert!(err.contains("squared"), "{err}");
+    let paper = ["--model", "krr", "--search", "aco-paper"];
+    let err = handcap_usage(d, &[&base[..], &paper].concat());
+    assert!(
+        err.contains("--model krr") && err.contains("--search aco-r"),
+        "{err}"
+    );
+    assert!(!d.join("model.json").exists());
+}
