@@ -32,6 +32,7 @@ use std::fmt::Write;
 use crate::model::file::ModelFile;
 use crate::model::history::Memory;
 use crate::model::StoredModel;
+use crate::select::family::Family;
 
 /// The header for `file`; `source` names the model file in its comment.
 pub fn c_header(file: &ModelFile, source: &str) -> String {
@@ -57,8 +58,8 @@ pub fn c_header(file: &ModelFile, source: &str) -> String {
     let mut h = String::new();
     let _ = write!(
         h,
-        "/* A handcap model ({source}), exported by handcap {version}: multi-output support vector
- * regression, {centres} Gaussian kernel centres, sigma {sigma:e}.
+        "/* A handcap model ({source}), exported by handcap {version}: {family},
+ * {centres} Gaussian kernel centres, sigma {sigma:e}.
  * Inputs, in order: {input_names}. Outputs, in order: {output_names}.
  * Input history: {memory_doc}.
  * Fitted by: {command}
@@ -98,6 +99,10 @@ static const char *const handcap_output_names[HANDCAP_N_OUTPUTS] = {{{output_str
         source = comment(&file_name(source)),
         version = comment(&file.provenance.handcap_version),
         sigma = msvr.params.sigma,
+        family = match file.family() {
+            Family::Msvr => "multi-output support vector regression",
+            Family::Krr => "kernel ridge regression",
+        },
         input_names = comment(&inputs.join(", ")),
         output_names = comment(&msvr.outputs.join(", ")),
         memory_doc = comment(&memory_doc),
