@@ -2,7 +2,7 @@
 every held-out block of the real datasets in turn (not a test).
 
     cargo build --release
-    target/peers-venv/bin/python scripts/bench_coverage.py [--history] [--only soft_trunk]
+    target/peers-venv/bin/python scripts/bench_coverage.py [--history] [--model krr] [--only soft_trunk]
 
 (any Python with numpy; target/peers-venv is the one scripts/bench-peers.sh makes)
 
@@ -87,7 +87,9 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--history", action="store_true", help="fit with the time column too")
     ap.add_argument("--only", default="", help="comma-separated dataset names")
+    ap.add_argument("--model", default=None, help="handcap model's --model (default: its own)")
     a = ap.parse_args()
+    family = ["--model", a.model] if a.model else []
     print("| data | held out | rows | coverage at 90 % / 95 % | radii | radius 90 % / median error "
           "| per-run band 90 % / 95 % | whole test runs inside |")
     print("|---|---|---|---|---|---|---|---|")
@@ -99,8 +101,8 @@ def main():
         with tempfile.TemporaryDirectory() as work:
             for label, header, train, test in splits():
                 cov, radii, median, band, inside, runs = coverage(
-                    work, header, train, test, inputs, outputs, time_args if a.history else [],
-                    run_column)
+                    work, header, train, test, inputs, outputs,
+                    (time_args if a.history else []) + family, run_column)
                 seen.append(cov)
                 ratios.append(radii[0] / median)
                 insides.append(inside)

@@ -2,7 +2,7 @@
 lag, beside scikit-learn's Nystroem + Ridge, static and with filtered inputs (not a test).
 
     cargo build --release
-    target/peers-venv/bin/python scripts/bench_dynamic.py [--work DIR] [--seed 7]
+    target/peers-venv/bin/python scripts/bench_dynamic.py [--work DIR] [--seed 7] [--model krr]
 
 (target/peers-venv is the venv scripts/bench-peers.sh makes, with scikit-learn.)
 
@@ -71,6 +71,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--work", default=os.path.join(ROOT, "target", "bench-dynamic"))
     ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--model", default=None, help="handcap model's --model (default: its own)")
     a = ap.parse_args()
     os.makedirs(a.work, exist_ok=True)
     header = ["trial", "t_s", "P1_kpa", "P2_kpa", "P3_kpa", "x_mm", "y_mm"]
@@ -92,7 +93,8 @@ def main():
                           ["--time", "t_s", "--group-by", "trial"])]:
         model = os.path.join(a.work, "model.json")
         fit_s = timed([HANDCAP, "model", "train.csv", "--inputs", "P1_kpa,P2_kpa,P3_kpa",
-                       "--outputs", "x_mm,y_mm", "--out", model, *extra], a.work)
+                       "--outputs", "x_mm,y_mm", "--out", model, *extra,
+                       *(["--model", a.model] if a.model else [])], a.work)
         predict_s = timed([HANDCAP, "predict", model, "test.csv", "--out", "pred.csv"], a.work)
         with open(os.path.join(a.work, "pred.csv")) as f:
             pred = np.array([[float(r["x_mm"]), float(r["y_mm"])] for r in csv.DictReader(f)])
@@ -102,7 +104,9 @@ def main():
         if used:
             kept_taus = used["memory"].get("tau", [])
         basis = written["basis"]["basis"]
-        kept = (f"{used['memory']['kind']} {used['memory'].get('tau')}" if used else "static") + \
+        family = (written.get("family") or {}).get("used", "msvr")
+        kept = f"{family}, " + \
+            (f"{used['memory']['kind']} {used['memory'].get('tau')}" if used else "static") + \
             f", basis {basis.get('centres', basis['kind'])}"
         print(f"| {label} | {np.abs(pred - test[:, 5:]).mean():.4f} | {fit_s:.1f} + {predict_s:.1f} "
               f"| {kept} |", flush=True)

@@ -395,7 +395,7 @@ impl Run<'_> {
             listener: self.listener,
             cap: search
                 .as_ref()
-                .map_or(0, |(m, _)| m.iteration_cap(Hyper::AXES.len())),
+                .map_or(0, |(m, _)| m.iteration_cap(self.family.axes().len())),
         };
         let choice = tune::Choice {
             rows: &scoring.scored,
