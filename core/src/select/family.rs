@@ -240,20 +240,25 @@ impl Run<'_> {
         }
     }
 
-    /// The decision when one family was searched: asked for, or `auto` with nothing to compare
-    /// families by.
-    pub(super) fn asked(&self, family: Family) -> FamilyDecision {
-        match self.plan.family {
-            FamilyChoice::Auto => FamilyDecision {
-                used: family,
-                reason: "model=auto: MSVR, the paper's (families are compared by a cross-validated search of their own box; the parameters given, fitness=train and the paper's colony leave none)".into(),
-                tried: Vec::new(),
-            },
-            _ => FamilyDecision::asked(family),
+    /// The decision when one family was searched of the `planned`: asked for, `auto` with
+    /// nothing to compare families by, or `auto` stopped before the second.
+    pub(super) fn asked(&self, family: Family, planned: usize) -> FamilyDecision {
+        let reason = match (self.plan.family, planned) {
+            (FamilyChoice::Auto, 1) => "model=auto: MSVR, the paper's (families are compared by a cross-validated search of their own box; the parameters given, fitness=train and the paper's colony leave none)".to_string(),
+            (FamilyChoice::Auto, _) => format!(
+                "model=auto: {} (a stop came before the other family was searched)",
+                family.title()
+            ),
+            _ => return FamilyDecision::asked(family),
+        };
+        FamilyDecision {
+            used: family,
+            reason,
+            tried: Vec::new(),
         }
     }
 
-    /// `auto`'s choice among the families' selections ([`family::decide`] on each one's
+    /// `auto`'s choice among the families' selections ([`decide`] on each one's
     /// held-out error per fold, the same folds for all).
     pub(super) fn compare(
         &self,

@@ -430,7 +430,7 @@ pub fn select(
     let (family, (decision, mut chosen, scored)) = match each.len() {
         1 => {
             let (family, kept) = each.pop().expect("one family");
-            (run.asked(family), kept)
+            (run.asked(family, families.len()), kept)
         }
         _ => run.compare(each)?,
     };
