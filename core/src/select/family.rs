@@ -18,7 +18,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::run::{Kept, Run, Scoring};
-use super::{SelectError, Selection};
+use super::SelectError;
 use crate::model::msvr::fitness::{self, Dealing, FitnessKind};
 use crate::model::msvr::tune::{self, Chosen, TuneError};
 use crate::model::msvr::{Hyper, Loss, MsvrParams};
@@ -225,15 +225,10 @@ impl Run<'_> {
     /// cross-validated (given parameters, the training fitness) or the paper's colony
     /// searches.
     pub(super) fn families(&self, present: &Scoring) -> Vec<Family> {
-        let paper = matches!(
-            self.plan.selection,
-            Selection::Search {
-                method: crate::search::Method::AcoPaper(_),
-                ..
-            }
-        );
-        let compares =
-            self.plan.searched() && !paper && matches!(present.fitness, FitnessKind::Cv { .. });
+        let selection = &self.plan.selection;
+        let compares = selection.searched()
+            && !selection.paper()
+            && matches!(present.fitness, FitnessKind::Cv { .. });
         match self.plan.family {
             FamilyChoice::Auto if !compares => vec![Family::Msvr],
             choice => choice.families(),
@@ -296,15 +291,19 @@ impl Run<'_> {
         };
         let seed = self.plan.seed().unwrap_or(crate::DEFAULT_SEED);
         let rows = &scored.scored;
+        let computed;
         let predicted = match &chosen.held_out {
-            Some(p) => p.clone(),
-            None => tune::held_out_predictions(
-                rows,
-                seed,
-                &scored.plan,
-                Dealing::Shuffled,
-                &chosen.params,
-            )?,
+            Some(p) => p,
+            None => {
+                computed = tune::held_out_predictions(
+                    rows,
+                    seed,
+                    &scored.plan,
+                    Dealing::Shuffled,
+                    &chosen.params,
+                )?;
+                &computed
+            }
         };
         let labels = scored.plan.labels.as_deref();
         let fold_of = fitness::assign_folds(rows.rows(), folds, seed, labels, Dealing::Shuffled)

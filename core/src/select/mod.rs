@@ -152,6 +152,17 @@ impl Selection {
         matches!(self, Selection::Search { .. })
     }
 
+    /// Whether the paper's colony searches (its own digits, MSVR's three parameters).
+    pub fn paper(&self) -> bool {
+        matches!(
+            self,
+            Selection::Search {
+                method: Method::AcoPaper(_),
+                ..
+            }
+        )
+    }
+
     /// `handcap model`'s default search: ACO_R with its own settings and `seed`, at most
     /// `budget` candidates (`None`: by the rows), cross-validated on `folds` folds cut
     /// `folds_by`.
@@ -236,29 +247,18 @@ impl Plan {
             (Some(_), HistoryChoice::Auto) if train => return refuse("history=auto compares feature sets by cross-validation: use fitness=cv, or name the history (history=none, ema, lags:K)".into()),
             _ => {}
         }
-        if let Selection::Search {
-            method: Method::AcoPaper(_),
-            ..
-        } = &self.selection
-        {
+        if self.selection.paper() {
             if self.family == FamilyChoice::Krr {
                 return refuse("model=krr with search=aco-paper: the paper's colony searches MSVR's (C, ε, σ); use model=msvr (or auto), or search=aco-r or grid".into());
+            }
+            if let Some((name, value)) = self.pinned.values().next() {
+                return refuse(format!("{name}={value} is held by search=aco-r and search=grid; the paper's colony searches all three of its digits"));
             }
         }
         if let (FamilyChoice::Krr, Some(e)) = (self.family, self.pinned.epsilon) {
             if e != 0.0 {
                 return refuse(format!("epsilon={e} with model=krr: kernel ridge has no tube (ε = 0); leave epsilon out, or use model=msvr"));
             }
-        }
-        if let (
-            Selection::Search {
-                method: Method::AcoPaper(_),
-                ..
-            },
-            Some((name, value)),
-        ) = (&self.selection, self.pinned.values().next())
-        {
-            return refuse(format!("{name}={value} is held by search=aco-r and search=grid; the paper's colony searches all three of its digits"));
         }
         if let Selection::Search {
             method,

@@ -21,11 +21,18 @@ pub(super) fn refine(
         .max(rows_in(MIN_WINDOW_S, along.time))
         .min(n);
     let keep = if window == n { n } else { window / 2 };
+    let smooth = smoothness_weights(options, along.time);
     project(&mut u, along.time, 0, options);
     let mut s = 0;
     while s < n {
         let e = (s + window).min(n);
-        solve_window(along, targets, &mut u, (s, e), options);
+        let rows = Window {
+            along,
+            targets,
+            rows: (s, e),
+            smooth: &smooth,
+        };
+        solve_window(&rows, &mut u, options);
         s = if e == n { n } else { s + keep };
     }
     along.finish(targets, u, options.inverse.reach)
@@ -36,8 +43,8 @@ struct Window<'a, 'b> {
     along: &'b Along<'a, 'b>,
     targets: &'b [f64],
     rows: (usize, usize),
-    /// λ / range² per input.
-    smooth: Vec<f64>,
+    /// λ (Δ₀/Δt)² / range² per input ([`smoothness_weights`]).
+    smooth: &'b [f64],
 }
 
 impl Window<'_, '_> {
@@ -160,23 +167,11 @@ fn smoothness_weights(options: &PlanOptions, time: &[f64]) -> Vec<f64> {
         .collect()
 }
 
-/// Projected Levenberg-Marquardt over the commands of rows `rows` (the others held).
-fn solve_window(
-    along: &Along<'_, '_>,
-    targets: &[f64],
-    u: &mut [f64],
-    rows: (usize, usize),
-    options: &PlanOptions,
-) {
-    let d = along.dynamic.d();
+/// Projected Levenberg-Marquardt over the commands of the window's rows (the others held).
+fn solve_window(window: &Window<'_, '_>, u: &mut [f64], options: &PlanOptions) {
+    let d = window.along.dynamic.d();
     let (lower, upper) = (&options.inverse.lower, &options.inverse.upper);
-    let window = Window {
-        along,
-        targets,
-        rows,
-        smooth: smoothness_weights(options, along.time),
-    };
-    let (s, e) = rows;
+    let (s, e) = window.rows;
     let mut cost = window.cost(u);
     let mut mu = 1e-3;
     for _ in 0..options.max_iter {
@@ -204,7 +199,7 @@ fn solve_window(
             for (p, &c) in free.iter().enumerate() {
                 trial[s * d + c] += step[p];
             }
-            project(&mut trial, along.time, s, options);
+            project(&mut trial, window.along.time, s, options);
             let next = window.cost(&trial);
             if next < cost {
                 let done = cost - next < 1e-6 * cost;
