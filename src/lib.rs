@@ -40,6 +40,7 @@ mod cv;
 pub mod frame_times;
 pub mod geometry;
 pub mod image;
+pub mod lab;
 pub mod opencv_yaml;
 pub mod pipeline;
 pub mod session;

@@ -30,8 +30,10 @@
 pub mod calibration;
 mod files;
 pub mod flash;
+pub mod line;
 pub mod motion;
 mod regulator;
+pub mod serial;
 mod session;
 pub mod source;
 pub mod url;
@@ -166,6 +168,9 @@ pub enum Regulator {
     PerStep(String),
     /// One process kept running, a line per step on its input (`--regulator`).
     Streaming(String),
+    /// A board on a serial line speaking handcap's line protocol (`--regulator
+    /// serial:PATH[@BAUD]`): the device and the baud rate.
+    Serial(String, u32),
 }
 
 /// What a calibration capture collects: still pairs of `board` where it stands somewhere new,

@@ -171,6 +171,9 @@ impl<'scope> Threads<'scope> {
                     Regulator::Streaming(command) => {
                         drive_streaming(steps, command, clock, log, stop)
                     }
+                    Regulator::Serial(path, baud) => {
+                        super::serial::drive_serial(steps, (path, *baud), clock, log, stop)
+                    }
                 }
             })
         });

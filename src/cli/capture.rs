@@ -38,7 +38,10 @@ pub struct Args {
     /// pressure it measured at that time_s (echo the command's), logged beside the command in
     /// force then (P1_measured_kpa, …), however late it comes. If it exits, stops reading for
     /// 2 s or prints anything else (a pressure outside -20 to 330 kPa, a line over 1024 bytes),
-    /// the session ends, everything kept
+    /// the session ends, everything kept. Or `serial:PATH[@BAUD]` (e.g.
+    /// serial:/dev/ttyACM0@115200): a board on a serial line speaking handcap's line protocol
+    /// (docs/regulator.md: SET, READ, LED, VENT), each row a SET at its time, the measured
+    /// pressures read back and logged, the board told VENT however the session ends
     #[arg(long, requires = "protocol", conflicts_with = "set_pressure")]
     regulator: Option<String>,
     /// Command run at each step, {p1} {p2} {p3} (kPa) and {step} filled in, e.g.
@@ -117,7 +120,11 @@ fn options(a: &Args) -> anyhow::Result<CaptureOptions> {
         )),
         (Some(path), None, Some(command)) => Some((
             protocol::read(path)?,
-            capture::Regulator::Streaming(command.clone()),
+            match capture::serial::parse(command) {
+                Some(Ok((device, baud))) => capture::Regulator::Serial(device, baud),
+                Some(Err(why)) => super::usage!("{why}"),
+                None => capture::Regulator::Streaming(command.clone()),
+            },
         )),
         (Some(_), None, None) => {
             super::usage!("--protocol needs --set-pressure (a command per step) or --regulator (one process, a line per step)")

@@ -7,6 +7,7 @@ mod board;
 mod calibrate;
 mod capture;
 mod demo;
+mod lab;
 mod synth;
 mod triangulate;
 
@@ -53,6 +54,11 @@ pub enum Command {
     /// A calibration board to print (chessboard or ChArUco, SVG at true size) and its board.yml
     #[command(allow_negative_numbers = true)]
     Board(board::Args),
+    /// The virtual micro-hand in real time, for `capture` to film: two cameras as Motion-JPEG
+    /// streams on 127.0.0.1, the regulator board on a pseudo-terminal (handcap's line
+    /// protocol), the truth in OUT/truth/
+    #[command(allow_negative_numbers = true)]
+    Lab(lab::Args),
 }
 
 /// The `handcap-cameras` binary: every command. (`handcap` runs the modelling commands itself,
@@ -75,6 +81,7 @@ pub fn run(command: Command) -> anyhow::Result<()> {
         Command::Demo(a) => demo::run(a),
         Command::Capture(a) => capture::run(a),
         Command::Board(a) => board::run(a),
+        Command::Lab(a) => lab::run(a),
     }
 }
 

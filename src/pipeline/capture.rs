@@ -161,7 +161,9 @@ impl fmt::Display for Filmed<'_> {
         if let Some(flash) = &summary.flash {
             writeln!(f, "{flash}")?;
         }
-        if let Some((_, capture::Regulator::Streaming(_))) = &options.protocol {
+        if let Some((_, capture::Regulator::Streaming(_) | capture::Regulator::Serial(..))) =
+            &options.protocol
+        {
             let [median, latest] = stats.command_late_ms;
             writeln!(
                 f,

@@ -78,13 +78,44 @@ impl Dynamics {
     }
 }
 
-/// The pressures the rod feels (p_eff) over a session, on the integration grid from t = 0.
+/// The pressures the rod feels (p_eff) over a session, on the integration grid from t = 0:
+/// simulated at once ([`Motion::simulate`]) or as the commands come ([`Motion::command`],
+/// [`Motion::run_to`]: a live plant).
 #[derive(Clone, Debug)]
 pub struct Motion {
     effective: Vec<Pressures>,
+    dynamics: Dynamics,
+    hysteresis_kpa: f64,
+    /// The commands (time, pressures held from it), and how many the grid has reached.
+    commands: Vec<(f64, Pressures)>,
+    next: usize,
+    /// The command in force at the grid's end, and the line's state there: each muscle's
+    /// pressure, after the play, and the creeping share.
+    command: Pressures,
+    line: Pressures,
+    played: Pressures,
+    slow: Pressures,
 }
 
 impl Motion {
+    /// How far past its `end_s` [`Motion::run_to`] simulates (s): three grid steps.
+    pub const AHEAD_S: f64 = 3.0 * GRID_S;
+
+    /// A plant at rest from t = 0, no command yet.
+    pub fn at_rest(dynamics: &Dynamics, hysteresis_kpa: f64) -> Motion {
+        Motion {
+            effective: vec![[0.0; 3]],
+            dynamics: *dynamics,
+            hysteresis_kpa,
+            commands: Vec::new(),
+            next: 0,
+            command: [0.0; 3],
+            line: [0.0; 3],
+            played: [0.0; 3],
+            slow: [0.0; 3],
+        }
+    }
+
     /// Simulates `commands` (times in s, increasing, and the pressures held from each) until
     /// `end_s`, from rest.
     pub fn simulate(
@@ -93,33 +124,49 @@ impl Motion {
         hysteresis_kpa: f64,
         end_s: f64,
     ) -> Motion {
+        let mut motion = Motion::at_rest(dynamics, hysteresis_kpa);
+        motion.commands = commands.to_vec();
+        motion.run_to(end_s);
+        motion
+    }
+
+    /// Holds `pressures` from `time_s` (s): not before the last command, nor before the end
+    /// of the grid already simulated ([`Motion::run_to`]).
+    pub fn command(&mut self, time_s: f64, pressures: Pressures) {
+        debug_assert!(self.commands.last().is_none_or(|&(t, _)| t <= time_s));
+        self.commands.push((time_s, pressures));
+    }
+
+    /// The grid simulated to cover `end_s` (s): [`Motion::at`] is exact up to there once every
+    /// command up to [`Motion::AHEAD_S`] after `end_s` has been given.
+    pub fn run_to(&mut self, end_s: f64) {
         let n = (end_s.max(0.0) / GRID_S).ceil() as usize + 2;
-        let lag = dynamics.lag_s.map(decay);
-        let creep = decay(dynamics.creep_s);
-        let a = dynamics.creep_share;
-        let (mut line, mut played, mut slow) = ([0.0; 3], [0.0; 3], [0.0; 3]);
-        let mut next = 0;
-        let mut command = [0.0; 3];
-        let mut effective = Vec::with_capacity(n);
-        effective.push([0.0; 3]);
-        for k in 1..n {
-            let seen = (k as f64 - 0.5) * GRID_S - dynamics.delay_s;
-            while next < commands.len() && commands[next].0 <= seen {
-                command = commands[next].1;
-                next += 1;
+        let d = self.dynamics;
+        let lag = d.lag_s.map(decay);
+        let creep = decay(d.creep_s);
+        let a = d.creep_share;
+        for k in self.effective.len()..n {
+            let seen = (k as f64 - 0.5) * GRID_S - d.delay_s;
+            while self.next < self.commands.len() && self.commands[self.next].0 <= seen {
+                self.command = self.commands[self.next].1;
+                self.next += 1;
             }
-            for i in 0..3 {
-                line[i] = command[i] + (line[i] - command[i]) * lag[i];
-            }
-            play(&mut played, line, hysteresis_kpa);
-            for i in 0..3 {
-                slow[i] = played[i] + (slow[i] - played[i]) * creep;
-            }
-            effective.push(std::array::from_fn(|i| {
+            self.line = std::array::from_fn(|i| {
+                self.command[i] + (self.line[i] - self.command[i]) * lag[i]
+            });
+            play(&mut self.played, self.line, self.hysteresis_kpa);
+            self.slow =
+                std::array::from_fn(|i| self.played[i] + (self.slow[i] - self.played[i]) * creep);
+            let (played, slow) = (self.played, self.slow);
+            self.effective.push(std::array::from_fn(|i| {
                 ((1.0 - a) * played[i] + a * slow[i]).clamp(0.0, crate::hand::MAX_PRESSURE_KPA)
             }));
         }
-        Motion { effective }
+    }
+
+    /// The pressures in the line at the grid's end (kPa): what gauges at the muscles read.
+    pub fn measured(&self) -> Pressures {
+        self.line
     }
 
     /// The pressures the rod feels at `t` (s): rest before 0, the last simulated after the end.
@@ -165,6 +212,26 @@ mod tests {
             assert!((got - want).abs() < 1e-3, "{p:?}");
         }
         assert_eq!(motion.at(0.9), [0.0; 3], "before the command: rest");
+    }
+
+    #[test]
+    fn commands_given_as_they_come_move_the_rod_as_given_at_once() {
+        let commands = [
+            (0.2, [50.0, 0.0, 100.0]),
+            (0.7, [200.0, 30.0, 0.0]),
+            (1.333, [0.0, 250.0, 80.0]),
+        ];
+        for dynamics in [Dynamics::PNEUMATIC, Dynamics::STEPS] {
+            let whole = Motion::simulate(&commands, &dynamics, 10.0, 3.0);
+            let mut live = Motion::at_rest(&dynamics, 10.0);
+            for (t, p) in commands {
+                live.run_to(t - Motion::AHEAD_S);
+                live.command(t, p);
+            }
+            live.run_to(3.0);
+            assert_eq!(live.effective, whole.effective);
+            assert!(whole.at(2.0)[1] > 200.0, "{:?}", whole.at(2.0));
+        }
     }
 
     #[test]

@@ -16,6 +16,7 @@ mod geometry;
 mod history;
 mod images;
 mod interval;
+mod lab;
 mod live;
 mod msvr;
 mod pipeline;

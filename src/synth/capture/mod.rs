@@ -74,8 +74,11 @@ use crate::session::protocol::{self, DynamicDesign, Step};
 use crate::stereo::Side;
 use boards::{board_poses, reference_board};
 use shots::Studio;
+pub(crate) use shots::{exposure_gain, finger_frame, views};
 use timing::camera_frames;
-use truth::{boards_csv, per_frame_csv, pressures_csv, rig_yaml, tips_csv, truth_frames};
+pub(crate) use timing::finger_poses;
+pub(crate) use truth::rig_yaml;
+use truth::{boards_csv, per_frame_csv, pressures_csv, tips_csv, truth_frames};
 
 /// How the virtual capture session runs (see the module docs).
 #[derive(Clone, Debug, PartialEq, Serialize)]

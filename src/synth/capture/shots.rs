@@ -18,7 +18,7 @@ use crate::synth::dynamics::Motion;
 use crate::synth::image_format::ImageFormat;
 use crate::synth::plant::Plant;
 use crate::synth::render::{Lighting, Surroundings, View};
-use crate::synth::scene::Board;
+use crate::synth::scene::{Board, Finger};
 
 /// One image to render and write.
 enum Shot {
@@ -56,7 +56,7 @@ pub(super) struct Studio<'a> {
 
 /// The two cameras' views of the scene; with clutter, the wall keeps clear of where the
 /// finger's `tips` and base are seen.
-pub(super) fn views(
+pub(crate) fn views(
     rig: &Rig,
     seed: u64,
     realism: &Realism,
@@ -109,28 +109,47 @@ impl Studio<'_> {
             } => {
                 let view = &self.views[*camera as usize];
                 let poses = finger_poses(c, self.plant, self.motion, &view.camera, *exposure_s)?;
-                let mut canvas = view.finger(&poses);
-                if let Some(angle) = occluder(self.seed, c, *camera, *index) {
-                    let tip = self.plant.tip(self.motion.at(*exposure_s))?;
-                    if let Some(through) = view.camera.project(&Point3::from(tip)) {
-                        view.occlude(&mut canvas, through, angle);
-                    }
-                }
+                let tip = self.plant.tip(self.motion.at(*exposure_s))?;
+                let canvas = finger_frame(view, c, self.seed, (*camera, *index), &poses, tip);
                 let path = self
                     .dir
                     .join(format!("frames/{}_{index:05}.{ext}", camera.name()));
                 (*camera, path, canvas, *exposure_s)
             }
         };
-        // A slow drift of the auto-exposure and the lights' 100 Hz flicker.
-        let phase = side as u8 as f64;
-        let gain = (1.0 + c.exposure_drift * (std::f64::consts::TAU * time / 20.0 + phase).sin())
-            * (1.0 + c.realism.flicker * (std::f64::consts::TAU * 100.0 * time + phase).sin());
+        let gain = exposure_gain(c, side, time);
         let size = [canvas.width as u32, canvas.height as u32];
         let rgb = canvas.develop(gain, self.seed, id as u64);
         self.views[side as usize].recycle(canvas);
         Ok(Rendered { path, size, rgb })
     }
+}
+
+/// Camera `camera`'s frame `index` of the finger in its `poses` over the exposure, and what
+/// passes in front of the bead (at `tip`) in this frame.
+pub(crate) fn finger_frame(
+    view: &View,
+    c: &CaptureConfig,
+    seed: u64,
+    (camera, index): (Side, usize),
+    poses: &[Finger],
+    tip: [f64; 3],
+) -> crate::synth::canvas::Canvas {
+    let mut canvas = view.finger(poses);
+    if let Some(angle) = occluder(seed, c, camera, index) {
+        if let Some(through) = view.camera.project(&Point3::from(tip)) {
+            view.occlude(&mut canvas, through, angle);
+        }
+    }
+    canvas
+}
+
+/// The exposure's gain at `time_s`: a slow drift of the auto-exposure and the lights' 100 Hz
+/// flicker, each camera on its own phase.
+pub(crate) fn exposure_gain(c: &CaptureConfig, side: Side, time_s: f64) -> f64 {
+    let phase = side as u8 as f64;
+    (1.0 + c.exposure_drift * (std::f64::consts::TAU * time_s / 20.0 + phase).sin())
+        * (1.0 + c.realism.flicker * (std::f64::consts::TAU * 100.0 * time_s + phase).sin())
 }
 
 /// Renders and writes every image: the board pairs (`calib/`, the reference pair last), then

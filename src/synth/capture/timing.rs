@@ -87,7 +87,7 @@ pub(super) fn camera_frames(
 /// The finger during the exposure centred on `t`: one pose when its tip moves less than
 /// [`BLUR_STEP_PX`] in the image meanwhile (the smear's centre is the middle pose's), else up
 /// to four, evenly spread over the exposure, one per [`BLUR_STEP_PX`] of motion (motion blur).
-pub(super) fn finger_poses(
+pub(crate) fn finger_poses(
     c: &CaptureConfig,
     plant: &Plant,
     motion: &Motion,

@@ -19,7 +19,7 @@ fn mat3(m: &Matrix3<f64>) -> Vec<f64> {
         .collect()
 }
 
-pub(super) fn rig_yaml(rig: &Rig, provenance: &crate::provenance::Provenance) -> String {
+pub(crate) fn rig_yaml(rig: &Rig, provenance: &crate::provenance::Provenance) -> String {
     let cams = rig.stereo();
     // The virtual world is the hand frame: the left camera's pose inverted.
     let hand_from_left = rig.left.pose.inverse();

@@ -1,0 +1,324 @@
+//! The regulator on a serial line (`--regulator serial:PATH[@BAUD]`): handcap speaks its line
+//! protocol ([`super::line`]) to the board itself. The line is opened raw at the baud rate
+//! given (115200 unless said; a USB CDC board ignores it) and held exclusively; the board must
+//! answer `HELLO` as handcap's protocol. Each protocol step is `SET p1 p2 p3` at its time,
+//! logged when written; while a step is held the pressures are read every
+//! [`line::KEEPALIVE_S`] (the board's watchdog sees the host alive), and every `P` reply is
+//! the measured pressure logged beside the command in force when it came. However the
+//! session ends (its end, a signal, a camera lost, a full disk, the line gone) the board is
+//! told `VENT` if it can still hear.
+
+use std::fs::File;
+use std::io::{BufRead, Read, Write};
+use std::os::fd::AsRawFd;
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Mutex;
+use std::time::Duration;
+
+use super::line::{self, Reply, Request};
+use super::regulator::Commanded;
+use super::{Clock, Ending};
+use crate::session::protocol;
+
+/// How long the board may take to answer a line (s) before the link is taken for gone.
+const ANSWER_S: f64 = 2.0;
+
+/// `serial:PATH[@BAUD]` → the path and the baud rate (115200 unless given); `None` when the
+/// source is not a serial one.
+pub fn parse(source: &str) -> Option<Result<(String, u32), String>> {
+    let rest = source.strip_prefix("serial:")?;
+    let (path, baud) = match rest.rsplit_once('@') {
+        Some((path, baud)) => match baud.parse::<u32>() {
+            Ok(b) if speed(b).is_some() => (path, b),
+            _ => {
+                return Some(Err(format!(
+                    "--regulator {source}: baud rate {baud:?} is not one of {}",
+                    BAUDS.map(|(b, _)| b.to_string()).join(", ")
+                )))
+            }
+        },
+        None => (rest, 115_200),
+    };
+    if path.is_empty() {
+        return Some(Err(format!(
+            "--regulator {source}: give the serial device, e.g. serial:/dev/ttyACM0@115200"
+        )));
+    }
+    Some(Ok((path.to_string(), baud)))
+}
+
+const BAUDS: [(u32, libc::speed_t); 8] = [
+    (9600, libc::B9600),
+    (19200, libc::B19200),
+    (38400, libc::B38400),
+    (57600, libc::B57600),
+    (115_200, libc::B115200),
+    (230_400, libc::B230400),
+    (460_800, libc::B460800),
+    (921_600, libc::B921600),
+];
+
+fn speed(baud: u32) -> Option<libc::speed_t> {
+    BAUDS.iter().find(|(b, _)| *b == baud).map(|&(_, s)| s)
+}
+
+/// The serial line, open, raw, exclusive, at `baud`.
+fn open(path: &str, baud: u32) -> Result<File, String> {
+    use std::os::unix::fs::OpenOptionsExt;
+    let name = |why: String| format!("the regulator's serial line {path}: {why}");
+    let file = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .custom_flags(libc::O_NOCTTY)
+        .open(Path::new(path))
+        .map_err(|e| name(e.to_string()))?;
+    let fd = file.as_raw_fd();
+    // SAFETY: flock, tcgetattr/cfmakeraw/cfset*speed/tcsetattr and TIOCEXCL on a descriptor
+    // this function owns; termios is plain data tcgetattr fills.
+    unsafe {
+        if libc::flock(fd, libc::LOCK_EX | libc::LOCK_NB) != 0 {
+            return Err(name(
+                "busy (another program holds it: close it, or name another device)".into(),
+            ));
+        }
+        let mut t: libc::termios = std::mem::zeroed();
+        if libc::tcgetattr(fd, &mut t) != 0 {
+            return Err(name(format!(
+                "not a serial device ({})",
+                std::io::Error::last_os_error()
+            )));
+        }
+        libc::cfmakeraw(&mut t);
+        let s = speed(baud).expect("checked by parse");
+        libc::cfsetispeed(&mut t, s);
+        libc::cfsetospeed(&mut t, s);
+        t.c_cflag |= libc::CLOCAL | libc::CREAD;
+        if libc::tcsetattr(fd, libc::TCSANOW, &t) != 0 {
+            return Err(name(std::io::Error::last_os_error().to_string()));
+        }
+        libc::ioctl(fd, libc::TIOCEXCL);
+        libc::tcflush(fd, libc::TCIOFLUSH);
+    }
+    Ok(file)
+}
+
+/// What the reader has heard: the time of the last reply, and what ended the link if
+/// something did.
+#[derive(Default)]
+struct Heard {
+    last_s: Mutex<Option<f64>>,
+    hello: Mutex<Option<Reply>>,
+    broken: Mutex<Option<String>>,
+}
+
+/// Runs the protocol through the board on `path` (see the module docs); how it ended.
+pub(super) fn drive_serial(
+    steps: &[protocol::Step],
+    (path, baud): (&str, u32),
+    clock: &Clock,
+    log: &Mutex<Vec<Commanded>>,
+    stop: &AtomicBool,
+) -> Option<Ending> {
+    let failed = |k: usize, message: String| {
+        Some(Ending::CommandFailed {
+            step: steps.get(k).map_or(0, |s| s.step),
+            message,
+        })
+    };
+    let mut link = match open(path, baud) {
+        Ok(f) => f,
+        Err(why) => return failed(0, why),
+    };
+    let reading = match link.try_clone() {
+        Ok(f) => f,
+        Err(e) => return failed(0, format!("the serial line {path}: {e}")),
+    };
+    let heard = Heard::default();
+    let done = AtomicBool::new(false);
+    std::thread::scope(|scope| {
+        scope.spawn(|| listen(reading, path, clock, log, &heard, &done));
+        let mut say = |request: Request| -> Result<(), String> {
+            link.write_all(format!("{request}\n").as_bytes())
+                .map_err(|e| format!("the serial line {path} is gone ({e})"))
+        };
+        let ending = (|| {
+            let sent_s = clock.now_s();
+            if let Err(why) = say(Request::Hello) {
+                return failed(0, why);
+            }
+            // The board says who it is before anything is set.
+            loop {
+                if let Some(why) = heard.broken.lock().expect("heard").clone() {
+                    return failed(0, why);
+                }
+                match heard.hello.lock().expect("heard").clone() {
+                    Some(Reply::Hello { version, .. }) if version == line::VERSION => break,
+                    Some(other) => {
+                        return failed(0, format!(
+                            "the serial line {path} answered HELLO with {:?}, not handcap's line protocol {} (HANDCAP {} 3; docs/regulator.md)",
+                            other.to_string(), line::VERSION, line::VERSION
+                        ))
+                    }
+                    None => {}
+                }
+                if clock.now_s() - sent_s > ANSWER_S || stop.load(Ordering::SeqCst) {
+                    return failed(0, format!(
+                        "the serial line {path} did not answer HELLO within {ANSWER_S} s: is the board handcap's line protocol (docs/regulator.md), at this baud rate?"
+                    ));
+                }
+                std::thread::sleep(Duration::from_millis(2));
+            }
+            let mut due = clock.now_s();
+            for (k, step) in steps.iter().enumerate() {
+                let mut read_s = clock.now_s();
+                // Held until it is due, read meanwhile; stopped, or the link gone.
+                loop {
+                    if stop.load(Ordering::SeqCst) {
+                        return None;
+                    }
+                    if let Some(why) = heard.broken.lock().expect("heard").clone() {
+                        return failed(k.saturating_sub(1), why);
+                    }
+                    let last = heard.last_s.lock().expect("heard").unwrap_or(sent_s);
+                    if clock.now_s() - last > ANSWER_S {
+                        return failed(k.saturating_sub(1), format!(
+                            "the serial line {path} has not answered for {ANSWER_S} s (the board is gone or hung)"
+                        ));
+                    }
+                    let left = due - clock.now_s();
+                    if left <= 0.0 {
+                        break;
+                    }
+                    if clock.now_s() - read_s >= line::KEEPALIVE_S {
+                        read_s = clock.now_s();
+                        if let Err(why) = say(Request::Read) {
+                            return failed(k.saturating_sub(1), why);
+                        }
+                    }
+                    std::thread::sleep(Duration::from_secs_f64(left.min(0.002)));
+                }
+                let time_s = clock.now_s();
+                log.lock().expect("log").push(Commanded {
+                    time_s,
+                    end_s: time_s,
+                    scheduled_s: Some(due),
+                    measured: None,
+                    step: step.clone(),
+                });
+                if let Err(why) = say(Request::Set(step.pressures)) {
+                    log.lock().expect("log").pop();
+                    return failed(k, why);
+                }
+                if let Some(last) = log.lock().expect("log").last_mut() {
+                    last.end_s = clock.now_s();
+                }
+                due += step.hold_s;
+            }
+            // The last step held for its time, read meanwhile.
+            while clock.now_s() < due && !stop.load(Ordering::SeqCst) {
+                let left = due - clock.now_s();
+                std::thread::sleep(Duration::from_secs_f64(left.clamp(0.0, line::KEEPALIVE_S)));
+                if let Err(why) = say(Request::Read) {
+                    return failed(steps.len().saturating_sub(1), why);
+                }
+            }
+            Some(Ending::ProtocolDone)
+        })();
+        // Vented however it ended, while the board can still hear.
+        let _ = say(Request::Vent);
+        std::thread::sleep(Duration::from_millis(50));
+        done.store(true, Ordering::SeqCst);
+        ending
+    })
+}
+
+/// Reads the board's replies until `done`: `P` replies go beside the command in force, the
+/// first `ERR` or garbage breaks the link (said in `heard`).
+fn listen(
+    link: File,
+    path: &str,
+    clock: &Clock,
+    log: &Mutex<Vec<Commanded>>,
+    heard: &Heard,
+    done: &AtomicBool,
+) {
+    let fd = link.as_raw_fd();
+    let mut reader = std::io::BufReader::new(link);
+    let mut bytes = Vec::new();
+    let broken = |why: String| {
+        heard.broken.lock().expect("heard").get_or_insert(why);
+    };
+    while !done.load(Ordering::SeqCst) {
+        let mut poll = libc::pollfd {
+            fd,
+            events: libc::POLLIN,
+            revents: 0,
+        };
+        // SAFETY: one pollfd, valid for the call.
+        let ready = unsafe { libc::poll(&mut poll, 1, 20) };
+        if ready <= 0 && reader.buffer().is_empty() {
+            continue;
+        }
+        if poll.revents & (libc::POLLHUP | libc::POLLERR) != 0 && poll.revents & libc::POLLIN == 0 {
+            broken(format!("the serial line {path} is gone (hung up)"));
+            return;
+        }
+        bytes.clear();
+        let limit = line::MAX_LINE_BYTES as u64 + 1;
+        match (&mut reader).take(limit).read_until(b'\n', &mut bytes) {
+            Ok(0) => {
+                broken(format!("the serial line {path} is gone (end of file)"));
+                return;
+            }
+            Err(e) => {
+                broken(format!("the serial line {path} is gone ({e})"));
+                return;
+            }
+            Ok(_) => {}
+        }
+        if bytes.len() > line::MAX_LINE_BYTES {
+            broken(format!(
+                "the serial line {path} sent a line longer than {} bytes (not handcap's line protocol)",
+                line::MAX_LINE_BYTES
+            ));
+            return;
+        }
+        let text = String::from_utf8_lossy(&bytes);
+        if text.trim().is_empty() {
+            continue;
+        }
+        let now = clock.now_s();
+        *heard.last_s.lock().expect("heard") = Some(now);
+        match Reply::parse(&text) {
+            Ok(hello @ Reply::Hello { .. }) => *heard.hello.lock().expect("heard") = Some(hello),
+            Ok(Reply::Measured { kpa, .. }) => {
+                if let Some(v) = kpa
+                    .iter()
+                    .find(|v| !super::regulator::MEASURED_KPA.contains(v))
+                {
+                    broken(format!(
+                        "the serial line {path} said {:?}: {v} kPa is not a pressure a regulator measures",
+                        line::short(&text)
+                    ));
+                    return;
+                }
+                let mut log = log.lock().expect("log");
+                if let Some(c) = log.last_mut() {
+                    c.measured = Some(kpa);
+                }
+            }
+            Ok(Reply::Ok { .. }) => {}
+            Ok(Reply::Err(why)) => {
+                broken(format!("the board on {path} refused a command: {why}"));
+                return;
+            }
+            Err(why) => {
+                broken(format!(
+                    "the serial line {path}: {why} (docs/regulator.md has the protocol)"
+                ));
+                return;
+            }
+        }
+    }
+}
