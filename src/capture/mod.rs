@@ -36,6 +36,7 @@ mod regulator;
 pub mod serial;
 mod session;
 pub mod source;
+pub mod sync_led;
 pub mod url;
 
 pub use session::capture;
@@ -119,6 +120,9 @@ pub struct CaptureOptions {
     /// Command that switches on a light both cameras see, run before the protocol: each
     /// camera's latency is measured from it ([`flash`]).
     pub flash: Option<String>,
+    /// Blink the serial board's LED at the session's start and end: each camera's delay is
+    /// measured from the frames that saw it ([`sync_led`]).
+    pub sync_led: bool,
 }
 
 impl CaptureOptions {
@@ -150,6 +154,9 @@ impl CaptureOptions {
         }
         if let Some(d) = self.duration_s.filter(|&d| d.is_nan() || d <= 0.0) {
             return Err(format!("duration_s={d} must be positive"));
+        }
+        if self.sync_led && !matches!(self.protocol, Some((_, Regulator::Serial(..)))) {
+            return Err("--sync-led blinks the serial board's LED: give --protocol and --regulator serial:PATH".into());
         }
         if let Some(c) = &self.calibration {
             c.board.check().map_err(|e| e.to_string())?;
@@ -284,6 +291,9 @@ pub struct CaptureSummary {
     /// Each camera's latency from the flash, once measured.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub flash: Option<flash::FlashLatency>,
+    /// Each camera's delay from the LED's blinks, once measured.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sync_led: Option<sync_led::SyncLed>,
     /// Per camera: the settings the backend refused.
     pub refused: [Vec<String>; 2],
     pub start_monotonic_s: f64,

@@ -145,6 +145,19 @@ pub(super) struct Commanded {
     pub step: protocol::Step,
 }
 
+impl Commanded {
+    /// A streamed command written at `time_s`, due at `due_s`, not yet answered.
+    pub fn streamed(time_s: f64, due_s: f64, step: &protocol::Step) -> Commanded {
+        Commanded {
+            time_s,
+            end_s: time_s,
+            scheduled_s: Some(due_s),
+            measured: None,
+            step: step.clone(),
+        }
+    }
+}
+
 pub(super) fn pressures_csv(log: &[Commanded]) -> String {
     let streamed = log.first().is_some_and(|c| c.scheduled_s.is_some());
     crate::session::pressures::pressures_csv(log.iter().map(|c| Logged {
@@ -238,13 +251,9 @@ pub(super) fn drive_streaming(
                 let time_s = clock.now_s();
                 // Logged before it is written: a regulator that answers at once must find the
                 // command in force.
-                log.lock().expect("log").push(Commanded {
-                    time_s,
-                    end_s: time_s,
-                    scheduled_s: Some(due),
-                    measured: None,
-                    step: step.clone(),
-                });
+                log.lock()
+                    .expect("log")
+                    .push(Commanded::streamed(time_s, due, step));
                 let written =
                     regulator.write(&format!("{time_s:.6} {p1} {p2} {p3}\n"), clock, stop);
                 let mut logged = log.lock().expect("log");

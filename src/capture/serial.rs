@@ -18,8 +18,13 @@ use std::time::Duration;
 
 use super::line::{self, Reply, Request};
 use super::regulator::Commanded;
+use super::sync_led::BLINKS;
 use super::{Clock, Ending};
 use crate::session::protocol;
+
+/// When the LED first blinks (s into the session): the cameras' first second is its dark
+/// reference.
+const BLINK_AT_S: f64 = 1.0;
 
 /// How long the board may take to answer a line (s) before the link is taken for gone.
 const ANSWER_S: f64 = 2.0;
@@ -103,8 +108,8 @@ fn open(path: &str, baud: u32) -> Result<File, String> {
     Ok(file)
 }
 
-/// What the reader has heard: the time of the last reply, and what ended the link if
-/// something did.
+/// What the reader has heard: the time of the last reply, the board's `HELLO` answer, and
+/// what ended the link if something did.
 #[derive(Default)]
 struct Heard {
     last_s: Mutex<Option<f64>>,
@@ -112,13 +117,151 @@ struct Heard {
     broken: Mutex<Option<String>>,
 }
 
-/// Runs the protocol through the board on `path` (see the module docs); how it ended.
+/// The host's side of the line: what it says, and how it waits (reading meanwhile).
+struct Host<'a> {
+    link: File,
+    path: &'a str,
+    clock: &'a Clock,
+    stop: &'a AtomicBool,
+    heard: &'a Heard,
+}
+
+impl Host<'_> {
+    fn say(&mut self, request: Request) -> Result<(), String> {
+        self.link
+            .write_all(format!("{request}\n").as_bytes())
+            .map_err(|e| format!("the serial line {} is gone ({e})", self.path))
+    }
+
+    fn stopped(&self) -> bool {
+        self.stop.load(Ordering::SeqCst)
+    }
+
+    /// `HELLO`, and the board's answer as handcap's protocol.
+    fn hello(&mut self) -> Result<(), String> {
+        let (path, sent_s) = (self.path, self.clock.now_s());
+        *self.heard.last_s.lock().expect("heard") = Some(sent_s);
+        self.say(Request::Hello)?;
+        loop {
+            if let Some(why) = self.heard.broken.lock().expect("heard").clone() {
+                return Err(why);
+            }
+            match self.heard.hello.lock().expect("heard").clone() {
+                Some(Reply::Hello { version, .. }) if version == line::VERSION => return Ok(()),
+                Some(other) => return Err(format!(
+                    "the serial line {path} answered HELLO with {:?}, not handcap's line protocol {} (HANDCAP {} 3; docs/regulator.md)",
+                    other.to_string(), line::VERSION, line::VERSION
+                )),
+                None => {}
+            }
+            if self.clock.now_s() - sent_s > ANSWER_S || self.stopped() {
+                return Err(format!(
+                    "the serial line {path} did not answer HELLO within {ANSWER_S} s: is the board handcap's line protocol (docs/regulator.md), at this baud rate?"
+                ));
+            }
+            std::thread::sleep(Duration::from_millis(2));
+        }
+    }
+
+    /// Waits until `due` (session clock, s), reading the pressures every
+    /// [`line::KEEPALIVE_S`]: `Ok(false)` when the session stops first, `Err` when the link
+    /// fails or the board falls silent.
+    fn hold_until(&mut self, due: f64) -> Result<bool, String> {
+        let mut read_s = self.clock.now_s();
+        loop {
+            if self.stopped() {
+                return Ok(false);
+            }
+            if let Some(why) = self.heard.broken.lock().expect("heard").clone() {
+                return Err(why);
+            }
+            let now = self.clock.now_s();
+            let last = self.heard.last_s.lock().expect("heard").unwrap_or(now);
+            if now - last > ANSWER_S {
+                return Err(format!(
+                    "the serial line {} has not answered for {ANSWER_S} s (the board is gone or hung)",
+                    self.path
+                ));
+            }
+            if now >= due {
+                return Ok(true);
+            }
+            if now - read_s >= line::KEEPALIVE_S {
+                read_s = now;
+                self.say(Request::Read)?;
+            }
+            std::thread::sleep(Duration::from_secs_f64((due - now).min(0.002)));
+        }
+    }
+
+    /// Blinks the board's LED through [`BLINKS`], each switch's time (when its line was
+    /// written) kept in `led`, then holds it off a while (the last switch seen by the cameras
+    /// before anything moves); `Ok(false)` when the session stops meanwhile.
+    fn blink(&mut self, led: &Mutex<Vec<f64>>) -> Result<bool, String> {
+        for (k, hold) in BLINKS.iter().enumerate() {
+            self.say(Request::Led(k % 2 == 0))?;
+            let at = self.clock.now_s();
+            led.lock().expect("led").push(at);
+            if !self.hold_until(at + hold)? {
+                return Ok(false);
+            }
+        }
+        self.hold_until(self.clock.now_s() + 0.3)
+    }
+
+    /// The protocol: the LED's first blinks (after a second of dark frames), each step a `SET`
+    /// at its time, logged, the last held, the LED's last blinks.
+    fn drive(
+        &mut self,
+        steps: &[protocol::Step],
+        log: &Mutex<Vec<Commanded>>,
+        led: Option<&Mutex<Vec<f64>>>,
+    ) -> Result<bool, (usize, String)> {
+        let at = |k: usize| move |why: String| (k, why);
+        self.hello().map_err(at(0))?;
+        if let Some(led) = led {
+            if !(self.hold_until(BLINK_AT_S).map_err(at(0))? && self.blink(led).map_err(at(0))?) {
+                return Ok(false);
+            }
+        }
+        let mut due = self.clock.now_s();
+        for (k, step) in steps.iter().enumerate() {
+            if !self.hold_until(due).map_err(at(k.saturating_sub(1)))? {
+                return Ok(false);
+            }
+            let time_s = self.clock.now_s();
+            log.lock()
+                .expect("log")
+                .push(Commanded::streamed(time_s, due, step));
+            if let Err(why) = self.say(Request::Set(step.pressures)) {
+                log.lock().expect("log").pop();
+                return Err((k, why));
+            }
+            if let Some(last) = log.lock().expect("log").last_mut() {
+                last.end_s = self.clock.now_s();
+            }
+            due += step.hold_s;
+        }
+        let last = steps.len().saturating_sub(1);
+        if !self.hold_until(due).map_err(at(last))? {
+            return Ok(false);
+        }
+        match led {
+            Some(led) => self.blink(led).map_err(at(last)),
+            None => Ok(true),
+        }
+    }
+}
+
+/// Runs the protocol through the board on `path` (see the module docs), with `--sync-led` the
+/// LED's switches kept in `led`; how it ended.
 pub(super) fn drive_serial(
     steps: &[protocol::Step],
     (path, baud): (&str, u32),
     clock: &Clock,
     log: &Mutex<Vec<Commanded>>,
     stop: &AtomicBool,
+    led: Option<&Mutex<Vec<f64>>>,
 ) -> Option<Ending> {
     let failed = |k: usize, message: String| {
         Some(Ending::CommandFailed {
@@ -126,7 +269,7 @@ pub(super) fn drive_serial(
             message,
         })
     };
-    let mut link = match open(path, baud) {
+    let link = match open(path, baud) {
         Ok(f) => f,
         Err(why) => return failed(0, why),
     };
@@ -138,95 +281,20 @@ pub(super) fn drive_serial(
     let done = AtomicBool::new(false);
     std::thread::scope(|scope| {
         scope.spawn(|| listen(reading, path, clock, log, &heard, &done));
-        let mut say = |request: Request| -> Result<(), String> {
-            link.write_all(format!("{request}\n").as_bytes())
-                .map_err(|e| format!("the serial line {path} is gone ({e})"))
+        let mut host = Host {
+            link,
+            path,
+            clock,
+            stop,
+            heard: &heard,
         };
-        let ending = (|| {
-            let sent_s = clock.now_s();
-            if let Err(why) = say(Request::Hello) {
-                return failed(0, why);
-            }
-            // The board says who it is before anything is set.
-            loop {
-                if let Some(why) = heard.broken.lock().expect("heard").clone() {
-                    return failed(0, why);
-                }
-                match heard.hello.lock().expect("heard").clone() {
-                    Some(Reply::Hello { version, .. }) if version == line::VERSION => break,
-                    Some(other) => {
-                        return failed(0, format!(
-                            "the serial line {path} answered HELLO with {:?}, not handcap's line protocol {} (HANDCAP {} 3; docs/regulator.md)",
-                            other.to_string(), line::VERSION, line::VERSION
-                        ))
-                    }
-                    None => {}
-                }
-                if clock.now_s() - sent_s > ANSWER_S || stop.load(Ordering::SeqCst) {
-                    return failed(0, format!(
-                        "the serial line {path} did not answer HELLO within {ANSWER_S} s: is the board handcap's line protocol (docs/regulator.md), at this baud rate?"
-                    ));
-                }
-                std::thread::sleep(Duration::from_millis(2));
-            }
-            let mut due = clock.now_s();
-            for (k, step) in steps.iter().enumerate() {
-                let mut read_s = clock.now_s();
-                // Held until it is due, read meanwhile; stopped, or the link gone.
-                loop {
-                    if stop.load(Ordering::SeqCst) {
-                        return None;
-                    }
-                    if let Some(why) = heard.broken.lock().expect("heard").clone() {
-                        return failed(k.saturating_sub(1), why);
-                    }
-                    let last = heard.last_s.lock().expect("heard").unwrap_or(sent_s);
-                    if clock.now_s() - last > ANSWER_S {
-                        return failed(k.saturating_sub(1), format!(
-                            "the serial line {path} has not answered for {ANSWER_S} s (the board is gone or hung)"
-                        ));
-                    }
-                    let left = due - clock.now_s();
-                    if left <= 0.0 {
-                        break;
-                    }
-                    if clock.now_s() - read_s >= line::KEEPALIVE_S {
-                        read_s = clock.now_s();
-                        if let Err(why) = say(Request::Read) {
-                            return failed(k.saturating_sub(1), why);
-                        }
-                    }
-                    std::thread::sleep(Duration::from_secs_f64(left.min(0.002)));
-                }
-                let time_s = clock.now_s();
-                log.lock().expect("log").push(Commanded {
-                    time_s,
-                    end_s: time_s,
-                    scheduled_s: Some(due),
-                    measured: None,
-                    step: step.clone(),
-                });
-                if let Err(why) = say(Request::Set(step.pressures)) {
-                    log.lock().expect("log").pop();
-                    return failed(k, why);
-                }
-                if let Some(last) = log.lock().expect("log").last_mut() {
-                    last.end_s = clock.now_s();
-                }
-                due += step.hold_s;
-            }
-            // The last step held for its time, read meanwhile.
-            while clock.now_s() < due && !stop.load(Ordering::SeqCst) {
-                let left = due - clock.now_s();
-                std::thread::sleep(Duration::from_secs_f64(left.clamp(0.0, line::KEEPALIVE_S)));
-                if let Err(why) = say(Request::Read) {
-                    return failed(steps.len().saturating_sub(1), why);
-                }
-            }
-            Some(Ending::ProtocolDone)
-        })();
+        let ending = match host.drive(steps, log, led) {
+            Ok(true) => Some(Ending::ProtocolDone),
+            Ok(false) => None,
+            Err((k, why)) => failed(k, why),
+        };
         // Vented however it ended, while the board can still hear.
-        let _ = say(Request::Vent);
+        let _ = host.say(Request::Vent);
         std::thread::sleep(Duration::from_millis(50));
         done.store(true, Ordering::SeqCst);
         ending

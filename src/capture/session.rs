@@ -97,6 +97,8 @@ struct Shared {
     stop: AtomicBool,
     log: Mutex<Vec<regulator::Commanded>>,
     flash: Mutex<FlashState>,
+    /// The LED's switches (session clock, s), with --sync-led.
+    led: Mutex<Vec<f64>>,
 }
 
 impl Shared {
@@ -113,6 +115,7 @@ impl Shared {
             stop: AtomicBool::new(false),
             log: Mutex::new(Vec::new()),
             flash: Mutex::new(FlashState::Waiting),
+            led: Mutex::new(Vec::new()),
         }
     }
 
@@ -172,7 +175,8 @@ impl<'scope> Threads<'scope> {
                         drive_streaming(steps, command, clock, log, stop)
                     }
                     Regulator::Serial(path, baud) => {
-                        super::serial::drive_serial(steps, (path, *baud), clock, log, stop)
+                        let led = options.sync_led.then_some(&shared.led);
+                        super::serial::drive_serial(steps, (path, *baud), clock, log, stop, led)
                     }
                 }
             })
@@ -255,6 +259,7 @@ struct Recorder<'a> {
     failure: Option<CaptureError>,
     watch: Option<flash::Watch>,
     flash: Option<FlashLatency>,
+    sync_led: Option<super::sync_led::SyncLed>,
     last_seen: [f64; 2],
     received: [usize; 2],
     /// Each camera's latest frame (a calibration capture keeps no other).
@@ -287,6 +292,7 @@ impl<'a> Recorder<'a> {
             failure: None,
             watch: options.flash.as_ref().map(|_| flash::Watch::default()),
             flash: None,
+            sync_led: None,
             // The first frame may take a while longer: a device warms up.
             last_seen: [options.stall_s; 2],
             received: [0; 2],
@@ -456,6 +462,7 @@ impl<'a> Recorder<'a> {
             on_abort,
             stats: stats(&self.rows, self.by_driver, log, self.judge.as_ref()),
             flash: self.flash.clone(),
+            sync_led: self.sync_led.clone(),
             refused: self.refused.clone(),
             start_monotonic_s: shared.clock.start_monotonic_s,
             start_unix_s: shared.start_unix_s,
@@ -475,6 +482,27 @@ impl<'a> Recorder<'a> {
             (&self.watch, shared.flash.lock().expect("flash").clone())
         {
             self.flash = Some(watch.measure(times));
+        }
+        let switches = std::mem::take(&mut *shared.led.lock().expect("led"));
+        if !switches.is_empty() {
+            let paths: Vec<(Side, f64, PathBuf)> = self
+                .rows
+                .iter()
+                .filter_map(|&(side, index, t)| {
+                    let path = ["jpg", "png"].iter().map(|ext| {
+                        self.frames_dir
+                            .join(format!("{}_{index:05}.{ext}", side.name()))
+                    });
+                    Some((side, t, path.into_iter().find(|p| p.is_file())?))
+                })
+                .collect();
+            let frames: Vec<(Side, f64, &Path)> = paths
+                .iter()
+                .map(|(s, t, p)| (*s, *t, p.as_path()))
+                .collect();
+            let measured =
+                super::sync_led::SyncLed::measure(switches, &frames, 1.0 / self.options.fps);
+            self.sync_led = Some(measured);
         }
         self.rows.sort_by_key(|r| (r.0 as u8, r.1));
         let log = std::mem::take(&mut *shared.log.lock().expect("log"));

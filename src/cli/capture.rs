@@ -59,6 +59,12 @@ pub struct Args {
     /// used by triangulate
     #[arg(long, conflicts_with = "calib")]
     flash: Option<String>,
+    /// With --regulator serial:PATH: blink the board's LED (in view of both cameras) at the
+    /// session's start and end; each camera's delay is measured from the frames that saw it,
+    /// to a millisecond or two (a frame lit for part of its exposure is part-bright), written to
+    /// capture.json (sync_led) and used by triangulate instead of the motion
+    #[arg(long, conflicts_with_all = ["calib", "flash"])]
+    sync_led: bool,
     /// Stop after this many seconds (default: the protocol's end, or Ctrl-C)
     #[arg(long, value_parser = super::finite)]
     duration_s: Option<f64>,
@@ -153,5 +159,6 @@ fn options(a: &Args) -> anyhow::Result<CaptureOptions> {
         calibration,
         on_abort: a.on_abort.clone(),
         flash: a.flash.clone(),
+        sync_led: a.sync_led,
     })
 }

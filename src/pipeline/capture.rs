@@ -161,6 +161,9 @@ impl fmt::Display for Filmed<'_> {
         if let Some(flash) = &summary.flash {
             writeln!(f, "{flash}")?;
         }
+        if let Some(led) = &summary.sync_led {
+            writeln!(f, "{led}")?;
+        }
         if let Some((_, capture::Regulator::Streaming(_) | capture::Regulator::Serial(..))) =
             &options.protocol
         {

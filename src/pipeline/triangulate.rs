@@ -8,6 +8,7 @@ use super::outputs::{self, Output};
 use super::{io_error, PipelineError, Session, Task};
 use crate::calib::file::{read_calibration, CalibrationFile};
 use crate::capture::flash::FlashLatency;
+use crate::capture::sync_led::SyncLed;
 use crate::capture::CAPTURE_FILE;
 use crate::session::frames::FrameList;
 use crate::session::pressures::{read_pressure_log, PressureLog};
@@ -45,10 +46,50 @@ pub fn pressure_log(frames: &Path, given: Option<PathBuf>) -> Result<PathBuf, Pi
 /// Both cameras' latencies (ms) measured from the flash `capture` filmed, when the frames'
 /// session has them ([`crate::capture::flash`]).
 fn flash_latency(frames: &Path) -> Option<[f64; 2]> {
+    let json = capture_summary(frames)?;
+    let flash: FlashLatency = serde_json::from_value(json["flash"].clone()).ok()?;
+    flash.both_ms()
+}
+
+/// Both cameras' delays (ms) from the LED `capture --sync-led` blinked, when it measured them.
+fn led_delays(frames: &Path) -> Option<[f64; 2]> {
+    let json = capture_summary(frames)?;
+    let led: SyncLed = serde_json::from_value(json["sync_led"].clone()).ok()?;
+    led.both_ms()
+}
+
+/// `options` with the cameras' delays `capture` measured, when none were given: the LED's
+/// (both cameras on one set of blinks: their clocks' offset too), else the flash's; whether
+/// where they came from.
+fn with_measured_delays(
+    frames: &Path,
+    options: &TriangulateOptions,
+) -> (TriangulateOptions, Option<String>) {
+    let given = options.latency_s.is_some();
+    let led = (!given).then(|| led_delays(frames)).flatten();
+    let flash = (!given && led.is_none())
+        .then(|| flash_latency(frames))
+        .flatten();
+    let measured = TriangulateOptions {
+        latency_s: options
+            .latency_s
+            .or(led.or(flash).map(|ms| ms.map(|ms| ms / 1e3))),
+        clocks_measured: options.clocks_measured || led.is_some(),
+        ..options.clone()
+    };
+    let from = match (led, flash) {
+        (Some(_), _) => Some(format!("from the LED in {CAPTURE_FILE}")),
+        (None, Some(_)) => Some(format!("from the flash in {CAPTURE_FILE}")),
+        (None, None) => None,
+    };
+    (measured, from)
+}
+
+/// The summary in `capture.json` beside the frames' folder, when there is one.
+fn capture_summary(frames: &Path) -> Option<serde_json::Value> {
     let text = std::fs::read_to_string(frames.parent()?.join(CAPTURE_FILE)).ok()?;
     let json: serde_json::Value = serde_json::from_str(&text).ok()?;
-    let flash: FlashLatency = serde_json::from_value(json["summary"]["flash"].clone()).ok()?;
-    flash.both_ms()
+    Some(json["summary"].clone())
 }
 
 /// Checks every file `run` writes against every file it reads (the frames and their index, the
@@ -125,16 +166,9 @@ pub fn run(
     out: &Path,
     session: &Session,
 ) -> Result<Triangulated, PipelineError> {
-    // Delays not given: the flash `capture` filmed measured them, when it did.
-    let flash = options
-        .latency_s
-        .is_none()
-        .then(|| flash_latency(frames))
-        .flatten();
-    let options = &TriangulateOptions {
-        latency_s: options.latency_s.or(flash.map(|ms| ms.map(|ms| ms / 1e3))),
-        ..options.clone()
-    };
+    // Delays not given: the LED or the flash `capture` filmed measured them, when it did; the
+    // LED's, both cameras' on one set of blinks, are also their clocks' offset.
+    let (options, from) = &with_measured_delays(frames, options);
     let (calibration, log, listed) = read_inputs(frames, calib, pressures, options, out)?;
     let result = triangulate::triangulate(
         &listed,
@@ -146,8 +180,8 @@ pub fn run(
     );
     session.emit(super::Event::Finished(Task::Frames));
     let mut triangulation = result?;
-    if flash.is_some() {
-        triangulation.summary.latency.from = Some(format!("from the flash in {CAPTURE_FILE}"));
+    if from.is_some() {
+        triangulation.summary.latency.from.clone_from(from);
     }
     let provenance = provenance(session, frames, calib, pressures)?;
     let written = triangulation.write(out, &provenance)?;
@@ -195,6 +229,7 @@ pub fn run_per_frame(
     out: &Path,
     session: &Session,
 ) -> Result<TriangulatedPerFrame, PipelineError> {
+    let (options, _) = &with_measured_delays(frames, options);
     let (calibration, log, listed) = read_inputs(frames, calib, pressures, options, out)?;
     let index = frames.join("frames.csv");
     let result = per_frame::triangulate_per_frame(
@@ -247,7 +282,12 @@ impl fmt::Display for TriangulatedPerFrame {
                 format!("; flagged: {}", flagged.join(", "))
             }
         )?;
-        if s.clock_frames > 0 {
+        if let (true, Some([l, r])) = (s.clocks_measured, s.delays_ms) {
+            writeln!(
+                f,
+                "clock: each camera's delay from the LED in {CAPTURE_FILE} (left {l:.1} ms, right {r:.1} ms) taken out of its stamps; no offset measured from the motion"
+            )?;
+        } else if s.clock_frames > 0 {
             let drift = if s.clock_drift_ms == 0.0 {
                 String::new()
             } else {

@@ -36,6 +36,9 @@ pub struct TriangulateOptions {
     /// Each camera's delay from exposure to timestamp (s), when known; `None` measures it
     /// from the tip's motion ([`super::latency`]).
     pub latency_s: Option<[f64; 2]>,
+    /// `latency_s` was measured for both cameras at once (an LED both filmed): `--per-frame`
+    /// takes the clocks as they say instead of measuring their offset from the motion.
+    pub clocks_measured: bool,
 }
 
 impl TriangulateOptions {
@@ -118,6 +121,7 @@ impl Default for TriangulateOptions {
             finger_mm: 50.0,
             video_start_s: None,
             latency_s: None,
+            clocks_measured: false,
         }
     }
 }

@@ -117,6 +117,12 @@ pub struct PerFrameSummary {
     pub clock_drift_ms: f64,
     /// How many moving frames told the offset (0: not measured, taken as 0).
     pub clock_frames: usize,
+    /// Each camera's delay from exposure to stamp taken out of its stamps (ms), when given or
+    /// measured by `capture`; with `clocks_measured` (an LED both cameras filmed) nothing is
+    /// measured from the motion.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub delays_ms: Option<[f64; 2]>,
+    pub clocks_measured: bool,
     /// Per camera, the RMS of its stamps about its regular frame clock (ms), when they lie on
     /// one: the times used are the clock's (`None`: the stamps as they are).
     pub stamp_jitter_ms: [Option<f64>; 2],
@@ -210,7 +216,10 @@ pub fn triangulate_per_frame(
             .map(|&i| centres(i).unwrap_or_default())
             .collect()
     });
-    let clock = clock_offset(rig, &left, &right, &candidates)?;
+    let clock = match options.clocks_measured {
+        true => ClockOffset::default(),
+        false => clock_offset(rig, &left, &right, &candidates)?,
+    };
     let pass = locate_all(rig, options, &left, &right, &centres, &clock);
     let seen = seen_in(&left, &right, &pass);
     summary.clock_offset_ms = 1e3 * clock.offset_s;
@@ -219,6 +228,8 @@ pub fn triangulate_per_frame(
         _ => 0.0,
     };
     summary.clock_frames = clock.frames;
+    summary.delays_ms = options.latency_s.map(|s| s.map(|s| 1e3 * s));
+    summary.clocks_measured = options.clocks_measured;
 
     // 4-5. Each left frame's tip (left camera) and its step, from the tracks smoothed.
     let smoothed = smoothed_tracks(&left, &right, &seen);
