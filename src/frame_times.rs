@@ -96,7 +96,7 @@ pub fn period(times: &[f64]) -> f64 {
 
 /// A free-running camera's stamps put back on its own clock: the camera exposes every
 /// `period` on a crystal, the computer's stamps add the USB's jitter. Each frame's slot
-/// n = round((t − t₀) / period) (a dropped frame skips one), then the line t = a + b · n fitted by
+/// n = round((t − t₀) / period), t₀ the stamps' mean phase (a dropped frame skips one), then the line t = a + b · n fitted by
 /// least squares, once more without the stamps more than a quarter period off it; the line's
 /// times, and the RMS of the stamps about it (s). `None` when the stamps do not lie on one line
 /// (an RMS over a sixth of a period: a camera that changed its rate or paused), or with fewer
@@ -105,9 +105,17 @@ pub fn regular(times: &[f64], period: f64) -> Option<(Vec<f64>, f64)> {
     if times.len() < 3 || period.is_nan() || period <= 0.0 {
         return None;
     }
+    // The slots counted from the stamps' mean phase on the period (a circular mean), not from
+    // the first stamp: a first frame stamped half a period late would split the others'
+    // rounding between two slots.
+    let (sin, cos) = times.iter().fold((0.0, 0.0), |(s, c), t| {
+        let angle = std::f64::consts::TAU * (t - times[0]) / period;
+        (s + angle.sin(), c + angle.cos())
+    });
+    let anchor = times[0] + sin.atan2(cos) / std::f64::consts::TAU * period;
     let slots: Vec<f64> = times
         .iter()
-        .map(|t| ((t - times[0]) / period).round())
+        .map(|t| ((t - anchor) / period).round())
         .collect();
     let fit = |keep: &dyn Fn(usize) -> bool| -> Option<(f64, f64)> {
         let points: Vec<(f64, f64)> = (0..times.len())
@@ -302,6 +310,19 @@ mod tests {
                 period(&kept)
             );
             assert!(late(&kept, period(&kept)).iter().all(Option::is_none));
+        }
+    }
+
+    #[test]
+    fn a_first_frame_stamped_half_a_period_late_leaves_the_clock_where_the_others_put_it() {
+        let p = 1.0 / 30.0;
+        // ±2 ms of jitter; the first frame 17 ms late (a camera's first frame, a busy start).
+        let jitter = |k: usize| 0.004 * (((k * 7919) % 11) as f64 / 10.0 - 0.5);
+        let mut times: Vec<f64> = (0..300).map(|k| 0.046 + k as f64 * p + jitter(k)).collect();
+        times[0] += 0.017;
+        let (regular, _) = regular(&times, period(&times)).unwrap();
+        for (k, t) in regular.iter().enumerate().skip(1) {
+            assert!((t - 0.046 - k as f64 * p).abs() < 5e-4, "frame {k}: {t}");
         }
     }
 

@@ -500,8 +500,7 @@ impl<'a> Recorder<'a> {
                 .iter()
                 .map(|(s, t, p)| (*s, *t, p.as_path()))
                 .collect();
-            let measured =
-                super::sync_led::SyncLed::measure(switches, &frames, 1.0 / self.options.fps);
+            let measured = super::sync_led::SyncLed::measure(switches, &frames);
             self.sync_led = Some(measured);
         }
         self.rows.sort_by_key(|r| (r.0 as u8, r.1));

@@ -15,9 +15,11 @@ use serde::{Deserialize, Serialize};
 use super::motion::{blocks, Blocks};
 use crate::stereo::Side;
 
-/// The LED's on and off times in turn (s), from the first switch on: irregular, so that the
+/// The LED's on and off times in turn (s), from the first switch on (eight blinks): irregular, so that the
 /// switches fall at many phases of a 30 fps frame clock.
-pub const BLINKS: [f64; 8] = [0.21, 0.29, 0.23, 0.27, 0.19, 0.31, 0.25, 0.26];
+pub const BLINKS: [f64; 16] = [
+    0.21, 0.29, 0.23, 0.27, 0.19, 0.31, 0.25, 0.26, 0.18, 0.33, 0.22, 0.28, 0.20, 0.30, 0.24, 0.27,
+];
 
 /// Frames this long before the first switch and after the last are measured too (s): dark
 /// frames, and the last switch's latest frames at any delay up to it.
@@ -60,7 +62,7 @@ impl SyncLed {
     }
 
     /// Measures both cameras from their frames on disk: `frames` is (camera, stamp, file).
-    pub fn measure(switches_s: Vec<f64>, frames: &[(Side, f64, &Path)], period_s: f64) -> SyncLed {
+    pub fn measure(switches_s: Vec<f64>, frames: &[(Side, f64, &Path)]) -> SyncLed {
         let mut out = SyncLed {
             switches_s,
             left: None,
@@ -77,14 +79,27 @@ impl SyncLed {
         };
         let mut fits = [None, None];
         for side in [Side::Left, Side::Right] {
-            let levels: Vec<(f64, Blocks)> = frames
+            // The stamps put back on the camera's own clock (as triangulate puts them): the
+            // transport's jitter would blur the part-lit frames' places.
+            let mut mine: Vec<(f64, &Path)> = frames
                 .iter()
-                .filter(|(s, t, _)| {
-                    *s == side && *t >= first - MARGIN_S && *t <= last + MARGIN_S && near(*t)
-                })
-                .filter_map(|(_, t, path)| Some((*t, blocks(&std::fs::read(path).ok()?)?)))
+                .filter(|f| f.0 == side)
+                .map(|f| (f.1, f.2))
                 .collect();
-            match lamp_levels(&levels).and_then(|l| fit(&l, &out.switches_s, period_s)) {
+            mine.sort_by(|a, b| a.0.total_cmp(&b.0));
+            let stamps: Vec<f64> = mine.iter().map(|f| f.0).collect();
+            let period = crate::frame_times::period(&stamps);
+            if let Some((regular, _)) = crate::frame_times::regular(&stamps, period) {
+                for (f, t) in mine.iter_mut().zip(regular) {
+                    f.0 = t;
+                }
+            }
+            let levels: Vec<(f64, Blocks)> = mine
+                .iter()
+                .filter(|(t, _)| *t >= first - MARGIN_S && *t <= last + MARGIN_S && near(*t))
+                .filter_map(|(t, path)| Some((*t, blocks(&std::fs::read(path).ok()?)?)))
+                .collect();
+            match lamp_levels(&levels).and_then(|l| fit(&l, &out.switches_s, period)) {
                 Ok(f) => fits[side as usize] = Some(f),
                 Err(why) => out.unmeasured.push(format!("{}: {why}", side.name())),
             }
@@ -144,11 +159,17 @@ fn lamp_levels(frames: &[(f64, Blocks)]) -> Result<Vec<(f64, f64)>, String> {
     if blinking.len() < 2 {
         return Err("no LED blinked in its view (is it in view, and off before?)".into());
     }
+    // Each frame's lamp against the rest of its image: the lights' flicker and the exposure's
+    // drift brighten both alike.
+    let steady: Vec<usize> = (0..n).filter(|b| !blinking.contains(b)).collect();
+    let mean = |b: &Blocks, of: &[usize]| {
+        of.iter().map(|&k| b.means[k]).sum::<f64>() / of.len().max(1) as f64
+    };
     Ok(frames
         .iter()
         .map(|(t, b)| {
-            let level = blinking.iter().map(|&k| b.means[k]).sum::<f64>() / blinking.len() as f64;
-            (*t, level)
+            let rest = mean(b, &steady);
+            (*t, mean(b, &blinking) / rest.max(1.0))
         })
         .collect())
 }
@@ -173,67 +194,105 @@ fn on_share(switches: &[f64], a: f64, b: f64) -> f64 {
     lit / (b - a)
 }
 
-/// The delay and exposure that fit `levels` (stamp, grey) best, by a scan: every 0.5 ms of
-/// delay up to 1 s and every millisecond of exposure up to the frame period, then 0.05 ms
-/// around the best.
-fn fit(levels: &[(f64, f64)], switches: &[f64], period_s: f64) -> Result<LedFit, String> {
-    let mut sorted: Vec<f64> = levels.iter().map(|l| l.1).collect();
-    sorted.sort_by(f64::total_cmp);
-    let (dark, lit) = (sorted[sorted.len() / 20], sorted[sorted.len() * 19 / 20]);
-    let shares: Vec<(f64, f64)> = levels
+/// The levels against the shares a delay d and an exposure e predict: a line (dark + share ×
+/// the lamp's brightness) fitted by least squares: its residuals, slope and the shares.
+fn line(levels: &[(f64, f64)], switches: &[f64], d: f64, e: f64) -> (Vec<f64>, f64, Vec<f64>) {
+    let shares: Vec<f64> = levels
         .iter()
-        .map(|&(t, l)| (t, ((l - dark) / (lit - dark)).clamp(-0.2, 1.2)))
+        .map(|&(t, _)| on_share(switches, t - d - e / 2.0, t - d + e / 2.0))
         .collect();
-    let cost = |d: f64, e: f64| {
-        shares
-            .iter()
-            .map(|&(t, s)| (s - on_share(switches, t - d - e / 2.0, t - d + e / 2.0)).powi(2))
-            .sum::<f64>()
-    };
-    let exposures: Vec<f64> = (0..=(period_s * 1e3) as usize)
+    let n = levels.len() as f64;
+    let mean_x = shares.iter().sum::<f64>() / n;
+    let mean_y = levels.iter().map(|l| l.1).sum::<f64>() / n;
+    let (mut vx, mut vxy) = (0.0, 0.0);
+    for (x, &(_, y)) in shares.iter().zip(levels) {
+        vx += (x - mean_x).powi(2);
+        vxy += (x - mean_x) * (y - mean_y);
+    }
+    let slope = if vx > 0.0 { vxy / vx } else { 0.0 };
+    let residuals = shares
+        .iter()
+        .zip(levels)
+        .map(|(x, &(_, y))| y - mean_y - slope * (x - mean_x))
+        .collect();
+    (residuals, slope, shares)
+}
+
+/// The (d, e) of least squared residual, d every `step` s over `delays`, e every millisecond
+/// up to the frame period or every 0.1 ms within 1 ms of `near_e`.
+fn scan(
+    levels: &[(f64, f64)],
+    switches: &[f64],
+    delays: impl Iterator<Item = f64>,
+    exposures: &[f64],
+) -> (f64, f64) {
+    let mut best = (f64::INFINITY, 0.0, 0.0);
+    for d in delays {
+        for &e in exposures {
+            let (residuals, slope, _) = line(levels, switches, d, e);
+            let cost = match slope > 0.0 {
+                true => residuals.iter().map(|r| r * r).sum::<f64>(),
+                false => f64::INFINITY,
+            };
+            if cost < best.0 {
+                best = (cost, d, e);
+            }
+        }
+    }
+    (best.1, best.2)
+}
+
+/// The delay and exposure that fit `levels` (time on the camera's clock, lamp level) best: a
+/// scan every 0.5 ms of delay up to 1 s and every millisecond of exposure up to the frame
+/// period, then 0.05 ms and 0.1 ms around the best; then once more without the frames whose
+/// residual is over 4 robust standard deviations (a frame stamped out of its place).
+fn fit(levels: &[(f64, f64)], switches: &[f64], period_s: f64) -> Result<LedFit, String> {
+    let coarse: Vec<f64> = (0..=(period_s * 1e3) as usize)
         .map(|ms| ms as f64 / 1e3)
         .collect();
-    let mut best = (f64::INFINITY, 0.0, 0.0);
-    for k in 0..=2000 {
-        let d = k as f64 * 5e-4;
-        for &e in &exposures {
-            let c = cost(d, e);
-            if c < best.0 {
-                best = (c, d, e);
-            }
-        }
-    }
-    let (_, d0, e0) = best;
-    for k in -20..=20 {
-        let d = d0 + k as f64 * 5e-5;
-        for j in -10..=10 {
-            let e = (e0 + j as f64 * 1e-4).max(0.0);
-            let c = cost(d, e);
-            if c < best.0 {
-                best = (c, d, e);
-            }
-        }
-    }
-    let (c, d, e) = best;
-    let partial = shares
+    let (d0, e0) = scan(
+        levels,
+        switches,
+        (0..=2000).map(|k| k as f64 * 5e-4),
+        &coarse,
+    );
+    let fine = |levels: &[(f64, f64)], d0: f64, e0: f64| {
+        let exposures: Vec<f64> = (-10..=10)
+            .map(|j| (e0 + j as f64 * 1e-4).max(0.0))
+            .collect();
+        scan(
+            levels,
+            switches,
+            (-20..=20).map(|k| d0 + k as f64 * 5e-5),
+            &exposures,
+        )
+    };
+    let (d1, e1) = fine(levels, d0, e0);
+    let (residuals, _, _) = line(levels, switches, d1, e1);
+    let mut spread: Vec<f64> = residuals.iter().map(|r| r.abs()).collect();
+    spread.sort_by(f64::total_cmp);
+    let sigma = 1.4826 * spread[spread.len() / 2];
+    let kept: Vec<(f64, f64)> = levels
         .iter()
-        .filter(|&&(t, _)| {
-            let s = on_share(switches, t - d - e / 2.0, t - d + e / 2.0);
-            s > 0.02 && s < 0.98
-        })
-        .count();
-    if d <= 0.0 || d >= 1.0 {
+        .zip(&residuals)
+        .filter(|(_, r)| r.abs() <= 4.0 * sigma.max(1e-3))
+        .map(|(l, _)| *l)
+        .collect();
+    let (d, e) = fine(&kept, d1, e1);
+    let (residuals, slope, shares) = line(&kept, switches, d, e);
+    if d <= 0.0 || d >= 1.0 || slope <= 0.0 {
         return Err(format!(
             "the LED's blinks fit no delay within 0-1000 ms (best {:.0} ms)",
             1e3 * d
         ));
     }
+    let rms = (residuals.iter().map(|r| r * r).sum::<f64>() / kept.len() as f64).sqrt();
     Ok(LedFit {
         delay_ms: 1e3 * d,
         clock_offset_ms: 0.0,
         exposure_ms: 1e3 * e,
-        partial_frames: partial,
-        rms_share: (c / shares.len() as f64).sqrt(),
+        partial_frames: shares.iter().filter(|s| **s > 0.02 && **s < 0.98).count(),
+        rms_share: rms / slope,
     })
 }
 

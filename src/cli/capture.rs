@@ -9,8 +9,9 @@ use crate::capture::{self, CaptureOptions, Stats};
 use crate::pipeline::capture as stage;
 use crate::session::protocol;
 
+/// The two cameras, as `capture` and `follow` take them.
 #[derive(clap::Args)]
-pub struct Args {
+pub struct Cameras {
     /// Left camera: a device index (0), a device path (/dev/video0), a video file, or a URL or
     /// GStreamer pipeline OpenCV opens
     #[arg(long)]
@@ -18,9 +19,6 @@ pub struct Args {
     /// Right camera, as --left
     #[arg(long)]
     right: String,
-    /// Session directory to create (frames/, frames.csv, pressures.csv, capture.json)
-    #[arg(long)]
-    out: PathBuf,
     /// Frame size and rate asked of the cameras
     #[arg(long, default_value_t = 1280)]
     width: u32,
@@ -28,6 +26,48 @@ pub struct Args {
     height: u32,
     #[arg(long, default_value_t = 30.0)]
     fps: f64,
+    /// A camera or stream silent this long has stopped, and ends the session (s; a slow
+    /// network or a busy machine may need more)
+    #[arg(long, default_value_t = crate::capture::STALL_S, value_parser = super::finite)]
+    stall_s: f64,
+}
+
+impl Cameras {
+    /// A session filming these cameras, nothing else asked yet.
+    pub fn options(&self) -> CaptureOptions {
+        CaptureOptions {
+            sources: [self.left.clone(), self.right.clone()],
+            width: self.width,
+            height: self.height,
+            fps: self.fps,
+            protocol: None,
+            duration_s: None,
+            stall_s: self.stall_s,
+            calibration: None,
+            on_abort: None,
+            flash: None,
+            sync_led: false,
+        }
+    }
+}
+
+/// `--regulator`'s value: a board on a serial line (`serial:PATH[@BAUD]`) or a process kept
+/// running.
+pub fn regulator(text: &str) -> anyhow::Result<capture::Regulator> {
+    Ok(match capture::serial::parse(text) {
+        Some(Ok((device, baud))) => capture::Regulator::Serial(device, baud),
+        Some(Err(why)) => super::usage!("{why}"),
+        None => capture::Regulator::Streaming(text.to_string()),
+    })
+}
+
+#[derive(clap::Args)]
+pub struct Args {
+    #[command(flatten)]
+    cameras: Cameras,
+    /// Session directory to create (frames/, frames.csv, pressures.csv, capture.json)
+    #[arg(long)]
+    out: PathBuf,
     /// Pressure protocol to drive (step,phase,P1_kpa,P2_kpa,P3_kpa,hold_s; `handcap protocol`
     /// writes the paper's, or a dynamic one); needs --set-pressure or --regulator
     #[arg(long)]
@@ -68,10 +108,6 @@ pub struct Args {
     /// Stop after this many seconds (default: the protocol's end, or Ctrl-C)
     #[arg(long, value_parser = super::finite)]
     duration_s: Option<f64>,
-    /// A camera or stream silent this long has stopped, and ends the session (s; a slow
-    /// network or a busy machine may need more)
-    #[arg(long, default_value_t = crate::capture::STALL_S, value_parser = super::finite)]
-    stall_s: f64,
     /// Board pairs for `calibrate` instead of the finger's frames: a pair is taken when the
     /// board is seen in both cameras (a chessboard whole, a ChArUco board at least in part),
     /// still, somewhere new (OUT/calib/left_NN.jpg, …)
@@ -124,14 +160,7 @@ fn options(a: &Args) -> anyhow::Result<CaptureOptions> {
             protocol::read(path)?,
             capture::Regulator::PerStep(command.clone()),
         )),
-        (Some(path), None, Some(command)) => Some((
-            protocol::read(path)?,
-            match capture::serial::parse(command) {
-                Some(Ok((device, baud))) => capture::Regulator::Serial(device, baud),
-                Some(Err(why)) => super::usage!("{why}"),
-                None => capture::Regulator::Streaming(command.clone()),
-            },
-        )),
+        (Some(path), None, Some(command)) => Some((protocol::read(path)?, regulator(command)?)),
         (Some(_), None, None) => {
             super::usage!("--protocol needs --set-pressure (a command per step) or --regulator (one process, a line per step)")
         }
@@ -149,16 +178,12 @@ fn options(a: &Args) -> anyhow::Result<CaptureOptions> {
         Err(e) => super::usage!("{e}"),
     };
     Ok(CaptureOptions {
-        sources: [a.left.clone(), a.right.clone()],
-        width: a.width,
-        height: a.height,
-        fps: a.fps,
         protocol,
         duration_s: a.duration_s,
-        stall_s: a.stall_s,
         calibration,
         on_abort: a.on_abort.clone(),
         flash: a.flash.clone(),
         sync_led: a.sync_led,
+        ..a.cameras.options()
     })
 }

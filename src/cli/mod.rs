@@ -7,6 +7,7 @@ mod board;
 mod calibrate;
 mod capture;
 mod demo;
+mod follow;
 mod lab;
 mod synth;
 mod triangulate;
@@ -59,6 +60,11 @@ pub enum Command {
     /// protocol), the truth in OUT/truth/
     #[command(allow_negative_numbers = true)]
     Lab(lab::Args),
+    /// A path followed through the regulator while the cameras film, each repetition
+    /// triangulated per frame and learned from (inverse --previous --measured): the loop
+    /// closed by one command, scored against the target (and a lab's truth)
+    #[command(allow_negative_numbers = true)]
+    Follow(follow::Args),
 }
 
 /// The `handcap-cameras` binary: every command. (`handcap` runs the modelling commands itself,
@@ -82,6 +88,7 @@ pub fn run(command: Command) -> anyhow::Result<()> {
         Command::Capture(a) => capture::run(a),
         Command::Board(a) => board::run(a),
         Command::Lab(a) => lab::run(a),
+        Command::Follow(a) => follow::run(a),
     }
 }
 

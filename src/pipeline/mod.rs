@@ -18,6 +18,7 @@ pub mod demo_dynamic;
 mod demo_plan;
 mod demo_report;
 pub mod demo_summary;
+pub mod follow;
 pub mod synth;
 pub mod triangulate;
 

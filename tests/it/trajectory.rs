@@ -68,7 +68,7 @@ fn session(
 /// after a 1.5 s lead-in at its centre: time_s,x_mm,y_mm,z_mm (and the rows to score from).
 /// Each point is the settled tip of pressures inside the box (the pressures that move the
 /// tip by the figure's offsets to first order), so the whole path is within reach once settled.
-fn figure_eight(plant: &Plant, period_s: f64) -> (String, usize) {
+pub fn figure_eight(plant: &Plant, period_s: f64) -> (String, usize) {
     let rest = plant.tip([0.0; 3]).unwrap();
     let centre = [125.0; 3];
     let j = settled_jacobian(plant, centre);
@@ -277,7 +277,7 @@ fn play(d: &Path, bench: &Bench, from: usize) -> f64 {
 /// (`model.json`, `static.json`): the kernel `handcap model`'s search chooses on it, given to
 /// spare the test the search (4020 rows, a basis of 200 centres), and the history the demo's
 /// search chooses on such sessions.
-fn fit_models(d: &Path, plant: &Plant) {
+pub fn fit_models(d: &Path, plant: &Plant) {
     write(
         d,
         "session.csv",

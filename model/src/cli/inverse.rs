@@ -42,26 +42,11 @@ pub struct Args {
     /// --per-frame`'s rows on the commands' clock)
     #[arg(long, requires = "trajectory")]
     measured: Option<PathBuf>,
-    /// Learning gain: the share of the measured error corrected per repetition
-    #[arg(long, default_value_t = 0.5, value_parser = super::finite)]
-    gain: f64,
-    /// Largest change of a `_kpa` command per second along a trajectory (a regulator's slew)
-    #[arg(long, default_value_t = 600.0, value_parser = super::finite)]
-    max_rate: f64,
-    /// Weight of the commands' smoothness along a trajectory (against the squared output error),
-    /// as on a 30 Hz path (a path at another rate is weighed the same over time)
-    #[arg(long, default_value_t = 0.1, value_parser = super::finite)]
-    smoothness: f64,
     /// CSV to write: the targets, the inputs found, the model's outputs there, the error
     #[arg(long)]
     out: Option<PathBuf>,
-    /// Upper bound of every `_kpa` input (never above the regulator's 300 kPa); inputs also stay
-    /// inside the model's training range
-    #[arg(long, default_value_t = 250.0)]
-    max_kpa: f64,
-    /// A target is reached when the model's output is this close (output units)
-    #[arg(long, default_value_t = 0.01)]
-    reach: f64,
+    #[command(flatten)]
+    plan: PlanArgs,
     /// The coverage of the interval reported around each planned tip (conformal: the real
     /// tip lies within the radius this share of the time); 0 leaves it out
     #[arg(
@@ -74,6 +59,38 @@ pub struct Args {
     interval: f64,
 }
 
+/// How commands are planned along a path and learned from a run, and the inverse's limits
+/// (`inverse`, `follow`).
+#[derive(clap::Args, Clone, Copy)]
+pub struct PlanArgs {
+    /// Learning gain: the share of the measured error corrected per repetition
+    #[arg(long, default_value_t = 0.5, value_parser = super::finite)]
+    pub gain: f64,
+    /// Largest change of a `_kpa` command per second along a trajectory (a regulator's slew)
+    #[arg(long, default_value_t = 600.0, value_parser = super::finite)]
+    pub max_rate: f64,
+    /// Weight of the commands' smoothness along a trajectory (against the squared output error),
+    /// as on a 30 Hz path (a path at another rate is weighed the same over time)
+    #[arg(long, default_value_t = 0.1, value_parser = super::finite)]
+    pub smoothness: f64,
+    /// Upper bound of every `_kpa` input (never above the regulator's 300 kPa); inputs also stay
+    /// inside the model's training range
+    #[arg(long, default_value_t = 250.0)]
+    pub max_kpa: f64,
+    /// A target is reached when the model's output is this close (output units)
+    #[arg(long, default_value_t = 0.01)]
+    pub reach: f64,
+}
+
+impl PlanArgs {
+    pub fn limits(&self) -> Limits {
+        Limits {
+            max_kpa: self.max_kpa,
+            reach: self.reach,
+        }
+    }
+}
+
 /// `--interval`: a level in (0, 1), or 0 for none.
 fn interval_level(s: &str) -> Result<f64, String> {
     match super::finite(s)? {
@@ -83,10 +100,7 @@ fn interval_level(s: &str) -> Result<f64, String> {
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
-    let limits = Limits {
-        max_kpa: a.max_kpa,
-        reach: a.reach,
-    };
+    let limits = a.plan.limits();
     let level = (a.interval > 0.0).then_some(a.interval);
     let notes = |notes: &[String]| notes.iter().for_each(|n| eprintln!("note: {n}"));
     match (&a.target, &a.targets, &a.trajectory) {
@@ -125,9 +139,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                     .as_ref()
                     .expect("clap requires --out with --trajectory"),
                 learn,
-                gain: a.gain,
-                max_rate: a.max_rate,
-                smoothness: a.smoothness,
+                gain: a.plan.gain,
+                max_rate: a.plan.max_rate,
+                smoothness: a.plan.smoothness,
                 limits,
             })?;
             print!("{planned}");

@@ -5,6 +5,7 @@
 
 mod export;
 mod inverse;
+pub use inverse::PlanArgs;
 mod model;
 mod predict;
 pub mod protocol;

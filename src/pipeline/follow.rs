@@ -1,0 +1,393 @@
+//! The learning loop closed by one command (`handcap follow`): the commands along a path
+//! planned from the model, then each repetition played through the regulator while both
+//! cameras film (a rest hold first: the hand frame's origin), triangulated per frame, scored,
+//! and taught back (`inverse --previous --measured`) for the next.
+//!
+//! # Layout of `follow --out DIR`
+//! - `commands_R.csv`: the commands repetition R played (`inverse --trajectory`'s columns),
+//!   `commands_N.csv` the ones learned from the last, not played;
+//! - `rep_R/`: repetition R's session as `capture` writes it (its protocol: the rest hold, the
+//!   path's commands as phase `path`, a second's rest), `rep_R/rows.csv` its per-frame rows;
+//! - `measured_R.csv`: the path's rows on the commands' clock (time from the path's first
+//!   command), what the learning step reads;
+//! - `follow.csv`: `repetition,rows,tracking_rms_triangulated_mm,tracking_rms_truth_mm`, each
+//!   repetition's tracking RMS after the lead-in against the target, from the triangulated
+//!   frames and, with `--truth LAB/truth` (`handcap lab`'s), from the lab's tip at each left
+//!   exposure: what the finger did, which the loop never sees.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use super::trajectory::{self, Request};
+use super::{PipelineError, Session};
+use crate::capture::{CaptureOptions, Regulator};
+use crate::session::protocol::Step;
+use crate::triangulate::TriangulateOptions;
+
+/// What `follow` is given.
+pub struct Follow<'a> {
+    pub model: &'a Path,
+    pub target: &'a Path,
+    pub calib: &'a Path,
+    pub out: &'a Path,
+    pub repetitions: usize,
+    /// The cameras as `capture` takes them (no protocol: each repetition's is made here).
+    pub bench: CaptureOptions,
+    pub regulator: Regulator,
+    /// The rest hold before each repetition's path (s).
+    pub rest_s: f64,
+    /// The target's first seconds left out of the tracking RMS (the move from rest to the
+    /// path).
+    pub lead_in_s: f64,
+    /// `handcap lab`'s truth folder, to score each repetition against the finger.
+    pub truth: Option<&'a Path>,
+    /// The learning step's and the planner's settings, as `inverse --trajectory` takes them.
+    pub plan: Request<'a>,
+}
+
+/// One repetition's figures.
+#[derive(Clone, Debug)]
+pub struct Repetition {
+    pub repetition: usize,
+    /// The path's rows with a tip.
+    pub rows: usize,
+    pub triangulated_mm: f64,
+    pub truth_mm: Option<f64>,
+}
+
+fn request(message: String) -> PipelineError {
+    PipelineError::Request(message)
+}
+
+fn io(path: &Path) -> impl FnOnce(std::io::Error) -> PipelineError + '_ {
+    move |source| PipelineError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+/// A CSV file's rows by column name.
+fn rows(path: &Path) -> Result<Vec<HashMap<String, String>>, PipelineError> {
+    let mut reader =
+        csv::Reader::from_path(path).map_err(|e| request(format!("{}: {e}", path.display())))?;
+    let header = reader
+        .headers()
+        .map_err(|e| request(format!("{}: {e}", path.display())))?
+        .clone();
+    reader
+        .records()
+        .map(|r| {
+            let r = r.map_err(|e| request(format!("{}: {e}", path.display())))?;
+            Ok(header
+                .iter()
+                .map(String::from)
+                .zip(r.iter().map(String::from))
+                .collect())
+        })
+        .collect()
+}
+
+fn number(row: &HashMap<String, String>, key: &str) -> Option<f64> {
+    row.get(key)?.parse().ok().filter(|v: &f64| v.is_finite())
+}
+
+/// Rows of a path: (time, outputs).
+type Timed = Vec<(f64, Vec<f64>)>;
+
+/// The target's time column and outputs, and its rows (time, outputs).
+struct Target {
+    time: String,
+    outputs: Vec<String>,
+    rows: Timed,
+}
+
+impl Target {
+    fn read(path: &Path) -> Result<Target, PipelineError> {
+        let reader = csv::Reader::from_path(path);
+        let header: Vec<String> = reader
+            .and_then(|mut r| r.headers().map(|h| h.iter().map(String::from).collect()))
+            .map_err(|e| request(format!("{}: {e}", path.display())))?;
+        let (time, outputs) = header
+            .split_first()
+            .ok_or_else(|| request(format!("{}: no columns", path.display())))?;
+        let rows = rows(path)?
+            .iter()
+            .filter_map(|r| {
+                Some((
+                    number(r, time)?,
+                    outputs
+                        .iter()
+                        .map(|o| number(r, o))
+                        .collect::<Option<Vec<f64>>>()?,
+                ))
+            })
+            .collect();
+        Ok(Target {
+            time: time.clone(),
+            outputs: outputs.to_vec(),
+            rows,
+        })
+    }
+
+    /// The target at `t`, linearly between its rows; `None` outside them.
+    fn at(&self, t: f64) -> Option<Vec<f64>> {
+        let k = self.rows.partition_point(|r| r.0 <= t);
+        let (a, b) = (self.rows.get(k.checked_sub(1)?)?, self.rows.get(k)?);
+        let w = (t - a.0) / (b.0 - a.0);
+        Some(a.1.iter().zip(&b.1).map(|(x, y)| x + w * (y - x)).collect())
+    }
+
+    /// Tracking RMS of `(time, outputs)` after the lead-in, against the target (output units).
+    fn rms(&self, seen: &[(f64, Vec<f64>)], lead_in_s: f64) -> f64 {
+        let errors: Vec<f64> = seen
+            .iter()
+            .filter(|(t, _)| *t >= lead_in_s)
+            .filter_map(|(t, y)| {
+                let want = self.at(*t)?;
+                Some(
+                    y.iter()
+                        .zip(&want)
+                        .map(|(a, b)| (a - b).powi(2))
+                        .sum::<f64>(),
+                )
+            })
+            .collect();
+        (errors.iter().sum::<f64>() / errors.len().max(1) as f64).sqrt()
+    }
+}
+
+/// The commands file's rows as a protocol: the rest hold, the path (each command held until
+/// the next; the last one period), a second's rest.
+fn protocol_of(commands: &Path, rest_s: f64) -> Result<Vec<Step>, PipelineError> {
+    let rows = rows(commands)?;
+    let time = Target::read(commands)?.time;
+    let timed: Vec<(f64, [f64; 3])> = rows
+        .iter()
+        .filter_map(|r| {
+            let p = ["P1_kpa", "P2_kpa", "P3_kpa"].map(|k| number(r, k));
+            Some((number(r, &time)?, [p[0]?, p[1]?, p[2]?]))
+        })
+        .collect();
+    if timed.len() < 2 {
+        return Err(request(format!(
+            "{}: fewer than two commands with P1_kpa, P2_kpa, P3_kpa",
+            commands.display()
+        )));
+    }
+    let period = timed[1].0 - timed[0].0;
+    let step = |k: usize, phase: &str, pressures: [f64; 3], hold_s: f64| Step {
+        step: k,
+        phase: phase.into(),
+        pressures,
+        hold_s,
+        line: 0,
+    };
+    let mut steps = vec![step(0, "rest", [0.0; 3], rest_s)];
+    for (k, (t, p)) in timed.iter().enumerate() {
+        let hold = timed.get(k + 1).map_or(period, |next| next.0 - t);
+        steps.push(step(k + 1, "path", *p, hold));
+    }
+    steps.push(step(timed.len() + 1, "rest", [0.0; 3], 1.0));
+    Ok(steps)
+}
+
+/// The per-frame rows of the path on the commands' clock: (time from the path's first
+/// command, tip), unflagged rows with a tip, from [`AROUND_S`] before the path to as long
+/// after it (the rest on either side: the learning step reads the tip over the whole path).
+fn path_rows(rep: &Path, outputs: &[String]) -> Result<(f64, Timed), PipelineError> {
+    let log = rows(&rep.join("pressures.csv"))?;
+    let path: Vec<f64> = log
+        .iter()
+        .filter(|r| r.get("phase").map(String::as_str) == Some("path"))
+        .filter_map(|r| number(r, "time_s"))
+        .collect();
+    let (Some(&start), Some(&last)) = (path.first(), path.last()) else {
+        return Err(request(format!("{}: no path step logged", rep.display())));
+    };
+    let seen = rows(&rep.join("rows.csv"))?
+        .iter()
+        .filter(|r| r["flag"].is_empty())
+        .filter_map(|r| {
+            let t = number(r, "time_s")?;
+            let y = outputs
+                .iter()
+                .map(|o| number(r, o))
+                .collect::<Option<Vec<f64>>>()?;
+            (t >= start - AROUND_S && t <= last + AROUND_S).then_some((t - start, y))
+        })
+        .collect();
+    Ok((start, seen))
+}
+
+/// How far before and after the path its rows are kept (s).
+const AROUND_S: f64 = 0.5;
+
+/// The lab's tip at each of this repetition's left frames, on the commands' clock (time from
+/// `start`, the path's first command on the session's clock).
+fn truth_rows(
+    truth: &Path,
+    rep: &Path,
+    start: f64,
+    outputs: &[String],
+) -> Result<Timed, PipelineError> {
+    let json = |path: &Path| -> Result<serde_json::Value, PipelineError> {
+        let text = std::fs::read_to_string(path).map_err(io(path))?;
+        serde_json::from_str(&text).map_err(|e| request(format!("{}: {e}", path.display())))
+    };
+    let lab = json(&truth.join("lab.json"))?;
+    let session = json(&rep.join(crate::capture::CAPTURE_FILE))?;
+    let (Some(epoch), Some(started)) = (
+        lab["epoch_unix_s"].as_f64(),
+        session["summary"]["start_unix_s"].as_f64(),
+    ) else {
+        return Err(request(format!(
+            "{}: no epoch_unix_s (is it handcap lab's truth?)",
+            truth.display()
+        )));
+    };
+    // The session's clock on the lab's: lab time = session time + offset.
+    let offset = started - epoch;
+    // This session's client of the left camera: the first to connect once it started.
+    let first = rows(&truth.join("clients.csv"))?
+        .iter()
+        .filter(|c| {
+            c["camera"] == "left" && number(c, "connected_s").is_some_and(|t| t >= offset - 0.1)
+        })
+        .find_map(|c| number(c, "first_frame"))
+        .ok_or_else(|| {
+            request(format!(
+                "{}: no client of the left camera during {}",
+                truth.display(),
+                rep.display()
+            ))
+        })? as u64;
+    let exposures: HashMap<u64, HashMap<String, String>> = rows(&truth.join("frames.csv"))?
+        .into_iter()
+        .filter(|r| r["camera"] == "left")
+        .filter_map(|r| Some((r["frame"].parse::<u64>().ok()?, r)))
+        .collect();
+    let axes = ["x_mm", "y_mm", "z_mm"];
+    Ok(rows(&rep.join("frames/frames.csv"))?
+        .iter()
+        .filter(|r| r["camera"] == "left")
+        .filter_map(|r| {
+            let e = exposures.get(&(first + r["frame"].parse::<u64>().ok()?))?;
+            let y = outputs
+                .iter()
+                .map(|o| axes.contains(&o.as_str()).then(|| number(e, o)).flatten())
+                .collect::<Option<Vec<f64>>>()?;
+            Some((number(e, "exposure_s")? - offset - start, y))
+        })
+        .collect())
+}
+
+/// Writes `(time, outputs)` rows under the target's header.
+fn write_measured(
+    path: &Path,
+    target: &Target,
+    seen: &[(f64, Vec<f64>)],
+) -> Result<(), PipelineError> {
+    let mut text = format!("{},{}\n", target.time, target.outputs.join(","));
+    for (t, y) in seen {
+        let y: Vec<String> = y.iter().map(|v| format!("{v:.6}")).collect();
+        text += &format!("{t:.6},{}\n", y.join(","));
+    }
+    crate::fsio::write_bytes(path, text.as_bytes()).map_err(io(path))
+}
+
+/// Runs the loop (see the module docs); `said` hears a line per stage.
+///
+/// # Errors
+/// A plan or learning step that fails, a repetition whose session ends early (its files
+/// kept), files that cannot be read or written.
+pub fn run(
+    f: &Follow,
+    session: &Session,
+    said: &dyn Fn(&str),
+) -> Result<Vec<Repetition>, PipelineError> {
+    std::fs::create_dir_all(f.out).map_err(io(f.out))?;
+    let target = Target::read(f.target)?;
+    let commands = |r: usize| f.out.join(format!("commands_{r}.csv"));
+    trajectory::run(&Request {
+        out: &commands(0),
+        learn: None,
+        ..f.plan
+    })?;
+    let mut done = Vec::new();
+    let mut table =
+        String::from("repetition,rows,tracking_rms_triangulated_mm,tracking_rms_truth_mm\n");
+    for r in 0..f.repetitions {
+        if session.interrupted() {
+            return Err(PipelineError::Interrupted(format!(
+                "interrupted before repetition {r}: the repetitions before it are kept in {}",
+                f.out.display()
+            )));
+        }
+        let rep: PathBuf = f.out.join(format!("rep_{r}"));
+        let steps = protocol_of(&commands(r), f.rest_s)?;
+        let options = CaptureOptions {
+            protocol: Some((steps, f.regulator.clone())),
+            ..f.bench.clone()
+        };
+        said(&format!(
+            "repetition {r}: playing {} commands",
+            options.protocol.as_ref().map_or(0, |p| p.0.len())
+        ));
+        let summary = super::capture::run(&rep, &options, session, &|_| {})?;
+        super::capture::ended(&summary, &rep)?;
+        super::triangulate::run_per_frame(
+            &rep.join("frames"),
+            f.calib,
+            &rep.join("pressures.csv"),
+            &TriangulateOptions::default(),
+            &rep.join("rows.csv"),
+            session,
+        )?;
+        let (start, seen) = path_rows(&rep, &target.outputs)?;
+        let measured = f.out.join(format!("measured_{r}.csv"));
+        write_measured(&measured, &target, &seen)?;
+        let truth_mm = match f.truth {
+            Some(truth) => Some(target.rms(
+                &truth_rows(truth, &rep, start, &target.outputs)?,
+                f.lead_in_s,
+            )),
+            None => None,
+        };
+        let one = Repetition {
+            repetition: r,
+            rows: seen.len(),
+            triangulated_mm: target.rms(&seen, f.lead_in_s),
+            truth_mm,
+        };
+        table += &format!(
+            "{r},{},{:.5},{}\n",
+            one.rows,
+            one.triangulated_mm,
+            one.truth_mm.map_or(String::new(), |v| format!("{v:.5}"))
+        );
+        let path = f.out.join("follow.csv");
+        crate::fsio::write_bytes(&path, table.as_bytes()).map_err(io(&path))?;
+        said(&one.to_string());
+        done.push(one);
+        trajectory::run(&Request {
+            out: &commands(r + 1),
+            learn: Some((&commands(r), &measured)),
+            ..f.plan
+        })?;
+    }
+    Ok(done)
+}
+
+impl std::fmt::Display for Repetition {
+    fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        write!(
+            f,
+            "repetition {}: tracking RMS after the lead-in {:.4} mm from the triangulated frames ({} rows)",
+            self.repetition, self.triangulated_mm, self.rows
+        )?;
+        if let Some(t) = self.truth_mm {
+            write!(f, ", {t:.4} mm against the lab's truth")?;
+        }
+        Ok(())
+    }
+}
