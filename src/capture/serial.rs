@@ -115,6 +115,28 @@ struct Heard {
     last_s: Mutex<Option<f64>>,
     hello: Mutex<Option<Reply>>,
     broken: Mutex<Option<String>>,
+    /// Each request written and not yet answered: when it went (session clock, s) and whether
+    /// it switched the LED. The board answers every line, in order.
+    asked: Mutex<std::collections::VecDeque<(f64, bool)>>,
+    /// The board's clock against the session's: each answer's round trip and the board's time
+    /// less the round trip's middle (s).
+    clocks: Mutex<Vec<(f64, f64)>>,
+    /// The board's time of each LED switch (s, its clock).
+    switched: Mutex<Vec<f64>>,
+}
+
+impl Heard {
+    /// The board's clock less the session's (s): the median over the answers of the fastest
+    /// fifth of round trips (the middle of a short one is when the board answered, to within
+    /// half of it).
+    fn board_offset(&self) -> Option<f64> {
+        let mut samples = self.clocks.lock().expect("heard").clone();
+        samples.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let fastest = &samples[..samples.len().div_ceil(5)];
+        let mut offsets: Vec<f64> = fastest.iter().map(|s| s.1).collect();
+        offsets.sort_by(f64::total_cmp);
+        offsets.get(offsets.len() / 2).copied()
+    }
 }
 
 /// The host's side of the line: what it says, and how it waits (reading meanwhile).
@@ -128,6 +150,8 @@ struct Host<'a> {
 
 impl Host<'_> {
     fn say(&mut self, request: Request) -> Result<(), String> {
+        let led = matches!(request, Request::Led(_));
+        (self.heard.asked.lock().expect("heard")).push_back((self.clock.now_s(), led));
         self.link
             .write_all(format!("{request}\n").as_bytes())
             .map_err(|e| format!("the serial line {} is gone ({e})", self.path))
@@ -199,8 +223,8 @@ impl Host<'_> {
     /// before anything moves); `Ok(false)` when the session stops meanwhile.
     fn blink(&mut self, led: &Mutex<Vec<f64>>) -> Result<bool, String> {
         for (k, hold) in BLINKS.iter().enumerate() {
-            self.say(Request::Led(k % 2 == 0))?;
             let at = self.clock.now_s();
+            self.say(Request::Led(k % 2 == 0))?;
             led.lock().expect("led").push(at);
             if !self.hold_until(at + hold)? {
                 return Ok(false);
@@ -297,6 +321,15 @@ pub(super) fn drive_serial(
         let _ = host.say(Request::Vent);
         std::thread::sleep(Duration::from_millis(50));
         done.store(true, Ordering::SeqCst);
+        // Each switch when the board made it, on the session's clock, when it said so for
+        // every one (else when its line was written).
+        if let (Some(led), Some(offset)) = (led, heard.board_offset()) {
+            let switched = heard.switched.lock().expect("heard");
+            let mut written = led.lock().expect("led");
+            if switched.len() == written.len() {
+                *written = switched.iter().map(|b| b - offset).collect();
+            }
+        }
         ending
     })
 }
@@ -358,6 +391,16 @@ fn listen(
         }
         let now = clock.now_s();
         *heard.last_s.lock().expect("heard") = Some(now);
+        let asked = heard.asked.lock().expect("heard").pop_front();
+        if let (Some((sent, led)), Ok(Reply::Measured { ms, .. } | Reply::Ok { ms })) =
+            (asked, Reply::parse(&text))
+        {
+            let board_s = ms / 1e3;
+            (heard.clocks.lock().expect("heard")).push((now - sent, board_s - (sent + now) / 2.0));
+            if led {
+                heard.switched.lock().expect("heard").push(board_s);
+            }
+        }
         match Reply::parse(&text) {
             Ok(hello @ Reply::Hello { .. }) => *heard.hello.lock().expect("heard") = Some(hello),
             Ok(Reply::Measured { kpa, .. }) => {

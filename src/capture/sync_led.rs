@@ -1,6 +1,7 @@
 //! Each camera's delay measured from an LED (`capture --sync-led`, with a serial regulator):
 //! the board's LED, in view of the cameras, blinks [`BLINKS`] at the session's start and
-//! again at its end, each switch on the session's clock as its `LED` line was written. A
+//! again at its end, each switch on the session's clock when the board made it (its `OK ms`,
+//! through the board's clock measured against the session's on the fastest round trips). A
 //! camera's frame shows the LED as bright as the share of its exposure the LED was lit, so
 //! every frame near a switch tells where its exposure lay; one delay d (exposure's middle →
 //! stamp) and one exposure length fit all of them: each frame's lit share, (level − dark) /
