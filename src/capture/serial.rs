@@ -392,8 +392,9 @@ fn listen(
         let now = clock.now_s();
         *heard.last_s.lock().expect("heard") = Some(now);
         let asked = heard.asked.lock().expect("heard").pop_front();
+        let reply = Reply::parse(&text);
         if let (Some((sent, led)), Ok(Reply::Measured { ms, .. } | Reply::Ok { ms })) =
-            (asked, Reply::parse(&text))
+            (asked, &reply)
         {
             let board_s = ms / 1e3;
             (heard.clocks.lock().expect("heard")).push((now - sent, board_s - (sent + now) / 2.0));
@@ -401,7 +402,7 @@ fn listen(
                 heard.switched.lock().expect("heard").push(board_s);
             }
         }
-        match Reply::parse(&text) {
+        match reply {
             Ok(hello @ Reply::Hello { .. }) => *heard.hello.lock().expect("heard") = Some(hello),
             Ok(Reply::Measured { kpa, .. }) => {
                 if let Some(v) = kpa

@@ -175,8 +175,9 @@ fn lamp_levels(frames: &[(f64, Blocks)]) -> Result<Vec<(f64, f64)>, String> {
         .collect())
 }
 
-/// Share of [a, b] the LED was on, given its switches (on first, alternating).
-fn on_share(switches: &[f64], a: f64, b: f64) -> f64 {
+/// Share of [a, b] the LED was on, given its switches (on first, alternating); the state at
+/// `a` when the interval is empty.
+pub(crate) fn on_share(switches: &[f64], a: f64, b: f64) -> f64 {
     let first = switches.partition_point(|&s| s <= a);
     let mut on = first % 2 == 1;
     if b <= a {

@@ -110,8 +110,10 @@ pub fn run(pty: Pty, shared: &Shared) {
             while let Some(end) = pending.iter().position(|&b| b == b'\n') {
                 let bytes: Vec<u8> = pending.drain(..=end).collect();
                 let text = String::from_utf8_lossy(&bytes).trim().to_string();
-                let reply = answer(&text, shared);
-                if matches!(Request::parse(&text), Ok(Request::Set(_))) || last_line_s.is_some() {
+                let request = Request::parse(&text);
+                let arms = matches!(request, Ok(Request::Set(_)));
+                let reply = answer(&text, request, shared);
+                if arms || last_line_s.is_some() {
                     last_line_s = Some(shared.now_s());
                 }
                 let _ = controller.write_all(format!("{reply}\n").as_bytes());
@@ -135,8 +137,8 @@ pub fn run(pty: Pty, shared: &Shared) {
 }
 
 /// The reply to one line, the line and reply kept in the truth.
-fn answer(text: &str, shared: &Shared) -> Reply {
-    let reply = match Request::parse(text) {
+fn answer(text: &str, request: Result<Request, String>, shared: &Shared) -> Reply {
+    let reply = match request {
         Err(why) => Reply::Err(why),
         Ok(Request::Hello) => Reply::Hello {
             version: line::VERSION,

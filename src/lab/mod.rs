@@ -206,33 +206,21 @@ impl std::fmt::Display for LabSummary {
     }
 }
 
-/// The lamp's switching times (lab clock, s).
+/// The lamp's switches (lab clock, s), on first.
 #[derive(Default)]
-pub struct Lamps(Vec<(f64, bool)>);
+pub struct Lamps(Vec<f64>);
 
 impl Lamps {
+    /// The lamp on or off from `now`: a switch when that changes it.
+    fn switch(&mut self, now: f64, on: bool) {
+        if on != (self.0.len() % 2 == 1) {
+            self.0.push(now);
+        }
+    }
+
     /// Share of the exposure centred on `t` (half-length `half`) the lamp was lit.
     pub fn lit(&self, t: f64, half: f64) -> f64 {
-        let on_at = |s: f64| {
-            self.0
-                .iter()
-                .rev()
-                .find(|(when, _)| *when <= s)
-                .is_some_and(|&(_, on)| on)
-        };
-        if half <= 0.0 {
-            return f64::from(u8::from(on_at(t)));
-        }
-        // Integrated over the exposure, switch by switch.
-        let (a, b) = (t - half, t + half);
-        let mut edges = vec![a];
-        edges.extend(self.0.iter().map(|&(w, _)| w).filter(|w| *w > a && *w < b));
-        edges.push(b);
-        let lit = edges
-            .windows(2)
-            .filter(|w| on_at(w[0]))
-            .fold(0.0, |sum, w| sum + w[1] - w[0]);
-        lit / (b - a)
+        crate::capture::sync_led::on_share(&self.0, t - half, t + half)
     }
 }
 
@@ -323,7 +311,7 @@ impl Shared {
     pub fn led(&self, on: bool) -> f64 {
         let mut finger = self.finger.lock().expect("finger");
         let now = self.now_s();
-        finger.lamps.0.push((now, on));
+        finger.lamps.switch(now, on);
         now * 1e3
     }
 
@@ -616,7 +604,7 @@ mod tests {
 
     #[test]
     fn the_lamp_is_lit_for_its_share_of_the_exposure() {
-        let lamps = super::Lamps(vec![(1.0, true), (1.004, false), (2.0, true)]);
+        let lamps = super::Lamps(vec![1.0, 1.004, 2.0]);
         assert_eq!(lamps.lit(0.5, 0.006), 0.0);
         // On for 4 ms of a 12 ms exposure.
         assert!((lamps.lit(1.002, 0.006) - 4.0 / 12.0).abs() < 1e-9);
