@@ -6,6 +6,8 @@ set -euo pipefail
 # OpenCV 4.6 (calibration, triangulation; its contrib modules for ChArUco boards), what the
 # `opencv` crate needs to generate its bindings, and the font the figures are labelled with.
 APT_PACKAGES=(libopencv-dev libopencv-contrib-dev clang libclang-dev pkg-config fonts-dejavu-core)
+# The tests open `capture --view`'s page in a headless browser.
+APT_PACKAGES+=(chromium)
 
 # The Python package's tests (python/test.sh) make a venv: Python 3.9 or newer with venv.
 if ! python3 -c 'import sys, venv, ensurepip; sys.exit(sys.version_info < (3, 9))' 2>/dev/null; then

@@ -39,6 +39,7 @@ pub mod cli;
 mod cv;
 pub mod frame_times;
 pub mod geometry;
+mod http;
 pub mod image;
 pub mod lab;
 pub mod opencv_yaml;

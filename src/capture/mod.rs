@@ -38,6 +38,7 @@ mod session;
 pub mod source;
 pub mod sync_led;
 pub mod url;
+pub mod view;
 
 pub use session::capture;
 use source::Grabbed;
@@ -123,6 +124,8 @@ pub struct CaptureOptions {
     /// Blink the serial board's LED at the session's start and end: each camera's delay is
     /// measured from the frames that saw it ([`sync_led`]).
     pub sync_led: bool,
+    /// A page the session is watched on as it runs ([`view`]).
+    pub view: Option<std::sync::Arc<view::View>>,
 }
 
 impl CaptureOptions {

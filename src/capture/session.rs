@@ -266,6 +266,7 @@ struct Recorder<'a> {
     latest: [Option<Grabbed>; 2],
     last_look: f64,
     last_shown: f64,
+    last_viewed: f64,
 }
 
 impl<'a> Recorder<'a> {
@@ -299,6 +300,7 @@ impl<'a> Recorder<'a> {
             latest: [None, None],
             last_look: 0.0,
             last_shown: 0.0,
+            last_viewed: f64::NEG_INFINITY,
         })
     }
 
@@ -340,11 +342,27 @@ impl<'a> Recorder<'a> {
                 shared.stop();
             }
         }
+        if let Some(view) = &self.options.view {
+            self.show(view, now, shared);
+        }
         if now - self.last_shown >= 1.0 && self.failure.is_none() {
             self.last_shown = now;
             self.write_so_far(shared, live);
         }
         true
+    }
+
+    /// The page's figures, at most ten times a second: the session's clock, the steps, the
+    /// command in force and what the regulator measured.
+    fn show(&mut self, view: &super::view::View, now: f64, shared: &Shared) {
+        if now - self.last_viewed < 0.1 {
+            return;
+        }
+        self.last_viewed = now;
+        let steps = self.options.protocol.as_ref().map_or(0, |(s, _)| s.len());
+        let log = shared.log.lock().expect("log");
+        let latest = log.last().map(|c| (c.step.pressures, c.measured, c.time_s));
+        view.session(now, [log.len(), steps], latest);
     }
 
     /// A frame arrived: its time and count noted, the flash's watch fed, and the frame stored
@@ -363,6 +381,9 @@ impl<'a> Recorder<'a> {
             }
             self.latest[side] = Some(grabbed);
             return;
+        }
+        if let Some(view) = &self.options.view {
+            view.arrived(&grabbed);
         }
         let name = format!(
             "{}_{:05}.{}",
@@ -445,6 +466,9 @@ impl<'a> Recorder<'a> {
         let log = shared.log.lock().expect("log").clone();
         let so_far = self.summary(Ending::Filming, None, &log, shared);
         live(&so_far.stats);
+        if let Some(view) = &self.options.view {
+            view.stats(&so_far.stats);
+        }
         if let Err(e) = self.files.write(&self.rows, &log, &so_far) {
             self.fail(e, shared);
         }
@@ -508,6 +532,9 @@ impl<'a> Recorder<'a> {
         let ending = self.ending.take().unwrap_or(Ending::Interrupted);
         let on_abort = vent(self.options, &ending);
         let summary = self.summary(ending, on_abort, &log, &shared);
+        if let Some(view) = &self.options.view {
+            view.ended(&summary.ending);
+        }
         // After a write failure the lists go in the space kept for them; a disk that does
         // not take them even then is said with the failure that stopped the session.
         if let Err(e) = self.files.finish(&self.rows, &log, &summary) {

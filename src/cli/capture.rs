@@ -47,6 +47,7 @@ impl Cameras {
             on_abort: None,
             flash: None,
             sync_led: false,
+            view: None,
         }
     }
 }
@@ -105,6 +106,18 @@ pub struct Args {
     /// capture.json (sync_led) and used by triangulate instead of the motion
     #[arg(long, conflicts_with_all = ["calib", "flash"])]
     sync_led: bool,
+    /// Serve a page to watch the session on (127.0.0.1, a random token in its URL, printed as
+    /// `view URL`): each camera's latest frame and the bead in it, the pressures commanded and
+    /// measured, the progress and flags; with --view-calib the tip's track live
+    #[arg(long)]
+    view: bool,
+    /// With --view: the port (default: any free one)
+    #[arg(long, default_value_t = 0, requires = "view")]
+    view_port: u16,
+    /// With --view: a calibration (calibrate's calib.yml) to triangulate the tip's track with,
+    /// frame by frame as triangulate --per-frame does, in the hand frame from the tip at rest
+    #[arg(long, requires = "view")]
+    view_calib: Option<PathBuf>,
     /// Stop after this many seconds (default: the protocol's end, or Ctrl-C)
     #[arg(long, value_parser = super::finite)]
     duration_s: Option<f64>,
@@ -126,7 +139,17 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
-    let options = options(&a)?;
+    let mut options = options(&a)?;
+    if a.view {
+        let view = capture::view::View::start(&capture::view::ViewOptions {
+            port: a.view_port,
+            calib: a.view_calib.clone(),
+        })
+        .map_err(|e| anyhow::anyhow!(e))?;
+        println!("view {}", view.url());
+        std::io::Write::flush(&mut std::io::stdout())?;
+        options.view = Some(view);
+    }
     if options.protocol.is_none() && a.duration_s.is_none() && !a.calib {
         println!("filming until Ctrl-C (no --protocol, no --duration-s); log the regulator on the clock capture.json describes");
     }

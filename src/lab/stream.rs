@@ -5,10 +5,9 @@
 //! anything else is answered 404.
 
 use std::collections::VecDeque;
-use std::io::{Read, Write};
+use std::io::Write;
 use std::net::{TcpListener, TcpStream};
 use std::sync::{Arc, Condvar, Mutex};
-use std::time::Duration;
 
 /// Frames kept for clients that have not sent them yet.
 const BACKLOG: usize = 64;
@@ -88,23 +87,9 @@ pub fn serve(
     });
 }
 
-/// The request's path, from a head read within 2 s (at most 8 kB).
-fn requested(client: &mut TcpStream) -> Option<String> {
-    client.set_read_timeout(Some(Duration::from_secs(2))).ok()?;
-    let mut head = Vec::new();
-    let mut buf = [0u8; 1024];
-    while !head.windows(4).any(|w| w == b"\r\n\r\n") && head.len() < 8192 {
-        let n = client.read(&mut buf).ok().filter(|&n| n > 0)?;
-        head.extend_from_slice(&buf[..n]);
-    }
-    let line = String::from_utf8_lossy(&head);
-    let mut words = line.lines().next()?.split_whitespace();
-    (words.next()? == "GET").then(|| words.next().map(str::to_string))?
-}
-
 fn answer(mut client: TcpStream, name: &str, stream: &Stream, now_s: &dyn Fn() -> f64) {
-    if requested(&mut client).as_deref() != Some(&format!("/{name}.mjpg")) {
-        let _ = client.write_all(b"HTTP/1.0 404 Not Found\r\nContent-Length: 0\r\n\r\n");
+    if crate::http::requested(&mut client).as_deref() != Some(&format!("/{name}.mjpg")) {
+        crate::http::not_found(&mut client);
         return;
     }
     let head = "HTTP/1.0 200 OK\r\nCache-Control: no-cache\r\nContent-Type: multipart/x-mixed-replace; boundary=frame\r\n\r\n";

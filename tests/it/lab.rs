@@ -11,15 +11,15 @@ use std::time::{Duration, Instant};
 use crate::common::{csv_rows, handcap, handcap_ok, read_json, real_time, tempdir};
 
 /// A running lab: the process, its cameras' URLs and its regulator's device.
-struct Lab {
+pub struct Lab {
     child: Child,
-    cameras: HashMap<String, String>,
-    regulator: String,
+    pub cameras: HashMap<String, String>,
+    pub regulator: String,
 }
 
 impl Lab {
     /// `handcap lab --out DIR/lab` with `extra` flags, once it says where it is.
-    fn start(dir: &Path, extra: &[&str]) -> Lab {
+    pub fn start(dir: &Path, extra: &[&str]) -> Lab {
         let out = dir.join("lab");
         let mut child = Command::new(env!("CARGO_BIN_EXE_handcap"))
             .args(["lab", "--out", out.to_str().unwrap()])
@@ -54,7 +54,7 @@ impl Lab {
     }
 
     /// SIGTERM, and the lab's end.
-    fn stop(mut self) -> std::process::ExitStatus {
+    pub fn stop(mut self) -> std::process::ExitStatus {
         // SAFETY: a signal to our own child.
         unsafe {
             libc::kill(self.child.id() as i32, libc::SIGTERM);
@@ -67,6 +67,41 @@ impl Lab {
             assert!(started.elapsed().as_secs() < 20, "the lab did not stop");
             std::thread::sleep(Duration::from_millis(20));
         }
+    }
+}
+
+/// The lab's truth of each frame a client was sent: `first` per camera, the stream's number of
+/// the client's frame 0; `frames` each exposure's row of `truth/frames.csv` by camera and
+/// stream number.
+pub struct Truth {
+    pub first: HashMap<String, usize>,
+    pub frames: HashMap<(String, usize), HashMap<String, String>>,
+}
+
+impl Truth {
+    pub fn read(truth: &Path) -> Truth {
+        Truth {
+            first: csv_rows(&truth.join("clients.csv"))
+                .iter()
+                .map(|r| (r["camera"].clone(), r["first_frame"].parse().unwrap()))
+                .collect(),
+            frames: csv_rows(&truth.join("frames.csv"))
+                .into_iter()
+                .filter(|r| !r["frame"].is_empty())
+                .map(|r| ((r["camera"].clone(), r["frame"].parse().unwrap()), r))
+                .collect(),
+        }
+    }
+
+    /// The row of the client's `frame` of `camera`.
+    pub fn of(&self, camera: &str, frame: usize) -> &HashMap<String, String> {
+        &self.frames[&(camera.to_string(), self.first[camera] + frame)]
+    }
+
+    /// The lab's tip (mm, hand frame) at the exposure of the client's `frame` of `camera`.
+    pub fn tip(&self, camera: &str, frame: usize) -> [f64; 3] {
+        let row = self.of(camera, frame);
+        ["x_mm", "y_mm", "z_mm"].map(|k| row[k].parse().unwrap())
     }
 }
 
@@ -186,20 +221,9 @@ fn a_live_session_on_the_lab_over_its_serial_line_matches_the_lab_truth() {
     let capture_json = read_json(&d.join("live/capture.json"));
     let offset = capture_json["summary"]["start_unix_s"].as_f64().unwrap()
         - lab_json["epoch_unix_s"].as_f64().unwrap();
-    let first: HashMap<String, usize> = csv_rows(&d.join("lab/truth/clients.csv"))
-        .iter()
-        .map(|r| (r["camera"].clone(), r["first_frame"].parse().unwrap()))
-        .collect();
-    let truth: HashMap<(String, usize), HashMap<String, String>> =
-        csv_rows(&d.join("lab/truth/frames.csv"))
-            .into_iter()
-            .filter(|r| !r["frame"].is_empty())
-            .map(|r| ((r["camera"].clone(), r["frame"].parse().unwrap()), r))
-            .collect();
-    let truth_of = |camera: &str, frame: &str| {
-        let n = first[camera] + frame.parse::<usize>().unwrap();
-        &truth[&(camera.to_string(), n)]
-    };
+    let lab_truth = Truth::read(&d.join("lab/truth"));
+    let (first, truth) = (&lab_truth.first, &lab_truth.frames);
+    let truth_of = |camera: &str, frame: &str| lab_truth.of(camera, frame.parse().unwrap());
     let mut gaps: Vec<f64> = csv_rows(&d.join("live/frames/frames.csv"))
         .iter()
         .map(|r| {

@@ -23,3 +23,4 @@ mod pipeline;
 mod search;
 mod trajectory;
 mod triangulate;
+mod view;

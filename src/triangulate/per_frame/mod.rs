@@ -50,10 +50,12 @@
 //!    sub-pixel fit did not settle there) `centroid`. Both keep their tips.
 
 mod clock_offset;
+mod live;
 mod output;
 mod rows;
 mod track;
 
+pub use live::{tips_as_they_come, LiveClock, LiveTip};
 pub use output::errors_against;
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -208,20 +210,8 @@ pub fn triangulate_per_frame(
     };
     summary.stamp_jitter_ms = [&left, &right].map(|t| t.jitter_s.map(|s| 1e3 * s));
 
-    // 3. The clock offset, from every candidate in every frame; then the pass at it that
-    //    chooses each frame's centre.
-    let candidates: Candidates = [&left, &right].map(|t| {
-        t.order
-            .iter()
-            .map(|&i| centres(i).unwrap_or_default())
-            .collect()
-    });
-    let clock = match options.clocks_measured {
-        true => ClockOffset::default(),
-        false => clock_offset(rig, &left, &right, &candidates)?,
-    };
-    let pass = locate_all(rig, options, &left, &right, &centres, &clock);
-    let seen = seen_in(&left, &right, &pass);
+    // 3-4. The clock offset, each left frame's tip.
+    let (clock, seen, located) = locate_frames(rig, options, [&left, &right], &centres, None)?;
     summary.clock_offset_ms = 1e3 * clock.offset_s;
     summary.clock_drift_ms = match (left.times.first(), left.times.last()) {
         (Some(a), Some(b)) => 1e3 * clock.drift * (b - a),
@@ -231,13 +221,7 @@ pub fn triangulate_per_frame(
     summary.delays_ms = options.latency_s.map(|s| s.map(|s| 1e3 * s));
     summary.clocks_measured = options.clocks_measured;
 
-    // 4-5. Each left frame's tip (left camera) and its step, from the tracks smoothed.
-    let smoothed = smoothed_tracks(&left, &right, &seen);
-    let chosen = |i: usize| match smoothed.get(&i) {
-        Some(c) => Ok(vec![*c]),
-        None => centres(i),
-    };
-    let located = locate_all(rig, options, &left, &right, &chosen, &clock);
+    // 5. Each left frame's step.
     let centroid_only = centroid_only(&left, &right, &seen, results, &located);
     let (mut rows, points) = rows::frame_rows(&left, records, log, located);
     for (row, _) in rows.iter_mut().zip(centroid_only).filter(|(_, c)| *c) {
@@ -263,6 +247,43 @@ pub fn triangulate_per_frame(
         hand_from_left,
         options: options.clone(),
     })
+}
+
+/// A left frame's tip, or the flag saying why it has none.
+pub type Tip<T> = Result<T, &'static str>;
+
+/// Steps 3-4: the clock offset between the cameras (`clock` when given; none when the clocks
+/// are measured; else from every candidate in every frame), the pass at it that chooses each
+/// frame's centre, and each left frame's tip (left camera) from the tracks smoothed.
+fn locate_frames(
+    rig: &StereoRig,
+    options: &TriangulateOptions,
+    [left, right]: [&Track; 2],
+    centres: &Centres<'_>,
+    clock: Option<ClockOffset>,
+) -> Result<(ClockOffset, Seen, Vec<Tip<Located>>), TriangulateError> {
+    let clock = match (clock, options.clocks_measured) {
+        (Some(clock), _) => clock,
+        (None, true) => ClockOffset::default(),
+        (None, false) => {
+            let candidates: Candidates = [left, right].map(|t| {
+                t.order
+                    .iter()
+                    .map(|&i| centres(i).unwrap_or_default())
+                    .collect()
+            });
+            clock_offset(rig, left, right, &candidates)?
+        }
+    };
+    let pass = locate_all(rig, options, left, right, centres, &clock);
+    let seen = seen_in(left, right, &pass);
+    let smoothed = smoothed_tracks(left, right, &seen);
+    let chosen = |i: usize| match smoothed.get(&i) {
+        Some(c) => Ok(vec![*c]),
+        None => centres(i),
+    };
+    let located = locate_all(rig, options, left, right, &chosen, &clock);
+    Ok((clock, seen, located))
 }
 
 /// Why the two tracks cannot make pairs, if they cannot: a camera without frames, or their

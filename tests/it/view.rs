@@ -1,0 +1,223 @@
+//! `capture --view` as a user watches it: a session on `handcap lab` opened in a real headless
+//! browser (Chromium, as `scripts/setup.sh` installs it), the page's cameras and tip track
+//! read from what it shows and scored against the lab's truth; requests without the token.
+
+use std::io::{BufRead, Read, Write};
+use std::net::TcpStream;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use crate::common::{csv_rows, handcap_ok, real_time, tempdir};
+use crate::lab::{Lab, Truth};
+
+/// The browser the page is tested in.
+const CHROMIUM: &str = "/usr/bin/chromium";
+
+/// `GET url`: the status code and the body.
+fn get(url: &str) -> (u16, Vec<u8>) {
+    let rest = url.strip_prefix("http://").expect("an http URL");
+    let (host, path) = rest.split_at(rest.find('/').unwrap_or(rest.len()));
+    let mut stream = TcpStream::connect(host).expect("connect");
+    write!(stream, "GET {path} HTTP/1.0\r\nHost: {host}\r\n\r\n").unwrap();
+    let mut answer = Vec::new();
+    stream.read_to_end(&mut answer).unwrap();
+    let head_end = answer.windows(4).position(|w| w == b"\r\n\r\n").unwrap();
+    let head = String::from_utf8_lossy(&answer[..head_end]).to_string();
+    let status = head.split_whitespace().nth(1).unwrap().parse().unwrap();
+    (status, answer[head_end + 4..].to_vec())
+}
+
+/// The page at `url` as a headless Chromium shows it after `budget_ms` of its (virtual) time:
+/// the document, its scripts run.
+fn browse(url: &str, budget_ms: u32, profile: &std::path::Path) -> String {
+    assert!(
+        std::path::Path::new(CHROMIUM).exists(),
+        "{CHROMIUM} not found: run bash scripts/setup.sh (it installs Debian's chromium)"
+    );
+    let out = Command::new(CHROMIUM)
+        .args([
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            &format!("--user-data-dir={}", profile.display()),
+            &format!("--virtual-time-budget={budget_ms}"),
+            "--dump-dom",
+            url,
+        ])
+        .stderr(Stdio::null())
+        .output()
+        .expect("run chromium");
+    assert!(out.status.success(), "chromium failed on {url}");
+    String::from_utf8(out.stdout).unwrap()
+}
+
+/// The value of the attribute `name` of the element whose opening tag holds `marker`.
+fn attribute<'a>(dom: &'a str, marker: &str, name: &str) -> Option<&'a str> {
+    let at = dom.find(marker)?;
+    let tag = &dom[dom[..at].rfind('<')?..at + dom[at..].find('>')?];
+    let start = tag.find(&format!(" {name}=\""))? + name.len() + 3;
+    Some(&tag[start..start + tag[start..].find('"')?])
+}
+
+#[test]
+fn the_view_page_shows_both_cameras_and_a_tip_track_that_matches_the_lab_truth() {
+    let _machine = real_time();
+    let dir = tempdir();
+    let d = dir.path();
+    handcap_ok(
+        d,
+        &[
+            "protocol",
+            "--dynamic",
+            "--duration-s",
+            "12",
+            "--trials",
+            "1",
+            "--out",
+            "dyn.csv",
+        ],
+    );
+    let lab = Lab::start(d, &[]);
+    let mut capture = Command::new(env!("CARGO_BIN_EXE_handcap"))
+        .current_dir(d)
+        .args([
+            "capture",
+            "--left",
+            &lab.cameras["left"],
+            "--right",
+            &lab.cameras["right"],
+        ])
+        .args(["--out", "live", "--protocol", "dyn.csv"])
+        .args(["--regulator", &format!("serial:{}", lab.regulator)])
+        .args(["--view", "--view-calib", "lab/truth/rig.yml"])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("run capture");
+    let mut lines = std::io::BufReader::new(capture.stdout.take().unwrap()).lines();
+    let first = lines.next().unwrap().unwrap();
+    let url = first
+        .strip_prefix("view ")
+        .expect("a `view URL` line first")
+        .to_string();
+    std::thread::spawn(move || lines.for_each(drop));
+    let mut stderr = capture.stderr.take().unwrap();
+    let said = std::thread::spawn(move || {
+        let mut text = String::new();
+        let _ = stderr.read_to_string(&mut text);
+        text
+    });
+    let origin = &url[..url[7..].find('/').unwrap() + 7];
+
+    // Without the token, or with another, nothing is served.
+    assert_eq!(get(&format!("{origin}/")).0, 404);
+    assert_eq!(get(&format!("{origin}/state.json")).0, 404);
+    assert_eq!(
+        get(&format!(
+            "{origin}/00000000000000000000000000000000/state.json"
+        ))
+        .0,
+        404
+    );
+
+    // The page once the finger has moved for a few seconds.
+    let started = Instant::now();
+    let mut state = serde_json::Value::Null;
+    loop {
+        if let Ok(Some(end)) = capture.try_wait() {
+            panic!("capture ended ({end}) before the page showed 200 tips: {state}");
+        }
+        let (status, body) = get(&format!("{url}state.json"));
+        assert_eq!(status, 200);
+        state = serde_json::from_slice(&body).unwrap();
+        if state["track"]["points"]
+            .as_array()
+            .is_some_and(|p| p.len() >= 200)
+        {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(250));
+    }
+    eprintln!(
+        "view: a track after {:.1} s",
+        started.elapsed().as_secs_f64()
+    );
+    let dom = browse(&url, 3000, &d.join("chromium"));
+
+    // It refreshed five times a second (its clock virtual: 3 s of it).
+    let refreshed: u32 = attribute(&dom, "data-refreshed", "data-refreshed")
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(refreshed >= 14, "refreshed {refreshed} times in 3 s");
+    // Both cameras' latest frames, loaded whole, each with the bead found.
+    for camera in ["left", "right"] {
+        let width = attribute(&dom, &format!("alt=\"{camera} camera\""), "data-width");
+        assert_eq!(width, Some("1280"), "{camera}'s frame not shown");
+        let bead = attribute(&dom, &format!("id=\"cam-{camera}\""), "data-bead").unwrap();
+        assert_eq!(bead.split(',').count(), 2, "{camera}: no bead ({bead:?})");
+    }
+    // The track it shows is the lab's tip at each left frame's exposure.
+    let tips = attribute(&dom, "id=\"track\"", "data-tips").expect("a track");
+    let capture_end = capture.wait().unwrap();
+    assert!(lab.stop().success());
+    assert!(capture_end.success(), "{}", said.join().unwrap());
+    let truth = Truth::read(&d.join("lab/truth"));
+    let squared: Vec<f64> = tips
+        .split(';')
+        .map(|point| {
+            let (frame, xyz) = point.split_once(':').unwrap();
+            let got: Vec<f64> = xyz.split(',').map(|v| v.parse().unwrap()).collect();
+            let want = truth.tip("left", frame.parse().unwrap());
+            (0..3).map(|k| (got[k] - want[k]).powi(2)).sum::<f64>()
+        })
+        .collect();
+    let rms = (squared.iter().sum::<f64>() / squared.len() as f64).sqrt();
+    eprintln!(
+        "view: {} tips shown, {rms:.4} mm RMS against the lab's truth",
+        squared.len()
+    );
+    assert!(squared.len() >= 200, "{} tips", squared.len());
+    assert!(
+        rms <= 0.1,
+        "the page's track {rms:.4} mm RMS from the lab's truth"
+    );
+    // The browser's visit changed nothing: the session filmed every step.
+    assert_eq!(
+        csv_rows(&d.join("live/pressures.csv")).len(),
+        csv_rows(&d.join("dyn.csv")).len()
+    );
+}
+
+#[test]
+fn a_view_port_in_use_or_a_missing_calibration_is_one_line_and_nothing_filmed() {
+    let dir = tempdir();
+    let d = dir.path();
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = taken.local_addr().unwrap().port().to_string();
+    let cameras = [
+        "capture", "--left", "0", "--right", "1", "--out", "s", "--view",
+    ];
+    for (extra, says) in [
+        (
+            vec!["--view-port", port.as_str()],
+            format!("127.0.0.1:{port}"),
+        ),
+        (
+            vec!["--view-calib", "nothing.yml"],
+            "nothing.yml".to_string(),
+        ),
+    ] {
+        let out = crate::common::handcap(d, &[&cameras[..], &extra[..]].concat());
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success());
+        assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
+        assert!(stderr.contains(&says), "{stderr}");
+        assert!(!d.join("s").exists());
+    }
+}
