@@ -28,6 +28,7 @@
 //! session's files are also rewritten every second while filming ([`Ending::Filming`]).
 
 pub mod calibration;
+pub mod dialect;
 mod files;
 pub mod flash;
 pub mod line;
@@ -158,8 +159,13 @@ impl CaptureOptions {
         if let Some(d) = self.duration_s.filter(|&d| d.is_nan() || d <= 0.0) {
             return Err(format!("duration_s={d} must be positive"));
         }
-        if self.sync_led && !matches!(self.protocol, Some((_, Regulator::Serial(..)))) {
-            return Err("--sync-led blinks the serial board's LED: give --protocol and --regulator serial:PATH".into());
+        match &self.protocol {
+            _ if !self.sync_led => {}
+            Some((_, Regulator::Serial(_, _, Some(d)))) if !d.has_led() => {
+                return Err("--sync-led blinks the board's LED: give the dialect led_on and led_off lines".into())
+            }
+            Some((_, Regulator::Serial(..))) => {}
+            _ => return Err("--sync-led blinks the serial board's LED: give --protocol and --regulator serial:PATH".into()),
         }
         if let Some(c) = &self.calibration {
             c.board.check().map_err(|e| e.to_string())?;
@@ -179,8 +185,9 @@ pub enum Regulator {
     /// One process kept running, a line per step on its input (`--regulator`).
     Streaming(String),
     /// A board on a serial line speaking handcap's line protocol (`--regulator
-    /// serial:PATH[@BAUD]`): the device and the baud rate.
-    Serial(String, u32),
+    /// serial:PATH[@BAUD]`), or another firmware's commands (`--dialect`): the device, the
+    /// baud rate and the dialect.
+    Serial(String, u32, Option<dialect::Dialect>),
 }
 
 /// What a calibration capture collects: still pairs of `board` where it stands somewhere new,

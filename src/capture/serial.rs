@@ -16,6 +16,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Mutex;
 use std::time::Duration;
 
+use super::dialect::Dialect;
 use super::line::{self, Reply, Request};
 use super::regulator::Commanded;
 use super::sync_led::BLINKS;
@@ -146,14 +147,35 @@ struct Host<'a> {
     clock: &'a Clock,
     stop: &'a AtomicBool,
     heard: &'a Heard,
+    /// Another firmware's commands, when the board does not speak handcap's protocol.
+    dialect: Option<&'a Dialect>,
+    /// The last `SET` line written: a dialect's keepalive when it has none of its own.
+    last_set: Option<String>,
 }
 
 impl Host<'_> {
     fn say(&mut self, request: Request) -> Result<(), String> {
-        let led = matches!(request, Request::Led(_));
-        (self.heard.asked.lock().expect("heard")).push_back((self.clock.now_s(), led));
+        let now = self.clock.now_s();
+        let text = match self.dialect {
+            None => {
+                let led = matches!(request, Request::Led(_));
+                (self.heard.asked.lock().expect("heard")).push_back((now, led));
+                request.to_string()
+            }
+            Some(dialect) => match (dialect.line(request, 1e3 * now), request) {
+                (Some(line), _) => line,
+                (None, Request::Read) => match &self.last_set {
+                    Some(set) => set.clone(),
+                    None => return Ok(()),
+                },
+                (None, _) => return Ok(()),
+            },
+        };
+        if let Request::Set(_) = request {
+            self.last_set = Some(text.clone());
+        }
         self.link
-            .write_all(format!("{request}\n").as_bytes())
+            .write_all(format!("{text}\n").as_bytes())
             .map_err(|e| format!("the serial line {} is gone ({e})", self.path))
     }
 
@@ -161,8 +183,12 @@ impl Host<'_> {
         self.stop.load(Ordering::SeqCst)
     }
 
-    /// `HELLO`, and the board's answer as handcap's protocol.
+    /// `HELLO`, and the board's answer as handcap's protocol; a dialect's `hello` line, its
+    /// answer not awaited.
     fn hello(&mut self) -> Result<(), String> {
+        if self.dialect.is_some() {
+            return self.say(Request::Hello);
+        }
         let (path, sent_s) = (self.path, self.clock.now_s());
         *self.heard.last_s.lock().expect("heard") = Some(sent_s);
         self.say(Request::Hello)?;
@@ -281,7 +307,7 @@ impl Host<'_> {
 /// LED's switches kept in `led`; how it ended.
 pub(super) fn drive_serial(
     steps: &[protocol::Step],
-    (path, baud): (&str, u32),
+    (path, baud, dialect): (&str, u32, Option<&Dialect>),
     clock: &Clock,
     log: &Mutex<Vec<Commanded>>,
     stop: &AtomicBool,
@@ -304,23 +330,25 @@ pub(super) fn drive_serial(
     let heard = Heard::default();
     let done = AtomicBool::new(false);
     std::thread::scope(|scope| {
-        scope.spawn(|| listen(reading, path, clock, log, &heard, &done));
+        scope.spawn(|| listen(reading, (path, dialect), clock, log, &heard, &done));
         let mut host = Host {
             link,
             path,
             clock,
             stop,
             heard: &heard,
+            dialect,
+            last_set: None,
         };
         let ending = match host.drive(steps, log, led) {
             Ok(true) => Some(Ending::ProtocolDone),
             Ok(false) => None,
             Err((k, why)) => failed(k, why),
         };
-        // Vented however it ended, while the board can still hear.
-        let _ = host.say(Request::Vent);
-        std::thread::sleep(Duration::from_millis(50));
+        // Vented however it ended, while the board can still hear; what it measures after
+        // is no step's.
         done.store(true, Ordering::SeqCst);
+        let _ = host.say(Request::Vent);
         // Each switch when the board made it, on the session's clock, when it said so for
         // every one (else when its line was written).
         if let (Some(led), Some(offset)) = (led, heard.board_offset()) {
@@ -338,7 +366,7 @@ pub(super) fn drive_serial(
 /// first `ERR` or garbage breaks the link (said in `heard`).
 fn listen(
     link: File,
-    path: &str,
+    (path, dialect): (&str, Option<&Dialect>),
     clock: &Clock,
     log: &Mutex<Vec<Commanded>>,
     heard: &Heard,
@@ -391,8 +419,18 @@ fn listen(
         }
         let now = clock.now_s();
         *heard.last_s.lock().expect("heard") = Some(now);
+        // A dialect's lines: its measurements, or chatter.
+        let reply = match dialect {
+            Some(d) => match d.measured(&text) {
+                Some((ms, kpa)) => Ok(Reply::Measured {
+                    ms: ms.unwrap_or(f64::NAN),
+                    kpa,
+                }),
+                None => continue,
+            },
+            None => Reply::parse(&text),
+        };
         let asked = heard.asked.lock().expect("heard").pop_front();
-        let reply = Reply::parse(&text);
         if let (Some((sent, led)), Ok(Reply::Measured { ms, .. } | Reply::Ok { ms })) =
             (asked, &reply)
         {

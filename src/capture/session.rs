@@ -174,9 +174,10 @@ impl<'scope> Threads<'scope> {
                     Regulator::Streaming(command) => {
                         drive_streaming(steps, command, clock, log, stop)
                     }
-                    Regulator::Serial(path, baud) => {
+                    Regulator::Serial(path, baud, dialect) => {
                         let led = options.sync_led.then_some(&shared.led);
-                        super::serial::drive_serial(steps, (path, *baud), clock, log, stop, led)
+                        let line = (path.as_str(), *baud, dialect.as_ref());
+                        super::serial::drive_serial(steps, line, clock, log, stop, led)
                     }
                 }
             })

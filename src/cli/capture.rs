@@ -1,7 +1,7 @@
 //! `handcap capture`: two cameras → `DIR/frames/` + `frames.csv` (and `pressures.csv` when a
 //! protocol drives the regulator), the layout `triangulate` reads (`crate::capture`).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use indicatif::{ProgressBar, ProgressStyle};
 
@@ -52,13 +52,19 @@ impl Cameras {
     }
 }
 
-/// `--regulator`'s value: a board on a serial line (`serial:PATH[@BAUD]`) or a process kept
-/// running.
-pub fn regulator(text: &str) -> anyhow::Result<capture::Regulator> {
-    Ok(match capture::serial::parse(text) {
-        Some(Ok((device, baud))) => capture::Regulator::Serial(device, baud),
-        Some(Err(why)) => super::usage!("{why}"),
-        None => capture::Regulator::Streaming(text.to_string()),
+/// `--regulator`'s value: a board on a serial line (`serial:PATH[@BAUD]`, speaking `dialect`
+/// when given) or a process kept running.
+pub fn regulator(text: &str, dialect: Option<&Path>) -> anyhow::Result<capture::Regulator> {
+    let dialect = dialect.map(capture::dialect::Dialect::read).transpose();
+    Ok(match (capture::serial::parse(text), dialect) {
+        (_, Err(why)) | (Some(Err(why)), _) => super::usage!("{why}"),
+        (Some(Ok((device, baud))), Ok(dialect)) => {
+            capture::Regulator::Serial(device, baud, dialect)
+        }
+        (None, Ok(Some(_))) => {
+            super::usage!("--dialect is a serial board's: give --regulator serial:PATH[@BAUD]")
+        }
+        (None, Ok(None)) => capture::Regulator::Streaming(text.to_string()),
     })
 }
 
@@ -85,6 +91,10 @@ pub struct Args {
     /// pressures read back and logged, the board told VENT however the session ends
     #[arg(long, requires = "protocol", conflicts_with = "set_pressure")]
     regulator: Option<String>,
+    /// With --regulator serial:PATH: a board whose firmware is not handcap's line protocol,
+    /// its commands and measurements as templates in a TOML file (docs/regulator.md)
+    #[arg(long, requires = "regulator")]
+    dialect: Option<PathBuf>,
     /// Command run at each step, {p1} {p2} {p3} (kPa) and {step} filled in, e.g.
     /// 'python3 regulator.py {p1} {p2} {p3}'; pressures above 300 kPa are refused first
     #[arg(long, requires = "protocol")]
@@ -183,7 +193,10 @@ fn options(a: &Args) -> anyhow::Result<CaptureOptions> {
             protocol::read(path)?,
             capture::Regulator::PerStep(command.clone()),
         )),
-        (Some(path), None, Some(command)) => Some((protocol::read(path)?, regulator(command)?)),
+        (Some(path), None, Some(command)) => Some((
+            protocol::read(path)?,
+            regulator(command, a.dialect.as_deref())?,
+        )),
         (Some(_), None, None) => {
             super::usage!("--protocol needs --set-pressure (a command per step) or --regulator (one process, a line per step)")
         }

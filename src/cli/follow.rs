@@ -30,6 +30,9 @@ pub struct Args {
     /// protocol) or a process kept running
     #[arg(long)]
     regulator: String,
+    /// With a serial regulator: another firmware's commands (as `capture --dialect`)
+    #[arg(long)]
+    dialect: Option<PathBuf>,
     /// With a serial regulator: each repetition measures the cameras' delays from the board's
     /// LED (as `capture --sync-led`)
     #[arg(long)]
@@ -65,7 +68,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             sync_led: a.sync_led,
             ..a.cameras.options()
         },
-        regulator: super::capture::regulator(&a.regulator)?,
+        regulator: super::capture::regulator(&a.regulator, a.dialect.as_deref())?,
         rest_s: a.rest_s,
         lead_in_s: a.lead_in_s,
         truth: a.truth.as_deref(),

@@ -67,6 +67,11 @@ impl Pty {
             })
         }
     }
+
+    /// The board's end, for a firmware of another kind (a test's).
+    pub fn board_end(&self) -> std::io::Result<File> {
+        self.controller.try_clone()
+    }
 }
 
 use std::os::unix::fs::OpenOptionsExt;

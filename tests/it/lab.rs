@@ -53,6 +53,16 @@ impl Lab {
         }
     }
 
+    /// `capture`'s camera flags for the lab's two cameras.
+    pub fn camera_args(&self) -> [&str; 4] {
+        [
+            "--left",
+            &self.cameras["left"],
+            "--right",
+            &self.cameras["right"],
+        ]
+    }
+
     /// SIGTERM, and the lab's end.
     pub fn stop(mut self) -> std::process::ExitStatus {
         // SAFETY: a signal to our own child.
@@ -158,19 +168,19 @@ fn a_live_session_on_the_lab_over_its_serial_line_matches_the_lab_truth() {
     let captured = handcap(
         d,
         &[
-            "capture",
-            "--left",
-            &lab.cameras["left"],
-            "--right",
-            &lab.cameras["right"],
-            "--out",
-            "live",
-            "--protocol",
-            "dyn.csv",
-            "--regulator",
-            &serial,
-            "--sync-led",
-        ],
+            &["capture"][..],
+            &lab.camera_args(),
+            &[
+                "--out",
+                "live",
+                "--protocol",
+                "dyn.csv",
+                "--regulator",
+                &serial,
+                "--sync-led",
+            ],
+        ]
+        .concat(),
     );
     let lab_end = lab.stop();
     assert!(
@@ -594,4 +604,125 @@ fn follow_learns_a_figure_eight_on_the_lab_scored_against_its_truth() {
         assert!(rms(r, "rows") >= 350.0, "{r:?}");
     }
     assert!(d.join("follow/commands_3.csv").is_file());
+}
+
+/// A firmware that is not handcap's (the Harvard `pressure_controller`'s `SET;<time>;<p…>` in
+/// psi, its telemetry `<ms>,<setpoint>,<p1>,<p2>,<p3>` 20 times a second, chatter between)
+/// driven through a dialect file: every step reaches it in its form and unit, the held step is
+/// sent again as the keepalive, its measurements are logged in kPa, and it is vented at the end.
+#[test]
+fn a_board_of_another_firmware_is_driven_through_its_dialect() {
+    let _machine = real_time();
+    let dir = tempdir();
+    let d = dir.path();
+    std::fs::write(
+        d.join("steps.csv"),
+        "step,phase,P1_kpa,P2_kpa,P3_kpa,hold_s\n0,rest,0,0,0,1\n1,a,68.9476,0,137.8951,0.5\n2,a,100,50,25,0.5\n",
+    )
+    .unwrap();
+    std::fs::write(
+        d.join("harvard.toml"),
+        "unit = \"psi\"\nset = \"SET;{ms};{p1};{p2};{p3}\"\nvent = \"SET;0;0;0;0\"\nmeasured = \"{ms},{_},{m1},{m2},{m3}\"\nhello = \"ECHO;0\"\n",
+    )
+    .unwrap();
+    let pty = handcap::lab::board::Pty::open().unwrap();
+    let mut board = pty.board_end().unwrap();
+    let done = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let firmware = {
+        let done = done.clone();
+        std::thread::spawn(move || {
+            use std::os::fd::AsRawFd;
+            let (started, mut heard, mut pending) = (Instant::now(), Vec::new(), Vec::new());
+            let mut psi = [0.0f64; 3];
+            let mut told = Instant::now();
+            while !done.load(std::sync::atomic::Ordering::SeqCst) {
+                let mut poll = libc::pollfd {
+                    fd: board.as_raw_fd(),
+                    events: libc::POLLIN,
+                    revents: 0,
+                };
+                // SAFETY: one pollfd, valid for the call.
+                if unsafe { libc::poll(&mut poll, 1, 10) } > 0 {
+                    let mut buf = [0u8; 256];
+                    let n = board.read(&mut buf).unwrap_or(0);
+                    pending.extend_from_slice(&buf[..n]);
+                    while let Some(end) = pending.iter().position(|&b| b == b'\n') {
+                        let line: Vec<u8> = pending.drain(..=end).collect();
+                        let line = String::from_utf8_lossy(&line).trim().to_string();
+                        let fields: Vec<&str> = line.split(';').collect();
+                        if fields[0] == "SET" && fields.len() == 5 {
+                            psi = [2, 3, 4].map(|k| fields[k].parse().unwrap());
+                        }
+                        board.write_all(b"# ok\n").unwrap();
+                        heard.push(line);
+                    }
+                }
+                if told.elapsed() >= Duration::from_millis(50) {
+                    told = Instant::now();
+                    let ms = started.elapsed().as_millis();
+                    let line = format!("{ms},9,{},{},{}\n", psi[0], psi[1], psi[2]);
+                    board.write_all(line.as_bytes()).unwrap();
+                }
+            }
+            heard
+        })
+    };
+    let lab = Lab::start(d, &[]);
+    let device = format!("serial:{}", pty.path.display());
+    let captured = handcap(
+        d,
+        &[
+            &["capture"][..],
+            &lab.camera_args(),
+            &[
+                "--out",
+                "s",
+                "--protocol",
+                "steps.csv",
+                "--regulator",
+                &device,
+                "--dialect",
+                "harvard.toml",
+            ],
+        ]
+        .concat(),
+    );
+    assert!(lab.stop().success());
+    done.store(true, std::sync::atomic::Ordering::SeqCst);
+    let heard = firmware.join().unwrap();
+    assert!(
+        captured.status.success(),
+        "{}",
+        String::from_utf8_lossy(&captured.stderr)
+    );
+
+    // ECHO first, each step as SET;ms;psi…, the held one again as the keepalive, VENT's line last.
+    assert_eq!(heard[0], "ECHO;0");
+    assert_eq!(heard.last().unwrap(), "SET;0;0;0;0");
+    let psi: Vec<[f64; 3]> = heard[1..heard.len() - 1]
+        .iter()
+        .map(|l| {
+            let f: Vec<&str> = l.split(';').collect();
+            assert_eq!((f[0], f.len()), ("SET", 5), "{l}");
+            [2, 3, 4].map(|k| f[k].parse().unwrap())
+        })
+        .collect();
+    let mut steps = psi.clone();
+    steps.dedup();
+    assert_eq!(
+        steps,
+        vec![[0.0, 0.0, 0.0], [10.0, 0.0, 20.0], [14.504, 7.252, 3.626]]
+    );
+    assert!(
+        psi.len() >= 15,
+        "{} SET lines: the keepalive every 0.1 s",
+        psi.len()
+    );
+    // The telemetry logged beside each step, in kPa.
+    let rows = csv_rows(&d.join("s/pressures.csv"));
+    let last = &rows[rows.len() - 1];
+    for (k, want) in [100.0, 50.0, 25.0].iter().enumerate() {
+        let got: f64 = last[&format!("P{}_measured_kpa", k + 1)].parse().unwrap();
+        assert!((got - want).abs() < 0.01, "P{} measured {got} kPa", k + 1);
+    }
 }

@@ -85,13 +85,8 @@ fn the_view_page_shows_both_cameras_and_a_tip_track_that_matches_the_lab_truth()
     let lab = Lab::start(d, &[]);
     let mut capture = Command::new(env!("CARGO_BIN_EXE_handcap"))
         .current_dir(d)
-        .args([
-            "capture",
-            "--left",
-            &lab.cameras["left"],
-            "--right",
-            &lab.cameras["right"],
-        ])
+        .arg("capture")
+        .args(lab.camera_args())
         .args(["--out", "live", "--protocol", "dyn.csv"])
         .args(["--regulator", &format!("serial:{}", lab.regulator)])
         .args(["--view", "--view-calib", "lab/truth/rig.yml"])
