@@ -31,7 +31,7 @@ pub struct Args {
     drop: f64,
     /// Both cameras stall at AT s for LENGTH s (AT,LENGTH): the frames exposed meanwhile are
     /// sent at once when it ends
-    #[arg(long, value_delimiter = ',', num_args = 2, value_parser = super::finite)]
+    #[arg(long, value_delimiter = ',', value_parser = super::finite)]
     stall: Vec<f64>,
     /// Frames per second of each camera
     #[arg(long, default_value_t = 30.0, value_parser = super::finite)]

@@ -15,6 +15,7 @@ use crate::stereo::Side;
 use crate::synth::canvas::Canvas;
 use crate::synth::capture::{exposure_gain, finger_frame, finger_poses};
 use crate::synth::render::View;
+use crate::synth::scene::Finger;
 
 /// The lamp's radius in the image (px): a 5 mm diffused LED, lighting a few 8 × 8 blocks.
 const LAMP_RADIUS_PX: f64 = 10.0;
@@ -68,16 +69,13 @@ pub fn film(side: Side, view: &View, config: &LabConfig, shared: &Shared, stream
                     break;
                 }
             };
-            let frame = finger_frame(view, c, config.seed, (side, n), &poses, tip_mm);
-            let mut canvas = frame;
-            if let Some(at) = lamp_at.filter(|_| lamp > 0.0) {
-                light(&mut canvas, at, lamp);
-            }
-            let gain = exposure_gain(c, side, exposure_s);
-            let size = [canvas.width as u32, canvas.height as u32];
-            let rgb = canvas.develop(gain, config.seed, (n as u64) << 1 | side as u64);
-            view.recycle(canvas);
-            let jpeg = c.format.encode(size[0], size[1], &rgb);
+            let shot = Shot {
+                side,
+                n,
+                exposure_s,
+                lamp: lamp_at.filter(|_| lamp > 0.0).map(|at| (at, lamp)),
+            };
+            let jpeg = picture(view, config, &shot, &poses, tip_mm);
             let mut due = exposure_s + delay + rng.random_range(-1.0..1.0) * config.jitter_s;
             if let Some([at, length]) = config.stall {
                 if (at..at + length).contains(&exposure_s) {
@@ -104,6 +102,81 @@ pub fn film(side: Side, view: &View, config: &LabConfig, shared: &Shared, stream
         // The sender ends once it has sent what is left.
         drop(to_send);
     });
+}
+
+/// One exposure of a camera: its number, its middle (lab clock, s), and the lamp where the
+/// camera sees it with the share of the exposure it was lit.
+struct Shot {
+    side: Side,
+    n: usize,
+    exposure_s: f64,
+    lamp: Option<([f64; 2], f64)>,
+}
+
+/// The webcam's JPEG of `shot`: the finger in `poses` (its tip at `tip_mm`) drawn, the lamp
+/// lit, developed with the exposure's gain, encoded.
+fn picture(
+    view: &View,
+    config: &LabConfig,
+    shot: &Shot,
+    poses: &[Finger],
+    tip_mm: [f64; 3],
+) -> Vec<u8> {
+    let (c, side, n) = (&config.capture, shot.side, shot.n);
+    let mut canvas = finger_frame(view, c, config.seed, (side, n), poses, tip_mm);
+    if let Some((at, share)) = shot.lamp {
+        light(&mut canvas, at, share);
+    }
+    let gain = exposure_gain(c, side, shot.exposure_s);
+    let size = [canvas.width as u32, canvas.height as u32];
+    let rgb = canvas.develop(gain, config.seed, (n as u64) << 1 | side as u64);
+    view.recycle(canvas);
+    c.format.encode(size[0], size[1], &rgb)
+}
+
+/// The processor time one frame of `view` takes to render and encode (s), its parallel parts
+/// counted (the process's time: called before the lab's threads start): the least of three,
+/// the finger moving (a step to half the pressure), the lamp lit.
+pub fn frame_cost(
+    view: &View,
+    config: &LabConfig,
+    plant: &crate::synth::plant::Plant,
+) -> Result<f64, crate::synth::SynthError> {
+    let c = &config.capture;
+    let mut motion =
+        crate::synth::dynamics::Motion::at_rest(&c.dynamics, config.synth.plant.hysteresis_kpa);
+    motion.command(0.0, [crate::hand::MAX_PRESSURE_KPA / 2.0; 3]);
+    let moving_s =
+        c.dynamics.delay_s + c.dynamics.lag_s.iter().fold(0.0, |a: f64, &b| a.max(b)) / 2.0;
+    motion.run_to(moving_s + 1.0);
+    let poses = finger_poses(c, plant, &motion, &view.camera, moving_s)?;
+    let tip_mm = plant.tip(motion.at(moving_s))?;
+    let lamp = view
+        .camera
+        .project(&Point3::from(super::LAMP_MM))
+        .map(|at| (at, 1.0));
+    let cpu_s = || {
+        let mut t = libc::timespec {
+            tv_sec: 0,
+            tv_nsec: 0,
+        };
+        // SAFETY: clock_gettime fills the timespec it is given.
+        unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut t) };
+        t.tv_sec as f64 + t.tv_nsec as f64 * 1e-9
+    };
+    let mut least = f64::INFINITY;
+    for n in 0..3 {
+        let started = cpu_s();
+        let shot = Shot {
+            side: Side::Left,
+            n,
+            exposure_s: 0.0,
+            lamp,
+        };
+        picture(view, config, &shot, &poses, tip_mm);
+        least = least.min(cpu_s() - started);
+    }
+    Ok(least)
 }
 
 /// Sends each frame when due (at once when rendered late), in order; a lost frame is kept in

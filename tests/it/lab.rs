@@ -537,6 +537,21 @@ fn a_bad_serial_line_or_port_is_one_line_naming_it() {
         err.trim().lines().count() == 1 && err.contains(&format!("port {port}")),
         "{err}"
     );
+    // More than a machine of a dozen cores renders: 5K at 60 fps, refused before anything is
+    // made.
+    let big = [
+        "lab", "--out", "lab3", "--width", "5120", "--height", "2880", "--fps", "60",
+    ];
+    let o = handcap(d, &big);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        err.trim().lines().count() == 1
+            && err.contains("cores to render")
+            && err.contains("at most"),
+        "{err}"
+    );
+    assert!(!d.join("lab3").exists());
     assert!(lab.stop().success());
 }
 
@@ -724,5 +739,63 @@ fn a_board_of_another_firmware_is_driven_through_its_dialect() {
     for (k, want) in [100.0, 50.0, 25.0].iter().enumerate() {
         let got: f64 = last[&format!("P{}_measured_kpa", k + 1)].parse().unwrap();
         assert!((got - want).abs() < 0.01, "P{} measured {got} kPa", k + 1);
+    }
+}
+
+/// A lab whose cameras lose a tenth of their frames and stall together for 3 s: capture keeps
+/// every frame it was sent and counts the lost ones as dropped, and ends the session as a
+/// camera stopped 2 s into the stall, everything before kept.
+#[test]
+fn frames_the_lab_loses_are_counted_and_its_stall_ends_the_session_with_everything_kept() {
+    let _machine = real_time();
+    let dir = tempdir();
+    let d = dir.path();
+    let lab = Lab::start(d, &["--drop", "0.1", "--stall", "4,3", "--seed", "7"]);
+    let args = [
+        &["capture"][..],
+        &lab.camera_args(),
+        &["--out", "s", "--duration-s", "9"],
+    ];
+    let captured = handcap(d, &args.concat());
+    assert!(lab.stop().success());
+    let said = String::from_utf8_lossy(&captured.stderr);
+    assert!(!captured.status.success());
+    assert!(said.contains("stopped delivering"), "{said}");
+    let summary = &read_json(&d.join("s/capture.json"))["summary"];
+    assert!(summary["ending"]["camera_stopped"].is_object(), "{summary}");
+
+    // Each camera: the frames listed are those the lab sent this client, and the ones it lost
+    // between them are the drops counted.
+    let truth = Truth::read(&d.join("lab/truth"));
+    let listed = csv_rows(&d.join("s/frames/frames.csv"));
+    for (k, camera) in ["left", "right"].into_iter().enumerate() {
+        let frames: Vec<usize> = listed
+            .iter()
+            .filter(|r| r["camera"] == camera)
+            .map(|r| r["frame"].parse().unwrap())
+            .collect();
+        let last = *frames.iter().max().unwrap();
+        assert_eq!(
+            frames.len(),
+            last + 1,
+            "{camera}: frames 0..={last} all listed"
+        );
+        let exposed = |n: usize| -> f64 { truth.of(camera, n)["exposure_s"].parse().unwrap() };
+        let (from, to) = (exposed(0), exposed(last));
+        let lost = csv_rows(&d.join("lab/truth/frames.csv"))
+            .iter()
+            .filter(|r| r["camera"] == camera && r["frame"].is_empty())
+            .filter(|r| (from..to).contains(&r["exposure_s"].parse::<f64>().unwrap()))
+            .count();
+        let drops = summary["stats"]["drops"][k].as_u64().unwrap() as usize;
+        eprintln!(
+            "lab drop: {camera} {} frames, {lost} lost, {drops} counted dropped",
+            frames.len()
+        );
+        assert!(lost >= 5, "{camera}: {lost} lost");
+        assert!(
+            drops.abs_diff(lost) <= 1,
+            "{camera}: {drops} counted, {lost} lost"
+        );
     }
 }
