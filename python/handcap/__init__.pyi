@@ -112,3 +112,19 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
         self, targets: ArrayLike, max_kpa: float = 250.0, reach: float = 0.01
     ) -> Tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_]]: ...
     def save(self, path: Union[str, PathLike[str]]) -> None: ...
+
+class KernelRidgeRegressor(MSVRRegressor):
+    def __init__(
+        self,
+        C: Optional[float] = None,
+        sigma: Optional[float] = None,
+        search: str = "aco-r",
+        budget: Optional[int] = None,
+        basis: Union[str, int] = "auto",
+        folds: int = 5,
+        history: str = "auto",
+        random_state: Optional[int] = None,
+        tol: float = 1e-8,
+        max_iter: int = 500,
+        intervals: bool = False,
+    ) -> None: ...

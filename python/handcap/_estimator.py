@@ -95,11 +95,15 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
         history (`history`), as `handcap model --time --group-by` does."""
         X, y = validate_data(self, X, y, multi_output=True, y_numeric=True, dtype=np.float64,
                              ensure_min_samples=_core.MIN_FIT_ROWS)
-        hyper = (self.C, self.epsilon, self.sigma)
         if self.search not in ("aco-r", "none"):
             raise ValueError(f"search {self.search!r}: give 'aco-r' or 'none'")
-        if self.search == "none" and any(h is None for h in hyper):
-            raise ValueError("search='none' uses C, epsilon and sigma as given: set all three")
+        if self.search == "none":
+            # Kernel ridge has no tube: its epsilon is 0.
+            given = {"C": self.C, "epsilon": self.epsilon, "sigma": self.sigma}
+            if self.model == "krr":
+                del given["epsilon"]
+            if any(h is None for h in given.values()):
+                raise ValueError(f"search='none' uses {', '.join(given)} as given: set them all")
         if self.model not in ("msvr", "krr", "auto"):
             raise ValueError(f"model {self.model!r}: give 'msvr', 'krr' or 'auto'")
         self._single_output = y.ndim == 1
@@ -184,6 +188,40 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
         """Writes the model file (`handcap predict` and `inverse` read it)."""
         check_is_fitted(self)
         self.model_.save(str(path))
+
+
+class KernelRidgeRegressor(MSVRRegressor):
+    """Kernel ridge regression with an intercept (the squared loss, no tube; scikit-learn's
+    `KernelRidge` with alpha = 1/(2C), plus the intercept), over handcap's core: the family
+    `handcap model --model krr` fits, its C and sigma searched by the same ant colony on the
+    same folds as MSVRRegressor's, exact or on a reduced basis for many rows. Every method and
+    fitted attribute is MSVRRegressor's (epsilon_ is 0); the model file is the command line's.
+
+    Parameters
+    ----------
+    C, sigma : float or None
+        Penalty (the ridge is 1/(2C)) and RBF width (inputs scaled to [0, 1]); None: searched.
+    search, budget, basis, folds, history, intervals, random_state, tol, max_iter :
+        as MSVRRegressor's.
+    """
+
+    model = "krr"
+    epsilon = None
+    loss = "robust"
+
+    def __init__(self, C=None, sigma=None, search="aco-r", budget=None, basis="auto", folds=5,
+                 history="auto", random_state=None, tol=1e-8, max_iter=500, intervals=False):
+        self.C = C
+        self.sigma = sigma
+        self.search = search
+        self.budget = budget
+        self.basis = basis
+        self.folds = folds
+        self.history = history
+        self.random_state = random_state
+        self.tol = tol
+        self.max_iter = max_iter
+        self.intervals = intervals
 
 
 def _labels(groups, rows):

@@ -283,11 +283,14 @@ def test_a_model_fitted_in_python_predicts_the_same_from_the_command_line(tmp_pa
                                rtol=1e-12, atol=0)
 
 
-def test_kernel_ridge_from_python_is_the_command_lines(tmp_path):
+@pytest.mark.parametrize("estimator", [
+    lambda **k: handcap.KernelRidgeRegressor(**k),
+    lambda **k: handcap.MSVRRegressor(model="krr", **k),
+], ids=["KernelRidgeRegressor", "MSVRRegressor(model=krr)"])
+def test_kernel_ridge_from_python_is_the_command_lines(tmp_path, estimator):
     x, y = smooth(150, 4)
     names = ["P1_kpa", "P2_kpa", "P3_kpa"]
-    model = handcap.MSVRRegressor(model="krr", budget=30, random_state=5).fit(
-        pd.DataFrame(x, columns=names), y)
+    model = estimator(budget=30, random_state=5).fit(pd.DataFrame(x, columns=names), y)
     assert model.family_ == "krr" and model.epsilon_ == 0.0
     assert sorted(model.search_["space"]) == ["c", "sigma"], model.search_["space"]
     write_csv(tmp_path / "train.csv", x, y, outputs=("y0", "y1", "y2"))
@@ -302,9 +305,16 @@ def test_kernel_ridge_from_python_is_the_command_lines(tmp_path):
         handcap.MSVRRegressor(model="krr", epsilon=0.1).fit(x, y)
     with pytest.raises(ValueError, match="give 'msvr', 'krr' or 'auto'"):
         handcap.MSVRRegressor(model="svr").fit(x, y)
+    # Given C and sigma, no search: the closed form, as the command line's --search none.
+    given = estimator(C=model.C_, sigma=model.sigma_, search="none").fit(
+        pd.DataFrame(x, columns=names), y)
+    np.testing.assert_allclose(given.predict(pd.DataFrame(xt, columns=names)), cli.predict(xt),
+                               rtol=1e-9, atol=1e-12)
+    with pytest.raises(ValueError, match="uses C, sigma as given"):
+        estimator(C=1.0, search="none").fit(x, y)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        results = check_estimator(handcap.MSVRRegressor(model="krr", budget=20), on_fail=None)
+        results = check_estimator(estimator(budget=20), on_fail=None)
     failed = [(r["check_name"], repr(r["exception"])) for r in results
               if r["status"] == "failed"]
     assert not failed, failed
