@@ -4,7 +4,8 @@
 //! an even count. [`upper_median`] is the upper of the two middle values (`v[n / 2]` of the
 //! sorted values): always one of the data, which a robust threshold or a reference element
 //! needs. Both return `None` for no values, as do [`quantiles`] (nearest rank) for summaries
-//! and [`mean_sd`]. [`Line`] is the least-squares line through points.
+//! and [`mean_sd`]. [`Line`] is the least-squares line through points. [`chi_square_quantile`]
+//! is the χ² distribution's quantile, for gates on sums of squared normalized residuals.
 
 use std::cmp::Ordering;
 
@@ -110,8 +111,109 @@ pub fn median_point(points: &[Vector3<f64>]) -> Vector3<f64> {
     Vector3::new(coordinate(0), coordinate(1), coordinate(2))
 }
 
+/// ln Γ(x) for x > 0 (Lanczos, g = 7, nine terms: 15 significant digits).
+fn ln_gamma(x: f64) -> f64 {
+    const G: [f64; 9] = [
+        0.999_999_999_999_809_9,
+        676.520_368_121_885_1,
+        -1_259.139_216_722_402_8,
+        771.323_428_777_653_1,
+        -176.615_029_162_140_6,
+        12.507_343_278_686_905,
+        -0.138_571_095_265_720_12,
+        9.984_369_578_019_572e-6,
+        1.505_632_735_149_311_6e-7,
+    ];
+    if x < 0.5 {
+        // Reflection: Γ(x) Γ(1 − x) = π / sin(πx).
+        return (std::f64::consts::PI / (std::f64::consts::PI * x).sin()).ln() - ln_gamma(1.0 - x);
+    }
+    let x = x - 1.0;
+    let t = x + 7.5;
+    let sum = G[1..]
+        .iter()
+        .enumerate()
+        .fold(G[0], |s, (i, g)| s + g / (x + i as f64 + 1.0));
+    0.5 * (2.0 * std::f64::consts::PI).ln() + (x + 0.5) * t.ln() - t + sum.ln()
+}
+
+/// The regularized lower incomplete gamma function P(a, x): its series below a + 1, its
+/// continued fraction (modified Lentz) above.
+fn gamma_p(a: f64, x: f64) -> f64 {
+    if x <= 0.0 {
+        return 0.0;
+    }
+    let front = (a * x.ln() - x - ln_gamma(a)).exp();
+    if x < a + 1.0 {
+        let (mut term, mut sum, mut n) = (1.0 / a, 1.0 / a, a);
+        while term.abs() > sum.abs() * 1e-16 {
+            n += 1.0;
+            term *= x / n;
+            sum += term;
+        }
+        return sum * front;
+    }
+    let tiny = 1e-300;
+    let mut b = x + 1.0 - a;
+    let (mut c, mut d) = (1.0 / tiny, 1.0 / b);
+    let mut h = d;
+    for i in 1..500 {
+        let an = -(i as f64) * (i as f64 - a);
+        b += 2.0;
+        d = an * d + b;
+        d = if d.abs() < tiny { tiny } else { d };
+        c = b + an / c;
+        c = if c.abs() < tiny { tiny } else { c };
+        d = 1.0 / d;
+        let step = d * c;
+        h *= step;
+        if (step - 1.0).abs() < 1e-16 {
+            break;
+        }
+    }
+    1.0 - front * h
+}
+
+/// The `p` quantile of the χ² distribution with `dof` degrees of freedom (`dof` ≥ 1, `p` in
+/// (0, 1)): the value a sum of `dof` squared standard normals stays below with probability `p`
+/// (bisection on the CDF to 1e-12 relative).
+pub fn chi_square_quantile(dof: usize, p: f64) -> f64 {
+    let k = dof.max(1) as f64;
+    let cdf = |x: f64| gamma_p(k / 2.0, x / 2.0);
+    let (mut lo, mut hi) = (0.0, k.max(1.0));
+    while cdf(hi) < p {
+        hi *= 2.0;
+    }
+    while hi - lo > 1e-12 * hi {
+        let mid = 0.5 * (lo + hi);
+        if cdf(mid) < p {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn chi_square_quantiles_are_the_tables() {
+        // Tabulated χ² quantiles (dof, p, value).
+        for (dof, p, value) in [
+            (1, 0.99, 6.634_897),
+            (1, 0.5, 0.454_936),
+            (2, 0.95, 5.991_465),
+            (3, 0.99, 11.344_867),
+            (5, 0.99, 15.086_272),
+            (9, 0.999, 27.877_165),
+            (30, 0.01, 14.953_457),
+        ] {
+            let got = super::chi_square_quantile(dof, p);
+            assert!((got - value).abs() < 1e-5 * value, "dof {dof} p {p}: {got}");
+        }
+    }
+
     use super::*;
 
     #[test]

@@ -34,6 +34,7 @@ pub mod clock;
 pub mod latency;
 mod locate;
 pub mod marker;
+pub mod nview;
 pub mod options;
 pub mod output;
 pub mod pairing;
