@@ -29,6 +29,11 @@ fn settled(s: [f64; 2]) -> [f64; 2] {
 /// random levels in [0, 200] kPa, and outputs that follow them through a first-order lag of
 /// [`LAG_S`]. Columns: trial, t_s, P1_kpa, P2_kpa, x_mm, y_mm.
 pub(crate) fn lagging_plant(seed: u64, trials: usize, rows: usize) -> String {
+    lagging_plant_of(LAG_S, seed, trials, rows)
+}
+
+/// [`lagging_plant`] with a lag of `lag_s`.
+fn lagging_plant_of(lag_s: f64, seed: u64, trials: usize, rows: usize) -> String {
     let mut rng = Lcg(seed);
     let mut csv = String::from("trial,t_s,P1_kpa,P2_kpa,x_mm,y_mm\n");
     for trial in 0..trials {
@@ -41,7 +46,7 @@ pub(crate) fn lagging_plant(seed: u64, trials: usize, rows: usize) -> String {
                 hold = 3 + (10.0 * rng.next()) as usize;
             }
             hold -= 1;
-            let gain = 1.0 - (-DT / LAG_S).exp();
+            let gain = 1.0 - (-DT / lag_s).exp();
             for j in 0..2 {
                 s[j] += gain * (u[j] - s[j]);
             }
@@ -204,6 +209,67 @@ fn a_lagging_plant_is_modelled_from_its_inputs_history() {
         String::from_utf8_lossy(&out.stderr)
     );
     assert!(String::from_utf8_lossy(&out.stderr).contains("once settled"));
+}
+
+/// The screen of `auto`'s ladders ranks them by the plant's lag: of the same log's pressures
+/// through a lag of 0.15 s and one of 1.5 s, the slow plant's best-screened ladder starts at a
+/// longer time constant than the fast one's, and each plant's best ladder scores better than
+/// its present inputs.
+#[test]
+fn the_ladder_screen_follows_the_plants_lag() {
+    let dir = tempdir();
+    let d = dir.path();
+    let screened = |lag_s: f64| -> (f64, f64, f64) {
+        let name = format!("lag_{lag_s}");
+        write(
+            d,
+            &format!("{name}.csv"),
+            &lagging_plant_of(lag_s, 3, 4, 100),
+        );
+        let mut args = vec!["model".to_string(), format!("{name}.csv")];
+        args.extend(COLUMNS.map(String::from));
+        args.extend(
+            [
+                "--time",
+                "t_s",
+                "--group-by",
+                "trial",
+                "--budget",
+                "30",
+                "--model",
+                "msvr",
+            ]
+            .map(String::from),
+        );
+        args.extend(["--out".to_string(), format!("{name}.json")]);
+        handcap_ok(d, &args.iter().map(String::as_str).collect::<Vec<_>>());
+        let decision = &read_json(&d.join(format!("{name}.json")))["history"];
+        let best = decision["screened"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .min_by(|a, b| {
+                a["fitness"]
+                    .as_f64()
+                    .unwrap()
+                    .total_cmp(&b["fitness"].as_f64().unwrap())
+            })
+            .unwrap();
+        let first_tau = best["memory"]["tau"][0].as_f64().unwrap();
+        let present = decision["tried"][0]["fitness"].as_f64().unwrap();
+        eprintln!(
+            "ladder screen, lag {lag_s} s: best ladder {} ({}), present inputs {present}",
+            best["memory"]["tau"], best["fitness"]
+        );
+        (first_tau, best["fitness"].as_f64().unwrap(), present)
+    };
+    let (fast_tau, fast_best, fast_present) = screened(0.15);
+    let (slow_tau, slow_best, slow_present) = screened(1.5);
+    assert!(
+        slow_tau > fast_tau,
+        "slow plant's ladder from {slow_tau} s, fast's from {fast_tau} s"
+    );
+    assert!(fast_best < fast_present && slow_best < slow_present);
 }
 
 #[test]
