@@ -179,6 +179,32 @@ pub fn frame_cost(
     Ok(least)
 }
 
+/// The processor the lab leaves to `capture` (and its page) beside it (cores).
+const HOST_CORES: f64 = 0.5;
+
+/// Whether `cores` can render both cameras' frames at `config`'s rate, each taking `cost_s` of
+/// processor time, with [`HOST_CORES`] left over; else what they can.
+pub fn renderable(cost_s: f64, config: &LabConfig, cores: usize) -> Result<(), String> {
+    let (fps, rig) = (config.capture.fps, &config.capture.rig);
+    let needed = 2.0 * fps * cost_s;
+    let budget = cores as f64 - HOST_CORES;
+    if needed <= budget {
+        return Ok(());
+    }
+    let most = (budget / (2.0 * cost_s)).floor();
+    Err(format!(
+        "two cameras at {fps} fps need {needed:.1} cores to render ({:.0} ms a frame at {}x{}) and this machine has {cores}, half a core of them left to capture: {}",
+        1e3 * cost_s,
+        rig.width,
+        rig.height,
+        if most >= 1.0 {
+            format!("at most --fps {most} here, or a smaller --width and --height")
+        } else {
+            "give a smaller --width and --height".to_string()
+        }
+    ))
+}
+
 /// Sends each frame when due (at once when rendered late), in order; a lost frame is kept in
 /// the truth unsent.
 fn send(frames: mpsc::Receiver<(f64, Option<Vec<u8>>, Exposed)>, stream: &Stream, shared: &Shared) {
@@ -217,4 +243,21 @@ fn light(canvas: &mut Canvas, at: [f64; 2], share: f64) {
         None => (x0, y0, x1, y1),
         Some(d) => (d.0.min(x0), d.1.min(y0), d.2.max(x1), d.3.max(y1)),
     });
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn a_lab_renders_what_the_cores_beside_capture_can_and_says_what_they_can() {
+        let config = crate::lab::LabConfig::new(1);
+        // 30 fps of two cameras at 20 ms a frame: 1.2 cores.
+        assert!(super::renderable(0.02, &config, 2).is_ok());
+        let why = super::renderable(0.02, &config, 1).unwrap_err();
+        assert!(
+            why.contains("need 1.2 cores") && why.contains("at most --fps 12"),
+            "{why}"
+        );
+        let why = super::renderable(1.0, &config, 1).unwrap_err();
+        assert!(why.contains("give a smaller --width and --height"), "{why}");
+    }
 }

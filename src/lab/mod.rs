@@ -353,7 +353,7 @@ pub fn run(
     let cost_s = camera::frame_cost(&views[0], config, &plant)
         .map_err(|e| LabError::Settings(e.to_string()))?;
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    renderable(cost_s, config, cores).map_err(LabError::Settings)?;
+    camera::renderable(cost_s, config, cores).map_err(LabError::Settings)?;
     let truth = out.join("truth");
     std::fs::create_dir_all(&truth).map_err(write_err(&truth))?;
     write(
@@ -426,32 +426,6 @@ pub fn run(
         Some(why) => Err(LabError::Failed(why)),
         None => Ok(summary),
     }
-}
-
-/// The processor the lab leaves to `capture` (and its page) beside it (cores).
-const HOST_CORES: f64 = 0.5;
-
-/// Whether `cores` can render both cameras' frames at `config`'s rate, each taking `cost_s` of
-/// processor time, with [`HOST_CORES`] left over; else what they can.
-fn renderable(cost_s: f64, config: &LabConfig, cores: usize) -> Result<(), String> {
-    let (fps, rig) = (config.capture.fps, &config.capture.rig);
-    let needed = 2.0 * fps * cost_s;
-    let budget = cores as f64 - HOST_CORES;
-    if needed <= budget {
-        return Ok(());
-    }
-    let most = (budget / (2.0 * cost_s)).floor();
-    Err(format!(
-        "two cameras at {fps} fps need {needed:.1} cores to render ({:.0} ms a frame at {}x{}) and this machine has {cores}, half a core of them left to capture: {}",
-        1e3 * cost_s,
-        rig.width,
-        rig.height,
-        if most >= 1.0 {
-            format!("at most --fps {most} here, or a smaller --width and --height")
-        } else {
-            "give a smaller --width and --height".to_string()
-        }
-    ))
 }
 
 /// Each camera's listener on 127.0.0.1: `port` and the next, or any free ones for 0.
@@ -630,20 +604,6 @@ mod tests {
         ] {
             assert!(super::delays(bad).is_err(), "{bad}");
         }
-    }
-
-    #[test]
-    fn a_lab_renders_what_the_cores_beside_capture_can_and_says_what_they_can() {
-        let config = super::LabConfig::new(1);
-        // 30 fps of two cameras at 20 ms a frame: 1.2 cores.
-        assert!(super::renderable(0.02, &config, 2).is_ok());
-        let why = super::renderable(0.02, &config, 1).unwrap_err();
-        assert!(
-            why.contains("need 1.2 cores") && why.contains("at most --fps 12"),
-            "{why}"
-        );
-        let why = super::renderable(1.0, &config, 1).unwrap_err();
-        assert!(why.contains("give a smaller --width and --height"), "{why}");
     }
 
     #[test]
