@@ -84,6 +84,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         }
         let _ = writeln!(out, "regulator {}", ready.regulator.display());
         let _ = out.flush();
+        if !ready.hardware_priority {
+            eprintln!("lab: the cameras run at the machine's normal priority (a higher one needs root or CAP_SYS_NICE): on a busy machine their frames go out late");
+        }
     };
     let summary = super::with_session(|s| {
         lab::run(

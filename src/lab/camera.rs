@@ -208,6 +208,7 @@ pub fn renderable(cost_s: f64, config: &LabConfig, cores: usize) -> Result<(), S
 /// Sends each frame when due (at once when rendered late), in order; a lost frame is kept in
 /// the truth unsent.
 fn send(frames: mpsc::Receiver<(f64, Option<Vec<u8>>, Exposed)>, stream: &Stream, shared: &Shared) {
+    super::as_hardware();
     for (due, jpeg, mut exposed) in frames {
         shared.sleep_until(due);
         if let Some(jpeg) = jpeg {

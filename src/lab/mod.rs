@@ -140,6 +140,8 @@ pub struct Ready {
     pub cameras: Vec<(String, String)>,
     /// The regulator board's serial device.
     pub regulator: PathBuf,
+    /// Whether the cameras and the board run at a hardware's priority ([`HARDWARE_NICE`]).
+    pub hardware_priority: bool,
 }
 
 /// What the lab did.
@@ -228,6 +230,25 @@ impl Lamps {
 struct Finger {
     motion: Motion,
     lamps: Lamps,
+}
+
+/// The priority of the lab's cameras and board (`nice` −10): hardware that does not slow down
+/// when the machine is busy, so that a session beside CPU hogs tests `capture`, not the lab.
+const HARDWARE_NICE: libc::c_int = -10;
+
+/// Sets the calling thread's `nice`; `false` when not allowed (a negative one needs root or
+/// `CAP_SYS_NICE`).
+fn set_nice(nice: libc::c_int) -> bool {
+    // SAFETY: setpriority on this thread's own id.
+    unsafe {
+        let tid = libc::syscall(libc::SYS_gettid) as libc::id_t;
+        libc::setpriority(libc::PRIO_PROCESS, tid, nice) == 0
+    }
+}
+
+/// Raises the calling thread to [`HARDWARE_NICE`] when allowed.
+fn as_hardware() {
+    set_nice(HARDWARE_NICE);
 }
 
 /// What the lab's threads share: the clock, the finger, the truth.
@@ -382,6 +403,8 @@ pub fn run(
     let info = Ready {
         cameras,
         regulator: pty.path.clone(),
+        // Allowed here if anywhere (the truth's writer goes back to 0).
+        hardware_priority: set_nice(HARDWARE_NICE) && set_nice(0),
     };
     let files = TruthFiles {
         dir: &truth,
@@ -390,11 +413,22 @@ pub fn run(
         epoch_unix_s,
         streams: &streams,
     };
+    // The cameras, their rendering's parallel parts and the board at a hardware's priority.
+    let render = rayon::ThreadPoolBuilder::new()
+        .start_handler(|_| as_hardware())
+        .build()
+        .map_err(|e| LabError::Start(format!("the cameras' threads: {e}")))?;
     let summary = std::thread::scope(|scope| {
-        scope.spawn(|| board::run(pty, &shared));
+        scope.spawn(|| {
+            as_hardware();
+            board::run(pty, &shared)
+        });
         for (k, side) in [Side::Left, Side::Right].into_iter().enumerate() {
-            let (view, stream, shared) = (&views[k], &streams[k], &shared);
-            scope.spawn(move || camera::film(side, view, config, shared, stream));
+            let (view, stream, shared, render) = (&views[k], &streams[k], &shared, &render);
+            scope.spawn(move || {
+                as_hardware();
+                render.install(|| camera::film(side, view, config, shared, stream))
+            });
         }
         ready(&info);
         let mut written_s = 0.0;
