@@ -63,7 +63,8 @@ fn nice() {
 /// the tip.
 pub(super) fn examine(view: &View, calibration: Option<CalibrationFile>) {
     nice();
-    // The triangulation's parallel parts run on a thread of the same low priority.
+    // Whatever runs in parallel (the decoding, the triangulation) runs on a thread of the same
+    // low priority.
     let Ok(pool) = rayon::ThreadPoolBuilder::new()
         .num_threads(1)
         .start_handler(|_| nice())
@@ -71,6 +72,11 @@ pub(super) fn examine(view: &View, calibration: Option<CalibrationFile>) {
     else {
         return;
     };
+    pool.install(|| watch(view, calibration));
+}
+
+/// [`examine`]'s loop, on its pool.
+fn watch(view: &View, calibration: Option<CalibrationFile>) {
     let mut tracker = calibration.map(Tracker::new);
     if tracker.is_some() {
         view.lock().page.track = Some(TrackPage {
@@ -94,7 +100,7 @@ pub(super) fn examine(view: &View, calibration: Option<CalibrationFile>) {
                 let s = view.lock();
                 (s.rest_until_s, s.page.steps[1] > 0)
             };
-            let page = pool.install(|| tracker.locate(rest_until_s, protocol));
+            let page = tracker.locate(rest_until_s, protocol);
             view.lock().page.track = Some(page);
         }
     }
