@@ -370,9 +370,11 @@ fn stats(
     judge: Option<&calibration::Judge>,
 ) -> Stats {
     let mut took: Vec<f64> = steps.iter().map(|c| c.end_s - c.time_s).collect();
+    // A command run per step that returned after its hold; a streamed line's write is not
+    // the regulator's action (its lateness is `command_late_ms`).
     let over_hold = steps
         .iter()
-        .filter(|c| c.end_s - c.time_s >= c.step.hold_s)
+        .filter(|c| c.scheduled_s.is_none() && c.end_s - c.time_s >= c.step.hold_s)
         .count();
     let command_ms =
         crate::stats::quantiles(&mut took, [0.5, 1.0]).map_or([0.0; 2], |q| q.map(|t| 1e3 * t));
@@ -403,5 +405,34 @@ fn stats(
         board_delay_ms: judge
             .and_then(|j| j.delay)
             .map(|d| 1e3 * d.right_minus_left_s),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::regulator::Commanded;
+    use crate::session::protocol::Step;
+
+    /// An hour's streamed session exited 1 as "unsettled" because one 33 ms line took 52 ms to
+    /// write on a busy machine: only a command run per step is over its hold.
+    #[test]
+    fn only_a_command_per_step_that_outlasts_its_hold_is_unsettled() {
+        let step = Step {
+            step: 0,
+            phase: "dyn".into(),
+            pressures: [10.0; 3],
+            hold_s: 1.0 / 30.0,
+            line: 2,
+        };
+        let mut streamed = Commanded::streamed(1.0, 1.0, &step);
+        streamed.end_s = 1.052;
+        let per_step = Commanded {
+            end_s: 1.052,
+            scheduled_s: None,
+            ..streamed.clone()
+        };
+        let stats = |log: &[Commanded]| super::stats(&[], [0; 2], log, None);
+        assert_eq!(stats(&[streamed]).over_hold, 0);
+        assert_eq!(stats(&[per_step]).over_hold, 1);
     }
 }
