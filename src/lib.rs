@@ -44,6 +44,7 @@ pub mod image;
 pub mod lab;
 pub mod opencv_yaml;
 pub mod pipeline;
+mod priority;
 pub mod session;
 pub mod stereo;
 pub mod synth;

@@ -19,6 +19,7 @@
 pub mod board;
 pub mod camera;
 pub mod stream;
+mod truth;
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -38,6 +39,7 @@ use crate::synth::SynthConfig;
 use board::Received;
 use camera::Exposed;
 use stream::Stream;
+use truth::TruthFiles;
 
 /// Where the lamp stands (hand frame, mm): beside the finger's base, in both cameras' view.
 pub const LAMP_MM: [f64; 3] = [-22.0, 4.0, 30.0];
@@ -236,19 +238,9 @@ struct Finger {
 /// when the machine is busy, so that a session beside CPU hogs tests `capture`, not the lab.
 const HARDWARE_NICE: libc::c_int = -10;
 
-/// Sets the calling thread's `nice`; `false` when not allowed (a negative one needs root or
-/// `CAP_SYS_NICE`).
-fn set_nice(nice: libc::c_int) -> bool {
-    // SAFETY: setpriority on this thread's own id.
-    unsafe {
-        let tid = libc::syscall(libc::SYS_gettid) as libc::id_t;
-        libc::setpriority(libc::PRIO_PROCESS, tid, nice) == 0
-    }
-}
-
 /// Raises the calling thread to [`HARDWARE_NICE`] when allowed.
 fn as_hardware() {
-    set_nice(HARDWARE_NICE);
+    crate::priority::set_thread_nice(HARDWARE_NICE);
 }
 
 /// What the lab's threads share: the clock, the finger, the truth.
@@ -404,7 +396,8 @@ pub fn run(
         cameras,
         regulator: pty.path.clone(),
         // Allowed here if anywhere (the truth's writer goes back to 0).
-        hardware_priority: set_nice(HARDWARE_NICE) && set_nice(0),
+        hardware_priority: crate::priority::set_thread_nice(HARDWARE_NICE)
+            && crate::priority::set_thread_nice(0),
     };
     let files = TruthFiles {
         dir: &truth,
@@ -522,102 +515,6 @@ fn write_err(path: &Path) -> impl FnOnce(std::io::Error) -> LabError {
 
 fn write(path: &Path, text: &str) -> Result<(), LabError> {
     fsio::write_bytes(path, text.as_bytes()).map_err(write_err(path))
-}
-
-/// The truth's files (see the module docs).
-struct TruthFiles<'a> {
-    dir: &'a Path,
-    config: &'a LabConfig,
-    provenance: &'a Provenance,
-    epoch_unix_s: f64,
-    streams: &'a [Arc<Stream>],
-}
-
-impl TruthFiles<'_> {
-    fn write(&self, shared: &Shared) -> Result<LabSummary, LabError> {
-        let mut summary = LabSummary {
-            seconds: shared.now_s(),
-            ..LabSummary::default()
-        };
-        let received = shared.received.lock().expect("received").clone();
-        summary.lines_received = received.iter().filter(|r| r.line != "(watchdog)").count();
-        let mut csv = csv::Writer::from_writer(Vec::new());
-        let rows = std::iter::once(["time_s".to_string(), "line".into(), "reply".into()]).chain(
-            received
-                .iter()
-                .map(|r| [format!("{:.6}", r.time_s), r.line.clone(), r.reply.clone()]),
-        );
-        for row in rows {
-            csv.write_record(&row).expect("in memory");
-        }
-        let text = String::from_utf8(csv.into_inner().expect("in memory")).expect("utf-8");
-        write(&self.dir.join("received.csv"), &text)?;
-
-        let mut exposed = shared.exposed.lock().expect("exposed").clone();
-        exposed.sort_by(|a, b| {
-            (a.camera as u8, a.exposure_s)
-                .partial_cmp(&(b.camera as u8, b.exposure_s))
-                .expect("finite")
-        });
-        let mut text =
-            String::from("camera,exposure_s,frame,sent_s,late_ms,x_mm,y_mm,z_mm,u_px,v_px,lamp\n");
-        for e in &exposed {
-            let k = e.camera as usize;
-            summary.exposed[k] += 1;
-            let (sent, frame) = match e.sent {
-                Some((t, n)) => {
-                    summary.sent[k] += 1;
-                    (format!("{t:.6}"), n.to_string())
-                }
-                None => {
-                    summary.lost[k] += 1;
-                    (String::new(), String::new())
-                }
-            };
-            if e.late_s > 0.0 {
-                summary.late += 1;
-                summary.worst_late_ms = summary.worst_late_ms.max(e.late_s * 1e3);
-            }
-            let [u, v] = e.tip_px.map_or([String::new(), String::new()], |p| {
-                p.map(|x| format!("{x:.4}"))
-            });
-            let [x, y, z] = e.tip_mm;
-            text += &format!(
-                "{},{:.6},{frame},{sent},{:.3},{x:.5},{y:.5},{z:.5},{u},{v},{:.4}\n",
-                e.camera.name(),
-                e.exposure_s,
-                e.late_s * 1e3,
-                e.lamp
-            );
-        }
-        write(&self.dir.join("frames.csv"), &text)?;
-
-        let mut text = String::from("camera,connected_s,first_frame,frames_sent\n");
-        for (side, stream) in [Side::Left, Side::Right].iter().zip(self.streams) {
-            for c in stream.clients() {
-                text += &format!(
-                    "{},{:.6},{},{}\n",
-                    side.name(),
-                    c.connected_s,
-                    c.first,
-                    c.sent
-                );
-            }
-        }
-        write(&self.dir.join("clients.csv"), &text)?;
-
-        let json = serde_json::json!({
-            "format": "handcap-lab/1",
-            "epoch_unix_s": self.epoch_unix_s,
-            "config": self.config,
-            "lamp_mm": LAMP_MM,
-            "summary": summary,
-            "provenance": self.provenance,
-        });
-        let text = serde_json::to_string_pretty(&json).expect("json") + "\n";
-        write(&self.dir.join("lab.json"), &text)?;
-        Ok(summary)
-    }
 }
 
 #[cfg(test)]

@@ -52,11 +52,7 @@ const NICE: libc::c_int = 10;
 
 /// Lowers the calling thread's priority to [`NICE`].
 fn nice() {
-    // SAFETY: setpriority on this thread's own id.
-    unsafe {
-        let tid = libc::syscall(libc::SYS_gettid) as libc::id_t;
-        libc::setpriority(libc::PRIO_PROCESS, tid, NICE);
-    }
+    crate::priority::set_thread_nice(NICE);
 }
 
 /// Examines the frames `view` is handed until the session ends; with `calibration`, tracks
