@@ -115,6 +115,21 @@ impl Truth {
     }
 }
 
+/// `handcap protocol --dynamic` of one trial of `seconds` into `d/dyn.csv`; its rows.
+pub fn dynamic_protocol(d: &Path, seconds: u32) -> usize {
+    let seconds = seconds.to_string();
+    let args = [
+        "protocol",
+        "--dynamic",
+        "--duration-s",
+        &seconds,
+        "--trials",
+        "1",
+    ];
+    handcap_ok(d, &[&args[..], &["--out", "dyn.csv"]].concat());
+    csv_rows(&d.join("dyn.csv")).len()
+}
+
 /// The serial device opened raw, as a host opens a board.
 fn open_raw(path: &str) -> std::fs::File {
     let file = std::fs::OpenOptions::new()
@@ -149,20 +164,7 @@ fn a_live_session_on_the_lab_over_its_serial_line_matches_the_lab_truth() {
     let _machine = real_time();
     let dir = tempdir();
     let d = dir.path();
-    handcap_ok(
-        d,
-        &[
-            "protocol",
-            "--dynamic",
-            "--duration-s",
-            "6",
-            "--trials",
-            "1",
-            "--out",
-            "dyn.csv",
-        ],
-    );
-    let steps = csv_rows(&d.join("dyn.csv")).len();
+    let steps = dynamic_protocol(d, 6);
     let lab = Lab::start(d, &[]);
     let serial = format!("serial:{}", lab.regulator);
     let captured = handcap(

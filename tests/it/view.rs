@@ -7,8 +7,8 @@ use std::net::TcpStream;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use crate::common::{csv_rows, handcap_ok, real_time, tempdir};
-use crate::lab::{Lab, Truth};
+use crate::common::{csv_rows, real_time, tempdir};
+use crate::lab::{dynamic_protocol, Lab, Truth};
 
 /// The browser the page is tested in.
 const CHROMIUM: &str = "/usr/bin/chromium";
@@ -69,19 +69,7 @@ fn the_view_page_shows_both_cameras_and_a_tip_track_that_matches_the_lab_truth()
     let _machine = real_time();
     let dir = tempdir();
     let d = dir.path();
-    handcap_ok(
-        d,
-        &[
-            "protocol",
-            "--dynamic",
-            "--duration-s",
-            "12",
-            "--trials",
-            "1",
-            "--out",
-            "dyn.csv",
-        ],
-    );
+    dynamic_protocol(d, 12);
     let lab = Lab::start(d, &[]);
     let mut capture = Command::new(env!("CARGO_BIN_EXE_handcap"))
         .current_dir(d)

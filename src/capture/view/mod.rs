@@ -198,22 +198,22 @@ impl View {
     }
 
     /// The session's state now (at most ten times a second): its clock, the protocol's
-    /// steps, the latest command and measurement, and when the rest before it ended.
+    /// steps, the latest command and what the regulator measured, and the time of the first
+    /// command with pressure (the rest before it sets the track's origin).
     pub(super) fn session(
         &self,
         elapsed_s: f64,
         steps: [usize; 2],
-        latest: Option<([f64; 3], Option<[f64; 3]>, f64)>,
+        latest: Option<([f64; 3], Option<[f64; 3]>)>,
+        rest_until_s: Option<f64>,
     ) {
         let mut s = self.lock();
         s.page.elapsed_s = elapsed_s;
         s.page.steps = steps;
-        if let Some((commanded, measured, time_s)) = latest {
+        s.rest_until_s = rest_until_s;
+        if let Some((commanded, measured)) = latest {
             s.page.commanded_kpa = Some(commanded);
             s.page.measured_kpa = measured.or(s.page.measured_kpa);
-            if commanded.iter().any(|&p| p > 0.0) && s.rest_until_s.is_none() {
-                s.rest_until_s = Some(time_s);
-            }
         }
     }
 
@@ -252,7 +252,6 @@ impl View {
                 stats.over_hold
             ));
         }
-        s.page.steps[0] = stats.steps_done;
         s.page.flags = flags;
     }
 
