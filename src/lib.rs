@@ -25,7 +25,7 @@
 // commands, their reports and figures (the `handcap` binary is built from that crate alone);
 // their modules keep their paths.
 pub use handcap_core::{
-    control, data, fsio, hand, model, provenance, search, select, stats, DEFAULT_SEED,
+    control, data, fsio, hand, model, monitor, provenance, search, select, stats, DEFAULT_SEED,
 };
 pub use handcap_model::{plot, report, BUILD_ID_VAR};
 

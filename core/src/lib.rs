@@ -30,6 +30,7 @@ pub mod data;
 pub mod fsio;
 pub mod hand;
 pub mod model;
+pub mod monitor;
 pub mod provenance;
 pub mod search;
 pub mod select;

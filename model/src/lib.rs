@@ -9,7 +9,7 @@
 
 // The modelling core, at the paths the modules here use.
 pub use handcap_core::{
-    control, data, fsio, hand, model, provenance, search, select, stats, DEFAULT_SEED,
+    control, data, fsio, hand, model, monitor, provenance, search, select, stats, DEFAULT_SEED,
 };
 
 pub mod cli;

@@ -12,6 +12,7 @@ use crate::synth::camera::RigConfig;
 use crate::synth::capture::{CaptureConfig, DynamicSession, Realism};
 use crate::synth::dynamics::Dynamics;
 use crate::synth::image_format::{Chroma, ImageFormat};
+use crate::synth::quick::{self, Fault};
 use crate::synth::{plant::PlantParams, SynthConfig, DEFAULT_NOISE_MM};
 
 #[derive(clap::Args)]
@@ -19,7 +20,9 @@ pub struct Args {
     /// Output directory (created if missing; files in it are replaced atomically)
     #[arg(long)]
     out: PathBuf,
-    /// Write only the pressure → tip datasets, no camera images
+    /// Write only the pressure → tip datasets, no camera images; with --dynamic or --protocol,
+    /// the session's rows as `triangulate --per-frame` gives them, from each camera's view of
+    /// the bead (no images: an hour's session in seconds), and the true tips
     #[arg(long)]
     no_images: bool,
     /// Seed of every random choice (noise, rig variation, board poses, clocks)
@@ -81,15 +84,21 @@ pub struct Args {
     /// (as `handcap protocol --dynamic` writes), the muscles lagging through a pneumatic line
     /// and creeping, every frame kept (truth/per_frame.csv is what triangulate --per-frame
     /// should give)
-    #[arg(long, conflicts_with_all = ["no_images", "window_ms"])]
+    #[arg(long, conflicts_with = "window_ms")]
     dynamic: bool,
     #[command(flatten)]
     design: super::protocol::DynamicArgs,
     /// A protocol file to play instead (as `handcap protocol` writes it, e.g. a trajectory's
     /// commands between rest holds), filmed as a dynamic session, without board pairs: the rig
     /// is the one a synth run of the same seed and rig flags calibrates
-    #[arg(long, conflicts_with_all = ["dynamic", "no_images", "window_ms"])]
+    #[arg(long, conflicts_with_all = ["dynamic", "window_ms"])]
     protocol: Option<PathBuf>,
+    /// With --no-images and --dynamic or --protocol: a fault at a time, KIND@T=AMOUNT
+    /// (repeatable): camera@40=0.5 tilts the right camera 0.5° at 40 s, stiffness@40=-0.1 makes
+    /// the finger 10 % softer, leak@40=0.05 loses up to 5 % of muscle 1's pressure over the
+    /// next minute
+    #[arg(long = "fault", value_name = "KIND@T=AMOUNT", requires = "no_images")]
+    faults: Vec<Fault>,
 }
 
 /// How the virtual webcams' frames look and are stored (synth and demo).
@@ -165,6 +174,28 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             ms.map(|ms| ms / 1e3)
         });
     let played = a.protocol.as_deref().map(protocol::read).transpose()?;
+    if a.no_images && (a.dynamic || played.is_some()) {
+        let steps = match played {
+            Some(steps) => steps,
+            None => protocol::dynamic(&a.design.with(a.seed, DynamicDesign::default().max_kpa))?,
+        };
+        let w = quick::write(&a.out, &steps, a.seed, &config.plant, &a.faults)
+            .with_context(|| format!("synth into {}", a.out.display()))?;
+        println!(
+            "wrote {} ({} rows, one per frame at {} fps, no images; {} frames fixed no point) and the true tips {}",
+            w.session.display(),
+            w.rows,
+            quick::FPS,
+            w.unseen,
+            w.truth.display()
+        );
+        return Ok(());
+    }
+    if !a.faults.is_empty() {
+        super::usage!(
+            "--fault needs --dynamic or --protocol (with --no-images): faults are injected in time"
+        );
+    }
     let capture_config = (!a.no_images).then(|| CaptureConfig {
         rig: RigConfig {
             baseline_mm: a.baseline_mm,

@@ -19,6 +19,7 @@ pub mod clutter;
 pub mod dynamics;
 pub mod image_format;
 pub mod plant;
+pub mod quick;
 pub mod render;
 pub mod scene;
 

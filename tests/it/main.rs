@@ -18,6 +18,7 @@ mod images;
 mod interval;
 mod lab;
 mod live;
+mod monitor;
 mod msvr;
 mod pipeline;
 mod search;

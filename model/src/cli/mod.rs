@@ -7,6 +7,7 @@ mod export;
 mod inverse;
 pub use inverse::PlanArgs;
 mod model;
+mod monitor;
 mod predict;
 pub mod protocol;
 
@@ -39,6 +40,9 @@ pub enum Modelling {
     Inverse(inverse::Args),
     /// A fitted model as a self-contained C header, for a controller to embed
     Export(export::Args),
+    /// Replay a triangulated session against a model: an online band and alarms when the
+    /// finger changed or a camera moved
+    Monitor(monitor::Args),
     /// The paper's pressure protocol → protocol.csv, for `capture --protocol`
     #[command(allow_negative_numbers = true)]
     Protocol(protocol::Args),
@@ -55,6 +59,7 @@ impl Modelling {
             Modelling::Predict(a) => predict::run(a),
             Modelling::Inverse(a) => inverse::run(a),
             Modelling::Export(a) => export::run(a),
+            Modelling::Monitor(a) => monitor::run(a),
             Modelling::Protocol(a) => protocol::run(a),
         }
     }

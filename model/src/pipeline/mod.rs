@@ -14,6 +14,7 @@
 pub mod export;
 pub mod fit;
 pub mod inverse;
+pub mod monitor;
 pub mod outputs;
 pub mod predict;
 pub mod trajectory;

@@ -1,0 +1,436 @@
+//! Trust as it runs: a session's rows replayed in time order against a fitted model, an online
+//! band around its predictions that holds its coverage on any session, and two alarms, each
+//! naming its channel.
+//!
+//! # The band
+//! The band's radius starts at the model file's calibrated radius r₀ at the level asked and
+//! follows the errors seen by quantile tracking (the P part of conformal PID control,
+//! Angelopoulos, Candès & Tibshirani 2023, which is adaptive conformal inference on the
+//! radius itself): after each row, r ← r + η (1[e > r] − α), α = 1 − level, η = `gain` · r₀.
+//! Whatever the errors do, the radius stays within [−η, max e + η], so over T rows the share
+//! the band missed is within (max e + 2η) / (η T) of α: the stated level holds on any session,
+//! drift or none, and after a change the band widens within a few dozen rows.
+//!
+//! # The alarms
+//! A band that follows the errors never says they changed; the alarms do. Each is a Bernoulli
+//! CUSUM (Page 1954) on one look every `look_s` (rows of a time series a frame apart are not
+//! independent; a second apart nearly are): the look counts as a miss when its value exceeds a
+//! fixed reference, a miss having probability p₀ while nothing changed, and the alarm asks
+//! whether the rate rose to p₁ = 5 p₀. Its statistic is the largest log-likelihood ratio of
+//! the looks since any time, S ← max(0, S + log(p₁/p₀) on a miss, log((1−p₁)/(1−p₀))
+//! otherwise), the alarm S ≥ h. With h = log(N), the mean number of looks before a false
+//! alarm is at least N (Lorden 1971): h comes from `false_alarm_hours`. The change is dated
+//! at the last look where S was 0 before the alarm. Each channel alarms once: what follows a
+//! change is the changed finger or rig, which only a refit or a new calibration ends.
+//!
+//! - **The finger changed** (model channel): the look's error against the lesser of r₀ and
+//!   the `level` quantile of the errors of the session's first `baseline_s`, p₀ = α. The model
+//!   file's radius was calibrated on held-out runs to be exceeded that often, and is often
+//!   wider than a new session of the finger it was fitted on needs (whole runs held out, a
+//!   model fitted on fewer rows); the session's own start then says what "unchanged" looks
+//!   like. A model already worse than its radius says is caught against r₀; a leak, an aged
+//!   muscle or a payload during the session, against the start.
+//! - **A camera moved** (geometry channel): the look's reprojection residual (px: how far the
+//!   triangulated tip reprojects from the beads found, model-free) against the 90th
+//!   percentile of the session's first `baseline_s`, p₀ = 0.1. A camera that turned no longer
+//!   agrees with the calibration; the tip it gives is wrong however good the model.
+//!
+//! Both alarms look from the end of the baseline on. The false-alarm bound holds for looks
+//! whose misses are independent at rate p₀; a session's errors are not quite that (the model
+//! errs more in some regions than others, and a finger creeps over minutes): on ten-minute
+//! virtual sessions with nothing changed, a minute's miss rate against the first two
+//! minutes' quantile ran 0.08-0.2. Watching for p₁ = 5 p₀, not less, is why such drift does
+//! not alarm: the statistic grows only when misses run above 0.27 (where the two
+//! log-likelihood steps balance), which a stiffness change of 15 % or a tilted camera passes
+//! within seconds.
+
+use serde::Serialize;
+
+/// How the monitor watches.
+#[derive(Clone, Debug, Serialize)]
+pub struct Settings {
+    /// The band's coverage (e.g. 0.9).
+    pub level: f64,
+    /// The band's step per row, a share of its starting radius.
+    pub gain: f64,
+    /// One look for the alarms every this many seconds.
+    pub look_s: f64,
+    /// The mean time between false alarms, at least (hours of looks).
+    pub false_alarm_hours: f64,
+    /// The geometry's reference: the session's first this many seconds.
+    pub baseline_s: f64,
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        Settings {
+            level: 0.9,
+            gain: 0.05,
+            look_s: 1.0,
+            false_alarm_hours: 24.0,
+            baseline_s: 120.0,
+        }
+    }
+}
+
+impl Settings {
+    /// Every rule, named.
+    ///
+    /// # Errors
+    /// The first setting out of its range, with the range.
+    pub fn check(&self) -> Result<(), String> {
+        let rules = [
+            (
+                self.level > 0.0 && self.level < 1.0,
+                "level must lie strictly between 0 and 1",
+            ),
+            (
+                self.gain > 0.0 && self.gain <= 1.0,
+                "gain must lie in (0, 1]",
+            ),
+            (
+                self.look_s > 0.0 && self.look_s.is_finite(),
+                "look_s must be a positive number of seconds",
+            ),
+            (
+                self.false_alarm_hours > 0.0 && self.false_alarm_hours.is_finite(),
+                "false_alarm_hours must be a positive number of hours",
+            ),
+            (
+                self.baseline_s > 0.0 && self.baseline_s.is_finite(),
+                "baseline_s must be a positive number of seconds",
+            ),
+        ];
+        rules
+            .into_iter()
+            .find(|(ok, _)| !ok)
+            .map_or(Ok(()), |(_, rule)| Err(rule.to_string()))
+    }
+
+    /// The alarms' threshold h = log(false-alarm looks).
+    pub fn threshold(&self) -> f64 {
+        (self.false_alarm_hours * 3600.0 / self.look_s)
+            .max(2.0)
+            .ln()
+    }
+}
+
+/// The online band's radius ([module docs](self)).
+#[derive(Clone, Debug)]
+pub struct Band {
+    radius: f64,
+    step: f64,
+    miss: f64,
+}
+
+impl Band {
+    /// A band starting at `radius` that tracks the `level` quantile with steps of `gain` ·
+    /// `radius`.
+    pub fn new(radius: f64, level: f64, gain: f64) -> Band {
+        Band {
+            radius,
+            step: gain * radius,
+            miss: 1.0 - level,
+        }
+    }
+
+    /// The radius for the next row.
+    pub fn radius(&self) -> f64 {
+        self.radius
+    }
+
+    /// Takes the row's error; whether the band held it.
+    pub fn update(&mut self, error: f64) -> bool {
+        let covered = error <= self.radius;
+        self.radius += self.step * (f64::from(u8::from(!covered)) - self.miss);
+        covered
+    }
+}
+
+/// A Bernoulli CUSUM ([module docs](self)).
+#[derive(Clone, Debug)]
+pub struct Cusum {
+    on_miss: f64,
+    on_hit: f64,
+    threshold: f64,
+    stat: f64,
+    looks: usize,
+    last_zero: usize,
+    fired: bool,
+}
+
+impl Cusum {
+    /// Misses at rate `p0` while nothing changed, watched for a rise to 5·`p0` (at most 0.9);
+    /// an alarm at `threshold`.
+    pub fn new(p0: f64, threshold: f64) -> Cusum {
+        let p1 = (5.0 * p0).min(0.9);
+        Cusum {
+            on_miss: (p1 / p0).ln(),
+            on_hit: ((1.0 - p1) / (1.0 - p0)).ln(),
+            threshold,
+            stat: 0.0,
+            looks: 0,
+            last_zero: 0,
+            fired: false,
+        }
+    }
+
+    /// The statistic now.
+    pub fn stat(&self) -> f64 {
+        self.stat
+    }
+
+    /// Takes one look; on the alarm (once), how many looks back the change began.
+    pub fn look(&mut self, missed: bool) -> Option<usize> {
+        self.looks += 1;
+        self.stat = (self.stat + if missed { self.on_miss } else { self.on_hit }).max(0.0);
+        if self.stat == 0.0 {
+            self.last_zero = self.looks;
+        }
+        (!self.fired && self.stat >= self.threshold).then(|| {
+            self.fired = true;
+            self.looks - self.last_zero
+        })
+    }
+}
+
+/// Which stream an alarm watched.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Channel {
+    /// The model's errors: the finger is no longer the finger modelled.
+    Model,
+    /// The cameras' agreement on the bead: the rig is no longer the rig calibrated.
+    Geometry,
+}
+
+impl Channel {
+    /// What the alarm says and what to do.
+    pub fn advice(self) -> &'static str {
+        match self {
+            Channel::Model => "the finger changed (a leak, wear, a payload): refit the model on the rows after the change",
+            Channel::Geometry => "a camera moved: recalibrate, then triangulate the session again",
+        }
+    }
+}
+
+/// One alarm.
+#[derive(Clone, Debug, Serialize)]
+pub struct Alarm {
+    pub channel: Channel,
+    /// When the alarm was raised (the row's time, s).
+    pub time_s: f64,
+    /// When the change began, as the CUSUM dates it (s).
+    pub change_s: f64,
+    /// The row the alarm was raised at (0-based).
+    pub row: usize,
+    pub advice: &'static str,
+}
+
+/// One row as the monitor saw it.
+#[derive(Clone, Debug)]
+pub struct Watched {
+    /// The band's radius before the row was seen.
+    pub band: f64,
+    pub covered: bool,
+    pub model_stat: f64,
+    pub geometry_stat: Option<f64>,
+    /// An alarm raised at this row.
+    pub alarm: Option<Channel>,
+}
+
+/// A session watched.
+#[derive(Clone, Debug, Serialize)]
+pub struct Monitored {
+    #[serde(skip)]
+    pub rows: Vec<Watched>,
+    pub alarms: Vec<Alarm>,
+    /// The share of rows the band held.
+    pub coverage: f64,
+    /// The model's radius at the level, from its file (the band's start).
+    pub start_radius: f64,
+    /// The model alarm's reference (output units).
+    pub model_reference: f64,
+    /// The geometry alarm's reference (px), when the rows have residuals.
+    pub geometry_reference_px: Option<f64>,
+    /// The alarms' threshold h.
+    pub threshold: f64,
+}
+
+/// Watches rows at `times` (s, rising) with the model's `errors` (the distance from the
+/// prediction to the measured tip) and, when known, the tips' reprojection `residuals` (px);
+/// `radius` is the model file's calibrated radius at `settings.level`.
+pub fn watch(
+    times: &[f64],
+    errors: &[f64],
+    residuals: Option<&[f64]>,
+    radius: f64,
+    settings: &Settings,
+) -> Monitored {
+    let threshold = settings.threshold();
+    let mut band = Band::new(radius, settings.level, settings.gain);
+    let baseline_end = times.first().copied().unwrap_or(0.0) + settings.baseline_s;
+    let baseline = times.partition_point(|&t| t < baseline_end);
+    let quantile = |values: &[f64], q: f64| {
+        crate::stats::quantiles(&mut values[..baseline].to_vec(), [q]).map(|[v]| v)
+    };
+    let model_reference = quantile(errors, settings.level).map_or(radius, |q| q.min(radius));
+    let mut model = Cusum::new(1.0 - settings.level, threshold);
+    let geometry_reference_px = residuals.and_then(|r| quantile(r, 0.9));
+    let mut geometry = geometry_reference_px.map(|_| Cusum::new(0.1, threshold));
+    let (mut rows, mut alarms) = (Vec::with_capacity(times.len()), Vec::new());
+    let (mut next_look, mut look_times) = (f64::NEG_INFINITY, Vec::new());
+    for (k, (&t, &e)) in times.iter().zip(errors).enumerate() {
+        let before = band.radius();
+        let covered = band.update(e);
+        let mut alarm = None;
+        if t >= baseline_end && t >= next_look {
+            next_look = t + settings.look_s;
+            look_times.push(t);
+            let mut raise = |channel: Channel, back: usize| {
+                let change_s = look_times[look_times.len() - 1 - back.min(look_times.len() - 1)];
+                alarms.push(Alarm {
+                    channel,
+                    time_s: t,
+                    change_s,
+                    row: k,
+                    advice: channel.advice(),
+                });
+                alarm = Some(channel);
+            };
+            if let Some(back) = model.look(e > model_reference) {
+                raise(Channel::Model, back);
+            }
+            let seen = residuals.map(|r| r[k]);
+            if let (Some(cusum), Some(reference), Some(r)) =
+                (geometry.as_mut(), geometry_reference_px, seen)
+            {
+                if let Some(back) = cusum.look(r > reference) {
+                    raise(Channel::Geometry, back);
+                }
+            }
+        }
+        rows.push(Watched {
+            band: before,
+            covered,
+            model_stat: model.stat(),
+            geometry_stat: geometry.as_ref().map(Cusum::stat),
+            alarm,
+        });
+    }
+    let coverage = rows.iter().filter(|r| r.covered).count() as f64 / rows.len().max(1) as f64;
+    Monitored {
+        rows,
+        alarms,
+        coverage,
+        start_radius: radius,
+        model_reference,
+        geometry_reference_px,
+        threshold,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// |N(0, 1)| errors, whose 0.9 quantile is 1.645.
+    fn errors(rng: &mut ChaCha8Rng, n: usize, scale: f64) -> Vec<f64> {
+        (0..n)
+            .map(|_| {
+                let (u, v): (f64, f64) = (rng.random(), rng.random());
+                scale * ((-2.0 * (1.0 - u).ln()).sqrt() * (std::f64::consts::TAU * v).cos()).abs()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_band_holds_its_level_through_a_change_and_widens_after_it() {
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        // 20 000 rows as calibrated, then 20 000 twice as large.
+        let mut e = errors(&mut rng, 20_000, 1.0);
+        e.extend(errors(&mut rng, 20_000, 2.0));
+        let times: Vec<f64> = (0..e.len()).map(|k| k as f64 / 30.0).collect();
+        let watched = watch(&times, &e, None, 1.645, &Settings::default());
+        assert!(
+            (watched.coverage - 0.9).abs() < 0.005,
+            "{}",
+            watched.coverage
+        );
+        let late = &watched.rows[35_000..];
+        let held = late.iter().filter(|r| r.covered).count() as f64 / late.len() as f64;
+        assert!((held - 0.9).abs() < 0.02, "after the change: {held}");
+        let band = late.iter().map(|r| r.band).sum::<f64>() / late.len() as f64;
+        assert!(
+            (band - 3.29).abs() < 0.25,
+            "the band found the new quantile: {band}"
+        );
+        // The finger changed at 666.7 s: one model alarm, soon after, dated near it.
+        let model: Vec<&Alarm> = watched
+            .alarms
+            .iter()
+            .filter(|a| a.channel == Channel::Model)
+            .collect();
+        assert!(!model.is_empty());
+        assert_eq!(model.len(), 1);
+        assert!(
+            model[0].time_s > 666.6 && model[0].time_s < 730.0,
+            "{:?}",
+            model[0]
+        );
+        assert!((model[0].change_s - 666.7).abs() < 30.0, "{:?}", model[0]);
+    }
+
+    /// 550 hours of looks with nothing changed, a fresh CUSUM after each false alarm: they
+    /// come no more often than asked (here once per 2 h at most, on average).
+    #[test]
+    fn false_alarms_are_no_more_frequent_than_stated() {
+        let mut rng = ChaCha8Rng::seed_from_u64(2);
+        let settings = Settings {
+            false_alarm_hours: 2.0,
+            ..Settings::default()
+        };
+        let looks = 2_000_000;
+        let mut cusum = Cusum::new(0.1, settings.threshold());
+        let mut alarms = 0;
+        for _ in 0..looks {
+            if cusum.look(rng.random::<f64>() < 0.1).is_some() {
+                alarms += 1;
+                cusum = Cusum::new(0.1, settings.threshold());
+            }
+        }
+        let per_hour = f64::from(alarms) / (f64::from(looks) / 3600.0);
+        assert!(per_hour <= 0.5, "{alarms} alarms in {} h", looks / 3600);
+    }
+
+    #[test]
+    fn a_camera_that_moves_raises_the_geometry_alarm_not_the_models() {
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let n = 30 * 300;
+        let e = errors(&mut rng, n, 1.0);
+        let mut r = errors(&mut rng, n, 0.2);
+        // At 200 s the residuals grow fourfold.
+        for v in &mut r[30 * 200..] {
+            *v *= 4.0;
+        }
+        let times: Vec<f64> = (0..n).map(|k| k as f64 / 30.0).collect();
+        let watched = watch(&times, &e, Some(&r), 1.645, &Settings::default());
+        assert_eq!(watched.alarms.len(), 1, "{:?}", watched.alarms);
+        let alarm = &watched.alarms[0];
+        assert_eq!(alarm.channel, Channel::Geometry);
+        assert!(alarm.time_s >= 200.0 && alarm.time_s < 230.0, "{alarm:?}");
+        assert!((alarm.change_s - 200.0).abs() < 10.0, "{alarm:?}");
+    }
+
+    #[test]
+    fn settings_out_of_range_are_named() {
+        let bad = Settings {
+            level: 1.0,
+            ..Settings::default()
+        };
+        assert!(bad.check().unwrap_err().contains("level"));
+        assert!(Settings::default().check().is_ok());
+    }
+}

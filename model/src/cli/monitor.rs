@@ -1,0 +1,56 @@
+//! `handcap monitor`: a triangulated session replayed against a fitted model, an online band
+//! and two alarms (the finger changed, a camera moved).
+
+use std::path::PathBuf;
+
+use crate::monitor::Settings;
+use crate::pipeline::monitor;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// The session's rows, as `handcap triangulate` writes them (per frame or per step): the
+    /// model's inputs and outputs, a time column, and `reproj_px` for the geometry alarm
+    session: PathBuf,
+    /// Model file written by `handcap model` (with intervals)
+    #[arg(long)]
+    model: PathBuf,
+    /// Directory to write monitor.csv, monitor.json, the figure and, after a model alarm,
+    /// after_change.csv (the rows from the change on, to refit the model on)
+    #[arg(long)]
+    out: PathBuf,
+    /// The time column (default: the model's, else time_s)
+    #[arg(long)]
+    time: Option<String>,
+    /// The online band's coverage
+    #[arg(long, default_value_t = Settings::default().level, value_parser = super::level)]
+    level: f64,
+    /// One look for the alarms every this many seconds (rows a frame apart are not
+    /// independent; a second apart nearly are)
+    #[arg(long, default_value_t = Settings::default().look_s, value_parser = super::finite)]
+    look_s: f64,
+    /// Hours of looks between false alarms, at least, on average
+    #[arg(long, default_value_t = Settings::default().false_alarm_hours, value_parser = super::finite)]
+    false_alarm_hours: f64,
+    /// The geometry alarm's reference: the session's first this many seconds
+    #[arg(long, default_value_t = Settings::default().baseline_s, value_parser = super::finite)]
+    baseline_s: f64,
+}
+
+pub fn run(a: Args) -> anyhow::Result<()> {
+    let watch = monitor::Watch {
+        session: &a.session,
+        model: &a.model,
+        out: &a.out,
+        time: a.time.as_deref(),
+        settings: Settings {
+            level: a.level,
+            look_s: a.look_s,
+            false_alarm_hours: a.false_alarm_hours,
+            baseline_s: a.baseline_s,
+            ..Settings::default()
+        },
+    };
+    let watched = super::with_session(|s| monitor::run(&watch, s.provenance(None)))?;
+    println!("{watched}");
+    Ok(())
+}

@@ -1,0 +1,323 @@
+//! The monitor stage: a triangulated session replayed in time order against a fitted model —
+//! the model's prediction, the measured tip, the error, the online band and the alarms
+//! ([`crate::monitor`]) — written as `monitor.csv`, `monitor.json` and a figure, and, after a
+//! model alarm, the rows from the change on (`after_change.csv`, to refit the model on).
+
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+
+use super::outputs::{self, Output};
+use super::PipelineError;
+use crate::data::{self, Columns, Csv};
+use crate::model::file::ModelFile;
+use crate::monitor::{self, Channel, Monitored, Settings};
+use crate::plot::{self, LinePlot, Mark, Series};
+use crate::provenance::Provenance;
+
+/// The column of the tips' reprojection residual (px) `triangulate` writes, read when present.
+pub const RESIDUAL_COLUMN: &str = "reproj_px";
+
+/// What to watch.
+pub struct Watch<'a> {
+    pub session: &'a Path,
+    pub model: &'a Path,
+    pub out: &'a Path,
+    /// The time column; the model's own when it has input history.
+    pub time: Option<&'a str>,
+    pub settings: Settings,
+}
+
+/// What [`run`] found and wrote.
+#[derive(Serialize)]
+pub struct Watched {
+    pub session: PathBuf,
+    pub model: PathBuf,
+    pub settings: Settings,
+    pub rows: usize,
+    #[serde(flatten)]
+    pub monitored: Monitored,
+    /// The rows from the first model alarm's change on, when one was raised.
+    pub after_change: Option<PathBuf>,
+    pub provenance: Provenance,
+    #[serde(skip)]
+    pub out: PathBuf,
+}
+
+/// Replays `watch.session` against `watch.model` and writes into `watch.out`.
+///
+/// # Errors
+/// Unreadable files, a model without intervals, a session without the model's columns or a
+/// time column, settings out of range.
+pub fn run(watch: &Watch, provenance: Provenance) -> Result<Watched, PipelineError> {
+    watch.settings.check().map_err(PipelineError::Request)?;
+    let names = [
+        "monitor.csv",
+        "monitor.json",
+        "after_change.csv",
+        "monitor.png",
+        "monitor.svg",
+    ];
+    let files: Vec<Output> = names
+        .iter()
+        .map(|n| Output::new(watch.out.join(n), "the monitor's output"))
+        .collect();
+    outputs::check(&[watch.session, watch.model], &files)?;
+    let replay = Replay::read(watch)?;
+    let monitored = monitor::watch(
+        &replay.times,
+        &replay.errors,
+        replay.residuals.as_deref(),
+        replay.radius,
+        &watch.settings,
+    );
+    std::fs::create_dir_all(watch.out).map_err(super::io_error(watch.out))?;
+    replay.write(&watch.out.join("monitor.csv"), &monitored)?;
+    let after_change = after_change(watch, &replay.time, &monitored)?;
+    let stem = watch.out.join("monitor");
+    write_figure(&stem, &replay, &monitored, watch.settings.level)?;
+    let watched = Watched {
+        session: watch.session.to_path_buf(),
+        model: watch.model.to_path_buf(),
+        settings: watch.settings.clone(),
+        rows: replay.times.len(),
+        monitored,
+        after_change,
+        provenance,
+        out: watch.out.to_path_buf(),
+    };
+    let json = serde_json::to_vec_pretty(&watched).expect("the monitor's summary serialises");
+    let path = watch.out.join("monitor.json");
+    crate::fsio::write_bytes(&path, &json).map_err(super::io_error(&path))?;
+    Ok(watched)
+}
+
+/// A session's rows as the monitor replays them.
+struct Replay {
+    /// The time column's name, and its values.
+    time: String,
+    times: Vec<f64>,
+    predicted: Columns,
+    measured: Columns,
+    /// The distance from each prediction to its measured tip.
+    errors: Vec<f64>,
+    residuals: Option<Vec<f64>>,
+    /// The model file's radius at the level.
+    radius: f64,
+}
+
+impl Replay {
+    fn read(watch: &Watch) -> Result<Replay, PipelineError> {
+        let file = ModelFile::load(watch.model)?;
+        let radius = file.interval_radius(watch.settings.level).map_err(|e| {
+            PipelineError::Input(format!("{}: interval: {e}", watch.model.display()))
+        })?;
+        let predictor = file.model.predictor();
+        let (_, x) = file.read_inputs(watch.session)?;
+        let predicted = predictor.predict(&x)?;
+        let measured = data::read_columns(watch.session, predictor.outputs())?;
+        let time = match (watch.time, file.history()) {
+            (Some(t), _) => t.to_string(),
+            (None, Some(h)) => h.time.clone(),
+            (None, None) => "time_s".to_string(),
+        };
+        let times: Vec<f64> = data::read_columns(watch.session, std::slice::from_ref(&time))
+            .map_err(|e| {
+                PipelineError::Input(format!("{e}; name the session's time column with --time"))
+            })?
+            .column(0)
+            .collect();
+        if let Some(k) = times.windows(2).position(|w| w[1] < w[0]) {
+            return Err(PipelineError::Input(format!(
+                "{}: {time} goes back at data row {} ({} after {}); the monitor replays rows in time order: sort the file by {time}",
+                watch.session.display(),
+                k + 2,
+                times[k + 1],
+                times[k]
+            )));
+        }
+        let errors: Vec<f64> = (0..x.rows())
+            .map(|i| {
+                let (p, m) = (predicted.row(i), measured.row(i));
+                p.iter()
+                    .zip(m)
+                    .map(|(a, b)| (a - b).powi(2))
+                    .sum::<f64>()
+                    .sqrt()
+            })
+            .collect();
+        let residuals = data::header(watch.session)?
+            .iter()
+            .any(|c| c == RESIDUAL_COLUMN)
+            .then(|| data::read_columns(watch.session, &[RESIDUAL_COLUMN.to_string()]))
+            .transpose()?
+            .map(|c| c.column(0).collect::<Vec<f64>>());
+        Ok(Replay {
+            time,
+            times,
+            predicted,
+            measured,
+            errors,
+            residuals,
+            radius,
+        })
+    }
+
+    /// `monitor.csv`: each row's time, prediction, measured tip, error, band, statistics and
+    /// alarm.
+    fn write(&self, path: &Path, monitored: &Monitored) -> Result<(), PipelineError> {
+        let outputs = &self.measured.names;
+        let mut csv = Csv::new(
+            std::iter::once(self.time.clone())
+                .chain(outputs.iter().map(|o| format!("predicted_{o}")))
+                .chain(outputs.iter().cloned())
+                .chain(
+                    [
+                        "error",
+                        "band",
+                        "covered",
+                        "model_cusum",
+                        RESIDUAL_COLUMN,
+                        "geometry_cusum",
+                        "alarm",
+                    ]
+                    .map(String::from),
+                ),
+        );
+        let number = data::format_number;
+        for (i, row) in monitored.rows.iter().enumerate() {
+            let mut record = vec![number(self.times[i])];
+            record.extend(self.predicted.row(i).iter().map(|&v| number(v)));
+            record.extend(self.measured.row(i).iter().map(|&v| number(v)));
+            record.extend([
+                number(self.errors[i]),
+                number(row.band),
+                u8::from(row.covered).to_string(),
+                number(row.model_stat),
+                self.residuals
+                    .as_ref()
+                    .map_or_else(String::new, |r| number(r[i])),
+                row.geometry_stat.map_or_else(String::new, number),
+                row.alarm
+                    .map_or_else(String::new, |c| channel_name(c).to_string()),
+            ]);
+            csv.row(record);
+        }
+        Ok(csv.write(path)?)
+    }
+}
+
+/// After a model alarm, `after_change.csv`: the session's rows from the change on, as they
+/// were; without one, no such file (a previous run's would pass for this one's).
+fn after_change(
+    watch: &Watch,
+    time: &str,
+    monitored: &Monitored,
+) -> Result<Option<PathBuf>, PipelineError> {
+    let path = watch.out.join("after_change.csv");
+    match monitored
+        .alarms
+        .iter()
+        .find(|a| a.channel == Channel::Model)
+    {
+        Some(alarm) => {
+            let change = alarm.change_s;
+            data::copy_rows(watch.session, &path, &[time.to_string()], |t| {
+                t[0] >= change
+            })?;
+            Ok(Some(path))
+        }
+        None => match std::fs::remove_file(&path) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(super::io_error(&path)(e)),
+            _ => Ok(None),
+        },
+    }
+}
+
+fn channel_name(channel: Channel) -> &'static str {
+    match channel {
+        Channel::Model => "model",
+        Channel::Geometry => "geometry",
+    }
+}
+
+/// The errors, the band and the alarms over time.
+fn write_figure(
+    stem: &Path,
+    replay: &Replay,
+    monitored: &Monitored,
+    level: f64,
+) -> Result<(), PipelineError> {
+    let (times, errors) = (&replay.times, &replay.errors);
+    let at = |f: &dyn Fn(usize) -> f64| -> Vec<(f64, f64)> {
+        (0..times.len()).map(|i| (times[i], f(i))).collect()
+    };
+    let top = errors
+        .iter()
+        .copied()
+        .fold(monitored.start_radius, f64::max);
+    let series = vec![
+        Series {
+            label: "error (prediction to measured tip)".into(),
+            points: at(&|i| errors[i]),
+            mark: Mark::Points,
+            colour: 0,
+        },
+        Series {
+            label: format!("online band ({} %)", 100.0 * level),
+            points: at(&|i| monitored.rows[i].band),
+            mark: Mark::Line,
+            colour: 1,
+        },
+        Series {
+            label: "alarm".into(),
+            points: monitored.alarms.iter().map(|a| (a.time_s, top)).collect(),
+            mark: Mark::Points,
+            colour: 3,
+        },
+    ];
+    let figure = LinePlot {
+        title: "The model's error as the session ran".into(),
+        x_label: "time (s)".into(),
+        y_label: "distance (output units)".into(),
+        series,
+        log_y: false,
+        x_names: Vec::new(),
+    };
+    plot::write_line_plot(stem, &figure).map_err(|e| PipelineError::Report(e.into()))
+}
+
+impl std::fmt::Display for Watched {
+    fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        let m = &self.monitored;
+        writeln!(
+            f,
+            "{} rows; the online {} % band held {:.1} % of them (it started at the model's radius {:.4})",
+            self.rows,
+            100.0 * self.settings.level,
+            100.0 * m.coverage,
+            m.start_radius
+        )?;
+        if m.alarms.is_empty() {
+            writeln!(
+                f,
+                "no alarm (at most one false alarm per {} h of looks)",
+                self.settings.false_alarm_hours
+            )?;
+        }
+        for a in &m.alarms {
+            writeln!(
+                f,
+                "alarm at {:.1} s ({} channel; the change began about {:.1} s): {}",
+                a.time_s,
+                channel_name(a.channel),
+                a.change_s,
+                a.advice
+            )?;
+        }
+        if let Some(path) = &self.after_change {
+            writeln!(f, "the rows from the change on: {}", path.display())?;
+        }
+        write!(f, "wrote {}", self.out.join("monitor.csv").display())
+    }
+}

@@ -1,0 +1,209 @@
+//! `handcap monitor` on data-level virtual sessions (`synth --dynamic --no-images`) with faults
+//! injected at known times (issue 60): a finger made softer raises the model alarm, a tilted
+//! camera the geometry alarm, and a session where nothing changed raises none; the online
+//! band holds its level on each.
+
+use std::path::Path;
+
+use crate::common::{csv_rows, handcap_err, handcap_ok, handcap_usage, read_json, tempdir};
+
+/// A history model with intervals of three 40 s data-level trials of seed 1, in `d/model.json`
+/// (the kernel the trajectory tests give, to spare the search).
+fn fit(d: &Path) {
+    let synth = ["synth", "--dynamic", "--no-images", "--out", "train"];
+    handcap_ok(
+        d,
+        &[
+            &synth[..],
+            &["--duration-s", "40", "--trials", "3", "--seed", "1"],
+        ]
+        .concat(),
+    );
+    let mut args = vec![
+        "model",
+        "train/session.csv",
+        "--inputs",
+        "P1_kpa,P2_kpa,P3_kpa",
+    ];
+    args.extend([
+        "--outputs",
+        "x_mm,y_mm,z_mm",
+        "--time",
+        "time_s",
+        "--group-by",
+        "phase",
+    ]);
+    args.extend(["--history", "ema:0.0167,0.0667,0.267", "--search", "none"]);
+    args.extend(["--c", "156.67", "--epsilon", "0.0301", "--sigma", "1.364"]);
+    args.extend(["--intervals", "--folds", "3", "--out", "model.json"]);
+    handcap_ok(d, &args);
+}
+
+/// A 300 s data-level session of seed 5 with `fault` (if any) in `d/name`, watched into
+/// `d/name_watch`; the monitor's summary.
+fn watch(d: &Path, name: &str, fault: Option<&str>) -> serde_json::Value {
+    let mut synth = vec![
+        "synth",
+        "--dynamic",
+        "--no-images",
+        "--out",
+        name,
+        "--seed",
+        "5",
+    ];
+    synth.extend(["--duration-s", "300", "--trials", "1"]);
+    synth.extend(fault.iter().flat_map(|f| ["--fault", f]));
+    handcap_ok(d, &synth);
+    let session = format!("{name}/session.csv");
+    let out = format!("{name}_watch");
+    handcap_ok(
+        d,
+        &["monitor", &session, "--model", "model.json", "--out", &out],
+    );
+    read_json(&d.join(&out).join("monitor.json"))
+}
+
+#[test]
+fn a_softer_finger_and_a_tilted_camera_each_raise_their_own_alarm_and_nothing_else_does() {
+    let dir = tempdir();
+    let d = dir.path();
+    fit(d);
+    let alarms = |v: &serde_json::Value| -> Vec<(String, f64, f64)> {
+        v["alarms"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|a| {
+                let n = |k: &str| a[k].as_f64().unwrap();
+                (
+                    a["channel"].as_str().unwrap().to_string(),
+                    n("time_s"),
+                    n("change_s"),
+                )
+            })
+            .collect()
+    };
+    for (name, fault) in [
+        ("calm", None),
+        ("soft", Some("stiffness@150=-0.15")),
+        ("tilt", Some("camera@150=0.3")),
+    ] {
+        let v = watch(d, name, fault);
+        let coverage = v["coverage"].as_f64().unwrap();
+        assert!(
+            (coverage - 0.9).abs() < 0.01,
+            "{name}: the band held {coverage}"
+        );
+        let raised = alarms(&v);
+        eprintln!("monitor {name}: coverage {coverage:.4}, alarms {raised:?}");
+        match name {
+            "calm" => {
+                assert!(raised.is_empty(), "{name}: {raised:?}");
+                assert!(!d.join("calm_watch/after_change.csv").exists());
+            }
+            "soft" => {
+                let (channel, time, change) = &raised[0];
+                assert_eq!(channel, "model", "{raised:?}");
+                assert!(*time > 150.0 && *time < 240.0, "{raised:?}");
+                assert!(*change > 120.0 && *change < *time, "{raised:?}");
+                // The rows to refit on are the session's from the change on, as they were.
+                let after = csv_rows(&d.join("soft_watch/after_change.csv"));
+                let whole = csv_rows(&d.join("soft/session.csv"));
+                let first: f64 = after[0]["time_s"].parse().unwrap();
+                assert!((first - change).abs() < 0.05, "{first} {change}");
+                assert_eq!(after.last(), whole.last());
+            }
+            _ => {
+                let (channel, time, change) = &raised[0];
+                assert_eq!(channel, "geometry", "{raised:?}");
+                assert!(*time > 150.0 && *time < 170.0, "{raised:?}");
+                assert!((change - 150.0).abs() < 5.0, "{raised:?}");
+            }
+        }
+    }
+    // monitor.csv: a row per session row, the alarm on the row it was raised at.
+    let rows = csv_rows(&d.join("tilt_watch/monitor.csv"));
+    let raised: Vec<&str> = rows
+        .iter()
+        .map(|r| r["alarm"].as_str())
+        .filter(|a| !a.is_empty())
+        .collect();
+    assert_eq!(raised, ["geometry"]);
+    assert!(d.join("tilt_watch/monitor.svg").is_file());
+}
+
+#[test]
+fn monitor_refuses_a_model_without_intervals_and_a_session_without_time_in_one_line() {
+    let dir = tempdir();
+    let d = dir.path();
+    let synth = [
+        "synth",
+        "--dynamic",
+        "--no-images",
+        "--out",
+        "s",
+        "--duration-s",
+        "20",
+    ];
+    handcap_ok(d, &[&synth[..], &["--trials", "1"]].concat());
+    let mut args = vec!["model", "s/session.csv", "--inputs", "P1_kpa,P2_kpa,P3_kpa"];
+    args.extend([
+        "--outputs",
+        "x_mm,y_mm,z_mm",
+        "--search",
+        "none",
+        "--out",
+        "bare.json",
+    ]);
+    handcap_ok(d, &args);
+    let e = handcap_err(
+        d,
+        &[
+            "monitor",
+            "s/session.csv",
+            "--model",
+            "bare.json",
+            "--out",
+            "w",
+        ],
+    );
+    assert!(e.contains("bare.json") && e.contains("--intervals"), "{e}");
+    assert_eq!(e.trim().lines().count(), 1, "{e}");
+    assert!(!d.join("w/monitor.csv").exists());
+    args.pop();
+    args.extend(["with.json", "--intervals"]);
+    handcap_ok(d, &args);
+    let e = handcap_err(
+        d,
+        &[
+            "monitor",
+            "s/session.csv",
+            "--model",
+            "with.json",
+            "--out",
+            "w",
+            "--time",
+            "t",
+        ],
+    );
+    assert!(e.contains("--time"), "{e}");
+    assert!(!d.join("w/monitor.csv").exists());
+    let e = handcap_usage(
+        d,
+        &["synth", "--dynamic", "--out", "r", "--fault", "leak@5=0.1"],
+    );
+    assert!(e.contains("--no-images"), "{e}");
+    let e = handcap_usage(
+        d,
+        &[
+            "synth",
+            "--dynamic",
+            "--no-images",
+            "--out",
+            "r",
+            "--fault",
+            "payload@5=1",
+        ],
+    );
+    assert!(e.contains("KIND@T=AMOUNT"), "{e}");
+}
