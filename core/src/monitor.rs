@@ -198,18 +198,19 @@ impl Cusum {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Channel {
-    /// The model's errors: the finger is no longer the finger modelled.
-    Model,
-    /// The cameras' agreement on the bead: the rig is no longer the rig calibrated.
-    Geometry,
+    /// The model channel (its errors): the finger is no longer the finger modelled.
+    Finger,
+    /// The geometry channel (the cameras' agreement on the bead): a camera is no longer where
+    /// it was calibrated.
+    Camera,
 }
 
 impl Channel {
     /// What the alarm says and what to do.
     pub fn advice(self) -> &'static str {
         match self {
-            Channel::Model => "the finger changed (a leak, wear, a payload): refit the model on the rows after the change",
-            Channel::Geometry => "a camera moved: recalibrate, then triangulate the session again",
+            Channel::Finger => "the finger changed (a leak, wear, a payload): refit the model on the rows after the change",
+            Channel::Camera => "a camera moved: recalibrate, then triangulate the session again",
         }
     }
 }
@@ -299,14 +300,14 @@ pub fn watch(
                 alarm = Some(channel);
             };
             if let Some(back) = model.look(e > model_reference) {
-                raise(Channel::Model, back);
+                raise(Channel::Finger, back);
             }
             let seen = residuals.map(|r| r[k]);
             if let (Some(cusum), Some(reference), Some(r)) =
                 (geometry.as_mut(), geometry_reference_px, seen)
             {
                 if let Some(back) = cusum.look(r > reference) {
-                    raise(Channel::Geometry, back);
+                    raise(Channel::Camera, back);
                 }
             }
         }
@@ -371,7 +372,7 @@ mod tests {
         let model: Vec<&Alarm> = watched
             .alarms
             .iter()
-            .filter(|a| a.channel == Channel::Model)
+            .filter(|a| a.channel == Channel::Finger)
             .collect();
         assert!(!model.is_empty());
         assert_eq!(model.len(), 1);
@@ -419,7 +420,7 @@ mod tests {
         let watched = watch(&times, &e, Some(&r), 1.645, &Settings::default());
         assert_eq!(watched.alarms.len(), 1, "{:?}", watched.alarms);
         let alarm = &watched.alarms[0];
-        assert_eq!(alarm.channel, Channel::Geometry);
+        assert_eq!(alarm.channel, Channel::Camera);
         assert!(alarm.time_s >= 200.0 && alarm.time_s < 230.0, "{alarm:?}");
         assert!((alarm.change_s - 200.0).abs() < 10.0, "{alarm:?}");
     }

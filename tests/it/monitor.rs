@@ -103,7 +103,7 @@ fn a_softer_finger_and_a_tilted_camera_each_raise_their_own_alarm_and_nothing_el
             }
             "soft" => {
                 let (channel, time, change) = &raised[0];
-                assert_eq!(channel, "model", "{raised:?}");
+                assert_eq!(channel, "finger", "{raised:?}");
                 assert!(*time > 150.0 && *time < 240.0, "{raised:?}");
                 assert!(*change > 120.0 && *change < *time, "{raised:?}");
                 // The rows to refit on are the session's from the change on, as they were.
@@ -115,7 +115,7 @@ fn a_softer_finger_and_a_tilted_camera_each_raise_their_own_alarm_and_nothing_el
             }
             _ => {
                 let (channel, time, change) = &raised[0];
-                assert_eq!(channel, "geometry", "{raised:?}");
+                assert_eq!(channel, "camera", "{raised:?}");
                 assert!(*time > 150.0 && *time < 170.0, "{raised:?}");
                 assert!((change - 150.0).abs() < 5.0, "{raised:?}");
             }
@@ -128,7 +128,7 @@ fn a_softer_finger_and_a_tilted_camera_each_raise_their_own_alarm_and_nothing_el
         .map(|r| r["alarm"].as_str())
         .filter(|a| !a.is_empty())
         .collect();
-    assert_eq!(raised, ["geometry"]);
+    assert_eq!(raised, ["camera"]);
     assert!(d.join("tilt_watch/monitor.svg").is_file());
 }
 

@@ -218,7 +218,7 @@ fn after_change(
     match monitored
         .alarms
         .iter()
-        .find(|a| a.channel == Channel::Model)
+        .find(|a| a.channel == Channel::Finger)
     {
         Some(alarm) => {
             let change = alarm.change_s;
@@ -236,8 +236,8 @@ fn after_change(
 
 fn channel_name(channel: Channel) -> &'static str {
     match channel {
-        Channel::Model => "model",
-        Channel::Geometry => "geometry",
+        Channel::Finger => "finger",
+        Channel::Camera => "camera",
     }
 }
 
@@ -308,9 +308,9 @@ impl std::fmt::Display for Watched {
         for a in &m.alarms {
             writeln!(
                 f,
-                "alarm at {:.1} s ({} channel; the change began about {:.1} s): {}",
-                a.time_s,
+                "alarm: {} at {:.1} s (the change began about {:.1} s): {}",
                 channel_name(a.channel),
+                a.time_s,
                 a.change_s,
                 a.advice
             )?;
