@@ -207,3 +207,56 @@ fn monitor_refuses_a_model_without_intervals_and_a_session_without_time_in_one_l
     );
     assert!(e.contains("KIND@T=AMOUNT"), "{e}");
 }
+
+/// A session directory as capture writes it (a short rendered dynamic session) and its
+/// calibration: monitor triangulates it per frame (the rows kept beside its files) and replays
+/// those rows; a model of the data-level finger predicts the rendered one's tips.
+#[test]
+fn a_session_directory_is_triangulated_then_watched() {
+    let dir = tempdir();
+    let d = dir.path();
+    crate::triangulate::dynamic_session(d);
+    fit(d);
+    let args = [
+        "monitor",
+        "s",
+        "--calib",
+        "calib.yml",
+        "--model",
+        "model.json",
+    ];
+    let said = handcap_ok(d, &[&args[..], &["--out", "w"]].concat());
+    assert!(said.contains("band held"), "{said}");
+    let rows = csv_rows(&d.join("w/rows.csv"));
+    let watched = csv_rows(&d.join("w/monitor.csv"));
+    let unflagged = rows.iter().filter(|r| r["flag"].is_empty()).count();
+    assert!(
+        unflagged > 100 && watched.len() == unflagged,
+        "{unflagged} {}",
+        watched.len()
+    );
+    // The rendered finger is the modelled one: its errors are the model's, not a camera's.
+    let mut errors: Vec<f64> = watched
+        .iter()
+        .map(|r| r["error"].parse().unwrap())
+        .collect();
+    errors.sort_by(f64::total_cmp);
+    let median = errors[errors.len() / 2];
+    assert!(median < 1.0, "median error {median} mm");
+    let e = handcap_usage(
+        d,
+        &[
+            "monitor",
+            "w/rows.csv",
+            "--calib",
+            "calib.yml",
+            "--model",
+            "model.json",
+            "--out",
+            "v",
+        ],
+    );
+    assert!(e.contains("--calib"), "{e}");
+    let e = handcap_usage(d, &["monitor", "s", "--model", "model.json", "--out", "v"]);
+    assert!(e.contains("--calib"), "{e}");
+}

@@ -993,7 +993,7 @@ fn videos_without_frames_csv_are_timed_by_their_own_timestamps() {
 
 /// A short dynamic session (`synth --dynamic`: one trial of 3 s between rest holds, lab frames
 /// as PNG), calibrated, in `dir/s` with `dir/calib.yml`.
-fn dynamic_session(d: &Path) {
+pub fn dynamic_session(d: &Path) {
     dynamic_session_with(d, &["--duration-s", "3", "--trials", "1"]);
 }
 

@@ -1,7 +1,7 @@
 //! `handcap monitor`: a triangulated session replayed against a fitted model, an online band
 //! and two alarms (the finger changed, a camera moved).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use crate::monitor::Settings;
 use crate::pipeline::monitor;
@@ -9,8 +9,13 @@ use crate::pipeline::monitor;
 #[derive(clap::Args)]
 pub struct Args {
     /// The session's rows, as `handcap triangulate` writes them (per frame or per step): the
-    /// model's inputs and outputs, a time column, and `reproj_px` for the geometry alarm
+    /// model's inputs and outputs, a time column, and `reproj_px` for the camera alarm; or a
+    /// session directory as `capture` writes it, with --calib: triangulated per frame first
+    /// (into OUT/rows.csv)
     session: PathBuf,
+    /// The session directory's calibration, to triangulate it with
+    #[arg(long)]
+    calib: Option<PathBuf>,
     /// Model file written by `handcap model` (with intervals)
     #[arg(long)]
     model: PathBuf,
@@ -37,8 +42,17 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
+    let rows = match (a.session.is_dir(), &a.calib) {
+        (true, Some(calib)) => triangulate(&a.session, calib, &a.out)?,
+        (true, None) => super::usage!(
+            "{} is a session directory: give its calibration with --calib to triangulate it, or give the rows triangulate wrote",
+            a.session.display()
+        ),
+        (false, Some(_)) => super::usage!("--calib is for a session directory; {} is a file of rows, already triangulated", a.session.display()),
+        (false, None) => a.session.clone(),
+    };
     let watch = monitor::Watch {
-        session: &a.session,
+        session: &rows,
         model: &a.model,
         out: &a.out,
         time: a.time.as_deref(),
@@ -53,4 +67,27 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     let watched = super::with_session(|s| monitor::run(&watch, s.provenance(None)))?;
     println!("{watched}");
     Ok(())
+}
+
+/// `handcap triangulate SESSION/frames --calib CALIB --per-frame --out OUT/rows.csv`, run as
+/// its own process (triangulation is the camera binary's: this one links no OpenCV); the rows.
+fn triangulate(session: &Path, calib: &Path, out: &Path) -> anyhow::Result<PathBuf> {
+    let rows = out.join("rows.csv");
+    std::fs::create_dir_all(out)?;
+    let status = std::process::Command::new(std::env::current_exe()?)
+        .arg("triangulate")
+        .arg(session.join("frames"))
+        .arg("--calib")
+        .arg(calib)
+        .arg("--per-frame")
+        .arg("--out")
+        .arg(&rows)
+        .status()?;
+    if !status.success() {
+        anyhow::bail!(
+            "triangulating {} failed (its message above); the monitor needs its rows",
+            session.display()
+        );
+    }
+    Ok(rows)
 }
