@@ -10,7 +10,7 @@ use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use handcap::monitor::{watch, Settings};
+use handcap::monitor::{watch, Series, Settings};
 
 fn bench(c: &mut Criterion) {
     let n = 30 * 3600;
@@ -22,7 +22,15 @@ fn bench(c: &mut Criterion) {
     group.throughput(Throughput::Elements(n as u64));
     group.bench_function("watch an hour at 30 fps (both channels)", |b| {
         b.iter(|| {
-            let m = watch(&times, &errors, Some(&residuals), 0.9, &Settings::default());
+            let errors = Series {
+                times: &times,
+                values: &errors,
+            };
+            let geometry = Series {
+                times: &times,
+                values: &residuals,
+            };
+            let m = watch(errors, Some(geometry), 0.9, &Settings::default());
             black_box(m.coverage)
         })
     });

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Sizes the code is held to: functions in src/, core/src/ and model/src/ over 120 lines, files
-over 600 (but the solver's), and the command line's folders (src/cli/, model/src/cli/) over 1750
+over 600 (but the solver's), and the command line's folders (src/cli/, model/src/cli/) over 1800
 lines.
 
 What is counted is the code a reader holds in mind, as the function rule always has: a file
@@ -23,9 +23,9 @@ ROOT = pathlib.Path(__file__).resolve().parent.parent
 FUNCTION_LINES = 120
 FILE_LINES = 600
 # 1400 until `handcap lab` and `handcap follow`, commands of their own, came (their flags and
-# runs about 100 lines each); 1750 since `handcap monitor` (a command of its own, 50 lines) and
-# synth's faults.
-CLI_LINES = 1750
+# runs about 100 lines each); 1800 since `handcap monitor` (a command of its own, 80 lines with
+# the session directory it triangulates first) and the faults of synth and lab.
+CLI_LINES = 1800
 # The one file allowed over FILE_LINES: the exact solver.
 SOLVER = "core/src/model/msvr/irwls.rs"
 

@@ -258,67 +258,124 @@ pub struct Monitored {
     pub threshold: f64,
 }
 
-/// Watches rows at `times` (s, rising) with the model's `errors` (the distance from the
-/// prediction to the measured tip) and, when known, the tips' reprojection `residuals` (px);
-/// `radius` is the model file's calibrated radius at `settings.level`.
+/// One channel's values at their times (s, rising).
+#[derive(Clone, Copy, Debug)]
+pub struct Series<'a> {
+    pub times: &'a [f64],
+    pub values: &'a [f64],
+}
+
+/// A channel watched: its statistic after each of its values, and its alarm (the value's
+/// index, and when the change began).
+struct Channelled {
+    stats: Vec<f64>,
+    alarm: Option<(usize, f64)>,
+}
+
+/// Looks at `series` once every `settings.look_s` from `from` s on, a miss a value over
+/// `reference` (expected at rate `p0`), through a [`Cusum`].
+fn looks(series: Series, reference: f64, p0: f64, from: f64, settings: &Settings) -> Channelled {
+    let mut cusum = Cusum::new(p0, settings.threshold());
+    let (mut next, mut look_times, mut alarm) = (from, Vec::new(), None);
+    let stats = series
+        .times
+        .iter()
+        .zip(series.values)
+        .enumerate()
+        .map(|(k, (&t, &v))| {
+            if t >= next {
+                next = t + settings.look_s;
+                look_times.push(t);
+                if let Some(back) = cusum.look(v > reference) {
+                    let n = look_times.len();
+                    alarm = Some((k, look_times[n - 1 - back.min(n - 1)]));
+                }
+            }
+            cusum.stat()
+        })
+        .collect();
+    Channelled { stats, alarm }
+}
+
+/// Watches the model's `errors` (the distance from each prediction to its measured tip) and,
+/// when known, the `geometry` (each row's reprojection residual, px; +∞ where the views
+/// disagreed beyond the triangulation's gate); `radius` is the model file's calibrated
+/// radius at `settings.level`.
 pub fn watch(
-    times: &[f64],
-    errors: &[f64],
-    residuals: Option<&[f64]>,
+    errors: Series,
+    geometry: Option<Series>,
     radius: f64,
     settings: &Settings,
 ) -> Monitored {
-    let threshold = settings.threshold();
-    let mut band = Band::new(radius, settings.level, settings.gain);
-    let baseline_end = times.first().copied().unwrap_or(0.0) + settings.baseline_s;
-    let baseline = times.partition_point(|&t| t < baseline_end);
-    let quantile = |values: &[f64], q: f64| {
-        crate::stats::quantiles(&mut values[..baseline].to_vec(), [q]).map(|[v]| v)
+    let first = |s: Series| s.times.first().copied().unwrap_or(f64::INFINITY);
+    let start = first(errors).min(geometry.map_or(f64::INFINITY, first));
+    let baseline_end = start + settings.baseline_s;
+    let baseline = |s: Series, q: f64| {
+        let n = s.times.partition_point(|&t| t < baseline_end);
+        crate::stats::quantiles(&mut s.values[..n].to_vec(), [q]).map(|[v]| v)
     };
-    let model_reference = quantile(errors, settings.level).map_or(radius, |q| q.min(radius));
-    let mut model = Cusum::new(1.0 - settings.level, threshold);
-    let geometry_reference_px = residuals.and_then(|r| quantile(r, 0.9));
-    let mut geometry = geometry_reference_px.map(|_| Cusum::new(0.1, threshold));
-    let (mut rows, mut alarms) = (Vec::with_capacity(times.len()), Vec::new());
-    let (mut next_look, mut look_times) = (f64::NEG_INFINITY, Vec::new());
-    for (k, (&t, &e)) in times.iter().zip(errors).enumerate() {
-        let before = band.radius();
-        let covered = band.update(e);
-        let mut alarm = None;
-        if t >= baseline_end && t >= next_look {
-            next_look = t + settings.look_s;
-            look_times.push(t);
-            let mut raise = |channel: Channel, back: usize| {
-                let change_s = look_times[look_times.len() - 1 - back.min(look_times.len() - 1)];
-                alarms.push(Alarm {
-                    channel,
-                    time_s: t,
-                    change_s,
-                    row: k,
-                    advice: channel.advice(),
-                });
-                alarm = Some(channel);
-            };
-            if let Some(back) = model.look(e > model_reference) {
-                raise(Channel::Finger, back);
-            }
-            let seen = residuals.map(|r| r[k]);
-            if let (Some(cusum), Some(reference), Some(r)) =
-                (geometry.as_mut(), geometry_reference_px, seen)
-            {
-                if let Some(back) = cusum.look(r > reference) {
-                    raise(Channel::Camera, back);
-                }
-            }
-        }
-        rows.push(Watched {
-            band: before,
-            covered,
-            model_stat: model.stat(),
-            geometry_stat: geometry.as_ref().map(Cusum::stat),
-            alarm,
-        });
+    let model_reference = baseline(errors, settings.level).map_or(radius, |q| q.min(radius));
+    let model = looks(
+        errors,
+        model_reference,
+        1.0 - settings.level,
+        baseline_end,
+        settings,
+    );
+    let geometry_reference_px = geometry.and_then(|g| baseline(g, 0.9));
+    let camera = geometry
+        .zip(geometry_reference_px)
+        .map(|(g, reference)| (g, looks(g, reference, 0.1, baseline_end, settings)));
+
+    let mut alarms = Vec::new();
+    if let Some((k, change_s)) = model.alarm {
+        alarms.push((Channel::Finger, errors.times[k], change_s));
     }
+    if let Some((
+        g,
+        Channelled {
+            alarm: Some((k, change_s)),
+            ..
+        },
+    )) = &camera
+    {
+        alarms.push((Channel::Camera, g.times[*k], *change_s));
+    }
+    alarms.sort_by(|a, b| a.1.total_cmp(&b.1));
+    // Each alarm on the first model row at or after it.
+    let at_row = |t: f64| {
+        errors
+            .times
+            .partition_point(|&r| r < t)
+            .min(errors.times.len().saturating_sub(1))
+    };
+    let alarms: Vec<Alarm> = alarms
+        .into_iter()
+        .map(|(channel, time_s, change_s)| Alarm {
+            channel,
+            time_s,
+            change_s,
+            row: at_row(time_s),
+            advice: channel.advice(),
+        })
+        .collect();
+    let mut band = Band::new(radius, settings.level, settings.gain);
+    let rows: Vec<Watched> = errors
+        .times
+        .iter()
+        .zip(errors.values)
+        .enumerate()
+        .map(|(k, (&t, &e))| Watched {
+            band: band.radius(),
+            covered: band.update(e),
+            model_stat: model.stats[k],
+            geometry_stat: camera.as_ref().map(|(g, c)| {
+                let seen = g.times.partition_point(|&s| s <= t);
+                seen.checked_sub(1).map_or(0.0, |j| c.stats[j])
+            }),
+            alarm: alarms.iter().find(|a| a.row == k).map(|a| a.channel),
+        })
+        .collect();
     let coverage = rows.iter().filter(|r| r.covered).count() as f64 / rows.len().max(1) as f64;
     Monitored {
         rows,
@@ -327,7 +384,7 @@ pub fn watch(
         start_radius: radius,
         model_reference,
         geometry_reference_px,
-        threshold,
+        threshold: settings.threshold(),
     }
 }
 
@@ -354,7 +411,11 @@ mod tests {
         let mut e = errors(&mut rng, 20_000, 1.0);
         e.extend(errors(&mut rng, 20_000, 2.0));
         let times: Vec<f64> = (0..e.len()).map(|k| k as f64 / 30.0).collect();
-        let watched = watch(&times, &e, None, 1.645, &Settings::default());
+        let errors = Series {
+            times: &times,
+            values: &e,
+        };
+        let watched = watch(errors, None, 1.645, &Settings::default());
         assert!(
             (watched.coverage - 0.9).abs() < 0.005,
             "{}",
@@ -417,12 +478,57 @@ mod tests {
             *v *= 4.0;
         }
         let times: Vec<f64> = (0..n).map(|k| k as f64 / 30.0).collect();
-        let watched = watch(&times, &e, Some(&r), 1.645, &Settings::default());
+        let (errors, geometry) = (
+            Series {
+                times: &times,
+                values: &e,
+            },
+            Series {
+                times: &times,
+                values: &r,
+            },
+        );
+        let watched = watch(errors, Some(geometry), 1.645, &Settings::default());
         assert_eq!(watched.alarms.len(), 1, "{:?}", watched.alarms);
         let alarm = &watched.alarms[0];
         assert_eq!(alarm.channel, Channel::Camera);
         assert!(alarm.time_s >= 200.0 && alarm.time_s < 230.0, "{alarm:?}");
         assert!((alarm.change_s - 200.0).abs() < 10.0, "{alarm:?}");
+    }
+
+    /// Rows the triangulation refused because the views disagree are geometry misses (+∞):
+    /// a camera knocked so far that no row passes still raises the alarm, on the model's rows
+    /// around it.
+    #[test]
+    fn rows_refused_as_inconsistent_are_camera_misses() {
+        let times: Vec<f64> = (0..30 * 300).map(|k| k as f64 / 30.0).collect();
+        let r: Vec<f64> = times
+            .iter()
+            .map(|&t| {
+                if t < 200.0 {
+                    0.1 + 0.05 * (t * 7.0).sin()
+                } else {
+                    f64::INFINITY
+                }
+            })
+            .collect();
+        // The model's rows stop where the tips do: the refused rows have none.
+        let n = 30 * 200;
+        let e = vec![0.5; n];
+        let errors = Series {
+            times: &times[..n],
+            values: &e,
+        };
+        let geometry = Series {
+            times: &times,
+            values: &r,
+        };
+        let watched = watch(errors, Some(geometry), 1.0, &Settings::default());
+        assert_eq!(watched.alarms.len(), 1, "{:?}", watched.alarms);
+        let alarm = &watched.alarms[0];
+        assert_eq!(alarm.channel, Channel::Camera);
+        assert!(alarm.time_s >= 200.0 && alarm.time_s < 215.0, "{alarm:?}");
+        assert_eq!(alarm.row, n - 1);
     }
 
     #[test]

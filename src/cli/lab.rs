@@ -54,6 +54,9 @@ pub struct Args {
     /// First TCP port on 127.0.0.1 (left, then right); 0: any free ones
     #[arg(long, default_value_t = 0)]
     port: u16,
+    /// A fault at a time of the lab's clock, KIND@T=AMOUNT (repeatable), as synth takes it
+    #[arg(long = "fault", value_name = "KIND@T=AMOUNT")]
+    faults: Vec<crate::synth::faults::Fault>,
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
@@ -67,6 +70,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         _ => super::usage!("--stall takes AT,LENGTH (s)"),
     };
     config.duration_s = a.duration_s;
+    config.capture.faults = a.faults;
     config.port = a.port;
     config.capture.fps = a.fps;
     config.capture.rig.width = a.width;

@@ -11,8 +11,9 @@ use crate::session::protocol::{self, DynamicDesign};
 use crate::synth::camera::RigConfig;
 use crate::synth::capture::{CaptureConfig, DynamicSession, Realism};
 use crate::synth::dynamics::Dynamics;
+use crate::synth::faults::Fault;
 use crate::synth::image_format::{Chroma, ImageFormat};
-use crate::synth::quick::{self, Fault};
+use crate::synth::quick;
 use crate::synth::{plant::PlantParams, SynthConfig, DEFAULT_NOISE_MM};
 
 #[derive(clap::Args)]
@@ -93,11 +94,10 @@ pub struct Args {
     /// is the one a synth run of the same seed and rig flags calibrates
     #[arg(long, conflicts_with_all = ["dynamic", "window_ms"])]
     protocol: Option<PathBuf>,
-    /// With --no-images and --dynamic or --protocol: a fault at a time, KIND@T=AMOUNT
-    /// (repeatable): camera@40=0.5 tilts the right camera 0.5° at 40 s, stiffness@40=-0.1 makes
-    /// the finger 10 % softer, leak@40=0.05 loses up to 5 % of muscle 1's pressure over the
-    /// next minute
-    #[arg(long = "fault", value_name = "KIND@T=AMOUNT", requires = "no_images")]
+    /// With --dynamic or --protocol: a fault at a time, KIND@T=AMOUNT (repeatable):
+    /// camera@40=0.5 tilts the right camera 0.5° at 40 s, stiffness@40=-0.1 makes the finger
+    /// 10 % softer, leak@40=0.05 loses up to 5 % of muscle 1's pressure over the next minute
+    #[arg(long = "fault", value_name = "KIND@T=AMOUNT")]
     faults: Vec<Fault>,
 }
 
@@ -179,8 +179,18 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             Some(steps) => steps,
             None => protocol::dynamic(&a.design.with(a.seed, DynamicDesign::default().max_kpa))?,
         };
-        let w = quick::write(&a.out, &steps, a.seed, &config.plant, &a.faults)
-            .with_context(|| format!("synth into {}", a.out.display()))?;
+        let written = super::with_session(|s| {
+            let provenance = s.provenance(Some(a.seed));
+            quick::write(
+                &a.out,
+                &steps,
+                a.seed,
+                &config.plant,
+                &a.faults,
+                &provenance,
+            )
+        });
+        let w = written.with_context(|| format!("synth into {}", a.out.display()))?;
         println!(
             "wrote {} ({} rows, one per frame at {} fps, no images; {} frames fixed no point) and the true tips {}",
             w.session.display(),
@@ -191,10 +201,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         );
         return Ok(());
     }
-    if !a.faults.is_empty() {
-        super::usage!(
-            "--fault needs --dynamic or --protocol (with --no-images): faults are injected in time"
-        );
+    if !a.faults.is_empty() && !a.dynamic && played.is_none() {
+        super::usage!("--fault needs --dynamic or --protocol: faults happen in time");
     }
     let capture_config = (!a.no_images).then(|| CaptureConfig {
         rig: RigConfig {
@@ -214,6 +222,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         latency_s,
         window_s,
         realism,
+        faults: a.faults.clone(),
         calibration_images: a.protocol.is_none(),
         dynamic: match &played {
             Some(steps) => Some(DynamicSession::Played(steps.clone())),

@@ -37,15 +37,22 @@ pub struct Exposed {
     pub late_s: f64,
 }
 
-/// Films camera `side` until `stop`: renders on this thread, sends on another.
-pub fn film(side: Side, view: &View, config: &LabConfig, shared: &Shared, stream: &Arc<Stream>) {
+/// Films camera `side` until `stop` through `view`, or `knocked`'s from its time on (a
+/// fault): renders on this thread, sends on another.
+pub fn film(
+    side: Side,
+    (view, knocked): (&View, Option<&crate::synth::capture::Knocked>),
+    config: &LabConfig,
+    shared: &Shared,
+    stream: &Arc<Stream>,
+) {
+    let as_filmed = view;
     let c = &config.capture;
     let mut rng = ChaCha8Rng::seed_from_u64(config.seed ^ 0x4c41_4243 ^ (side as u64) << 32);
     let period = 1.0 / (c.fps * (1.0 + rng.random_range(-50e-6..50e-6)));
     let phase = rng.random_range(0.0..period);
     let delay = config.delay_s[side as usize];
     let half = c.realism.exposure_s / 2.0;
-    let lamp_at = view.camera.project(&Point3::from(super::LAMP_MM));
     let (to_send, sending) = mpsc::channel::<(f64, Option<Vec<u8>>, Exposed)>();
     std::thread::scope(|scope| {
         scope.spawn(|| send(sending, stream, shared));
@@ -56,10 +63,15 @@ pub fn film(side: Side, view: &View, config: &LabConfig, shared: &Shared, stream
             if shared.stopped() {
                 break;
             }
+            let view = match knocked {
+                Some((at, knocked)) if exposure_s >= *at => knocked,
+                _ => as_filmed,
+            };
+            let lamp_at = view.camera.project(&Point3::from(super::LAMP_MM));
             // The finger's poses under the lock; the drawing after, the board answering meanwhile.
-            let posed = shared.frame(|motion, plant, lamps| {
-                let poses = finger_poses(c, plant, motion, &view.camera, exposure_s)?;
-                let tip = plant.tip(motion.at(exposure_s))?;
+            let posed = shared.frame(|motion, timeline, lamps| {
+                let poses = finger_poses(c, timeline, motion, &view.camera, exposure_s)?;
+                let tip = timeline.tip(motion, exposure_s)?;
                 Ok::<_, crate::synth::SynthError>((poses, tip, lamps.lit(exposure_s, half)))
             });
             let (poses, tip_mm, lamp) = match posed {
@@ -140,7 +152,7 @@ fn picture(
 pub fn frame_cost(
     view: &View,
     config: &LabConfig,
-    plant: &crate::synth::plant::Plant,
+    timeline: &crate::synth::faults::Timeline,
 ) -> Result<f64, crate::synth::SynthError> {
     let c = &config.capture;
     let mut motion =
@@ -149,8 +161,8 @@ pub fn frame_cost(
     let moving_s =
         c.dynamics.delay_s + c.dynamics.lag_s.iter().fold(0.0, |a: f64, &b| a.max(b)) / 2.0;
     motion.run_to(moving_s + 1.0);
-    let poses = finger_poses(c, plant, &motion, &view.camera, moving_s)?;
-    let tip_mm = plant.tip(motion.at(moving_s))?;
+    let poses = finger_poses(c, timeline, &motion, &view.camera, moving_s)?;
+    let tip_mm = timeline.tip(&motion, moving_s)?;
     let lamp = view
         .camera
         .project(&Point3::from(super::LAMP_MM))

@@ -33,8 +33,11 @@ use crate::fsio;
 use crate::provenance::Provenance;
 use crate::stereo::Side;
 use crate::synth::capture::CaptureConfig;
+use crate::synth::capture::Knocked;
 use crate::synth::dynamics::{Dynamics, Motion};
-use crate::synth::plant::{Plant, Pressures};
+use crate::synth::faults::Timeline;
+use crate::synth::plant::Pressures;
+use crate::synth::render::View;
 use crate::synth::SynthConfig;
 use board::Received;
 use camera::Exposed;
@@ -246,7 +249,8 @@ fn as_hardware() {
 /// What the lab's threads share: the clock, the finger, the truth.
 pub struct Shared {
     start: Instant,
-    plant: Plant,
+    /// The finger's constants, and what the faults change of it and the cameras, when.
+    timeline: Timeline,
     finger: Mutex<Finger>,
     received: Mutex<Vec<Received>>,
     exposed: Mutex<Vec<Exposed>>,
@@ -281,12 +285,13 @@ impl Shared {
         self.stop.store(true, Ordering::SeqCst);
     }
 
-    /// Runs `f` on the finger's motion (simulated as far as `f` looks), the plant and the lamp.
-    pub fn frame<T>(&self, f: impl FnOnce(&Motion, &Plant, &Lamps) -> T) -> T {
+    /// Runs `f` on the finger's motion (simulated as far as `f` looks), the finger's timeline
+    /// and the lamp.
+    pub fn frame<T>(&self, f: impl FnOnce(&Motion, &Timeline, &Lamps) -> T) -> T {
         let mut finger = self.finger.lock().expect("finger");
         // Nothing commanded from now on moves the finger before now (the line's delay later).
         finger.motion.run_to(self.now_s() - Motion::AHEAD_S);
-        f(&finger.motion, &self.plant, &finger.lamps)
+        f(&finger.motion, &self.timeline, &finger.lamps)
     }
 
     /// The pressures the line's gauges read now, and the board's clock (ms).
@@ -343,6 +348,26 @@ impl Shared {
 /// # Errors
 /// [`LabError`]: bad settings, a port in use, a pseudo-terminal that cannot be made, a truth
 /// file that cannot be written.
+/// The two cameras' views of the scene, and the right one's once a fault knocked it; the
+/// wall keeps clear of where the finger can be seen (its tips over the paper's grid).
+fn cameras_views(
+    config: &LabConfig,
+    rig: &crate::synth::camera::Rig,
+    timeline: &Timeline,
+) -> Result<([View; 2], Option<Knocked>), LabError> {
+    let grid = crate::session::protocol::paper_steps(50.0, 50.0, 1.0)
+        .map_err(|e| LabError::Settings(e.to_string()))?;
+    let tips = grid
+        .iter()
+        .map(|s| timeline.plant().tip(s.pressures))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| LabError::Settings(e.to_string()))?;
+    let realism = &config.capture.realism;
+    let views = crate::synth::capture::views(rig, config.seed, realism, timeline.plant(), &tips);
+    let knocked = crate::synth::capture::knocked_view(rig, config.seed, realism, timeline, &tips);
+    Ok((views, knocked))
+}
+
 pub fn run(
     out: &Path,
     config: &LabConfig,
@@ -352,18 +377,9 @@ pub fn run(
 ) -> Result<LabSummary, LabError> {
     config.check().map_err(LabError::Settings)?;
     let rig = config.capture.rig.build(config.seed);
-    let plant = Plant::new(config.synth.plant.clone());
-    // The wall keeps clear of where the finger can be seen: its tips over the paper's grid.
-    let grid = crate::session::protocol::paper_steps(50.0, 50.0, 1.0)
-        .map_err(|e| LabError::Settings(e.to_string()))?;
-    let tips = grid
-        .iter()
-        .map(|s| plant.tip(s.pressures))
-        .collect::<Result<Vec<_>, _>>()
-        .map_err(|e| LabError::Settings(e.to_string()))?;
-    let views =
-        crate::synth::capture::views(&rig, config.seed, &config.capture.realism, &plant, &tips);
-    let cost_s = camera::frame_cost(&views[0], config, &plant)
+    let timeline = Timeline::new(&config.synth.plant, &rig, &config.capture.faults);
+    let (views, knocked) = cameras_views(config, &rig, &timeline)?;
+    let cost_s = camera::frame_cost(&views[0], config, &timeline)
         .map_err(|e| LabError::Settings(e.to_string()))?;
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     camera::renderable(cost_s, config, cores).map_err(LabError::Settings)?;
@@ -380,7 +396,7 @@ pub fn run(
     let epoch_unix_s = unix_now();
     let shared = Shared {
         start: Instant::now(),
-        plant,
+        timeline,
         finger: Mutex::new(Finger {
             motion: Motion::at_rest(&config.capture.dynamics, config.synth.plant.hysteresis_kpa),
             lamps: Lamps::default(),
@@ -417,10 +433,12 @@ pub fn run(
             board::run(pty, &shared)
         });
         for (k, side) in [Side::Left, Side::Right].into_iter().enumerate() {
-            let (view, stream, shared, render) = (&views[k], &streams[k], &shared, &render);
+            let (stream, shared, render) = (&streams[k], &shared, &render);
+            let knocked = knocked.as_ref().filter(|_| side == Side::Right);
+            let views = (&views[k], knocked);
             scope.spawn(move || {
                 as_hardware();
-                render.install(|| camera::film(side, view, config, shared, stream))
+                render.install(|| camera::film(side, views, config, shared, stream))
             });
         }
         ready(&info);

@@ -17,6 +17,7 @@ pub mod canvas;
 pub mod capture;
 pub mod clutter;
 pub mod dynamics;
+pub mod faults;
 pub mod image_format;
 pub mod plant;
 pub mod quick;

@@ -1,34 +1,22 @@
 //! A dynamic session without images, for hours of session in seconds: the plant's tip at each
 //! camera frame, each camera's view of the bead from the true rig with its pixel noise, and
 //! the tip triangulated from those views on the rig as calibrated — the rows `triangulate
-//! --per-frame` would give, with faults injected at given times.
-//!
-//! # Faults (`KIND@T=AMOUNT`)
-//! - `camera@T=DEG`: the right camera tilts by DEG degrees about its own x axis at T (a bump).
-//!   Its beads leave their epipolar lines by about f·tan(DEG), so the reprojection residual
-//!   says so, and the tip moves. A pan (about the camera's y axis) would move the bead along
-//!   the epipolar lines of a side-by-side pair: the tip would shift in depth with no residual
-//!   to tell, which two cameras cannot see and the model's errors can.
-//! - `stiffness@T=SHARE`: from T the finger's bending and axial stiffness are 1 + SHARE times
-//!   what they were (−0.1: 10 % softer).
-//! - `leak@T=SHARE`: muscle 1 loses up to SHARE of its pressure, linearly over the minute after
-//!   T (a slow leak: what the regulator is told is not what the muscle holds).
+//! --per-frame` would give, with faults injected at given times ([`super::faults`]).
 //!
 //! The views are triangulated without a gate (every residual is reported, however large),
 //! where `triangulate` would refuse a row whose beads disagree by more than its gate.
 
 use std::path::{Path, PathBuf};
-use std::str::FromStr;
 
-use nalgebra::{Matrix3, Matrix3x4, Point3, Rotation3, Vector3};
+use nalgebra::{Matrix3, Matrix3x4, Point3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
-use serde::Serialize;
 
 use super::camera::{Camera, RigConfig};
 use super::dynamics::{Dynamics, Motion};
-use super::plant::{Plant, PlantParams, Pressures};
+use super::faults::{Fault, Timeline};
+use super::plant::{PlantParams, Pressures};
 use super::SynthError;
 use crate::data::Csv;
 use crate::session::protocol::{self, Step};
@@ -40,92 +28,6 @@ pub const FPS: f64 = 30.0;
 /// A bead centre's pixel noise per axis (px): a per-frame tip of about 0.04 mm, as the
 /// rendered sessions give.
 pub const PIXEL_NOISE_PX: f64 = 0.1;
-
-/// What goes wrong, and when.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
-pub struct Fault {
-    pub kind: FaultKind,
-    pub at_s: f64,
-    pub amount: f64,
-}
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum FaultKind {
-    Camera,
-    Stiffness,
-    Leak,
-}
-
-impl FromStr for Fault {
-    type Err = String;
-
-    fn from_str(s: &str) -> Result<Fault, String> {
-        let usage = || {
-            format!("{s:?} is not a fault: give KIND@T=AMOUNT, KIND one of camera, stiffness, leak (e.g. stiffness@40=-0.1)")
-        };
-        let (kind, rest) = s.split_once('@').ok_or_else(usage)?;
-        let (at, amount) = rest.split_once('=').ok_or_else(usage)?;
-        let kind = match kind {
-            "camera" => FaultKind::Camera,
-            "stiffness" => FaultKind::Stiffness,
-            "leak" => FaultKind::Leak,
-            _ => return Err(usage()),
-        };
-        let number = |v: &str| v.trim().parse::<f64>().ok().filter(|v| v.is_finite());
-        let (Some(at_s), Some(amount)) = (number(at), number(amount)) else {
-            return Err(usage());
-        };
-        let fine = match kind {
-            FaultKind::Camera => amount.abs() <= 10.0,
-            FaultKind::Stiffness => amount > -0.9 && amount <= 10.0,
-            FaultKind::Leak => (0.0..=1.0).contains(&amount),
-        };
-        if at_s < 0.0 || !fine {
-            return Err(format!("{s}: the time must be ≥ 0 s and the amount within a camera's ±10°, a stiffness share above −0.9, a leak's share within 0-1"));
-        }
-        Ok(Fault { kind, at_s, amount })
-    }
-}
-
-/// The finger as the faults make it at each instant.
-struct Finger {
-    before: Plant,
-    /// The finger from the stiffness fault on.
-    after: Option<(f64, Plant)>,
-    leak: Option<(f64, f64)>,
-}
-
-impl Finger {
-    fn new(params: &PlantParams, faults: &[Fault]) -> Finger {
-        let of = |kind| faults.iter().find(|f| f.kind == kind);
-        Finger {
-            before: Plant::new(params.clone()),
-            after: of(FaultKind::Stiffness).map(|f| {
-                let scale = 1.0 + f.amount;
-                let stiffer = PlantParams {
-                    bend_stiffness_x_nmm2: params.bend_stiffness_x_nmm2 * scale,
-                    bend_stiffness_y_nmm2: params.bend_stiffness_y_nmm2 * scale,
-                    axial_stiffness_n: params.axial_stiffness_n * scale,
-                    ..params.clone()
-                };
-                (f.at_s, Plant::new(stiffer))
-            }),
-            leak: of(FaultKind::Leak).map(|f| (f.at_s, f.amount)),
-        }
-    }
-
-    fn tip(&self, t: f64, mut p: Pressures) -> Result<[f64; 3], SynthError> {
-        if let Some((at, share)) = self.leak {
-            p[0] *= 1.0 - share * ((t - at) / 60.0).clamp(0.0, 1.0);
-        }
-        let plant = match &self.after {
-            Some((at, plant)) if t >= *at => plant,
-            _ => &self.before,
-        };
-        Ok(plant.tip(p)?)
-    }
-}
 
 /// K [R | t] of a camera's undistorted pixels.
 fn projection(camera: &Camera) -> Matrix3x4<f64> {
@@ -152,9 +54,23 @@ pub struct Written {
     pub unseen: usize,
 }
 
+/// What `manifest.json` records of a session without images.
+#[derive(serde::Serialize)]
+struct Manifest<'a> {
+    format: &'static str,
+    seed: u64,
+    fps: f64,
+    pixel_noise_px: f64,
+    faults: &'a [Fault],
+    plant: &'a PlantParams,
+    files: [&'static str; 2],
+    provenance: &'a crate::provenance::Provenance,
+}
+
 /// Plays `steps` on the plant seen by the rig of `seed` and writes `out/session.csv`
 /// (`time_s,phase,P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm,reproj_px`) and `out/truth.csv`
-/// (`time_s,x_mm,y_mm,z_mm`, the true tip), one row per frame at [`FPS`].
+/// (`time_s,x_mm,y_mm,z_mm`, the true tip), one row per frame at [`FPS`], and
+/// `out/manifest.json` (the seed, the faults, the plant).
 ///
 /// # Errors
 /// A plant error, or a file that cannot be written.
@@ -164,6 +80,7 @@ pub fn write(
     seed: u64,
     plant: &PlantParams,
     faults: &[Fault],
+    provenance: &crate::provenance::Provenance,
 ) -> Result<Written, SynthError> {
     let rig = RigConfig::default().build(seed);
     let (starts, end) = protocol::start_times(steps);
@@ -173,18 +90,11 @@ pub fn write(
         .map(|(&t, s)| (t, s.pressures))
         .collect();
     let motion = Motion::simulate(&commands, &Dynamics::PNEUMATIC, plant.hysteresis_kpa, end);
-    let finger = Finger::new(plant, faults);
+    let timeline = Timeline::new(plant, &rig, faults);
     let calibrated = [projection(&rig.left), projection(&rig.right)];
-    let tilted = faults
-        .iter()
-        .find(|f| f.kind == FaultKind::Camera)
-        .map(|f| {
-            let turn = Rotation3::from_axis_angle(&Vector3::x_axis(), f.amount.to_radians());
-            let mut right = rig.right.clone();
-            right.pose.rotation = turn * right.pose.rotation;
-            right.pose.translation = turn * right.pose.translation;
-            (f.at_s, projection(&right))
-        });
+    let knocked = timeline
+        .knocked()
+        .map(|(at, camera)| (*at, projection(camera)));
     let noise = Normal::new(0.0, PIXEL_NOISE_PX).expect("a positive noise");
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5155_4943);
     let mut session = Csv::new([
@@ -207,9 +117,9 @@ pub fn write(
         while step + 1 < steps.len() && starts[step + 1] <= t {
             step += 1;
         }
-        let tip = finger.tip(t, motion.at(t))?;
+        let tip = timeline.tip(&motion, t)?;
         let point = Point3::from(tip);
-        let right = match tilted {
+        let right = match knocked {
             Some((at, p)) if t >= at => p,
             _ => calibrated[1],
         };
@@ -255,28 +165,25 @@ pub fn write(
     };
     session.write(&written.session)?;
     truth.write(&written.truth)?;
+    let manifest = Manifest {
+        format: "handcap synth --no-images (a session without images)",
+        seed,
+        fps: FPS,
+        pixel_noise_px: PIXEL_NOISE_PX,
+        faults,
+        plant,
+        files: ["session.csv", "truth.csv"],
+        provenance,
+    };
+    let json = serde_json::to_vec_pretty(&manifest).expect("the manifest serialises");
+    let path = out.join("manifest.json");
+    crate::fsio::write_bytes(&path, &json).map_err(super::capture::io_err(&path))?;
     Ok(written)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn faults_parse_and_bad_ones_are_named() {
-        let f: Fault = "stiffness@40=-0.1".parse().unwrap();
-        assert_eq!(f.kind, FaultKind::Stiffness);
-        assert_eq!((f.at_s, f.amount), (40.0, -0.1));
-        for bad in [
-            "stiffness",
-            "payload@4=0.2",
-            "leak@x=0.1",
-            "leak@10=2",
-            "camera@-1=0.5",
-        ] {
-            assert!(bad.parse::<Fault>().is_err(), "{bad}");
-        }
-    }
 
     /// Without faults the rows' tips are the truth to the pixel noise's share; a tilted camera
     /// shows in the residual from its time on.
@@ -289,12 +196,17 @@ mod tests {
             ..protocol::DynamicDesign::default()
         };
         let steps = protocol::dynamic(&design).unwrap();
-        let tilt = Fault {
-            kind: FaultKind::Camera,
-            at_s: 10.0,
-            amount: 0.2,
-        };
-        let w = write(dir.path(), &steps, 1, &PlantParams::default(), &[tilt]).unwrap();
+        let tilt: Fault = "camera@10=0.2".parse().unwrap();
+        let provenance = crate::provenance::Provenance::new(vec!["test".into()], Some(1));
+        let w = write(
+            dir.path(),
+            &steps,
+            1,
+            &PlantParams::default(),
+            &[tilt],
+            &provenance,
+        );
+        let w = w.unwrap();
         let read = |p: &Path, names: &[&str]| {
             crate::data::read_columns(p, &crate::data::names(names)).unwrap()
         };

@@ -815,3 +815,49 @@ fn frames_the_lab_loses_are_counted_and_its_stall_ends_the_session_with_everythi
         );
     }
 }
+
+/// `lab --fault`: the right camera knocked by half a degree at 1 s of the lab's clock films
+/// the resting bead 7.9 px higher from then on (f·tan 0.5°), the left camera does not move, and
+/// the truth records the fault.
+#[test]
+fn a_fault_in_the_lab_knocks_its_camera_at_its_time() {
+    let _machine = real_time();
+    let dir = tempdir();
+    let d = dir.path();
+    let args = [
+        "lab",
+        "--out",
+        "lab",
+        "--duration-s",
+        "3",
+        "--fault",
+        "camera@1=0.5",
+    ];
+    handcap_ok(d, &args);
+    let frames = csv_rows(&d.join("lab/truth/frames.csv"));
+    let v = |camera: &str, before: bool| -> Vec<f64> {
+        frames
+            .iter()
+            .filter(|r| r["camera"] == camera)
+            .filter(|r| (r["exposure_s"].parse::<f64>().unwrap() < 1.0) == before)
+            .map(|r| r["v_px"].parse().unwrap())
+            .collect()
+    };
+    let spread = |v: &[f64]| v.iter().fold(0.0f64, |m, x| m.max((x - v[0]).abs()));
+    for (camera, shift) in [("left", 0.0), ("right", -7.9)] {
+        let (before, after) = (v(camera, true), v(camera, false));
+        assert!(before.len() > 20 && after.len() > 20, "{camera}");
+        assert!(
+            spread(&before) < 1e-6 && spread(&after) < 1e-6,
+            "{camera}: the bead at rest"
+        );
+        let moved = after[0] - before[0];
+        assert!((moved - shift).abs() < 0.5, "{camera}: {moved} px");
+    }
+    let truth = read_json(&d.join("lab/truth/lab.json"));
+    let fault = &truth["config"]["capture"]["faults"][0];
+    assert_eq!(
+        (&fault["kind"], &fault["at_s"]),
+        (&"camera".into(), &1.0.into())
+    );
+}

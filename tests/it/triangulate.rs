@@ -993,12 +993,12 @@ fn videos_without_frames_csv_are_timed_by_their_own_timestamps() {
 
 /// A short dynamic session (`synth --dynamic`: one trial of 3 s between rest holds, lab frames
 /// as PNG), calibrated, in `dir/s` with `dir/calib.yml`.
-pub fn dynamic_session(d: &Path) {
+fn dynamic_session(d: &Path) {
     dynamic_session_with(d, &["--duration-s", "3", "--trials", "1"]);
 }
 
 /// A dynamic session on PNG frames with `args` given to synth, and its calibration.
-fn dynamic_session_with(d: &Path, args: &[&str]) {
+pub fn dynamic_session_with(d: &Path, args: &[&str]) {
     let mut synth = vec![
         "synth",
         "--out",

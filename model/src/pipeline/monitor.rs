@@ -64,13 +64,15 @@ pub fn run(watch: &Watch, provenance: Provenance) -> Result<Watched, PipelineErr
         .collect();
     outputs::check(&[watch.session, watch.model], &files)?;
     let replay = Replay::read(watch)?;
-    let monitored = monitor::watch(
-        &replay.times,
-        &replay.errors,
-        replay.residuals.as_deref(),
-        replay.radius,
-        &watch.settings,
-    );
+    let errors = monitor::Series {
+        times: &replay.times,
+        values: &replay.errors,
+    };
+    let geometry = replay
+        .geometry
+        .as_ref()
+        .map(|(times, values)| monitor::Series { times, values });
+    let monitored = monitor::watch(errors, geometry, replay.radius, &watch.settings);
     std::fs::create_dir_all(watch.out).map_err(super::io_error(watch.out))?;
     replay.write(&watch.out.join("monitor.csv"), &monitored)?;
     let after_change = after_change(watch, &replay.time, &monitored)?;
@@ -92,6 +94,9 @@ pub fn run(watch: &Watch, provenance: Provenance) -> Result<Watched, PipelineErr
     Ok(watched)
 }
 
+/// Times and values of one channel.
+type Samples = (Vec<f64>, Vec<f64>);
+
 /// A session's rows as the monitor replays them.
 struct Replay {
     /// The time column's name, and its values.
@@ -101,7 +106,9 @@ struct Replay {
     measured: Columns,
     /// The distance from each prediction to its measured tip.
     errors: Vec<f64>,
-    residuals: Option<Vec<f64>>,
+    /// Every row's time and reprojection residual (px; +∞ where the views disagreed), when
+    /// the rows have residuals.
+    geometry: Option<Samples>,
     /// The model file's radius at the level.
     radius: f64,
 }
@@ -146,21 +153,23 @@ impl Replay {
                     .sqrt()
             })
             .collect();
-        let residuals = data::header(watch.session)?
-            .iter()
-            .any(|c| c == RESIDUAL_COLUMN)
-            .then(|| data::read_columns(watch.session, &[RESIDUAL_COLUMN.to_string()]))
-            .transpose()?
-            .map(|c| c.column(0).collect::<Vec<f64>>());
+        let geometry = geometry(watch.session, &time)?;
         Ok(Replay {
             time,
             times,
             predicted,
             measured,
             errors,
-            residuals,
+            geometry,
             radius,
         })
+    }
+
+    /// The reprojection residual of model row `i`, when the rows have them.
+    fn residual(&self, i: usize) -> Option<f64> {
+        let (times, residuals) = self.geometry.as_ref()?;
+        let k = times.partition_point(|&t| t < self.times[i]);
+        residuals.get(k).copied()
     }
 
     /// `monitor.csv`: each row's time, prediction, measured tip, error, band, statistics and
@@ -194,9 +203,7 @@ impl Replay {
                 number(row.band),
                 u8::from(row.covered).to_string(),
                 number(row.model_stat),
-                self.residuals
-                    .as_ref()
-                    .map_or_else(String::new, |r| number(r[i])),
+                self.residual(i).map_or_else(String::new, number),
                 row.geometry_stat.map_or_else(String::new, number),
                 row.alarm
                     .map_or_else(String::new, |c| channel_name(c).to_string()),
@@ -205,6 +212,37 @@ impl Replay {
         }
         Ok(csv.write(path)?)
     }
+}
+
+/// Every row's time and reprojection residual, flagged rows too: a row the triangulation
+/// refused because its views disagree (`reprojection`) is +∞, a miss of the camera channel;
+/// rows flagged for anything else say nothing of the cameras. `None` without a
+/// [`RESIDUAL_COLUMN`].
+fn geometry(path: &Path, time: &str) -> Result<Option<Samples>, PipelineError> {
+    let table = data::Table::open(path, "a time column and reproj_px")?;
+    let Ok(residual) = table.column(RESIDUAL_COLUMN) else {
+        return Ok(None);
+    };
+    let at = table.column(time)?;
+    let flag = table.column("flag").ok();
+    let (mut times, mut residuals) = (Vec::new(), Vec::new());
+    for (line, record) in table.records()? {
+        let number = |k: usize| record.get(k).and_then(|c| c.parse::<f64>().ok());
+        let Some(t) = number(at) else {
+            return table.fail(line, format!("{time} is not a number"));
+        };
+        let flags = flag.and_then(|k| record.get(k)).unwrap_or("");
+        let value = if flags.split(';').any(|f| f == "reprojection") {
+            Some(f64::INFINITY)
+        } else {
+            number(residual).filter(|r| r.is_finite())
+        };
+        if let Some(value) = value {
+            times.push(t);
+            residuals.push(value);
+        }
+    }
+    Ok(Some((times, residuals)))
 }
 
 /// After a model alarm, `after_change.csv`: the session's rows from the change on, as they

@@ -64,8 +64,9 @@ use serde::Serialize;
 
 use super::camera::RigConfig;
 use super::dynamics::{Dynamics, Motion};
+use super::faults::{Fault, Timeline};
 use super::image_format::ImageFormat;
-use super::plant::{Plant, Pressures};
+use super::plant::Pressures;
 use super::scene::Markers;
 use super::{SynthConfig, SynthError};
 use crate::calib::BoardSpec;
@@ -74,7 +75,7 @@ use crate::session::protocol::{self, DynamicDesign, Step};
 use crate::stereo::Side;
 use boards::{board_poses, reference_board};
 use shots::Studio;
-pub(crate) use shots::{exposure_gain, finger_frame, views};
+pub(crate) use shots::{exposure_gain, finger_frame, knocked_view, views, Knocked};
 use timing::camera_frames;
 pub(crate) use timing::finger_poses;
 pub(crate) use truth::rig_yaml;
@@ -115,6 +116,8 @@ pub struct CaptureConfig {
     pub video: bool,
     /// What makes the frames as hard as a real webcam's.
     pub realism: Realism,
+    /// What goes wrong during the session, and when ([`crate::synth::faults`]).
+    pub faults: Vec<Fault>,
 }
 
 /// What a real lab adds to the ideal frames; [`Realism::CLEAN`] turns all of it off.
@@ -179,6 +182,7 @@ impl Default for CaptureConfig {
             latency_s: [0.0; 2],
             video: false,
             realism: Realism::LAB,
+            faults: Vec::new(),
         }
     }
 }
@@ -209,7 +213,7 @@ pub fn write_capture(
 ) -> Result<CaptureSummary, SynthError> {
     config.check()?;
     let rig = config.rig.build(synth.seed);
-    let plant = Plant::new(synth.plant.clone());
+    let timeline = Timeline::new(&synth.plant, &rig, &config.faults);
     // Separate streams, so that the board count does not change the clocks.
     let mut rng = ChaCha8Rng::seed_from_u64(synth.seed ^ 0x4341_5054);
     let markers = Arc::new(
@@ -260,7 +264,8 @@ pub fn write_capture(
     write_text(&dir.join("pressures.csv"), &pressures_csv(&steps, &starts))?;
     let tips = steps
         .iter()
-        .map(|s| plant.tip(s.pressures))
+        .zip(&starts)
+        .map(|(s, &t)| timeline.settled_tip(t, s.pressures))
         .collect::<Result<Vec<_>, _>>()?;
     write_text(&dir.join("truth/tips.csv"), &tips_csv(&rig, &steps, &tips))?;
     write_text(
@@ -268,10 +273,10 @@ pub fn write_capture(
         &crate::session::frames::frames_csv(frames.iter().map(|f| (f.camera, f.index, f.stamp_s))),
     )?;
 
-    let truth_rows = truth_frames(&rig, &plant, &motion, synth.seed, config, &frames)?;
+    let truth_rows = truth_frames(&rig, &timeline, &motion, synth.seed, config, &frames)?;
     write_text(&dir.join("truth/frames.csv"), &truth_rows)?;
     if config.dynamic.is_some() {
-        let rows = per_frame_csv(&plant, &motion, &steps, &frames)?;
+        let rows = per_frame_csv(&timeline, &motion, &steps, &frames)?;
         write_text(&dir.join("truth/per_frame.csv"), &rows)?;
     }
 
@@ -279,14 +284,15 @@ pub fn write_capture(
         dir,
         seed: synth.seed,
         config,
-        plant: &plant,
+        timeline: &timeline,
         motion: &motion,
         boards: if config.calibration_images {
             boards.iter().chain(std::iter::once(&reference)).collect()
         } else {
             Vec::new()
         },
-        views: shots::views(&rig, synth.seed, &config.realism, &plant, &tips),
+        views: shots::views(&rig, synth.seed, &config.realism, timeline.plant(), &tips),
+        knocked: knocked_view(&rig, synth.seed, &config.realism, &timeline, &tips),
     };
     let complete = shots::write_all(&studio, &frames, progress, interrupt)?;
     Ok(CaptureSummary {

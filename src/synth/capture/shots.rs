@@ -15,6 +15,7 @@ use crate::stereo::Side;
 use crate::synth::camera::{Camera, Rig};
 use crate::synth::clutter;
 use crate::synth::dynamics::Motion;
+use crate::synth::faults::Timeline;
 use crate::synth::image_format::ImageFormat;
 use crate::synth::plant::Plant;
 use crate::synth::render::{Lighting, Surroundings, View};
@@ -48,10 +49,12 @@ pub(super) struct Studio<'a> {
     pub dir: &'a Path,
     pub seed: u64,
     pub config: &'a CaptureConfig,
-    pub plant: &'a Plant,
+    pub timeline: &'a Timeline,
     pub motion: &'a Motion,
     pub boards: Vec<&'a Board>,
     pub views: [View; 2],
+    /// The right camera's view once a fault knocked it, and from when.
+    pub knocked: Option<Knocked>,
 }
 
 /// The two cameras' views of the scene; with clutter, the wall keeps clear of where the
@@ -86,6 +89,27 @@ pub(crate) fn views(
     [view(&rig.left, Side::Left), view(&rig.right, Side::Right)]
 }
 
+/// The right camera's view once a fault knocked it, and from when.
+pub(crate) type Knocked = (f64, View);
+
+/// The right camera's view once a fault knocked it ([`Timeline::knocked`]), and from when.
+pub(crate) fn knocked_view(
+    rig: &Rig,
+    seed: u64,
+    realism: &Realism,
+    timeline: &Timeline,
+    tips: &[[f64; 3]],
+) -> Option<Knocked> {
+    timeline.knocked().map(|(at, camera)| {
+        let rig = Rig {
+            left: rig.left.clone(),
+            right: camera.clone(),
+        };
+        let [_, right] = views(&rig, seed, realism, timeline.plant(), tips);
+        (*at, right)
+    })
+}
+
 impl Studio<'_> {
     /// Renders shot `id` (its number in the fixed order seeds its sensor noise).
     fn render(&self, id: usize, shot: &Shot) -> Result<Rendered, SynthError> {
@@ -107,9 +131,13 @@ impl Studio<'_> {
                 index,
                 exposure_s,
             } => {
-                let view = &self.views[*camera as usize];
-                let poses = finger_poses(c, self.plant, self.motion, &view.camera, *exposure_s)?;
-                let tip = self.plant.tip(self.motion.at(*exposure_s))?;
+                let view = match (&self.knocked, camera) {
+                    (Some((at, knocked)), Side::Right) if exposure_s >= at => knocked,
+                    _ => &self.views[*camera as usize],
+                };
+                let (timeline, motion) = (self.timeline, self.motion);
+                let poses = finger_poses(c, timeline, motion, &view.camera, *exposure_s)?;
+                let tip = timeline.tip(motion, *exposure_s)?;
                 let canvas = finger_frame(view, c, self.seed, (*camera, *index), &poses, tip);
                 let path = self
                     .dir

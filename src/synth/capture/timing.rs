@@ -8,7 +8,7 @@ use super::{CaptureConfig, SynthError};
 use crate::stereo::Side;
 use crate::synth::camera::Camera;
 use crate::synth::dynamics::Motion;
-use crate::synth::plant::Plant;
+use crate::synth::faults::Timeline;
 use crate::synth::scene::Finger;
 
 /// One camera frame kept by the capture computer.
@@ -89,17 +89,17 @@ pub(super) fn camera_frames(
 /// to four, evenly spread over the exposure, one per [`BLUR_STEP_PX`] of motion (motion blur).
 pub(crate) fn finger_poses(
     c: &CaptureConfig,
-    plant: &Plant,
+    timeline: &Timeline,
     motion: &Motion,
     camera: &Camera,
     t: f64,
 ) -> Result<Vec<Finger>, SynthError> {
     let pose = |t: f64| -> Result<Finger, SynthError> {
-        let line = plant.centre_line(motion.at(t))?;
+        let line = timeline.centre_line(motion, t)?;
         Ok(Finger::from_centre_line(&line, AXIS_STRIDE))
     };
     let exposure = c.realism.exposure_s;
-    let tip = |t: f64| plant.tip(motion.at(t)).map(|p| camera.project(&p.into()));
+    let tip = |t: f64| timeline.tip(motion, t).map(|p| camera.project(&p.into()));
     let moved = match (tip(t - exposure / 2.0)?, tip(t + exposure / 2.0)?) {
         (Some(a), Some(b)) => (a[0] - b[0]).hypot(a[1] - b[1]),
         _ => 0.0,

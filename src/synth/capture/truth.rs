@@ -10,7 +10,7 @@ use crate::session::protocol::Step;
 use crate::stereo::Side;
 use crate::synth::camera::Rig;
 use crate::synth::dynamics::Motion;
-use crate::synth::plant::Plant;
+use crate::synth::faults::Timeline;
 use crate::synth::scene::Board;
 
 fn mat3(m: &Matrix3<f64>) -> Vec<f64> {
@@ -112,7 +112,7 @@ pub(super) fn tips_csv(rig: &Rig, steps: &[Step], tips: &[[f64; 3]]) -> String {
 
 pub(super) fn truth_frames(
     rig: &Rig,
-    plant: &Plant,
+    timeline: &Timeline,
     motion: &Motion,
     seed: u64,
     c: &CaptureConfig,
@@ -125,11 +125,8 @@ pub(super) fn truth_frames(
             .chain(["u_px", "v_px", "occluded"]),
     );
     for f in frames {
-        let tip = plant.tip(motion.at(f.exposure_s))?;
-        let cam = match f.camera {
-            Side::Left => &rig.left,
-            Side::Right => &rig.right,
-        };
+        let tip = timeline.tip(motion, f.exposure_s)?;
+        let cam = timeline.camera(rig, f.camera, f.exposure_s);
         let [u, v] = cam
             .project(&Point3::from(tip))
             .unwrap_or([f64::NAN, f64::NAN]);
@@ -153,7 +150,7 @@ pub(super) fn truth_frames(
 /// left frame, at its timestamp, the command in force then and the true tip at its exposure
 /// (`time_s,phase,P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm,frame,exposure_s`).
 pub(super) fn per_frame_csv(
-    plant: &Plant,
+    timeline: &Timeline,
     motion: &Motion,
     steps: &[Step],
     frames: &[Filmed],
@@ -166,7 +163,7 @@ pub(super) fn per_frame_csv(
             .chain(["frame", "exposure_s"]),
     );
     for f in frames.iter().filter(|f| f.camera == Side::Left) {
-        let tip = plant.tip(motion.at(f.exposure_s))?;
+        let tip = timeline.tip(motion, f.exposure_s)?;
         let Step {
             phase,
             pressures: p,

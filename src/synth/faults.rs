@@ -1,0 +1,210 @@
+//! Faults injected in a virtual session at given times (`synth --fault KIND@T=AMOUNT`), and
+//! the [`Timeline`] that says what the finger and the cameras are at each instant.
+//!
+//! - `camera@T=DEG`: the right camera tilts by DEG degrees about its own x axis at T (a bump).
+//!   Its beads leave their epipolar lines by about f·tan(DEG), so the reprojection residual
+//!   says so, and the tip moves. A pan (about the camera's y axis) would move the bead along
+//!   the epipolar lines of a side-by-side pair: the tip would shift in depth with no residual
+//!   to tell, which two cameras cannot see and the model's errors can.
+//! - `stiffness@T=SHARE`: from T the finger's bending and axial stiffness are 1 + SHARE times
+//!   what they were (−0.1: 10 % softer).
+//! - `leak@T=SHARE`: muscle 1 loses up to SHARE of its pressure, linearly over the minute after
+//!   T (a slow leak: what the regulator is told is not what the muscle holds).
+
+use std::str::FromStr;
+
+use nalgebra::{Rotation3, Vector3};
+use serde::Serialize;
+
+use super::camera::{Camera, Rig};
+use super::dynamics::Motion;
+use super::plant::{Plant, PlantError, PlantParams, Pressures};
+use crate::stereo::Side;
+
+/// What goes wrong, and when.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Fault {
+    pub kind: FaultKind,
+    pub at_s: f64,
+    pub amount: f64,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FaultKind {
+    Camera,
+    Stiffness,
+    Leak,
+}
+
+impl FromStr for Fault {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Fault, String> {
+        let usage = || {
+            format!("{s:?} is not a fault: give KIND@T=AMOUNT, KIND one of camera, stiffness, leak (e.g. stiffness@40=-0.1)")
+        };
+        let (kind, rest) = s.split_once('@').ok_or_else(usage)?;
+        let (at, amount) = rest.split_once('=').ok_or_else(usage)?;
+        let kind = match kind {
+            "camera" => FaultKind::Camera,
+            "stiffness" => FaultKind::Stiffness,
+            "leak" => FaultKind::Leak,
+            _ => return Err(usage()),
+        };
+        let number = |v: &str| v.trim().parse::<f64>().ok().filter(|v| v.is_finite());
+        let (Some(at_s), Some(amount)) = (number(at), number(amount)) else {
+            return Err(usage());
+        };
+        let fine = match kind {
+            FaultKind::Camera => amount.abs() <= 10.0,
+            FaultKind::Stiffness => amount > -0.9 && amount <= 10.0,
+            FaultKind::Leak => (0.0..=1.0).contains(&amount),
+        };
+        if at_s < 0.0 || !fine {
+            return Err(format!("{s}: the time must be ≥ 0 s and the amount within a camera's ±10°, a stiffness share above −0.9, a leak's share within 0-1"));
+        }
+        Ok(Fault { kind, at_s, amount })
+    }
+}
+
+/// The finger and the cameras as the faults make them at each instant.
+pub struct Timeline {
+    before: Plant,
+    /// The finger from the stiffness fault on.
+    after: Option<(f64, Plant)>,
+    leak: Option<(f64, f64)>,
+    /// The right camera from the camera fault on.
+    knocked: Option<(f64, Camera)>,
+}
+
+impl Timeline {
+    /// The finger of `params` and the cameras of `rig`, changed by `faults` (the first of each
+    /// kind).
+    pub fn new(params: &PlantParams, rig: &Rig, faults: &[Fault]) -> Timeline {
+        let of = |kind| faults.iter().find(|f| f.kind == kind);
+        Timeline {
+            before: Plant::new(params.clone()),
+            after: of(FaultKind::Stiffness).map(|f| {
+                let scale = 1.0 + f.amount;
+                let changed = PlantParams {
+                    bend_stiffness_x_nmm2: params.bend_stiffness_x_nmm2 * scale,
+                    bend_stiffness_y_nmm2: params.bend_stiffness_y_nmm2 * scale,
+                    axial_stiffness_n: params.axial_stiffness_n * scale,
+                    ..params.clone()
+                };
+                (f.at_s, Plant::new(changed))
+            }),
+            leak: of(FaultKind::Leak).map(|f| (f.at_s, f.amount)),
+            knocked: of(FaultKind::Camera).map(|f| {
+                let turn = Rotation3::from_axis_angle(&Vector3::x_axis(), f.amount.to_radians());
+                let mut right = rig.right.clone();
+                right.pose.rotation = turn * right.pose.rotation;
+                right.pose.translation = turn * right.pose.translation;
+                (f.at_s, right)
+            }),
+        }
+    }
+
+    /// The finger at `t` and what its muscles hold of the pressures `p` commanded then.
+    fn finger(&self, t: f64, mut p: Pressures) -> (&Plant, Pressures) {
+        if let Some((at, share)) = self.leak {
+            p[0] *= 1.0 - share * ((t - at) / 60.0).clamp(0.0, 1.0);
+        }
+        match &self.after {
+            Some((at, plant)) if t >= *at => (plant, p),
+            _ => (&self.before, p),
+        }
+    }
+
+    /// The finger as it starts (for what stays put: its base).
+    pub fn plant(&self) -> &Plant {
+        &self.before
+    }
+
+    /// The tip at `t` of the `motion`.
+    ///
+    /// # Errors
+    /// The plant's, for pressures out of its range.
+    pub fn tip(&self, motion: &Motion, t: f64) -> Result<[f64; 3], PlantError> {
+        let (plant, p) = self.finger(t, motion.at(t));
+        plant.tip(p)
+    }
+
+    /// The settled tip of pressures `p` commanded at `t`.
+    ///
+    /// # Errors
+    /// As [`Timeline::tip`].
+    pub fn settled_tip(&self, t: f64, p: Pressures) -> Result<[f64; 3], PlantError> {
+        let (plant, p) = self.finger(t, p);
+        plant.tip(p)
+    }
+
+    /// The centre line at `t` of the `motion`.
+    ///
+    /// # Errors
+    /// As [`Timeline::tip`].
+    pub fn centre_line(&self, motion: &Motion, t: f64) -> Result<Vec<[f64; 3]>, PlantError> {
+        let (plant, p) = self.finger(t, motion.at(t));
+        plant.centre_line(p)
+    }
+
+    /// Camera `side` of `rig` as it is at `t`.
+    pub fn camera<'a>(&'a self, rig: &'a Rig, side: Side, t: f64) -> &'a Camera {
+        match (side, &self.knocked) {
+            (Side::Right, Some((at, knocked))) if t >= *at => knocked,
+            (Side::Right, _) => &rig.right,
+            (Side::Left, _) => &rig.left,
+        }
+    }
+
+    /// The right camera knocked, and from when.
+    pub fn knocked(&self) -> Option<&(f64, Camera)> {
+        self.knocked.as_ref()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn faults_parse_and_bad_ones_are_named() {
+        let f: Fault = "stiffness@40=-0.1".parse().unwrap();
+        assert_eq!(f.kind, FaultKind::Stiffness);
+        assert_eq!((f.at_s, f.amount), (40.0, -0.1));
+        for bad in [
+            "stiffness",
+            "payload@4=0.2",
+            "leak@x=0.1",
+            "leak@10=2",
+            "camera@-1=0.5",
+        ] {
+            assert!(bad.parse::<Fault>().is_err(), "{bad}");
+        }
+    }
+
+    /// A softer finger bends further from its time on; a leak lowers the tip it gives over the
+    /// minute after it, not before.
+    #[test]
+    fn the_finger_changes_at_its_fault_and_not_before() {
+        let rig = crate::synth::camera::RigConfig::default().build(1);
+        let faults = ["stiffness@10=-0.2", "leak@20=0.5"].map(|f| f.parse().unwrap());
+        let timeline = Timeline::new(&PlantParams::default(), &rig, &faults);
+        let p = [150.0, 0.0, 0.0];
+        let at = |t| timeline.settled_tip(t, p).unwrap();
+        let bend = |tip: [f64; 3]| tip[0].hypot(tip[1]);
+        assert_eq!(at(0.0), at(9.9));
+        assert!(
+            bend(at(10.0)) > 1.1 * bend(at(9.9)),
+            "{:?} {:?}",
+            at(10.0),
+            at(9.9)
+        );
+        assert!(bend(at(80.0)) < 0.8 * bend(at(20.0)));
+        assert!(
+            (bend(at(50.0)) - 0.5 * (bend(at(20.0)) + bend(at(80.0)))).abs() < 0.3 * bend(at(20.0))
+        );
+        assert_eq!(timeline.camera(&rig, Side::Right, 1e6), &rig.right);
+    }
+}
