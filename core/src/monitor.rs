@@ -215,6 +215,13 @@ impl Channel {
     }
 }
 
+/// How long after a finger change a camera's may be dated and still explain it (s): the
+/// CUSUM dates a change to within a few looks.
+const CAMERA_FIRST_S: f64 = 10.0;
+
+/// A finger alarm's advice when a camera moved first.
+const FINGER_AFTER_CAMERA: &str = "the tips moved with the camera that moved: recalibrate and triangulate again first, then watch again before refitting the model";
+
 /// One alarm.
 #[derive(Clone, Debug, Serialize)]
 pub struct Alarm {
@@ -349,6 +356,9 @@ pub fn watch(
             .partition_point(|&r| r < t)
             .min(errors.times.len().saturating_sub(1))
     };
+    // A camera that moved before the finger's change (or within the camera's own dating of
+    // it) moved the tips it gives: the finger alarm is then the camera's to explain first.
+    let camera_change = alarms.iter().find(|a| a.0 == Channel::Camera).map(|a| a.2);
     let alarms: Vec<Alarm> = alarms
         .into_iter()
         .map(|(channel, time_s, change_s)| Alarm {
@@ -356,7 +366,12 @@ pub fn watch(
             time_s,
             change_s,
             row: at_row(time_s),
-            advice: channel.advice(),
+            advice: match camera_change {
+                Some(c) if channel == Channel::Finger && c <= change_s + CAMERA_FIRST_S => {
+                    FINGER_AFTER_CAMERA
+                }
+                _ => channel.advice(),
+            },
         })
         .collect();
     let mut band = Band::new(radius, settings.level, settings.gain);
@@ -494,6 +509,32 @@ mod tests {
         assert_eq!(alarm.channel, Channel::Camera);
         assert!(alarm.time_s >= 200.0 && alarm.time_s < 230.0, "{alarm:?}");
         assert!((alarm.change_s - 200.0).abs() < 10.0, "{alarm:?}");
+    }
+
+    /// A camera that moves shifts the tips too: the finger alarm that follows says so.
+    #[test]
+    fn a_finger_alarm_after_a_camera_alarm_points_at_the_camera() {
+        let mut rng = ChaCha8Rng::seed_from_u64(4);
+        let n = 30 * 300;
+        let mut e = errors(&mut rng, n, 1.0);
+        let mut r = errors(&mut rng, n, 0.2);
+        for k in 30 * 200..n {
+            (e[k], r[k]) = (e[k] * 3.0, r[k] * 4.0);
+        }
+        let times: Vec<f64> = (0..n).map(|k| k as f64 / 30.0).collect();
+        let series = |values| Series {
+            times: &times,
+            values,
+        };
+        let watched = watch(series(&e), Some(series(&r)), 1.645, &Settings::default());
+        let finger = watched
+            .alarms
+            .iter()
+            .find(|a| a.channel == Channel::Finger)
+            .unwrap();
+        assert_eq!(finger.advice, FINGER_AFTER_CAMERA);
+        let alone = watch(series(&e), None, 1.645, &Settings::default());
+        assert_eq!(alone.alarms[0].advice, Channel::Finger.advice());
     }
 
     /// Rows the triangulation refused because the views disagree are geometry misses (+∞):
