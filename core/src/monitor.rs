@@ -237,7 +237,7 @@ pub struct Alarm {
 
 /// One row as the monitor saw it.
 #[derive(Clone, Debug)]
-pub struct Watched {
+pub struct Seen {
     /// The band's radius before the row was seen.
     pub band: f64,
     pub covered: bool,
@@ -251,7 +251,7 @@ pub struct Watched {
 #[derive(Clone, Debug, Serialize)]
 pub struct Monitored {
     #[serde(skip)]
-    pub rows: Vec<Watched>,
+    pub rows: Vec<Seen>,
     pub alarms: Vec<Alarm>,
     /// The share of rows the band held.
     pub coverage: f64,
@@ -375,12 +375,12 @@ pub fn watch(
         })
         .collect();
     let mut band = Band::new(radius, settings.level, settings.gain);
-    let rows: Vec<Watched> = errors
+    let rows: Vec<Seen> = errors
         .times
         .iter()
         .zip(errors.values)
         .enumerate()
-        .map(|(k, (&t, &e))| Watched {
+        .map(|(k, (&t, &e))| Seen {
             band: band.radius(),
             covered: band.update(e),
             model_stat: model.stats[k],
