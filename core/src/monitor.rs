@@ -6,10 +6,12 @@
 //! The band's radius starts at the model file's calibrated radius r₀ at the level asked and
 //! follows the errors seen by quantile tracking (the P part of conformal PID control,
 //! Angelopoulos, Candès & Tibshirani 2023, which is adaptive conformal inference on the
-//! radius itself): after each row, r ← r + η (1[e > r] − α), α = 1 − level, η = `gain` · r₀.
-//! Whatever the errors do, the radius stays within [−η, max e + η], so over T rows the share
-//! the band missed is within (max e + 2η) / (η T) of α: the stated level holds on any session,
-//! drift or none, and after a change the band widens within a few dozen rows.
+//! radius itself): after each row, r ← r + η (1[e > r] − α), α = 1 − level, η = `gain` times
+//! the larger of r₀ and the largest of the last 100 errors (conformal PID scales its step so,
+//! by the scores seen). Whatever the errors do, the radius stays within [−η, max e + η], so
+//! over T rows the share the band missed comes to α, within about (max e + 2η) / (η T): the
+//! stated level holds on any session, drift or none, and after a change the band widens
+//! within a few dozen rows, even when the errors grow tenfold.
 //!
 //! # The alarms
 //! A band that follows the errors never says they changed; the alarms do. Each is a Bernoulli
@@ -119,18 +121,28 @@ impl Settings {
 #[derive(Clone, Debug)]
 pub struct Band {
     radius: f64,
-    step: f64,
+    gain: f64,
     miss: f64,
+    /// The starting radius, the least scale of a step.
+    start: f64,
+    /// The last [`STEP_WINDOW`] errors, for the step's scale.
+    recent: std::collections::VecDeque<f64>,
 }
 
+/// How many of the last errors set the band's step ([`Band`]).
+pub const STEP_WINDOW: usize = 100;
+
 impl Band {
-    /// A band starting at `radius` that tracks the `level` quantile with steps of `gain` ·
-    /// `radius`.
+    /// A band starting at `radius` that tracks the `level` quantile with steps of `gain` times
+    /// the larger of `radius` and the largest of the last [`STEP_WINDOW`] errors (conformal
+    /// PID's scaled step: errors grown tenfold are followed in tens of rows, not hundreds).
     pub fn new(radius: f64, level: f64, gain: f64) -> Band {
         Band {
             radius,
-            step: gain * radius,
+            gain,
             miss: 1.0 - level,
+            start: radius,
+            recent: std::collections::VecDeque::with_capacity(STEP_WINDOW),
         }
     }
 
@@ -141,8 +153,13 @@ impl Band {
 
     /// Takes the row's error; whether the band held it.
     pub fn update(&mut self, error: f64) -> bool {
+        if self.recent.len() == STEP_WINDOW {
+            self.recent.pop_front();
+        }
+        self.recent.push_back(error);
+        let scale = self.recent.iter().copied().fold(self.start, f64::max);
         let covered = error <= self.radius;
-        self.radius += self.step * (f64::from(u8::from(!covered)) - self.miss);
+        self.radius += self.gain * scale * (f64::from(u8::from(!covered)) - self.miss);
         covered
     }
 }
