@@ -223,6 +223,14 @@ pub enum Channel {
 }
 
 impl Channel {
+    /// The channel's name in files and messages (as it serialises).
+    pub fn name(self) -> &'static str {
+        match self {
+            Channel::Finger => "finger",
+            Channel::Camera => "camera",
+        }
+    }
+
     /// What the alarm says and what to do.
     pub fn advice(self) -> &'static str {
         match self {

@@ -16,7 +16,7 @@
 //! points (±8 px), distortion (±15 %) and mounting (±2 mm, ±1°) of each camera, as two units of
 //! one webcam model and a hand-built rig differ.
 
-use nalgebra::{Matrix3, Point3, Rotation3, Unit, Vector3};
+use nalgebra::{Matrix3, Matrix3x4, Point3, Rotation3, Unit, Vector3};
 
 use crate::geometry::{relative, CamFromWorld, Intrinsics, RightFromLeft};
 use rand::{Rng, SeedableRng};
@@ -36,6 +36,16 @@ impl Camera {
     /// Pixel of a world point; `None` behind the camera.
     pub fn project(&self, p: &Point3<f64>) -> Option<[f64; 2]> {
         self.intrinsics.pixel(&self.pose.apply(p))
+    }
+
+    /// K [R | t]: world points to undistorted pixels (the projection a calibration's K and
+    /// undistorted points describe).
+    pub fn projection(&self) -> Matrix3x4<f64> {
+        let mut rt = Matrix3x4::zeros();
+        rt.fixed_view_mut::<3, 3>(0, 0)
+            .copy_from(self.pose.rotation.matrix());
+        rt.set_column(3, &self.pose.translation);
+        Matrix3::from_row_slice(&self.intrinsics.k) * rt
     }
 
     /// World-space direction (unit) of the ray through normalised coordinates (x, y).

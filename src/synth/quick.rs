@@ -8,12 +8,12 @@
 
 use std::path::{Path, PathBuf};
 
-use nalgebra::{Matrix3, Matrix3x4, Point3};
+use nalgebra::{Matrix3x4, Point3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 
-use super::camera::{Camera, RigConfig};
+use super::camera::RigConfig;
 use super::dynamics::{Dynamics, Motion};
 use super::faults::{Fault, Timeline};
 use super::plant::{PlantParams, Pressures};
@@ -28,16 +28,6 @@ pub const FPS: f64 = 30.0;
 /// A bead centre's pixel noise per axis (px): a per-frame tip of about 0.04 mm, as the
 /// rendered sessions give.
 pub const PIXEL_NOISE_PX: f64 = 0.1;
-
-/// K [R | t] of a camera's undistorted pixels.
-fn projection(camera: &Camera) -> Matrix3x4<f64> {
-    let k = Matrix3::from_row_slice(&camera.intrinsics.k);
-    let mut rt = Matrix3x4::zeros();
-    rt.fixed_view_mut::<3, 3>(0, 0)
-        .copy_from(camera.pose.rotation.matrix());
-    rt.set_column(3, &camera.pose.translation);
-    k * rt
-}
 
 /// Where `projection` sees `p` (px).
 fn see(projection: &Matrix3x4<f64>, p: &Point3<f64>) -> [f64; 2] {
@@ -91,10 +81,10 @@ pub fn write(
         .collect();
     let motion = Motion::simulate(&commands, &Dynamics::PNEUMATIC, plant.hysteresis_kpa, end);
     let timeline = Timeline::new(plant, &rig, faults);
-    let calibrated = [projection(&rig.left), projection(&rig.right)];
+    let calibrated = [rig.left.projection(), rig.right.projection()];
     let knocked = timeline
         .knocked()
-        .map(|(at, camera)| (*at, projection(camera)));
+        .map(|(at, camera)| (*at, camera.projection()));
     let noise = Normal::new(0.0, PIXEL_NOISE_PX).expect("a positive noise");
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5155_4943);
     let mut session = Csv::new([

@@ -326,26 +326,17 @@ mod tests {
     /// rays starts it now: gated as inconsistent, or, ungated, a point near the tip.
     #[test]
     fn a_pair_that_disagrees_is_fitted_and_gated_not_lost() {
-        use crate::synth::camera::{Camera, RigConfig};
-        let projection = |c: &Camera| {
-            let k = Matrix3::from_row_slice(&c.intrinsics.k);
-            let mut rt = Matrix3x4::zeros();
-            rt.fixed_view_mut::<3, 3>(0, 0)
-                .copy_from(c.pose.rotation.matrix());
-            rt.set_column(3, &c.pose.translation);
-            k * rt
-        };
+        use crate::synth::{camera::RigConfig, faults::Timeline, plant::PlantParams};
         let rig = RigConfig::default().build(5);
-        let turn = nalgebra::Rotation3::from_axis_angle(&Vector3::x_axis(), 0.5f64.to_radians());
-        let mut knocked = rig.right.clone();
-        knocked.pose.rotation = turn * knocked.pose.rotation;
-        knocked.pose.translation = turn * knocked.pose.translation;
+        let knock = ["camera@0=0.5".parse().unwrap()];
+        let timeline = Timeline::new(&PlantParams::default(), &rig, &knock);
+        let knocked = &timeline.knocked().unwrap().1;
         let tip = Vector3::new(4.969, 0.121, 0.649);
         let views = [
-            seen(projection(&rig.left), &tip),
+            seen(rig.left.projection(), &tip),
             View {
-                projection: projection(&rig.right),
-                ..seen(projection(&knocked), &tip)
+                projection: rig.right.projection(),
+                ..seen(knocked.projection(), &tip)
             },
         ];
         match triangulate(&views, 0.99) {

@@ -205,8 +205,7 @@ impl Replay {
                 number(row.model_stat),
                 self.residual(i).map_or_else(String::new, number),
                 row.geometry_stat.map_or_else(String::new, number),
-                row.alarm
-                    .map_or_else(String::new, |c| channel_name(c).to_string()),
+                row.alarm.map_or_else(String::new, |c| c.name().to_string()),
             ]);
             csv.row(record);
         }
@@ -269,13 +268,6 @@ fn after_change(
             Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(super::io_error(&path)(e)),
             _ => Ok(None),
         },
-    }
-}
-
-fn channel_name(channel: Channel) -> &'static str {
-    match channel {
-        Channel::Finger => "finger",
-        Channel::Camera => "camera",
     }
 }
 
@@ -347,7 +339,7 @@ impl std::fmt::Display for Watched {
             writeln!(
                 f,
                 "alarm: {} at {:.1} s (the change began about {:.1} s): {}",
-                channel_name(a.channel),
+                a.channel.name(),
                 a.time_s,
                 a.change_s,
                 a.advice
