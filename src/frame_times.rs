@@ -96,9 +96,10 @@ pub fn period(times: &[f64]) -> f64 {
 }
 
 /// A free-running camera's stamps put back on its own clock: the camera exposes every
-/// `period` on a crystal, the computer's stamps add the USB's jitter. Each frame's slot
-/// n = round((t − t₀) / period), t₀ the stamps' mean phase (a dropped frame skips one), then the line t = a + b · n fitted by
-/// least squares, once more without the stamps more than a quarter period off it; the line's
+/// `period` on a crystal, the computer's stamps add the USB's jitter and its queues. Each
+/// frame's slot n ([`slots`]: a dropped frame skips one, frames handed over together keep
+/// their own), then the line t = a + b · n fitted by least squares, once more without the
+/// stamps more than a quarter period off it (a queued frame's); the line's
 /// times, and the RMS of the stamps about it (s). `None` when the stamps do not lie on one line
 /// (an RMS over a sixth of a period: a camera that changed its rate or paused), or with fewer
 /// than three frames.
@@ -106,18 +107,9 @@ pub fn regular(times: &[f64], period: f64) -> Option<(Vec<f64>, f64)> {
     if times.len() < 3 || period.is_nan() || period <= 0.0 {
         return None;
     }
-    // The slots counted from the stamps' mean phase on the period (a circular mean), not from
-    // the first stamp: a first frame stamped half a period late would split the others'
-    // rounding between two slots.
-    let (sin, cos) = times.iter().fold((0.0, 0.0), |(s, c), t| {
-        let angle = std::f64::consts::TAU * (t - times[0]) / period;
-        (s + angle.sin(), c + angle.cos())
-    });
-    let anchor = times[0] + sin.atan2(cos) / std::f64::consts::TAU * period;
-    let slots: Vec<f64> = times
-        .iter()
-        .map(|t| ((t - anchor) / period).round())
-        .collect();
+    // Each frame's slot on the camera's clock: a queue's frames, the opening burst's too,
+    // each in its own slot, and a drop a slot skipped.
+    let slots: Vec<f64> = slots(times, period).into_iter().map(|n| n as f64).collect();
     let fit = |keep: &dyn Fn(usize) -> bool| -> Option<(f64, f64)> {
         let points: Vec<(f64, f64)> = (0..times.len())
             .filter(|&k| keep(k))
@@ -427,6 +419,20 @@ mod tests {
         let (regular, _) = regular(&times, period(&times)).unwrap();
         for (k, t) in regular.iter().enumerate().skip(1) {
             assert!((t - 0.046 - k as f64 * p).abs() < 5e-4, "frame {k}: {t}");
+        }
+    }
+
+    /// A stream's first three frames handed over at once (the lab's opening queue: stamped
+    /// 7, 9 and 16 ms, the next 53 ms) are the three exposures before the fourth, not one.
+    #[test]
+    fn frames_a_stream_hands_over_at_once_as_it_opens_keep_their_own_slots() {
+        let p = 1.0 / 30.0;
+        let exposed = |k: usize| 0.053 + (k as f64 - 3.0) * p;
+        let mut times: Vec<f64> = (0..300).map(exposed).collect();
+        times[..3].copy_from_slice(&[0.007, 0.009, 0.016]);
+        let (regular, _) = regular(&times, period(&times)).unwrap();
+        for (k, t) in regular.iter().enumerate() {
+            assert!((t - exposed(k)).abs() < 1e-3, "frame {k}: {t}");
         }
     }
 

@@ -46,6 +46,12 @@
 //! log-likelihood steps balance), which a stiffness change of 15 % or a tilted camera passes
 //! within seconds.
 
+//!
+//! # As the rows come
+//! [`Monitor`] takes a session's rows one at a time, each row's residual before its error,
+//! and says an alarm on the row it fires (`capture --model`, live); [`watch`] replays a
+//! recorded session through it.
+
 use serde::Serialize;
 
 /// How the monitor watches.
@@ -240,6 +246,15 @@ impl Channel {
     }
 }
 
+/// The baseline's median reprojection residual (px) over which the calibration is not the
+/// cameras' ([`Monitor::misfit`]): a rig as calibrated reprojects its beads within a few
+/// tenths of a pixel, and the triangulation refuses views a pixel or two apart.
+pub const MISFIT_PX: f64 = 2.0;
+
+/// The triangulation's flag on a row whose views disagreed beyond its gate: the geometry
+/// channel's miss (+∞), whatever the residual.
+pub const DISAGREED: &str = "reprojection";
+
 /// How long after a finger change a camera's may be dated and still explain it (s): the
 /// CUSUM dates a change to within a few looks.
 const CAMERA_FIRST_S: f64 = 10.0;
@@ -258,6 +273,19 @@ pub struct Alarm {
     /// The row the alarm was raised at (0-based).
     pub row: usize,
     pub advice: &'static str,
+}
+
+impl std::fmt::Display for Alarm {
+    fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        write!(
+            f,
+            "{} at {:.1} s (the change began about {:.1} s): {}",
+            self.channel.name(),
+            self.time_s,
+            self.change_s,
+            self.advice
+        )
+    }
 }
 
 /// One row as the monitor saw it.
@@ -286,6 +314,10 @@ pub struct Monitored {
     pub model_reference: f64,
     /// The geometry alarm's reference (px), when the rows have residuals.
     pub geometry_reference_px: Option<f64>,
+    /// The baseline's median reprojection residual (px; a row refused as disagreeing views
+    /// counts as +∞), when the rows have residuals: over [`MISFIT_PX`], the calibration is not
+    /// this rig's.
+    pub baseline_median_px: Option<f64>,
     /// The alarms' threshold h.
     pub threshold: f64,
 }
@@ -297,135 +329,262 @@ pub struct Series<'a> {
     pub values: &'a [f64],
 }
 
-/// A channel watched: its statistic after each of its values, and its alarm (the value's
-/// index, and when the change began).
-struct Channelled {
-    stats: Vec<f64>,
-    alarm: Option<(usize, f64)>,
+/// One channel watched as its values come: its values kept until the baseline ends, then a
+/// look every `look_s` through a [`Cusum`] against the baseline's reference.
+#[derive(Clone, Debug)]
+struct Watcher {
+    /// The reference: this quantile of the baseline's values, at most `cap`.
+    quantile: f64,
+    cap: f64,
+    /// The baseline's values, until the reference is set.
+    baseline: Vec<f64>,
+    /// Once the baseline ended: the reference (`None`: no finite one), and the baseline's
+    /// median (+∞ when more than half its values were).
+    decided: Option<(Option<f64>, f64)>,
+    cusum: Cusum,
+    next_look: f64,
+    look_times: Vec<f64>,
+    /// Whether a value came.
+    seen: bool,
 }
 
-/// Looks at `series` once every `settings.look_s` from `from` s on, a miss a value over
-/// `reference` (expected at rate `p0`), through a [`Cusum`].
-fn looks(series: Series, reference: f64, p0: f64, from: f64, settings: &Settings) -> Channelled {
-    let mut cusum = Cusum::new(p0, settings.threshold());
-    let (mut next, mut look_times, mut alarm) = (from, Vec::new(), None);
-    let stats = series
-        .times
-        .iter()
-        .zip(series.values)
-        .enumerate()
-        .map(|(k, (&t, &v))| {
-            if t >= next {
-                next = t + settings.look_s;
-                look_times.push(t);
-                if let Some(back) = cusum.look(v > reference) {
-                    let n = look_times.len();
-                    alarm = Some((k, look_times[n - 1 - back.min(n - 1)]));
-                }
-            }
-            cusum.stat()
+impl Watcher {
+    /// Misses expected at rate `p0` against the `quantile` of the baseline (at most `cap`).
+    fn new(quantile: f64, cap: f64, p0: f64, threshold: f64) -> Watcher {
+        Watcher {
+            quantile,
+            cap,
+            baseline: Vec::new(),
+            decided: None,
+            cusum: Cusum::new(p0, threshold),
+            next_look: f64::NEG_INFINITY,
+            look_times: Vec::new(),
+            seen: false,
+        }
+    }
+
+    /// The baseline's reference (without values, `cap` when it is finite), and its median;
+    /// decided once.
+    fn decide(&mut self) -> (Option<f64>, f64) {
+        *self.decided.get_or_insert_with(|| {
+            let q = crate::stats::quantiles(&mut self.baseline, [self.quantile, 0.5]);
+            let reference = q
+                .map(|[q, _]| q.min(self.cap))
+                .or(Some(self.cap))
+                .filter(|r| r.is_finite());
+            self.baseline = Vec::new();
+            (reference, q.map_or(0.0, |[_, median]| median))
         })
-        .collect();
-    Channelled { stats, alarm }
+    }
+
+    /// Takes the value `v` at `t` (the baseline ending at `baseline_end`); on the alarm, when
+    /// the change began.
+    fn take(&mut self, t: f64, v: f64, baseline_end: f64, look_s: f64) -> Option<f64> {
+        self.seen = true;
+        if t < baseline_end {
+            self.baseline.push(v);
+            return None;
+        }
+        let reference = self.decide().0?;
+        if t < self.next_look {
+            return None;
+        }
+        self.next_look = t + look_s;
+        self.look_times.push(t);
+        let back = self.cusum.look(v > reference)?;
+        let n = self.look_times.len();
+        Some(self.look_times[n - 1 - back.min(n - 1)])
+    }
+}
+
+/// The monitor as the rows come ([`watch`] replays a whole session through it): push each
+/// row's reprojection residual ([`Monitor::geometry`]) before its model error
+/// ([`Monitor::error`]), in time order.
+#[derive(Clone, Debug)]
+pub struct Monitor {
+    settings: Settings,
+    radius: f64,
+    band: Band,
+    /// The first row's time, and the baseline's end.
+    baseline_end: Option<f64>,
+    finger: Watcher,
+    camera: Watcher,
+    rows: Vec<Seen>,
+    alarms: Vec<Alarm>,
+}
+
+impl Monitor {
+    /// A monitor of a model whose calibrated radius at `settings.level` is `radius`.
+    pub fn new(radius: f64, settings: &Settings) -> Monitor {
+        let h = settings.threshold();
+        Monitor {
+            settings: settings.clone(),
+            radius,
+            band: Band::new(radius, settings.level, settings.gain),
+            baseline_end: None,
+            finger: Watcher::new(settings.level, radius, 1.0 - settings.level, h),
+            camera: Watcher::new(0.9, f64::INFINITY, 0.1, h),
+            rows: Vec::new(),
+            alarms: Vec::new(),
+        }
+    }
+
+    fn baseline_end(&mut self, t: f64) -> f64 {
+        *self
+            .baseline_end
+            .get_or_insert(t + self.settings.baseline_s)
+    }
+
+    /// A row's reprojection residual at `t` (px; +∞ where the views disagreed beyond the
+    /// triangulation's gate); the camera alarm, when it fires.
+    pub fn geometry(&mut self, t: f64, px: f64) -> Option<Alarm> {
+        let end = self.baseline_end(t);
+        let change_s = self.camera.take(t, px, end, self.settings.look_s)?;
+        let alarm = Alarm {
+            channel: Channel::Camera,
+            time_s: t,
+            change_s,
+            // The next model row.
+            row: self.rows.len(),
+            advice: Channel::Camera.advice(),
+        };
+        self.alarms.push(alarm.clone());
+        Some(alarm)
+    }
+
+    /// A row's model error at `t`: the row as seen, and the finger alarm when it fires.
+    pub fn error(&mut self, t: f64, e: f64) -> (Seen, Option<Alarm>) {
+        let end = self.baseline_end(t);
+        let change = self.finger.take(t, e, end, self.settings.look_s);
+        let row = self.rows.len();
+        let alarm = change.map(|change_s| {
+            let alarm = Alarm {
+                channel: Channel::Finger,
+                time_s: t,
+                change_s,
+                row,
+                advice: finger_advice(change_s, &self.alarms),
+            };
+            self.alarms.push(alarm.clone());
+            alarm
+        });
+        let seen = Seen {
+            band: self.band.radius(),
+            covered: self.band.update(e),
+            model_stat: self.finger.cusum.stat(),
+            geometry_stat: self.camera.seen.then(|| self.camera.cusum.stat()),
+            alarm: self.alarms.iter().find(|a| a.row == row).map(|a| a.channel),
+        };
+        self.rows.push(seen.clone());
+        (seen, alarm)
+    }
+
+    /// Once the baseline ended with its median residual over [`MISFIT_PX`]: what to say, in
+    /// one line.
+    pub fn misfit(&self) -> Option<String> {
+        let (_, median) = self.camera.decided?;
+        misfit(median, self.settings.baseline_s)
+    }
+
+    /// The share of rows the band held so far.
+    pub fn coverage(&self) -> f64 {
+        let held = self.rows.iter().filter(|r| r.covered).count();
+        held as f64 / self.rows.len().max(1) as f64
+    }
+
+    /// The alarms so far.
+    pub fn alarms(&self) -> &[Alarm] {
+        &self.alarms
+    }
+
+    /// The session watched: a finger alarm's advice now knows of a camera that moved after
+    /// it was raised, and a channel whose baseline had no values shows no statistic.
+    pub fn finish(mut self) -> Monitored {
+        let model_reference = self.finger.decide().0.unwrap_or(self.radius);
+        let (geometry_reference_px, baseline_median_px) = if self.camera.seen {
+            let (reference, median) = self.camera.decide();
+            (reference, Some(median))
+        } else {
+            (None, None)
+        };
+        let last = self.rows.len().saturating_sub(1);
+        let alarms = self.alarms.clone();
+        for alarm in &mut self.alarms {
+            alarm.row = alarm.row.min(last);
+            if alarm.channel == Channel::Finger {
+                alarm.advice = finger_advice(alarm.change_s, &alarms);
+            }
+        }
+        self.alarms.sort_by(|a, b| a.time_s.total_cmp(&b.time_s));
+        for (k, row) in self.rows.iter_mut().enumerate() {
+            row.geometry_stat = geometry_reference_px.map(|_| row.geometry_stat.unwrap_or(0.0));
+            row.alarm = self.alarms.iter().find(|a| a.row == k).map(|a| a.channel);
+        }
+        Monitored {
+            coverage: self.coverage(),
+            rows: self.rows,
+            alarms: self.alarms,
+            start_radius: self.radius,
+            model_reference,
+            geometry_reference_px,
+            baseline_median_px,
+            threshold: self.settings.threshold(),
+        }
+    }
+}
+
+/// What a baseline whose median residual is `median_px` says, when it is over [`MISFIT_PX`].
+pub fn misfit(median_px: f64, baseline_s: f64) -> Option<String> {
+    (median_px > MISFIT_PX).then(|| {
+        let median = if median_px.is_finite() {
+            format!("{median_px:.2} px")
+        } else {
+            "refused (over half the rows: the views disagree)".into()
+        };
+        format!(
+            "the median reprojection residual in the first {baseline_s} s is {median}, over {MISFIT_PX} px: the calibration is not these cameras' (another rig, or a camera moved before the session); calibrate this rig"
+        )
+    })
+}
+
+/// A finger alarm's advice, dated `change_s`: a camera that moved before the finger's change
+/// (or within the camera's own dating of it) moved the tips it gives, and is the first to
+/// explain.
+fn finger_advice(change_s: f64, alarms: &[Alarm]) -> &'static str {
+    let camera = alarms.iter().find(|a| a.channel == Channel::Camera);
+    match camera {
+        Some(c) if c.change_s <= change_s + CAMERA_FIRST_S => FINGER_AFTER_CAMERA,
+        _ => Channel::Finger.advice(),
+    }
 }
 
 /// Watches the model's `errors` (the distance from each prediction to its measured tip) and,
 /// when known, the `geometry` (each row's reprojection residual, px; +∞ where the views
 /// disagreed beyond the triangulation's gate); `radius` is the model file's calibrated
-/// radius at `settings.level`.
+/// radius at `settings.level`. The rows go through a [`Monitor`] in time order.
 pub fn watch(
     errors: Series,
     geometry: Option<Series>,
     radius: f64,
     settings: &Settings,
 ) -> Monitored {
-    let first = |s: Series| s.times.first().copied().unwrap_or(f64::INFINITY);
-    let start = first(errors).min(geometry.map_or(f64::INFINITY, first));
-    let baseline_end = start + settings.baseline_s;
-    let baseline = |s: Series, q: f64| {
-        let n = s.times.partition_point(|&t| t < baseline_end);
-        crate::stats::quantiles(&mut s.values[..n].to_vec(), [q]).map(|[v]| v)
+    let mut monitor = Monitor::new(radius, settings);
+    let empty = Series {
+        times: &[],
+        values: &[],
     };
-    let model_reference = baseline(errors, settings.level).map_or(radius, |q| q.min(radius));
-    let model = looks(
-        errors,
-        model_reference,
-        1.0 - settings.level,
-        baseline_end,
-        settings,
-    );
-    let geometry_reference_px = geometry.and_then(|g| baseline(g, 0.9));
-    let camera = geometry
-        .zip(geometry_reference_px)
-        .map(|(g, reference)| (g, looks(g, reference, 0.1, baseline_end, settings)));
-
-    let mut alarms = Vec::new();
-    if let Some((k, change_s)) = model.alarm {
-        alarms.push((Channel::Finger, errors.times[k], change_s));
+    let geometry = geometry.unwrap_or(empty);
+    let mut g = geometry.times.iter().zip(geometry.values).peekable();
+    for (&t, &e) in errors.times.iter().zip(errors.values) {
+        while let Some((&s, &px)) = g.next_if(|(&s, _)| s <= t) {
+            monitor.geometry(s, px);
+        }
+        monitor.error(t, e);
     }
-    if let Some((
-        g,
-        Channelled {
-            alarm: Some((k, change_s)),
-            ..
-        },
-    )) = &camera
-    {
-        alarms.push((Channel::Camera, g.times[*k], *change_s));
+    for (&s, &px) in g {
+        monitor.geometry(s, px);
     }
-    alarms.sort_by(|a, b| a.1.total_cmp(&b.1));
-    // Each alarm on the first model row at or after it.
-    let at_row = |t: f64| {
-        errors
-            .times
-            .partition_point(|&r| r < t)
-            .min(errors.times.len().saturating_sub(1))
-    };
-    // A camera that moved before the finger's change (or within the camera's own dating of
-    // it) moved the tips it gives: the finger alarm is then the camera's to explain first.
-    let camera_change = alarms.iter().find(|a| a.0 == Channel::Camera).map(|a| a.2);
-    let alarms: Vec<Alarm> = alarms
-        .into_iter()
-        .map(|(channel, time_s, change_s)| Alarm {
-            channel,
-            time_s,
-            change_s,
-            row: at_row(time_s),
-            advice: match camera_change {
-                Some(c) if channel == Channel::Finger && c <= change_s + CAMERA_FIRST_S => {
-                    FINGER_AFTER_CAMERA
-                }
-                _ => channel.advice(),
-            },
-        })
-        .collect();
-    let mut band = Band::new(radius, settings.level, settings.gain);
-    let rows: Vec<Seen> = errors
-        .times
-        .iter()
-        .zip(errors.values)
-        .enumerate()
-        .map(|(k, (&t, &e))| Seen {
-            band: band.radius(),
-            covered: band.update(e),
-            model_stat: model.stats[k],
-            geometry_stat: camera.as_ref().map(|(g, c)| {
-                let seen = g.times.partition_point(|&s| s <= t);
-                seen.checked_sub(1).map_or(0.0, |j| c.stats[j])
-            }),
-            alarm: alarms.iter().find(|a| a.row == k).map(|a| a.channel),
-        })
-        .collect();
-    let coverage = rows.iter().filter(|r| r.covered).count() as f64 / rows.len().max(1) as f64;
-    Monitored {
-        rows,
-        alarms,
-        coverage,
-        start_radius: radius,
-        model_reference,
-        geometry_reference_px,
-        threshold: settings.threshold(),
-    }
+    monitor.finish()
 }
 
 #[cfg(test)]

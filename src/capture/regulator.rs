@@ -146,6 +146,12 @@ pub(super) struct Commanded {
 }
 
 impl Commanded {
+    /// The pressures a row in force under this command is given (kPa): what the regulator
+    /// measured, where it did (as `triangulate` writes the rows), else the command.
+    pub fn inputs(&self) -> [f64; 3] {
+        self.measured.unwrap_or(self.step.pressures)
+    }
+
     /// A streamed command written at `time_s`, due at `due_s`, not yet answered.
     pub fn streamed(time_s: f64, due_s: f64, step: &protocol::Step) -> Commanded {
         Commanded {

@@ -362,11 +362,10 @@ impl<'a> Recorder<'a> {
         self.last_viewed = now;
         let steps = self.options.protocol.as_ref().map_or(0, |(s, _)| s.len());
         let log = shared.log.lock().expect("log");
-        let latest = log.last().map(|c| (c.step.pressures, c.measured));
         let pressed = log
             .iter()
             .find(|c| c.step.pressures.iter().any(|&p| p > 0.0));
-        view.session(now, [log.len(), steps], latest, pressed.map(|c| c.time_s));
+        view.session(now, [log.len(), steps], &log, pressed.map(|c| c.time_s));
     }
 
     /// A frame arrived: its time and count noted, the flash's watch fed, and the frame stored

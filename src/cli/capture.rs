@@ -128,6 +128,13 @@ pub struct Args {
     /// frame by frame as triangulate --per-frame does, in the hand frame from the tip at rest
     #[arg(long, requires = "view")]
     view_calib: Option<PathBuf>,
+    /// With --view-calib: a model (`handcap model`'s, with intervals, of triangulate's rows) to
+    /// watch the tip against as it runs, as `handcap monitor` does: the error, the online band
+    /// and the alarms on the page, each alarm said as it fires, and OUT/monitor/ at the end
+    #[arg(long, requires = "view_calib")]
+    model: Option<PathBuf>,
+    #[command(flatten)]
+    monitor: super::MonitorArgs,
     /// Stop after this many seconds (default: the protocol's end, or Ctrl-C)
     #[arg(long, value_parser = super::finite)]
     duration_s: Option<f64>,
@@ -151,9 +158,13 @@ pub struct Args {
 pub fn run(a: Args) -> anyhow::Result<()> {
     let mut options = options(&a)?;
     if a.view {
+        let model = a.model.as_deref().map(|m| {
+            capture::view::Watching::read(m, a.monitor.settings()).map_err(|e| anyhow::anyhow!(e))
+        });
         let view = capture::view::View::start(&capture::view::ViewOptions {
             port: a.view_port,
             calib: a.view_calib.clone(),
+            model: model.transpose()?,
         })
         .map_err(|e| anyhow::anyhow!(e))?;
         println!("view {}", view.url());
@@ -167,6 +178,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .with_style(ProgressStyle::with_template("{spinner} {elapsed} {msg}").expect("template"));
     let live = |s: &Stats| {
         bar.set_message(stage::live_line(s, &options));
+        for line in options.view.iter().flat_map(|v| v.said()) {
+            bar.suspend(|| eprintln!("{line}"));
+        }
         bar.tick();
     };
     let summary = super::with_session(|session| stage::run(&a.out, &options, session, &live))?;
@@ -181,6 +195,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     );
     if let Some(result) = &summary.on_abort {
         eprintln!("ran --on-abort: {result}");
+    }
+    if let Some((trust, skipped)) = options.view.as_ref().and_then(|v| v.finish()) {
+        let out = a.out.join("monitor");
+        let watched =
+            super::with_session(|s| trust.write(&out, &a.out, skipped, s.provenance(None)))?;
+        println!("{watched}");
     }
     Ok(stage::ended(&summary, &a.out)?)
 }

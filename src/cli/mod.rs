@@ -17,7 +17,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 pub use handcap_model::cli::{
-    exit_code, finish, finite, flags, level, one_line, with_session, Modelling, Usage,
+    exit_code, finish, finite, flags, level, one_line, with_session, Modelling, MonitorArgs, Usage,
 };
 pub(crate) use handcap_model::cli::{protocol, usage};
 

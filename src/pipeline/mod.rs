@@ -24,7 +24,7 @@ pub mod triangulate;
 
 // The modelling stages and what every stage shares, from the OpenCV-free crate.
 pub use handcap_model::pipeline::{
-    create_parent, export, fit, inverse, io_error, outputs, predict, trajectory, Event,
+    create_parent, export, fit, inverse, io_error, monitor, outputs, predict, trajectory, Event,
     PipelineError, Session, Task,
 };
 

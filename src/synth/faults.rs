@@ -10,6 +10,9 @@
 //!   what they were (−0.1: 10 % softer).
 //! - `leak@T=SHARE`: muscle 1 loses up to SHARE of its pressure, linearly over the minute after
 //!   T (a slow leak: what the regulator is told is not what the muscle holds).
+//! - `payload@T=GRAMS`: from T the tip carries GRAMS (the plant's equation 7: the finger
+//!   hangs from its base; 0.2 g pulls a finger bent 10 mm about 0.17 mm back towards hanging
+//!   straight).
 
 use std::str::FromStr;
 
@@ -35,6 +38,7 @@ pub enum FaultKind {
     Camera,
     Stiffness,
     Leak,
+    Payload,
 }
 
 impl FromStr for Fault {
@@ -42,7 +46,7 @@ impl FromStr for Fault {
 
     fn from_str(s: &str) -> Result<Fault, String> {
         let usage = || {
-            format!("{s:?} is not a fault: give KIND@T=AMOUNT, KIND one of camera, stiffness, leak (e.g. stiffness@40=-0.1)")
+            format!("{s:?} is not a fault: give KIND@T=AMOUNT, KIND one of camera, stiffness, leak, payload (e.g. stiffness@40=-0.1)")
         };
         let (kind, rest) = s.split_once('@').ok_or_else(usage)?;
         let (at, amount) = rest.split_once('=').ok_or_else(usage)?;
@@ -50,6 +54,7 @@ impl FromStr for Fault {
             "camera" => FaultKind::Camera,
             "stiffness" => FaultKind::Stiffness,
             "leak" => FaultKind::Leak,
+            "payload" => FaultKind::Payload,
             _ => return Err(usage()),
         };
         let number = |v: &str| v.trim().parse::<f64>().ok().filter(|v| v.is_finite());
@@ -60,9 +65,10 @@ impl FromStr for Fault {
             FaultKind::Camera => amount.abs() <= 10.0,
             FaultKind::Stiffness => amount > -0.9 && amount <= 10.0,
             FaultKind::Leak => (0.0..=1.0).contains(&amount),
+            FaultKind::Payload => (0.0..=20.0).contains(&amount),
         };
         if at_s < 0.0 || !fine {
-            return Err(format!("{s}: the time must be ≥ 0 s and the amount within a camera's ±10°, a stiffness share above −0.9, a leak's share within 0-1"));
+            return Err(format!("{s}: the time must be ≥ 0 s and the amount within a camera's ±10°, a stiffness share above −0.9, a leak's share within 0-1, a payload's 0-20 g"));
         }
         Ok(Fault { kind, at_s, amount })
     }
@@ -71,8 +77,9 @@ impl FromStr for Fault {
 /// The finger and the cameras as the faults make them at each instant.
 pub struct Timeline {
     before: Plant,
-    /// The finger from the stiffness fault on.
-    after: Option<(f64, Plant)>,
+    /// The finger from each change on (a stiffness fault, a payload), in time order, each
+    /// with those before it.
+    after: Vec<(f64, Plant)>,
     leak: Option<(f64, f64)>,
     /// The right camera from the camera fault on.
     knocked: Option<(f64, Camera)>,
@@ -83,18 +90,29 @@ impl Timeline {
     /// kind).
     pub fn new(params: &PlantParams, rig: &Rig, faults: &[Fault]) -> Timeline {
         let of = |kind| faults.iter().find(|f| f.kind == kind);
+        let mut changes: Vec<&Fault> = [FaultKind::Stiffness, FaultKind::Payload]
+            .into_iter()
+            .filter_map(of)
+            .collect();
+        changes.sort_by(|a, b| a.at_s.total_cmp(&b.at_s));
+        let mut finger = params.clone();
+        let after = changes
+            .into_iter()
+            .map(|f| {
+                if f.kind == FaultKind::Payload {
+                    finger.tip_load_g = f.amount;
+                } else {
+                    let scale = 1.0 + f.amount;
+                    finger.bend_stiffness_x_nmm2 *= scale;
+                    finger.bend_stiffness_y_nmm2 *= scale;
+                    finger.axial_stiffness_n *= scale;
+                }
+                (f.at_s, Plant::new(finger.clone()))
+            })
+            .collect();
         Timeline {
             before: Plant::new(params.clone()),
-            after: of(FaultKind::Stiffness).map(|f| {
-                let scale = 1.0 + f.amount;
-                let changed = PlantParams {
-                    bend_stiffness_x_nmm2: params.bend_stiffness_x_nmm2 * scale,
-                    bend_stiffness_y_nmm2: params.bend_stiffness_y_nmm2 * scale,
-                    axial_stiffness_n: params.axial_stiffness_n * scale,
-                    ..params.clone()
-                };
-                (f.at_s, Plant::new(changed))
-            }),
+            after,
             leak: of(FaultKind::Leak).map(|f| (f.at_s, f.amount)),
             knocked: of(FaultKind::Camera).map(|f| {
                 let turn = Rotation3::from_axis_angle(&Vector3::x_axis(), f.amount.to_radians());
@@ -111,10 +129,8 @@ impl Timeline {
         if let Some((at, share)) = self.leak {
             p[0] *= 1.0 - share * ((t - at) / 60.0).clamp(0.0, 1.0);
         }
-        match &self.after {
-            Some((at, plant)) if t >= *at => (plant, p),
-            _ => (&self.before, p),
-        }
+        let changed = self.after.iter().rev().find(|(at, _)| t >= *at);
+        (changed.map_or(&self.before, |(_, plant)| plant), p)
     }
 
     /// The finger as it starts (for what stays put: its base).
@@ -173,9 +189,12 @@ mod tests {
         let f: Fault = "stiffness@40=-0.1".parse().unwrap();
         assert_eq!(f.kind, FaultKind::Stiffness);
         assert_eq!((f.at_s, f.amount), (40.0, -0.1));
+        let f: Fault = "payload@4=0.2".parse().unwrap();
+        assert_eq!((f.kind, f.amount), (FaultKind::Payload, 0.2));
         for bad in [
             "stiffness",
-            "payload@4=0.2",
+            "payload@4=-0.2",
+            "mass@4=0.2",
             "leak@x=0.1",
             "leak@10=2",
             "camera@-1=0.5",
@@ -185,11 +204,13 @@ mod tests {
     }
 
     /// A softer finger bends further from its time on; a leak lowers the tip it gives over the
-    /// minute after it, not before.
+    /// minute after it, not before; a payload pulls it back from its time on, the finger still
+    /// the softer one.
     #[test]
     fn the_finger_changes_at_its_fault_and_not_before() {
         let rig = crate::synth::camera::RigConfig::default().build(1);
-        let faults = ["stiffness@10=-0.2", "leak@20=0.5"].map(|f| f.parse().unwrap());
+        let faults =
+            ["payload@90=0.5", "stiffness@10=-0.2", "leak@20=0.5"].map(|f| f.parse().unwrap());
         let timeline = Timeline::new(&PlantParams::default(), &rig, &faults);
         let p = [150.0, 0.0, 0.0];
         let at = |t| timeline.settled_tip(t, p).unwrap();
@@ -205,6 +226,17 @@ mod tests {
         assert!(
             (bend(at(50.0)) - 0.5 * (bend(at(20.0)) + bend(at(80.0)))).abs() < 0.3 * bend(at(20.0))
         );
+        assert!(bend(at(90.0)) < bend(at(89.9)) - 0.05);
+        let q = PlantParams::default();
+        let both = Plant::new(PlantParams {
+            bend_stiffness_x_nmm2: q.bend_stiffness_x_nmm2 * 0.8,
+            bend_stiffness_y_nmm2: q.bend_stiffness_y_nmm2 * 0.8,
+            axial_stiffness_n: q.axial_stiffness_n * 0.8,
+            tip_load_g: 0.5,
+            ..q
+        });
+        let want = both.tip([75.0, 0.0, 0.0]).unwrap();
+        assert!((0..3).all(|k| (at(100.0)[k] - want[k]).abs() < 1e-9));
         assert_eq!(timeline.camera(&rig, Side::Right, 1e6), &rig.right);
     }
 }

@@ -41,6 +41,13 @@
 //!    (0, 0, −1), in `segments` steps of reference length ds: each step turns the tangent and the
 //!    section axes about t × (κ_x d₁ + κ_y d₂) by |κ| ds (no twist) and advances by
 //!    (1 + ε) ds along the mid-step tangent. The rigid cap follows the last tangent.
+//! 7. A payload of m = `tip_load_g` on the tip (0 unless a fault hangs one there): the finger
+//!    hangs from its base, gravity along −z, so the tip bears F = (0, 0, −m g). At s its moment
+//!    M = (p_tip − p(s)) × F bends the section, κ_x += −M·d₂ / (EI_x S), κ_y += M·d₁ / (EI_y S),
+//!    and its pull along the tangent stretches it, ε += F·t / (EA S). The shape the moment
+//!    needs is the shape it makes: [`LOAD_PASSES`] passes, each on the line of the one before
+//!    (a payload of grams moves the tip by hundredths of a millimetre a gram, so they settle
+//!    at once).
 //!
 //! With these constants the tip travels up to about 10 mm sideways and 3 mm along z over
 //! 0-250 kPa, the order of the paper's Figures 9-14. Pressures outside 0-300 kPa (the safety
@@ -81,7 +88,15 @@ pub struct PlantParams {
     pub hysteresis_kpa: f64,
     /// Integration steps along the muscle part of the finger.
     pub segments: usize,
+    /// A payload on the tip (g), equation 7.
+    pub tip_load_g: f64,
 }
+
+/// The passes of the centre line under a payload (equation 7).
+pub const LOAD_PASSES: usize = 4;
+
+/// Gravity (m/s²).
+const GRAVITY: f64 = 9.81;
 
 impl Default for PlantParams {
     fn default() -> Self {
@@ -103,6 +118,7 @@ impl Default for PlantParams {
             axial_stiffness_n: 110.0,
             hysteresis_kpa: 0.0,
             segments: 200,
+            tip_load_g: 0.0,
         }
     }
 }
@@ -192,9 +208,30 @@ impl Plant {
         })
     }
 
-    /// Integrates the centre line (equations 4-6); returns the points and the tip.
+    /// Integrates the centre line (equations 4-7); returns the points and the tip.
     fn integrate(&self, p: Pressures) -> (Vec<[f64; 3]>, [f64; 3]) {
+        let mut shape = self.pass(p, None);
+        if self.params.tip_load_g != 0.0 {
+            for _ in 0..LOAD_PASSES {
+                shape = self.pass(p, Some(&shape.0));
+            }
+        }
+        shape
+    }
+
+    /// One integration of the centre line; under a payload, its moments taken on `loaded`
+    /// (the line of the pass before).
+    fn pass(&self, p: Pressures, loaded: Option<&[[f64; 3]]>) -> (Vec<[f64; 3]>, [f64; 3]) {
         let q = &self.params;
+        // The payload's force (N) and the moment arm's end, the tip (mm).
+        let load = loaded.map(|line| {
+            let tip = Vector3::from(line[line.len() - 1]);
+            (
+                Vector3::new(0.0, 0.0, -q.tip_load_g * 1e-3 * GRAVITY),
+                tip,
+                line,
+            )
+        });
         let f = self.muscle_forces(p);
         let activation = f.iter().sum::<f64>() / (3.0 * q.max_force_n);
         let moment_x: f64 = (0..3).map(|i| f[i] * q.muscle_xy_mm[i][0]).sum();
@@ -213,9 +250,16 @@ impl Plant {
             let s = (k as f64 + 0.5) * ds;
             let stiffness = (1.0 + q.pressure_stiffening * activation)
                 * (1.0 + q.root_stiffening * (-s / q.root_length_mm).exp());
-            let kx = moment_x / (q.bend_stiffness_x_nmm2 * stiffness);
-            let ky = moment_y / (q.bend_stiffness_y_nmm2 * stiffness);
-            let strain = -axial / (q.axial_stiffness_n * stiffness);
+            let mut kx = moment_x / (q.bend_stiffness_x_nmm2 * stiffness);
+            let mut ky = moment_y / (q.bend_stiffness_y_nmm2 * stiffness);
+            let mut strain = -axial / (q.axial_stiffness_n * stiffness);
+            if let Some((force, tip, line)) = load {
+                let here = (Vector3::from(line[k]) + Vector3::from(line[k + 1])) / 2.0;
+                let m = (tip - here).cross(&force);
+                kx -= m.dot(&d2) / (q.bend_stiffness_x_nmm2 * stiffness);
+                ky += m.dot(&d1) / (q.bend_stiffness_y_nmm2 * stiffness);
+                strain += force.dot(&t) / (q.axial_stiffness_n * stiffness);
+            }
             let turn = t.cross(&(d1 * kx + d2 * ky)) * ds;
             let half = Rotation3::from_scaled_axis(turn * 0.5);
             let full = Rotation3::from_scaled_axis(turn);
@@ -365,6 +409,49 @@ mod tests {
             ));
         }
         assert!(plant.tip([300.0, 0.0, 0.0]).is_ok());
+    }
+
+    /// A payload pulls a bent finger back towards hanging straight (the moment of its weight
+    /// about each section), by an amount proportional to its weight; at rest it only
+    /// stretches the finger; none changes nothing.
+    #[test]
+    fn a_payload_pulls_the_bent_finger_towards_hanging_straight_in_proportion_to_its_weight() {
+        let loaded = |g: f64| {
+            Plant::new(PlantParams {
+                tip_load_g: g,
+                ..PlantParams::default()
+            })
+        };
+        let p = [150.0, 0.0, 0.0];
+        let free = Plant::default().tip(p).unwrap();
+        assert_eq!(loaded(0.0).tip(p).unwrap(), free);
+        let shift = |g: f64| {
+            let tip = loaded(g).tip(p).unwrap();
+            Vector3::from(tip) - Vector3::from(free)
+        };
+        // 0.2 g, the monitor's payload, and twice that.
+        let (one, two) = (shift(0.2), shift(0.4));
+        let side = Vector3::new(free[0], free[1], 0.0).normalize();
+        // Back towards the axis, not sideways.
+        assert!(one.dot(&side) < -0.01, "{one:?} against {side:?}");
+        assert!(one.dot(&side).abs() > 3.0 * (one - side * one.dot(&side)).xy().norm());
+        assert!(
+            (two.norm() / one.norm() - 2.0).abs() < 0.1,
+            "{one:?} {two:?}"
+        );
+        // The moment's bend of a clamped beam, M L² / (2 EI) with M = F · the tip's offset,
+        // bounds it from above: the root's and the pressure's stiffening make the finger
+        // stiffer than its softer EI alone.
+        let force = 0.2e-3 * GRAVITY;
+        let bend = free[0].hypot(free[1]);
+        let reach = force * bend * 47.0 * 47.0 / (2.0 * 60.0);
+        eprintln!("0.2 g: {:.4} mm back of {reach:.4}", one.dot(&side).abs());
+        assert!(one.dot(&side).abs() < reach, "{one:?}: {reach}");
+        // At rest the weight only stretches it, by F L / EA.
+        let rest = Vector3::from(loaded(0.2).tip([0.0; 3]).unwrap())
+            - Vector3::from(Plant::default().tip([0.0; 3]).unwrap());
+        assert!(rest.xy().norm() < 1e-9 && rest.z < 0.0, "{rest:?}");
+        assert!(rest.z.abs() < 47.0 * force / 110.0, "{rest:?}");
     }
 
     #[test]

@@ -9,7 +9,7 @@ use crate::common::{csv_rows, handcap_err, handcap_ok, handcap_usage, read_json,
 
 /// A history model with intervals of three 40 s data-level trials of seed 1, in `d/model.json`
 /// (the kernel the trajectory tests give, to spare the search).
-fn fit(d: &Path) {
+pub fn fit(d: &Path) {
     let synth = ["synth", "--dynamic", "--no-images", "--out", "train"];
     handcap_ok(
         d,
@@ -133,7 +133,8 @@ fn a_softer_finger_and_a_tilted_camera_each_raise_their_own_alarm_and_nothing_el
 }
 
 #[test]
-fn monitor_refuses_a_model_without_intervals_and_a_session_without_time_in_one_line() {
+fn monitor_refuses_a_model_without_intervals_a_session_without_time_and_another_rigs_calibration_in_one_line(
+) {
     let dir = tempdir();
     let d = dir.path();
     let synth = [
@@ -199,10 +200,31 @@ fn monitor_refuses_a_model_without_intervals_and_a_session_without_time_in_one_l
             "--out",
             "r",
             "--fault",
-            "payload@5=1",
+            "mass@5=1",
         ],
     );
     assert!(e.contains("KIND@T=AMOUNT"), "{e}");
+    // A calibration of another rig (here: the right camera turned 1° before the session):
+    // every bead reprojects pixels off, and the monitor says so rather than watch.
+    let knocked = ["--trials", "1", "--fault", "camera@0=1"];
+    handcap_ok(d, &[&synth[..4], &["k"], &synth[5..], &knocked].concat());
+    let e = handcap_err(
+        d,
+        &[
+            "monitor",
+            "k/session.csv",
+            "--model",
+            "with.json",
+            "--out",
+            "w",
+        ],
+    );
+    assert!(
+        e.contains("k/session.csv") && e.contains("calibration is not these cameras'"),
+        "{e}"
+    );
+    assert_eq!(e.trim().lines().count(), 1, "{e}");
+    assert!(!d.join("w/monitor.csv").exists());
 }
 
 /// A session directory as capture writes it (a short rendered dynamic session whose right

@@ -8,6 +8,7 @@ mod inverse;
 pub use inverse::PlanArgs;
 mod model;
 mod monitor;
+pub use monitor::SettingsArgs as MonitorArgs;
 mod predict;
 pub mod protocol;
 

@@ -26,19 +26,39 @@ pub struct Args {
     /// The time column (default: the model's, else time_s)
     #[arg(long)]
     time: Option<String>,
-    /// The online band's coverage
+    #[command(flatten)]
+    settings: SettingsArgs,
+}
+
+/// How the monitor watches (`monitor`, and `capture --model`).
+#[derive(clap::Args)]
+pub struct SettingsArgs {
+    /// The monitor's online band's coverage
     #[arg(long, default_value_t = Settings::default().level, value_parser = super::level)]
     level: f64,
-    /// One look for the alarms every this many seconds (rows a frame apart are not
+    /// One look for the monitor's alarms every this many seconds (rows a frame apart are not
     /// independent; a second apart nearly are)
     #[arg(long, default_value_t = Settings::default().look_s, value_parser = super::finite)]
     look_s: f64,
     /// Hours of looks between false alarms, at least, on average
     #[arg(long, default_value_t = Settings::default().false_alarm_hours, value_parser = super::finite)]
     false_alarm_hours: f64,
-    /// The geometry alarm's reference: the session's first this many seconds
+    /// The alarms' references: the session's first this many seconds
     #[arg(long, default_value_t = Settings::default().baseline_s, value_parser = super::finite)]
     baseline_s: f64,
+}
+
+impl SettingsArgs {
+    /// The settings the flags give.
+    pub fn settings(&self) -> Settings {
+        Settings {
+            level: self.level,
+            look_s: self.look_s,
+            false_alarm_hours: self.false_alarm_hours,
+            baseline_s: self.baseline_s,
+            ..Settings::default()
+        }
+    }
 }
 
 pub fn run(a: Args) -> anyhow::Result<()> {
@@ -56,13 +76,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         model: &a.model,
         out: &a.out,
         time: a.time.as_deref(),
-        settings: Settings {
-            level: a.level,
-            look_s: a.look_s,
-            false_alarm_hours: a.false_alarm_hours,
-            baseline_s: a.baseline_s,
-            ..Settings::default()
-        },
+        settings: a.settings.settings(),
     };
     let watched = super::with_session(|s| monitor::run(&watch, s.provenance(None)))?;
     println!("{watched}");

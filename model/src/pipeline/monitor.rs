@@ -42,6 +42,10 @@ pub struct Watched {
     pub provenance: Provenance,
     #[serde(skip)]
     pub out: PathBuf,
+    /// Live (`capture --model`): the frames the monitor skipped while it was behind, per
+    /// camera.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub skipped: Option<[usize; 2]>,
 }
 
 /// Replays `watch.session` against `watch.model` and writes into `watch.out`.
@@ -73,11 +77,17 @@ pub fn run(watch: &Watch, provenance: Provenance) -> Result<Watched, PipelineErr
         .as_ref()
         .map(|(times, values)| monitor::Series { times, values });
     let monitored = monitor::watch(errors, geometry, replay.radius, &watch.settings);
+    let misfit = monitored
+        .baseline_median_px
+        .and_then(|r| monitor::misfit(r, watch.settings.baseline_s));
+    if let Some(line) = misfit {
+        return Err(PipelineError::Input(format!(
+            "{}: {line}",
+            watch.session.display()
+        )));
+    }
     std::fs::create_dir_all(watch.out).map_err(super::io_error(watch.out))?;
-    replay.write(&watch.out.join("monitor.csv"), &monitored)?;
     let after_change = after_change(watch, &replay.time, &monitored)?;
-    let stem = watch.out.join("monitor");
-    write_figure(&stem, &replay, &monitored, watch.settings.level)?;
     let watched = Watched {
         session: watch.session.to_path_buf(),
         model: watch.model.to_path_buf(),
@@ -87,30 +97,50 @@ pub fn run(watch: &Watch, provenance: Provenance) -> Result<Watched, PipelineErr
         after_change,
         provenance,
         out: watch.out.to_path_buf(),
+        skipped: None,
     };
-    let json = serde_json::to_vec_pretty(&watched).expect("the monitor's summary serialises");
-    let path = watch.out.join("monitor.json");
-    crate::fsio::write_bytes(&path, &json).map_err(super::io_error(&path))?;
+    write(&replay, &watched)?;
     Ok(watched)
 }
 
+/// Writes `watched` (the rows of `replay`) into its directory, made if need be: `monitor.csv`,
+/// the figure and `monitor.json`.
+///
+/// # Errors
+/// A file that cannot be written.
+pub fn write(replay: &Replay, watched: &Watched) -> Result<(), PipelineError> {
+    let out = &watched.out;
+    std::fs::create_dir_all(out).map_err(super::io_error(out))?;
+    let monitored = &watched.monitored;
+    replay.write(&out.join("monitor.csv"), monitored)?;
+    write_figure(
+        &out.join("monitor"),
+        replay,
+        monitored,
+        watched.settings.level,
+    )?;
+    let json = serde_json::to_vec_pretty(watched).expect("the monitor's summary serialises");
+    let path = out.join("monitor.json");
+    crate::fsio::write_bytes(&path, &json).map_err(super::io_error(&path))
+}
+
 /// Times and values of one channel.
-type Samples = (Vec<f64>, Vec<f64>);
+pub type Samples = (Vec<f64>, Vec<f64>);
 
 /// A session's rows as the monitor replays them.
-struct Replay {
+pub struct Replay {
     /// The time column's name, and its values.
-    time: String,
-    times: Vec<f64>,
-    predicted: Columns,
-    measured: Columns,
+    pub time: String,
+    pub times: Vec<f64>,
+    pub predicted: Columns,
+    pub measured: Columns,
     /// The distance from each prediction to its measured tip.
-    errors: Vec<f64>,
+    pub errors: Vec<f64>,
     /// Every row's time and reprojection residual (px; +∞ where the views disagreed), when
     /// the rows have residuals.
-    geometry: Option<Samples>,
+    pub geometry: Option<Samples>,
     /// The model file's radius at the level.
-    radius: f64,
+    pub radius: f64,
 }
 
 impl Replay {
@@ -231,7 +261,7 @@ fn geometry(path: &Path, time: &str) -> Result<Option<Samples>, PipelineError> {
             return table.fail(line, format!("{time} is not a number"));
         };
         let flags = flag.and_then(|k| record.get(k)).unwrap_or("");
-        let value = if flags.split(';').any(|f| f == "reprojection") {
+        let value = if flags.split(';').any(|f| f == monitor::DISAGREED) {
             Some(f64::INFINITY)
         } else {
             number(residual).filter(|r| r.is_finite())
@@ -336,14 +366,7 @@ impl std::fmt::Display for Watched {
             )?;
         }
         for a in &m.alarms {
-            writeln!(
-                f,
-                "alarm: {} at {:.1} s (the change began about {:.1} s): {}",
-                a.channel.name(),
-                a.time_s,
-                a.change_s,
-                a.advice
-            )?;
+            writeln!(f, "alarm: {a}")?;
         }
         if let Some(path) = &self.after_change {
             writeln!(f, "the rows from the change on: {}", path.display())?;

@@ -19,7 +19,10 @@
 //! (`http://127.0.0.1:PORT/TOKEN/`); anything else is answered 404. Requests read; they
 //! change nothing.
 
+mod trust;
 mod watch;
+
+pub use trust::{Trust, Watching};
 
 use std::collections::VecDeque;
 use std::net::{TcpListener, TcpStream};
@@ -43,6 +46,8 @@ pub struct ViewOptions {
     pub port: u16,
     /// A calibration (as `triangulate --calib` takes it): the tip's track is shown.
     pub calib: Option<PathBuf>,
+    /// With `calib`, a model to watch the track against ([`trust`]).
+    pub model: Option<Watching>,
 }
 
 /// The page's figures: what `state.json` answers.
@@ -61,6 +66,7 @@ struct Page {
     flags: Vec<String>,
     cameras: [CameraPage; 2],
     track: Option<watch::TrackPage>,
+    trust: Option<trust::TrustPage>,
 }
 
 /// One camera on the page.
@@ -101,6 +107,13 @@ struct Shared {
     skipped: [usize; 2],
     /// The first command with pressure (s): the rest before it sets the track's origin.
     rest_until_s: Option<f64>,
+    /// The commands sent (time (s), and the pressures as `triangulate` gives them, kPa) the
+    /// examiner has not taken yet, the newest sent again as it may have been measured since;
+    /// and how many were sent in all.
+    commands: Vec<(f64, [f64; 3])>,
+    sent: usize,
+    /// The monitor's alarms not yet said.
+    said: Vec<String>,
     ended: bool,
 }
 
@@ -109,6 +122,8 @@ pub struct View {
     url: String,
     shared: Mutex<Shared>,
     arrived: Condvar,
+    /// The examiner, which returns the monitor when the session's frames are done.
+    examiner: Mutex<Option<std::thread::JoinHandle<Option<trust::Trust>>>>,
 }
 
 impl std::fmt::Debug for View {
@@ -150,6 +165,7 @@ impl View {
                 ..Shared::default()
             }),
             arrived: Condvar::new(),
+            examiner: Mutex::new(None),
         });
         let server = view.clone();
         std::thread::spawn(move || {
@@ -158,8 +174,12 @@ impl View {
                 std::thread::spawn(move || view.answer(client, &token));
             }
         });
-        let examiner = view.clone();
-        std::thread::spawn(move || watch::examine(&examiner, calibration));
+        let (examiner, model) = (view.clone(), options.model.clone());
+        let handle = std::thread::spawn(move || watch::examine(&examiner, calibration, model));
+        *view
+            .examiner
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(handle);
         Ok(view)
     }
 
@@ -198,23 +218,45 @@ impl View {
     }
 
     /// The session's state now (at most ten times a second): its clock, the protocol's
-    /// steps, the latest command and what the regulator measured, and the time of the first
-    /// command with pressure (the rest before it sets the track's origin).
+    /// steps, the commands sent so far and what the regulator measured last, and the time of the first command with pressure (the rest before it sets the track's
+    /// origin).
     pub(super) fn session(
         &self,
         elapsed_s: f64,
         steps: [usize; 2],
-        latest: Option<([f64; 3], Option<[f64; 3]>)>,
+        log: &[super::regulator::Commanded],
         rest_until_s: Option<f64>,
     ) {
         let mut s = self.lock();
         s.page.elapsed_s = elapsed_s;
         s.page.steps = steps;
         s.rest_until_s = rest_until_s;
-        if let Some((commanded, measured)) = latest {
-            s.page.commanded_kpa = Some(commanded);
-            s.page.measured_kpa = measured.or(s.page.measured_kpa);
+        if let Some(last) = log.last() {
+            s.page.commanded_kpa = Some(last.step.pressures);
+            s.page.measured_kpa = last.measured.or(s.page.measured_kpa);
         }
+        // The newest command again: the regulator may have measured it since.
+        let from = s.sent.saturating_sub(1).min(log.len());
+        let new = log[from..].iter().map(|c| (c.time_s, c.inputs()));
+        s.commands.extend(new);
+        s.sent = log.len();
+    }
+
+    /// The monitor's alarms raised since last asked, each a line to say.
+    pub fn said(&self) -> Vec<String> {
+        std::mem::take(&mut self.lock().said)
+    }
+
+    /// Once the session ended: waits for the examiner to finish its frames; the monitor
+    /// (with `--model`), and the frames the examiner skipped per camera.
+    pub fn finish(&self) -> Option<(Trust, [usize; 2])> {
+        let handle = self
+            .examiner
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .take()?;
+        let trust = handle.join().ok().flatten()?;
+        Some((trust, self.lock().skipped))
     }
 
     /// The session's figures of the last second, as flags a user acts on.

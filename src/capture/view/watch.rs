@@ -10,6 +10,7 @@ use std::time::Duration;
 use nalgebra::{Rotation3, Vector3};
 use serde::Serialize;
 
+use super::trust::{Trust, Watching};
 use super::{Arrived, View};
 use crate::calib::file::CalibrationFile;
 use crate::image::RgbImage;
@@ -56,8 +57,13 @@ fn nice() {
 }
 
 /// Examines the frames `view` is handed until the session ends; with `calibration`, tracks
-/// the tip.
-pub(super) fn examine(view: &View, calibration: Option<CalibrationFile>) {
+/// the tip, and with `watching` too, watches it against the model: the monitor, once the
+/// session's frames are done.
+pub(super) fn examine(
+    view: &View,
+    calibration: Option<CalibrationFile>,
+    watching: Option<Watching>,
+) -> Option<Trust> {
     nice();
     // Whatever runs in parallel (the decoding, the triangulation) runs on a thread of the same
     // low priority.
@@ -66,14 +72,18 @@ pub(super) fn examine(view: &View, calibration: Option<CalibrationFile>) {
         .start_handler(|_| nice())
         .build()
     else {
-        return;
+        return None;
     };
-    pool.install(|| watch(view, calibration));
+    pool.install(|| watch(view, calibration, watching))
 }
 
 /// [`examine`]'s loop, on its pool.
-fn watch(view: &View, calibration: Option<CalibrationFile>) {
-    let mut tracker = calibration.map(Tracker::new);
+fn watch(
+    view: &View,
+    calibration: Option<CalibrationFile>,
+    watching: Option<Watching>,
+) -> Option<Trust> {
+    let mut tracker = calibration.map(|c| Tracker::new(c, watching.map(Trust::new)));
     if tracker.is_some() {
         view.lock().page.track = Some(TrackPage {
             waiting: Some("no frames yet".into()),
@@ -93,13 +103,18 @@ fn watch(view: &View, calibration: Option<CalibrationFile>) {
         tracker.add(&frame, centres);
         if tracker.due() {
             let (rest_until_s, protocol) = {
-                let s = view.lock();
+                let mut s = view.lock();
+                tracker.take_commands(&mut s.commands);
                 (s.rest_until_s, s.page.steps[1] > 0)
             };
             let page = tracker.locate(rest_until_s, protocol);
-            view.lock().page.track = Some(page);
+            let mut s = view.lock();
+            s.page.track = Some(page);
+            s.page.trust = tracker.trust.as_ref().map(Trust::page);
+            s.said.append(&mut tracker.said);
         }
     }
+    tracker.and_then(|t| t.trust)
 }
 
 /// The next frame to examine; `None` once the session has ended and every frame is done.
@@ -186,10 +201,15 @@ struct Tracker {
     tips: Vec<(usize, f64, Vector3<f64>)>,
     origin: Option<Vector3<f64>>,
     page: TrackPage,
+    /// The commands sent (time (s), kPa), from the one in force at the newest tip taken.
+    commands: Vec<(f64, [f64; 3])>,
+    /// The monitor, and the alarms it raised not yet said.
+    trust: Option<Trust>,
+    said: Vec<String>,
 }
 
 impl Tracker {
-    fn new(calibration: CalibrationFile) -> Tracker {
+    fn new(calibration: CalibrationFile, trust: Option<Trust>) -> Tracker {
         let [w, h] = calibration.rig.image_size;
         Tracker {
             r_hand: calibration.r_hand,
@@ -205,6 +225,9 @@ impl Tracker {
             tips: Vec::new(),
             origin: None,
             page: TrackPage::default(),
+            commands: Vec::new(),
+            trust,
+            said: Vec::new(),
         }
     }
 
@@ -217,6 +240,17 @@ impl Tracker {
             late_s: None,
         });
         self.centres.push(centres);
+    }
+
+    /// The commands sent since last taken; the first may be the newest one taken, measured
+    /// since.
+    fn take_commands(&mut self, sent: &mut Vec<(f64, [f64; 3])>) {
+        if let (Some(last), Some(first)) = (self.commands.last(), sent.first()) {
+            if last.0 == first.0 {
+                self.commands.pop();
+            }
+        }
+        self.commands.append(sent);
     }
 
     /// Whether the newest frames are [`EVERY_S`] past the last location.
@@ -270,7 +304,7 @@ impl Tracker {
             if self.taken.is_some_and(|k| frame <= k) {
                 // A tip taken and still in view is revised: the clock is now told by more of
                 // the motion around it.
-                if let Ok(p) = tip {
+                if let Ok((p, _)) = tip {
                     if let Ok(k) = self.tips.binary_search_by_key(&frame, |tip| tip.0) {
                         self.tips[k].2 = Vector3::from(p);
                     }
@@ -282,8 +316,12 @@ impl Tracker {
             }
             (self.taken, self.taken_until_s) = (Some(frame), t);
             self.page.rows += 1;
+            let command = self.commands.iter().rev().find(|c| c.0 <= t);
+            if let (Some(trust), Some(&(_, command))) = (self.trust.as_mut(), command) {
+                trust.take((t, command, tip.map(|(p, px)| (Vector3::from(p), px))));
+            }
             match tip {
-                Ok(p) => {
+                Ok((p, _)) => {
                     self.page.tips += 1;
                     self.tips.push((frame, t, Vector3::from(p)));
                 }
@@ -294,6 +332,10 @@ impl Tracker {
         self.origin = self
             .origin
             .or_else(|| self.rest_origin(rest_until_s, protocol));
+        if let Some(trust) = self.trust.as_mut() {
+            let hand = self.r_hand.zip(self.origin);
+            self.said.extend(trust.watch(hand));
+        }
         self.page.waiting = self.waiting(protocol);
         if let (Some(origin), Some(r)) = (self.origin, self.r_hand) {
             let from = self.tips.len().saturating_sub(TRACK_POINTS);
@@ -316,6 +358,8 @@ impl Tracker {
         self.records.retain(|_| *k.next().unwrap_or(&true));
         let mut k = keep.iter();
         self.centres.retain(|_| *k.next().unwrap_or(&true));
+        let in_force = self.commands.partition_point(|c| c.0 <= self.taken_until_s);
+        self.commands.drain(..in_force.saturating_sub(1));
         if self.tips.len() > 2 * TRACK_POINTS && self.origin.is_some() {
             self.tips.drain(..TRACK_POINTS);
         }

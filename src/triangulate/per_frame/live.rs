@@ -37,18 +37,18 @@ pub fn tips_as_they_come(
         .map(|((&i, &t), found)| LiveTip {
             frame: records[i].index,
             time_s: t,
-            tip: found.map(|f| f.point.into()),
+            tip: found.map(|f| (f.point.into(), f.reproj_px)),
         })
         .collect();
     Ok((tips, LiveClock(clock)))
 }
 
-/// A left frame [`tips_as_they_come`] located: its number, time (s) and tip in the left
-/// camera (mm).
+/// A left frame [`tips_as_they_come`] located: its number, time (s), and tip in the left
+/// camera (mm) with its reprojection residual (px).
 pub struct LiveTip {
     pub frame: usize,
     pub time_s: f64,
-    pub tip: Tip<[f64; 3]>,
+    pub tip: Tip<([f64; 3], f64)>,
 }
 
 /// The clock offset [`tips_as_they_come`] measured, to be given again.

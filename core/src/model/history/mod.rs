@@ -347,17 +347,22 @@ impl History {
         let width = d * (1 + self.memory.blocks());
         let mut values = vec![0.0; n * width];
         for (_, rows) in &groups {
-            let mut state = Filters::new(&self.memory, inputs.row(rows[0]));
-            let mut last_time = series.time[rows[0]];
+            let mut running = self.running(inputs.row(rows[0]), series.time[rows[0]]);
             for &row in rows {
                 let out = &mut values[row * width..(row + 1) * width];
-                let u = inputs.row(row);
-                out[..d].copy_from_slice(u);
-                state.step(u, series.time[row] - last_time, &mut out[d..]);
-                last_time = series.time[row];
+                running.step(inputs.row(row), series.time[row], out);
             }
         }
         Ok(Columns::new(self.feature_names(), values))
+    }
+
+    /// The features of a series as its rows come (a live session), the memory starting at
+    /// the inputs `first` at `time` as [`History::features`] starts each group.
+    pub fn running(&self, first: &[f64], time: f64) -> Running {
+        Running {
+            filters: Filters::new(&self.memory, first),
+            last_time: time,
+        }
     }
 
     /// A dataset's inputs replaced by their features.
@@ -401,6 +406,23 @@ impl History {
             .features_at(&context, &lines)
             .map_err(|e| series_error(path, &context.lines, e))?;
         Ok((inputs, features))
+    }
+}
+
+/// A series' features as its rows come ([`History::running`]).
+pub struct Running {
+    filters: Filters,
+    last_time: f64,
+}
+
+impl Running {
+    /// The next row's inputs `u` at `time` (not before the last): writes its features (the
+    /// inputs, then each memory block) into `out`.
+    pub fn step(&mut self, u: &[f64], time: f64, out: &mut [f64]) {
+        let d = u.len();
+        out[..d].copy_from_slice(u);
+        self.filters.step(u, time - self.last_time, &mut out[d..]);
+        self.last_time = time;
     }
 }
 

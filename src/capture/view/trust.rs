@@ -1,0 +1,229 @@
+//! The monitor live (`capture --view-calib CALIB --model MODEL`): each left frame the track
+//! takes goes, with the command in force at its time, through the model (its input history
+//! run frame by frame, as `handcap monitor` runs it through a file's rows) and the same
+//! [`Monitor`]. The page shows the error, the band and the alarms; each alarm is said on a
+//! line as it fires; at the session's end `OUT/monitor/` holds what `handcap monitor` writes
+//! (`monitor.csv`, `monitor.json`, the figure), with the frames the examiner skipped while it
+//! was behind counted.
+
+use std::path::{Path, PathBuf};
+
+use nalgebra::{Rotation3, Vector3};
+use serde::Serialize;
+
+use crate::data::Columns;
+use crate::model::file::ModelFile;
+use crate::model::history::Running;
+use crate::monitor::{Alarm, Monitor, Settings};
+use crate::pipeline::monitor::{self as watch_files, Replay, Watched};
+use crate::provenance::Provenance;
+use crate::session::pressures::PRESSURE_COLUMNS;
+
+/// The outputs a live model predicts: the tip in the hand frame.
+const TIP_COLUMNS: [&str; 3] = ["x_mm", "y_mm", "z_mm"];
+/// The page's window of the error and the band (s).
+const WINDOW_S: f64 = 30.0;
+
+/// The model a session is watched against, read and checked before filming.
+#[derive(Clone, Debug)]
+pub struct Watching {
+    pub path: PathBuf,
+    file: std::sync::Arc<ModelFile>,
+    radius: f64,
+    pub settings: Settings,
+}
+
+impl Watching {
+    /// Reads the model at `path` for `settings`.
+    ///
+    /// # Errors
+    /// One line naming the file: unreadable, without intervals, or a model whose inputs are not
+    /// the regulator's pressures or whose outputs are not the tip.
+    pub fn read(path: &Path, settings: Settings) -> Result<Watching, String> {
+        settings
+            .check()
+            .map_err(|e| format!("--model's monitor: {e}"))?;
+        let name = path.display();
+        let file = ModelFile::load(path).map_err(|e| e.to_string())?;
+        let radius = file.interval_radius(settings.level).map_err(|e| {
+            format!("{name}: interval: {e}; the monitor needs a model fitted with --intervals")
+        })?;
+        let predictor = file.model.predictor();
+        let inputs = file.history().map_or(predictor.inputs(), |h| &h.inputs[..]);
+        if inputs != PRESSURE_COLUMNS || predictor.outputs() != TIP_COLUMNS {
+            return Err(format!(
+                "{name} maps {} to {}; the live monitor gives it the commands {} and the tip {}: fit the model on triangulate's rows",
+                inputs.join(","),
+                predictor.outputs().join(","),
+                PRESSURE_COLUMNS.join(","),
+                TIP_COLUMNS.join(",")
+            ));
+        }
+        Ok(Watching {
+            path: path.to_path_buf(),
+            file: std::sync::Arc::new(file),
+            radius,
+            settings,
+        })
+    }
+}
+
+/// The monitor on the page.
+#[derive(Clone, Debug, Default, Serialize)]
+pub(super) struct TrustPage {
+    /// Why nothing is watched yet, while nothing is, or why the camera channel is not.
+    waiting: Option<String>,
+    level: f64,
+    rows: usize,
+    /// The share of rows the band held.
+    coverage: f64,
+    /// The last [`WINDOW_S`]: time (s), error and band (mm).
+    points: Vec<[f64; 3]>,
+    /// Each channel's statistic now, and the alarm's threshold.
+    finger_stat: f64,
+    camera_stat: Option<f64>,
+    threshold: f64,
+    alarms: Vec<Alarm>,
+}
+
+/// A left frame the track took: its time, the command in force, and its tip in the left
+/// camera with its residual, or why none.
+type Taken = (f64, [f64; 3], Result<(Vector3<f64>, f64), &'static str>);
+
+/// The monitor of a live session.
+pub struct Trust {
+    watching: Watching,
+    monitor: Monitor,
+    running: Option<Running>,
+    /// Rows taken before the hand frame's origin was known.
+    pending: Vec<Taken>,
+    replay: Replay,
+    page: TrustPage,
+}
+
+impl Trust {
+    pub(super) fn new(watching: Watching) -> Trust {
+        let columns = |prefix: &str| {
+            Columns::new(
+                TIP_COLUMNS.map(|c| format!("{prefix}{c}")).to_vec(),
+                Vec::new(),
+            )
+        };
+        Trust {
+            monitor: Monitor::new(watching.radius, &watching.settings),
+            page: TrustPage {
+                waiting: Some("the hand frame's origin is not known yet".into()),
+                level: watching.settings.level,
+                threshold: watching.settings.threshold(),
+                ..TrustPage::default()
+            },
+            replay: Replay {
+                time: "time_s".into(),
+                times: Vec::new(),
+                predicted: columns(""),
+                measured: columns(""),
+                errors: Vec::new(),
+                geometry: Some((Vec::new(), Vec::new())),
+                radius: watching.radius,
+            },
+            watching,
+            running: None,
+            pending: Vec::new(),
+        }
+    }
+
+    /// A left frame the track took, at `time_s` under `command`: watched once the hand frame
+    /// is known.
+    pub(super) fn take(&mut self, taken: Taken) {
+        self.pending.push(taken);
+    }
+
+    /// Watches the rows taken, in the hand frame `r · (p − origin)` once it is known; the
+    /// alarms that fired, each as a line to say.
+    pub(super) fn watch(&mut self, hand: Option<(Rotation3<f64>, Vector3<f64>)>) -> Vec<String> {
+        let Some((r, origin)) = hand else {
+            return Vec::new();
+        };
+        let mut said = Vec::new();
+        for (t, command, found) in std::mem::take(&mut self.pending) {
+            let file = &self.watching.file;
+            let mut x = vec![0.0; file.model.predictor().inputs().len()];
+            if let (None, Some(h)) = (&self.running, file.history()) {
+                self.running = Some(h.running(&command, t));
+            }
+            match &mut self.running {
+                Some(running) => running.step(&command, t, &mut x),
+                None => x.copy_from_slice(&command),
+            }
+            let px = match found {
+                Ok((_, px)) => px,
+                Err(crate::monitor::DISAGREED) => f64::INFINITY,
+                Err(_) => continue,
+            };
+            let geometry = self.replay.geometry.get_or_insert_with(Default::default);
+            geometry.0.push(t);
+            geometry.1.push(px);
+            said.extend(self.monitor.geometry(t, px).map(|a| format!("alarm: {a}")));
+            let Ok((p, _)) = found else { continue };
+            let measured = r * (p - origin);
+            let mut predicted = [0.0; 3];
+            file.model.predictor().predict_row(&x, &mut predicted);
+            let error = (Vector3::from(predicted) - measured).norm();
+            let (seen, alarm) = self.monitor.error(t, error);
+            said.extend(alarm.map(|a| format!("alarm: {a}")));
+            self.replay.times.push(t);
+            self.replay.predicted.values.extend(predicted);
+            self.replay.measured.values.extend(measured.iter());
+            self.replay.errors.push(error);
+            self.page.points.push([t, error, seen.band]);
+            self.page.finger_stat = seen.model_stat;
+            self.page.camera_stat = seen.geometry_stat;
+        }
+        let misfit = self.monitor.misfit();
+        if misfit.is_some() && self.page.waiting != misfit {
+            said.extend(misfit.clone());
+        }
+        self.page.waiting = misfit;
+        let newest = self.replay.times.last().copied().unwrap_or_default();
+        let old = self
+            .page
+            .points
+            .partition_point(|p| p[0] < newest - WINDOW_S);
+        self.page.points.drain(..old);
+        self.page.rows = self.replay.times.len();
+        self.page.coverage = self.monitor.coverage();
+        self.page.alarms = self.monitor.alarms().to_vec();
+        said
+    }
+
+    pub(super) fn page(&self) -> TrustPage {
+        self.page.clone()
+    }
+
+    /// Writes the session watched into `out` (the session `session`; `skipped`, the frames
+    /// the examiner skipped per camera).
+    ///
+    /// # Errors
+    /// A file that cannot be written.
+    pub fn write(
+        self,
+        out: &Path,
+        session: &Path,
+        skipped: [usize; 2],
+        provenance: Provenance,
+    ) -> Result<Watched, crate::pipeline::PipelineError> {
+        let watched = Watched {
+            session: session.to_path_buf(),
+            model: self.watching.path.clone(),
+            settings: self.watching.settings.clone(),
+            rows: self.replay.times.len(),
+            monitored: self.monitor.finish(),
+            after_change: None,
+            provenance,
+            out: out.to_path_buf(),
+            skipped: Some(skipped),
+        };
+        watch_files::write(&self.replay, &watched)?;
+        Ok(watched)
+    }
+}
