@@ -103,9 +103,10 @@ fn a_softer_finger_and_a_tilted_camera_each_raise_their_own_alarm_and_nothing_el
             }
             "soft" => {
                 let (channel, time, change) = &raised[0];
+                // Within the 30 s asked, by the response test (the exceedances took 49 s).
                 assert_eq!(channel, "finger", "{raised:?}");
-                assert!(*time > 150.0 && *time < 240.0, "{raised:?}");
-                assert!(*change > 120.0 && *change < *time, "{raised:?}");
+                assert!(*time > 150.0 && *time < 180.0, "{raised:?}");
+                assert!((change - 150.0).abs() < 10.0, "{raised:?}");
                 // The rows to refit on are the session's from the change on, as they were.
                 let after = csv_rows(&d.join("soft_watch/after_change.csv"));
                 let whole = csv_rows(&d.join("soft/session.csv"));

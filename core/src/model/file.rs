@@ -27,6 +27,7 @@ use crate::fsio;
 use crate::model::history::{History, HistoryDecision, Memory, SteadyState};
 use crate::model::interval::{IntervalError, Intervals};
 use crate::model::msvr::tune::{BasisDecision, SearchSummary};
+use crate::model::Predict;
 pub use crate::model::StoredModel;
 use crate::provenance::Provenance;
 use crate::select::family::{Family, FamilyDecision};
@@ -147,6 +148,15 @@ impl ModelFile {
     /// history its steady state (every filter and lag equal to the input).
     pub fn steady_state(&self) -> SteadyState<'_> {
         SteadyState::new(self.model.differentiable(), self.history())
+    }
+
+    /// The outputs at rest: every input 0 and held there (the steady state of a history
+    /// model), where the monitor measures the finger's response from.
+    pub fn at_rest(&self) -> Vec<f64> {
+        let rest = self.steady_state();
+        let mut out = vec![0.0; rest.outputs().len()];
+        rest.predict_row(&vec![0.0; rest.inputs().len()], &mut out);
+        out
     }
 
     /// Writes the file atomically.

@@ -76,7 +76,18 @@ pub fn run(watch: &Watch, provenance: Provenance) -> Result<Watched, PipelineErr
         .geometry
         .as_ref()
         .map(|(times, values)| monitor::Series { times, values });
-    let monitored = monitor::watch(errors, geometry, replay.radius, &watch.settings);
+    let outputs = monitor::Outputs {
+        predicted: &replay.predicted.values,
+        measured: &replay.measured.values,
+        rest: &replay.rest,
+    };
+    let monitored = monitor::watch(
+        errors,
+        geometry,
+        Some(outputs),
+        replay.radius,
+        &watch.settings,
+    );
     let misfit = monitored
         .baseline_median_px
         .and_then(|r| monitor::misfit(r, watch.settings.baseline_s));
@@ -139,8 +150,9 @@ pub struct Replay {
     /// Every row's time and reprojection residual (px; +∞ where the views disagreed), when
     /// the rows have residuals.
     pub geometry: Option<Samples>,
-    /// The model file's radius at the level.
+    /// The model file's radius at the level, and its outputs at rest.
     pub radius: f64,
+    pub rest: Vec<f64>,
 }
 
 impl Replay {
@@ -192,6 +204,7 @@ impl Replay {
             errors,
             geometry,
             radius,
+            rest: file.at_rest(),
         })
     }
 
@@ -216,6 +229,7 @@ impl Replay {
                         "band",
                         "covered",
                         "model_cusum",
+                        "response_cusum",
                         RESIDUAL_COLUMN,
                         "geometry_cusum",
                         "alarm",
@@ -233,6 +247,7 @@ impl Replay {
                 number(row.band),
                 u8::from(row.covered).to_string(),
                 number(row.model_stat),
+                row.response_stat.map_or_else(String::new, number),
                 self.residual(i).map_or_else(String::new, number),
                 row.geometry_stat.map_or_else(String::new, number),
                 row.alarm.map_or_else(String::new, |c| c.name().to_string()),

@@ -110,7 +110,8 @@ impl Trust {
             )
         };
         Trust {
-            monitor: Monitor::new(watching.radius, &watching.settings),
+            monitor: Monitor::new(watching.radius, &watching.settings)
+                .with_rest(watching.file.at_rest()),
             page: TrustPage {
                 waiting: Some("the hand frame's origin is not known yet".into()),
                 level: watching.settings.level,
@@ -125,6 +126,7 @@ impl Trust {
                 errors: Vec::new(),
                 geometry: Some((Vec::new(), Vec::new())),
                 radius: watching.radius,
+                rest: watching.file.at_rest(),
             },
             watching,
             running: None,
@@ -169,6 +171,8 @@ impl Trust {
             let mut predicted = [0.0; 3];
             file.model.predictor().predict_row(&x, &mut predicted);
             let error = (Vector3::from(predicted) - measured).norm();
+            let response = self.monitor.outputs(t, &predicted, measured.as_slice());
+            said.extend(response.map(|a| format!("alarm: {a}")));
             let (seen, alarm) = self.monitor.error(t, error);
             said.extend(alarm.map(|a| format!("alarm: {a}")));
             self.replay.times.push(t);

@@ -1,0 +1,117 @@
+//! The alarms' statistic ([module docs](super)): a Bernoulli CUSUM, and a channel watched
+//! through one against its baseline.
+
+/// A Bernoulli CUSUM ([module docs](super)).
+#[derive(Clone, Debug)]
+pub struct Cusum {
+    on_miss: f64,
+    on_hit: f64,
+    threshold: f64,
+    stat: f64,
+    looks: usize,
+    last_zero: usize,
+    fired: bool,
+}
+
+impl Cusum {
+    /// Misses at rate `p0` while nothing changed, watched for a rise to 5·`p0` (at most 0.9);
+    /// an alarm at `threshold`.
+    pub fn new(p0: f64, threshold: f64) -> Cusum {
+        let p1 = (5.0 * p0).min(0.9);
+        Cusum {
+            on_miss: (p1 / p0).ln(),
+            on_hit: ((1.0 - p1) / (1.0 - p0)).ln(),
+            threshold,
+            stat: 0.0,
+            looks: 0,
+            last_zero: 0,
+            fired: false,
+        }
+    }
+
+    /// The statistic now.
+    pub fn stat(&self) -> f64 {
+        self.stat
+    }
+
+    /// Takes one look; on the alarm (once), how many looks back the change began.
+    pub fn look(&mut self, missed: bool) -> Option<usize> {
+        self.looks += 1;
+        self.stat = (self.stat + if missed { self.on_miss } else { self.on_hit }).max(0.0);
+        if self.stat == 0.0 {
+            self.last_zero = self.looks;
+        }
+        (!self.fired && self.stat >= self.threshold).then(|| {
+            self.fired = true;
+            self.looks - self.last_zero
+        })
+    }
+}
+
+/// One channel watched as its values come: its values kept until the baseline ends, then a
+/// look every `look_s` through a [`Cusum`] against the baseline's reference.
+#[derive(Clone, Debug)]
+pub(super) struct Watcher {
+    /// The reference: this quantile of the baseline's values, at most `cap`.
+    quantile: f64,
+    cap: f64,
+    /// The baseline's values, until the reference is set.
+    baseline: Vec<f64>,
+    /// Once the baseline ended: the reference (`None`: no finite one), and the baseline's
+    /// median (+∞ when more than half its values were).
+    pub(super) decided: Option<(Option<f64>, f64)>,
+    pub(super) cusum: Cusum,
+    next_look: f64,
+    look_times: Vec<f64>,
+    /// Whether a value came.
+    pub(super) seen: bool,
+}
+
+impl Watcher {
+    /// Misses expected at rate `p0` against the `quantile` of the baseline (at most `cap`).
+    pub(super) fn new(quantile: f64, cap: f64, p0: f64, threshold: f64) -> Watcher {
+        Watcher {
+            quantile,
+            cap,
+            baseline: Vec::new(),
+            decided: None,
+            cusum: Cusum::new(p0, threshold),
+            next_look: f64::NEG_INFINITY,
+            look_times: Vec::new(),
+            seen: false,
+        }
+    }
+
+    /// The baseline's reference (without values, `cap` when it is finite), and its median;
+    /// decided once.
+    pub(super) fn decide(&mut self) -> (Option<f64>, f64) {
+        *self.decided.get_or_insert_with(|| {
+            let q = crate::stats::quantiles(&mut self.baseline, [self.quantile, 0.5]);
+            let reference = q
+                .map(|[q, _]| q.min(self.cap))
+                .or(Some(self.cap))
+                .filter(|r| r.is_finite());
+            self.baseline = Vec::new();
+            (reference, q.map_or(0.0, |[_, median]| median))
+        })
+    }
+
+    /// Takes the value `v` at `t` (the baseline ending at `baseline_end`); on the alarm, when
+    /// the change began.
+    pub(super) fn take(&mut self, t: f64, v: f64, baseline_end: f64, look_s: f64) -> Option<f64> {
+        self.seen = true;
+        if t < baseline_end {
+            self.baseline.push(v);
+            return None;
+        }
+        let reference = self.decide().0?;
+        if t < self.next_look {
+            return None;
+        }
+        self.next_look = t + look_s;
+        self.look_times.push(t);
+        let back = self.cusum.look(v > reference)?;
+        let n = self.look_times.len();
+        Some(self.look_times[n - 1 - back.min(n - 1)])
+    }
+}
