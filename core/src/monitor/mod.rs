@@ -47,7 +47,7 @@
 //!   [`RESPONSE_SHIFT`]) and threshold [`RESPONSE_THRESHOLD`] (scaled with h from
 //!   `false_alarm_hours`), catches a change of a tenth in tens of seconds where the exceedances
 //!   need minutes. Its threshold is measured, not a bound: looks a second apart along a path
-//!   are correlated, and on 142 virtual sessions with nothing changed (24.5 h, two models,
+//!   are correlated, and on 144 virtual sessions with nothing changed (24.9 h, two models,
 //!   single long runs and trials) it raised none.
 //!
 //! Both alarms look from the end of the baseline on. The false-alarm bound holds for looks
