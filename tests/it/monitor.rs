@@ -5,7 +5,9 @@
 
 use std::path::Path;
 
-use crate::common::{csv_rows, handcap_err, handcap_ok, handcap_usage, read_json, tempdir};
+use crate::common::{
+    csv_rows, every_core, handcap_err, handcap_ok, handcap_usage, read_json, tempdir,
+};
 
 /// A history model with intervals of three 40 s data-level trials of seed 1, in `d/model.json`
 /// (the kernel the trajectory tests give, to spare the search).
@@ -65,6 +67,8 @@ fn watch(d: &Path, name: &str, fault: Option<&str>) -> serde_json::Value {
 
 #[test]
 fn a_softer_finger_and_a_tilted_camera_each_raise_their_own_alarm_and_nothing_else_does() {
+    // Three sessions, a model and six watches on every core: never beside a live session.
+    let _machine = every_core();
     let dir = tempdir();
     let d = dir.path();
     fit(d);
@@ -235,6 +239,9 @@ fn monitor_refuses_a_model_without_intervals_a_session_without_time_and_another_
 /// predicts the rendered one's tips.
 #[test]
 fn a_session_directory_is_triangulated_then_watched_and_a_knocked_camera_seen() {
+    // A rendered session, its calibration and triangulation: never beside a live session,
+    // whose frames a busy machine delays (a lab's drops were then miscounted beside it).
+    let _machine = every_core();
     let dir = tempdir();
     let d = dir.path();
     let session = [
