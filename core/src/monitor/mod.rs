@@ -58,7 +58,6 @@
 //! not alarm: the statistic grows only when misses run above 0.27 (where the two
 //! log-likelihood steps balance), which a stiffness change of 15 % or a tilted camera passes
 //! within seconds.
-
 //!
 //! # As the rows come
 //! [`Monitor`] takes a session's rows one at a time, each row's residual before its error,
@@ -248,7 +247,7 @@ const LESS: &str = "the finger moves less than modelled (stiffer, a leak, a payl
 /// A finger alarm's advice when a camera moved first.
 const FINGER_AFTER_CAMERA: &str = "the tips moved with the camera that moved: recalibrate and triangulate again first, then watch again before refitting the model";
 
-/// One alarm.
+/// One alarm; shown as the line that says it.
 #[derive(Clone, Debug, Serialize)]
 pub struct Alarm {
     pub channel: Channel,
@@ -265,7 +264,7 @@ impl std::fmt::Display for Alarm {
     fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
         write!(
             f,
-            "{} at {:.1} s (the change began about {:.1} s): {}",
+            "alarm: {} at {:.1} s (the change began about {:.1} s): {}",
             self.channel.name(),
             self.time_s,
             self.change_s,

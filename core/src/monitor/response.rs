@@ -75,11 +75,11 @@ impl Response {
             self.baseline.push(s);
             return None;
         }
-        if self.reference.is_none() {
-            let median = crate::stats::quantiles(&mut self.baseline, [0.5]).map(|[m]| m);
-            self.reference = Some(median.unwrap_or(0.0));
-        }
-        let d = s - self.reference.unwrap_or(0.0);
+        let baseline = &mut self.baseline;
+        let reference = *self.reference.get_or_insert_with(|| {
+            crate::stats::quantiles(baseline, [0.5]).map_or(0.0, |[median]| median)
+        });
+        let d = s - reference;
         let k = RESPONSE_SHIFT / 2.0;
         for (side, step) in [d - k, -d - k].into_iter().enumerate() {
             self.stat[side] = (self.stat[side] + step).max(0.0);

@@ -381,7 +381,7 @@ impl std::fmt::Display for Watched {
             )?;
         }
         for a in &m.alarms {
-            writeln!(f, "alarm: {a}")?;
+            writeln!(f, "{a}")?;
         }
         if let Some(path) = &self.after_change {
             writeln!(f, "the rows from the change on: {}", path.display())?;

@@ -218,8 +218,8 @@ impl View {
     }
 
     /// The session's state now (at most ten times a second): its clock, the protocol's
-    /// steps, the commands sent so far and what the regulator measured last, and the time of the first command with pressure (the rest before it sets the track's
-    /// origin).
+    /// steps, the commands sent so far and what the regulator measured last, and the time of
+    /// the first command with pressure (the rest before it sets the track's origin).
     pub(super) fn session(
         &self,
         elapsed_s: f64,

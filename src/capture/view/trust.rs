@@ -109,9 +109,9 @@ impl Trust {
                 Vec::new(),
             )
         };
+        let rest = watching.file.at_rest();
         Trust {
-            monitor: Monitor::new(watching.radius, &watching.settings)
-                .with_rest(watching.file.at_rest()),
+            monitor: Monitor::new(watching.radius, &watching.settings).with_rest(rest.clone()),
             page: TrustPage {
                 waiting: Some("the hand frame's origin is not known yet".into()),
                 level: watching.settings.level,
@@ -126,7 +126,7 @@ impl Trust {
                 errors: Vec::new(),
                 geometry: Some((Vec::new(), Vec::new())),
                 radius: watching.radius,
-                rest: watching.file.at_rest(),
+                rest,
             },
             watching,
             running: None,
@@ -165,16 +165,16 @@ impl Trust {
             let geometry = self.replay.geometry.get_or_insert_with(Default::default);
             geometry.0.push(t);
             geometry.1.push(px);
-            said.extend(self.monitor.geometry(t, px).map(|a| format!("alarm: {a}")));
+            said.extend(self.monitor.geometry(t, px).map(|a| a.to_string()));
             let Ok((p, _)) = found else { continue };
             let measured = r * (p - origin);
             let mut predicted = [0.0; 3];
             file.model.predictor().predict_row(&x, &mut predicted);
             let error = (Vector3::from(predicted) - measured).norm();
             let response = self.monitor.outputs(t, &predicted, measured.as_slice());
-            said.extend(response.map(|a| format!("alarm: {a}")));
+            said.extend(response.map(|a| a.to_string()));
             let (seen, alarm) = self.monitor.error(t, error);
-            said.extend(alarm.map(|a| format!("alarm: {a}")));
+            said.extend(alarm.map(|a| a.to_string()));
             self.replay.times.push(t);
             self.replay.predicted.values.extend(predicted);
             self.replay.measured.values.extend(measured.iter());
