@@ -66,9 +66,14 @@ impl FeatureRows<'_> {
     fn gather(&self, listed: &[usize], mut out: MatMut<f64>, par: Par) {
         let source = |i: usize, rows: Option<&[usize]>| rows.map_or(i, |r| r[i]);
         match *self {
+            // Column by column: both matrices are column-major, so a row copy would stride
+            // through memory at every element.
             FeatureRows::Stored { all, rows } => {
-                for (a, &i) in listed.iter().enumerate() {
-                    out.rb_mut().row_mut(a).copy_from(all.row(source(i, rows)));
+                for j in 0..all.ncols() {
+                    let (from, mut to) = (all.col(j), out.rb_mut().col_mut(j));
+                    for (a, &i) in listed.iter().enumerate() {
+                        to[a] = from[source(i, rows)];
+                    }
                 }
             }
             FeatureRows::Streamed { map, x, rows } => {
@@ -89,6 +94,34 @@ impl FeatureRows<'_> {
         par: Par,
     ) {
         let r = self.width();
+        // Stored features: one product over all of them, the targets scattered to their rows,
+        // instead of gathering the listed rows' features.
+        if let FeatureRows::Stored { all, rows } = *self {
+            if let Some((targets, rhs)) = rhs.take() {
+                let mut scattered = Mat::<f64>::zeros(all.nrows(), targets.ncols());
+                for (k, &(i, _)) in listed.iter().enumerate() {
+                    let at = rows.map_or(i, |rows| rows[i]);
+                    for j in 0..targets.ncols() {
+                        scattered[(at, j)] += targets[(k, j)];
+                    }
+                }
+                let (mut top, mut last) = rhs.split_at_row_mut(r);
+                matmul(
+                    top.rb_mut(),
+                    Accum::Add,
+                    all.transpose(),
+                    scattered.as_ref(),
+                    1.0,
+                    par,
+                );
+                for j in 0..targets.ncols() {
+                    last[(0, j)] += targets.col(j).iter().sum::<f64>();
+                }
+            }
+        }
+        if gram.is_none() && rhs.is_none() {
+            return;
+        }
         let mut block = Mat::<f64>::zeros(BLOCK.min(listed.len()), r + 1);
         for (k, chunk) in listed.chunks(BLOCK).enumerate() {
             let rows: Vec<usize> = chunk.iter().map(|&(i, _)| i).collect();
@@ -110,12 +143,15 @@ impl FeatureRows<'_> {
                 }
             }
             if let Some((sign, gram)) = gram.as_mut() {
-                for (a, &(_, c)) in chunk.iter().enumerate() {
-                    let s = c.sqrt();
-                    for j in 0..r {
-                        b[(a, j)] *= s;
+                let scales: Vec<f64> = chunk.iter().map(|&(_, c)| c.sqrt()).collect();
+                for j in 0..r {
+                    let mut column = b.rb_mut().col_mut(j);
+                    for (a, s) in scales.iter().enumerate() {
+                        column[a] *= s;
                     }
-                    b[(a, r)] = s;
+                }
+                for (a, s) in scales.iter().enumerate() {
+                    b[(a, r)] = *s;
                 }
                 let b = b.into_const();
                 matmul(gram.rb_mut(), Accum::Add, b.transpose(), b, *sign, par);
@@ -134,6 +170,14 @@ impl FeatureRows<'_> {
 
     /// Φ w for every row (n × q).
     fn times(&self, w: MatRef<f64>, par: Par) -> Mat<f64> {
+        if let FeatureRows::Stored { all, rows } = *self {
+            // Every stored row's product is cheaper than gathering the problem's rows.
+            let every = all * w;
+            return match rows {
+                None => every,
+                Some(rows) => Mat::from_fn(rows.len(), w.ncols(), |a, j| every[(rows[a], j)]),
+            };
+        }
         let (n, r) = (self.nrows(), self.width());
         let mut out = Mat::zeros(n, w.ncols());
         let mut block = Mat::<f64>::zeros(BLOCK.min(n), r);
