@@ -19,6 +19,7 @@
 //! share), or computed from the centres on demand, so a fit holds O(r²) plus O(nq) numbers.
 
 use faer::linalg::matmul::matmul;
+use faer::linalg::matmul::triangular::{self, BlockStructure};
 use faer::linalg::solvers::Solve;
 use faer::reborrow::{IntoConst, Reborrow, ReborrowMut};
 use faer::{Accum, Mat, MatMut, MatRef, Par, Side};
@@ -84,8 +85,9 @@ impl FeatureRows<'_> {
     }
 
     /// One pass over the listed rows' features (Φ̃ = [Φ 1]): Σᵢ cᵢ φ̃ᵢ φ̃ᵢᵀ added into the
-    /// `gram` ((r + 1)²) with its sign, and Φ̃ᵀ T into the `rhs` ((r + 1) × q, T one row per
-    /// listed row), each when asked. `listed` holds (row, cᵢ ≥ 0).
+    /// `gram`'s lower triangle ((r + 1)², all the step's Cholesky factor reads) with its sign,
+    /// and Φ̃ᵀ T into the `rhs` ((r + 1) × q, T one row per listed row), each when asked.
+    /// `listed` holds (row, cᵢ ≥ 0).
     fn accumulate(
         &self,
         listed: &[(usize, f64)],
@@ -154,12 +156,23 @@ impl FeatureRows<'_> {
                     b[(a, r)] = *s;
                 }
                 let b = b.into_const();
-                matmul(gram.rb_mut(), Accum::Add, b.transpose(), b, *sign, par);
+                triangular::matmul(
+                    gram.rb_mut(),
+                    BlockStructure::TriangularLower,
+                    Accum::Add,
+                    b.transpose(),
+                    BlockStructure::Rectangular,
+                    b,
+                    BlockStructure::Rectangular,
+                    *sign,
+                    par,
+                );
             }
         }
     }
 
-    /// Φ̃ᵀΦ̃ ((r + 1)², Φ̃ = [Φ 1]) over the problem's rows.
+    /// Φ̃ᵀΦ̃ ((r + 1)², Φ̃ = [Φ 1]) over the problem's rows: its lower triangle, the upper
+    /// left zero.
     pub fn gram(&self, par: Par) -> Mat<f64> {
         let r = self.width();
         let all: Vec<(usize, f64)> = (0..self.nrows()).map(|i| (i, 1.0)).collect();
