@@ -4,7 +4,8 @@
 //! an even count. [`upper_median`] is the upper of the two middle values (`v[n / 2]` of the
 //! sorted values): always one of the data, which a robust threshold or a reference element
 //! needs. Both return `None` for no values, as do [`quantiles`] (nearest rank) for summaries
-//! and [`mean_sd`]. [`Line`] is the least-squares line through points. [`chi_square_quantile`]
+//! and [`mean_sd`]. [`paired_difference`] compares two models' scores on the same folds.
+//! [`Line`] is the least-squares line through points. [`chi_square_quantile`]
 //! is the χ² distribution's quantile, for gates on sums of squared normalized residuals.
 
 use std::cmp::Ordering;
@@ -54,6 +55,26 @@ pub fn quantiles<const N: usize>(values: &mut [f64], q: [f64; N]) -> Option<[f64
     values.sort_by(f64::total_cmp);
     let last = (values.len() - 1) as f64;
     Some(q.map(|q| values[(last * q).round() as usize]))
+}
+
+/// The mean of `a` less `b`, fold by fold (each fold's score weighed by its `weights`, e.g.
+/// its held-out values: for per-fold MAEs the pooled MAEs' difference), and its standard error
+/// over the folds (0 for one fold).
+pub fn paired_difference(a: &[f64], b: &[f64], weights: &[usize]) -> (f64, f64) {
+    let w: Vec<f64> = weights.iter().map(|&v| v as f64).collect();
+    let total: f64 = w.iter().sum();
+    let d: Vec<f64> = a.iter().zip(b).map(|(a, b)| a - b).collect();
+    let mean = d.iter().zip(&w).map(|(d, w)| d * w).sum::<f64>() / total;
+    let k = d.len() as f64;
+    if d.len() < 2 {
+        return (mean, 0.0);
+    }
+    let spread: f64 = d
+        .iter()
+        .zip(&w)
+        .map(|(d, w)| (w * (d - mean)).powi(2))
+        .sum();
+    (mean, (spread * k / (k - 1.0)).sqrt() / total)
 }
 
 /// Mean and standard deviation (population: divided by n) of `values`; `None` for none.

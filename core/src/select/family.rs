@@ -199,24 +199,9 @@ pub fn decide(tried: Vec<FamilyTrial>) -> FamilyDecision {
     }
 }
 
-/// The cross-validated error of `a` less `b`'s (each fold's held-out MAE weighed by its
-/// held-out values: the pooled MAEs' difference) and its standard error over the folds (0
-/// for one fold).
+/// The cross-validated error of `a` less `b`'s and its standard error over the folds.
 fn paired(a: &FamilyTrial, b: &FamilyTrial) -> (f64, f64) {
-    let w: Vec<f64> = a.values.iter().map(|&v| v as f64).collect();
-    let total: f64 = w.iter().sum();
-    let d: Vec<f64> = a.folds.iter().zip(&b.folds).map(|(a, b)| a - b).collect();
-    let mean = d.iter().zip(&w).map(|(d, w)| d * w).sum::<f64>() / total;
-    let k = d.len() as f64;
-    if d.len() < 2 {
-        return (mean, 0.0);
-    }
-    let spread: f64 = d
-        .iter()
-        .zip(&w)
-        .map(|(d, w)| (w * (d - mean)).powi(2))
-        .sum();
-    (mean, (spread * k / (k - 1.0)).sqrt() / total)
+    crate::stats::paired_difference(&a.folds, &b.folds, &a.values)
 }
 
 /// How a selection compares its families.
@@ -281,7 +266,7 @@ impl Run<'_> {
 
     /// The held-out MAE of each fold of `scored` at `chosen`'s parameters (the search's
     /// held-out predictions, or one fit per fold when it kept none), and its held-out values.
-    fn fold_errors(
+    pub(super) fn fold_errors(
         &self,
         chosen: &Chosen,
         scored: &Scoring,

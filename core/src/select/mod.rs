@@ -412,7 +412,7 @@ pub fn select(
             None => {
                 let (tried, screened) =
                     run.choose_each(&present, &candidates, initial.clone(), alone)?;
-                run.keep(tried, screened)
+                run.keep(tried, screened)?
             }
             Some((_, (decision, ..))) => {
                 let decision = decision.clone();

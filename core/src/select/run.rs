@@ -430,7 +430,16 @@ impl Run<'_> {
         &self,
         tried: Vec<Tried>,
         screened: Vec<HistoryTrial>,
-    ) -> (Option<HistoryDecision>, Chosen, Scoring) {
+    ) -> Result<(Option<HistoryDecision>, Chosen, Scoring), SelectError> {
+        // The present inputs against a history, fold by fold (the same folds for both).
+        let paired = match tried.as_slice() {
+            [(None, present, on_present), (Some(_), history, on_history)] => {
+                let (a, values) = self.fold_errors(present, on_present)?;
+                let (b, _) = self.fold_errors(history, on_history)?;
+                (!values.is_empty()).then(|| crate::stats::paired_difference(&a, &b, &values))
+            }
+            _ => None,
+        };
         let decision = self.plan.time.as_ref().map(|_| {
             history::decide(
                 tried
@@ -439,6 +448,7 @@ impl Run<'_> {
                     .collect(),
                 screened,
                 &format!("history={}", self.plan.history),
+                paired,
             )
         });
         let kept = decision.as_ref().and_then(|d| d.used.clone());
@@ -449,7 +459,7 @@ impl Run<'_> {
             .into_iter()
             .find(|(h, _, _)| *h == kept)
             .expect("the kept history was tried");
-        (decision, chosen, scored)
+        Ok((decision, chosen, scored))
     }
 
     /// Whether the basis grows: only `auto`'s reduced basis does; exact and a given size are

@@ -227,11 +227,15 @@ pub struct HistoryTrial {
 pub const AUTO_GAIN: f64 = 0.02;
 
 /// The choice between the present inputs and a history, from their cross-validated fitness:
-/// the history when it is lower by more than [`AUTO_GAIN`] (or asked for alone).
+/// the history when it is lower by more than [`AUTO_GAIN`] and by more than one standard error
+/// of the paired fold differences, `paired` (the present inputs' error less the history's, and
+/// its standard error; `None` when the folds' errors are not known): a near-tie goes to the
+/// present inputs, the simpler model. A history asked for alone is used.
 pub fn decide(
     tried: Vec<(Option<History>, f64, MsvrParams)>,
     screened: Vec<HistoryTrial>,
     asked: &str,
+    paired: Option<(f64, f64)>,
 ) -> HistoryDecision {
     let trials: Vec<HistoryTrial> = tried
         .iter()
@@ -243,17 +247,24 @@ pub fn decide(
         .collect();
     match tried.as_slice() {
         [(None, s, _), (Some(h), f, _)] => {
-            let kept = *f < s * (1.0 - AUTO_GAIN);
+            let gains = *f < s * (1.0 - AUTO_GAIN);
+            let (margin, se) = paired.unwrap_or((s - f, 0.0));
+            let kept = gains && margin > se;
             let verdict = if kept {
                 format!(
-                    "{} lowers the cross-validated error from {s:.5} to {f:.5}",
+                    "{} lowers the cross-validated error from {s:.5} to {f:.5} (by {margin:.5}, more than one standard error, {se:.5})",
                     h.memory
                 )
-            } else {
+            } else if !gains {
                 format!(
                     "{} does not lower the cross-validated error by {:.0} % ({s:.5} → {f:.5}): the present inputs alone",
                     h.memory,
                     100.0 * AUTO_GAIN
+                )
+            } else {
+                format!(
+                    "{} lowers the cross-validated error from {s:.5} to {f:.5}, by {margin:.5}, within one standard error of the paired fold differences ({se:.5}): the present inputs alone, the simpler",
+                    h.memory
                 )
             };
             HistoryDecision {

@@ -160,3 +160,40 @@ fn features_of_a_file_run_through_its_flagged_rows() {
     let at2 = at1 + gain * (3.0 - at1);
     assert!((f.values[3] - at2).abs() < 1e-12, "{:?}", f.values);
 }
+
+/// `auto` keeps a history only when it lowers the cross-validated error by more than 2 % and
+/// by more than one standard error of the paired fold differences; a near-tie is the present
+/// inputs'.
+#[test]
+fn history_is_kept_beyond_one_standard_error_and_two_percent() {
+    let ema = history(Memory::Ema { tau: vec![1.0] });
+    let decide_at = |history_fitness: f64, paired: Option<(f64, f64)>| {
+        let params = MsvrParams::default();
+        decide(
+            vec![
+                (None, 1.0, params),
+                (Some(ema.clone()), history_fitness, params),
+            ],
+            Vec::new(),
+            "history=auto",
+            paired,
+        )
+    };
+    let won = decide_at(0.9, Some((0.1, 0.03)));
+    assert_eq!(won.used, Some(ema.clone()));
+    assert!(won.reason.contains("more than one standard error"));
+    let tie = decide_at(0.9, Some((0.1, 0.12)));
+    assert_eq!(tie.used, None);
+    assert!(
+        tie.reason.contains("within one standard error"),
+        "{}",
+        tie.reason
+    );
+    let small = decide_at(0.99, Some((0.01, 0.001)));
+    assert_eq!(small.used, None);
+    assert!(small
+        .reason
+        .contains("does not lower the cross-validated error by 2 %"));
+    // Without the folds' errors, the 2 % gain alone.
+    assert_eq!(decide_at(0.9, None).used, Some(ema));
+}
