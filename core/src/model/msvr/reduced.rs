@@ -65,7 +65,6 @@ impl FeatureRows<'_> {
 
     /// The features of the listed problem rows into `out` (rows.len() × r).
     fn gather(&self, listed: &[usize], mut out: MatMut<f64>, par: Par) {
-        let source = |i: usize, rows: Option<&[usize]>| rows.map_or(i, |r| r[i]);
         match *self {
             // Column by column: both matrices are column-major, so a row copy would stride
             // through memory at every element.
@@ -73,12 +72,12 @@ impl FeatureRows<'_> {
                 for j in 0..all.ncols() {
                     let (from, mut to) = (all.col(j), out.rb_mut().col_mut(j));
                     for (a, &i) in listed.iter().enumerate() {
-                        to[a] = from[source(i, rows)];
+                        to[a] = from[stored_row(rows, i)];
                     }
                 }
             }
             FeatureRows::Streamed { map, x, rows } => {
-                let mapped: Vec<usize> = listed.iter().map(|&i| source(i, rows)).collect();
+                let mapped: Vec<usize> = listed.iter().map(|&i| stored_row(rows, i)).collect();
                 map.features_of(x, &mapped, out, par);
             }
         }
@@ -102,7 +101,7 @@ impl FeatureRows<'_> {
             if let Some((targets, rhs)) = rhs.take() {
                 let mut scattered = Mat::<f64>::zeros(all.nrows(), targets.ncols());
                 for (k, &(i, _)) in listed.iter().enumerate() {
-                    let at = rows.map_or(i, |rows| rows[i]);
+                    let at = stored_row(rows, i);
                     for j in 0..targets.ncols() {
                         scattered[(at, j)] += targets[(k, j)];
                     }
@@ -171,8 +170,8 @@ impl FeatureRows<'_> {
         }
     }
 
-    /// Φ̃ᵀΦ̃ ((r + 1)², Φ̃ = [Φ 1]) over the problem's rows: its lower triangle, the upper
-    /// left zero.
+    /// Φ̃ᵀΦ̃ ((r + 1)², Φ̃ = [Φ 1]) over the problem's rows: its lower triangle only (the
+    /// upper triangle stays zero).
     pub fn gram(&self, par: Par) -> Mat<f64> {
         let r = self.width();
         let all: Vec<(usize, f64)> = (0..self.nrows()).map(|i| (i, 1.0)).collect();
@@ -210,6 +209,12 @@ impl FeatureRows<'_> {
         }
         out
     }
+}
+
+/// The row of the features (or inputs) that a problem's row `i` is: itself, or its entry in
+/// the problem's list of `rows`.
+fn stored_row(rows: Option<&[usize]>, i: usize) -> usize {
+    rows.map_or(i, |rows| rows[i])
 }
 
 /// A reduced training problem.
