@@ -21,7 +21,7 @@ use nalgebra::Vector3;
 use rand::{Rng, SeedableRng};
 
 use super::demo_checks::{check_calibration, check_tips, feedforward, inverse_stats};
-use super::demo_plan::{job, Plan};
+use super::demo_plan::{job, with_defaults, Plan};
 use super::demo_summary::{
     CalibrationCheck, IntervalCheck, InverseCheck, Score, Summary, TipCheck,
 };
@@ -34,6 +34,7 @@ use crate::fsio;
 use crate::model::file::ModelFile;
 use crate::model::inverse::PlannedTarget;
 use crate::model::msvr::folds::FoldsBy;
+use crate::select::family::FamilyDecision;
 use crate::synth::capture::{CaptureConfig, Realism};
 use crate::synth::image_format::ImageFormat;
 use crate::synth::plant::Plant;
@@ -83,6 +84,7 @@ pub fn run(
     let Models {
         scores,
         intervals,
+        auto,
         coarse,
     } = demo.models()?;
     let (file, planned, inverse) = demo.inverse(coarse.as_deref())?;
@@ -98,6 +100,7 @@ pub fn run(
         triangulation,
         scores,
         intervals,
+        auto,
         inverse,
         dynamic,
         provenance: session.provenance(Some(config.seed)),
@@ -122,6 +125,8 @@ pub fn run(
 struct Models {
     scores: Vec<Score>,
     intervals: Vec<IntervalCheck>,
+    /// The family `handcap model`'s defaults picked, and why.
+    auto: FamilyDecision,
     coarse: Option<PathBuf>,
 }
 
@@ -275,7 +280,7 @@ impl<'a> Demo<'a> {
     fn models(&mut self) -> Result<Models, PipelineError> {
         self.stage(
             4,
-            "model: MSVR, (C, ε, σ) by the paper's ant colony on 5-fold CV, and the previous model"
+            "model: MSVR, (C, ε, σ) by the paper's ant colony on 5-fold CV, and the previous model; `handcap model`'s default (auto) beside them"
                 .into(),
         );
         let (out, plan, capture) = (self.out, &self.plan, self.capture_dir());
@@ -293,21 +298,29 @@ impl<'a> Demo<'a> {
             tri_dir.join("dataset_sweep_a.csv"),
             tri_dir.join("dataset_sweep_b.csv"),
         ];
-        let images = fit::run(
-            &job(
-                plan,
-                tri_train,
-                tri_coarse.clone(),
-                tri_tests
-                    .into_iter()
-                    .chain(plant_tests.iter().cloned())
-                    .collect(),
-                out.join("model.json"),
-                out.join("model"),
-            ),
-            self.session,
-        )?;
+        let paper = job(
+            plan,
+            tri_train,
+            tri_coarse.clone(),
+            tri_tests.into_iter().chain(plant_tests.clone()).collect(),
+            out.join("model.json"),
+            out.join("model"),
+        );
+        let images = fit::run(&paper, self.session)?;
         self.session.emit(Event::Fitted(&images));
+        // What a user gets from `handcap model` on the same rows, beside the paper's method.
+        let defaults = FitJob {
+            out: out.join("model_auto.json"),
+            report: Some(out.join("model_auto")),
+            ..paper
+        };
+        let auto = fit::run(&with_defaults(plan, defaults), self.session)?;
+        let picked = auto.report.family.clone();
+        self.note(format!(
+            "      `handcap model`'s default (auto) picks {}: {}",
+            picked.used.title(),
+            picked.verdict()
+        ));
         // The same model (the parameters the search chose) fitted on the plant's own rows:
         // what the camera path costs, without a second search.
         let crate::model::ModelSpec::Msvr(params) = images.report.spec;
@@ -332,9 +345,17 @@ impl<'a> Demo<'a> {
             ("triangulated frames", &images),
             ("the plant's data", &plant_data),
         ];
+        let auto_scores = scores_of("triangulated frames", &auto)
+            .into_iter()
+            .filter(|x| x.model == picked.used.name())
+            .map(|x| Score {
+                model: format!("auto: {}", x.model),
+                ..x
+            });
         let scores = fitted
             .iter()
             .flat_map(|(trained_on, outcome)| scores_of(trained_on, outcome))
+            .chain(auto_scores)
             .collect();
         let intervals = fitted
             .iter()
@@ -349,6 +370,7 @@ impl<'a> Demo<'a> {
         Ok(Models {
             scores,
             intervals,
+            auto: picked,
             coarse: tri_coarse,
         })
     }

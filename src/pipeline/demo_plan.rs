@@ -8,8 +8,9 @@ use crate::model::history::HistoryChoice;
 use crate::model::msvr::fitness::FitnessKind;
 use crate::model::msvr::folds::FoldsBy;
 use crate::model::msvr::tune::{BasisChoice, Pinned};
-use crate::model::msvr::MsvrParams;
+use crate::model::msvr::{Loss, MsvrParams};
 use crate::search::aco_paper::AcoPaper;
+use crate::search::aco_r::AcoR;
 use crate::search::Method;
 use crate::select::family::FamilyChoice;
 use crate::session::protocol::DynamicDesign;
@@ -130,5 +131,26 @@ pub(super) fn job(
         time: None,
         group: None,
         history: HistoryChoice::None,
+    }
+}
+
+/// `job` as `handcap model` runs it with its defaults, to be shown beside the paper's MSVR:
+/// `auto`'s pick among the families, each searched by ACO_R on the robust loss.
+pub(super) fn with_defaults(plan: &Plan, job: FitJob) -> FitJob {
+    let seed = plan.aco.seed;
+    FitJob {
+        family: FamilyChoice::Auto,
+        params: MsvrParams::default().loss(Loss::Robust),
+        selection: Selection::Search {
+            method: Method::AcoR(AcoR {
+                seed,
+                ..AcoR::default()
+            }),
+            budget: None,
+            fitness: FitnessKind::Cv { folds: 5 },
+            folds_by: FoldsBy::Auto,
+            seed,
+        },
+        ..job
     }
 }

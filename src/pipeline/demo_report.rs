@@ -90,10 +90,16 @@ fn summary_section(page: &mut Page, r: &Report) {
             ],
             vec![
                 "model".into(),
-                s.scores
-                    .iter()
-                    .find(|x| x.model == "msvr" && x.test == "dataset_sweep_a.csv")
-                    .map_or("-".into(), |x| format!("MSVR held-out MAE {:.4} mm on sweep A", x.errors.mae)),
+                {
+                    let mae = |model: &str| {
+                        s.scores
+                            .iter()
+                            .find(|x| x.model == model && x.test == "dataset_sweep_a.csv")
+                            .map_or(f64::NAN, |x| x.errors.mae)
+                    };
+                    let auto = format!("auto: {}", s.auto.used.name());
+                    format!("held-out MAE on sweep A: MSVR {:.4} mm; `handcap model`'s default picks {} ({:.4} mm)", mae("msvr"), s.auto.used.title(), mae(&auto))
+                },
                 timing(timings, "model"),
             ],
             vec![
@@ -270,11 +276,16 @@ fn sweeps_section(page: &mut Page, r: &Report) {
 fn errors_section(page: &mut Page, r: &Report) {
     let s = r.s;
     page.section("errors", "Held-out errors")
-        .paragraph("MAE: mean over steps and coordinates of |measured − predicted| (the paper's measure); Euclidean: mean distance. Models trained on the triangulated frames and, for comparison, the same model (the C, ε, σ the search chose) trained on the plant's own data (its exact tips with 0.02 mm noise): what the camera path costs; tested on the triangulated sweeps (dataset_*) and on the plant's sweeps.")
+        .paragraph("MAE: mean over steps and coordinates of |measured − predicted| (the paper's measure); Euclidean: mean distance. Models trained on the triangulated frames and, for comparison, the same model (the C, ε, σ the search chose) trained on the plant's own data (its exact tips with 0.02 mm noise): what the camera path costs; tested on the triangulated sweeps (dataset_*) and on the plant's sweeps. Rows `auto: …` are what `handcap model` fits on the same rows with its defaults: each family searched by ACO_R on the same folds, the pick by cross-validation (model_auto/).")
         .table(
             &["trained on", "model", "test", "MAE (mm)", "mean Euclidean (mm)", "max Euclidean (mm)"],
             &s.scores.iter().map(|x| vec![x.trained_on.clone(), x.model.clone(), x.test.clone(), f4(x.errors.mae), f4(x.errors.euclid), f4(x.errors.max_euclid)]).collect::<Vec<_>>(),
         );
+    page.paragraph(&format!(
+        "`handcap model`'s default picked {}: {}.",
+        s.auto.used.title(),
+        s.auto.verdict()
+    ));
 }
 
 /// The page's "intervals" section.

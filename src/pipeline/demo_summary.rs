@@ -6,6 +6,7 @@ use serde::Serialize;
 use crate::model::Errors;
 use crate::provenance::Provenance;
 use crate::report::IntervalReport;
+use crate::select::family::FamilyDecision;
 use crate::synth::capture::Realism;
 
 /// Calibration against the truth.
@@ -83,6 +84,9 @@ pub struct Summary {
     pub triangulation: Vec<TipCheck>,
     pub scores: Vec<Score>,
     pub intervals: Vec<IntervalCheck>,
+    /// The family `handcap model`'s defaults picked on the triangulated rows, and why (its
+    /// scores are among `scores`, its model `auto: <family>`).
+    pub auto: FamilyDecision,
     pub inverse: Vec<InverseCheck>,
     /// The finger in motion.
     pub dynamic: super::demo_dynamic::DynamicCheck,

@@ -155,6 +155,13 @@ impl FamilyDecision {
             tried: Vec::new(),
         }
     }
+
+    /// The reason without its `model=…: ` label.
+    pub fn verdict(&self) -> &str {
+        self.reason
+            .split_once(": ")
+            .map_or(&self.reason, |(_, v)| v)
+    }
 }
 
 /// `auto`'s choice among `tried` (each scored on the same folds): the lowest cross-validated
