@@ -281,6 +281,12 @@ fn a_camera_knocked_during_a_live_session_raises_the_live_monitors_camera_alarm_
     let dom = browse(&url, 1000, &d.join("chromium"));
     let shown = attribute(&dom, "id=\"trust\"", "data-alarms").expect("the monitor's panel");
     assert!(shown.contains("@"), "{shown:?}");
+    // The finger's response test's statistic beside the alarms' (a CUSUM: never negative).
+    let response = attribute(&dom, "id=\"trust\"", "data-response").expect("the response test");
+    assert!(
+        response.parse::<f64>().is_ok_and(|s| s >= 0.0),
+        "{response:?}"
+    );
     assert!(capture.wait().unwrap().success());
     assert!(lab.stop().success());
     let (said, printed) = (said.join().unwrap(), printed.join().unwrap());

@@ -133,6 +133,11 @@ impl Settings {
             .map_or(Ok(()), |(_, rule)| Err(rule.to_string()))
     }
 
+    /// The response test's threshold: [`RESPONSE_THRESHOLD`] scaled with [`Settings::threshold`].
+    pub fn response_threshold(&self) -> f64 {
+        RESPONSE_THRESHOLD * self.threshold() / Settings::default().threshold()
+    }
+
     /// The alarms' threshold h = log(false-alarm looks).
     pub fn threshold(&self) -> f64 {
         (self.false_alarm_hours * 3600.0 / self.look_s)

@@ -1,7 +1,7 @@
 //! The finger's response test ([module docs](super)): each look's scale of the errors on the
 //! prediction's displacement from rest, through a two-sided CUSUM.
 
-use super::{Settings, RESPONSE_SHIFT, RESPONSE_THRESHOLD};
+use super::{Settings, RESPONSE_SHIFT};
 
 /// The finger's response against the model's, a look at a time ([module docs](super)).
 #[derive(Clone, Debug)]
@@ -23,7 +23,6 @@ pub(super) struct Response {
 
 impl Response {
     pub(super) fn new(rest: Vec<f64>, radius: f64, settings: &Settings) -> Response {
-        let default_h = Settings::default().threshold();
         Response {
             rest,
             least: radius * radius,
@@ -33,7 +32,7 @@ impl Response {
             reference: None,
             stat: [0.0; 2],
             zero_s: [f64::NEG_INFINITY; 2],
-            threshold: RESPONSE_THRESHOLD * settings.threshold() / default_h,
+            threshold: settings.response_threshold(),
         }
     }
 

@@ -23,6 +23,9 @@ use crate::session::pressures::PRESSURE_COLUMNS;
 const TIP_COLUMNS: [&str; 3] = ["x_mm", "y_mm", "z_mm"];
 /// The page's window of the error and the band (s).
 const WINDOW_S: f64 = 30.0;
+/// The rows kept while the hand frame's origin is not known (s): a session that never shows
+/// its rest hold keeps the last ten minutes, not every frame.
+const PENDING_S: f64 = 600.0;
 
 /// The model a session is watched against, read and checked before filming.
 #[derive(Clone, Debug)]
@@ -79,10 +82,13 @@ pub(super) struct TrustPage {
     coverage: f64,
     /// The last [`WINDOW_S`]: time (s), error and band (mm).
     points: Vec<[f64; 3]>,
-    /// Each channel's statistic now, and the alarm's threshold.
+    /// Each channel's statistic now, and the alarm's threshold; the finger's response test's
+    /// statistic and threshold.
     finger_stat: f64,
     camera_stat: Option<f64>,
     threshold: f64,
+    response_stat: Option<f64>,
+    response_threshold: f64,
     alarms: Vec<Alarm>,
 }
 
@@ -95,7 +101,7 @@ pub struct Trust {
     watching: Watching,
     monitor: Monitor,
     running: Option<Running>,
-    /// Rows taken before the hand frame's origin was known.
+    /// Rows taken before the hand frame's origin was known (the last [`PENDING_S`]).
     pending: Vec<Taken>,
     replay: Replay,
     page: TrustPage,
@@ -116,6 +122,7 @@ impl Trust {
                 waiting: Some("the hand frame's origin is not known yet".into()),
                 level: watching.settings.level,
                 threshold: watching.settings.threshold(),
+                response_threshold: watching.settings.response_threshold(),
                 ..TrustPage::default()
             },
             replay: Replay {
@@ -137,6 +144,8 @@ impl Trust {
     /// A left frame the track took, at `time_s` under `command`: watched once the hand frame
     /// is known.
     pub(super) fn take(&mut self, taken: Taken) {
+        let old = self.pending.partition_point(|p| p.0 < taken.0 - PENDING_S);
+        self.pending.drain(..old);
         self.pending.push(taken);
     }
 
@@ -182,6 +191,7 @@ impl Trust {
             self.page.points.push([t, error, seen.band]);
             self.page.finger_stat = seen.model_stat;
             self.page.camera_stat = seen.geometry_stat;
+            self.page.response_stat = seen.response_stat;
         }
         let misfit = self.monitor.misfit();
         if misfit.is_some() && self.page.waiting != misfit {
