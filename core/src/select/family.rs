@@ -300,15 +300,7 @@ impl Run<'_> {
         let labels = scored.plan.labels.as_deref();
         let fold_of = fitness::assign_folds(rows.rows(), folds, seed, labels, Dealing::Shuffled)
             .map_err(TuneError::from)?;
-        let (mut sum, mut count) = (vec![0.0; folds], vec![0usize; folds]);
-        for (i, y) in rows.outputs.iter_rows().enumerate() {
-            for (j, v) in y.iter().enumerate() {
-                sum[fold_of[i]] += (v - predicted[(i, j)]).abs();
-                count[fold_of[i]] += 1;
-            }
-        }
-        let maes = sum.iter().zip(&count).map(|(s, &c)| s / c.max(1) as f64);
-        Ok((maes.collect(), count))
+        Ok(fitness::fold_maes(rows, predicted, &fold_of, folds))
     }
 }
 

@@ -7,7 +7,7 @@ use std::sync::atomic::AtomicBool;
 use faer::Mat;
 use serde::{Deserialize, Serialize};
 
-use super::fitness::{Fitness, FitnessKind};
+use super::fitness::{assign_folds, fold_maes, Dealing, Fitness, FitnessKind};
 use super::folds::FoldPlan;
 use super::tune::TuneError;
 use super::{Basis, MsvrParams};
@@ -122,16 +122,18 @@ pub fn initial_basis(
     })
 }
 
-/// Whether a larger basis lowered the fitness by more than [`AUTO_GAIN`] (a non-finite one
-/// never does).
-fn gains(smaller: BasisTrial, larger: BasisTrial) -> bool {
-    larger.fitness < smaller.fitness * (1.0 - AUTO_GAIN)
+/// Whether a larger basis lowered the fitness by more than [`AUTO_GAIN`] and by more than `se`,
+/// the standard error of the paired fold differences (a non-finite fitness never does).
+fn gains(smaller: BasisTrial, larger: BasisTrial, se: f64) -> bool {
+    larger.fitness < smaller.fitness * (1.0 - AUTO_GAIN) && smaller.fitness - larger.fitness > se
 }
 
 /// `auto`'s growth of a reduced basis at the chosen (C, ε, σ): doubles the centres while the
-/// cross-validated fitness falls by more than [`AUTO_GAIN`], up to [`AUTO_MAX_CENTRES`], half
-/// the rows, what memory allows, or until the pivoted Cholesky keeps fewer centres than asked
-/// (more would be redundant at this σ). Returns the decision with every size tried.
+/// cross-validated fitness falls by more than [`AUTO_GAIN`] and by more than one standard error
+/// of its paired fold differences (as `--history auto` and `--model auto` decide), up to
+/// [`AUTO_MAX_CENTRES`], half the rows, what memory allows, or until the pivoted Cholesky keeps
+/// fewer centres than asked (more would be redundant at this σ). Returns the decision with
+/// every size tried.
 ///
 /// # Errors
 /// [`TuneError`] when the folds cannot be cut.
@@ -147,20 +149,41 @@ pub fn grow_basis(
         return Ok((start, None));
     };
     let limit = AUTO_MAX_CENTRES.min(data.rows() / 2).max(centres);
-    // Each size's held-out predictions, for the intervals of the one chosen.
-    let mut predicted = Vec::new();
-    let mut score = |m: usize| -> Result<BasisTrial, TuneError> {
-        let params = solver.basis(Basis::Reduced { centres: m, seed });
-        let scorer = Fitness::new(data, fitness, seed, folds.labels.as_deref(), &params)?;
-        let fitness = scorer.evaluate(&[solver.hyper()], f64::INFINITY)[0];
-        predicted.push(scorer.held_out_of(&solver.hyper()));
-        Ok(BasisTrial {
-            centres: m,
-            kept: scorer.kept_centres(solver.sigma),
-            fitness,
-        })
+    let labels = folds.labels.as_deref();
+    // The folds the scorer cuts, for each size's errors fold by fold (none: no folds).
+    let fold_of = match fitness {
+        FitnessKind::Cv { folds } => Some((
+            assign_folds(data.rows(), folds, seed, labels, Dealing::Shuffled)?,
+            folds,
+        )),
+        FitnessKind::Train => None,
     };
-    let mut tried = vec![score(centres)?];
+    // Each size's held-out predictions, for the intervals of the one chosen, and its errors
+    // fold by fold with their held-out values.
+    let (mut predicted, mut by_fold) = (Vec::new(), Vec::new());
+    let mut score =
+        |m: usize, by_fold: &mut Vec<(Vec<f64>, Vec<usize>)>| -> Result<BasisTrial, TuneError> {
+            let params = solver.basis(Basis::Reduced { centres: m, seed });
+            let scorer = Fitness::new(data, fitness, seed, labels, &params)?;
+            let fitness = scorer.evaluate(&[solver.hyper()], f64::INFINITY)[0];
+            let held_out = scorer.held_out_of(&solver.hyper());
+            by_fold.push(match (&held_out, &fold_of) {
+                (Some(p), Some((fold_of, k))) => fold_maes(data, p, fold_of, *k),
+                _ => (Vec::new(), Vec::new()),
+            });
+            predicted.push(held_out);
+            Ok(BasisTrial {
+                centres: m,
+                kept: scorer.kept_centres(solver.sigma),
+                fitness,
+            })
+        };
+    // The standard error of the paired fold differences of sizes `k - 1` and `k`.
+    let se = |by_fold: &[(Vec<f64>, Vec<usize>)], k: usize| {
+        let ((a, values), (b, _)) = (&by_fold[k - 1], &by_fold[k]);
+        crate::stats::paired_difference(a, b, values).1
+    };
+    let mut tried = vec![score(centres, &mut by_fold)?];
     let why = loop {
         let last = *tried.last().expect("one trial");
         let next = (last.centres * 2).min(limit);
@@ -187,11 +210,12 @@ pub fn grow_basis(
         if interrupt.load(std::sync::atomic::Ordering::Relaxed) {
             break "interrupted".into();
         }
-        let trial = score(next)?;
+        let trial = score(next, &mut by_fold)?;
         tried.push(trial);
-        if !gains(last, trial) {
+        let se = se(&by_fold, tried.len() - 1);
+        if !gains(last, trial, se) {
             break format!(
-                "{} centres improved the cross-validated error by less than {:.0} % ({:.5} → {:.5})",
+                "{} centres did not improve the cross-validated error by more than {:.0} % and one standard error ({:.5} → {:.5}; standard error {se:.5})",
                 trial.centres,
                 100.0 * AUTO_GAIN,
                 last.fitness,
@@ -199,12 +223,10 @@ pub fn grow_basis(
             );
         }
     };
-    // The first size the next did not beat by the gain (the last when growth stopped for
-    // another reason).
-    let chosen = tried
-        .windows(2)
-        .position(|w| !gains(w[0], w[1]))
-        .unwrap_or(tried.len() - 1);
+    // The first size the next did not beat (the last when growth stopped for another reason).
+    let chosen = (1..tried.len())
+        .find(|&k| !gains(tried[k - 1], tried[k], se(&by_fold, k)))
+        .map_or(tried.len() - 1, |k| k - 1);
     let decision = BasisDecision {
         basis: Basis::Reduced {
             centres: tried[chosen].centres,
@@ -214,4 +236,85 @@ pub fn grow_basis(
         tried,
     };
     Ok((decision, predicted.swap_remove(chosen)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::data::Columns;
+    use crate::model::msvr::folds::{FoldChoice, FoldScheme};
+
+    fn trial(centres: usize, fitness: f64) -> BasisTrial {
+        BasisTrial {
+            centres,
+            kept: centres,
+            fitness,
+        }
+    }
+
+    #[test]
+    fn growth_needs_two_percent_and_one_standard_error() {
+        let (small, larger) = (trial(200, 1.0), trial(400, 0.95));
+        assert!(gains(small, larger, 0.01));
+        // 5 % lower, but the folds disagree by more than that.
+        assert!(!gains(small, larger, 0.06));
+        // Beyond its standard error, but under 2 %.
+        assert!(!gains(small, trial(400, 0.99), 0.001));
+        assert!(!gains(small, trial(400, f64::NAN), 0.0));
+    }
+
+    /// A wavy map that 8 centres cannot follow: the basis grows (its fold-by-fold standard
+    /// errors are finite and far below the gain), and stops once doubling gains too little.
+    #[test]
+    fn a_basis_too_small_for_the_map_grows_while_the_folds_agree_it_helps() {
+        let n = 600;
+        let x: Vec<f64> = (0..n)
+            .flat_map(|i| {
+                let (a, b) = (i as f64 * 0.618_034 % 1.0, i as f64 * 0.754_878 % 1.0);
+                [a, b]
+            })
+            .collect();
+        let y: Vec<f64> = x
+            .chunks(2)
+            .map(|p| (6.0 * p[0]).sin() * (5.0 * p[1]).cos())
+            .collect();
+        let data = Dataset {
+            source: "inline".into(),
+            inputs: Columns::new(vec!["a".into(), "b".into()], x),
+            outputs: Columns::new(vec!["y".into()], y),
+        };
+        let folds = FoldPlan {
+            choice: FoldChoice {
+                scheme: FoldScheme::Shuffle,
+                reason: String::new(),
+            },
+            folds: 5,
+            labels: None,
+        };
+        let start = BasisDecision {
+            basis: Basis::Reduced {
+                centres: 8,
+                seed: 3,
+            },
+            reason: "test".into(),
+            tried: Vec::new(),
+        };
+        let solver = MsvrParams::new(1000.0, 0.001, 0.15);
+        let (decision, held_out) = grow_basis(
+            start,
+            &data,
+            FitnessKind::Cv { folds: 5 },
+            &folds,
+            &solver,
+            &AtomicBool::new(false),
+        )
+        .unwrap();
+        let Basis::Reduced { centres, .. } = decision.basis else {
+            panic!("{decision:?}")
+        };
+        assert!(centres >= 32, "{}: {:?}", decision.reason, decision.tried);
+        assert!(held_out.is_some());
+        let tried = &decision.tried;
+        assert!(tried[1].fitness < 0.5 * tried[0].fitness, "{tried:?}");
+    }
 }

@@ -108,6 +108,26 @@ pub enum Dealing {
     Consecutive,
 }
 
+/// Each fold's MAE of `predicted` (rows × outputs: every row's prediction by the model fitted
+/// without its fold) against `data`'s outputs, and each fold's held-out values; `fold_of` as
+/// [`assign_folds`] gives it, over `folds` folds.
+pub fn fold_maes(
+    data: &Dataset,
+    predicted: &Mat<f64>,
+    fold_of: &[usize],
+    folds: usize,
+) -> (Vec<f64>, Vec<usize>) {
+    let (mut sum, mut count) = (vec![0.0; folds], vec![0usize; folds]);
+    for (i, y) in data.outputs.iter_rows().enumerate() {
+        for (j, v) in y.iter().enumerate() {
+            sum[fold_of[i]] += (v - predicted[(i, j)]).abs();
+            count[fold_of[i]] += 1;
+        }
+    }
+    let maes = sum.iter().zip(&count).map(|(s, &c)| s / c.max(1) as f64);
+    (maes.collect(), count)
+}
+
 /// The fold of every row. Groups (every row its own group when `groups` is `None`) are dealt
 /// to the folds as `dealing` says, so folds are balanced and a group is never split between
 /// training and held-out rows.
