@@ -349,7 +349,7 @@ impl<'a> Demo<'a> {
             .into_iter()
             .filter(|x| x.model == picked.used.name())
             .map(|x| Score {
-                model: format!("auto: {}", x.model),
+                model: Score::auto_model(picked.used),
                 ..x
             });
         let scores = fitted

@@ -2,7 +2,7 @@
 
 use std::path::Path;
 
-use super::demo_summary::Summary;
+use super::demo_summary::{Score, Summary};
 use crate::calib::{gates, StereoCalibration};
 use crate::model::inverse::PlannedTarget;
 use crate::model::msvr::tune::SearchSummary;
@@ -97,7 +97,7 @@ fn summary_section(page: &mut Page, r: &Report) {
                             .find(|x| x.model == model && x.test == "dataset_sweep_a.csv")
                             .map_or(f64::NAN, |x| x.errors.mae)
                     };
-                    let auto = format!("auto: {}", s.auto.used.name());
+                    let auto = Score::auto_model(s.auto.used);
                     format!("held-out MAE on sweep A: MSVR {:.4} mm; `handcap model`'s default picks {} ({:.4} mm)", mae("msvr"), s.auto.used.title(), mae(&auto))
                 },
                 timing(timings, "model"),

@@ -6,7 +6,7 @@ use serde::Serialize;
 use crate::model::Errors;
 use crate::provenance::Provenance;
 use crate::report::IntervalReport;
-use crate::select::family::FamilyDecision;
+use crate::select::family::{Family, FamilyDecision};
 use crate::synth::capture::Realism;
 
 /// Calibration against the truth.
@@ -48,6 +48,13 @@ pub struct Score {
     pub model: String,
     pub test: String,
     pub errors: Errors,
+}
+
+impl Score {
+    /// The `model` of the rows of `handcap model`'s default pick, `family`.
+    pub fn auto_model(family: Family) -> String {
+        format!("auto: {family}")
+    }
 }
 
 /// Planned pressures run through the plant.

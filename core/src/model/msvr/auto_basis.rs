@@ -158,43 +158,53 @@ pub fn grow_basis(
         )),
         FitnessKind::Train => None,
     };
-    // Each size's held-out predictions, for the intervals of the one chosen, and its errors
-    // fold by fold with their held-out values.
-    let (mut predicted, mut by_fold) = (Vec::new(), Vec::new());
-    let mut score =
-        |m: usize, by_fold: &mut Vec<(Vec<f64>, Vec<usize>)>| -> Result<BasisTrial, TuneError> {
-            let params = solver.basis(Basis::Reduced { centres: m, seed });
-            let scorer = Fitness::new(data, fitness, seed, labels, &params)?;
-            let fitness = scorer.evaluate(&[solver.hyper()], f64::INFINITY)[0];
-            let held_out = scorer.held_out_of(&solver.hyper());
-            by_fold.push(match (&held_out, &fold_of) {
-                (Some(p), Some((fold_of, k))) => fold_maes(data, p, fold_of, *k),
-                _ => (Vec::new(), Vec::new()),
-            });
-            predicted.push(held_out);
-            Ok(BasisTrial {
-                centres: m,
-                kept: scorer.kept_centres(solver.sigma),
-                fitness,
-            })
+    // A size's score and held-out predictions (for the intervals of the one chosen, and the
+    // paired fold differences between sizes).
+    let score = |m: usize| -> Result<(BasisTrial, Option<Mat<f64>>), TuneError> {
+        let params = solver.basis(Basis::Reduced { centres: m, seed });
+        let scorer = Fitness::new(data, fitness, seed, labels, &params)?;
+        let fitness = scorer.evaluate(&[solver.hyper()], f64::INFINITY)[0];
+        let trial = BasisTrial {
+            centres: m,
+            kept: scorer.kept_centres(solver.sigma),
+            fitness,
         };
-    // The standard error of the paired fold differences of sizes `k - 1` and `k`.
-    let se = |by_fold: &[(Vec<f64>, Vec<usize>)], k: usize| {
-        let ((a, values), (b, _)) = (&by_fold[k - 1], &by_fold[k]);
-        crate::stats::paired_difference(a, b, values).1
+        Ok((trial, scorer.held_out_of(&solver.hyper())))
     };
-    let mut tried = vec![score(centres, &mut by_fold)?];
-    let why = loop {
+    // The standard error of the paired fold differences of two sizes' held-out predictions
+    // (0 without folds).
+    let se = |a: &Option<Mat<f64>>, b: &Option<Mat<f64>>| match (a, b, &fold_of) {
+        (Some(a), Some(b), Some((fold_of, k))) => {
+            let ((a, values), (b, _)) = (
+                fold_maes(data, a, fold_of, *k),
+                fold_maes(data, b, fold_of, *k),
+            );
+            crate::stats::paired_difference(&a, &b, &values).1
+        }
+        _ => 0.0,
+    };
+    let (first, held_out) = score(centres)?;
+    let (mut tried, mut predicted) = (vec![first], vec![held_out]);
+    // Why growth stopped, and the size chosen: the last one, or the one before when the last
+    // did not beat it.
+    let (why, chosen) = loop {
         let last = *tried.last().expect("one trial");
         let next = (last.centres * 2).min(limit);
+        let at_last = tried.len() - 1;
         if last.kept < last.centres {
-            break format!(
-                "{} of {} centres kept at σ {:.4}: more would be redundant",
-                last.kept, last.centres, solver.sigma
+            break (
+                format!(
+                    "{} of {} centres kept at σ {:.4}: more would be redundant",
+                    last.kept, last.centres, solver.sigma
+                ),
+                at_last,
             );
         }
         if next == last.centres {
-            break format!("the largest basis allowed ({limit} centres)");
+            break (
+                format!("the largest basis allowed ({limit} centres)"),
+                at_last,
+            );
         }
         if super::check_memory(
             data.rows(),
@@ -205,28 +215,28 @@ pub fn grow_basis(
         )
         .is_err()
         {
-            break format!("{next} centres would not fit in memory");
+            break (format!("{next} centres would not fit in memory"), at_last);
         }
         if interrupt.load(std::sync::atomic::Ordering::Relaxed) {
-            break "interrupted".into();
+            break ("interrupted".into(), at_last);
         }
-        let trial = score(next, &mut by_fold)?;
+        let (trial, held_out) = score(next)?;
+        let se = se(&predicted[at_last], &held_out);
         tried.push(trial);
-        let se = se(&by_fold, tried.len() - 1);
+        predicted.push(held_out);
         if !gains(last, trial, se) {
-            break format!(
-                "{} centres did not improve the cross-validated error by more than {:.0} % and one standard error ({:.5} → {:.5}; standard error {se:.5})",
-                trial.centres,
-                100.0 * AUTO_GAIN,
-                last.fitness,
-                trial.fitness
+            break (
+                format!(
+                    "{} centres did not improve the cross-validated error by more than {:.0} % and one standard error ({:.5} → {:.5}; standard error {se:.5})",
+                    trial.centres,
+                    100.0 * AUTO_GAIN,
+                    last.fitness,
+                    trial.fitness
+                ),
+                at_last,
             );
         }
     };
-    // The first size the next did not beat (the last when growth stopped for another reason).
-    let chosen = (1..tried.len())
-        .find(|&k| !gains(tried[k - 1], tried[k], se(&by_fold, k)))
-        .map_or(tried.len() - 1, |k| k - 1);
     let decision = BasisDecision {
         basis: Basis::Reduced {
             centres: tried[chosen].centres,
