@@ -58,7 +58,7 @@ pub fn run(watch: &Watch, provenance: Provenance) -> Result<Watched, PipelineErr
     let names = [
         "monitor.csv",
         "monitor.json",
-        "after_change.csv",
+        AFTER_CHANGE,
         "monitor.png",
         "monitor.svg",
     ];
@@ -289,6 +289,18 @@ fn geometry(path: &Path, time: &str) -> Result<Option<Samples>, PipelineError> {
     Ok(Some((times, residuals)))
 }
 
+/// The file of the rows from the finger's change on.
+pub const AFTER_CHANGE: &str = "after_change.csv";
+
+/// When the finger changed, by its alarm (none: the finger did not alarm).
+pub fn change_s(monitored: &Monitored) -> Option<f64> {
+    monitored
+        .alarms
+        .iter()
+        .find(|a| a.channel == Channel::Finger)
+        .map(|a| a.change_s)
+}
+
 /// After a model alarm, `after_change.csv`: the session's rows from the change on, as they
 /// were; without one, no such file (a previous run's would pass for this one's).
 fn after_change(
@@ -296,14 +308,9 @@ fn after_change(
     time: &str,
     monitored: &Monitored,
 ) -> Result<Option<PathBuf>, PipelineError> {
-    let path = watch.out.join("after_change.csv");
-    match monitored
-        .alarms
-        .iter()
-        .find(|a| a.channel == Channel::Finger)
-    {
-        Some(alarm) => {
-            let change = alarm.change_s;
+    let path = watch.out.join(AFTER_CHANGE);
+    match change_s(monitored) {
+        Some(change) => {
             data::copy_rows(watch.session, &path, &[time.to_string()], |t| {
                 t[0] >= change
             })?;

@@ -4,7 +4,8 @@
 //! [`Monitor`]. The page shows the error, the band and the alarms; each alarm is said on a
 //! line as it fires; at the session's end `OUT/monitor/` holds what `handcap monitor` writes
 //! (`monitor.csv`, `monitor.json`, the figure), with the frames the examiner skipped while it
-//! was behind counted.
+//! was behind counted, and after a finger alarm `after_change.csv`: the rows from the change
+//! on (time, the pressures the model was given, the measured tip), to refit the model on.
 
 use std::path::{Path, PathBuf};
 
@@ -104,6 +105,8 @@ pub struct Trust {
     /// Rows taken before the hand frame's origin was known (the last [`PENDING_S`]).
     pending: Vec<Taken>,
     replay: Replay,
+    /// The pressures each watched row gave the model (before its history's filters).
+    inputs: Vec<[f64; 3]>,
     page: TrustPage,
 }
 
@@ -138,6 +141,7 @@ impl Trust {
             watching,
             running: None,
             pending: Vec::new(),
+            inputs: Vec::new(),
         }
     }
 
@@ -185,6 +189,7 @@ impl Trust {
             let (seen, alarm) = self.monitor.error(t, error);
             said.extend(alarm.map(|a| a.to_string()));
             self.replay.times.push(t);
+            self.inputs.push(command);
             self.replay.predicted.values.extend(predicted);
             self.replay.measured.values.extend(measured.iter());
             self.replay.errors.push(error);
@@ -215,7 +220,7 @@ impl Trust {
     }
 
     /// Writes the session watched into `out` (the session `session`; `skipped`, the frames
-    /// the examiner skipped per camera).
+    /// the examiner skipped per camera), and after a finger alarm `after_change.csv`.
     ///
     /// # Errors
     /// A file that cannot be written.
@@ -226,18 +231,140 @@ impl Trust {
         skipped: [usize; 2],
         provenance: Provenance,
     ) -> Result<Watched, crate::pipeline::PipelineError> {
+        let monitored = self.monitor.finish();
+        let after_change = match watch_files::change_s(&monitored) {
+            Some(change) => Some(write_after(&self.replay, &self.inputs, out, change)?),
+            None => None,
+        };
         let watched = Watched {
             session: session.to_path_buf(),
             model: self.watching.path.clone(),
             settings: self.watching.settings.clone(),
             rows: self.replay.times.len(),
-            monitored: self.monitor.finish(),
-            after_change: None,
+            monitored,
+            after_change,
             provenance,
             out: out.to_path_buf(),
             skipped: Some(skipped),
         };
         watch_files::write(&self.replay, &watched)?;
         Ok(watched)
+    }
+}
+
+/// `out/after_change.csv`: the rows watched (`replay`, the pressures `given` to the model) from
+/// `change` (s) on, as a refit reads them (`handcap model after_change.csv --inputs
+/// P1_kpa,P2_kpa,P3_kpa --outputs x_mm,y_mm,z_mm --time time_s`).
+fn write_after(
+    replay: &Replay,
+    given: &[[f64; 3]],
+    out: &Path,
+    change: f64,
+) -> Result<PathBuf, crate::pipeline::PipelineError> {
+    let times = &replay.times;
+    let rows: Vec<usize> = (0..times.len()).filter(|&i| times[i] >= change).collect();
+    let time = Columns::new(
+        vec![replay.time.clone()],
+        rows.iter().map(|&i| times[i]).collect(),
+    );
+    let inputs = Columns::new(
+        PRESSURE_COLUMNS.map(String::from).to_vec(),
+        rows.iter().flat_map(|&i| given[i]).collect(),
+    );
+    let tip = replay.measured.select_rows(&rows);
+    let path = out.join(watch_files::AFTER_CHANGE);
+    std::fs::create_dir_all(out).map_err(crate::pipeline::io_error(out))?;
+    crate::data::write_csv(&path, &[&time, &inputs, &tip])?;
+    Ok(path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A model that predicts the tip (0, 0, 10) mm whatever the pressures (its one centre's
+    /// coefficients are zero), its 90 % radius 1 mm.
+    const STILL: &str = r#"{"format": "handcap-model", "version": 1, "kind": "msvr",
+        "model": {"inputs": ["P1_kpa", "P2_kpa", "P3_kpa"], "outputs": ["x_mm", "y_mm", "z_mm"],
+            "params": {"c": 10.0, "epsilon": 0.1, "sigma": 0.5, "tol": 1e-08, "max_iter": 500,
+                       "loss": "robust", "basis": {"kind": "exact"}},
+            "scaler": {"min": [0.0, 0.0, 0.0], "max": [250.0, 250.0, 250.0]},
+            "support_vectors": [[0.0, 0.0, 0.0]], "coefficients": [[0.0, 0.0, 0.0]],
+            "bias": [0.0, 0.0, 10.0],
+            "fit": {"rows": 3, "iterations": 1, "objective": 0.0, "support_vectors": 1,
+                    "converged": true, "stop": "tolerance"}},
+        "intervals": {"folds": {"scheme": "shuffle", "reason": "test"}, "rows": 9,
+            "radii": [{"level": 0.9, "radius": 1.0}], "groups": [],
+            "scores": [0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0]},
+        "provenance": {"handcap_version": "0.1.0", "command": ["test"], "seed": null,
+                       "inputs": []}}"#;
+
+    /// A live session of 60 s at 10 rows a second watched against [`STILL`]: the tip on the
+    /// prediction within 0.2 mm, then from `moved_at` on 3 mm away.
+    fn watched(out: &Path, moved_at: f64) -> Watched {
+        let model = out.join("model.json");
+        std::fs::write(&model, STILL).unwrap();
+        let settings = Settings {
+            baseline_s: 10.0,
+            false_alarm_hours: 0.1,
+            ..Settings::default()
+        };
+        let mut trust = Trust::new(Watching::read(&model, settings).unwrap());
+        for k in 0..600 {
+            let t = k as f64 / 10.0;
+            let wobble = 0.2 * (k as f64 * 0.7).sin();
+            let tip = if t < moved_at {
+                Vector3::new(wobble, 0.0, 10.0)
+            } else {
+                Vector3::new(3.0, wobble, 10.0)
+            };
+            trust.take((t, [k as f64, 20.0, 30.0], Ok((tip, 0.1))));
+            trust.watch(Some((Rotation3::identity(), Vector3::zeros())));
+        }
+        let provenance = Provenance::new(vec!["test".into()], None);
+        trust
+            .write(&out.join("monitor"), out, [0, 0], provenance)
+            .unwrap()
+    }
+
+    #[test]
+    fn after_the_fingers_alarm_the_rows_from_the_change_on_are_written_to_refit_on() {
+        let dir = tempfile::tempdir().unwrap();
+        let watched = watched(dir.path(), 30.0);
+        let alarm = &watched.monitored.alarms[0];
+        assert_eq!(alarm.channel, crate::monitor::Channel::Finger);
+        assert!(
+            (29.0..=31.0).contains(&alarm.change_s),
+            "the change dated at {} s",
+            alarm.change_s
+        );
+        let path = watched.after_change.expect("after_change.csv");
+        assert_eq!(path, dir.path().join("monitor/after_change.csv"));
+        let header = crate::data::header(&path).unwrap();
+        assert_eq!(
+            header,
+            ["time_s", "P1_kpa", "P2_kpa", "P3_kpa", "x_mm", "y_mm", "z_mm"]
+        );
+        let rows = crate::data::read_columns(&path, &header).unwrap();
+        let first = (alarm.change_s * 10.0).ceil() as usize;
+        assert_eq!(rows.rows(), 600 - first, "every row from the change on");
+        for (i, row) in rows.iter_rows().enumerate() {
+            let k = first + i;
+            assert!((row[0] - k as f64 / 10.0).abs() < 1e-9, "{row:?}");
+            assert_eq!(row[1..4], [k as f64, 20.0, 30.0], "the pressures given");
+            if row[0] >= 30.0 {
+                assert_eq!((row[4], row[6]), (3.0, 10.0), "the tip measured");
+            }
+        }
+    }
+
+    #[test]
+    fn without_a_fingers_alarm_no_rows_are_written() {
+        let dir = tempfile::tempdir().unwrap();
+        let watched = watched(dir.path(), f64::INFINITY);
+        assert!(watched.monitored.alarms.is_empty());
+        assert!(watched.after_change.is_none());
+        assert!(!dir.path().join("monitor/after_change.csv").exists());
+        assert!(dir.path().join("monitor/monitor.csv").exists());
     }
 }
