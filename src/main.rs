@@ -5,7 +5,8 @@
 //! The modelling commands run in this binary, which is built from `handcap_model` alone and
 //! links no OpenCV library (it starts in milliseconds, on a machine without OpenCV too); every
 //! other command line (the camera commands, `--help`, `--version`) is handed to
-//! `handcap-cameras` beside it, whose command line has them all.
+//! `handcap-cameras` beside it, whose command line has them all. Without it, `--help` and
+//! `--version` are this binary's own (the modelling commands), after a line saying why.
 
 use handcap_model::cli;
 
@@ -13,10 +14,27 @@ use handcap_model::cli;
 const BUILD_ID: &str = env!("HANDCAP_BUILD_ID");
 
 fn main() -> std::process::ExitCode {
-    match std::env::args_os().nth(1) {
-        Some(first) if cli::is_light(&first) => cli::main(|c: cli::Light| c.command.run()),
-        _ => cli::finish(hand_to_cameras()),
+    let first = std::env::args_os().nth(1);
+    match &first {
+        Some(first) if cli::is_light(first) => cli::main(|c: cli::Light| c.command.run()),
+        _ => match hand_to_cameras() {
+            Err(e) if asks_about_itself(first.as_deref()) => {
+                eprintln!(
+                    "handcap: {}; the modelling commands follow",
+                    cli::one_line(&e)
+                );
+                cli::main(|c: cli::Light| c.command.run())
+            }
+            handed => cli::finish(handed),
+        },
     }
+}
+
+/// Whether the command line asks for the help or the version, which need no camera.
+fn asks_about_itself(first: Option<&std::ffi::OsStr>) -> bool {
+    first
+        .and_then(std::ffi::OsStr::to_str)
+        .is_some_and(|a| matches!(a, "--help" | "-h" | "help" | "--version" | "-V"))
 }
 
 /// Replaces this process with `handcap-cameras` (the same directory, the same arguments): the

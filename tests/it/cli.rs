@@ -655,6 +655,51 @@ fn the_light_binary_links_no_opencv() {
     assert!(String::from_utf8_lossy(&cameras.stdout).contains("libopencv_core"));
 }
 
+/// On a modelling machine with `handcap` alone (no `handcap-cameras`, whose OpenCV it may not
+/// have), `--help` and `--version` answer with the modelling commands after a line saying why the
+/// camera commands are missing; a camera command is still refused.
+#[test]
+fn without_the_camera_binary_help_and_version_still_answer() {
+    let dir = tempdir();
+    let d = dir.path();
+    let light = d.join("handcap");
+    std::fs::copy(env!("CARGO_BIN_EXE_handcap"), &light).unwrap();
+    let run = |args: &[&str]| {
+        std::process::Command::new(&light)
+            .args(args)
+            .current_dir(d)
+            .output()
+            .unwrap()
+    };
+    for asked in [&["--help"][..], &["-h"], &["help"]] {
+        let out = run(asked);
+        let (text, err) = (
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr),
+        );
+        assert!(out.status.success(), "{asked:?}: {err}");
+        for command in [
+            "model", "predict", "inverse", "export", "monitor", "protocol",
+        ] {
+            assert!(text.contains(command), "{asked:?}: {text}");
+        }
+        assert!(
+            err.contains("handcap-cameras") && err.lines().count() == 1,
+            "{err}"
+        );
+    }
+    let version = run(&["--version"]);
+    assert!(version.status.success());
+    assert_eq!(
+        String::from_utf8_lossy(&version.stdout).trim(),
+        format!("handcap {}", env!("CARGO_PKG_VERSION"))
+    );
+    let board = run(&["board", "--out", "b.svg"]);
+    assert_eq!(board.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&board.stderr).contains("handcap-cameras"));
+    assert!(!d.join("b.svg").exists());
+}
+
 /// Hostile probe 9 and issue 61: a `handcap-cameras` that is `handcap` (a link or a copy) made
 /// `handcap board` exec itself for ever; a truncated one segfaulted with no handcap message; one
 /// of another build ran as if it were of this one.

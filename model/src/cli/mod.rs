@@ -69,7 +69,11 @@ impl Modelling {
 /// The `handcap` binary's own command line: the modelling commands alone (it hands every
 /// other to `handcap-cameras`, whose command line has them all).
 #[derive(Parser)]
-#[command(name = "handcap", version)]
+#[command(
+    name = "handcap",
+    version,
+    about = "Model a soft actuator's pressure → tip map: fit, predict, invert, export, monitor (the camera commands are in handcap-cameras, installed beside handcap)"
+)]
 pub struct Light {
     #[command(subcommand)]
     pub command: Modelling,
