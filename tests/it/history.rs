@@ -285,20 +285,13 @@ fn a_plant_without_lag_keeps_its_static_model() {
         let _ = writeln!(timed, "{k},{line}");
     }
     write(d, "timed.csv", &timed);
-    handcap_ok(
+    // The default budget: the present inputs' reference search has half of it.
+    let said = handcap_ok(
         d,
-        &[
-            "model",
-            "timed.csv",
-            "--time",
-            "step",
-            "--budget",
-            "40",
-            "--out",
-            "m.json",
-        ],
+        &["model", "timed.csv", "--time", "step", "--out", "m.json"],
     );
-    let decision = &read_json(&d.join("m.json"))["history"];
+    let timed = read_json(&d.join("m.json"));
+    let decision = &timed["history"];
     assert!(decision["used"].is_null(), "{decision}");
     assert!(
         decision["reason"]
@@ -306,6 +299,21 @@ fn a_plant_without_lag_keeps_its_static_model() {
             .unwrap()
             .contains("the present inputs alone"),
         "{decision}"
+    );
+    // Kept, they are searched again with the whole budget: the model `model` gives without
+    // the time column, to the bit.
+    assert!(
+        said.contains("searched again with the whole budget"),
+        "{said}"
+    );
+    handcap_ok(d, &["model", "timed.csv", "--out", "s.json"]);
+    let alone = read_json(&d.join("s.json"));
+    for key in ["params", "support_vectors", "coefficients", "bias"] {
+        assert_eq!(timed["model"][key], alone["model"][key], "{key}");
+    }
+    assert_eq!(
+        timed["search"]["evaluations"],
+        alone["search"]["evaluations"]
     );
 }
 

@@ -10,7 +10,9 @@
 //! 3. each set's parameters chosen ([`crate::model::msvr::tune::choose`]: the search, or the given ones), `auto`'s
 //!    ladders of time constants screened on a small grid around the present inputs'
 //!    parameters first;
-//! 4. the set kept ([`history::decide`]) and `auto`'s basis grown for it;
+//! 4. the set kept ([`history::decide`]; the present inputs kept over the histories are
+//!    searched again with the whole budget their reference search had half of) and `auto`'s
+//!    basis grown for it;
 //! 5. the intervals: from the held-out predictions steps 3-4 made (no further fit), or from
 //!    one more fit per fold for runs (dealt to the folds in blocks of consecutive runs), after
 //!    a search that scored another file's rows, or when [`Plan::intervals`] asks;
@@ -412,7 +414,8 @@ pub fn select(
             None => {
                 let (tried, screened) =
                     run.choose_each(&present, &candidates, initial.clone(), alone)?;
-                run.keep(tried, screened)?
+                let kept = run.keep(tried, screened)?;
+                run.present_in_full(kept, &candidates, initial.clone())?
             }
             Some((_, (decision, ..))) => {
                 let decision = decision.clone();

@@ -462,6 +462,31 @@ impl Run<'_> {
         Ok((decision, chosen, scored))
     }
 
+    /// The present inputs, when `history=auto` kept them over every history: their reference
+    /// search had half the default budget, so they are searched again with the whole of it
+    /// (the same search, rows and folds as without a time column: the same model). Any other
+    /// choice is returned as it was.
+    pub(super) fn present_in_full(
+        &self,
+        kept: Kept,
+        candidates: &Candidates,
+        initial: BasisDecision,
+    ) -> Result<Kept, SelectError> {
+        let (decision, chosen, scored) = kept;
+        let halved = candidates.compared()
+            && matches!(self.plan.selection, Selection::Search { budget: None, .. });
+        let history_kept = decision.as_ref().is_some_and(|d| d.used.is_some());
+        if !halved || history_kept || self.interrupted() {
+            return Ok((decision, chosen, scored));
+        }
+        self.listener.note(
+            "input history: none kept; the present inputs are searched again with the whole budget (their reference search had half)".into(),
+        );
+        // Compared, not Only: the basis grows after, as for any set compared.
+        let chosen = self.choose(&scored, initial, Pass::Compared)?;
+        Ok((decision, chosen, scored))
+    }
+
     /// Whether the basis grows: only `auto`'s reduced basis does; exact and a given size are
     /// used as they are.
     pub(super) fn grows(&self, initial: &BasisDecision) -> bool {
