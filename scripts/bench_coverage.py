@@ -23,9 +23,7 @@ Splits (from ../shared/realdata, never copied into the repository):
 
 import argparse
 import csv
-import json
 import os
-import subprocess
 import sys
 import tempfile
 
@@ -33,7 +31,7 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
-from bench_peers import (HANDCAP, SOFT_TRUNK, TENDON_ARM, soft_trunk_rows,  # noqa: E402
+from bench_peers import (SOFT_TRUNK, TENDON_ARM, fit_and_predict, soft_trunk_rows,  # noqa: E402
                          tendon_arm_rows, write)
 
 
@@ -62,13 +60,7 @@ def coverage(work, header, train, test, inputs, outputs, extra, run_column):
     grouped by `run_column`) inside them."""
     write(os.path.join(work, "train.csv"), header, train)
     write(os.path.join(work, "test.csv"), header, test)
-    subprocess.run([HANDCAP, "model", "train.csv", "--inputs", ",".join(inputs), "--outputs",
-                    ",".join(outputs), "--out", "model.json", *extra], cwd=work, check=True,
-                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    subprocess.run([HANDCAP, "predict", "model.json", "test.csv", "--out", "pred.csv"], cwd=work,
-                   check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    with open(os.path.join(work, "model.json")) as f:
-        intervals = json.load(f)["intervals"]
+    intervals = fit_and_predict(work, inputs, outputs, extra)["intervals"]
     radii = [r["radius"] for r in intervals["radii"]]
     band = [r["radius"] for r in intervals.get("runs", {}).get("radii", [])]
     truth = np.array([[float(r[header.index(c)]) for c in outputs] for r in test])

@@ -168,6 +168,18 @@ def load(path, inputs, outputs):
     return d[inputs].values, d[outputs].values
 
 
+def fit_and_predict(work, inputs, outputs, args):
+    """In `work`: `handcap model train.csv` (the `inputs` to the `outputs`, with `args`) into
+    model.json, then `handcap predict` of test.csv into pred.csv; the model file's contents."""
+    subprocess.run([HANDCAP, "model", "train.csv", "--inputs", ",".join(inputs), "--outputs",
+                    ",".join(outputs), "--out", "model.json", *args], cwd=work, check=True,
+                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    subprocess.run([HANDCAP, "predict", "model.json", "test.csv", "--out", "pred.csv"], cwd=work,
+                   check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    with open(os.path.join(work, "model.json")) as f:
+        return json.load(f)
+
+
 def mae(y, p):
     return float(np.abs(np.asarray(y) - np.asarray(p)).mean())
 

@@ -17,9 +17,7 @@ The searches at handcap's budget (RandomizedSearchCV, Optuna) are left out: a mi
 """
 
 import argparse
-import json
 import os
-import subprocess
 import sys
 import tempfile
 
@@ -28,21 +26,17 @@ import numpy as np
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 from bench_coverage import DATASETS  # noqa: E402
-from bench_peers import HANDCAP, SPLIT, cv_folds, ema_features, load, mae, peers, write  # noqa: E402
+from bench_peers import (SPLIT, cv_folds, ema_features, fit_and_predict, load, mae,  # noqa: E402
+                         peers, write)
 
 
 def handcap(work, inputs, outputs, extra):
     """Held-out MAE of `handcap model` with its defaults (and `extra`) fitted on train.csv, and
     the filtered copies' time constants its history kept (None: none)."""
-    subprocess.run([HANDCAP, "model", "train.csv", "--inputs", ",".join(inputs), "--outputs",
-                    ",".join(outputs), "--out", "model.json", *extra], cwd=work, check=True,
-                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    subprocess.run([HANDCAP, "predict", "model.json", "test.csv", "--out", "pred.csv"], cwd=work,
-                   check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    written = fit_and_predict(work, inputs, outputs, extra)
     _, y = load(os.path.join(work, "test.csv"), inputs, outputs)
     _, p = load(os.path.join(work, "pred.csv"), inputs, outputs)
-    with open(os.path.join(work, "model.json")) as f:
-        used = (json.load(f).get("history") or {}).get("used")
+    used = (written.get("history") or {}).get("used")
     taus = used["memory"]["tau"] if used and used["memory"]["kind"] == "ema" else None
     return mae(y, p), taus
 

@@ -14,16 +14,17 @@ use handcap_model::cli;
 const BUILD_ID: &str = env!("HANDCAP_BUILD_ID");
 
 fn main() -> std::process::ExitCode {
+    let light = || cli::main(|c: cli::Light| c.command.run());
     let first = std::env::args_os().nth(1);
     match &first {
-        Some(first) if cli::is_light(first) => cli::main(|c: cli::Light| c.command.run()),
+        Some(first) if cli::is_light(first) => light(),
         _ => match hand_to_cameras() {
             Err(e) if asks_about_itself(first.as_deref()) => {
                 eprintln!(
                     "handcap: {}; the modelling commands follow",
                     cli::one_line(&e)
                 );
-                cli::main(|c: cli::Light| c.command.run())
+                light()
             }
             handed => cli::finish(handed),
         },

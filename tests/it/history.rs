@@ -290,8 +290,8 @@ fn a_plant_without_lag_keeps_its_static_model() {
         d,
         &["model", "timed.csv", "--time", "step", "--out", "m.json"],
     );
-    let timed = read_json(&d.join("m.json"));
-    let decision = &timed["history"];
+    let with_time = read_json(&d.join("m.json"));
+    let decision = &with_time["history"];
     assert!(decision["used"].is_null(), "{decision}");
     assert!(
         decision["reason"]
@@ -309,10 +309,10 @@ fn a_plant_without_lag_keeps_its_static_model() {
     handcap_ok(d, &["model", "timed.csv", "--out", "s.json"]);
     let alone = read_json(&d.join("s.json"));
     for key in ["params", "support_vectors", "coefficients", "bias"] {
-        assert_eq!(timed["model"][key], alone["model"][key], "{key}");
+        assert_eq!(with_time["model"][key], alone["model"][key], "{key}");
     }
     assert_eq!(
-        timed["search"]["evaluations"],
+        with_time["search"]["evaluations"],
         alone["search"]["evaluations"]
     );
 }
