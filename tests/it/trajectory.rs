@@ -386,47 +386,56 @@ fn the_dynamic_inverse_anticipates_the_lag_and_learning_closes_the_rest() {
 }
 
 /// Issue 61: the learning loop was tested only on the plant its model was fitted on. Here the
-/// model of the pneumatic plant learns on a finger whose dynamics it does not know: 50 ms of
-/// delay (30), lags of 0.3, 0.12, 0.22 s (0.15, 0.25, 0.4), 12 % creeping over 5 s (8 % over 3),
-/// and 8 kPa of play (none), scored against that finger's truth beside the textbook ILC tuned on
-/// it. Measured: after six repetitions 0.0323 and 0.0476 mm at 6.5 and 3.5 s, where the textbook
-/// ILC, handed this finger's map and each muscle's true lead, reaches 0.0266 and 0.0552. Each
-/// repetition shifts its error by how late this finger's outputs run against the model's
-/// prediction of them (before: 0.0437 and 0.0618; a gain of 0.7 or more stalls or diverges
-/// here). The issue's bar, no worse than the textbook at both periods, is met at 3.5 s only;
-/// asserted: every repetition better than the one before, and within 1.3 times the textbook's
-/// error.
+/// model of the pneumatic plant (30 ms of delay, lags 0.15, 0.25, 0.4 s, 8 % creeping over 3 s,
+/// no play) learns on three fingers whose dynamics it does not know, each scored against its
+/// truth beside the textbook ILC tuned on it:
+///
+/// | finger | delay | lags (s) | creep | play | 6.5 s: handcap, textbook | 3.5 s: handcap, textbook |
+/// |---|---|---|---|---|---|---|
+/// | slower | 50 ms | 0.3, 0.12, 0.22 | 12 % over 5 s | 8 kPa | 0.0323, 0.0266 | 0.0476, 0.0552 |
+/// | quicker | 40 ms | 0.2, 0.35, 0.1 | 5 % over 2 s | 4 kPa | 0.0258, 0.0250 | 0.0735, 0.0662 |
+/// | playful | 20 ms | 0.25, 0.5, 0.3 | 10 % over 4 s | 12 kPa | 0.0801, 0.0685 | 0.0867, 0.2170 |
+///
+/// (mm RMS after six repetitions). Each repetition shifts its error by how late the finger's
+/// outputs run against the model's prediction of them (on the first finger, before: 0.0437 and
+/// 0.0618; a gain of 0.7 or more stalls or diverges there). The issue's bar, no worse than the
+/// textbook at both periods, is met at 3.5 s (two of the six); asserted: every repetition better than
+/// the one before, and within 1.3 times the textbook's error.
 #[test]
 fn learning_holds_on_a_finger_the_model_does_not_know() {
     let dir = tempdir();
     let d = dir.path();
     let plant = Plant::new(PlantParams::default());
     fit_models(d, &plant);
-    let bench = Bench {
+    let finger = |delay_s, lag_s, (creep_share, creep_s), play_kpa| Bench {
         plant: &plant,
         dynamics: Dynamics {
-            delay_s: 0.05,
-            lag_s: [0.3, 0.12, 0.22],
-            creep_share: 0.12,
-            creep_s: 5.0,
+            delay_s,
+            lag_s,
+            creep_share,
+            creep_s,
         },
-        play_kpa: 8.0,
+        play_kpa,
     };
-    for period in [6.5, 3.5] {
-        let (target, lead) = figure_eight(&plant, period);
-        write(d, "target.csv", &target);
-        plan_path(d, "model.json");
-        let errors = learn_six_times(d, &bench, lead);
-        let textbook = tuned_textbook_ilc(d, &bench, lead);
-        eprintln!("another finger, figure-eight of {period} s: planned and learning {errors:.4?}, tuned textbook ILC {textbook:.4?}");
-        for w in errors.windows(2) {
-            assert!(w[1] < w[0], "learning went back: {errors:.4?}");
+    for bench in [
+        finger(0.05, [0.3, 0.12, 0.22], (0.12, 5.0), 8.0),
+        finger(0.04, [0.2, 0.35, 0.1], (0.05, 2.0), 4.0),
+        finger(0.02, [0.25, 0.5, 0.3], (0.10, 4.0), 12.0),
+    ] {
+        for period in [6.5, 3.5] {
+            let (target, lead) = figure_eight(&plant, period);
+            write(d, "target.csv", &target);
+            plan_path(d, "model.json");
+            let errors = learn_six_times(d, &bench, lead);
+            let textbook = tuned_textbook_ilc(d, &bench, lead);
+            let said = format!("lags {:?} s, play {} kPa, figure-eight of {period} s: planned and learning {errors:.4?}, tuned textbook ILC {textbook:.4?}", bench.dynamics.lag_s, bench.play_kpa);
+            eprintln!("{said}");
+            for w in errors.windows(2) {
+                assert!(w[1] < w[0], "learning went back: {said}");
+            }
+            let last = *errors.last().unwrap();
+            assert!(last <= 1.3 * textbook[6], "{said}");
         }
-        let last = *errors.last().unwrap();
-        assert!(
-            last <= 1.3 * textbook[6],
-            "after 6 repetitions {errors:.4?}, tuned textbook ILC {textbook:.4?}"
-        );
     }
 }
 
