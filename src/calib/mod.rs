@@ -41,6 +41,7 @@ pub mod figures;
 pub mod file;
 mod fit;
 pub mod gates;
+pub mod graph;
 pub mod guidance;
 pub mod pairs;
 pub mod print;
