@@ -120,18 +120,23 @@ pub(super) fn hand_axes(
     rig: &StereoFit,
     view: View,
 ) -> Result<Rotation3<f64>, CalibError> {
-    let mut left_from_board = board_pose(board, &rig.cams.left, view)?.rotation;
+    Ok(hand_from(board_pose(board, &rig.cams.left, view)?.rotation))
+}
+
+/// A frame → hand-frame rotation from the reference board's rotation in that frame (a
+/// camera's, whose image's right is the frame's x).
+pub(super) fn hand_from(mut from_board: Rotation3<f64>) -> Rotation3<f64> {
     // The board read so that its x axis points to the image's right: a chessboard's corners
     // may be found from either end, and a ChArUco board may be laid upside down. Turning it
     // half round about its normal is reading its corners in reverse.
-    if (left_from_board * Vector3::x()).x < 0.0 {
-        left_from_board *= Rotation3::from_axis_angle(&Vector3::z_axis(), std::f64::consts::PI);
+    if (from_board * Vector3::x()).x < 0.0 {
+        from_board *= Rotation3::from_axis_angle(&Vector3::z_axis(), std::f64::consts::PI);
     }
     // Board axes in the hand frame: x → x, y → −z, z → +y.
     let hand_from_board = Rotation3::from_matrix_unchecked(Matrix3::new(
         1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, -1.0, 0.0,
     ));
-    Ok(hand_from_board * left_from_board.inverse())
+    hand_from_board * from_board.inverse()
 }
 
 /// The board's pose in a camera from its corners (`solvePnP`, iterative).

@@ -9,15 +9,19 @@
 //!    ties with the most shared instants (a maximum spanning tree from the first camera, the
 //!    world) gives each camera its starting pose, and each instant's board starts from the
 //!    camera that saw most of its corners.
-//! 3. Every camera's pose but the first's and every board pose are refined together by
-//!    Levenberg-Marquardt over every corner's reprojection error, with the Huber loss (a corner
-//!    more than [`HUBER_PX`] off counts linearly) by iteratively reweighted least squares; then
-//!    the corners farther off than [`REJECT_SIGMAS`] times the corners' pixel noise (estimated
-//!    from their median distance) are left out as wrong detections, and the poses refined
-//!    again without them. The intrinsics stay as given.
+//! 3. Every camera's intrinsics (fx, fy, cx, cy, k1, k2, p1, p2, k3, from the ones given) and
+//!    pose but the first's, and every board pose, are refined together by Levenberg-Marquardt
+//!    over every corner's reprojection error, with the Huber loss (a corner more than
+//!    [`HUBER_PX`] off counts linearly) by iteratively reweighted least squares; then the
+//!    corners farther off than [`REJECT_SIGMAS`] times the corners' pixel noise (estimated from
+//!    their median distance) are left out as wrong detections, and everything refined again
+//!    without them. The views only one camera saw inform its intrinsics. As a pair's
+//!    `stereoCalibrate` does, the intrinsics move with the poses: held at each camera's own
+//!    calibration, their errors (a principal point a pixel off) tilt the poses by several of
+//!    the poses' own deviations.
 //! 4. How sure each pose is: the covariance σ² (Jᵀ W J)⁻¹ at the solution (σ² the weighted
-//!    residuals' variance; the board poses are nuisance parameters), its cameras' blocks as
-//!    each camera's rotation (°) and position (mm) standard deviations.
+//!    residuals' variance; the intrinsics and board poses are nuisance parameters), its
+//!    cameras' blocks as each camera's rotation (°) and position (mm) standard deviations.
 //!
 //! A camera tied to the others by fewer than [`MIN_SHARED`] instants is named as poorly tied;
 //! one tied to none is refused, by name.
@@ -29,10 +33,10 @@ use nalgebra::{Point3, Rotation3, Vector3};
 
 use super::checks::board_pose;
 use super::detect::Seen;
+use super::uncertainty::{intrinsic_mut, intrinsic_step};
 use super::{BoardSpec, CalibError, View};
-use crate::geometry::{
-    frame, relative, CamFromBoard, CamFromWorld, Intrinsics, Transform, WorldFromBoard,
-};
+use crate::geometry::{frame, CamFromBoard, CamFromWorld, Intrinsics, Transform, WorldFromBoard};
+use start::{starting_poses, transfer_cost};
 
 /// A corner this far from where the poses put it (px) counts linearly, not squared.
 pub const HUBER_PX: f64 = 1.0;
@@ -46,6 +50,15 @@ const MIN_CORNERS: usize = 6;
 /// Levenberg-Marquardt's iterations at most.
 const MAX_ITERATIONS: usize = 100;
 
+/// Whether the intrinsics move with the poses.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Intrinsic {
+    /// Refined with the poses, from the ones given (each camera's own calibration).
+    Refined,
+    /// Kept as given (known from an earlier calibration).
+    Given,
+}
+
 /// One camera's view of the board at one instant.
 #[derive(Clone, Debug)]
 pub struct Sighting {
@@ -54,9 +67,11 @@ pub struct Sighting {
     pub seen: Seen,
 }
 
-/// A camera's pose in the graph and how sure it is.
+/// A camera's intrinsics and pose in the graph and how sure the pose is.
 #[derive(Clone, Debug)]
 pub struct CameraPose {
+    /// Refined with the poses (five distortion coefficients).
+    pub intrinsics: Intrinsics,
     /// World (the first camera's frame) → this camera.
     pub cam_from_world: CamFromWorld,
     /// Standard deviation of the rotation (°, the largest about any axis) and of the
@@ -81,6 +96,8 @@ pub struct Graph {
     pub reject_px: f64,
     /// Cameras sharing fewer than [`MIN_SHARED`] instants with the others.
     pub poorly_tied: Vec<usize>,
+    /// The board's pose at each instant two cameras or more saw it: (instant, pose).
+    pub boards: Vec<(usize, WorldFromBoard)>,
 }
 
 /// Why the poses were not found.
@@ -105,9 +122,8 @@ type CamFromCam = Transform<frame::Camera, frame::Camera>;
 
 const STEP: [f64; 6] = [1e-7, 1e-7, 1e-7, 1e-5, 1e-5, 1e-5];
 
-/// The problem: the cameras, the sightings with their board corners, the unknowns' layout.
+/// The problem: the sightings with their board corners, the instants, the corners left out.
 struct Problem<'a> {
-    cameras: &'a [Intrinsics],
     sightings: Vec<(&'a Sighting, Vec<Point3<f64>>)>,
     /// The instants, in order; the board pose of `instants[i]` is unknown `i`.
     instants: Vec<usize>,
@@ -115,40 +131,132 @@ struct Problem<'a> {
     reject_px: f64,
 }
 
-/// The unknowns: every camera's pose (the first's fixed) and every instant's board pose.
+/// The unknowns: every camera's intrinsics (fx, fy, cx, cy, k1, k2, p1, p2, k3) and pose (the
+/// first's fixed: it is the world) and every instant's board pose, laid out in that order.
 #[derive(Clone)]
-struct Poses {
+struct State {
+    /// The intrinsics' unknowns per camera: 9 when they are refined, 0 when given.
+    per_camera: usize,
+    intrinsics: Vec<Intrinsics>,
     cameras: Vec<CamFromWorld>,
     boards: Vec<WorldFromBoard>,
 }
 
-impl Problem<'_> {
+/// One unknown of a sighting: what it moves, and where it sits among all of them.
+#[derive(Clone, Copy)]
+enum Unknown {
+    Intrinsic(usize),
+    Camera(usize),
+    Board(usize),
+}
+
+impl State {
     fn unknowns(&self) -> usize {
-        6 * (self.cameras.len() - 1 + self.instants.len())
+        let n = self.cameras.len();
+        self.per_camera * n + 6 * (n - 1) + 6 * self.boards.len()
     }
 
+    /// The column of camera `c`'s first pose unknown (c > 0).
+    fn pose_column(&self, c: usize) -> usize {
+        self.per_camera * self.cameras.len() + 6 * (c - 1)
+    }
+
+    /// The column of board `b`'s first unknown.
+    fn board_column(&self, b: usize) -> usize {
+        self.pose_column(self.cameras.len()) + 6 * b
+    }
+
+    /// The unknowns sighting (`camera`, board `b`) depends on, with their columns.
+    fn columns(&self, camera: usize, b: usize) -> Vec<(usize, Unknown)> {
+        let first = self.per_camera * camera;
+        let mut out: Vec<(usize, Unknown)> = (0..self.per_camera)
+            .map(|i| (first + i, Unknown::Intrinsic(i)))
+            .collect();
+        if camera > 0 {
+            let at = self.pose_column(camera);
+            out.extend((0..6).map(|j| (at + j, Unknown::Camera(j))));
+        }
+        let at = self.board_column(b);
+        out.extend((0..6).map(|j| (at + j, Unknown::Board(j))));
+        out
+    }
+
+    /// The step of central differences along an unknown.
+    fn step_of(unknown: Unknown) -> f64 {
+        match unknown {
+            Unknown::Intrinsic(i) => intrinsic_step(i),
+            Unknown::Camera(j) | Unknown::Board(j) => STEP[j],
+        }
+    }
+
+    /// The state moved by the unknowns' step `delta`.
+    fn moved(&self, delta: &[f64]) -> State {
+        let mut next = self.clone();
+        for (c, intrinsics) in next.intrinsics.iter_mut().enumerate() {
+            for i in 0..self.per_camera {
+                *intrinsic_mut(intrinsics, i) += delta[self.per_camera * c + i];
+            }
+        }
+        for c in 1..self.cameras.len() {
+            let at = self.pose_column(c);
+            next.cameras[c] = stepped(&self.cameras[c], &delta[at..at + 6]);
+        }
+        for (b, board) in next.boards.iter_mut().enumerate() {
+            let at = self.board_column(b);
+            *board = stepped(board, &delta[at..at + 6]);
+        }
+        next
+    }
+}
+
+impl Problem<'_> {
     fn board_index(&self, instant: usize) -> usize {
         self.instants
             .binary_search(&instant)
             .expect("an instant seen")
     }
 
-    /// The residuals (px, u and v of each corner) of sighting `s` under `camera` and `board`.
+    /// The residuals (px, u and v of each corner) of sighting `s` under `intrinsics`,
+    /// `camera` and `board`.
     fn residuals(
         &self,
         s: usize,
-        camera: &CamFromWorld,
-        board: &WorldFromBoard,
+        (intrinsics, camera, board): (&Intrinsics, &CamFromWorld, &WorldFromBoard),
         out: &mut Vec<f64>,
     ) {
         let (sighting, corners) = &self.sightings[s];
-        let intrinsics = &self.cameras[sighting.camera];
         out.clear();
         for (p, seen) in corners.iter().zip(&sighting.seen.px) {
             let at = intrinsics.pixel(&camera.apply(&board.apply(p)));
             let [u, v] = at.unwrap_or([f64::NAN; 2]);
             out.extend([u - f64::from(seen[0]), v - f64::from(seen[1])]);
         }
+    }
+
+    /// Sighting `s`'s residuals under `state`, with unknown `moved` (if any) moved by `h`.
+    fn residuals_of(
+        &self,
+        s: usize,
+        state: &State,
+        moved: Option<(Unknown, f64)>,
+        out: &mut Vec<f64>,
+    ) {
+        let (sighting, _) = &self.sightings[s];
+        let c = sighting.camera;
+        let (mut intrinsics, mut camera, mut board) = (
+            std::borrow::Cow::Borrowed(&state.intrinsics[c]),
+            state.cameras[c],
+            state.boards[self.board_index(sighting.instant)],
+        );
+        let along =
+            |j: usize, h: f64| std::array::from_fn::<f64, 6, _>(|k| if k == j { h } else { 0.0 });
+        match moved {
+            None => {}
+            Some((Unknown::Intrinsic(i), h)) => *intrinsic_mut(intrinsics.to_mut(), i) += h,
+            Some((Unknown::Camera(j), h)) => camera = stepped(&camera, &along(j, h)),
+            Some((Unknown::Board(j), h)) => board = stepped(&board, &along(j, h)),
+        }
+        self.residuals(s, (&intrinsics, &camera, &board), out);
     }
 
     /// Each corner's weight and loss from its residual's length: Huber's, nothing beyond
@@ -169,15 +277,13 @@ impl Problem<'_> {
         })
     }
 
-    /// The robust cost of every corner under `poses` (NaN where a corner falls behind its
+    /// The robust cost of every corner under `state` (NaN where a corner falls behind its
     /// camera).
-    fn cost(&self, poses: &Poses) -> f64 {
+    fn cost(&self, state: &State) -> f64 {
         let mut r = Vec::new();
         (0..self.sightings.len())
             .map(|s| {
-                let (sighting, _) = &self.sightings[s];
-                let board = &poses.boards[self.board_index(sighting.instant)];
-                self.residuals(s, &poses.cameras[sighting.camera], board, &mut r);
+                self.residuals_of(s, state, None, &mut r);
                 self.huber(&r).map(|(_, loss)| loss).sum::<f64>()
             })
             .sum()
@@ -185,37 +291,28 @@ impl Problem<'_> {
 
     /// The weighted normal matrix Jᵀ W J and gradient Jᵀ W r over every unknown, W the Huber
     /// weights; the weighted squared residuals and their count.
-    fn normal(&self, poses: &Poses) -> (faer::Mat<f64>, Vec<f64>, f64, usize) {
-        let n = self.unknowns();
+    fn normal(&self, state: &State) -> (faer::Mat<f64>, Vec<f64>, f64, usize) {
+        let n = state.unknowns();
         let mut a = faer::Mat::<f64>::zeros(n, n);
         let mut g = vec![0.0; n];
         let (mut rss, mut m) = (0.0, 0);
         let (mut base, mut plus, mut minus) = (Vec::new(), Vec::new(), Vec::new());
         for s in 0..self.sightings.len() {
             let (sighting, _) = &self.sightings[s];
-            let b = self.board_index(sighting.instant);
-            let (camera, board) = (&poses.cameras[sighting.camera], &poses.boards[b]);
-            self.residuals(s, camera, board, &mut base);
+            self.residuals_of(s, state, None, &mut base);
             let weights: Vec<f64> = self.huber(&base).map(|(w, _)| w).collect();
-            // The sighting's columns: its camera's six (none for the first), its board's six.
-            let mut columns: Vec<(usize, Vec<f64>)> = Vec::new();
-            for (j, &h) in STEP.iter().enumerate() {
-                let mut delta = [0.0; 6];
-                if sighting.camera > 0 {
-                    delta[j] = h;
-                    self.residuals(s, &stepped(camera, &delta), board, &mut plus);
-                    delta[j] = -h;
-                    self.residuals(s, &stepped(camera, &delta), board, &mut minus);
-                    let col = plus.iter().zip(&minus).map(|(p, q)| (p - q) / (2.0 * h));
-                    columns.push((6 * (sighting.camera - 1) + j, col.collect()));
-                }
-                delta[j] = h;
-                self.residuals(s, camera, &stepped(board, &delta), &mut plus);
-                delta[j] = -h;
-                self.residuals(s, camera, &stepped(board, &delta), &mut minus);
-                let col = plus.iter().zip(&minus).map(|(p, q)| (p - q) / (2.0 * h));
-                columns.push((6 * (self.cameras.len() - 1 + b) + j, col.collect()));
-            }
+            let b = self.board_index(sighting.instant);
+            let columns: Vec<(usize, Vec<f64>)> = state
+                .columns(sighting.camera, b)
+                .into_iter()
+                .map(|(column, unknown)| {
+                    let h = State::step_of(unknown);
+                    self.residuals_of(s, state, Some((unknown, h)), &mut plus);
+                    self.residuals_of(s, state, Some((unknown, -h)), &mut minus);
+                    let d = plus.iter().zip(&minus).map(|(p, q)| (p - q) / (2.0 * h));
+                    (column, d.collect())
+                })
+                .collect();
             let weigh = |i: usize| weights[i / 2];
             for (c1, j1) in &columns {
                 g[*c1] += j1
@@ -238,59 +335,44 @@ impl Problem<'_> {
     }
 
     /// The corners' pixel noise per axis (px), robustly: the median distance of a corner
-    /// from where `poses` put it is 1.1774 (√(2 ln 2)) times it under Gaussian noise.
-    fn pixel_noise(&self, poses: &Poses) -> f64 {
+    /// from where `state` puts it is 1.1774 (√(2 ln 2)) times it under Gaussian noise.
+    fn pixel_noise(&self, state: &State) -> f64 {
         let mut r = Vec::new();
         let mut distances: Vec<f64> = Vec::new();
-        for (s, (sighting, _)) in self.sightings.iter().enumerate() {
-            let board = &poses.boards[self.board_index(sighting.instant)];
-            self.residuals(s, &poses.cameras[sighting.camera], board, &mut r);
+        for s in 0..self.sightings.len() {
+            self.residuals_of(s, state, None, &mut r);
             distances.extend(r.chunks(2).map(|c| c[0].hypot(c[1])));
         }
         crate::stats::median(&mut distances).unwrap_or(f64::NAN) / (2.0 * 2f64.ln()).sqrt()
     }
 
-    /// `poses` moved by the unknowns' step `delta`.
-    fn step(&self, poses: &Poses, delta: &[f64]) -> Poses {
-        let k = self.cameras.len() - 1;
-        Poses {
-            cameras: (0..poses.cameras.len())
-                .map(|c| match c {
-                    0 => poses.cameras[0],
-                    c => stepped(&poses.cameras[c], &delta[6 * (c - 1)..6 * c]),
-                })
-                .collect(),
-            boards: (0..poses.boards.len())
-                .map(|b| stepped(&poses.boards[b], &delta[6 * (k + b)..6 * (k + b + 1)]))
-                .collect(),
-        }
-    }
-
-    /// Levenberg-Marquardt from `poses` (module docs, step 3).
-    fn refine(&self, mut poses: Poses) -> Poses {
-        let mut cost = self.cost(&poses);
+    /// Levenberg-Marquardt from `state` (module docs, step 3), on the unknowns scaled to the
+    /// normal matrix's unit diagonal (a focal length moves a corner by a fraction of a pixel
+    /// per pixel, k3 by hundreds).
+    fn refine(&self, mut state: State) -> State {
+        let mut cost = self.cost(&state);
         let mut lambda = 1e-3;
         for _ in 0..MAX_ITERATIONS {
-            let (a, g, _, _) = self.normal(&poses);
+            let (a, g, _, _) = self.normal(&state);
             let n = g.len();
+            let scale: Vec<f64> = (0..n).map(|j| 1.0 / a[(j, j)].max(1e-30).sqrt()).collect();
             let mut improved = false;
             while lambda < 1e12 {
-                let mut damped = a.clone();
-                for j in 0..n {
-                    damped[(j, j)] += lambda * a[(j, j)].max(1e-12);
-                }
+                let damped = faer::Mat::<f64>::from_fn(n, n, |i, j| {
+                    scale[i] * a[(i, j)] * scale[j] + if i == j { lambda } else { 0.0 }
+                });
                 let Ok(llt) = damped.llt(faer::Side::Lower) else {
                     lambda *= 10.0;
                     continue;
                 };
-                let rhs = faer::Mat::<f64>::from_fn(n, 1, |j, _| -g[j]);
-                let delta = llt.solve(&rhs);
-                let delta: Vec<f64> = (0..n).map(|j| delta[(j, 0)]).collect();
-                let moved = self.step(&poses, &delta);
+                let rhs = faer::Mat::<f64>::from_fn(n, 1, |j, _| -g[j] * scale[j]);
+                let solved = llt.solve(&rhs);
+                let delta: Vec<f64> = (0..n).map(|j| solved[(j, 0)] * scale[j]).collect();
+                let moved = state.moved(&delta);
                 let moved_cost = self.cost(&moved);
                 if moved_cost < cost {
                     let gain = (cost - moved_cost) / cost.max(f64::MIN_POSITIVE);
-                    (poses, cost, lambda) = (moved, moved_cost, (lambda / 3.0).max(1e-9));
+                    (state, cost, lambda) = (moved, moved_cost, (lambda / 3.0).max(1e-9));
                     improved = gain > 1e-12;
                     break;
                 }
@@ -300,12 +382,13 @@ impl Problem<'_> {
                 break;
             }
         }
-        poses
+        state
     }
 }
 
-/// The cameras' poses from their sightings of `board` (module docs); `cameras` are the
-/// intrinsics, indexed by [`Sighting::camera`].
+/// The cameras' poses and intrinsics from their sightings of `board` (module docs); `cameras`
+/// are the intrinsics to start from (each camera's own calibration) or to keep, as
+/// `intrinsics` says, indexed by [`Sighting::camera`].
 ///
 /// # Errors
 /// [`GraphError::Untied`] for a camera tied to the first by no chain of shared instants;
@@ -313,6 +396,7 @@ impl Problem<'_> {
 pub fn calibrate(
     board: &BoardSpec,
     cameras: &[Intrinsics],
+    intrinsics: Intrinsic,
     sightings: &[Sighting],
 ) -> Result<Graph, GraphError> {
     let used: Vec<&Sighting> = sightings
@@ -332,9 +416,7 @@ pub fn calibrate(
     for (i, s) in used.iter().enumerate() {
         by_instant.entry(s.instant).or_default().push(i);
     }
-    by_instant.retain(|_, list| list.len() >= 2);
     let problem = Problem {
-        cameras,
         sightings: by_instant
             .values()
             .flatten()
@@ -345,13 +427,11 @@ pub fn calibrate(
     };
     let shared: Vec<usize> = (0..cameras.len())
         .map(|c| {
-            by_instant
-                .values()
-                .filter(|l| l.iter().any(|&i| used[i].camera == c))
-                .count()
+            let tied = |l: &&Vec<usize>| l.len() >= 2 && l.iter().any(|&i| used[i].camera == c);
+            by_instant.values().filter(tied).count()
         })
         .collect();
-    let start = starting_poses(cameras.len(), &by_instant, &used, &seen_in, |a, b, pose| {
+    let mut start = starting_poses(cameras, &by_instant, &used, &seen_in, |a, b, pose| {
         transfer_cost(
             board,
             &cameras[b],
@@ -362,113 +442,34 @@ pub fn calibrate(
             pose,
         )
     })?;
+    start.per_camera = match intrinsics {
+        Intrinsic::Refined => 9,
+        Intrinsic::Given => 0,
+    };
     let mut problem = problem;
-    let poses = problem.refine(start);
-    problem.reject_px = REJECT_SIGMAS * problem.pixel_noise(&poses);
-    let poses = problem.refine(poses);
-    Ok(summarise(&problem, &poses, shared))
-}
-
-/// How far the corners camera `b` saw lie (px², summed) from a's boards carried by `b_from_a`,
-/// over every instant both saw.
-fn transfer_cost(
-    board: &BoardSpec,
-    camera_b: &Intrinsics,
-    by_instant: &BTreeMap<usize, Vec<usize>>,
-    used: &[&Sighting],
-    seen_in: &[CamFromBoard],
-    (a, b): (usize, usize),
-    b_from_a: &CamFromCam,
-) -> f64 {
-    let mut sum = 0.0;
-    for list in by_instant.values() {
-        let find = |c: usize| list.iter().copied().find(|&i| used[i].camera == c);
-        let (Some(i), Some(j)) = (find(a), find(b)) else {
-            continue;
-        };
-        let carried = seen_in[i].then(b_from_a);
-        let corners = board.corners_mm(&used[j].seen.ids);
-        for (p, seen) in corners.iter().zip(&used[j].seen.px) {
-            let [u, v] = camera_b
-                .pixel(&carried.apply(p))
-                .unwrap_or([f64::INFINITY; 2]);
-            sum += (u - f64::from(seen[0])).powi(2) + (v - f64::from(seen[1])).powi(2);
-        }
-    }
-    sum
-}
-
-/// The starting poses (module docs, step 2): each camera from the first along the tree of the
-/// ties with the most shared instants, each tie's relative pose the shared instant's that
-/// `cost` (a, b, b_from_a) finds best; each board from the camera that saw most corners of it.
-fn starting_poses(
-    n: usize,
-    by_instant: &BTreeMap<usize, Vec<usize>>,
-    used: &[&Sighting],
-    seen_in: &[CamFromBoard],
-    cost: impl Fn(usize, usize, &CamFromCam) -> f64,
-) -> Result<Poses, GraphError> {
-    let mut ties = vec![vec![0usize; n]; n];
-    for list in by_instant.values() {
-        for &i in list {
-            for &j in list {
-                ties[used[i].camera][used[j].camera] += usize::from(i != j);
-            }
-        }
-    }
-    let mut cameras: Vec<Option<CamFromWorld>> = vec![None; n];
-    cameras[0] = Some(CamFromWorld::new(Rotation3::identity(), Vector3::zeros()));
-    for _ in 1..n {
-        // The strongest tie from a camera placed to one not yet placed.
-        let best = (0..n)
-            .filter(|&a| cameras[a].is_some())
-            .flat_map(|a| {
-                (0..n)
-                    .filter(|&b| cameras[b].is_none())
-                    .map(move |b| (a, b))
-            })
-            .filter(|&(a, b)| ties[a][b] > 0)
-            .max_by_key(|&(a, b)| (ties[a][b], std::cmp::Reverse(b)));
-        let Some((a, b)) = best else {
-            let camera = (0..n).find(|&c| cameras[c].is_none()).expect("one left");
-            return Err(GraphError::Untied { camera });
-        };
-        let candidates = by_instant.values().filter_map(|list| {
-            let find = |c: usize| list.iter().copied().find(|&i| used[i].camera == c);
-            Some(relative(&seen_in[find(a)?], &seen_in[find(b)?]))
-        });
-        let b_from_a = candidates
-            .map(|pose| (cost(a, b, &pose), pose))
-            .min_by(|x, y| x.0.total_cmp(&y.0))
-            .expect("a shared instant")
-            .1;
-        cameras[b] = Some(cameras[a].expect("placed").then(&b_from_a));
-    }
-    let cameras: Vec<CamFromWorld> = cameras.into_iter().map(|c| c.expect("placed")).collect();
-    let boards = by_instant
-        .values()
-        .map(|list| {
-            let &i = list
-                .iter()
-                .max_by_key(|&&i| used[i].seen.ids.len())
-                .expect("sighted");
-            seen_in[i].then(&cameras[used[i].camera].inverse())
-        })
-        .collect();
-    Ok(Poses { cameras, boards })
+    let state = problem.refine(start);
+    problem.reject_px = REJECT_SIGMAS * problem.pixel_noise(&state);
+    let state = problem.refine(state);
+    Ok(summarise(&problem, &state, shared))
 }
 
 /// The graph's figures at the solution (module docs, step 4).
-fn summarise(problem: &Problem<'_>, poses: &Poses, shared: Vec<usize>) -> Graph {
-    let n = problem.cameras.len();
-    let (a, _, rss, m) = problem.normal(poses);
-    let sigma2 = rss / (m.saturating_sub(problem.unknowns())).max(1) as f64;
-    let inverse = a.llt(faer::Side::Lower).ok().map(|llt| llt.inverse());
+fn summarise(problem: &Problem<'_>, state: &State, shared: Vec<usize>) -> Graph {
+    let n = state.cameras.len();
+    let (a, _, rss, m) = problem.normal(state);
+    let unknowns = state.unknowns();
+    let sigma2 = rss / (m.saturating_sub(unknowns)).max(1) as f64;
+    // (Jᵀ W J)⁻¹ through the matrix scaled to a unit diagonal, far better conditioned.
+    let scale: Vec<f64> = (0..unknowns)
+        .map(|j| 1.0 / a[(j, j)].max(1e-30).sqrt())
+        .collect();
+    let scaled =
+        faer::Mat::<f64>::from_fn(unknowns, unknowns, |i, j| scale[i] * a[(i, j)] * scale[j]);
+    let inverse = scaled.llt(faer::Side::Lower).ok().map(|llt| llt.inverse());
     let (mut squares, mut counts, mut outliers) = (vec![0.0; n], vec![0usize; n], 0);
     let mut r = Vec::new();
     for (s, (sighting, _)) in problem.sightings.iter().enumerate() {
-        let board = &poses.boards[problem.board_index(sighting.instant)];
-        problem.residuals(s, &poses.cameras[sighting.camera], board, &mut r);
+        problem.residuals_of(s, state, None, &mut r);
         for c in r.chunks(2) {
             let d2 = c[0] * c[0] + c[1] * c[1];
             if d2 > problem.reject_px * problem.reject_px {
@@ -481,24 +482,25 @@ fn summarise(problem: &Problem<'_>, poses: &Poses, shared: Vec<usize>) -> Graph 
     }
     let cameras = (0..n)
         .map(|c| {
-            let cam = poses.cameras[c];
+            let cam = state.cameras[c];
             let (rotation_sd_deg, position_sd_mm) = match (&inverse, c) {
                 (Some(inv), c) if c > 0 => {
-                    let o = 6 * (c - 1);
-                    let cov = |i: usize, j: usize| sigma2 * inv[(o + i, o + j)];
+                    let o = state.pose_column(c);
+                    let cov = |i: usize, j: usize| {
+                        sigma2 * scale[o + i] * inv[(o + i, o + j)] * scale[o + j]
+                    };
                     let sd = |i: usize| cov(i, i).max(0.0).sqrt();
                     let position = position_covariance(&cam, cov);
-                    let rot = (0..3).map(sd).fold(0.0, f64::max).to_degrees();
+                    let largest = |v: [f64; 3]| v.into_iter().fold(0.0, f64::max);
                     (
-                        rot,
-                        (0..3)
-                            .map(|i| position[i].max(0.0).sqrt())
-                            .fold(0.0, f64::max),
+                        largest([0, 1, 2].map(sd)).to_degrees(),
+                        largest(position.map(|v| v.max(0.0).sqrt())),
                     )
                 }
                 _ => (0.0, 0.0),
             };
             CameraPose {
+                intrinsics: state.intrinsics[c].clone(),
                 cam_from_world: cam,
                 rotation_sd_deg,
                 position_sd_mm,
@@ -514,6 +516,12 @@ fn summarise(problem: &Problem<'_>, poses: &Poses, shared: Vec<usize>) -> Graph 
         rms_px: (total / count.max(1) as f64).sqrt(),
         outliers,
         reject_px: problem.reject_px,
+        boards: problem
+            .instants
+            .iter()
+            .copied()
+            .zip(state.boards.iter().copied())
+            .collect(),
         poorly_tied: (0..n).filter(|&c| shared[c] < MIN_SHARED).collect(),
     }
 }
@@ -537,6 +545,9 @@ fn position_covariance(pose: &CamFromWorld, cov: impl Fn(usize, usize) -> f64) -
             .sum()
     })
 }
+
+#[path = "graph/start.rs"]
+mod start;
 
 #[cfg(test)]
 #[path = "graph/tests.rs"]

@@ -35,6 +35,7 @@
 //!    later, by `triangulate`.
 
 mod board;
+pub mod cameras;
 mod checks;
 pub mod detect;
 pub mod figures;
@@ -116,6 +117,15 @@ pub enum CalibError {
     },
     #[error("board: {0}")]
     BadBoard(String),
+    #[error("camera {camera} shows the board in {found} images of {dir}, {needed} needed for its intrinsics; add views of the board filling its image at several tilts")]
+    TooFewViews {
+        camera: String,
+        dir: PathBuf,
+        found: usize,
+        needed: usize,
+    },
+    #[error("camera {camera} shares no board view with the others in {dir}: show the board to it and to another camera at the same instant (the same NN in both files' names)")]
+    Untied { camera: String, dir: PathBuf },
     #[error("{left} and its right video: no still board pair in {searched} frame pairs searched (the board in both images in {seen}, still in {still}); film the whole board in both cameras, holding it still for half a second at each pose")]
     NoVideoPairs {
         left: PathBuf,

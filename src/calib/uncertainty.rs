@@ -45,10 +45,20 @@ const IN_K: [usize; 4] = [0, 4, 2, 5];
 
 /// Intrinsic parameter `i` (in [`INTRINSIC_NAMES`]' order) of a camera whose distortion has
 /// at least five coefficients.
-fn intrinsic_mut(camera: &mut Intrinsics, i: usize) -> &mut f64 {
+pub(super) fn intrinsic_mut(camera: &mut Intrinsics, i: usize) -> &mut f64 {
     match i {
         0..4 => &mut camera.k[IN_K[i]],
         _ => &mut camera.dist[i - 4],
+    }
+}
+
+/// The step of central differences along intrinsic parameter `i`: 10⁻³ px for fx, fy, cx,
+/// cy, 10⁻⁶ for a distortion coefficient.
+pub(super) fn intrinsic_step(i: usize) -> f64 {
+    if i < 4 {
+        1e-3
+    } else {
+        1e-6
     }
 }
 
@@ -125,8 +135,7 @@ impl Params {
     /// Step for a central difference of parameter `j`.
     fn step(&self, j: usize) -> f64 {
         match self.locate(j) {
-            Slot::Intrinsic(_, i) if i < 4 => 1e-3,
-            Slot::Intrinsic(..) => 1e-6,
+            Slot::Intrinsic(_, i) => intrinsic_step(i),
             Slot::Rotation(_) => 1e-7,
             Slot::Translation(_) => 1e-5,
         }

@@ -10,7 +10,9 @@ use crate::pipeline::calibrate;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Directory with left*/right* board images (PNG or JPEG), or two videos of the board
+    /// Directory with left*/right* board images (PNG or JPEG), or two videos of the board; or,
+    /// for more cameras, `<camera>_NN` images (any word for a camera; one NN one instant) and
+    /// `<camera>_ref`, written as Anipose's calibration.toml beside --out
     dir: PathBuf,
     #[command(flatten)]
     board: super::board::BoardArgs,
@@ -81,7 +83,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     let done = super::with_session(|s| {
         let board = calibrate::board(&a.dir, &a.board.flags(), s)?;
-        calibrate::run(&a.dir, &board, &options, &a.out, s)
+        calibrate::run_any(&a.dir, &board, &options, &a.out, s)
     })?;
     print!("{done}");
     for (camera, known) in ["left", "right"].iter().zip(&options.intrinsics) {
@@ -92,6 +94,6 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             );
         }
     }
-    super::print_written(&done.written);
+    super::print_written(done.written());
     Ok(())
 }

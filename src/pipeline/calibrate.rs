@@ -328,3 +328,158 @@ fn validation(f: &mut fmt::Formatter, v: &validate::Validation) -> fmt::Result {
     }
     Ok(())
 }
+
+/// What `handcap calibrate` did: a pair's calibration or more cameras'.
+pub enum Done {
+    Pair(Box<Calibrated>),
+    Cameras(Box<CalibratedCameras>),
+}
+
+impl Done {
+    /// The files written, the calibration first.
+    pub fn written(&self) -> &[PathBuf] {
+        match self {
+            Done::Pair(done) => &done.written,
+            Done::Cameras(done) => &done.written,
+        }
+    }
+}
+
+impl fmt::Display for Done {
+    fn fmt(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        match self {
+            Done::Pair(done) => done.fmt(f),
+            Done::Cameras(done) => done.fmt(f),
+        }
+    }
+}
+
+/// Calibrates the cameras whose views `dir` holds: a pair ([`run`]) or more cameras
+/// ([`run_cameras`], which refuses the options only a pair has).
+///
+/// # Errors
+/// As [`run`] and [`run_cameras`]; [`PipelineError::Request`] for a pair's option with more
+/// cameras.
+pub fn run_any(
+    dir: &Path,
+    board: &BoardSpec,
+    options: &CalibOptions,
+    out: &Path,
+    session: &Session,
+) -> Result<Done, PipelineError> {
+    let listing = calib::cameras::list(dir).map_err(io_error(dir))?;
+    if !calib::cameras::is_graph(&listing) {
+        return run(dir, board, options, out, session).map(|done| Done::Pair(Box::new(done)));
+    }
+    let pair_only = [
+        (
+            "--intrinsics",
+            options.intrinsics.iter().any(Option::is_some),
+        ),
+        ("--bootstrap", options.bootstrap > 0),
+        ("--validate", options.validate),
+        ("--video-start-s", options.video_start_s.is_some()),
+    ];
+    if let Some((flag, _)) = pair_only.iter().find(|(_, given)| *given) {
+        return Err(PipelineError::Request(format!(
+            "{flag} is for a pair of cameras (left_NN, right_NN); {} holds the views of {} cameras ({})",
+            dir.display(),
+            listing.len(),
+            listing.keys().cloned().collect::<Vec<_>>().join(", ")
+        )));
+    }
+    run_cameras(dir, &listing, board, out, session).map(|done| Done::Cameras(Box::new(done)))
+}
+
+/// What the calibration of more than two cameras did and wrote.
+pub struct CalibratedCameras {
+    pub calibration: calib::cameras::GraphCalibration,
+    pub written: Vec<PathBuf>,
+}
+
+/// Calibrates the cameras of `listing` (more than a pair, [`calib::cameras`]) from the views in
+/// `dir` and writes their Anipose `calibration.toml` beside `out` (`OUT.toml`).
+///
+/// # Errors
+/// [`PipelineError`]: too few views, a camera tied to none of the others, unreadable images, a
+/// file that cannot be written, or the output naming an input.
+pub fn run_cameras(
+    dir: &Path,
+    listing: &calib::cameras::Listing,
+    board: &BoardSpec,
+    out: &Path,
+    session: &Session,
+) -> Result<CalibratedCameras, PipelineError> {
+    let board_file = dir.join(file::BOARD_FILE);
+    let inputs: Vec<&Path> = listing
+        .values()
+        .flat_map(|views| views.values().map(PathBuf::as_path))
+        .chain([board_file.as_path()])
+        .collect();
+    let toml = file::toml_path(out);
+    outputs::check(
+        &inputs,
+        &[Output::new(&toml, "the Anipose calibration.toml")],
+    )?;
+    let result = calib::cameras::calibrate(dir, listing, board, &session.counter(Task::Detect));
+    session.emit(super::Event::Finished(Task::Detect));
+    let calibration = result?;
+    let cameras: Vec<file::AniposeCamera> = calibration
+        .cameras
+        .iter()
+        .map(|c| file::AniposeCamera {
+            name: &c.name,
+            size: c.size,
+            intrinsics: &c.pose.intrinsics,
+            pose: c.pose.cam_from_world,
+        })
+        .collect();
+    let text = file::cameras_toml(&cameras, calibration.rms_px, calibration.hand_axes);
+    fsio::write_bytes(&toml, text.as_bytes()).map_err(io_error(&toml))?;
+    Ok(CalibratedCameras {
+        calibration,
+        written: vec![toml],
+    })
+}
+
+impl fmt::Display for CalibratedCameras {
+    /// What the calibration found, as `handcap calibrate` prints it.
+    fn fmt(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        let c = &self.calibration;
+        for (i, camera) in c.cameras.iter().enumerate() {
+            let pose = &camera.pose;
+            let [w, h] = camera.size;
+            write!(
+                f,
+                "{}: {w}x{h}, the board in {} of {} images, intrinsics RMS {:.3} px, f {:.1} px; {} instants shared; ",
+                camera.name, camera.views, camera.images, camera.intrinsics_rms_px,
+                pose.intrinsics.fx(), pose.shared
+            )?;
+            match i {
+                0 => writeln!(f, "the world")?,
+                _ => writeln!(
+                    f,
+                    "at {:.1} mm from {}, 1 sd {:.3}° and {:.3} mm",
+                    pose.cam_from_world.centre().coords.norm(),
+                    c.cameras[0].name,
+                    pose.rotation_sd_deg,
+                    pose.position_sd_mm
+                )?,
+            }
+        }
+        writeln!(
+            f,
+            "all cameras together: RMS {:.3} px, {} corners left out as wrong (beyond {:.2} px)",
+            c.rms_px, c.outliers, c.reject_px
+        )?;
+        if !c.poorly_tied.is_empty() {
+            writeln!(
+                f,
+                "poorly tied: {} (fewer than {} instants shared with another camera); add views where it and another camera see the board at once",
+                c.poorly_tied.join(", "),
+                calib::graph::MIN_SHARED
+            )?;
+        }
+        writeln!(f, "hand frame axes: {}", c.hand_axes_note)
+    }
+}

@@ -3,6 +3,7 @@
 mod bad_input;
 mod basis;
 mod calibrate;
+mod cameras;
 mod capture;
 mod cli;
 mod common;

@@ -9,13 +9,27 @@ use crate::calib::StereoCalibration;
 use crate::geometry::{relative, CamFromWorld, Intrinsics, RightFromLeft};
 use crate::stereo::{StereoError, StereoRig};
 
-/// The calibration as Anipose/aniposelib's `calibration.toml` (what `CameraGroup.load` reads):
-/// `[cam_0]` (the left camera, `name = "left"`) and `[cam_1]` (`"right"`), each with `size`
-/// [w, h], `matrix` (K, rows), `distortions` (OpenCV's order), `rotation` and `translation`
-/// (Rodrigues vector and translation taking points of the first camera's frame, the world, into
-/// this camera's: the left camera's are zero, the right's are `R`, `T`, mm), then `[metadata]`
-/// with the calibration's reprojection RMS (px) as `error`.
-pub fn anipose_toml(cal: &StereoCalibration) -> String {
+/// One camera as [`cameras_toml`] writes it.
+pub struct AniposeCamera<'a> {
+    pub name: &'a str,
+    pub size: [i32; 2],
+    pub intrinsics: &'a Intrinsics,
+    /// World (the first camera's frame) → this camera.
+    pub pose: CamFromWorld,
+}
+
+/// Cameras as Anipose/aniposelib's `calibration.toml` (what `CameraGroup.load` reads):
+/// `[cam_0]`, `[cam_1]`, … in order, each with `name`, `size` [w, h], `matrix` (K, rows),
+/// `distortions` (OpenCV's order), `rotation` and `translation` (Rodrigues vector and
+/// translation taking points of the world, the first camera's frame, into this camera's, mm),
+/// then `[metadata]` with the calibration's reprojection RMS (px) as `error` and, when known,
+/// `hand_rotation`: the Rodrigues vector of the world → hand frame rotation (handcap's; Anipose
+/// keeps what it does not read).
+pub fn cameras_toml(
+    cameras: &[AniposeCamera<'_>],
+    error: f64,
+    hand: Option<Rotation3<f64>>,
+) -> String {
     #[derive(serde::Serialize)]
     struct Camera<'a> {
         name: &'a str,
@@ -29,46 +43,52 @@ pub fn anipose_toml(cal: &StereoCalibration) -> String {
     struct Metadata {
         adjusted: bool,
         error: f64,
+        #[serde(skip_serializing_if = "Option::is_none")]
+        hand_rotation: Option<[f64; 3]>,
     }
-    #[derive(serde::Serialize)]
-    struct Group<'a> {
-        cam_0: Camera<'a>,
-        cam_1: Camera<'a>,
-        metadata: Metadata,
+    fn value(v: impl serde::Serialize) -> toml::Value {
+        toml::Value::try_from(v).expect("numbers and names serialise as TOML")
     }
-    fn camera<'a>(
-        name: &'a str,
-        size: [i32; 2],
-        cam: &'a Intrinsics,
-        rotation: [f64; 3],
-        translation: [f64; 3],
-    ) -> Camera<'a> {
-        Camera {
-            name,
-            size,
-            matrix: cam.k.chunks(3).collect(),
-            distortions: &cam.dist,
-            rotation,
-            translation,
-        }
+    let mut group = toml::Table::new();
+    for (i, c) in cameras.iter().enumerate() {
+        let camera = Camera {
+            name: c.name,
+            size: c.size,
+            matrix: c.intrinsics.k.chunks(3).collect(),
+            distortions: &c.intrinsics.dist,
+            rotation: c.pose.rotation.scaled_axis().into(),
+            translation: c.pose.translation_array(),
+        };
+        group.insert(format!("cam_{i}"), value(camera));
     }
-    let size = cal.rig.image_size;
-    let pose = &cal.rig.right_from_left;
-    let group = Group {
-        cam_0: camera("left", size, &cal.rig.left, [0.0; 3], [0.0; 3]),
-        cam_1: camera(
-            "right",
-            size,
-            &cal.rig.right,
-            pose.rotation.scaled_axis().into(),
-            pose.translation_array(),
-        ),
-        metadata: Metadata {
-            adjusted: false,
-            error: cal.rms_px,
-        },
+    let metadata = Metadata {
+        adjusted: false,
+        error,
+        hand_rotation: hand.map(|r| r.scaled_axis().into()),
     };
+    group.insert("metadata".into(), value(metadata));
     toml::to_string(&group).expect("numbers and names serialise as TOML")
+}
+
+/// The pair's calibration as [`cameras_toml`]: `[cam_0]` the left camera (the world), `[cam_1]`
+/// the right (its `R`, `T`).
+pub fn anipose_toml(cal: &StereoCalibration) -> String {
+    let pose = &cal.rig.right_from_left;
+    let cameras = [
+        AniposeCamera {
+            name: "left",
+            size: cal.rig.image_size,
+            intrinsics: &cal.rig.left,
+            pose: CamFromWorld::new(Rotation3::identity(), Vector3::zeros()),
+        },
+        AniposeCamera {
+            name: "right",
+            size: cal.rig.image_size,
+            intrinsics: &cal.rig.right,
+            pose: CamFromWorld::new(pose.rotation, pose.translation),
+        },
+    ];
+    cameras_toml(&cameras, cal.rms_px, None)
 }
 
 /// Reads an Anipose/aniposelib `calibration.toml` of two cameras (as [`anipose_toml`] writes

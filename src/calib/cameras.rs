@@ -1,0 +1,273 @@
+//! Calibration of more than two cameras (issue 59), from a folder of board views named by
+//! camera: `<camera>_NN.<ext>` (one NN is one instant; a camera that does not see the board
+//! then has no file) and `<camera>_ref.<ext>`, the reference board at the finger's base, for
+//! every camera that sees it. Camera names are words (`[a-z][a-z0-9]*`); a folder of `left`
+//! and `right` alone is a pair, calibrated by [`super::calibrate`].
+//!
+//! 1. The board in every image (the board's first detector, in parallel).
+//! 2. Each camera's intrinsics from its own views (OpenCV's `calibrateCamera`).
+//! 3. The cameras' poses from the views they share, the intrinsics refined with them
+//!    ([`super::graph`]); the world is the first camera's frame (the names in order).
+//! 4. The hand frame's axes from the reference board's pose in the world, as the pair's from
+//!    its left camera.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use nalgebra::Rotation3;
+use opencv::prelude::*;
+use rayon::prelude::*;
+
+use super::checks::hand_from;
+use super::detect::{self, read_all, Seen};
+use super::fit::single_camera;
+use super::graph::{self, CameraPose, GraphError, Sighting};
+use super::{BoardSpec, CalibError, View};
+use crate::cv::{fixed, values};
+use crate::geometry::Intrinsics;
+
+/// The instant name of the reference board's views.
+pub const REFERENCE: &str = "ref";
+/// Fewest views of the board a camera's intrinsics are solved from.
+pub const MIN_VIEWS: usize = 3;
+
+/// The board views of a folder, by camera name and instant name (`00`, `01`, …, `ref`).
+pub type Listing = BTreeMap<String, BTreeMap<String, PathBuf>>;
+
+/// The files of `dir` named `<camera>_<NN or ref>.<png|jpg|jpeg>`, by camera.
+///
+/// # Errors
+/// The folder cannot be listed.
+pub fn list(dir: &Path) -> std::io::Result<Listing> {
+    let mut listing = Listing::new();
+    for entry in std::fs::read_dir(dir)? {
+        let path = entry?.path();
+        let (Some(stem), Some(ext)) = (
+            path.file_stem().and_then(|s| s.to_str()),
+            path.extension().and_then(|s| s.to_str()),
+        ) else {
+            continue;
+        };
+        if !["png", "jpg", "jpeg"].contains(&ext.to_ascii_lowercase().as_str()) {
+            continue;
+        }
+        let Some((camera, instant)) = stem.rsplit_once('_') else {
+            continue;
+        };
+        let word = camera.starts_with(|c: char| c.is_ascii_lowercase())
+            && camera
+                .chars()
+                .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit());
+        let instant_ok = instant == REFERENCE
+            || (!instant.is_empty() && instant.bytes().all(|b| b.is_ascii_digit()));
+        if word && instant_ok {
+            listing
+                .entry(camera.to_string())
+                .or_default()
+                .insert(instant.to_string(), path);
+        }
+    }
+    Ok(listing)
+}
+
+/// Whether a listing is more than a pair: cameras other than `left` and `right`.
+pub fn is_graph(listing: &Listing) -> bool {
+    listing.keys().any(|name| name != "left" && name != "right")
+}
+
+/// One camera of the graph.
+#[derive(Clone, Debug)]
+pub struct CameraFit {
+    pub name: String,
+    pub size: [i32; 2],
+    /// `calibrateCamera`'s reprojection RMS over its own views (px); the intrinsics, refined
+    /// with the poses, are the pose's.
+    pub intrinsics_rms_px: f64,
+    /// Its images with the board found, of all its images.
+    pub views: usize,
+    pub images: usize,
+    pub pose: CameraPose,
+}
+
+/// The calibration of a graph of cameras.
+#[derive(Clone, Debug)]
+pub struct GraphCalibration {
+    pub board: BoardSpec,
+    pub cameras: Vec<CameraFit>,
+    /// The joint refinement's figures ([`graph::Graph`]).
+    pub rms_px: f64,
+    pub outliers: usize,
+    pub reject_px: f64,
+    pub poorly_tied: Vec<String>,
+    /// World (the first camera) → hand frame, from the reference board; why not, else.
+    pub hand_axes: Option<Rotation3<f64>>,
+    pub hand_axes_note: String,
+}
+
+/// An image's size and the board's corners in it, if found.
+type Found = ([i32; 2], Option<Seen>);
+
+/// Step 1: the board in every image of `paths`; an error naming the board and the folder when
+/// it is in none.
+fn find_boards(
+    dir: &Path,
+    paths: &[&Path],
+    board: &BoardSpec,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Vec<Found>, CalibError> {
+    let grays = read_all(paths)?;
+    let done = std::sync::atomic::AtomicUsize::new(0);
+    let found: Vec<Found> = grays
+        .par_iter()
+        .map(|gray| {
+            let size = gray.size()?;
+            let seen = detect::find_board(gray, board, board.first_detector())?;
+            let n = done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1;
+            progress(n, grays.len());
+            Ok(([size.width, size.height], seen))
+        })
+        .collect::<Result<_, CalibError>>()?;
+    if found.iter().all(|f| f.1.is_none()) {
+        return Err(CalibError::BoardNotFound {
+            dir: dir.to_path_buf(),
+            cols: board.cols,
+            rows: board.rows,
+            hint: board.pattern.kind().not_found_hint(board, &grays),
+        });
+    }
+    Ok(found)
+}
+
+/// A camera's size, intrinsics (from its own views), their RMS (px), its views and images.
+type Own = ([i32; 2], Intrinsics, f64, usize, usize);
+
+/// Step 2 for camera `name`, whose images and what was found in them are `images`.
+fn own_intrinsics(
+    dir: &Path,
+    name: &str,
+    board: &BoardSpec,
+    images: &[(&PathBuf, &Found)],
+) -> Result<Own, CalibError> {
+    let size = images[0].1 .0;
+    if let Some((path, ([w, h], _))) = images.iter().find(|(_, f)| f.0 != size) {
+        return Err(CalibError::SizeChange(
+            (*path).clone(),
+            *w,
+            *h,
+            size[0],
+            size[1],
+        ));
+    }
+    let seen: Vec<&Seen> = images.iter().filter_map(|(_, f)| f.1.as_ref()).collect();
+    if seen.len() < MIN_VIEWS {
+        return Err(CalibError::TooFewViews {
+            camera: name.to_string(),
+            dir: dir.to_path_buf(),
+            found: seen.len(),
+            needed: MIN_VIEWS,
+        });
+    }
+    let views: Vec<View> = seen.iter().map(|s| View::from(*s)).collect();
+    let (k, d, _, rms) = single_camera(board, size, &views)?;
+    let intrinsics = Intrinsics {
+        k: fixed(&k)?,
+        dist: values(&d)?,
+    };
+    Ok((size, intrinsics, rms, seen.len(), images.len()))
+}
+
+/// Calibrates the cameras of `listing` (module docs); `progress(done, total)` counts images
+/// examined.
+///
+/// # Errors
+/// [`CalibError`] naming the image, the camera or the folder, and what to do.
+pub fn calibrate(
+    dir: &Path,
+    listing: &Listing,
+    board: &BoardSpec,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<GraphCalibration, CalibError> {
+    board.check()?;
+    let names: Vec<&String> = listing.keys().collect();
+    let files: Vec<(usize, &String, &PathBuf)> = listing
+        .values()
+        .enumerate()
+        .flat_map(|(c, views)| views.iter().map(move |(instant, path)| (c, instant, path)))
+        .collect();
+    let paths: Vec<&Path> = files.iter().map(|f| f.2.as_path()).collect();
+    // 1. The board in every image.
+    let found = find_boards(dir, &paths, board, progress)?;
+    // Instants in order, the reference last.
+    let mut instants: Vec<&String> = files.iter().map(|f| f.1).collect();
+    instants.sort_by_key(|i| (i.as_str() == REFERENCE, i.to_string()));
+    instants.dedup();
+    // 2. Each camera's intrinsics from its own views.
+    let cameras = names
+        .iter()
+        .enumerate()
+        .map(|(c, name)| {
+            let own: Vec<usize> = (0..files.len()).filter(|&i| files[i].0 == c).collect();
+            let images: Vec<(&PathBuf, &Found)> =
+                own.iter().map(|&i| (files[i].2, &found[i])).collect();
+            own_intrinsics(dir, name, board, &images)
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    // 3. The poses.
+    let sightings: Vec<Sighting> = files
+        .iter()
+        .zip(&found)
+        .filter_map(|(&(camera, instant, _), (_, seen))| {
+            Some(Sighting {
+                camera,
+                instant: instants.iter().position(|i| *i == instant).expect("listed"),
+                seen: seen.clone()?,
+            })
+        })
+        .collect();
+    let intrinsics: Vec<Intrinsics> = cameras.iter().map(|c| c.1.clone()).collect();
+    let graph = graph::calibrate(board, &intrinsics, graph::Intrinsic::Refined, &sightings)
+        .map_err(|e| match e {
+            GraphError::Untied { camera } => CalibError::Untied {
+                camera: names[camera].to_string(),
+                dir: dir.to_path_buf(),
+            },
+            GraphError::Calib(e) => e,
+        })?;
+    // 4. The hand frame's axes.
+    let reference = instants.iter().position(|i| i.as_str() == REFERENCE);
+    let in_world = reference.and_then(|r| graph.boards.iter().find(|b| b.0 == r));
+    let (hand_axes, hand_axes_note) = match (reference, in_world) {
+        (Some(_), Some((_, pose))) => (
+            Some(hand_from(pose.rotation)),
+            "from the reference board (*_ref): board x = hand x, board y = hand -z, board z = hand +y".into(),
+        ),
+        (Some(_), None) => (None, "the reference board was found in fewer than two cameras".into()),
+        (None, _) => (None, format!("no reference board (<camera>_{REFERENCE} images)")),
+    };
+    Ok(GraphCalibration {
+        board: *board,
+        cameras: names
+            .iter()
+            .zip(cameras)
+            .zip(&graph.cameras)
+            .map(|((name, (size, _, rms, views, images)), pose)| CameraFit {
+                name: name.to_string(),
+                size,
+                intrinsics_rms_px: rms,
+                views,
+                images,
+                pose: pose.clone(),
+            })
+            .collect(),
+        rms_px: graph.rms_px,
+        outliers: graph.outliers,
+        reject_px: graph.reject_px,
+        poorly_tied: graph
+            .poorly_tied
+            .iter()
+            .map(|&c| names[c].to_string())
+            .collect(),
+        hand_axes,
+        hand_axes_note,
+    })
+}

@@ -1,0 +1,310 @@
+//! More than two cameras (issue 59): `handcap calibrate` on rendered board views of four
+//! cameras on an arc, the outer two never seeing the board at the same instant, checked against
+//! the rig they were rendered with.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use nalgebra::{Matrix3, Point3, Rotation3, Vector3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use handcap::calib::BoardSpec;
+use handcap::geometry::{relative, CamFromWorld, Intrinsics, WorldFromBoard};
+use handcap::synth::camera::{looking_at, Camera};
+use handcap::synth::image_format::encode_png;
+use handcap::synth::render::{Lighting, Surroundings, View};
+use handcap::synth::scene::{Board, Markers};
+
+use crate::common::{handcap_err, handcap_ok, tempdir, write};
+
+const AZIMUTHS_DEG: [f64; 4] = [-60.0, -20.0, 20.0, 60.0];
+/// A camera sees a board whose face turns at most this far from it (°).
+const FACING_DEG: f64 = 45.0;
+
+/// Camera `c` (1-4) of the arc: 300 mm from the origin (the hand frame's), looking at it.
+fn camera(c: usize) -> Camera {
+    let a = AZIMUTHS_DEG[c - 1].to_radians();
+    let eye = Point3::new(300.0 * a.sin(), -300.0 * a.cos(), 30.0);
+    let f = 1000.0 + 15.0 * c as f64;
+    Camera {
+        width: 1280,
+        height: 720,
+        intrinsics: Intrinsics::new(
+            f,
+            f,
+            640.0 + 4.0 * c as f64,
+            360.0 - 3.0 * c as f64,
+            vec![-0.08, 0.05, 0.0, 0.0, 0.0],
+        ),
+        pose: looking_at(eye, Point3::origin(), Vector3::z()),
+    }
+}
+
+/// The board turned towards azimuth `a` (rad) and tilted by (`up`, `side`) rad, its centre at
+/// `centre`: facing the camera at that azimuth; at a = 0 untilted, the reference board's
+/// orientation (board x = hand x, board y = hand −z, board z = hand +y).
+fn board_pose(
+    spec: &BoardSpec,
+    a: f64,
+    (up, side): (f64, f64),
+    centre: Vector3<f64>,
+) -> WorldFromBoard {
+    let x = Vector3::new(a.cos(), a.sin(), 0.0);
+    let z = Vector3::new(-a.sin(), a.cos(), 0.0);
+    let facing = Rotation3::from_matrix_unchecked(Matrix3::from_columns(&[x, z.cross(&x), z]));
+    let rotation = facing * Rotation3::from_euler_angles(up, side, 0.0);
+    let middle = Vector3::new(
+        (spec.cols - 1) as f64 * spec.square_mm / 2.0,
+        (spec.rows - 1) as f64 * spec.square_mm / 2.0,
+        0.0,
+    );
+    WorldFromBoard::new(rotation, centre - rotation * middle)
+}
+
+/// Writes `name.png` of the board as `camera` sees it, if it faces the camera within
+/// [`FACING_DEG`] and every corner lies 20 px or more inside the image.
+fn shoot(dir: &Path, name: &str, camera: &Camera, board: &Board, seed: u64) -> bool {
+    let ids: Vec<usize> = (0..board.spec.cols * board.spec.rows).collect();
+    let s = board.spec.square_mm;
+    let corners = ids.iter().map(|&i| {
+        let (col, row) = ((i % board.spec.cols) as f64, (i / board.spec.cols) as f64);
+        board.pose.apply(&Point3::new(col * s, row * s, 0.0))
+    });
+    let inside = corners.clone().all(|p| {
+        camera.project(&p).is_some_and(|[u, v]| {
+            (20.0..camera.width as f64 - 20.0).contains(&u)
+                && (20.0..camera.height as f64 - 20.0).contains(&v)
+        })
+    });
+    let normal = -(board.pose.rotation * Vector3::z());
+    let to_camera = camera.pose.centre() - board.pose.apply(&Point3::origin());
+    if !inside || normal.angle(&to_camera).to_degrees() > FACING_DEG {
+        return false;
+    }
+    let view = View::new(
+        camera.clone(),
+        Lighting::from_seed(seed),
+        Surroundings::default(),
+    );
+    let rgb = view.board(board).develop(1.0, seed, 0);
+    std::fs::write(
+        dir.join(format!("{name}.png")),
+        encode_png(camera.width, camera.height, &rgb),
+    )
+    .unwrap();
+    true
+}
+
+/// Renders the views of 36 board poses and the reference board into `dir`, with its
+/// `board.yml`; the cameras.
+fn render(dir: &Path) -> Vec<Camera> {
+    let spec = BoardSpec::chessboard(9, 6, 20.0);
+    write(dir, "board.yml", &handcap::calib::file::board_yaml(&spec));
+    let cameras: Vec<Camera> = (1..=4).map(camera).collect();
+    let markers = Arc::new(Markers::default());
+    let mut rng = ChaCha8Rng::seed_from_u64(7);
+    for instant in 0..36 {
+        let a = rng.random_range(-75.0f64..75.0).to_radians();
+        let tilt = (rng.random_range(-0.35..0.35), rng.random_range(-0.35..0.35));
+        let centre = Vector3::new(
+            rng.random_range(-25.0..25.0),
+            rng.random_range(-20.0..20.0),
+            rng.random_range(-15.0..15.0),
+        );
+        let board = Board {
+            spec,
+            pose: board_pose(&spec, a, tilt, centre),
+            markers: markers.clone(),
+        };
+        for (c, camera) in cameras.iter().enumerate() {
+            shoot(
+                dir,
+                &format!("cam{}_{instant:02}", c + 1),
+                camera,
+                &board,
+                (instant * 10 + c) as u64,
+            );
+        }
+    }
+    let reference = Board {
+        spec,
+        pose: board_pose(&spec, 0.0, (0.0, 0.0), Vector3::new(0.0, 5.0, 0.0)),
+        markers,
+    };
+    for (c, camera) in cameras.iter().enumerate() {
+        shoot(
+            dir,
+            &format!("cam{}_ref", c + 1),
+            camera,
+            &reference,
+            1000 + c as u64,
+        );
+    }
+    cameras
+}
+
+/// `[cam_i]`'s pose (world → camera) and fx from the TOML.
+fn toml_camera(doc: &toml::Table, i: usize) -> (CamFromWorld, f64) {
+    let cam = doc[&format!("cam_{i}")].as_table().unwrap();
+    let three = |key: &str| -> Vector3<f64> {
+        let v: Vec<f64> = cam[key]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_float().unwrap())
+            .collect();
+        Vector3::new(v[0], v[1], v[2])
+    };
+    let fx = cam["matrix"].as_array().unwrap()[0].as_array().unwrap()[0]
+        .as_float()
+        .unwrap();
+    (
+        CamFromWorld::new(
+            Rotation3::from_scaled_axis(three("rotation")),
+            three("translation"),
+        ),
+        fx,
+    )
+}
+
+#[test]
+fn four_cameras_are_calibrated_as_anipose_reads_them_to_the_rig_they_were_rendered_with() {
+    let dir = tempdir();
+    let d = dir.path();
+    let cameras = render(d);
+    let together = |a: usize, b: usize| {
+        (0..36)
+            .filter(|i| {
+                let saw = |c: usize| d.join(format!("cam{c}_{i:02}.png")).exists();
+                saw(a) && saw(b)
+            })
+            .count()
+    };
+    assert_eq!(
+        together(1, 4),
+        0,
+        "the outer cameras never see the board at once"
+    );
+    assert!(
+        together(1, 2) >= 3 && together(3, 4) >= 3,
+        "{} {}",
+        together(1, 2),
+        together(3, 4)
+    );
+    let said = handcap_ok(d, &["calibrate", ".", "--out", "cal.yml"]);
+    eprintln!("{said}");
+    for name in [
+        "cam1:",
+        "cam2:",
+        "cam3:",
+        "cam4:",
+        "all cameras together: RMS",
+        "hand frame axes: from the reference board",
+    ] {
+        assert!(said.contains(name), "{name}: {said}");
+    }
+    assert!(!said.contains("poorly tied"), "{said}");
+    let doc: toml::Table = std::fs::read_to_string(d.join("cal.toml"))
+        .unwrap()
+        .parse()
+        .unwrap();
+    let truth0 = &cameras[0].pose;
+    for (i, camera) in cameras.iter().enumerate() {
+        let (pose, fx) = toml_camera(&doc, i);
+        assert_eq!(
+            doc[&format!("cam_{i}")]["name"].as_str(),
+            Some(format!("cam{}", i + 1).as_str())
+        );
+        let truth = relative(truth0, &camera.pose);
+        let angle = (pose.rotation * truth.rotation.inverse())
+            .angle()
+            .to_degrees();
+        let centre = (pose.centre() - truth.inverse().apply(&Point3::origin())).norm();
+        eprintln!(
+            "cam{}: {angle:.4}° and {centre:.3} mm from the truth",
+            i + 1
+        );
+        assert!(
+            angle < 0.08 && centre < 0.5,
+            "cam{}: {angle:.4}°, {centre:.3} mm off; {said}",
+            i + 1
+        );
+        assert!(
+            (fx / camera.intrinsics.fx() - 1.0).abs() < 0.01,
+            "cam{}: fx {fx}",
+            i + 1
+        );
+    }
+    // The world is cam1's frame; the truth's world is the hand frame.
+    let hand: Vec<f64> = doc["metadata"]["hand_rotation"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_float().unwrap())
+        .collect();
+    let hand = Rotation3::from_scaled_axis(Vector3::new(hand[0], hand[1], hand[2]));
+    let off = (hand * truth0.rotation).angle().to_degrees();
+    assert!(off < 0.2, "hand axes {off:.3}° off");
+    assert!(
+        !d.join("cal.yml").exists(),
+        "a pair's YAML is not written for four cameras"
+    );
+}
+
+#[test]
+fn a_camera_tied_to_no_other_and_a_pairs_option_get_one_line() {
+    let dir = tempdir();
+    let d = dir.path();
+    let spec = BoardSpec::chessboard(9, 6, 10.0);
+    write(d, "board.yml", &handcap::calib::file::board_yaml(&spec));
+    let markers = Arc::new(Markers::default());
+    let (near, far) = (camera(2), camera(4));
+    // Each camera sees the board alone, at its own instants.
+    let mut rng = ChaCha8Rng::seed_from_u64(9);
+    let (mut shot_near, mut shot_far) = (0, 0);
+    for instant in 0..24 {
+        let (c, camera) = if instant % 2 == 0 {
+            (2, &near)
+        } else {
+            (4, &far)
+        };
+        let a = AZIMUTHS_DEG[c - 1].to_radians() + rng.random_range(-0.3..0.3);
+        let tilt = (rng.random_range(-0.3..0.3), rng.random_range(-0.3..0.3));
+        let board = Board {
+            spec,
+            pose: board_pose(&spec, a, tilt, Vector3::zeros()),
+            markers: markers.clone(),
+        };
+        let shot = shoot(
+            d,
+            &format!("cam{c}_{instant:02}"),
+            camera,
+            &board,
+            instant as u64,
+        );
+        *(if c == 2 {
+            &mut shot_near
+        } else {
+            &mut shot_far
+        }) += usize::from(shot);
+    }
+    assert!(shot_near >= 3 && shot_far >= 3, "{shot_near} {shot_far}");
+    let err = handcap_err(d, &["calibrate", ".", "--out", "cal.yml"]);
+    assert!(
+        err.contains("camera cam4 shares no board view with the others"),
+        "{err}"
+    );
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(!d.join("cal.toml").exists());
+    let err = handcap(d, &["calibrate", ".", "--bootstrap", "10"]);
+    assert!(
+        err.contains("--bootstrap is for a pair of cameras") && err.contains("cam2, cam4"),
+        "{err}"
+    );
+}
+
+/// What a refused command line said.
+fn handcap(d: &Path, args: &[&str]) -> String {
+    crate::common::handcap_fails(d, args, 2)
+}
