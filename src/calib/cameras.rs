@@ -102,6 +102,9 @@ pub struct GraphCalibration {
     /// World (the first camera) → hand frame, from the reference board; why not, else.
     pub hand_axes: Option<Rotation3<f64>>,
     pub hand_axes_note: String,
+    /// The gates it fails ([`super::gates`]): a reprojection RMS above
+    /// [`super::gates::MAX_RMS_PX`], a camera's own or all cameras' together.
+    pub implausible: Vec<String>,
 }
 
 /// An image's size and the board's corners in it, if found.
@@ -244,7 +247,18 @@ pub fn calibrate(
         (Some(_), None) => (None, "the reference board was found in fewer than two cameras".into()),
         (None, _) => (None, format!("no reference board (<camera>_{REFERENCE} images)")),
     };
+    let limit = super::gates::MAX_RMS_PX;
+    let mut implausible: Vec<String> = names
+        .iter()
+        .zip(&cameras)
+        .filter(|(_, own)| super::gates::exceeds(own.2, limit))
+        .map(|(name, own)| format!("camera {name}'s own views reproject at {:.2} px (above {limit} px): a blurred or moving board, or another camera's images among its own", own.2))
+        .collect();
+    if super::gates::exceeds(graph.rms_px, limit) {
+        implausible.push(format!("the cameras together reproject at {:.2} px (above {limit} px): views named with the same NN that were not taken at the same instant, or a camera moved between them", graph.rms_px));
+    }
     Ok(GraphCalibration {
+        implausible,
         board: *board,
         cameras: names
             .iter()

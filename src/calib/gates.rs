@@ -34,7 +34,7 @@ pub const INTRINSICS_RATIO: f64 = 2.0;
 pub const INTRINSICS_SLACK_PX: f64 = 0.1;
 
 /// `value` above `limit`, or not a number.
-fn exceeds(value: f64, limit: f64) -> bool {
+pub(super) fn exceeds(value: f64, limit: f64) -> bool {
     value.is_nan() || value > limit
 }
 

@@ -99,20 +99,7 @@ pub fn run(
     let result = calib::calibrate(dir, board, options, &session.counter(Task::Detect));
     session.emit(super::Event::Finished(Task::Detect));
     let calibration = result?;
-    if !calibration.implausible.is_empty() {
-        if !options.force {
-            return Err(calib::CalibError::Implausible {
-                dir: dir.to_path_buf(),
-                problems: calibration.implausible.join("; "),
-            }
-            .into());
-        }
-        for problem in &calibration.implausible {
-            session.emit(super::Event::Note(format!(
-                "warning: written with --force although {problem}"
-            )));
-        }
-    }
+    refuse_implausible(dir, &calibration.implausible, options.force, session)?;
     let seed = (options.bootstrap > 0).then_some(options.seed);
     let yaml = file::calibration_yaml(&calibration, &session.provenance(seed));
     fsio::write_bytes(out, yaml.as_bytes()).map_err(io_error(out))?;
@@ -129,6 +116,32 @@ pub fn run(
         picked,
         written,
     })
+}
+
+/// A calibration failing a gate (`implausible`) refused, or with `force` written with a
+/// warning for each failure.
+///
+/// # Errors
+/// [`calib::CalibError::Implausible`] naming every failure.
+fn refuse_implausible(
+    dir: &Path,
+    implausible: &[String],
+    force: bool,
+    session: &Session,
+) -> Result<(), PipelineError> {
+    if !implausible.is_empty() && !force {
+        return Err(calib::CalibError::Implausible {
+            dir: dir.to_path_buf(),
+            problems: implausible.join("; "),
+        }
+        .into());
+    }
+    for problem in implausible {
+        session.emit(super::Event::Note(format!(
+            "warning: written with --force although {problem}"
+        )));
+    }
+    Ok(())
 }
 
 /// The folder the pairs picked from videos go to: `OUT_frames/` beside the calibration file.
@@ -388,7 +401,8 @@ pub fn run_any(
             listing.keys().cloned().collect::<Vec<_>>().join(", ")
         )));
     }
-    run_cameras(dir, &listing, board, out, session).map(|done| Done::Cameras(Box::new(done)))
+    run_cameras(dir, &listing, board, options.force, out, session)
+        .map(|done| Done::Cameras(Box::new(done)))
 }
 
 /// What the calibration of more than two cameras did and wrote.
@@ -398,15 +412,18 @@ pub struct CalibratedCameras {
 }
 
 /// Calibrates the cameras of `listing` (more than a pair, [`calib::cameras`]) from the views in
-/// `dir` and writes their Anipose `calibration.toml` beside `out` (`OUT.toml`).
+/// `dir` and writes their Anipose `calibration.toml` beside `out` (`OUT.toml`) and the
+/// calibration with its deviations as JSON (`OUT.json`).
 ///
 /// # Errors
-/// [`PipelineError`]: too few views, a camera tied to none of the others, unreadable images, a
-/// file that cannot be written, or the output naming an input.
+/// [`PipelineError`]: too few views, a camera tied to none of the others, a gate failed
+/// without `force`, unreadable images, a file that cannot be written, or the output naming an
+/// input.
 pub fn run_cameras(
     dir: &Path,
     listing: &calib::cameras::Listing,
     board: &BoardSpec,
+    force: bool,
     out: &Path,
     session: &Session,
 ) -> Result<CalibratedCameras, PipelineError> {
@@ -416,14 +433,18 @@ pub fn run_cameras(
         .flat_map(|views| views.values().map(PathBuf::as_path))
         .chain([board_file.as_path()])
         .collect();
-    let toml = file::toml_path(out);
+    let (toml, json) = (file::toml_path(out), file::json_path(out));
     outputs::check(
         &inputs,
-        &[Output::new(&toml, "the Anipose calibration.toml")],
+        &[
+            Output::new(&toml, "the Anipose calibration.toml"),
+            Output::new(&json, "the calibration as JSON"),
+        ],
     )?;
     let result = calib::cameras::calibrate(dir, listing, board, &session.counter(Task::Detect));
     session.emit(super::Event::Finished(Task::Detect));
     let calibration = result?;
+    refuse_implausible(dir, &calibration.implausible, force, session)?;
     let cameras: Vec<file::AniposeCamera> = calibration
         .cameras
         .iter()
@@ -436,9 +457,11 @@ pub fn run_cameras(
         .collect();
     let text = file::cameras_toml(&cameras, calibration.rms_px, calibration.hand_axes);
     fsio::write_bytes(&toml, text.as_bytes()).map_err(io_error(&toml))?;
+    let text = file::cameras_json(&calibration);
+    fsio::write_bytes(&json, text.as_bytes()).map_err(io_error(&json))?;
     Ok(CalibratedCameras {
         calibration,
-        written: vec![toml],
+        written: vec![toml, json],
     })
 }
 

@@ -246,6 +246,58 @@ fn four_cameras_are_calibrated_as_anipose_reads_them_to_the_rig_they_were_render
     let hand = Rotation3::from_scaled_axis(Vector3::new(hand[0], hand[1], hand[2]));
     let off = (hand * truth0.rotation).angle().to_degrees();
     assert!(off < 0.2, "hand axes {off:.3}° off");
+    // The JSON beside it: the same poses, each with its deviations.
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("cal.json")).unwrap()).unwrap();
+    for (i, camera) in json["cameras"].as_array().unwrap().iter().enumerate() {
+        let (pose, _) = toml_camera(&doc, i);
+        let t: Vec<f64> = camera["T"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .collect();
+        assert!((Vector3::new(t[0], t[1], t[2]) - pose.translation).norm() < 1e-9);
+        let sd = camera["rotation_sd_deg"].as_f64().unwrap();
+        assert!(
+            if i == 0 {
+                sd == 0.0
+            } else {
+                sd > 0.0 && sd < 0.1
+            },
+            "{camera}"
+        );
+    }
+    // cam2's views shuffled among its instants: no longer taken with the others'. Refused,
+    // nothing written; written with --force, marked as forced.
+    for i in 0..36 {
+        let (from, to) = (
+            d.join(format!("cam2_{i:02}.png")),
+            d.join(format!("cam2_x{i:02}.png")),
+        );
+        if from.exists() {
+            std::fs::rename(from, to).unwrap();
+        }
+    }
+    for i in 0..36 {
+        let from = d.join(format!("cam2_x{i:02}.png"));
+        if from.exists() {
+            std::fs::rename(from, d.join(format!("cam2_{:02}.png", (i + 7) % 36))).unwrap();
+        }
+    }
+    let err = handcap_err(d, &["calibrate", ".", "--out", "moved.yml"]);
+    assert!(
+        err.contains("the cameras together reproject at") && err.contains("--force"),
+        "{err}"
+    );
+    assert!(!d.join("moved.toml").exists() && !d.join("moved.json").exists());
+    let said = handcap_ok(d, &["calibrate", ".", "--out", "moved.yml", "--force"]);
+    assert!(
+        said.contains("written with --force although the cameras together"),
+        "{said}"
+    );
+    let json = std::fs::read_to_string(d.join("moved.json")).unwrap();
+    assert!(json.contains("\"forced\""), "{json}");
     assert!(
         !d.join("cal.yml").exists(),
         "a pair's YAML is not written for four cameras"

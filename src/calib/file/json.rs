@@ -61,6 +61,55 @@ pub fn calibration_json(cal: &StereoCalibration) -> String {
     text
 }
 
+/// More than two cameras' calibration ([`crate::calib::cameras`]) as JSON: `cameras`, each
+/// with `name`, `image_size`, `K` (rows), `D`, `R` (rows) and `T` (the world, the first
+/// camera's frame, into this camera's: p_cam = R p_world + T, mm), `rotation_sd_deg`,
+/// `position_sd_mm`, `rms_px` (its corners in the joint fit), `intrinsics_rms_px` (its own
+/// calibration), `views` of `images` with the board, `shared_instants`; then `rms_px`,
+/// `outliers`, `reject_px`, `poorly_tied`, `R_hand` (world → hand frame rows) when known, and
+/// `forced`: the gates it failed, when `--force` wrote it.
+pub fn cameras_json(cal: &crate::calib::cameras::GraphCalibration) -> String {
+    let rows = |m: &[f64]| -> Vec<Vec<f64>> { m.chunks(3).map(<[f64]>::to_vec).collect() };
+    let cameras: Vec<serde_json::Value> = cal
+        .cameras
+        .iter()
+        .map(|c| {
+            let pose = &c.pose;
+            serde_json::json!({
+                "name": c.name,
+                "image_size": c.size,
+                "K": rows(&pose.intrinsics.k),
+                "D": pose.intrinsics.dist,
+                "R": rows(&pose.cam_from_world.rotation_rows()),
+                "T": pose.cam_from_world.translation_array(),
+                "rotation_sd_deg": pose.rotation_sd_deg,
+                "position_sd_mm": pose.position_sd_mm,
+                "rms_px": pose.rms_px,
+                "intrinsics_rms_px": c.intrinsics_rms_px,
+                "views": c.views,
+                "images": c.images,
+                "shared_instants": pose.shared,
+            })
+        })
+        .collect();
+    let mut doc = serde_json::json!({
+        "format": "handcap calibration of more cameras: the world is the first camera's frame; matrices as rows; lengths in mm, image coordinates in px",
+        "cameras": cameras,
+        "rms_px": cal.rms_px,
+        "outliers": cal.outliers,
+        "reject_px": cal.reject_px,
+        "poorly_tied": cal.poorly_tied,
+        "hand_axes_note": cal.hand_axes_note,
+    });
+    if let Some(axes) = &cal.hand_axes {
+        doc["R_hand"] = serde_json::json!(rows(&rotation_rows(axes)));
+    }
+    if !cal.implausible.is_empty() {
+        doc["forced"] = serde_json::json!(cal.implausible);
+    }
+    serde_json::to_string_pretty(&doc).expect("numbers and names serialise as JSON")
+}
+
 /// Reads a calibration written by [`calibration_json`].
 ///
 /// # Errors
