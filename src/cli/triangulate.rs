@@ -12,7 +12,9 @@ use super::usage;
 pub struct Args {
     /// Directory with frames.csv and left_NNNNN / right_NNNNN images (PNG or JPEG)
     frames: PathBuf,
-    /// Stereo calibration with the hand axes (R_hand), as `handcap calibrate` writes it
+    /// Stereo calibration with the hand axes (R_hand), as `handcap calibrate` writes it; or,
+    /// for more cameras, the calibration.toml it writes for them (the held steps only, each
+    /// row with the cameras it used and its standard deviations)
     #[arg(long)]
     calib: PathBuf,
     /// Regulator log: time_s,P1_kpa,P2_kpa,P3_kpa, one row per commanded step (default: the
@@ -84,6 +86,17 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     options.video_start_s = super::left_right("--video-start-s", &a.video_start_s)?;
     options.latency_s =
         super::left_right("--latency-ms", &a.latency_ms)?.map(|ms| ms.map(|ms| ms / 1e3));
+    if triangulate::more_cameras(&a.calib) {
+        if a.per_frame {
+            usage!("--per-frame takes a pair's calibration; with more cameras, triangulate the held steps");
+        }
+        let done = super::with_session(|s| {
+            triangulate::run_cameras(&a.frames, &a.calib, &pressures, &options, &a.out, s)
+        })?;
+        print!("{done}");
+        super::print_written(&done.written);
+        return Ok(());
+    }
     // Files first (written by the stage), then the printing: a closed pipe must not cost the
     // results.
     let interrupted = if a.per_frame {

@@ -430,3 +430,111 @@ impl fmt::Display for Triangulated {
         Ok(())
     }
 }
+
+/// Whether `calib` is the calibration of cameras other than a pair `left`, `right` (an
+/// Anipose TOML, as `handcap calibrate` writes for more cameras): [`run_cameras`]'s.
+pub fn more_cameras(calib: &Path) -> bool {
+    let toml = calib
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("toml"));
+    toml && crate::calib::file::read_cameras_toml(calib).is_ok_and(|(cameras, _)| {
+        let names: Vec<&str> = cameras.iter().map(|c| c.name.as_str()).collect();
+        names != ["left", "right"]
+    })
+}
+
+/// What the stage did with more than two cameras, and wrote.
+pub struct TriangulatedCameras {
+    pub found: triangulate::cameras::Found,
+    /// Frames of cameras the calibration does not have, by name (not read).
+    pub not_calibrated: std::collections::BTreeMap<String, usize>,
+    pub cameras: Vec<String>,
+    pub written: Vec<PathBuf>,
+}
+
+/// The tip of every held step of the log at `pressures` seen by the cameras of `calib` (more
+/// than a pair, [`triangulate::cameras`]) in `frames`; writes the dataset `out`.
+///
+/// # Errors
+/// [`PipelineError`]: unreadable inputs, a calibration without the hand frame's axes, no step
+/// at rest with a tip, `out` naming an input, or a file that cannot be written.
+pub fn run_cameras(
+    frames: &Path,
+    calib: &Path,
+    pressures: &Path,
+    options: &TriangulateOptions,
+    out: &Path,
+    session: &Session,
+) -> Result<TriangulatedCameras, PipelineError> {
+    options.check().map_err(PipelineError::Request)?;
+    let (cameras, hand) = crate::calib::file::read_cameras_toml(calib)?;
+    let Some(hand) = hand else {
+        return Err(PipelineError::Place(format!(
+            "{} has no hand_rotation in its [metadata]: calibrate with <camera>_ref views of the reference board (handcap calibrate writes it)",
+            calib.display()
+        )));
+    };
+    let log = read_pressure_log(pressures)?;
+    let (listed, not_calibrated) = triangulate::cameras::read_frames(frames, &cameras)?;
+    let index = frames.join("frames.csv");
+    let inputs: Vec<&Path> = [calib, pressures, index.as_path()]
+        .into_iter()
+        .chain(listed.iter().map(|f| f.path.as_path()))
+        .collect();
+    outputs::check(&inputs, &[Output::new(out, "the dataset")])?;
+    let result = triangulate::cameras::triangulate(
+        &listed,
+        &cameras,
+        hand,
+        &log,
+        options,
+        &session.counter(Task::Frames),
+    );
+    session.emit(super::Event::Finished(Task::Frames));
+    let found = result.map_err(|e| PipelineError::Place(e.to_string()))?;
+    let text = triangulate::cameras::csv(&found, &cameras, &log);
+    crate::fsio::write_bytes(out, text.as_bytes()).map_err(io_error(out))?;
+    Ok(TriangulatedCameras {
+        found,
+        not_calibrated,
+        cameras: cameras.into_iter().map(|c| c.name).collect(),
+        written: vec![out.to_path_buf()],
+    })
+}
+
+impl fmt::Display for TriangulatedCameras {
+    /// What the stage found, as `handcap triangulate` prints it.
+    fn fmt(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        let found = &self.found;
+        let mut by_count: Vec<usize> = vec![0; self.cameras.len() + 1];
+        for tip in &found.tips {
+            by_count[tip.used.len()] += 1;
+        }
+        let counts: Vec<String> = (2..by_count.len())
+            .rev()
+            .filter(|&n| by_count[n] > 0)
+            .map(|n| format!("{} by {n}", by_count[n]))
+            .collect();
+        writeln!(
+            f,
+            "{} steps with a tip ({}), cameras {}; {} seen by fewer than two cameras, {} whose views no two agreed on",
+            found.tips.len(),
+            counts.join(", "),
+            self.cameras.join(", "),
+            found.steps_unseen,
+            found.steps_inconsistent
+        )?;
+        for (name, n) in &self.not_calibrated {
+            writeln!(
+                f,
+                "skipped {n} frames of camera {name}: not in the calibration"
+            )?;
+        }
+        let left_out = found.tips.iter().filter(|t| !t.left_out.is_empty()).count();
+        writeln!(
+            f,
+            "{} of {} frames in settled steps without one marker; {left_out} steps with a camera left out by the gate; origin from {} steps at rest",
+            found.frames_without_marker, found.frames_in_steps, found.rest_steps
+        )
+    }
+}

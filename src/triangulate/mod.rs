@@ -30,6 +30,7 @@
 //!    `reproj_px` (largest reprojection error) and `dt_ms` (largest left/right time
 //!    difference).
 
+pub mod cameras;
 pub mod clock;
 pub mod latency;
 mod locate;

@@ -360,3 +360,209 @@ fn a_camera_tied_to_no_other_and_a_pairs_option_get_one_line() {
 fn handcap(d: &Path, args: &[&str]) -> String {
     crate::common::handcap_fails(d, args, 2)
 }
+
+/// A step session of the virtual finger filmed by the four cameras of the arc, two frames a
+/// camera in each held step (PNG), the bead hidden from camera `1 + k % 4` by a passing rod in
+/// steps k = 5-12; `dir/cal.toml` the true rig (the first camera's frame the world, the hand
+/// axes from the truth). The true tips (hand frame, from rest), one per step.
+fn step_session(d: &Path) -> Vec<[f64; 3]> {
+    use handcap::calib::file::{cameras_toml, AniposeCamera};
+    use handcap::synth::plant::{Plant, PlantParams};
+    use handcap::synth::scene::Finger;
+    let plant = Plant::new(PlantParams::default());
+    let cameras: Vec<Camera> = (1..=4).map(camera).collect();
+    let first = cameras[0].pose;
+    let rig: Vec<AniposeCamera> = cameras
+        .iter()
+        .enumerate()
+        .map(|(c, cam)| AniposeCamera {
+            name: ["cam1", "cam2", "cam3", "cam4"][c],
+            size: [cam.width as i32, cam.height as i32],
+            intrinsics: &cam.intrinsics,
+            pose: CamFromWorld::new(
+                relative(&first, &cam.pose).rotation,
+                relative(&first, &cam.pose).translation,
+            ),
+        })
+        .collect();
+    write(
+        d,
+        "cal.toml",
+        &cameras_toml(&rig, 0.1, Some(first.rotation.inverse())),
+    );
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let mut steps: Vec<[f64; 3]> = vec![[0.0; 3]];
+    steps.extend((0..17).map(|_| std::array::from_fn(|_| rng.random_range(0.0..160.0f64).round())));
+    let mut log = String::from("time_s,P1_kpa,P2_kpa,P3_kpa\n");
+    let mut index = String::from("frame,camera,time_s\n");
+    std::fs::create_dir_all(d.join("frames")).unwrap();
+    let views: Vec<View> = cameras
+        .iter()
+        .enumerate()
+        .map(|(c, cam)| {
+            View::new(
+                cam.clone(),
+                Lighting::from_seed(c as u64),
+                Surroundings::default(),
+            )
+        })
+        .collect();
+    let rest = plant.tip([0.0; 3]).unwrap();
+    let mut truth = Vec::new();
+    for (k, p) in steps.iter().enumerate() {
+        let t = 0.5 * k as f64;
+        log.push_str(&format!("{t},{},{},{}\n", p[0], p[1], p[2]));
+        let finger = Finger::from_centre_line(&plant.centre_line(*p).unwrap(), 8);
+        let tip = plant.tip(*p).unwrap();
+        truth.push(std::array::from_fn(|i| tip[i] - rest[i]));
+        for (c, view) in views.iter().enumerate() {
+            for j in 0..2 {
+                let frame = 2 * k + j;
+                let mut canvas = view.finger(std::slice::from_ref(&finger));
+                if (5..=12).contains(&k) && c == k % 4 {
+                    let through = view.camera.project(&Point3::from(tip)).unwrap();
+                    view.occlude(&mut canvas, through, 0.6);
+                }
+                let rgb = canvas.develop(1.0, 5, (frame * 4 + c) as u64);
+                let png = encode_png(view.camera.width, view.camera.height, &rgb);
+                std::fs::write(d.join(format!("frames/cam{}_{frame:05}.png", c + 1)), png).unwrap();
+                index.push_str(&format!(
+                    "{frame},cam{},{}\n",
+                    c + 1,
+                    t + 0.25 + 0.1 * j as f64
+                ));
+            }
+        }
+    }
+    write(d, "pressures.csv", &log);
+    write(d, "frames/frames.csv", &index);
+    truth
+}
+
+/// `handcap triangulate` on [`step_session`]'s frames with its calibration.
+const TRIANGULATE: [&str; 6] = [
+    "triangulate",
+    "frames",
+    "--calib",
+    "cal.toml",
+    "--pressures",
+    "pressures.csv",
+];
+
+#[test]
+fn four_cameras_give_every_step_a_tip_when_one_at_a_time_loses_the_bead() {
+    let dir = tempdir();
+    let d = dir.path();
+    let truth = step_session(d);
+    let said = handcap_ok(d, &[&TRIANGULATE[..], &["--out", "dataset.csv"]].concat());
+    eprintln!("{said}");
+    let rows = crate::common::csv_rows(&d.join("dataset.csv"));
+    assert_eq!(rows.len(), truth.len(), "every step a tip: {said}");
+    for row in &rows {
+        let k: usize = row["step"].parse().unwrap();
+        let hidden = (5..=12).contains(&k);
+        assert_eq!(
+            row["n_cameras"],
+            if hidden { "3" } else { "4" },
+            "step {k}: {row:?}"
+        );
+        if hidden {
+            assert!(
+                !row["cameras"].contains(&format!("cam{}", k % 4 + 1)),
+                "{row:?}"
+            );
+        }
+        let sd: f64 = row["sd_z_mm"].parse().unwrap();
+        assert!(sd > 0.0 && sd < 0.05, "{row:?}");
+    }
+    let (_, rms) = tip_rms(&d.join("dataset.csv"), &truth, None);
+    eprintln!(
+        "tip RMS against the truth {rms:.4} mm over {} steps",
+        rows.len()
+    );
+    assert!(rms < 0.03, "tip RMS {rms:.4} mm");
+    // Each pair of the same cameras alone: a pair loses the steps one of its cameras does not
+    // see.
+    let doc: toml::Table = std::fs::read_to_string(d.join("cal.toml"))
+        .unwrap()
+        .parse()
+        .unwrap();
+    for (a, b) in [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)] {
+        let mut pair = toml::Table::new();
+        pair.insert("cam_0".into(), doc[&format!("cam_{a}")].clone());
+        pair.insert("cam_1".into(), doc[&format!("cam_{b}")].clone());
+        pair.insert("metadata".into(), doc["metadata"].clone());
+        write(d, "pair.toml", &toml::to_string(&pair).unwrap());
+        let args = ["triangulate", "frames", "--calib", "pair.toml"];
+        let rest = ["--pressures", "pressures.csv", "--out", "pair.csv"];
+        handcap_ok(d, &[&args[..], &rest].concat());
+        let (steps, pair_rms) = tip_rms(&d.join("pair.csv"), &truth, None);
+        let kept: Vec<String> = crate::common::csv_rows(&d.join("pair.csv"))
+            .iter()
+            .map(|r| r["step"].clone())
+            .collect();
+        let (_, four) = tip_rms(&d.join("dataset.csv"), &truth, Some(&kept));
+        eprintln!(
+            "cam{} and cam{}: {steps} steps, tip RMS {pair_rms:.4} mm (the four cameras on them: {four:.4})",
+            a + 1,
+            b + 1
+        );
+        assert!(
+            steps < truth.len(),
+            "cam{} and cam{}: {steps} steps",
+            a + 1,
+            b + 1
+        );
+    }
+}
+
+#[test]
+fn more_cameras_bad_input_gets_one_line() {
+    let dir = tempdir();
+    let d = dir.path();
+    step_session(d);
+    let err = crate::common::handcap_fails(d, &[&TRIANGULATE[..], &["--per-frame"]].concat(), 2);
+    assert!(
+        err.contains("--per-frame takes a pair's calibration"),
+        "{err}"
+    );
+    // Anipose's own file has no hand axes.
+    let text = std::fs::read_to_string(d.join("cal.toml")).unwrap();
+    let mut doc: toml::Table = text.parse().unwrap();
+    doc["metadata"]
+        .as_table_mut()
+        .unwrap()
+        .remove("hand_rotation");
+    write(d, "anipose.toml", &toml::to_string(&doc).unwrap());
+    let args = [
+        "triangulate",
+        "frames",
+        "--calib",
+        "anipose.toml",
+        "--pressures",
+        "pressures.csv",
+    ];
+    let err = handcap_err(d, &[&args[..], &["--out", "x.csv"]].concat());
+    assert!(
+        err.contains("anipose.toml has no hand_rotation") && err.contains("_ref"),
+        "{err}"
+    );
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(!d.join("x.csv").exists());
+}
+
+/// The rows of a dataset (of steps `only`, if given) and their tips' RMS distance from the
+/// true tips of their steps (mm).
+fn tip_rms(path: &Path, truth: &[[f64; 3]], only: Option<&[String]>) -> (usize, f64) {
+    let mut rows = crate::common::csv_rows(path);
+    rows.retain(|r| only.is_none_or(|steps| steps.contains(&r["step"])));
+    let sum: f64 = rows
+        .iter()
+        .map(|row| {
+            let k: usize = row["step"].parse().unwrap();
+            let got = ["x_mm", "y_mm", "z_mm"].map(|c| row[c].parse::<f64>().unwrap());
+            (0..3).map(|i| (got[i] - truth[k][i]).powi(2)).sum::<f64>()
+        })
+        .sum();
+    (rows.len(), (sum / rows.len() as f64).sqrt())
+}

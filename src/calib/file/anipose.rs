@@ -91,14 +91,25 @@ pub fn anipose_toml(cal: &StereoCalibration) -> String {
     cameras_toml(&cameras, cal.rms_px, None)
 }
 
-/// Reads an Anipose/aniposelib `calibration.toml` of two cameras (as [`anipose_toml`] writes
-/// it, or Anipose does): `cam_0` is taken as the left camera and the world, `cam_1` as the right.
-/// The pose between them is [`relative`] of the two cameras' poses (R = R₁ R₀ᵀ, T = t₁ − R t₀). It has no hand frame (`R_hand`): `triangulate` needs the YAML of a calibration
-/// with a reference pair.
+/// A camera as [`read_cameras_toml`] reads it.
+#[derive(Clone, Debug)]
+pub struct ReadCamera {
+    pub name: String,
+    pub size: [i32; 2],
+    pub intrinsics: Intrinsics,
+    /// World (the first camera's frame, in Anipose's files) → this camera.
+    pub pose: CamFromWorld,
+}
+
+/// The cameras of an Anipose/aniposelib `calibration.toml` (every `[cam_N]`, in N's order; a
+/// camera without `name` is called `cam_N`), and `[metadata]`'s `hand_rotation` (world → hand
+/// frame, a Rodrigues vector) when it has one ([`cameras_toml`] writes it).
 ///
 /// # Errors
 /// [`StereoError`] naming the file and the camera or key that is missing or malformed.
-pub fn read_anipose_toml(path: &Path) -> Result<CalibrationFile, StereoError> {
+pub fn read_cameras_toml(
+    path: &Path,
+) -> Result<(Vec<ReadCamera>, Option<Rotation3<f64>>), StereoError> {
     let invalid = |message: String| StereoError::Invalid {
         path: path.to_path_buf(),
         message,
@@ -133,20 +144,16 @@ pub fn read_anipose_toml(path: &Path) -> Result<CalibrationFile, StereoError> {
             }
             Ok(out)
         };
-    let cameras: Vec<&str> = ["cam_0", "cam_1"]
-        .into_iter()
-        .filter(|c| doc.get(*c).is_some_and(toml::Value::is_table))
+    let mut keys: Vec<(usize, &String)> = doc
+        .keys()
+        .filter_map(|k| Some((k.strip_prefix("cam_")?.parse().ok()?, k)))
         .collect();
-    if cameras.len() < 2 || doc.keys().filter(|k| k.starts_with("cam_")).count() != 2 {
-        return Err(invalid(format!(
-            "handcap needs exactly two cameras, [cam_0] (left) and [cam_1] (right); the file has {}",
-            doc.keys().filter(|k| k.starts_with("cam_")).count()
-        )));
-    }
-    // Each camera: intrinsics, size, and its pose in the world (the first camera's frame).
-    type Camera = (Intrinsics, [f64; 2], CamFromWorld);
-    let camera = |cam: &str| -> Result<Camera, StereoError> {
-        let t = &doc[cam];
+    keys.sort();
+    let mut cameras = Vec::new();
+    for (_, cam) in keys {
+        let Some(t) = doc[cam].as_table() else {
+            return Err(invalid(format!("[{cam}] is not a table")));
+        };
         let size = numbers(cam, "size", t.get("size"))?;
         let k = numbers(cam, "matrix", t.get("matrix"))?;
         let dist = numbers(cam, "distortions", t.get("distortions"))?;
@@ -162,29 +169,68 @@ pub fn read_anipose_toml(path: &Path) -> Result<CalibrationFile, StereoError> {
             dist: distortion_coefficients(&format!("[{cam}] distortions"), dist)
                 .map_err(invalid)?,
         };
-        Ok((
+        cameras.push(ReadCamera {
+            name: t
+                .get("name")
+                .and_then(toml::Value::as_str)
+                .unwrap_or(cam)
+                .to_string(),
+            size: [size[0] as i32, size[1] as i32],
             intrinsics,
-            [size[0], size[1]],
-            CamFromWorld::new(
+            pose: CamFromWorld::new(
                 Rotation3::from_scaled_axis(Vector3::new(r[0], r[1], r[2])),
                 Vector3::new(tr[0], tr[1], tr[2]),
             ),
-        ))
-    };
-    let (left, left_size, left_pose) = camera("cam_0")?;
-    let (right, right_size, right_pose) = camera("cam_1")?;
-    if left_size != right_size {
-        return Err(invalid(format!(
-            "the cameras' sizes differ ({left_size:?} and {right_size:?}); both must capture at the same size"
-        )));
+        });
     }
-    let between = relative(&left_pose, &right_pose);
+    let hand = match doc.get("metadata").and_then(|m| m.get("hand_rotation")) {
+        Some(v) => {
+            let r = numbers("metadata", "hand_rotation", Some(v))?;
+            if r.len() != 3 {
+                return Err(invalid("[metadata] hand_rotation needs 3 numbers".into()));
+            }
+            Some(Rotation3::from_scaled_axis(Vector3::new(r[0], r[1], r[2])))
+        }
+        None => None,
+    };
+    Ok((cameras, hand))
+}
+
+/// Reads an Anipose/aniposelib `calibration.toml` of two cameras (as [`anipose_toml`] writes
+/// it, or Anipose does): `cam_0` is taken as the left camera and the world, `cam_1` as the right.
+/// The pose between them is [`relative`] of the two cameras' poses (R = R₁ R₀ᵀ, T = t₁ − R t₀).
+/// It has no hand frame (`R_hand`): `triangulate` needs the YAML of a calibration with a
+/// reference pair.
+///
+/// # Errors
+/// [`StereoError`] naming the file and the camera or key that is missing or malformed.
+pub fn read_anipose_toml(path: &Path) -> Result<CalibrationFile, StereoError> {
+    let (cameras, _) = read_cameras_toml(path)?;
+    let [left, right] = &cameras[..] else {
+        return Err(StereoError::Invalid {
+            path: path.to_path_buf(),
+            message: format!(
+                "handcap needs exactly two cameras, [cam_0] (left) and [cam_1] (right); the file has {}",
+                cameras.len()
+            ),
+        });
+    };
+    if left.size != right.size {
+        return Err(StereoError::Invalid {
+            path: path.to_path_buf(),
+            message: format!(
+                "the cameras' sizes differ ({:?} and {:?}); both must capture at the same size",
+                left.size, right.size
+            ),
+        });
+    }
+    let between = relative(&left.pose, &right.pose);
     Ok(CalibrationFile {
         path: path.to_path_buf(),
         rig: StereoRig {
-            image_size: left_size.map(|v| v as i32),
-            left,
-            right,
+            image_size: left.size,
+            left: left.intrinsics.clone(),
+            right: right.intrinsics.clone(),
             right_from_left: RightFromLeft::new(between.rotation, between.translation),
         },
         r_hand: None,

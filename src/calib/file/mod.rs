@@ -42,7 +42,9 @@ mod board;
 mod json;
 mod yaml;
 
-pub use anipose::{anipose_toml, cameras_toml, read_anipose_toml, AniposeCamera};
+pub use anipose::{
+    anipose_toml, cameras_toml, read_anipose_toml, read_cameras_toml, AniposeCamera, ReadCamera,
+};
 pub use board::{
     board_yaml, default_board, read_board, read_board_text, BOARD_FILE, DEFAULT_BOARD_YAML,
 };

@@ -1,0 +1,288 @@
+//! The tip of each held step seen by any number of cameras (issue 59): the session's frames
+//! named by camera (`frames.csv`: `frame,camera,time_s`; `<camera>_<frame:05>.<ext>`), the
+//! cameras and the hand frame's axes from the calibration `handcap calibrate` writes for them
+//! (Anipose's `calibration.toml` with `[metadata]`'s `hand_rotation`).
+//!
+//! 1. Each frame placed in the log's steps as a pair's are (settled, not straddling the next
+//!    command); in each, the marker found ([`super::marker`]); a frame with no candidate, or
+//!    more than one, gives no view (counted).
+//! 2. Each camera's view of a step: the median of its frames' bead centres, undistorted.
+//! 3. The step's tip from its views ([`super::nview`]): linear, refined, the views gated by a
+//!    χ² test in units of each view's pixel noise ([`BEAD_NOISE_PX`] per frame, over the
+//!    square root of the frames the median took), every subset of two or more tried when one
+//!    view disagrees; the cameras used and left out, and the tip's covariance from the beads'
+//!    noise.
+//! 4. The hand frame: its axes from the calibration, its origin the median tip of the steps
+//!    at zero pressure.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use nalgebra::{Matrix3, Matrix3x4, Rotation3, Vector3};
+use rayon::prelude::*;
+
+use super::nview::{self, View};
+use super::pairing::{self, Placement};
+use super::TriangulateOptions;
+use crate::calib::file::ReadCamera;
+use crate::data::Table;
+use crate::session::pressures::PressureLog;
+use crate::session::SessionError;
+
+/// A bead centre's noise in one frame, per axis (px): what the rendered sessions give on a
+/// settled bead (the same figure as [`crate::synth::quick::PIXEL_NOISE_PX`]).
+pub const BEAD_NOISE_PX: f64 = 0.1;
+/// The χ² gate's level.
+pub const GATE_LEVEL: f64 = 0.999;
+
+/// One frame of `frames.csv`.
+#[derive(Clone, Debug)]
+pub struct Frame {
+    pub camera: usize,
+    pub index: usize,
+    pub time_s: f64,
+    pub path: PathBuf,
+}
+
+/// Reads `dir/frames.csv` for `cameras` (their names): every frame of a camera it names, and
+/// each one's image (`<camera>_<frame:05>.png`, `.jpg` or `.jpeg`); the frames of cameras the
+/// calibration does not have are counted by name, not read.
+///
+/// # Errors
+/// [`SessionError`] naming the file and line: a bad number, a frame without its image.
+pub fn read_frames(
+    dir: &Path,
+    cameras: &[ReadCamera],
+) -> Result<(Vec<Frame>, BTreeMap<String, usize>), SessionError> {
+    let table = Table::open(&dir.join("frames.csv"), "frame,camera,time_s")?;
+    let columns = [
+        table.column("frame")?,
+        table.column("camera")?,
+        table.column("time_s")?,
+    ];
+    let (mut out, mut other) = (Vec::new(), BTreeMap::new());
+    for (line, record) in table.records()? {
+        let [frame, name, time] = columns.map(|c| &record[c]);
+        let Some(camera) = cameras.iter().position(|c| c.name == name) else {
+            *other.entry(name.to_string()).or_default() += 1;
+            continue;
+        };
+        let index: usize = frame
+            .parse()
+            .map_err(|_| table.bad(line, format!("frame {frame:?} is not a frame number")))?;
+        let time_s = time
+            .parse()
+            .ok()
+            .filter(|t: &f64| t.is_finite())
+            .ok_or_else(|| table.bad(line, format!("time_s {time:?} is not a number")))?;
+        let path = ["png", "jpg", "jpeg"]
+            .iter()
+            .map(|ext| dir.join(format!("{name}_{index:05}.{ext}")))
+            .find(|p| p.exists())
+            .ok_or_else(|| {
+                table.bad(
+                    line,
+                    format!("no image {name}_{index:05}.png (or .jpg) beside it"),
+                )
+            })?;
+        out.push(Frame {
+            camera,
+            index,
+            time_s,
+            path,
+        });
+    }
+    Ok((out, other))
+}
+
+/// A step's tip.
+#[derive(Clone, Debug)]
+pub struct StepTip {
+    pub step: usize,
+    /// Hand frame (mm).
+    pub tip_mm: Vector3<f64>,
+    /// Its standard deviation along the hand frame's axes (mm), from the beads' noise.
+    pub sd_mm: [f64; 3],
+    /// The cameras used and left out by the gate (indices into the calibration's).
+    pub used: Vec<usize>,
+    pub left_out: Vec<usize>,
+    pub chi2: f64,
+    /// Frames the cameras used saw the step in.
+    pub frames: usize,
+}
+
+/// What a run found.
+#[derive(Clone, Debug, Default)]
+pub struct Found {
+    pub tips: Vec<StepTip>,
+    /// Frames in a settled step, and of those without one marker (none, or several).
+    pub frames_in_steps: usize,
+    pub frames_without_marker: usize,
+    /// Steps seen by fewer than two cameras, and steps whose views no two agreed on.
+    pub steps_unseen: usize,
+    pub steps_inconsistent: usize,
+    /// The hand frame's origin in the world (the first camera's frame, mm) and how many steps
+    /// at zero pressure gave it.
+    pub origin_mm: Vector3<f64>,
+    pub rest_steps: usize,
+}
+
+/// Why there is no dataset.
+#[derive(Debug, thiserror::Error)]
+pub enum CamerasError {
+    #[error("no step at 0, 0, 0 kPa has a tip: the hand frame's origin is the tip at rest; start the protocol with a rest step the cameras see")]
+    NoOrigin,
+}
+
+/// The tips of `frames` in `log`'s steps (module docs), in the hand frame whose axes are
+/// `hand` (world → hand); `progress(done, total)` counts frames examined.
+///
+/// # Errors
+/// [`CamerasError::NoOrigin`].
+pub fn triangulate(
+    frames: &[Frame],
+    cameras: &[ReadCamera],
+    hand: Rotation3<f64>,
+    log: &PressureLog,
+    options: &TriangulateOptions,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Found, CamerasError> {
+    // 1. Each frame in a step, and its marker.
+    let done = std::sync::atomic::AtomicUsize::new(0);
+    let seen: Vec<Option<(usize, Option<[f64; 2]>)>> = frames
+        .par_iter()
+        .map(|f| {
+            let n = done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1;
+            progress(n, frames.len());
+            let Placement::Step(k) = pairing::place(log, f.time_s, f.time_s, options.settle_s, 0.0)
+            else {
+                return None;
+            };
+            let centre = crate::image::decode(&f.path).ok().and_then(|image| {
+                match &super::marker::find_markers(&image, &options.marker).blobs[..] {
+                    [one] => Some(one.centre_px),
+                    _ => None,
+                }
+            });
+            Some((k, centre))
+        })
+        .collect();
+    let mut found = Found::default();
+    // 2. Each camera's view of each step.
+    let mut views: BTreeMap<usize, Vec<Vec<[f64; 2]>>> = BTreeMap::new();
+    for (f, seen) in frames.iter().zip(&seen) {
+        let Some((k, centre)) = seen else { continue };
+        found.frames_in_steps += 1;
+        let step = views
+            .entry(*k)
+            .or_insert_with(|| vec![Vec::new(); cameras.len()]);
+        match centre {
+            Some(c) => step[f.camera].push(*c),
+            None => found.frames_without_marker += 1,
+        }
+    }
+    // 3. Each step's tip in the world.
+    let projections: Vec<Matrix3x4<f64>> = cameras.iter().map(projection).collect();
+    let mut world: Vec<(usize, nview::Triangulated, usize)> = Vec::new();
+    for (&k, by_camera) in &views {
+        let mut given = Vec::new();
+        let mut which = Vec::new();
+        for (c, centres) in by_camera.iter().enumerate().filter(|(_, v)| !v.is_empty()) {
+            let median = |i: usize| {
+                let mut v: Vec<f64> = centres.iter().map(|p| p[i]).collect();
+                crate::stats::median(&mut v).expect("a centre")
+            };
+            let k_ = &cameras[c].intrinsics;
+            let (x, y) = k_.undistort(median(0), median(1));
+            given.push(View {
+                projection: projections[c],
+                px: [k_.fx() * x + k_.cx(), k_.fy() * y + k_.cy()],
+                sigma_px: BEAD_NOISE_PX / (centres.len() as f64).sqrt(),
+            });
+            which.push((c, centres.len()));
+        }
+        match nview::triangulate(&given, GATE_LEVEL) {
+            Ok(mut t) => {
+                let frames_used = t.used.iter().map(|&i| which[i].1).sum();
+                t.used = t.used.iter().map(|&i| which[i].0).collect();
+                t.left_out = t.left_out.iter().map(|&i| which[i].0).collect();
+                world.push((k, t, frames_used));
+            }
+            Err(nview::Refused::TooFewViews) => found.steps_unseen += 1,
+            Err(nview::Refused::Inconsistent { .. }) => found.steps_inconsistent += 1,
+        }
+    }
+    // 4. The hand frame.
+    let at_rest: Vec<Vector3<f64>> = world
+        .iter()
+        .filter(|(k, ..)| log.steps[*k].pressures_kpa == [0.0; 3])
+        .map(|(_, t, _)| t.point)
+        .collect();
+    if at_rest.is_empty() {
+        return Err(CamerasError::NoOrigin);
+    }
+    found.origin_mm = crate::stats::median_point(&at_rest);
+    found.rest_steps = at_rest.len();
+    let r: Matrix3<f64> = *hand.matrix();
+    found.tips = world
+        .into_iter()
+        .map(|(step, t, frames)| {
+            let covariance = r * t.covariance * r.transpose();
+            StepTip {
+                step,
+                tip_mm: hand * (t.point - found.origin_mm),
+                sd_mm: std::array::from_fn(|i| covariance[(i, i)].max(0.0).sqrt()),
+                used: t.used,
+                left_out: t.left_out,
+                chi2: t.chi2,
+                frames,
+            }
+        })
+        .collect();
+    Ok(found)
+}
+
+/// K [R | t] of a camera: world points to undistorted pixels.
+fn projection(camera: &ReadCamera) -> Matrix3x4<f64> {
+    let mut rt = Matrix3x4::zeros();
+    rt.fixed_view_mut::<3, 3>(0, 0)
+        .copy_from(camera.pose.rotation.matrix());
+    rt.set_column(3, &camera.pose.translation);
+    Matrix3::from_row_slice(&camera.intrinsics.k) * rt
+}
+
+/// The dataset's header: the log's pressures, the tip, the cameras used and how sure it is.
+pub const HEADER: &str =
+    "step,P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm,sd_x_mm,sd_y_mm,sd_z_mm,n_cameras,cameras,left_out,chi2,n_frames";
+
+/// The rows of `found` as CSV (camera names joined by `+`).
+pub fn csv(found: &Found, cameras: &[ReadCamera], log: &PressureLog) -> String {
+    use std::fmt::Write as _;
+    let names = |list: &[usize]| -> String {
+        list.iter()
+            .map(|&c| cameras[c].name.as_str())
+            .collect::<Vec<_>>()
+            .join("+")
+    };
+    let mut out = format!("{HEADER}\n");
+    for t in &found.tips {
+        let [p1, p2, p3] = log.steps[t.step].pressures_kpa;
+        let _ = writeln!(
+            out,
+            "{},{p1},{p2},{p3},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{},{},{},{:.3},{}",
+            t.step,
+            t.tip_mm.x,
+            t.tip_mm.y,
+            t.tip_mm.z,
+            t.sd_mm[0],
+            t.sd_mm[1],
+            t.sd_mm[2],
+            t.used.len(),
+            names(&t.used),
+            names(&t.left_out),
+            t.chi2,
+            t.frames
+        );
+    }
+    out
+}
