@@ -363,7 +363,7 @@ fn handcap(d: &Path, args: &[&str]) -> String {
 
 /// A step session of the virtual finger filmed by the four cameras of the arc, two frames a
 /// camera in each held step (PNG), the bead hidden from camera `1 + k % 4` by a passing rod in
-/// steps k = 5-12; `dir/cal.toml` the true rig (the first camera's frame the world, the hand
+/// the steps [`HIDDEN`] and from cam2 in the steps [`MISLED`], which see a red push-pin instead; `dir/cal.toml` the true rig (the first camera's frame the world, the hand
 /// axes from the truth). The true tips (hand frame, from rest), one per step.
 fn step_session(d: &Path) -> Vec<[f64; 3]> {
     use handcap::calib::file::{cameras_toml, AniposeCamera};
@@ -419,11 +419,22 @@ fn step_session(d: &Path) -> Vec<[f64; 3]> {
             for j in 0..2 {
                 let frame = 2 * k + j;
                 let mut canvas = view.finger(std::slice::from_ref(&finger));
-                if (5..=12).contains(&k) && c == k % 4 {
-                    let through = view.camera.project(&Point3::from(tip)).unwrap();
+                let through = view.camera.project(&Point3::from(tip)).unwrap();
+                let (hidden, misled) = (
+                    HIDDEN.contains(&k) && c == k % 4,
+                    MISLED.contains(&k) && c == 1,
+                );
+                if hidden || misled {
                     view.occlude(&mut canvas, through, 0.6);
                 }
-                let rgb = canvas.develop(1.0, 5, (frame * 4 + c) as u64);
+                let mut rgb = canvas.develop(1.0, 5, (frame * 4 + c) as u64);
+                if misled {
+                    red_disc(
+                        &mut rgb,
+                        view.camera.width as usize,
+                        [through[0] + 30.0, through[1] - 30.0],
+                    );
+                }
                 let png = encode_png(view.camera.width, view.camera.height, &rgb);
                 std::fs::write(d.join(format!("frames/cam{}_{frame:05}.png", c + 1)), png).unwrap();
                 index.push_str(&format!(
@@ -437,6 +448,26 @@ fn step_session(d: &Path) -> Vec<[f64; 3]> {
     write(d, "pressures.csv", &log);
     write(d, "frames/frames.csv", &index);
     truth
+}
+
+/// The steps whose bead a rod hides from camera `1 + k % 4`.
+const HIDDEN: std::ops::RangeInclusive<usize> = 5..=12;
+/// The steps whose bead cam2 does not see, seeing a red push-pin beside it instead.
+const MISLED: std::ops::RangeInclusive<usize> = 14..=15;
+
+/// A red disc of 4 px radius centred at `at` on an RGB image `width` wide.
+fn red_disc(rgb: &mut [u8], width: usize, at: [f64; 2]) {
+    for y in (at[1] as usize - 6)..=(at[1] as usize + 6) {
+        for x in (at[0] as usize - 6)..=(at[0] as usize + 6) {
+            let r = (x as f64 - at[0]).hypot(y as f64 - at[1]);
+            let cover = (4.5 - r).clamp(0.0, 1.0);
+            let i = 3 * (y * width + x);
+            for (channel, paint) in [200.0, 30.0, 35.0].into_iter().enumerate() {
+                let v = f64::from(rgb[i + channel]);
+                rgb[i + channel] = (v + cover * (paint - v)).round() as u8;
+            }
+        }
+    }
 }
 
 /// `handcap triangulate` on [`step_session`]'s frames with its calibration.
@@ -460,7 +491,13 @@ fn four_cameras_give_every_step_a_tip_when_one_at_a_time_loses_the_bead() {
     assert_eq!(rows.len(), truth.len(), "every step a tip: {said}");
     for row in &rows {
         let k: usize = row["step"].parse().unwrap();
-        let hidden = (5..=12).contains(&k);
+        let hidden = HIDDEN.contains(&k);
+        if MISLED.contains(&k) {
+            // cam2's red push-pin disagrees with the others: the gate leaves it out.
+            assert_eq!(row["left_out"], "cam2", "step {k}: {row:?}");
+            assert_eq!(row["cameras"], "cam1+cam3+cam4", "step {k}: {row:?}");
+            continue;
+        }
         assert_eq!(
             row["n_cameras"],
             if hidden { "3" } else { "4" },
