@@ -12,7 +12,7 @@ use rand_chacha::ChaCha8Rng;
 use handcap::calib::BoardSpec;
 use handcap::geometry::{relative, CamFromWorld, Intrinsics, WorldFromBoard};
 use handcap::synth::camera::{looking_at, Camera};
-use handcap::synth::image_format::encode_png;
+use handcap::synth::image_format::{encode_png, ImageFormat};
 use handcap::synth::render::{Lighting, Surroundings, View};
 use handcap::synth::scene::{Board, Markers};
 
@@ -365,7 +365,7 @@ fn handcap(d: &Path, args: &[&str]) -> String {
 /// camera in each held step (PNG), the bead hidden from camera `1 + k % 4` by a passing rod in
 /// the steps [`HIDDEN`] and from cam2 in the steps [`MISLED`], which see a red push-pin instead; `dir/cal.toml` the true rig (the first camera's frame the world, the hand
 /// axes from the truth). The true tips (hand frame, from rest), one per step.
-fn step_session(d: &Path) -> Vec<[f64; 3]> {
+fn step_session(d: &Path, format: ImageFormat) -> Vec<[f64; 3]> {
     use handcap::calib::file::{cameras_toml, AniposeCamera};
     use handcap::synth::plant::{Plant, PlantParams};
     use handcap::synth::scene::Finger;
@@ -435,8 +435,9 @@ fn step_session(d: &Path) -> Vec<[f64; 3]> {
                         [through[0] + 30.0, through[1] - 30.0],
                     );
                 }
-                let png = encode_png(view.camera.width, view.camera.height, &rgb);
-                std::fs::write(d.join(format!("frames/cam{}_{frame:05}.png", c + 1)), png).unwrap();
+                let bytes = format.encode(view.camera.width, view.camera.height, &rgb);
+                let name = format!("frames/cam{}_{frame:05}.{}", c + 1, format.extension());
+                std::fs::write(d.join(name), bytes).unwrap();
                 index.push_str(&format!(
                     "{frame},cam{},{}\n",
                     c + 1,
@@ -480,11 +481,14 @@ const TRIANGULATE: [&str; 6] = [
     "pressures.csv",
 ];
 
-#[test]
-fn four_cameras_give_every_step_a_tip_when_one_at_a_time_loses_the_bead() {
+/// [`step_session`] in `format` triangulated: every step a tip, the hidden camera not among
+/// those used, cam2's push-pin left out, the tips within `max_rms` (mm) of the truth; each
+/// pair of the cameras alone loses steps, and its tips are farther from the truth than the
+/// four cameras' on the same steps by at least `1 / pair_ratio`, when given.
+fn four_cameras_against_their_pairs(format: ImageFormat, max_rms: f64, pair_ratio: Option<f64>) {
     let dir = tempdir();
     let d = dir.path();
-    let truth = step_session(d);
+    let truth = step_session(d, format);
     let said = handcap_ok(d, &[&TRIANGULATE[..], &["--out", "dataset.csv"]].concat());
     eprintln!("{said}");
     let rows = crate::common::csv_rows(&d.join("dataset.csv"));
@@ -517,7 +521,7 @@ fn four_cameras_give_every_step_a_tip_when_one_at_a_time_loses_the_bead() {
         "tip RMS against the truth {rms:.4} mm over {} steps",
         rows.len()
     );
-    assert!(rms < 0.03, "tip RMS {rms:.4} mm");
+    assert!(rms < max_rms, "tip RMS {rms:.4} mm");
     // Each pair of the same cameras alone: a pair loses the steps one of its cameras does not
     // see.
     let doc: toml::Table = std::fs::read_to_string(d.join("cal.toml"))
@@ -550,14 +554,33 @@ fn four_cameras_give_every_step_a_tip_when_one_at_a_time_loses_the_bead() {
             a + 1,
             b + 1
         );
+        if let Some(ratio) = pair_ratio {
+            assert!(four <= ratio * pair_rms, "cam{} and cam{}", a + 1, b + 1);
+        }
     }
+}
+
+/// On PNG frames the tips are at the bead's rendering and detection floor (0.004-0.01 mm),
+/// where the four cameras and the best pair are alike: more views add rows there, not
+/// accuracy.
+#[test]
+fn four_cameras_give_every_step_a_tip_when_one_at_a_time_loses_the_bead() {
+    four_cameras_against_their_pairs(ImageFormat::Png, 0.03, None);
+}
+
+/// On webcam MJPEG (4:2:0, quality 85) each bead centre errs by its own static bias: measured,
+/// the four cameras 0.046 mm over every step, and on each pair's steps 0.040-0.050 mm where
+/// the pair alone gives 0.071-0.131 mm (0.61 times the best pair's at most).
+#[test]
+fn on_webcam_frames_four_cameras_are_closer_to_the_truth_than_any_pair() {
+    four_cameras_against_their_pairs(ImageFormat::WEBCAM, 0.06, Some(0.7));
 }
 
 #[test]
 fn more_cameras_bad_input_gets_one_line() {
     let dir = tempdir();
     let d = dir.path();
-    step_session(d);
+    step_session(d, ImageFormat::Png);
     let err = crate::common::handcap_fails(d, &[&TRIANGULATE[..], &["--per-frame"]].concat(), 2);
     assert!(
         err.contains("--per-frame takes a pair's calibration"),
