@@ -251,11 +251,13 @@ fn projection(camera: &ReadCamera) -> Matrix3x4<f64> {
     Matrix3::from_row_slice(&camera.intrinsics.k) * rt
 }
 
-/// The dataset's header: the log's pressures, the tip, the cameras used and how sure it is.
-pub const HEADER: &str =
-    "step,P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm,sd_x_mm,sd_y_mm,sd_z_mm,n_cameras,cameras,left_out,chi2,n_frames";
+/// The dataset's columns before the log's other ones: the pressures, the tip, how sure it is
+/// and the cameras it used; the log's other columns (`step`, `phase`, …) follow, as a pair's
+/// dataset has them.
+pub const HEADER: &str = "P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm,sd_x_mm,sd_y_mm,sd_z_mm,n_cameras,cameras,left_out,chi2,n_frames";
 
-/// The rows of `found` as CSV (camera names joined by `+`).
+/// The rows of `found` as CSV (camera names joined by `+`), each followed by its log row's
+/// other columns.
 pub fn csv(found: &Found, cameras: &[ReadCamera], log: &PressureLog) -> String {
     use std::fmt::Write as _;
     let names = |list: &[usize]| -> String {
@@ -264,13 +266,17 @@ pub fn csv(found: &Found, cameras: &[ReadCamera], log: &PressureLog) -> String {
             .collect::<Vec<_>>()
             .join("+")
     };
-    let mut out = format!("{HEADER}\n");
+    let mut out = String::from(HEADER);
+    for column in &log.extra_columns {
+        let _ = write!(out, ",{column}");
+    }
+    out.push('\n');
     for t in &found.tips {
-        let [p1, p2, p3] = log.steps[t.step].pressures_kpa;
-        let _ = writeln!(
+        let step = &log.steps[t.step];
+        let [p1, p2, p3] = step.pressures_kpa;
+        let _ = write!(
             out,
-            "{},{p1},{p2},{p3},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{},{},{},{:.3},{}",
-            t.step,
+            "{p1},{p2},{p3},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{},{},{},{:.3},{}",
             t.tip_mm.x,
             t.tip_mm.y,
             t.tip_mm.z,
@@ -283,6 +289,10 @@ pub fn csv(found: &Found, cameras: &[ReadCamera], log: &PressureLog) -> String {
             t.chi2,
             t.frames
         );
+        for value in &step.extra {
+            let _ = write!(out, ",{value}");
+        }
+        out.push('\n');
     }
     out
 }
