@@ -363,7 +363,7 @@ fn handcap(d: &Path, args: &[&str]) -> String {
 
 /// A step session of the virtual finger filmed by the four cameras of the arc, two frames a
 /// camera in each held step (PNG), the bead hidden from camera `1 + k % 4` by a passing rod in
-/// the steps [`HIDDEN`] and from cam2 in the steps [`MISLED`], which see a red push-pin instead; `dir/cal.toml` the true rig (the first camera's frame the world, the hand
+/// the steps [`HIDDEN`] and from cam2 in the steps [`MISLED`], which see a red push-pin instead; `dir/truth.toml` the true rig (the first camera's frame the world, the hand
 /// axes from the truth). The true tips (hand frame, from rest), one per step.
 fn step_session(d: &Path, format: ImageFormat) -> Vec<[f64; 3]> {
     use handcap::calib::file::{cameras_toml, AniposeCamera};
@@ -387,7 +387,7 @@ fn step_session(d: &Path, format: ImageFormat) -> Vec<[f64; 3]> {
         .collect();
     write(
         d,
-        "cal.toml",
+        "truth.toml",
         &cameras_toml(&rig, 0.1, Some(first.rotation.inverse())),
     );
     let mut rng = ChaCha8Rng::seed_from_u64(11);
@@ -477,7 +477,7 @@ const TRIANGULATE: [&str; 6] = [
     "triangulate",
     "frames",
     "--calib",
-    "cal.toml",
+    "truth.toml",
     "--pressures",
     "pressures.csv",
 ];
@@ -549,7 +549,7 @@ fn four_cameras_against_their_pairs(
     assert!(rms < max_rms, "tip RMS {rms:.4} mm");
     // Each pair of the same cameras alone: a pair loses the steps one of its cameras does not
     // see.
-    let doc: toml::Table = std::fs::read_to_string(d.join("cal.toml"))
+    let doc: toml::Table = std::fs::read_to_string(d.join("truth.toml"))
         .unwrap()
         .parse()
         .unwrap();
@@ -643,7 +643,7 @@ fn more_cameras_bad_input_gets_one_line() {
         "{err}"
     );
     // Anipose's own file has no hand axes.
-    let text = std::fs::read_to_string(d.join("cal.toml")).unwrap();
+    let text = std::fs::read_to_string(d.join("truth.toml")).unwrap();
     let mut doc: toml::Table = text.parse().unwrap();
     doc["metadata"]
         .as_table_mut()
@@ -681,4 +681,36 @@ fn tip_rms(path: &Path, truth: &[[f64; 3]], only: Option<&[String]>) -> (usize, 
         })
         .sum();
     (rows.len(), (sum / rows.len() as f64).sqrt())
+}
+
+/// The whole of it with four cameras: `handcap calibrate` on the arc's rendered board views,
+/// then `handcap triangulate` with that calibration on the step session, against the truth.
+#[test]
+fn four_cameras_calibrated_by_handcap_find_the_tips_of_the_truth() {
+    let dir = tempdir();
+    let d = dir.path();
+    std::fs::create_dir_all(d.join("calib")).unwrap();
+    render(&d.join("calib"));
+    handcap_ok(d, &["calibrate", "calib", "--out", "cal.yml"]);
+    let truth = step_session(d, ImageFormat::WEBCAM);
+    let args = ["triangulate", "frames", "--calib", "cal.toml"];
+    let said = handcap_ok(
+        d,
+        &[
+            &args[..],
+            &["--pressures", "pressures.csv", "--out", "dataset.csv"],
+        ]
+        .concat(),
+    );
+    let (steps, rms) = tip_rms(&d.join("dataset.csv"), &truth, None);
+    let (_, true_rig) = {
+        handcap_ok(d, &[&TRIANGULATE[..], &["--out", "true_rig.csv"]].concat());
+        tip_rms(&d.join("true_rig.csv"), &truth, None)
+    };
+    eprintln!("{said}calibrated: {rms:.6} mm over {steps} steps; the true rig: {true_rig:.6} mm");
+    assert_eq!(steps, truth.len(), "{said}");
+    assert!(
+        rms < 0.06,
+        "tip RMS {rms:.4} mm with the calibration, {true_rig:.4} with the true rig"
+    );
 }
