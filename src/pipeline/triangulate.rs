@@ -457,7 +457,9 @@ pub struct TriangulatedCameras {
 ///
 /// # Errors
 /// [`PipelineError`]: unreadable inputs, a calibration without the hand frame's axes, no step
-/// at rest with a tip, `out` naming an input, or a file that cannot be written.
+/// at rest with a tip, `out` naming an input, or a file that cannot be written;
+/// [`PipelineError::Interrupted`] after writing the steps of the frames examined before
+/// Ctrl-C.
 pub fn run_cameras(
     frames: &Path,
     calib: &Path,
@@ -489,11 +491,18 @@ pub fn run_cameras(
         &log,
         options,
         &session.counter(Task::Frames),
+        session.interrupt,
     );
     session.emit(super::Event::Finished(Task::Frames));
     let found = result.map_err(|e| PipelineError::Place(e.to_string()))?;
     let text = triangulate::cameras::csv(&found, &cameras, &log);
     crate::fsio::write_bytes(out, text.as_bytes()).map_err(io_error(out))?;
+    if found.interrupted {
+        return Err(PipelineError::Interrupted(format!(
+            "interrupted: {} holds the steps of the frames examined before Ctrl-C; run again for all of them",
+            out.display()
+        )));
+    }
     Ok(TriangulatedCameras {
         found,
         not_calibrated,
@@ -524,6 +533,13 @@ impl fmt::Display for TriangulatedCameras {
             found.steps_unseen,
             found.steps_inconsistent
         )?;
+        if let Some(why) = &found.unreadable {
+            writeln!(
+                f,
+                "{} frames unreadable, left out; the first: {why}",
+                found.frames_unreadable
+            )?;
+        }
         for (name, n) in &self.not_calibrated {
             writeln!(
                 f,

@@ -95,6 +95,15 @@ pub fn read_frames(
     Ok((out, other))
 }
 
+/// What one frame in a step showed.
+enum Seen {
+    Bead([f64; 2]),
+    /// No candidate, or several.
+    NotOne,
+    Unreadable(String),
+    NotExamined,
+}
+
 /// A step's tip.
 #[derive(Clone, Debug)]
 pub struct StepTip {
@@ -118,6 +127,11 @@ pub struct Found {
     /// Frames in a settled step, and of those without one marker (none, or several).
     pub frames_in_steps: usize,
     pub frames_without_marker: usize,
+    /// Frames in a settled step whose image could not be read, and the first one's reason.
+    pub frames_unreadable: usize,
+    pub unreadable: Option<String>,
+    /// Ctrl-C came before every frame was examined.
+    pub interrupted: bool,
     /// Steps seen by fewer than two cameras, and steps whose views no two agreed on.
     pub steps_unseen: usize,
     pub steps_inconsistent: usize,
@@ -135,7 +149,8 @@ pub enum CamerasError {
 }
 
 /// The tips of `frames` in `log`'s steps (module docs), in the hand frame whose axes are
-/// `hand` (world → hand); `progress(done, total)` counts frames examined.
+/// `hand` (world → hand); `progress(done, total)` counts frames examined; once `interrupt` is
+/// set, the frames not yet examined are left out (and `interrupted` said).
 ///
 /// # Errors
 /// [`CamerasError::NoOrigin`].
@@ -146,39 +161,51 @@ pub fn triangulate(
     log: &PressureLog,
     options: &TriangulateOptions,
     progress: &(dyn Fn(usize, usize) + Sync),
+    interrupt: &std::sync::atomic::AtomicBool,
 ) -> Result<Found, CamerasError> {
     // 1. Each frame in a step, and its marker.
+    use std::sync::atomic::Ordering::{Relaxed, SeqCst};
     let done = std::sync::atomic::AtomicUsize::new(0);
-    let seen: Vec<Option<(usize, Option<[f64; 2]>)>> = frames
+    let seen: Vec<Option<(usize, Seen)>> = frames
         .par_iter()
         .map(|f| {
-            let n = done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1;
-            progress(n, frames.len());
             let Placement::Step(k) = pairing::place(log, f.time_s, f.time_s, options.settle_s, 0.0)
             else {
                 return None;
             };
-            let centre = crate::image::decode(&f.path).ok().and_then(|image| {
-                match &super::marker::find_markers(&image, &options.marker).blobs[..] {
-                    [one] => Some(one.centre_px),
-                    _ => None,
+            if interrupt.load(Relaxed) {
+                return Some((k, Seen::NotExamined));
+            }
+            let seen = match crate::image::decode(&f.path) {
+                Err(why) => Seen::Unreadable(format!("{}: {why}", f.path.display())),
+                Ok(image) => {
+                    match &super::marker::find_markers(&image, &options.marker).blobs[..] {
+                        [one] => Seen::Bead(one.centre_px),
+                        _ => Seen::NotOne,
+                    }
                 }
-            });
-            Some((k, centre))
+            };
+            progress(done.fetch_add(1, SeqCst) + 1, frames.len());
+            Some((k, seen))
         })
         .collect();
     let mut found = Found::default();
     // 2. Each camera's view of each step.
     let mut views: BTreeMap<usize, Vec<Vec<[f64; 2]>>> = BTreeMap::new();
-    for (f, seen) in frames.iter().zip(&seen) {
-        let Some((k, centre)) = seen else { continue };
+    for (f, seen) in frames.iter().zip(seen) {
+        let Some((k, seen)) = seen else { continue };
         found.frames_in_steps += 1;
         let step = views
-            .entry(*k)
+            .entry(k)
             .or_insert_with(|| vec![Vec::new(); cameras.len()]);
-        match centre {
-            Some(c) => step[f.camera].push(*c),
-            None => found.frames_without_marker += 1,
+        match seen {
+            Seen::Bead(c) => step[f.camera].push(c),
+            Seen::NotOne => found.frames_without_marker += 1,
+            Seen::Unreadable(why) => {
+                found.unreadable.get_or_insert(why);
+                found.frames_unreadable += 1;
+            }
+            Seen::NotExamined => found.interrupted = true,
         }
     }
     // 3. Each step's tip in the world.

@@ -642,6 +642,19 @@ fn more_cameras_bad_input_gets_one_line() {
         err.contains("--per-frame takes a pair's calibration"),
         "{err}"
     );
+    // A frame that cannot be read is left out, counted and named; the step keeps its tip.
+    std::fs::write(d.join("frames/cam1_00010.png"), b"not a png").unwrap();
+    let said = handcap_ok(d, &[&TRIANGULATE[..], &["--out", "broken.csv"]].concat());
+    assert!(
+        said.contains("1 frames unreadable, left out; the first:")
+            && said.contains("cam1_00010.png"),
+        "{said}"
+    );
+    assert_eq!(
+        crate::common::csv_rows(&d.join("broken.csv")).len(),
+        18,
+        "{said}"
+    );
     // Anipose's own file has no hand axes.
     let text = std::fs::read_to_string(d.join("truth.toml")).unwrap();
     let mut doc: toml::Table = text.parse().unwrap();
