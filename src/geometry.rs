@@ -16,7 +16,7 @@
 
 use std::marker::PhantomData;
 
-use nalgebra::{Matrix3, Point3, Rotation3, Vector3};
+use nalgebra::{Matrix3, Matrix3x4, Point3, Rotation3, Vector3};
 
 /// The coordinate frames, as types without values.
 pub mod frame {
@@ -131,6 +131,16 @@ impl CamFromWorld {
 pub fn relative<A, B, From>(a: &Transform<A, From>, b: &Transform<B, From>) -> Transform<B, A> {
     let rotation = b.rotation * a.rotation.inverse();
     Transform::new(rotation, b.translation - rotation * a.translation)
+}
+
+/// K [R | t]: world points to the undistorted pixels of a camera with intrinsics `camera` and
+/// pose `pose` (the projection a calibration's K and undistorted points describe).
+pub fn projection(camera: &Intrinsics, pose: &CamFromWorld) -> Matrix3x4<f64> {
+    let mut rt = Matrix3x4::zeros();
+    rt.fixed_view_mut::<3, 3>(0, 0)
+        .copy_from(pose.rotation.matrix());
+    rt.set_column(3, &pose.translation);
+    Matrix3::from_row_slice(&camera.k) * rt
 }
 
 /// A rotation's matrix, row-major.

@@ -15,14 +15,12 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use nalgebra::Rotation3;
-use opencv::prelude::*;
-use rayon::prelude::*;
 
 use super::checks::hand_from;
 use super::detect::{self, read_all, Seen};
 use super::fit::single_camera;
 use super::graph::{self, CameraPose, GraphError, Sighting};
-use super::{BoardSpec, CalibError, View};
+use super::{BoardSpec, CalibError, Found, View};
 use crate::cv::{fixed, values};
 use crate::geometry::Intrinsics;
 
@@ -107,9 +105,6 @@ pub struct GraphCalibration {
     pub implausible: Vec<String>,
 }
 
-/// An image's size and the board's corners in it, if found.
-type Found = ([i32; 2], Option<Seen>);
-
 /// Step 1: the board in every image of `paths`; an error naming the board and the folder when
 /// it is in none.
 fn find_boards(
@@ -120,16 +115,7 @@ fn find_boards(
 ) -> Result<Vec<Found>, CalibError> {
     let grays = read_all(paths)?;
     let done = std::sync::atomic::AtomicUsize::new(0);
-    let found: Vec<Found> = grays
-        .par_iter()
-        .map(|gray| {
-            let size = gray.size()?;
-            let seen = detect::find_board(gray, board, board.first_detector())?;
-            let n = done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1;
-            progress(n, grays.len());
-            Ok(([size.width, size.height], seen))
-        })
-        .collect::<Result<_, CalibError>>()?;
+    let found = detect::find_all(&grays, board, board.first_detector(), &done, progress)?;
     if found.iter().all(|f| f.1.is_none()) {
         return Err(CalibError::BoardNotFound {
             dir: dir.to_path_buf(),
@@ -141,8 +127,15 @@ fn find_boards(
     Ok(found)
 }
 
-/// A camera's size, intrinsics (from its own views), their RMS (px), its views and images.
-type Own = ([i32; 2], Intrinsics, f64, usize, usize);
+/// A camera's own calibration: its images' size, its intrinsics from its own views and their
+/// reprojection RMS (px), its images with the board found, of all its images.
+struct Own {
+    size: [i32; 2],
+    intrinsics: Intrinsics,
+    rms_px: f64,
+    views: usize,
+    images: usize,
+}
 
 /// Step 2 for camera `name`, whose images and what was found in them are `images`.
 fn own_intrinsics(
@@ -176,7 +169,13 @@ fn own_intrinsics(
         k: fixed(&k)?,
         dist: values(&d)?,
     };
-    Ok((size, intrinsics, rms, seen.len(), images.len()))
+    Ok(Own {
+        size,
+        intrinsics,
+        rms_px: rms,
+        views: seen.len(),
+        images: images.len(),
+    })
 }
 
 /// Calibrates the cameras of `listing` (module docs); `progress(done, total)` counts images
@@ -227,7 +226,7 @@ pub fn calibrate(
             })
         })
         .collect();
-    let intrinsics: Vec<Intrinsics> = cameras.iter().map(|c| c.1.clone()).collect();
+    let intrinsics: Vec<Intrinsics> = cameras.iter().map(|c| c.intrinsics.clone()).collect();
     let graph = graph::calibrate(board, &intrinsics, graph::Intrinsic::Refined, &sightings)
         .map_err(|e| match e {
             GraphError::Untied { camera } => CalibError::Untied {
@@ -244,15 +243,15 @@ pub fn calibrate(
             Some(hand_from(pose.rotation)),
             "from the reference board (*_ref): board x = hand x, board y = hand -z, board z = hand +y".into(),
         ),
-        (Some(_), None) => (None, "the reference board was found in fewer than two cameras".into()),
+        (Some(_), None) => (None, "the reference board was found in no camera's image".into()),
         (None, _) => (None, format!("no reference board (<camera>_{REFERENCE} images)")),
     };
     let limit = super::gates::MAX_RMS_PX;
     let mut implausible: Vec<String> = names
         .iter()
         .zip(&cameras)
-        .filter(|(_, own)| super::gates::exceeds(own.2, limit))
-        .map(|(name, own)| format!("camera {name}'s own views reproject at {:.2} px (above {limit} px): a blurred or moving board, or another camera's images among its own", own.2))
+        .filter(|(_, own)| super::gates::exceeds(own.rms_px, limit))
+        .map(|(name, own)| format!("camera {name}'s own views reproject at {:.2} px (above {limit} px): a blurred or moving board, or another camera's images among its own", own.rms_px))
         .collect();
     if super::gates::exceeds(graph.rms_px, limit) {
         implausible.push(format!("the cameras together reproject at {:.2} px (above {limit} px): views named with the same NN that were not taken at the same instant, or a camera moved between them", graph.rms_px));
@@ -264,12 +263,12 @@ pub fn calibrate(
             .iter()
             .zip(cameras)
             .zip(&graph.cameras)
-            .map(|((name, (size, _, rms, views, images)), pose)| CameraFit {
+            .map(|((name, own), pose)| CameraFit {
                 name: name.to_string(),
-                size,
-                intrinsics_rms_px: rms,
-                views,
-                images,
+                size: own.size,
+                intrinsics_rms_px: own.rms_px,
+                views: own.views,
+                images: own.images,
                 pose: pose.clone(),
             })
             .collect(),

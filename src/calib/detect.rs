@@ -221,6 +221,30 @@ pub fn find_corners(
     refine(gray, &mut corners, window).map(Some)
 }
 
+/// The board in every image of `grays` by `detector`, in parallel: each image's size and the
+/// corners found; `done` counts the images examined, reported as `progress(done, total)`.
+///
+/// # Errors
+/// An OpenCV failure.
+pub(super) fn find_all(
+    grays: &[Mat],
+    board: &BoardSpec,
+    detector: Detector,
+    done: &std::sync::atomic::AtomicUsize,
+    progress: &(dyn Fn(usize, usize) + Sync),
+) -> Result<Vec<super::Found>, CalibError> {
+    grays
+        .par_iter()
+        .map(|gray| {
+            let size = gray.size()?;
+            let corners = find_board(gray, board, detector)?;
+            let n = done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1;
+            progress(n, grays.len());
+            Ok(([size.width, size.height], corners))
+        })
+        .collect()
+}
+
 pub(super) fn read_all(images: &[&Path]) -> Result<Vec<Mat>, CalibError> {
     images.par_iter().map(|p| read_gray(p)).collect()
 }

@@ -29,11 +29,11 @@
 use std::collections::BTreeMap;
 
 use faer::linalg::solvers::{DenseSolveCore, Solve};
-use nalgebra::{Point3, Rotation3, Vector3};
+use nalgebra::{Point3, Vector3};
 
 use super::checks::board_pose;
 use super::detect::Seen;
-use super::uncertainty::{intrinsic_mut, intrinsic_step};
+use super::uncertainty::{intrinsic_mut, intrinsic_step, moved, stepped, POSE_STEP};
 use super::{BoardSpec, CalibError, View};
 use crate::geometry::{frame, CamFromBoard, CamFromWorld, Intrinsics, Transform, WorldFromBoard};
 use start::{starting_poses, transfer_cost};
@@ -96,7 +96,7 @@ pub struct Graph {
     pub reject_px: f64,
     /// Cameras sharing fewer than [`MIN_SHARED`] instants with the others.
     pub poorly_tied: Vec<usize>,
-    /// The board's pose at each instant two cameras or more saw it: (instant, pose).
+    /// The board's pose at each instant a camera saw it: (instant, pose).
     pub boards: Vec<(usize, WorldFromBoard)>,
 }
 
@@ -109,18 +109,8 @@ pub enum GraphError {
     Calib(#[from] CalibError),
 }
 
-/// A pose moved by δ = (ω, t): the rotation by exp(ω) on its right, the translation by t.
-fn stepped<To, From>(pose: &Transform<To, From>, delta: &[f64]) -> Transform<To, From> {
-    Transform::new(
-        pose.rotation * Rotation3::new(Vector3::new(delta[0], delta[1], delta[2])),
-        pose.translation + Vector3::new(delta[3], delta[4], delta[5]),
-    )
-}
-
 /// One camera's frame → another's.
 type CamFromCam = Transform<frame::Camera, frame::Camera>;
-
-const STEP: [f64; 6] = [1e-7, 1e-7, 1e-7, 1e-5, 1e-5, 1e-5];
 
 /// The problem: the sightings with their board corners, the instants, the corners left out.
 struct Problem<'a> {
@@ -185,7 +175,7 @@ impl State {
     fn step_of(unknown: Unknown) -> f64 {
         match unknown {
             Unknown::Intrinsic(i) => intrinsic_step(i),
-            Unknown::Camera(j) | Unknown::Board(j) => STEP[j],
+            Unknown::Camera(j) | Unknown::Board(j) => POSE_STEP[j],
         }
     }
 
@@ -233,12 +223,12 @@ impl Problem<'_> {
         }
     }
 
-    /// Sighting `s`'s residuals under `state`, with unknown `moved` (if any) moved by `h`.
+    /// Sighting `s`'s residuals under `state`, with `change`'s unknown (if any) moved by its `h`.
     fn residuals_of(
         &self,
         s: usize,
         state: &State,
-        moved: Option<(Unknown, f64)>,
+        change: Option<(Unknown, f64)>,
         out: &mut Vec<f64>,
     ) {
         let (sighting, _) = &self.sightings[s];
@@ -248,13 +238,11 @@ impl Problem<'_> {
             state.cameras[c],
             state.boards[self.board_index(sighting.instant)],
         );
-        let along =
-            |j: usize, h: f64| std::array::from_fn::<f64, 6, _>(|k| if k == j { h } else { 0.0 });
-        match moved {
+        match change {
             None => {}
             Some((Unknown::Intrinsic(i), h)) => *intrinsic_mut(intrinsics.to_mut(), i) += h,
-            Some((Unknown::Camera(j), h)) => camera = stepped(&camera, &along(j, h)),
-            Some((Unknown::Board(j), h)) => board = stepped(&board, &along(j, h)),
+            Some((Unknown::Camera(j), h)) => camera = moved(&camera, j, h),
+            Some((Unknown::Board(j), h)) => board = moved(&board, j, h),
         }
         self.residuals(s, (&intrinsics, &camera, &board), out);
     }
@@ -416,7 +404,7 @@ pub fn calibrate(
     for (i, s) in used.iter().enumerate() {
         by_instant.entry(s.instant).or_default().push(i);
     }
-    let problem = Problem {
+    let mut problem = Problem {
         sightings: by_instant
             .values()
             .flatten()
@@ -446,7 +434,6 @@ pub fn calibrate(
         Intrinsic::Refined => 9,
         Intrinsic::Given => 0,
     };
-    let mut problem = problem;
     let state = problem.refine(start);
     problem.reject_px = REJECT_SIGMAS * problem.pixel_noise(&state);
     let state = problem.refine(state);
@@ -534,8 +521,8 @@ fn position_covariance(pose: &CamFromWorld, cov: impl Fn(usize, usize) -> f64) -
     let columns: Vec<Vector3<f64>> = (0..6)
         .map(|j| {
             let mut delta = [0.0; 6];
-            delta[j] = STEP[j];
-            (centre(&stepped(pose, &delta)) - base) / STEP[j]
+            delta[j] = POSE_STEP[j];
+            (centre(&stepped(pose, &delta)) - base) / POSE_STEP[j]
         })
         .collect();
     std::array::from_fn(|k| {

@@ -5,7 +5,6 @@
 use std::path::Path;
 
 use nalgebra::Rotation3;
-use opencv::prelude::*;
 use rayon::prelude::*;
 
 use super::checks::{board_pose, hand_axes};
@@ -29,18 +28,7 @@ pub(super) fn detect_boards(
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<(Detector, Vec<Found>), CalibError> {
     let done = std::sync::atomic::AtomicUsize::new(0);
-    let detect_all = |detector: Detector| -> Result<Vec<Found>, CalibError> {
-        grays
-            .par_iter()
-            .map(|gray| {
-                let size = gray.size()?;
-                let corners = detect::find_board(gray, board, detector)?;
-                let n = done.fetch_add(1, std::sync::atomic::Ordering::SeqCst) + 1;
-                progress(n, grays.len());
-                Ok(([size.width, size.height], corners))
-            })
-            .collect()
-    };
+    let detect_all = |detector: Detector| detect::find_all(grays, board, detector, &done, progress);
     let complete = |found: &[Found]| {
         found[..2 * listing.pairs.len()]
             .chunks(2)

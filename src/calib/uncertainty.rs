@@ -34,7 +34,7 @@ use serde::Serialize;
 
 use super::checks::board_pose;
 use super::{BoardSpec, CalibError, PairCorners};
-use crate::geometry::{CamFromBoard, Intrinsics, RightFromLeft};
+use crate::geometry::{CamFromBoard, Intrinsics, RightFromLeft, Transform};
 use crate::stereo::StereoRig;
 
 /// The intrinsic parameters, in the order of [`ParameterSd::intrinsics`].
@@ -212,22 +212,24 @@ enum Slot {
     Translation(usize),
 }
 
-/// A board pose moved by `h` along pose parameter `j` (ω then t, board axes).
-fn moved_pose(pose: &CamFromBoard, j: usize, h: f64) -> CamFromBoard {
-    let mut delta = Vector6::zeros();
-    delta[j] = h;
-    step_pose(pose, &delta)
-}
-
-fn step_pose(pose: &CamFromBoard, delta: &Vector6<f64>) -> CamFromBoard {
-    let w = Vector3::new(delta[0], delta[1], delta[2]);
-    CamFromBoard::new(
-        pose.rotation * Rotation3::new(w),
+/// A pose moved by δ = (ω, t): its rotation by exp(ω) on its right (about its own `From`
+/// axes), its translation by t. The pose steps of every least-squares fit of poses here.
+pub(super) fn stepped<To, From>(pose: &Transform<To, From>, delta: &[f64]) -> Transform<To, From> {
+    Transform::new(
+        pose.rotation * Rotation3::new(Vector3::new(delta[0], delta[1], delta[2])),
         pose.translation + Vector3::new(delta[3], delta[4], delta[5]),
     )
 }
 
-const POSE_STEP: [f64; 6] = [1e-7, 1e-7, 1e-7, 1e-5, 1e-5, 1e-5];
+/// A pose moved by `h` along its parameter `j` (ω then t, as [`stepped`]).
+pub(super) fn moved<To, From>(pose: &Transform<To, From>, j: usize, h: f64) -> Transform<To, From> {
+    let mut delta = [0.0; 6];
+    delta[j] = h;
+    stepped(pose, &delta)
+}
+
+/// The steps of central differences along a pose's parameters (rad, mm).
+pub(super) const POSE_STEP: [f64; 6] = [1e-7, 1e-7, 1e-7, 1e-5, 1e-5, 1e-5];
 
 /// Each view's board pose in the left camera: `solvePnP` on the left corners, then Gauss-Newton
 /// on both images' corners with the cameras as calibrated.
@@ -254,9 +256,9 @@ pub fn board_poses(
                 let columns: Vec<Vec<f64>> = (0..6)
                     .map(|j| {
                         let h = POSE_STEP[j];
-                        params.residuals(&object, &moved_pose(&pose, j, h), [l, r], &mut r1);
+                        params.residuals(&object, &moved(&pose, j, h), [l, r], &mut r1);
                         let plus = r1.clone();
-                        params.residuals(&object, &moved_pose(&pose, j, -h), [l, r], &mut r1);
+                        params.residuals(&object, &moved(&pose, j, -h), [l, r], &mut r1);
                         plus.iter()
                             .zip(&r1)
                             .map(|(a, b)| (a - b) / (2.0 * h))
@@ -272,7 +274,7 @@ pub fn board_poses(
                 let Some(step) = jtj.cholesky().map(|c| c.solve(&(-jtr))) else {
                     break;
                 };
-                pose = step_pose(&pose, &step);
+                pose = stepped(&pose, step.as_slice());
                 if step.norm() < 1e-10 {
                     break;
                 }
@@ -345,8 +347,8 @@ pub fn estimate(
             column(j, &plus, &minus, h);
         }
         for (j, &h) in POSE_STEP.iter().enumerate() {
-            params.residuals(&object, &moved_pose(pose, j, h), corners, &mut plus);
-            params.residuals(&object, &moved_pose(pose, j, -h), corners, &mut minus);
+            params.residuals(&object, &moved(pose, j, h), corners, &mut plus);
+            params.residuals(&object, &moved(pose, j, -h), corners, &mut minus);
             column(nc + 6 * v + j, &plus, &minus, h);
         }
     }

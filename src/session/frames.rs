@@ -33,6 +33,34 @@ pub struct FrameRecord {
 /// [`DataError::Input`](crate::data::DataError::Input) naming the file and line: unreadable file, missing column, a
 /// camera other than `left`/`right`, a bad number, a frame listed twice.
 pub fn read_frame_list(dir: &Path) -> Result<Vec<FrameRecord>, SessionError> {
+    let rows = read_frame_rows(dir, |name| match name {
+        "left" => Ok(Some(Side::Left)),
+        "right" => Ok(Some(Side::Right)),
+        other => Err(format!("camera {other:?}: use left or right")),
+    })?;
+    Ok(rows
+        .into_iter()
+        .map(|(camera, index, time_s, line)| FrameRecord {
+            camera,
+            index,
+            time_s,
+            line,
+            late_s: None,
+        })
+        .collect())
+}
+
+/// The rows of `dir/frames.csv` as (camera, frame number, time, line), each row's camera
+/// named by `camera` from the row's name (`Ok(None)`: a row to leave out; `Err(message)`: the
+/// row refused), its numbers checked, a camera's frame listed twice refused, and at least one
+/// row kept.
+///
+/// # Errors
+/// [`DataError::Input`](crate::data::DataError::Input) naming the file and line.
+pub fn read_frame_rows<C: Copy + Eq + std::hash::Hash>(
+    dir: &Path,
+    camera: impl Fn(&str) -> Result<Option<C>, String>,
+) -> Result<Vec<(C, usize, f64, u64)>, SessionError> {
     let table = Table::open(&dir.join("frames.csv"), "frame,camera,time_s")?;
     let (c_frame, c_camera, c_time) = (
         table.column("frame")?,
@@ -42,10 +70,11 @@ pub fn read_frame_list(dir: &Path) -> Result<Vec<FrameRecord>, SessionError> {
     let mut out = Vec::new();
     let mut seen = HashSet::new();
     for (line, record) in table.records()? {
-        let camera = match &record[c_camera] {
-            "left" => Side::Left,
-            "right" => Side::Right,
-            other => return table.fail(line, format!("camera {other:?}: use left or right")),
+        let name = &record[c_camera];
+        let id = match camera(name) {
+            Ok(Some(id)) => id,
+            Ok(None) => continue,
+            Err(message) => return table.fail(line, message),
         };
         let index: usize = record[c_frame].parse().map_err(|_| {
             table.bad(
@@ -63,19 +92,10 @@ pub fn read_frame_list(dir: &Path) -> Result<Vec<FrameRecord>, SessionError> {
                     format!("time_s {:?} is not a number", &record[c_time]),
                 )
             })?;
-        if !seen.insert((camera, index)) {
-            return table.fail(
-                line,
-                format!("{} frame {index} is listed twice", camera.name()),
-            );
+        if !seen.insert((id, index)) {
+            return table.fail(line, format!("{name} frame {index} is listed twice"));
         }
-        out.push(FrameRecord {
-            camera,
-            index,
-            time_s,
-            line,
-            late_s: None,
-        });
+        out.push((id, index, time_s, line));
     }
     if out.is_empty() {
         return table.fail(1, "no frames listed".into());

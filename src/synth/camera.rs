@@ -41,11 +41,7 @@ impl Camera {
     /// K [R | t]: world points to undistorted pixels (the projection a calibration's K and
     /// undistorted points describe).
     pub fn projection(&self) -> Matrix3x4<f64> {
-        let mut rt = Matrix3x4::zeros();
-        rt.fixed_view_mut::<3, 3>(0, 0)
-            .copy_from(self.pose.rotation.matrix());
-        rt.set_column(3, &self.pose.translation);
-        Matrix3::from_row_slice(&self.intrinsics.k) * rt
+        crate::geometry::projection(&self.intrinsics, &self.pose)
     }
 
     /// World-space direction (unit) of the ray through normalised coordinates (x, y).

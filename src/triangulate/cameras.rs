@@ -24,7 +24,7 @@ use super::nview::{self, View};
 use super::pairing::{self, Placement};
 use super::TriangulateOptions;
 use crate::calib::file::ReadCamera;
-use crate::data::Table;
+use crate::session::frames::read_frame_rows;
 use crate::session::pressures::PressureLog;
 use crate::session::SessionError;
 
@@ -44,55 +44,48 @@ pub struct Frame {
     pub path: PathBuf,
 }
 
-/// Reads `dir/frames.csv` for `cameras` (their names): every frame of a camera it names, and
-/// each one's image (`<camera>_<frame:05>.png`, `.jpg` or `.jpeg`); the frames of cameras the
+/// Reads `dir/frames.csv` for `cameras` (their names,
+/// [`crate::session::frames::read_frame_rows`]): every frame of a camera it names, and each
+/// one's image (`<camera>_<frame:05>.png`, `.jpg` or `.jpeg`); the frames of cameras the
 /// calibration does not have are counted by name, not read.
 ///
 /// # Errors
-/// [`SessionError`] naming the file and line: a bad number, a frame without its image.
+/// [`SessionError`] naming the file and line: a bad number, a frame listed twice, none listed
+/// for these cameras, a frame without its image.
 pub fn read_frames(
     dir: &Path,
     cameras: &[ReadCamera],
 ) -> Result<(Vec<Frame>, BTreeMap<String, usize>), SessionError> {
-    let table = Table::open(&dir.join("frames.csv"), "frame,camera,time_s")?;
-    let columns = [
-        table.column("frame")?,
-        table.column("camera")?,
-        table.column("time_s")?,
-    ];
-    let (mut out, mut other) = (Vec::new(), BTreeMap::new());
-    for (line, record) in table.records()? {
-        let [frame, name, time] = columns.map(|c| &record[c]);
-        let Some(camera) = cameras.iter().position(|c| c.name == name) else {
-            *other.entry(name.to_string()).or_default() += 1;
-            continue;
-        };
-        let index: usize = frame
-            .parse()
-            .map_err(|_| table.bad(line, format!("frame {frame:?} is not a frame number")))?;
-        let time_s = time
-            .parse()
-            .ok()
-            .filter(|t: &f64| t.is_finite())
-            .ok_or_else(|| table.bad(line, format!("time_s {time:?} is not a number")))?;
-        let path = ["png", "jpg", "jpeg"]
-            .iter()
-            .map(|ext| dir.join(format!("{name}_{index:05}.{ext}")))
-            .find(|p| p.exists())
-            .ok_or_else(|| {
-                table.bad(
+    let other = std::cell::RefCell::new(BTreeMap::new());
+    let rows = read_frame_rows(dir, |name| {
+        let camera = cameras.iter().position(|c| c.name == name);
+        if camera.is_none() {
+            *other.borrow_mut().entry(name.to_string()).or_default() += 1;
+        }
+        Ok(camera)
+    })?;
+    let frames = rows
+        .into_iter()
+        .map(|(camera, index, time_s, line)| {
+            let name = &cameras[camera].name;
+            let path = ["png", "jpg", "jpeg"]
+                .iter()
+                .map(|ext| dir.join(format!("{name}_{index:05}.{ext}")))
+                .find(|p| p.exists())
+                .ok_or_else(|| crate::data::DataError::Input {
+                    path: dir.join("frames.csv"),
                     line,
-                    format!("no image {name}_{index:05}.png (or .jpg) beside it"),
-                )
-            })?;
-        out.push(Frame {
-            camera,
-            index,
-            time_s,
-            path,
-        });
-    }
-    Ok((out, other))
+                    message: format!("no image {name}_{index:05}.png (or .jpg) beside it"),
+                })?;
+            Ok(Frame {
+                camera,
+                index,
+                time_s,
+                path,
+            })
+        })
+        .collect::<Result<_, SessionError>>()?;
+    Ok((frames, other.into_inner()))
 }
 
 /// What one frame in a step showed.
@@ -209,7 +202,10 @@ pub fn triangulate(
         }
     }
     // 3. Each step's tip in the world.
-    let projections: Vec<Matrix3x4<f64>> = cameras.iter().map(projection).collect();
+    let projections: Vec<Matrix3x4<f64>> = cameras
+        .iter()
+        .map(|c| crate::geometry::projection(&c.intrinsics, &c.pose))
+        .collect();
     let mut world: Vec<(usize, nview::Triangulated, usize)> = Vec::new();
     for (&k, by_camera) in &views {
         let mut given = Vec::new();
@@ -219,11 +215,11 @@ pub fn triangulate(
                 let mut v: Vec<f64> = centres.iter().map(|p| p[i]).collect();
                 crate::stats::median(&mut v).expect("a centre")
             };
-            let k_ = &cameras[c].intrinsics;
-            let (x, y) = k_.undistort(median(0), median(1));
+            let camera = &cameras[c].intrinsics;
+            let (x, y) = camera.undistort(median(0), median(1));
             given.push(View {
                 projection: projections[c],
-                px: [k_.fx() * x + k_.cx(), k_.fy() * y + k_.cy()],
+                px: [camera.fx() * x + camera.cx(), camera.fy() * y + camera.cy()],
                 sigma_px: BEAD_NOISE_PX,
             });
             which.push((c, centres.len()));
@@ -267,15 +263,6 @@ pub fn triangulate(
         })
         .collect();
     Ok(found)
-}
-
-/// K [R | t] of a camera: world points to undistorted pixels.
-fn projection(camera: &ReadCamera) -> Matrix3x4<f64> {
-    let mut rt = Matrix3x4::zeros();
-    rt.fixed_view_mut::<3, 3>(0, 0)
-        .copy_from(camera.pose.rotation.matrix());
-    rt.set_column(3, &camera.pose.translation);
-    Matrix3::from_row_slice(&camera.intrinsics.k) * rt
 }
 
 /// The dataset's columns before the log's other ones: the pressures, the tip, how sure it is

@@ -655,6 +655,13 @@ fn more_cameras_bad_input_gets_one_line() {
         18,
         "{said}"
     );
+    // A camera's frame listed twice: the line named, as a pair's frames.csv is read.
+    let listed = std::fs::read_to_string(d.join("frames/frames.csv")).unwrap();
+    let twice = format!("{listed}{}\n", listed.lines().nth(1).unwrap());
+    write(d, "frames/frames.csv", &twice);
+    let err = handcap_err(d, &[&TRIANGULATE[..], &["--out", "twice.csv"]].concat());
+    assert!(err.contains("frame 0 is listed twice"), "{err}");
+    write(d, "frames/frames.csv", &listed);
     // Anipose's own file has no hand axes.
     let text = std::fs::read_to_string(d.join("truth.toml")).unwrap();
     let mut doc: toml::Table = text.parse().unwrap();

@@ -10,14 +10,17 @@ use crate::calib::StereoCalibration;
 use crate::geometry::{rotation_from_rows, rotation_rows, Intrinsics, RightFromLeft};
 use crate::stereo::{StereoError, StereoRig};
 
+/// A row-major matrix of `cols` columns as a list of its rows.
+fn rows(m: &[f64], cols: usize) -> Vec<Vec<f64>> {
+    m.chunks(cols).map(<[f64]>::to_vec).collect()
+}
+
 /// The cameras and the hand axes as JSON, for tools that read JSON rather than OpenCV YAML
 /// (Python's `json` + `numpy.array`, MATLAB's `jsondecode`, JavaScript): the YAML's keys and
 /// meanings, matrices as lists of rows. What [`super::read_calibration`] needs (`image_size`, `K1`,
 /// `D1`, `K2`, `D2`, `R`, `T`, `R_hand` when known) and the derived matrices (`E`, `F`,
 /// `R1`, `R2`, `P1`, `P2`, `Q`) and quality (`rms_px`, `epipolar_px`).
 pub fn calibration_json(cal: &StereoCalibration) -> String {
-    let rows =
-        |m: &[f64], cols: usize| -> Vec<Vec<f64>> { m.chunks(cols).map(<[f64]>::to_vec).collect() };
     let rig = &cal.rig;
     let mut doc = serde_json::json!({
         "format": "handcap stereo calibration: the keys of calib.yml, matrices as rows; lengths in mm, image coordinates in px",
@@ -69,7 +72,6 @@ pub fn calibration_json(cal: &StereoCalibration) -> String {
 /// `outliers`, `reject_px`, `poorly_tied`, `R_hand` (world → hand frame rows) when known, and
 /// `forced`: the gates it failed, when `--force` wrote it.
 pub fn cameras_json(cal: &crate::calib::cameras::GraphCalibration) -> String {
-    let rows = |m: &[f64]| -> Vec<Vec<f64>> { m.chunks(3).map(<[f64]>::to_vec).collect() };
     let cameras: Vec<serde_json::Value> = cal
         .cameras
         .iter()
@@ -78,9 +80,9 @@ pub fn cameras_json(cal: &crate::calib::cameras::GraphCalibration) -> String {
             serde_json::json!({
                 "name": c.name,
                 "image_size": c.size,
-                "K": rows(&pose.intrinsics.k),
+                "K": rows(&pose.intrinsics.k, 3),
                 "D": pose.intrinsics.dist,
-                "R": rows(&pose.cam_from_world.rotation_rows()),
+                "R": rows(&pose.cam_from_world.rotation_rows(), 3),
                 "T": pose.cam_from_world.translation_array(),
                 "rotation_sd_deg": pose.rotation_sd_deg,
                 "position_sd_mm": pose.position_sd_mm,
@@ -102,7 +104,7 @@ pub fn cameras_json(cal: &crate::calib::cameras::GraphCalibration) -> String {
         "hand_axes_note": cal.hand_axes_note,
     });
     if let Some(axes) = &cal.hand_axes {
-        doc["R_hand"] = serde_json::json!(rows(&rotation_rows(axes)));
+        doc["R_hand"] = serde_json::json!(rows(&rotation_rows(axes), 3));
     }
     if !cal.implausible.is_empty() {
         doc["forced"] = serde_json::json!(cal.implausible);
