@@ -20,18 +20,18 @@ fn bench(c: &mut Criterion) {
     let rig = RigConfig::default().build(2020);
     let views = [
         View::new(
-            rig.left.clone(),
+            rig.left().clone(),
             Lighting::from_seed(1),
             Surroundings::default(),
         ),
         View::new(
-            rig.right.clone(),
+            rig.right().clone(),
             Lighting::from_seed(2),
             Surroundings::default(),
         ),
     ];
     let aim = Point3::new(0.0, 0.0, 8.0);
-    let toward = (aim - rig.left.pose.centre()).normalize();
+    let toward = (aim - rig.left().pose.centre()).normalize();
     let x = Vector3::x();
     let y = toward.cross(&x);
     let rotation =

@@ -47,7 +47,7 @@ fn bench(c: &mut Criterion) {
     let kept = std::env::var_os("HANDCAP_BENCH_FRAMES").map(PathBuf::from);
     let base = kept.as_deref().unwrap_or(dir.path());
     std::fs::create_dir_all(base).unwrap();
-    let files: Vec<PathBuf> = [(&rig.left, "left"), (&rig.right, "right")]
+    let files: Vec<PathBuf> = [(rig.left(), "left"), (rig.right(), "right")]
         .iter()
         .enumerate()
         .map(|(k, (cam, name))| {

@@ -27,6 +27,12 @@ pub enum Side {
     Right,
 }
 
+impl AsRef<str> for Side {
+    fn as_ref(&self) -> &str {
+        self.name()
+    }
+}
+
 impl Side {
     /// `left` or `right`, as in file names.
     pub fn name(self) -> &'static str {

@@ -42,12 +42,16 @@ pub struct Args {
     #[arg(long, default_value_t = 10.0)]
     sweep_step_kpa: f64,
     /// Board pairs to render for calibration (of a ChArUco board, every other one partly out
-    /// of view)
+    /// of view); with more cameras, the board views each camera gets
     #[arg(long, default_value_t = crate::synth::capture::VIEWS)]
     views: usize,
     #[command(flatten)]
     board: super::board::BoardArgs,
-    /// Distance between the two cameras (mm)
+    /// How many cameras: 2, a stereo pair; 3 to 8 stand on an arc around the finger, 30° apart,
+    /// named cam1 … camN, each seeing its share of the board views, the two ends none together
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u8).range(2..=8))]
+    cameras: u8,
+    /// Distance between the two cameras of a pair (mm)
     #[arg(long, default_value_t = RigConfig::default().baseline_mm)]
     baseline_mm: f64,
     /// Distance from the cameras to the finger's tip region (mm)
@@ -175,6 +179,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             ms.map(|ms| ms / 1e3)
         });
     let played = a.protocol.as_deref().map(protocol::read).transpose()?;
+    if a.no_images && a.cameras != 2 {
+        super::usage!("--cameras renders the cameras' images: drop --no-images");
+    }
     if a.no_images && (a.dynamic || played.is_some()) {
         let steps = match played {
             Some(steps) => steps,
@@ -191,14 +198,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 &provenance,
             )
         });
-        let w = written.with_context(|| format!("synth into {}", a.out.display()))?;
-        println!(
-            "wrote {} ({} rows, one per frame at {} fps, no images; {} frames fixed no point) and the true tips {}",
-            w.session.display(),
-            w.rows,
-            quick::FPS,
-            w.unseen,
-            w.truth.display()
+        print!(
+            "{}",
+            written.with_context(|| format!("synth into {}", a.out.display()))?
         );
         return Ok(());
     }
@@ -212,6 +214,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             width: a.width,
             height: a.height,
             fov_diag_deg: a.fov_deg,
+            cameras: a.cameras.into(),
             ..RigConfig::default()
         },
         views: a.views,

@@ -135,11 +135,11 @@ fn picture(
     tip_mm: [f64; 3],
 ) -> Vec<u8> {
     let (c, side, n) = (&config.capture, shot.side, shot.n);
-    let mut canvas = finger_frame(view, c, config.seed, (side, n), poses, tip_mm);
+    let mut canvas = finger_frame(view, c, config.seed, (side as usize, n), poses, tip_mm);
     if let Some((at, share)) = shot.lamp {
         light(&mut canvas, at, share);
     }
-    let gain = exposure_gain(c, side, shot.exposure_s);
+    let gain = exposure_gain(c, side as usize, shot.exposure_s);
     let size = [canvas.width as u32, canvas.height as u32];
     let rgb = canvas.develop(gain, config.seed, (n as u64) << 1 | side as u64);
     view.recycle(canvas);

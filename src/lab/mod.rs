@@ -363,7 +363,10 @@ fn cameras_views(
         .collect::<Result<Vec<_>, _>>()
         .map_err(|e| LabError::Settings(e.to_string()))?;
     let realism = &config.capture.realism;
-    let views = crate::synth::capture::views(rig, config.seed, realism, timeline.plant(), &tips);
+    let views: [View; 2] =
+        crate::synth::capture::views(rig, config.seed, realism, timeline.plant(), &tips)
+            .try_into()
+            .map_err(|_| LabError::Settings("the lab films with two cameras".into()))?;
     let knocked = crate::synth::capture::knocked_view(rig, config.seed, realism, timeline, &tips);
     Ok((views, knocked))
 }

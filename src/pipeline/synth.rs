@@ -106,19 +106,32 @@ impl fmt::Display for Synthesized {
             return Ok(());
         };
         let out = self.out.display();
-        if c.board_pairs > 0 {
+        let (boards, reference) = if c.cameras.len() == 2 {
+            ("board pairs", "the reference pair")
+        } else {
+            ("board poses", "the reference")
+        };
+        if c.boards > 0 {
             write!(
                 f,
-                "wrote {out}/calib/ ({} board pairs + the reference pair), {out}/frames/",
-                c.board_pairs
+                "wrote {out}/calib/ ({} {boards} + {reference}), {out}/frames/",
+                c.boards
             )?;
         } else {
             write!(f, "wrote {out}/frames/")?;
         }
+        let frames: Vec<String> = c
+            .cameras
+            .iter()
+            .zip(&c.frames)
+            .map(|(name, n)| format!("{n} {name}"))
+            .collect();
         writeln!(
             f,
-            " ({} left, {} right frames over {} pressure steps), pressures.csv, truth/ in {:.1} s",
-            c.left_frames, c.right_frames, c.steps, self.seconds
+            " ({} frames over {} pressure steps), pressures.csv, truth/ in {:.1} s",
+            frames.join(", "),
+            c.steps,
+            self.seconds
         )
     }
 }

@@ -549,8 +549,8 @@ impl fmt::Display for TriangulatedCameras {
         let left_out = found.tips.iter().filter(|t| !t.left_out.is_empty()).count();
         writeln!(
             f,
-            "{} of {} frames in settled steps without one marker; {left_out} steps with a camera left out by the gate; origin from {} steps at rest",
-            found.frames_without_marker, found.frames_in_steps, found.rest_steps
+            "{} of {} frames in settled steps without a marker, {} with several candidates (the one the cameras agree on kept); {left_out} steps with a camera left out by the gate; origin from {} steps at rest",
+            found.frames_without_marker, found.frames_in_steps, found.frames_with_several, found.rest_steps
         )
     }
 }

@@ -104,7 +104,7 @@ pub fn read_frame_rows<C: Copy + Eq + std::hash::Hash>(
 }
 
 /// `frames.csv` of `rows` (camera, frame number, time in s), in the order given.
-pub fn frames_csv(rows: impl IntoIterator<Item = (Side, usize, f64)>) -> String {
+pub fn frames_csv<C: AsRef<str>>(rows: impl IntoIterator<Item = (C, usize, f64)>) -> String {
     let mut csv = frames_table();
     frames_rows(&mut csv, rows);
     csv.into_string()
@@ -116,11 +116,11 @@ pub fn frames_table() -> Csv {
 }
 
 /// Adds `rows` to `frames.csv`.
-pub fn frames_rows(csv: &mut Csv, rows: impl IntoIterator<Item = (Side, usize, f64)>) {
-    for (side, index, time_s) in rows {
+pub fn frames_rows<C: AsRef<str>>(csv: &mut Csv, rows: impl IntoIterator<Item = (C, usize, f64)>) {
+    for (camera, index, time_s) in rows {
         csv.row([
             index.to_string(),
-            side.name().to_string(),
+            camera.as_ref().to_string(),
             format!("{time_s:.6}"),
         ]);
     }

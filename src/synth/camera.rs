@@ -1,4 +1,5 @@
-//! The virtual stereo rig: two OpenCV pinhole cameras with radial/tangential distortion.
+//! The virtual rig: two OpenCV pinhole cameras with radial/tangential distortion (a stereo
+//! pair), or more on an arc around the finger.
 //!
 //! Conventions are OpenCV's: camera frame x right, y down, z forward; pixel (0, 0) is the
 //! centre of the top-left pixel; distortion coefficients (k1, k2, p1, p2, k3) act on normalised
@@ -15,6 +16,13 @@
 //! in view whichever way the finger bends. A seed varies the focal lengths (±1 %), principal
 //! points (±8 px), distortion (±15 %) and mounting (±2 mm, ±1°) of each camera, as two units of
 //! one webcam model and a hand-built rig differ.
+//!
+//! # More cameras
+//!
+//! Three or more cameras ([`RigConfig::cameras`]), named `cam1` … `camN`, stand on an arc
+//! around the hand's z axis, [`ARC_STEP_DEG`] apart and centred on the pair's direction (the
+//! hand's −y side), each at the pair's distance and elevation, turned towards the aim point,
+//! varied by the seed as the pair is.
 
 use nalgebra::{Matrix3, Matrix3x4, Point3, Rotation3, Unit, Vector3};
 
@@ -63,28 +71,54 @@ pub fn looking_at(eye: Point3<f64>, target: Point3<f64>, up: Vector3<f64>) -> Ca
     CamFromWorld::new(rotation, -(rotation * eye.coords))
 }
 
-/// The two cameras of a stereo pair.
+/// The rig's cameras: a stereo pair (`left`, `right`), or more (`cam1` … `camN`).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Rig {
-    pub left: Camera,
-    pub right: Camera,
+    pub cameras: Vec<Camera>,
 }
 
+/// Azimuth between neighbouring cameras of a rig of more than two (degrees).
+pub const ARC_STEP_DEG: f64 = 30.0;
+
 impl Rig {
+    /// The first camera (a pair's left).
+    pub fn left(&self) -> &Camera {
+        &self.cameras[0]
+    }
+
+    /// The second camera (a pair's right).
+    pub fn right(&self) -> &Camera {
+        &self.cameras[1]
+    }
+
+    /// The cameras' names, in order, as in file names.
+    pub fn names(&self) -> Vec<String> {
+        names(self.cameras.len())
+    }
+
     /// The right camera's pose relative to the left: p_right = R p_left + T (OpenCV's R, T).
     pub fn right_from_left(&self) -> RightFromLeft {
-        let between = relative(&self.left.pose, &self.right.pose);
+        let between = relative(&self.left().pose, &self.right().pose);
         RightFromLeft::new(between.rotation, between.translation)
     }
 
-    /// The rig as OpenCV describes it (what a perfect calibration would return).
+    /// The pair as OpenCV describes it (what a perfect calibration would return).
     pub fn stereo(&self) -> crate::stereo::StereoRig {
         crate::stereo::StereoRig {
-            image_size: [self.left.width as i32, self.left.height as i32],
-            left: self.left.intrinsics.clone(),
-            right: self.right.intrinsics.clone(),
+            image_size: [self.left().width as i32, self.left().height as i32],
+            left: self.left().intrinsics.clone(),
+            right: self.right().intrinsics.clone(),
             right_from_left: self.right_from_left(),
         }
+    }
+}
+
+/// The names of a rig of `n` cameras: `left`, `right` for two, else `cam1` … `camN`.
+pub fn names(n: usize) -> Vec<String> {
+    if n == 2 {
+        vec!["left".into(), "right".into()]
+    } else {
+        (1..=n).map(|i| format!("cam{i}")).collect()
     }
 }
 
@@ -106,6 +140,8 @@ pub struct RigConfig {
     pub aim_mm: [f64; 3],
     /// Scale of the per-camera variation the seed draws (1 = the documented ranges, 0 = none).
     pub variation: f64,
+    /// How many cameras: 2, a stereo pair `baseline_mm` apart; more, on an arc (module docs).
+    pub cameras: usize,
 }
 
 impl Default for RigConfig {
@@ -120,13 +156,15 @@ impl Default for RigConfig {
             elevation_deg: 40.0,
             aim_mm: [0.0, 0.0, 8.0],
             variation: 1.0,
+            cameras: 2,
         }
     }
 }
 
 impl RigConfig {
-    /// Builds the rig, varied by `seed`. The cameras sit on the hand's −y side, below the aim
-    /// point, image x along hand +x and image up towards the hand's +z (the base).
+    /// Builds the rig, varied by `seed`. The cameras sit on the hand's −y side (a pair) or
+    /// around it (more), below the aim point, image x along the rig's bar or arc and image up
+    /// towards the hand's +z (the base).
     pub fn build(&self, seed: u64) -> Rig {
         let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5249_4721);
         let aim = Point3::from(self.aim_mm);
@@ -139,12 +177,11 @@ impl RigConfig {
         let f = (f64::from(self.width).hypot(f64::from(self.height)) / 2.0)
             / (self.fov_diag_deg.to_radians() / 2.0).tan();
         let v = self.variation;
-        let mut camera = |side: f64| {
+        // A camera at `place`, image up as near `up` as its aim allows.
+        let mut camera = |place: Point3<f64>, up: Vector3<f64>| {
             let mut jitter = |range: f64| v * range * rng.random_range(-1.0..=1.0);
-            let eye = centre
-                + Vector3::new(side * self.baseline_mm / 2.0, 0.0, 0.0)
-                + Vector3::new(jitter(2.0), jitter(2.0), jitter(2.0));
-            let look = looking_at(eye, aim, rig_up);
+            let eye = place + Vector3::new(jitter(2.0), jitter(2.0), jitter(2.0));
+            let look = looking_at(eye, aim, up);
             let tweak = Rotation3::from_euler_angles(
                 jitter(1f64.to_radians()),
                 jitter(1f64.to_radians()),
@@ -165,9 +202,18 @@ impl RigConfig {
                 pose: CamFromWorld::new(rotation, -(rotation * eye.coords)),
             }
         };
-        let left = camera(-1.0);
-        let right = camera(1.0);
-        Rig { left, right }
+        let half = Vector3::new(self.baseline_mm / 2.0, 0.0, 0.0);
+        let cameras = match self.cameras {
+            2 => vec![camera(centre - half, rig_up), camera(centre + half, rig_up)],
+            n => (0..n)
+                .map(|i| {
+                    let azimuth = (i as f64 - (n - 1) as f64 / 2.0) * ARC_STEP_DEG;
+                    let turn = Rotation3::from_axis_angle(&Vector3::z_axis(), azimuth.to_radians());
+                    camera(aim + turn * (centre - aim), turn * rig_up)
+                })
+                .collect(),
+        };
+        Rig { cameras }
     }
 }
 
@@ -179,7 +225,7 @@ mod tests {
     fn default_rig_is_a_converging_c920_pair() {
         let rig = RigConfig::default().build(2020);
         let aim = Point3::new(0.0, 0.0, 8.0);
-        for cam in [&rig.left, &rig.right] {
+        for cam in &rig.cameras {
             assert!((cam.intrinsics.fx() - 907.0).abs() < 15.0);
             // The aim point lands near the image centre.
             let [u, v] = cam.project(&aim).unwrap();

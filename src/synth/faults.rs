@@ -1,8 +1,8 @@
 //! Faults injected in a virtual session at given times (`synth --fault KIND@T=AMOUNT`), and
 //! the [`Timeline`] that says what the finger and the cameras are at each instant.
 //!
-//! - `camera@T=DEG`: the right camera tilts by DEG degrees about its own x axis at T (a bump).
-//!   Its beads leave their epipolar lines by about f·tan(DEG), so the reprojection residual
+//! - `camera@T=DEG`: the right (second) camera tilts by DEG degrees about its own x axis at T
+//!   (a bump). Its beads leave their epipolar lines by about f·tan(DEG), so the reprojection residual
 //!   says so, and the tip moves. A pan (about the camera's y axis) would move the bead along
 //!   the epipolar lines of a side-by-side pair: the tip would shift in depth with no residual
 //!   to tell, which two cameras cannot see and the model's errors can.
@@ -22,7 +22,6 @@ use serde::Serialize;
 use super::camera::{Camera, Rig};
 use super::dynamics::Motion;
 use super::plant::{Plant, PlantError, PlantParams, Pressures};
-use crate::stereo::Side;
 
 /// What goes wrong, and when.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
@@ -81,7 +80,7 @@ pub struct Timeline {
     /// with those before it.
     after: Vec<(f64, Plant)>,
     leak: Option<(f64, f64)>,
-    /// The right camera from the camera fault on.
+    /// The second (a pair's right) camera from the camera fault on.
     knocked: Option<(f64, Camera)>,
 }
 
@@ -116,7 +115,7 @@ impl Timeline {
             leak: of(FaultKind::Leak).map(|f| (f.at_s, f.amount)),
             knocked: of(FaultKind::Camera).map(|f| {
                 let turn = Rotation3::from_axis_angle(&Vector3::x_axis(), f.amount.to_radians());
-                let mut right = rig.right.clone();
+                let mut right = rig.right().clone();
                 right.pose.rotation = turn * right.pose.rotation;
                 right.pose.translation = turn * right.pose.translation;
                 (f.at_s, right)
@@ -165,16 +164,15 @@ impl Timeline {
         plant.centre_line(p)
     }
 
-    /// Camera `side` of `rig` as it is at `t`.
-    pub fn camera<'a>(&'a self, rig: &'a Rig, side: Side, t: f64) -> &'a Camera {
-        match (side, &self.knocked) {
-            (Side::Right, Some((at, knocked))) if t >= *at => knocked,
-            (Side::Right, _) => &rig.right,
-            (Side::Left, _) => &rig.left,
+    /// The camera at place `camera` of `rig` as it is at `t`.
+    pub fn camera<'a>(&'a self, rig: &'a Rig, camera: usize, t: f64) -> &'a Camera {
+        match (camera, &self.knocked) {
+            (1, Some((at, knocked))) if t >= *at => knocked,
+            _ => &rig.cameras[camera],
         }
     }
 
-    /// The right camera knocked, and from when.
+    /// The second camera knocked, and from when.
     pub fn knocked(&self) -> Option<&(f64, Camera)> {
         self.knocked.as_ref()
     }
@@ -237,6 +235,6 @@ mod tests {
         });
         let want = both.tip([75.0, 0.0, 0.0]).unwrap();
         assert!((0..3).all(|k| (at(100.0)[k] - want[k]).abs() < 1e-9));
-        assert_eq!(timeline.camera(&rig, Side::Right, 1e6), &rig.right);
+        assert_eq!(timeline.camera(&rig, 1, 1e6), rig.right());
     }
 }

@@ -44,6 +44,19 @@ pub struct Written {
     pub unseen: usize,
 }
 
+impl std::fmt::Display for Written {
+    fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        writeln!(
+            f,
+            "wrote {} ({} rows, one per frame at {FPS} fps, no images; {} frames fixed no point) and the true tips {}",
+            self.session.display(),
+            self.rows,
+            self.unseen,
+            self.truth.display()
+        )
+    }
+}
+
 /// What `manifest.json` records of a session without images.
 #[derive(serde::Serialize)]
 struct Manifest<'a> {
@@ -81,7 +94,7 @@ pub fn write(
         .collect();
     let motion = Motion::simulate(&commands, &Dynamics::PNEUMATIC, plant.hysteresis_kpa, end);
     let timeline = Timeline::new(plant, &rig, faults);
-    let calibrated = [rig.left.projection(), rig.right.projection()];
+    let calibrated = [rig.left().projection(), rig.right().projection()];
     let knocked = timeline
         .knocked()
         .map(|(at, camera)| (*at, camera.projection()));

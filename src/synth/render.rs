@@ -573,7 +573,7 @@ mod tests {
     fn interpolated_rays_match_exact_undistortion() {
         let rig = RigConfig::default().build(3);
         let view = View::new(
-            rig.left.clone(),
+            rig.left().clone(),
             Lighting::from_seed(3),
             Surroundings::default(),
         );
@@ -582,10 +582,10 @@ mod tests {
             for &(a, b) in &[(0.125, 0.125), (0.625, 0.875), (0.375, 0.5)] {
                 let [x, y] = view.sample(i, j, a, b);
                 let (ex, ey) = rig
-                    .left
+                    .left()
                     .intrinsics
                     .undistort(i as f64 - 0.5 + a, j as f64 - 0.5 + b);
-                worst = worst.max((x - ex).abs().max((y - ey).abs()) * rig.left.intrinsics.fx());
+                worst = worst.max((x - ex).abs().max((y - ey).abs()) * rig.left().intrinsics.fx());
             }
         }
         assert!(worst < 2e-4, "interpolation error {worst} px");

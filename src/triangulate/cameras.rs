@@ -4,13 +4,17 @@
 //! (Anipose's `calibration.toml` with `[metadata]`'s `hand_rotation`).
 //!
 //! 1. Each frame placed in the log's steps as a pair's are (settled, not straddling the next
-//!    command); in each, the marker found ([`super::marker`]); a frame with no candidate, or
-//!    more than one, gives no view (counted).
-//! 2. Each camera's view of a step: the median of its frames' bead centres, undistorted.
-//! 3. The step's tip from its views ([`super::nview`]): linear, refined, the views gated by a
-//!    χ² test in units of each view's pixel error ([`BEAD_NOISE_PX`]), every subset of two or
-//!    more tried when one view disagrees; the cameras used and left out, and the tip's
-//!    covariance from the beads' error.
+//!    command); in each, the marker's candidates found ([`super::marker`]); a frame with none
+//!    gives no view (counted).
+//! 2. Each camera's candidates in a step, grouped across its frames by place (within
+//!    [`SAME_PLACE_PX`]): a held bead is one group, a red thing beside it another. Each group's
+//!    view is the median of its centres, undistorted.
+//! 3. The step's tip from one group per camera ([`super::nview`]): linear, refined, the views
+//!    gated by a χ² test in units of each view's pixel error ([`BEAD_NOISE_PX`]), every subset
+//!    of two or more tried when one view disagrees. Where a camera has several groups, every
+//!    choice is tried and the one the most cameras agree on (then the least χ²) kept: the
+//!    bead is where the others see it. The cameras used and left out, and the tip's covariance
+//!    from the beads' error.
 //! 4. The hand frame: its axes from the calibration, its origin the median tip of the steps
 //!    at zero pressure.
 
@@ -34,6 +38,12 @@ use crate::session::SessionError;
 pub const BEAD_NOISE_PX: f64 = 0.15;
 /// The χ² gate's level.
 pub const GATE_LEVEL: f64 = 0.999;
+/// A camera's candidates in a held step's frames closer than this (px) are one thing seen
+/// again.
+pub const SAME_PLACE_PX: f64 = 2.0;
+/// The most choices of one group per camera a step tries (each camera's best-supported
+/// groups first).
+const MOST_CHOICES: usize = 256;
 
 /// One frame of `frames.csv`.
 #[derive(Clone, Debug)]
@@ -90,9 +100,8 @@ pub fn read_frames(
 
 /// What one frame in a step showed.
 enum Seen {
-    Bead([f64; 2]),
-    /// No candidate, or several.
-    NotOne,
+    /// The marker's candidates' centres (px); none when no marker was found.
+    Candidates(Vec<[f64; 2]>),
     Unreadable(String),
     NotExamined,
 }
@@ -117,9 +126,10 @@ pub struct StepTip {
 #[derive(Clone, Debug, Default)]
 pub struct Found {
     pub tips: Vec<StepTip>,
-    /// Frames in a settled step, and of those without one marker (none, or several).
+    /// Frames in a settled step, of those without a marker, and with several candidates.
     pub frames_in_steps: usize,
     pub frames_without_marker: usize,
+    pub frames_with_several: usize,
     /// Frames in a settled step whose image could not be read, and the first one's reason.
     pub frames_unreadable: usize,
     pub unreadable: Option<String>,
@@ -171,20 +181,21 @@ pub fn triangulate(
             }
             let seen = match crate::image::decode(&f.path) {
                 Err(why) => Seen::Unreadable(format!("{}: {why}", f.path.display())),
-                Ok(image) => {
-                    match &super::marker::find_markers(&image, &options.marker).blobs[..] {
-                        [one] => Seen::Bead(one.centre_px),
-                        _ => Seen::NotOne,
-                    }
-                }
+                Ok(image) => Seen::Candidates(
+                    super::marker::find_markers(&image, &options.marker)
+                        .blobs
+                        .iter()
+                        .map(|b| b.centre_px)
+                        .collect(),
+                ),
             };
             progress(done.fetch_add(1, SeqCst) + 1, frames.len());
             Some((k, seen))
         })
         .collect();
     let mut found = Found::default();
-    // 2. Each camera's view of each step.
-    let mut views: BTreeMap<usize, Vec<Vec<[f64; 2]>>> = BTreeMap::new();
+    // 2. Each camera's groups of candidates in each step.
+    let mut views: BTreeMap<usize, Vec<Vec<Vec<[f64; 2]>>>> = BTreeMap::new();
     for (f, seen) in frames.iter().zip(seen) {
         let Some((k, seen)) = seen else { continue };
         found.frames_in_steps += 1;
@@ -192,8 +203,13 @@ pub fn triangulate(
             .entry(k)
             .or_insert_with(|| vec![Vec::new(); cameras.len()]);
         match seen {
-            Seen::Bead(c) => step[f.camera].push(c),
-            Seen::NotOne => found.frames_without_marker += 1,
+            Seen::Candidates(centres) => {
+                found.frames_without_marker += usize::from(centres.is_empty());
+                found.frames_with_several += usize::from(centres.len() > 1);
+                for c in centres {
+                    group(&mut step[f.camera], c);
+                }
+            }
             Seen::Unreadable(why) => {
                 found.unreadable.get_or_insert(why);
                 found.frames_unreadable += 1;
@@ -208,27 +224,40 @@ pub fn triangulate(
         .collect();
     let mut world: Vec<(usize, nview::Triangulated, usize)> = Vec::new();
     for (&k, by_camera) in &views {
-        let mut given = Vec::new();
-        let mut which = Vec::new();
-        for (c, centres) in by_camera.iter().enumerate().filter(|(_, v)| !v.is_empty()) {
-            let median = |i: usize| {
-                let mut v: Vec<f64> = centres.iter().map(|p| p[i]).collect();
-                crate::stats::median(&mut v).expect("a centre")
-            };
-            let camera = &cameras[c].intrinsics;
-            let (x, y) = camera.undistort(median(0), median(1));
-            given.push(View {
-                projection: projections[c],
-                px: [camera.fx() * x + camera.cx(), camera.fy() * y + camera.cy()],
-                sigma_px: BEAD_NOISE_PX,
-            });
-            which.push((c, centres.len()));
-        }
-        match nview::triangulate(&given, GATE_LEVEL) {
-            Ok(mut t) => {
-                let frames_used = t.used.iter().map(|&i| which[i].1).sum();
-                t.used = t.used.iter().map(|&i| which[i].0).collect();
-                t.left_out = t.left_out.iter().map(|&i| which[i].0).collect();
+        // Each camera's groups as views, the best supported first.
+        let choices: Vec<(usize, Vec<(View, usize)>)> = by_camera
+            .iter()
+            .enumerate()
+            .filter(|(_, groups)| !groups.is_empty())
+            .map(|(c, groups)| {
+                let mut groups: Vec<&Vec<[f64; 2]>> = groups.iter().collect();
+                groups.sort_by_key(|g| std::cmp::Reverse(g.len()));
+                let camera = &cameras[c].intrinsics;
+                let views = groups
+                    .into_iter()
+                    .map(|centres| {
+                        let median = |i: usize| {
+                            let mut v: Vec<f64> = centres.iter().map(|p| p[i]).collect();
+                            crate::stats::median(&mut v).expect("a centre")
+                        };
+                        let (x, y) = camera.undistort(median(0), median(1));
+                        let view = View {
+                            projection: projections[c],
+                            px: [camera.fx() * x + camera.cx(), camera.fy() * y + camera.cy()],
+                            sigma_px: BEAD_NOISE_PX,
+                        };
+                        (view, centres.len())
+                    })
+                    .collect();
+                (c, views)
+            })
+            .collect();
+        match agreed(&choices) {
+            Ok((mut t, chosen)) => {
+                let camera = |i: usize| choices[i].0;
+                let frames_used = t.used.iter().map(|&i| choices[i].1[chosen[i]].1).sum();
+                t.used = t.used.iter().map(|&i| camera(i)).collect();
+                t.left_out = t.left_out.iter().map(|&i| camera(i)).collect();
                 world.push((k, t, frames_used));
             }
             Err(nview::Refused::TooFewViews) => found.steps_unseen += 1,
@@ -263,6 +292,52 @@ pub fn triangulate(
         })
         .collect();
     Ok(found)
+}
+
+/// Adds candidate `c` to the group of `groups` whose first member lies within
+/// [`SAME_PLACE_PX`], or as a group of its own.
+fn group(groups: &mut Vec<Vec<[f64; 2]>>, c: [f64; 2]) {
+    let near = |g: &&mut Vec<[f64; 2]>| (g[0][0] - c[0]).hypot(g[0][1] - c[1]) < SAME_PLACE_PX;
+    match groups.iter_mut().find(near) {
+        Some(g) => g.push(c),
+        None => groups.push(vec![c]),
+    }
+}
+
+/// The tip from one view per camera of `choices` (each camera's candidate views, the best
+/// supported first): every choice tried (up to [`MOST_CHOICES`], the best supported first),
+/// the one the most views agree on kept, then the least χ². The tip and each camera's choice.
+fn agreed(
+    choices: &[(usize, Vec<(View, usize)>)],
+) -> Result<(nview::Triangulated, Vec<usize>), nview::Refused> {
+    let mut best: Option<(nview::Triangulated, Vec<usize>)> = None;
+    let mut refused = nview::Refused::TooFewViews;
+    let mut chosen = vec![0; choices.len()];
+    for _ in 0..MOST_CHOICES {
+        let views: Vec<View> = choices
+            .iter()
+            .zip(&chosen)
+            .map(|((_, views), &i)| views[i].0)
+            .collect();
+        match nview::triangulate(&views, GATE_LEVEL) {
+            Ok(t) => {
+                let better = best
+                    .as_ref()
+                    .is_none_or(|(b, _)| (t.used.len(), -t.chi2) > (b.used.len(), -b.chi2));
+                if better {
+                    best = Some((t, chosen.clone()));
+                }
+            }
+            Err(why) => refused = why,
+        }
+        // The next choice, counting with each camera a digit.
+        let Some(c) = (0..choices.len()).find(|&c| chosen[c] + 1 < choices[c].1.len()) else {
+            break;
+        };
+        chosen[c] += 1;
+        chosen[..c].fill(0);
+    }
+    best.ok_or(refused)
 }
 
 /// The dataset's columns before the log's other ones: the pressures, the tip, how sure it is

@@ -333,9 +333,9 @@ mod tests {
         let knocked = &timeline.knocked().unwrap().1;
         let tip = Vector3::new(4.969, 0.121, 0.649);
         let views = [
-            seen(rig.left.projection(), &tip),
+            seen(rig.left().projection(), &tip),
             View {
-                projection: rig.right.projection(),
+                projection: rig.right().projection(),
                 ..seen(knocked.projection(), &tip)
             },
         ];

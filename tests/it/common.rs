@@ -293,7 +293,7 @@ pub fn render_capture(
         &std::sync::atomic::AtomicBool::new(false),
     )
     .expect("capture");
-    assert_eq!(summary.board_pairs, config.views);
+    assert_eq!(summary.boards, config.views);
     assert!(!summary.interrupted);
 }
 

@@ -21,8 +21,8 @@ proptest! {
         let stereo = rig.stereo();
         // A point around the finger's working volume (hand frame = synth's world).
         let world = Point3::new(offset[0], offset[1], 8.0 + offset[2]);
-        let left = rig.left.pose.apply(&world);
-        let px = [rig.left.project(&world).unwrap(), rig.right.project(&world).unwrap()];
+        let left = rig.left().pose.apply(&world);
+        let px = [rig.left().project(&world).unwrap(), rig.right().project(&world).unwrap()];
 
         // Projection: handcap's model and OpenCV's agree.
         for (side, expected) in [(Side::Left, px[0]), (Side::Right, px[1])] {
@@ -34,7 +34,7 @@ proptest! {
         let normal = stereo.normalized(Side::Left, &[px[0]]).unwrap()[0];
         prop_assert!((normal[0] - left.x / left.z).abs() < 1e-9);
         prop_assert!((normal[1] - left.y / left.z).abs() < 1e-9);
-        let (x, y) = rig.left.intrinsics.undistort(px[0][0], px[0][1]);
+        let (x, y) = rig.left().intrinsics.undistort(px[0][0], px[0][1]);
         prop_assert!((x - normal[0]).abs() < 1e-9 && (y - normal[1]).abs() < 1e-9);
 
         // Triangulation returns the point (left camera frame).
@@ -42,7 +42,7 @@ proptest! {
         prop_assert!((back - left.coords).norm() < 1e-6, "{back} vs {}", left.coords);
 
         // The pose the rig reports agrees with the two cameras' poses.
-        let right = rig.right.pose.apply(&world);
+        let right = rig.right().pose.apply(&world);
         let via = stereo.right_from_left.apply(&left);
         prop_assert!((via - right).norm() < 1e-9);
     }

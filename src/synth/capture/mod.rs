@@ -56,7 +56,6 @@ mod truth;
 
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
-use std::sync::Arc;
 
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -67,25 +66,24 @@ use super::dynamics::{Dynamics, Motion};
 use super::faults::{Fault, Timeline};
 use super::image_format::ImageFormat;
 use super::plant::Pressures;
-use super::scene::Markers;
 use super::{SynthConfig, SynthError};
 use crate::calib::BoardSpec;
 use crate::fsio;
 use crate::session::protocol::{self, DynamicDesign, Step};
-use crate::stereo::Side;
-use boards::{board_poses, reference_board};
+use boards::calibration_boards;
 use shots::Studio;
 pub(crate) use shots::{exposure_gain, finger_frame, knocked_view, views, Knocked};
 use timing::camera_frames;
 pub(crate) use timing::finger_poses;
 pub(crate) use truth::rig_yaml;
-use truth::{boards_csv, per_frame_csv, pressures_csv, tips_csv, truth_frames};
+use truth::{boards_csv, cameras_toml, per_frame_csv, pressures_csv, tips_csv, truth_frames};
 
 /// How the virtual capture session runs (see the module docs).
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct CaptureConfig {
     pub rig: RigConfig,
-    /// Chessboard pairs for calibration (besides the reference pair).
+    /// Chessboard pairs for calibration (besides the reference pair); with more than two
+    /// cameras, the board views each camera gets at least.
     pub views: usize,
     /// Whether to render the board pairs (`calib/`, `truth/boards.csv`); a session filmed
     /// with a rig calibrated before (the same seed's) needs none.
@@ -108,8 +106,8 @@ pub struct CaptureConfig {
     /// How far the right camera's timestamps run ahead of the left's by the session's end
     /// (s), growing evenly from 0: a USB latency that creeps up on one camera.
     pub clock_drift_s: f64,
-    /// Each camera's delay (left, right) from exposure to the capture computer's stamp (s):
-    /// what a USB or network camera's buffering adds.
+    /// The first two cameras' delay (left, right) from exposure to the capture computer's
+    /// stamp (s): what a USB or network camera's buffering adds. Further cameras have none.
     pub latency_s: [f64; 2],
     /// The finger's frames as one Motion-JPEG video per camera (`frames/left.avi`,
     /// `right.avi`; frame numbers are positions in them) instead of images.
@@ -190,10 +188,13 @@ impl Default for CaptureConfig {
 /// What a capture wrote.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct CaptureSummary {
-    pub board_pairs: usize,
+    /// The board poses photographed for calibration (a pair's board pairs), the reference
+    /// besides.
+    pub boards: usize,
     pub steps: usize,
-    pub left_frames: usize,
-    pub right_frames: usize,
+    /// The cameras' names, and the frames each kept.
+    pub cameras: Vec<String>,
+    pub frames: Vec<usize>,
     /// Whether Ctrl-C stopped the rendering before the end (files written so far are complete).
     pub interrupted: bool,
 }
@@ -213,16 +214,11 @@ pub fn write_capture(
 ) -> Result<CaptureSummary, SynthError> {
     config.check()?;
     let rig = config.rig.build(synth.seed);
+    let names = rig.names();
     let timeline = Timeline::new(&synth.plant, &rig, &config.faults);
-    // Separate streams, so that the board count does not change the clocks.
-    let mut rng = ChaCha8Rng::seed_from_u64(synth.seed ^ 0x4341_5054);
-    let markers = Arc::new(
-        Markers::of(&config.board)
-            .map_err(|e| SynthError::BadCapture(format!("the board's markers: {e}")))?,
-    );
-    let boards = board_poses(config, &rig, &markers, &mut rng)?;
+    let boards = calibration_boards(config, &rig, synth.seed)?;
+    // A stream of its own, so that the board count does not change the clocks.
     let mut rng = ChaCha8Rng::seed_from_u64(synth.seed ^ 0x434c_4f43);
-    let reference = reference_board(config, &markers);
 
     // The protocol as one session, each step commanded when the one before it ends; the
     // muscles following through the line.
@@ -250,16 +246,17 @@ pub fn write_capture(
         let path = dir.join(sub);
         std::fs::create_dir_all(&path).map_err(io_err(&path))?;
     }
-    write_text(&dir.join("truth/rig.yml"), &rig_yaml(&rig, provenance))?;
+    if rig.cameras.len() == 2 {
+        write_text(&dir.join("truth/rig.yml"), &rig_yaml(&rig, provenance))?;
+    } else {
+        write_text(&dir.join("truth/cameras.toml"), &cameras_toml(&rig))?;
+    }
     if config.calibration_images {
         write_text(
             &dir.join("calib").join(crate::calib::file::BOARD_FILE),
             &crate::calib::file::board_yaml(&config.board),
         )?;
-        write_text(
-            &dir.join("truth/boards.csv"),
-            &boards_csv(&rig, &boards, &reference),
-        )?;
+        write_text(&dir.join("truth/boards.csv"), &boards_csv(&rig, &boards))?;
     }
     write_text(&dir.join("pressures.csv"), &pressures_csv(&steps, &starts))?;
     let tips = steps
@@ -270,7 +267,11 @@ pub fn write_capture(
     write_text(&dir.join("truth/tips.csv"), &tips_csv(&rig, &steps, &tips))?;
     write_text(
         &dir.join("frames/frames.csv"),
-        &crate::session::frames::frames_csv(frames.iter().map(|f| (f.camera, f.index, f.stamp_s))),
+        &crate::session::frames::frames_csv(
+            frames
+                .iter()
+                .map(|f| (&names[f.camera], f.index, f.stamp_s)),
+        ),
     )?;
 
     let truth_rows = truth_frames(&rig, &timeline, &motion, synth.seed, config, &frames)?;
@@ -287,23 +288,26 @@ pub fn write_capture(
         timeline: &timeline,
         motion: &motion,
         boards: if config.calibration_images {
-            boards.iter().chain(std::iter::once(&reference)).collect()
+            boards.iter().collect()
         } else {
             Vec::new()
         },
+        names: names.clone(),
         views: shots::views(&rig, synth.seed, &config.realism, timeline.plant(), &tips),
         knocked: knocked_view(&rig, synth.seed, &config.realism, &timeline, &tips),
     };
     let complete = shots::write_all(&studio, &frames, progress, interrupt)?;
     Ok(CaptureSummary {
-        board_pairs: if config.calibration_images {
-            boards.len()
+        boards: if config.calibration_images {
+            boards.len() - 1
         } else {
             0
         },
         steps: steps.len(),
-        left_frames: frames.iter().filter(|f| f.camera == Side::Left).count(),
-        right_frames: frames.iter().filter(|f| f.camera == Side::Right).count(),
+        cameras: names,
+        frames: (0..rig.cameras.len())
+            .map(|i| frames.iter().filter(|f| f.camera == i).count())
+            .collect(),
         interrupted: !complete,
     })
 }
@@ -319,6 +323,11 @@ pub enum DynamicSession {
 }
 
 impl CaptureConfig {
+    /// Camera `camera`'s delay from exposure to its stamp (s).
+    pub fn latency(&self, camera: usize) -> f64 {
+        self.latency_s.get(camera).copied().unwrap_or(0.0)
+    }
+
     /// The protocol the session drives: the dynamic design, or the paper's steps at `synth`'s
     /// grid and sweep steps, each held `step_s`.
     ///
@@ -339,6 +348,9 @@ impl CaptureConfig {
         let bad = |what: &str| Err(SynthError::BadCapture(what.to_string()));
         if c.views < 3 {
             return bad("at least 3 board views are needed");
+        }
+        if !(2..=8).contains(&c.rig.cameras) {
+            return bad("a rig has 2 to 8 cameras");
         }
         if let Err(e) = c.board.check() {
             return bad(&e.to_string());

@@ -8,10 +8,10 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use nalgebra::Point3;
 use rayon::prelude::*;
 
+use super::boards::Sighted;
 use super::timing::{finger_poses, occluder, Filmed};
 use super::{io_err, CaptureConfig, Realism, SynthError};
 use crate::fsio;
-use crate::stereo::Side;
 use crate::synth::camera::{Camera, Rig};
 use crate::synth::clutter;
 use crate::synth::dynamics::Motion;
@@ -19,17 +19,18 @@ use crate::synth::faults::Timeline;
 use crate::synth::image_format::ImageFormat;
 use crate::synth::plant::Plant;
 use crate::synth::render::{Lighting, Surroundings, View};
-use crate::synth::scene::{Board, Finger};
+use crate::synth::scene::Finger;
 
 /// One image to render and write.
 enum Shot {
     Board {
-        camera: Side,
+        /// The camera's place in the rig.
+        camera: usize,
         name: String,
         board: usize,
     },
     Frame {
-        camera: Side,
+        camera: usize,
         index: usize,
         /// Middle of the exposure.
         exposure_s: f64,
@@ -43,39 +44,40 @@ struct Rendered {
     rgb: Vec<u8>,
 }
 
-/// What every shot is rendered from: the two cameras' views of the scene, the boards (the
-/// reference last), and the finger's motion through the protocol.
+/// What every shot is rendered from: the cameras' names and views of the scene, the boards
+/// (the reference last), and the finger's motion through the protocol.
 pub(super) struct Studio<'a> {
     pub dir: &'a Path,
     pub seed: u64,
     pub config: &'a CaptureConfig,
     pub timeline: &'a Timeline,
     pub motion: &'a Motion,
-    pub boards: Vec<&'a Board>,
-    pub views: [View; 2],
-    /// The right camera's view once a fault knocked it, and from when.
+    pub boards: Vec<&'a Sighted>,
+    pub names: Vec<String>,
+    pub views: Vec<View>,
+    /// The second camera's view once a fault knocked it, and from when.
     pub knocked: Option<Knocked>,
 }
 
-/// The two cameras' views of the scene; with clutter, the wall keeps clear of where the
-/// finger's `tips` and base are seen.
+/// The cameras' views of the scene; with clutter, the wall keeps clear of where the finger's
+/// `tips` and base are seen. The red things stand in the second camera's view.
 pub(crate) fn views(
     rig: &Rig,
     seed: u64,
     realism: &Realism,
     plant: &Plant,
     tips: &[[f64; 3]],
-) -> [View; 2] {
-    let view = |camera: &Camera, side: Side| {
-        let lighting = Lighting::from_seed(seed ^ side as u64);
+) -> Vec<View> {
+    let view = |(place, camera): (usize, &Camera)| {
+        let lighting = Lighting::from_seed(seed ^ place as u64);
         let wall = realism.clutter.then(|| {
             let base = plant.centre_line([0.0; 3]).map(|line| line[0]);
             let keep = workspace_box(camera, tips.iter().chain(base.as_ref().ok()));
-            let red = realism.red_distractors && side == Side::Right;
+            let red = realism.red_distractors && place == 1;
             clutter::wall(
                 camera.width as usize,
                 camera.height as usize,
-                seed ^ (side as u64 + 1) << 8,
+                seed ^ (place as u64 + 1) << 8,
                 red,
                 keep,
             )
@@ -86,13 +88,13 @@ pub(crate) fn views(
         };
         View::new(camera.clone(), lighting, surroundings)
     };
-    [view(&rig.left, Side::Left), view(&rig.right, Side::Right)]
+    rig.cameras.iter().enumerate().map(view).collect()
 }
 
-/// The right camera's view once a fault knocked it, and from when.
+/// The second camera's view once a fault knocked it, and from when.
 pub(crate) type Knocked = (f64, View);
 
-/// The right camera's view once a fault knocked it ([`Timeline::knocked`]), and from when.
+/// The second camera's view once a fault knocked it ([`Timeline::knocked`]), and from when.
 pub(crate) fn knocked_view(
     rig: &Rig,
     seed: u64,
@@ -101,12 +103,10 @@ pub(crate) fn knocked_view(
     tips: &[[f64; 3]],
 ) -> Option<Knocked> {
     timeline.knocked().map(|(at, camera)| {
-        let rig = Rig {
-            left: rig.left.clone(),
-            right: camera.clone(),
-        };
-        let [_, right] = views(&rig, seed, realism, timeline.plant(), tips);
-        (*at, right)
+        let mut rig = rig.clone();
+        rig.cameras[1] = camera.clone();
+        let mut views = views(&rig, seed, realism, timeline.plant(), tips);
+        (*at, views.swap_remove(1))
     })
 }
 
@@ -114,17 +114,17 @@ impl Studio<'_> {
     /// Renders shot `id` (its number in the fixed order seeds its sensor noise).
     fn render(&self, id: usize, shot: &Shot) -> Result<Rendered, SynthError> {
         let (c, ext) = (self.config, self.config.format.extension());
-        let (side, path, mut canvas, time) = match shot {
+        let (camera, path, mut canvas, time) = match shot {
             Shot::Board {
                 camera,
                 name,
                 board,
             } => {
-                let view = &self.views[*camera as usize];
+                let view = &self.views[*camera];
                 let path = self
                     .dir
-                    .join(format!("calib/{}_{name}.{ext}", camera.name()));
-                (*camera, path, view.board(self.boards[*board]), 0.0)
+                    .join(format!("calib/{}_{name}.{ext}", self.names[*camera]));
+                (*camera, path, view.board(&self.boards[*board].board), 0.0)
             }
             Shot::Frame {
                 camera,
@@ -132,8 +132,8 @@ impl Studio<'_> {
                 exposure_s,
             } => {
                 let view = match (&self.knocked, camera) {
-                    (Some((at, knocked)), Side::Right) if exposure_s >= at => knocked,
-                    _ => &self.views[*camera as usize],
+                    (Some((at, knocked)), 1) if exposure_s >= at => knocked,
+                    _ => &self.views[*camera],
                 };
                 let (timeline, motion) = (self.timeline, self.motion);
                 let poses = finger_poses(c, timeline, motion, &view.camera, *exposure_s)?;
@@ -141,14 +141,14 @@ impl Studio<'_> {
                 let canvas = finger_frame(view, c, self.seed, (*camera, *index), &poses, tip);
                 let path = self
                     .dir
-                    .join(format!("frames/{}_{index:05}.{ext}", camera.name()));
+                    .join(format!("frames/{}_{index:05}.{ext}", self.names[*camera]));
                 (*camera, path, canvas, *exposure_s)
             }
         };
-        let gain = exposure_gain(c, side, time);
+        let gain = exposure_gain(c, camera, time);
         let size = [canvas.width as u32, canvas.height as u32];
         let rgb = canvas.develop(gain, self.seed, id as u64);
-        self.views[side as usize].recycle(canvas);
+        self.views[camera].recycle(canvas);
         Ok(Rendered { path, size, rgb })
     }
 }
@@ -159,7 +159,7 @@ pub(crate) fn finger_frame(
     view: &View,
     c: &CaptureConfig,
     seed: u64,
-    (camera, index): (Side, usize),
+    (camera, index): (usize, usize),
     poses: &[Finger],
     tip: [f64; 3],
 ) -> crate::synth::canvas::Canvas {
@@ -173,14 +173,14 @@ pub(crate) fn finger_frame(
 }
 
 /// The exposure's gain at `time_s`: a slow drift of the auto-exposure and the lights' 100 Hz
-/// flicker, each camera on its own phase.
-pub(crate) fn exposure_gain(c: &CaptureConfig, side: Side, time_s: f64) -> f64 {
-    let phase = side as u8 as f64;
+/// flicker, each camera (its place in the rig) on its own phase.
+pub(crate) fn exposure_gain(c: &CaptureConfig, camera: usize, time_s: f64) -> f64 {
+    let phase = camera as f64;
     (1.0 + c.exposure_drift * (std::f64::consts::TAU * time_s / 20.0 + phase).sin())
         * (1.0 + c.realism.flicker * (std::f64::consts::TAU * 100.0 * time_s + phase).sin())
 }
 
-/// Renders and writes every image: the board pairs (`calib/`, the reference pair last), then
+/// Renders and writes every image: the boards' views (`calib/`, the reference last), then
 /// the finger's `frames` (`frames/`, images or one video per camera). `progress(done, total)`
 /// is called as images are written; `interrupt` stops between images. `false` when
 /// interrupted (the files written are complete).
@@ -192,13 +192,13 @@ pub(super) fn write_all(
 ) -> Result<bool, SynthError> {
     let mut shots = Vec::new();
     let last = studio.boards.len().saturating_sub(1);
-    for board in 0..studio.boards.len() {
+    for (board, sighted) in studio.boards.iter().enumerate() {
         let name = if board == last {
             "ref".to_string()
         } else {
             format!("{board:02}")
         };
-        for camera in [Side::Left, Side::Right] {
+        for &camera in &sighted.by {
             shots.push(Shot::Board {
                 camera,
                 name: name.clone(),
@@ -206,6 +206,7 @@ pub(super) fn write_all(
             });
         }
     }
+    let board_shots = shots.len();
     shots.extend(frames.iter().map(|f| Shot::Frame {
         camera: f.camera,
         index: f.index,
@@ -216,7 +217,7 @@ pub(super) fn write_all(
     let counted = || progress(done.fetch_add(1, Ordering::SeqCst) + 1, total);
     // With `video`, the finger's frames go to each camera's video instead, in order.
     let images = if studio.config.video {
-        2 * studio.boards.len()
+        board_shots
     } else {
         total
     };
@@ -244,8 +245,9 @@ pub(super) fn write_all(
     Ok(complete)
 }
 
-/// The finger's frames (`shots[first..]`) as `frames/left.avi` and `frames/right.avi`,
-/// Motion-JPEG at the format's quality; `false` when interrupted (no video is then left).
+/// The finger's frames (`shots[first..]`) as one video per camera, `frames/<camera>.avi`
+/// (`left.avi`, `right.avi` of a pair), Motion-JPEG at the format's quality; `false` when
+/// interrupted (no video is then left).
 fn write_videos(
     studio: &Studio,
     shots: &[Shot],
@@ -259,8 +261,8 @@ fn write_videos(
         ImageFormat::Png => 95,
     };
     let size = [config.rig.width, config.rig.height];
-    for camera in [Side::Left, Side::Right] {
-        let path = dir.join(format!("frames/{}.avi", camera.name()));
+    for (camera, name) in studio.names.iter().enumerate() {
+        let path = dir.join(format!("frames/{name}.avi"));
         let failed = |why: String| SynthError::Write {
             path: path.clone(),
             source: std::io::Error::other(why),

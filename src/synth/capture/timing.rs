@@ -5,7 +5,6 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::{CaptureConfig, SynthError};
-use crate::stereo::Side;
 use crate::synth::camera::Camera;
 use crate::synth::dynamics::Motion;
 use crate::synth::faults::Timeline;
@@ -13,7 +12,8 @@ use crate::synth::scene::Finger;
 
 /// One camera frame kept by the capture computer.
 pub(super) struct Filmed {
-    pub camera: Side,
+    /// The camera's place in the rig.
+    pub camera: usize,
     pub index: usize,
     pub exposure_s: f64,
     pub stamp_s: f64,
@@ -35,7 +35,7 @@ pub(super) fn camera_frames(
     end: f64,
     rng: &mut ChaCha8Rng,
 ) -> Vec<Filmed> {
-    let clocks: Vec<Clock> = (0..2)
+    let clocks: Vec<Clock> = (0..c.rig.cameras)
         .map(|_| Clock {
             phase_s: rng.random_range(0.0..1.0 / c.fps),
             period_s: 1.0 / (c.fps * (1.0 + rng.random_range(-50e-6..50e-6))),
@@ -43,7 +43,7 @@ pub(super) fn camera_frames(
         })
         .collect();
     let mut out = Vec::new();
-    for (side, clock) in [Side::Left, Side::Right].into_iter().zip(&clocks) {
+    for (camera, clock) in clocks.iter().enumerate() {
         let mut index = 0;
         let mut n = 0u64;
         loop {
@@ -52,13 +52,13 @@ pub(super) fn camera_frames(
             if exposure_s >= end {
                 break;
             }
-            let drift = if side == Side::Right {
+            let drift = if camera == 1 {
                 c.clock_drift_s * exposure_s / end
             } else {
                 0.0
             };
             let stamp_s = exposure_s
-                + c.latency_s[side as usize]
+                + c.latency(camera)
                 + clock.offset_s
                 + rng.random_range(-0.002..0.002)
                 + drift;
@@ -71,7 +71,7 @@ pub(super) fn camera_frames(
             let into = stamp_s - starts[step];
             if c.dynamic.is_some() || (into >= c.window_s[0] && into < c.window_s[1]) {
                 out.push(Filmed {
-                    camera: side,
+                    camera,
                     index,
                     exposure_s,
                     stamp_s,
@@ -119,7 +119,7 @@ const AXIS_STRIDE: usize = 8;
 
 /// The angle of the rod hiding the bead in this frame, for a share `realism.occluded` of the
 /// frames (drawn from the seed, the camera and the frame).
-pub(super) fn occluder(seed: u64, c: &CaptureConfig, camera: Side, index: usize) -> Option<f64> {
+pub(super) fn occluder(seed: u64, c: &CaptureConfig, camera: usize, index: usize) -> Option<f64> {
     let key = seed ^ 0x4f43_434c ^ (camera as u64) << 40 ^ index as u64;
     let mut rng = ChaCha8Rng::seed_from_u64(key);
     (rng.random::<f64>() < c.realism.occluded).then(|| rng.random_range(0.0..std::f64::consts::TAU))

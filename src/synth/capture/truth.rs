@@ -2,16 +2,15 @@
 
 use nalgebra::{Matrix3, Point3};
 
+use super::boards::Sighted;
 use super::timing::{occluder, Filmed};
 use super::{CaptureConfig, SynthError};
 use crate::data::{Csv, HAND_INPUTS, HAND_OUTPUTS};
 use crate::opencv_yaml::FileStorage;
 use crate::session::protocol::Step;
-use crate::stereo::Side;
 use crate::synth::camera::Rig;
 use crate::synth::dynamics::Motion;
 use crate::synth::faults::Timeline;
-use crate::synth::scene::Board;
 
 fn mat3(m: &Matrix3<f64>) -> Vec<f64> {
     (0..3)
@@ -22,7 +21,7 @@ fn mat3(m: &Matrix3<f64>) -> Vec<f64> {
 pub(crate) fn rig_yaml(rig: &Rig, provenance: &crate::provenance::Provenance) -> String {
     let cams = rig.stereo();
     // The virtual world is the hand frame: the left camera's pose inverted.
-    let hand_from_left = rig.left.pose.inverse();
+    let hand_from_left = rig.left().pose.inverse();
     let mut fs = FileStorage::new();
     crate::calib::file::write_rig(&mut fs, &cams)
         .matrix("E", 3, 3, &mat3(&cams.essential()))
@@ -37,15 +36,39 @@ pub(crate) fn rig_yaml(rig: &Rig, provenance: &crate::provenance::Provenance) ->
     fs.text().to_string()
 }
 
-pub(super) fn boards_csv(rig: &Rig, boards: &[Board], reference: &Board) -> String {
-    let mut csv = Csv::new(["view", "rx", "ry", "rz", "tx_mm", "ty_mm", "tz_mm"]);
-    let named = boards
+/// A rig of more than two cameras as `calibrate` writes it (Anipose's TOML): the first
+/// camera's frame the world, the hand frame's axes as `hand_rotation`.
+pub(super) fn cameras_toml(rig: &Rig) -> String {
+    use crate::calib::file::AniposeCamera;
+    use crate::geometry::{relative, CamFromWorld};
+    let (names, first) = (rig.names(), rig.left().pose);
+    let cameras: Vec<AniposeCamera> = rig
+        .cameras
         .iter()
-        .enumerate()
-        .map(|(k, b)| (format!("{k:02}"), b))
-        .chain(std::iter::once(("ref".to_string(), reference)));
-    for (name, b) in named {
-        let left_from_board = b.pose.then(&rig.left.pose);
+        .zip(&names)
+        .map(|(cam, name)| {
+            let between = relative(&first, &cam.pose);
+            AniposeCamera {
+                name,
+                size: [cam.width as i32, cam.height as i32],
+                intrinsics: &cam.intrinsics,
+                pose: CamFromWorld::new(between.rotation, between.translation),
+            }
+        })
+        .collect();
+    crate::calib::file::cameras_toml(&cameras, 0.0, Some(first.rotation.inverse()))
+}
+
+/// Each board's pose in the first (left) camera, the reference (last) as `ref`.
+pub(super) fn boards_csv(rig: &Rig, boards: &[Sighted]) -> String {
+    let mut csv = Csv::new(["view", "rx", "ry", "rz", "tx_mm", "ty_mm", "tz_mm"]);
+    for (k, b) in boards.iter().enumerate() {
+        let name = if k + 1 == boards.len() {
+            "ref".to_string()
+        } else {
+            format!("{k:02}")
+        };
+        let left_from_board = b.board.pose.then(&rig.left().pose);
         let (r, t) = (
             left_from_board.rotation.scaled_axis(),
             left_from_board.translation,
@@ -79,13 +102,17 @@ pub(super) fn pressures_csv(steps: &[Step], starts: &[f64]) -> String {
     }))
 }
 
+/// Per step the settled tip in the hand frame and in the first camera's (`left_x_mm` … of a
+/// pair, `cam1_x_mm` … of more cameras).
 pub(super) fn tips_csv(rig: &Rig, steps: &[Step], tips: &[[f64; 3]]) -> String {
+    let first = &rig.names()[0];
     let mut csv = Csv::new(
         ["step", "phase"]
             .into_iter()
-            .chain(HAND_INPUTS)
-            .chain(HAND_OUTPUTS)
-            .chain(["left_x_mm", "left_y_mm", "left_z_mm"]),
+            .map(String::from)
+            .chain(HAND_INPUTS.map(String::from))
+            .chain(HAND_OUTPUTS.map(String::from))
+            .chain(["x", "y", "z"].map(|a| format!("{first}_{a}_mm"))),
     );
     for (
         k,
@@ -99,7 +126,7 @@ pub(super) fn tips_csv(rig: &Rig, steps: &[Step], tips: &[[f64; 3]]) -> String {
         ),
     ) in steps.iter().zip(tips).enumerate()
     {
-        let left = rig.left.pose.apply(&Point3::from(*tip));
+        let left = rig.left().pose.apply(&Point3::from(*tip));
         csv.row(
             [k.to_string(), phase.clone()]
                 .into_iter()
@@ -124,6 +151,7 @@ pub(super) fn truth_frames(
             .chain(HAND_OUTPUTS)
             .chain(["u_px", "v_px", "occluded"]),
     );
+    let names = rig.names();
     for f in frames {
         let tip = timeline.tip(motion, f.exposure_s)?;
         let cam = timeline.camera(rig, f.camera, f.exposure_s);
@@ -134,7 +162,7 @@ pub(super) fn truth_frames(
         csv.row(
             [
                 f.index.to_string(),
-                f.camera.name().to_string(),
+                names[f.camera].clone(),
                 format!("{:.6}", f.exposure_s),
                 f.step.to_string(),
             ]
@@ -147,7 +175,7 @@ pub(super) fn truth_frames(
 }
 
 /// A dynamic session's truth as the dataset `triangulate --per-frame` should give: one row per
-/// left frame, at its timestamp, the command in force then and the true tip at its exposure
+/// frame of the first (left) camera, at its timestamp, the command in force then and the true tip at its exposure
 /// (`time_s,phase,P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm,frame,exposure_s`).
 pub(super) fn per_frame_csv(
     timeline: &Timeline,
@@ -162,7 +190,7 @@ pub(super) fn per_frame_csv(
             .chain(HAND_OUTPUTS)
             .chain(["frame", "exposure_s"]),
     );
-    for f in frames.iter().filter(|f| f.camera == Side::Left) {
+    for f in frames.iter().filter(|f| f.camera == 0) {
         let tip = timeline.tip(motion, f.exposure_s)?;
         let Step {
             phase,
