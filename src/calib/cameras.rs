@@ -100,6 +100,8 @@ pub struct GraphCalibration {
     /// World (the first camera) → hand frame, from the reference board; why not, else.
     pub hand_axes: Option<Rotation3<f64>>,
     pub hand_axes_note: String,
+    /// The covariance of the cameras' unknowns ([`graph::CameraCovariance`]).
+    pub covariance: Option<graph::CameraCovariance>,
     /// The gates it fails ([`super::gates`]): a reprojection RMS above
     /// [`super::gates::MAX_RMS_PX`], a camera's own or all cameras' together.
     pub implausible: Vec<String>,
@@ -273,6 +275,7 @@ pub fn calibrate(
             })
             .collect(),
         rms_px: graph.rms_px,
+        covariance: graph.covariance.clone(),
         outliers: graph.outliers,
         reject_px: graph.reject_px,
         poorly_tied: graph

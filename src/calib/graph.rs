@@ -98,6 +98,20 @@ pub struct Graph {
     pub poorly_tied: Vec<usize>,
     /// The board's pose at each instant a camera saw it: (instant, pose).
     pub boards: Vec<(usize, WorldFromBoard)>,
+    /// The covariance of the cameras' unknowns at the solution, the boards' marginalised
+    /// ([`CameraCovariance`]); none when the problem does not fix them.
+    pub covariance: Option<CameraCovariance>,
+}
+
+/// The covariance σ²(JᵀWJ)⁻¹ of the cameras' unknowns: every camera's nine intrinsics in
+/// [`super::uncertainty::INTRINSIC_NAMES`]' order when they were refined (`per_camera` 9, else
+/// 0), then every camera's pose but the first's (the world) as [`stepped`] moves it (ω, rad,
+/// then t, mm).
+#[derive(Clone, Debug, PartialEq)]
+pub struct CameraCovariance {
+    pub per_camera: usize,
+    /// Rows of the matrix.
+    pub matrix: Vec<Vec<f64>>,
 }
 
 /// Why the poses were not found.
@@ -467,6 +481,19 @@ fn summarise(problem: &Problem<'_>, state: &State, shared: Vec<usize>) -> Graph 
             }
         }
     }
+    let covariance = inverse.as_ref().map(|inv| {
+        let k = state.pose_column(n);
+        CameraCovariance {
+            per_camera: state.per_camera,
+            matrix: (0..k)
+                .map(|i| {
+                    (0..k)
+                        .map(|j| sigma2 * scale[i] * inv[(i, j)] * scale[j])
+                        .collect()
+                })
+                .collect(),
+        }
+    });
     let cameras = (0..n)
         .map(|c| {
             let cam = state.cameras[c];
@@ -510,6 +537,7 @@ fn summarise(problem: &Problem<'_>, state: &State, shared: Vec<usize>) -> Graph 
             .zip(state.boards.iter().copied())
             .collect(),
         poorly_tied: (0..n).filter(|&c| shared[c] < MIN_SHARED).collect(),
+        covariance,
     }
 }
 

@@ -45,7 +45,7 @@ const IN_K: [usize; 4] = [0, 4, 2, 5];
 
 /// Intrinsic parameter `i` (in [`INTRINSIC_NAMES`]' order) of a camera whose distortion has
 /// at least five coefficients.
-pub(super) fn intrinsic_mut(camera: &mut Intrinsics, i: usize) -> &mut f64 {
+pub(crate) fn intrinsic_mut(camera: &mut Intrinsics, i: usize) -> &mut f64 {
     match i {
         0..4 => &mut camera.k[IN_K[i]],
         _ => &mut camera.dist[i - 4],
@@ -54,7 +54,7 @@ pub(super) fn intrinsic_mut(camera: &mut Intrinsics, i: usize) -> &mut f64 {
 
 /// The step of central differences along intrinsic parameter `i`: 10⁻³ px for fx, fy, cx,
 /// cy, 10⁻⁶ for a distortion coefficient.
-pub(super) fn intrinsic_step(i: usize) -> f64 {
+pub(crate) fn intrinsic_step(i: usize) -> f64 {
     if i < 4 {
         1e-3
     } else {
@@ -214,7 +214,7 @@ enum Slot {
 
 /// A pose moved by δ = (ω, t): its rotation by exp(ω) on its right (about its own `From`
 /// axes), its translation by t. The pose steps of every least-squares fit of poses here.
-pub(super) fn stepped<To, From>(pose: &Transform<To, From>, delta: &[f64]) -> Transform<To, From> {
+pub(crate) fn stepped<To, From>(pose: &Transform<To, From>, delta: &[f64]) -> Transform<To, From> {
     Transform::new(
         pose.rotation * Rotation3::new(Vector3::new(delta[0], delta[1], delta[2])),
         pose.translation + Vector3::new(delta[3], delta[4], delta[5]),
@@ -229,7 +229,7 @@ pub(super) fn moved<To, From>(pose: &Transform<To, From>, j: usize, h: f64) -> T
 }
 
 /// The steps of central differences along a pose's parameters (rad, mm).
-pub(super) const POSE_STEP: [f64; 6] = [1e-7, 1e-7, 1e-7, 1e-5, 1e-5, 1e-5];
+pub(crate) const POSE_STEP: [f64; 6] = [1e-7, 1e-7, 1e-7, 1e-5, 1e-5, 1e-5];
 
 /// Each view's board pose in the left camera: `solvePnP` on the left corners, then Gauss-Newton
 /// on both images' corners with the cameras as calibrated.

@@ -484,10 +484,21 @@ pub fn run_cameras(
         .chain(listed.iter().map(|f| f.path.as_path()))
         .collect();
     outputs::check(&inputs, &[Output::new(out, "the dataset")])?;
+    // The covariance of the cameras' unknowns, from the JSON `calibrate` wrote beside.
+    let json = calib.with_extension("json");
+    let covariance = if json.is_file() {
+        crate::calib::file::read_cameras_covariance(&json, cameras.len())?
+    } else {
+        None
+    };
+    let calibration = triangulate::cameras::Calibration {
+        cameras,
+        hand,
+        covariance,
+    };
     let result = triangulate::cameras::triangulate(
         &listed,
-        &cameras,
-        hand,
+        &calibration,
         &log,
         options,
         &session.counter(Task::Frames),
@@ -495,6 +506,7 @@ pub fn run_cameras(
     );
     session.emit(super::Event::Finished(Task::Frames));
     let found = result.map_err(|e| PipelineError::Place(e.to_string()))?;
+    let cameras = calibration.cameras;
     let text = triangulate::cameras::csv(&found, &cameras, &log);
     crate::fsio::write_bytes(out, text.as_bytes()).map_err(io_error(out))?;
     if found.interrupted {
@@ -544,6 +556,18 @@ impl fmt::Display for TriangulatedCameras {
             writeln!(
                 f,
                 "skipped {n} frames of camera {name}: not in the calibration"
+            )?;
+        }
+        if let Some(px) = found.bead_noise_px {
+            writeln!(
+                f,
+                "the beads' error the steps' residuals show: {px:.3} px (the gate and the covariances assume {} px, scaled up to more){}",
+                crate::triangulate::cameras::BEAD_NOISE_PX,
+                if found.calibration_in_covariance {
+                    "; the calibration's uncertainty is in them"
+                } else {
+                    "; the calibration has no covariance beside it (cal.json): its uncertainty is not in them"
+                }
             )?;
         }
         let left_out = found.tips.iter().filter(|t| !t.left_out.is_empty()).count();

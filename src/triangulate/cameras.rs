@@ -17,6 +17,15 @@
 //!    from the beads' error.
 //! 4. The hand frame: its axes from the calibration, its origin the median tip of the steps
 //!    at zero pressure.
+//! 5. Each row's covariance: the beads' error, scaled up to what the session shows when that is
+//!    more (the steps' χ² over their degrees of freedom, the a-posteriori variance of unit
+//!    weight, when they have [`MIN_DOF`] or more; never down: a bead's centre also errs the
+//!    same way in every camera, by its shading, which no residual shows; the gate keeps
+//!    [`BEAD_NOISE_PX`]), in its tip and in the origin's;
+//!    and the calibration's, when its JSON has the cameras' covariance: the row (tip less
+//!    origin) refitted from the same pixels with each camera unknown moved, by central
+//!    differences, carried through that covariance. The hand axes' own uncertainty (the
+//!    reference board's pose) is not in it.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -28,6 +37,8 @@ use super::nview::{self, View};
 use super::pairing::{self, Placement};
 use super::TriangulateOptions;
 use crate::calib::file::ReadCamera;
+use crate::calib::graph::CameraCovariance;
+use crate::geometry::{CamFromWorld, Intrinsics};
 use crate::session::frames::read_frame_rows;
 use crate::session::pressures::PressureLog;
 use crate::session::SessionError;
@@ -38,6 +49,9 @@ use crate::session::SessionError;
 pub const BEAD_NOISE_PX: f64 = 0.15;
 /// The χ² gate's level.
 pub const GATE_LEVEL: f64 = 0.999;
+/// The degrees of freedom of the steps' residuals (2 per view less 3 per tip) from which
+/// the session's own bead error replaces [`BEAD_NOISE_PX`] in the tips' covariances.
+pub const MIN_DOF: usize = 30;
 /// A camera's candidates in a held step's frames closer than this (px) are one thing seen
 /// again.
 pub const SAME_PLACE_PX: f64 = 2.0;
@@ -112,8 +126,8 @@ pub struct StepTip {
     pub step: usize,
     /// Hand frame (mm).
     pub tip_mm: Vector3<f64>,
-    /// Its standard deviation along the hand frame's axes (mm), from the beads' noise.
-    pub sd_mm: [f64; 3],
+    /// Its covariance in the hand frame (mm²), from the beads' noise.
+    pub covariance_mm2: Matrix3<f64>,
     /// The cameras used and left out by the gate (indices into the calibration's).
     pub used: Vec<usize>,
     pub left_out: Vec<usize>,
@@ -142,6 +156,20 @@ pub struct Found {
     /// at zero pressure gave it.
     pub origin_mm: Vector3<f64>,
     pub rest_steps: usize,
+    /// The beads' pixel error the steps' residuals show (px), when they have [`MIN_DOF`]
+    /// degrees of freedom or more: the tips' covariances are scaled to it when it exceeds
+    /// [`BEAD_NOISE_PX`].
+    pub bead_noise_px: Option<f64>,
+    /// The calibration's uncertainty is in the covariances.
+    pub calibration_in_covariance: bool,
+}
+
+/// What the cameras are: as calibrated, the hand frame's axes (world → hand), and the
+/// covariance of their unknowns when the calibration has it.
+pub struct Calibration {
+    pub cameras: Vec<ReadCamera>,
+    pub hand: Rotation3<f64>,
+    pub covariance: Option<CameraCovariance>,
 }
 
 /// Why there is no dataset.
@@ -151,16 +179,15 @@ pub enum CamerasError {
     NoOrigin,
 }
 
-/// The tips of `frames` in `log`'s steps (module docs), in the hand frame whose axes are
-/// `hand` (world → hand); `progress(done, total)` counts frames examined; once `interrupt` is
-/// set, the frames not yet examined are left out (and `interrupted` said).
+/// The tips of `frames` in `log`'s steps (module docs), seen by the cameras of `calibration`
+/// and given in its hand frame; `progress(done, total)` counts frames examined; once
+/// `interrupt` is set, the frames not yet examined are left out (and `interrupted` said).
 ///
 /// # Errors
 /// [`CamerasError::NoOrigin`].
 pub fn triangulate(
     frames: &[Frame],
-    cameras: &[ReadCamera],
-    hand: Rotation3<f64>,
+    calibration: &Calibration,
     log: &PressureLog,
     options: &TriangulateOptions,
     progress: &(dyn Fn(usize, usize) + Sync),
@@ -168,6 +195,7 @@ pub fn triangulate(
 ) -> Result<Found, CamerasError> {
     // 1. Each frame in a step, and its marker.
     use std::sync::atomic::Ordering::{Relaxed, SeqCst};
+    let (cameras, hand) = (&calibration.cameras, calibration.hand);
     let done = std::sync::atomic::AtomicUsize::new(0);
     let seen: Vec<Option<(usize, Seen)>> = frames
         .par_iter()
@@ -223,9 +251,11 @@ pub fn triangulate(
         .map(|c| crate::geometry::projection(&c.intrinsics, &c.pose))
         .collect();
     let mut world: Vec<(usize, nview::Triangulated, usize)> = Vec::new();
+    // The pixels (camera, distorted px) of each tip's views used.
+    let mut pixels: Vec<Vec<(usize, [f64; 2])>> = Vec::new();
     for (&k, by_camera) in &views {
         // Each camera's groups as views, the best supported first.
-        let choices: Vec<(usize, Vec<(View, usize)>)> = by_camera
+        let choices: Vec<(usize, Vec<Group>)> = by_camera
             .iter()
             .enumerate()
             .filter(|(_, groups)| !groups.is_empty())
@@ -240,13 +270,12 @@ pub fn triangulate(
                             let mut v: Vec<f64> = centres.iter().map(|p| p[i]).collect();
                             crate::stats::median(&mut v).expect("a centre")
                         };
-                        let (x, y) = camera.undistort(median(0), median(1));
-                        let view = View {
-                            projection: projections[c],
-                            px: [camera.fx() * x + camera.cx(), camera.fy() * y + camera.cy()],
-                            sigma_px: BEAD_NOISE_PX,
-                        };
-                        (view, centres.len())
+                        let px = [median(0), median(1)];
+                        Group {
+                            view: view_of(camera, &projections[c], px),
+                            frames: centres.len(),
+                            px,
+                        }
                     })
                     .collect();
                 (c, views)
@@ -255,7 +284,9 @@ pub fn triangulate(
         match agreed(&choices) {
             Ok((mut t, chosen)) => {
                 let camera = |i: usize| choices[i].0;
-                let frames_used = t.used.iter().map(|&i| choices[i].1[chosen[i]].1).sum();
+                let group = |i: usize| &choices[i].1[chosen[i]];
+                let frames_used = t.used.iter().map(|&i| group(i).frames).sum();
+                pixels.push(t.used.iter().map(|&i| (camera(i), group(i).px)).collect());
                 t.used = t.used.iter().map(|&i| camera(i)).collect();
                 t.left_out = t.left_out.iter().map(|&i| camera(i)).collect();
                 world.push((k, t, frames_used));
@@ -265,25 +296,47 @@ pub fn triangulate(
         }
     }
     // 4. The hand frame.
-    let at_rest: Vec<Vector3<f64>> = world
-        .iter()
-        .filter(|(k, ..)| log.steps[*k].pressures_kpa == [0.0; 3])
-        .map(|(_, t, _)| t.point)
+    let rest: Vec<usize> = (0..world.len())
+        .filter(|&i| log.steps[world[i].0].pressures_kpa == [0.0; 3])
         .collect();
-    if at_rest.is_empty() {
+    if rest.is_empty() {
         return Err(CamerasError::NoOrigin);
     }
+    let at_rest: Vec<Vector3<f64>> = rest.iter().map(|&i| world[i].1.point).collect();
     found.origin_mm = crate::stats::median_point(&at_rest);
     found.rest_steps = at_rest.len();
+    // 5. The beads' pixel error the session shows: the χ² of the steps' residuals over their
+    // degrees of freedom says how far [`BEAD_NOISE_PX`] was from it. Never less: a bead's
+    // centre also errs the same way in every camera (its shading), which no residual shows.
+    let (chi2, dof) = world
+        .iter()
+        .fold((0.0, 0), |(c, d), (_, t, _)| (c + t.chi2, d + t.dof));
+    let unit = if dof >= MIN_DOF {
+        (chi2 / dof as f64).max(1.0)
+    } else {
+        1.0
+    };
+    found.bead_noise_px = (dof >= MIN_DOF).then(|| BEAD_NOISE_PX * unit.sqrt());
     let r: Matrix3<f64> = *hand.matrix();
+    let origin: Matrix3<f64> = rest
+        .iter()
+        .map(|&i| world[i].1.covariance)
+        .sum::<Matrix3<f64>>()
+        / (rest.len() * rest.len()) as f64;
+    let from_calibration = match &calibration.covariance {
+        Some(covariance) => calibration_term(&pixels, &rest, calibration, covariance),
+        None => vec![Matrix3::zeros(); world.len()],
+    };
+    found.calibration_in_covariance = calibration.covariance.is_some();
     found.tips = world
         .into_iter()
-        .map(|(step, t, frames)| {
-            let covariance = r * t.covariance * r.transpose();
+        .zip(from_calibration)
+        .map(|((step, t, frames), calibrated)| {
+            let covariance = r * (t.covariance + origin) * r.transpose() * unit + calibrated;
             StepTip {
                 step,
                 tip_mm: hand * (t.point - found.origin_mm),
-                sd_mm: std::array::from_fn(|i| covariance[(i, i)].max(0.0).sqrt()),
+                covariance_mm2: covariance,
                 used: t.used,
                 left_out: t.left_out,
                 chi2: t.chi2,
@@ -292,6 +345,119 @@ pub fn triangulate(
         })
         .collect();
     Ok(found)
+}
+
+/// A camera's candidates in a step's frames at one place (module docs, step 2).
+struct Group {
+    /// The median of their centres, undistorted.
+    view: View,
+    /// How many frames saw it.
+    frames: usize,
+    /// The median of their centres (distorted px).
+    px: [f64; 2],
+}
+
+/// The view of a bead seen at `px` (distorted) by a camera of `intrinsics` and `projection`.
+fn view_of(intrinsics: &Intrinsics, projection: &Matrix3x4<f64>, px: [f64; 2]) -> View {
+    let (x, y) = intrinsics.undistort(px[0], px[1]);
+    View {
+        projection: *projection,
+        px: [
+            intrinsics.fx() * x + intrinsics.cx(),
+            intrinsics.fy() * y + intrinsics.cy(),
+        ],
+        sigma_px: BEAD_NOISE_PX,
+    }
+}
+
+/// Each row's covariance from the calibration's `covariance` (module docs, step 5), in the
+/// hand frame: the rows of `pixels` (each tip's views used) refitted, less the origin (the
+/// median of the `rest` rows), with each camera unknown moved either way.
+fn calibration_term(
+    pixels: &[Vec<(usize, [f64; 2])>],
+    rest: &[usize],
+    calibration: &Calibration,
+    covariance: &CameraCovariance,
+) -> Vec<Matrix3<f64>> {
+    use crate::calib::uncertainty::{intrinsic_mut, intrinsic_step, stepped, POSE_STEP};
+    let (cameras, per) = (&calibration.cameras, covariance.per_camera);
+    // The rows with the cameras as given.
+    let rows = |intrinsics: &[Intrinsics], poses: &[CamFromWorld]| -> Vec<Vector3<f64>> {
+        let projections: Vec<Matrix3x4<f64>> = intrinsics
+            .iter()
+            .zip(poses)
+            .map(|(k, pose)| crate::geometry::projection(k, pose))
+            .collect();
+        let points: Vec<Vector3<f64>> = pixels
+            .iter()
+            .map(|seen| {
+                let views: Vec<View> = seen
+                    .iter()
+                    .map(|&(c, px)| view_of(&intrinsics[c], &projections[c], px))
+                    .collect();
+                nview::through(&views).unwrap_or_else(|| Vector3::repeat(f64::NAN))
+            })
+            .collect();
+        let at_rest: Vec<Vector3<f64>> = rest.iter().map(|&i| points[i]).collect();
+        let origin = crate::stats::median_point(&at_rest);
+        points
+            .iter()
+            .map(|p| calibration.hand * (p - origin))
+            .collect()
+    };
+    let intrinsics: Vec<Intrinsics> = cameras.iter().map(|c| c.intrinsics.clone()).collect();
+    let poses: Vec<CamFromWorld> = cameras.iter().map(|c| c.pose).collect();
+    // Each row's derivative along each unknown.
+    let derivatives: Vec<Vec<Vector3<f64>>> = (0..covariance.matrix.len())
+        .into_par_iter()
+        .map(|j| {
+            let at = |sign: f64| {
+                let (mut intrinsics, mut poses) = (intrinsics.clone(), poses.clone());
+                let h = if j < per * cameras.len() {
+                    let h = intrinsic_step(j % per);
+                    *intrinsic_mut(&mut intrinsics[j / per], j % per) += sign * h;
+                    h
+                } else {
+                    let (c, q) = (
+                        1 + (j - per * cameras.len()) / 6,
+                        (j - per * cameras.len()) % 6,
+                    );
+                    let mut delta = [0.0; 6];
+                    delta[q] = sign * POSE_STEP[q];
+                    poses[c] = stepped(&poses[c], &delta);
+                    POSE_STEP[q]
+                };
+                (rows(&intrinsics, &poses), h)
+            };
+            let ((plus, h), (minus, _)) = (at(1.0), at(-1.0));
+            plus.iter()
+                .zip(&minus)
+                .map(|(p, m)| {
+                    let d = (p - m) / (2.0 * h);
+                    if d.iter().all(|v| v.is_finite()) {
+                        d
+                    } else {
+                        Vector3::zeros()
+                    }
+                })
+                .collect()
+        })
+        .collect();
+    let c = &covariance.matrix;
+    (0..pixels.len())
+        .map(|s| {
+            let mut sum = Matrix3::zeros();
+            for (j, dj) in derivatives.iter().enumerate() {
+                let weighted: Vector3<f64> = derivatives
+                    .iter()
+                    .zip(&c[j])
+                    .map(|(dl, &cjl)| dl[s] * cjl)
+                    .sum();
+                sum += dj[s] * weighted.transpose();
+            }
+            (sum + sum.transpose()) / 2.0
+        })
+        .collect()
 }
 
 /// Adds candidate `c` to the group of `groups` whose first member lies within
@@ -304,11 +470,11 @@ fn group(groups: &mut Vec<Vec<[f64; 2]>>, c: [f64; 2]) {
     }
 }
 
-/// The tip from one view per camera of `choices` (each camera's candidate views, the best
-/// supported first): every choice tried (up to [`MOST_CHOICES`], the best supported first),
+/// The tip from one view per camera of `choices` (each camera's groups, the best supported
+/// first): every choice tried (up to [`MOST_CHOICES`], the best supported first),
 /// the one the most views agree on kept, then the least χ². The tip and each camera's choice.
 fn agreed(
-    choices: &[(usize, Vec<(View, usize)>)],
+    choices: &[(usize, Vec<Group>)],
 ) -> Result<(nview::Triangulated, Vec<usize>), nview::Refused> {
     let mut best: Option<(nview::Triangulated, Vec<usize>)> = None;
     let mut refused = nview::Refused::TooFewViews;
@@ -317,7 +483,7 @@ fn agreed(
         let views: Vec<View> = choices
             .iter()
             .zip(&chosen)
-            .map(|((_, views), &i)| views[i].0)
+            .map(|((_, groups), &i)| groups[i].view)
             .collect();
         match nview::triangulate(&views, GATE_LEVEL) {
             Ok(t) => {
@@ -343,7 +509,7 @@ fn agreed(
 /// The dataset's columns before the log's other ones: the pressures, the tip, how sure it is
 /// and the cameras it used; the log's other columns (`step`, `phase`, …) follow, as a pair's
 /// dataset has them.
-pub const HEADER: &str = "P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm,sd_x_mm,sd_y_mm,sd_z_mm,n_cameras,cameras,left_out,chi2,n_frames";
+pub const HEADER: &str = "P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm,sd_x_mm,sd_y_mm,sd_z_mm,cov_xy_mm2,cov_xz_mm2,cov_yz_mm2,n_cameras,cameras,left_out,chi2,n_frames";
 
 /// The rows of `found` as CSV (camera names joined by `+`), each followed by its log row's
 /// other columns.
@@ -363,15 +529,20 @@ pub fn csv(found: &Found, cameras: &[ReadCamera], log: &PressureLog) -> String {
     for t in &found.tips {
         let step = &log.steps[t.step];
         let [p1, p2, p3] = step.pressures_kpa;
+        let c = &t.covariance_mm2;
+        let sd = |i: usize| c[(i, i)].max(0.0).sqrt();
         let _ = write!(
             out,
-            "{p1},{p2},{p3},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{},{},{},{:.3},{}",
+            "{p1},{p2},{p3},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.3e},{:.3e},{:.3e},{},{},{},{:.3},{}",
             t.tip_mm.x,
             t.tip_mm.y,
             t.tip_mm.z,
-            t.sd_mm[0],
-            t.sd_mm[1],
-            t.sd_mm[2],
+            sd(0),
+            sd(1),
+            sd(2),
+            c[(0, 1)],
+            c[(0, 2)],
+            c[(1, 2)],
             t.used.len(),
             names(&t.used),
             names(&t.left_out),

@@ -108,6 +108,12 @@ fn subsets(items: &[usize], size: usize) -> Vec<Vec<usize>> {
     out
 }
 
+/// The point of every view, ungated (linear, then Gauss-Newton); `None` as [`fit`]'s.
+pub fn through(views: &[View]) -> Option<Vector3<f64>> {
+    let all: Vec<usize> = (0..views.len()).collect();
+    fit(views, &all).map(|t| t.point)
+}
+
 /// The point of the views `used`: linear, then Gauss-Newton; `None` when it lies behind one
 /// of their cameras or the views do not fix it.
 fn fit(views: &[View], used: &[usize]) -> Option<Triangulated> {

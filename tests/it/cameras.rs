@@ -734,3 +734,165 @@ fn four_cameras_calibrated_by_handcap_find_the_tips_of_the_truth() {
         "tip RMS {rms:.4} mm with the calibration, {true_rig:.4} with the true rig"
     );
 }
+
+/// `synth --cameras 4` as a lab would use it: its board views calibrated by `handcap
+/// calibrate` against the rig it was rendered with (`truth/cameras.toml`), its webcam frames
+/// (MJPEG, clutter, a highlight, red things in cam2) triangulated against the true tips,
+/// beside every pair of the same calibration.
+#[test]
+fn synth_with_four_cameras_is_calibrated_and_triangulated_to_its_truth() {
+    let dir = tempdir();
+    let d = dir.path();
+    let synth = [
+        "synth",
+        "--out",
+        "s",
+        "--cameras",
+        "4",
+        "--grid-step-kpa",
+        "125",
+        "--sweep-step-kpa",
+        "50",
+    ];
+    let said = handcap_ok(d, &synth);
+    assert!(
+        said.contains("cam1, ") && said.contains(" cam4 frames"),
+        "{said}"
+    );
+    // Each camera has its views; the arc's ends never see the board at one instant.
+    let files: Vec<String> = std::fs::read_dir(d.join("s/calib"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    for c in 1..=4 {
+        let views = files
+            .iter()
+            .filter(|f| f.starts_with(&format!("cam{c}_")))
+            .count();
+        assert!(views >= 20, "cam{c} has {views} views");
+    }
+    let instant = |f: &str| f.split(['_', '.']).nth(1).unwrap().to_string();
+    for f in files.iter().filter(|f| f.starts_with("cam1_")) {
+        assert!(
+            !files.contains(&f.replacen("cam1", "cam4", 1)) || instant(f) == "ref",
+            "{f} has a cam4 twin"
+        );
+    }
+    // The calibration against the rig the views were rendered with.
+    handcap_ok(d, &["calibrate", "s/calib", "--out", "cal.yml"]);
+    let doc = |name: &str| -> toml::Table {
+        std::fs::read_to_string(d.join(name))
+            .unwrap()
+            .parse()
+            .unwrap()
+    };
+    let (calibrated, truth_rig) = (doc("cal.toml"), doc("s/truth/cameras.toml"));
+    for i in 0..4 {
+        let ((got, f), (want, f_true)) = (toml_camera(&calibrated, i), toml_camera(&truth_rig, i));
+        let turned = (got.rotation * want.rotation.inverse())
+            .angle()
+            .to_degrees();
+        let moved = (got.centre() - want.centre()).norm();
+        eprintln!(
+            "cam{}: focal {:+.3} %, rotation {turned:.4}°, centre {moved:.3} mm",
+            i + 1,
+            100.0 * (f - f_true) / f_true
+        );
+        assert!(
+            (f - f_true).abs() < 0.002 * f_true,
+            "cam{}: f {f} against {f_true}",
+            i + 1
+        );
+        assert!(
+            turned < 0.06 && moved < 0.2,
+            "cam{}: {turned}°, {moved} mm",
+            i + 1
+        );
+    }
+    // The tips against the truth, with four cameras and with each pair.
+    let truth: Vec<[f64; 3]> = crate::common::csv_rows(&d.join("s/truth/tips.csv"))
+        .iter()
+        .map(|r| ["x_mm", "y_mm", "z_mm"].map(|c| r[c].parse().unwrap()))
+        .collect();
+    let triangulate = |calib: &str, out: &str| {
+        let args = ["triangulate", "s/frames", "--calib", calib, "--pressures"];
+        handcap_ok(d, &[&args[..], &["s/pressures.csv", "--out", out]].concat())
+    };
+    let said = triangulate("cal.toml", "four.csv");
+    let (steps, four) = tip_rms(&d.join("four.csv"), &truth, None);
+    // cam2's frames show a red cable and push-pin beside the bead: the bead is the candidate
+    // the other cameras agree on, so cam2 still counts.
+    let by_four = crate::common::csv_rows(&d.join("four.csv"))
+        .iter()
+        .filter(|r| r["n_cameras"] == "4")
+        .count();
+    assert!(
+        10 * by_four >= 9 * steps,
+        "{by_four} of {steps} by four: {said}"
+    );
+    assert_eq!(steps, truth.len(), "every step a tip: {said}");
+    assert!(four < 0.03, "tip RMS {four:.4} mm: {said}");
+    let mut best_pair = f64::INFINITY;
+    for (a, b) in [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)] {
+        let mut pair = calibrated.clone();
+        pair.retain(|key, _| !key.starts_with("cam_"));
+        pair.insert("cam_0".into(), calibrated[&format!("cam_{a}")].clone());
+        pair.insert("cam_1".into(), calibrated[&format!("cam_{b}")].clone());
+        write(d, "pair.toml", &toml::to_string(&pair).unwrap());
+        triangulate("pair.toml", "pair.csv");
+        let (_, rms) = tip_rms(&d.join("pair.csv"), &truth, None);
+        eprintln!("cam{} + cam{}: {rms:.4} mm", a + 1, b + 1);
+        best_pair = best_pair.min(rms);
+    }
+    eprintln!("{said}four cameras {four:.4} mm, the best pair {best_pair:.4} mm");
+    assert!(
+        four < best_pair,
+        "four {four:.4} mm, the best pair {best_pair:.4}"
+    );
+    // Each row's covariance, the calibration's uncertainty in it, holds its true tip.
+    assert!(
+        said.contains("the calibration's uncertainty is in them"),
+        "{said}"
+    );
+    let inside = ellipsoid_coverage(&d.join("four.csv"), &truth);
+    eprintln!(
+        "{:.1} % of the true tips inside their row's 95 % ellipsoid",
+        100.0 * inside
+    );
+    assert!(inside >= 0.93, "{inside}");
+}
+
+/// The share of `path`'s rows whose true tip lies inside the row's 95 % ellipsoid (its
+/// `sd_*` and `cov_*` columns).
+fn ellipsoid_coverage(path: &Path, truth: &[[f64; 3]]) -> f64 {
+    let rows = crate::common::csv_rows(path);
+    let inside = rows
+        .iter()
+        .filter(|row| {
+            let value = |c: &str| -> f64 { row[c].parse().unwrap() };
+            let k: usize = row["step"].parse().unwrap();
+            let error = Vector3::from_fn(|i, _| value(["x_mm", "y_mm", "z_mm"][i]) - truth[k][i]);
+            let (sx, sy, sz) = (value("sd_x_mm"), value("sd_y_mm"), value("sd_z_mm"));
+            let (xy, xz, yz) = (
+                value("cov_xy_mm2"),
+                value("cov_xz_mm2"),
+                value("cov_yz_mm2"),
+            );
+            let covariance = Matrix3::new(
+                sx * sx,
+                xy,
+                xz, //
+                xy,
+                sy * sy,
+                yz, //
+                xz,
+                yz,
+                sz * sz,
+            );
+            let d2 = error.dot(&(covariance.try_inverse().unwrap() * error));
+            // χ² of 3 degrees of freedom at 0.95.
+            d2 <= 7.815
+        })
+        .count();
+    inside as f64 / rows.len() as f64
+}

@@ -69,8 +69,10 @@ pub fn calibration_json(cal: &StereoCalibration) -> String {
 /// camera's frame, into this camera's: p_cam = R p_world + T, mm), `rotation_sd_deg`,
 /// `position_sd_mm`, `rms_px` (its corners in the joint fit), `intrinsics_rms_px` (its own
 /// calibration), `views` of `images` with the board, `shared_instants`; then `rms_px`,
-/// `outliers`, `reject_px`, `poorly_tied`, `R_hand` (world → hand frame rows) when known, and
-/// `forced`: the gates it failed, when `--force` wrote it.
+/// `outliers`, `reject_px`, `poorly_tied`, `R_hand` (world → hand frame rows) when known,
+/// `covariance` (`per_camera` and `matrix`: [`crate::calib::graph::CameraCovariance`], what
+/// `triangulate` carries into each tip's), and `forced`: the gates it failed, when `--force`
+/// wrote it.
 pub fn cameras_json(cal: &crate::calib::cameras::GraphCalibration) -> String {
     let cameras: Vec<serde_json::Value> = cal
         .cameras
@@ -106,10 +108,57 @@ pub fn cameras_json(cal: &crate::calib::cameras::GraphCalibration) -> String {
     if let Some(axes) = &cal.hand_axes {
         doc["R_hand"] = serde_json::json!(rows(&rotation_rows(axes), 3));
     }
+    if let Some(c) = &cal.covariance {
+        doc["covariance"] = serde_json::json!({
+            "unknowns": "each camera's fx, fy, cx, cy, k1, k2, p1, p2, k3 (when refined: per_camera 9), then each camera's pose but the first's: a rotation vector applied on the right (rad), then the translation (mm); the board poses marginalised",
+            "per_camera": c.per_camera,
+            "matrix": c.matrix,
+        });
+    }
+    if let Some(c) = &cal.covariance {
+        doc["covariance"] = serde_json::json!({
+            "unknowns": "each camera's fx, fy, cx, cy, k1, k2, p1, p2, k3 (when refined: per_camera 9), then each camera's pose but the first's: a rotation vector applied on the right (rad), then the translation (mm); the board poses marginalised",
+            "per_camera": c.per_camera,
+            "matrix": c.matrix,
+        });
+    }
     if !cal.implausible.is_empty() {
         doc["forced"] = serde_json::json!(cal.implausible);
     }
     serde_json::to_string_pretty(&doc).expect("numbers and names serialise as JSON")
+}
+
+/// The covariance of the cameras' unknowns in a JSON [`cameras_json`] wrote for `cameras`
+/// cameras; `None` when it has none, or not one of that size.
+///
+/// # Errors
+/// [`StereoError`] when the file cannot be read or is not JSON.
+pub fn read_cameras_covariance(
+    path: &Path,
+    cameras: usize,
+) -> Result<Option<crate::calib::graph::CameraCovariance>, StereoError> {
+    #[derive(serde::Deserialize)]
+    struct Keys {
+        covariance: Option<Covariance>,
+    }
+    #[derive(serde::Deserialize)]
+    struct Covariance {
+        per_camera: usize,
+        matrix: Vec<Vec<f64>>,
+    }
+    let text = read_text(path)?;
+    let keys: Keys = serde_json::from_str(&text).map_err(|e| StereoError::Invalid {
+        path: path.to_path_buf(),
+        message: format!("not a handcap calibration JSON ({e})"),
+    })?;
+    Ok(keys.covariance.and_then(|c| {
+        let k = c.per_camera * cameras + 6 * (cameras - 1);
+        let square = c.matrix.len() == k && c.matrix.iter().all(|row| row.len() == k);
+        (square && matches!(c.per_camera, 0 | 9)).then_some(crate::calib::graph::CameraCovariance {
+            per_camera: c.per_camera,
+            matrix: c.matrix,
+        })
+    }))
 }
 
 /// Reads a calibration written by [`calibration_json`].

@@ -48,7 +48,7 @@ pub use anipose::{
 pub use board::{
     board_yaml, default_board, read_board, read_board_text, BOARD_FILE, DEFAULT_BOARD_YAML,
 };
-pub use json::{calibration_json, cameras_json, read_calibration_json};
+pub use json::{calibration_json, cameras_json, read_calibration_json, read_cameras_covariance};
 pub use yaml::{calibration_yaml, hand_yaml, read_calibration, read_intrinsics, write_rig};
 
 use std::path::{Path, PathBuf};
