@@ -193,6 +193,12 @@ pub fn calibrate(
 ) -> Result<GraphCalibration, CalibError> {
     board.check()?;
     let names: Vec<&String> = listing.keys().collect();
+    if let [one] = names[..] {
+        return Err(CalibError::OneCamera {
+            camera: one.clone(),
+            dir: dir.to_path_buf(),
+        });
+    }
     let files: Vec<(usize, &String, &PathBuf)> = listing
         .values()
         .enumerate()

@@ -126,6 +126,8 @@ pub enum CalibError {
     },
     #[error("camera {camera} shares no board view with the others in {dir}: show the board to it and to another camera at the same instant (the same NN in both files' names)")]
     Untied { camera: String, dir: PathBuf },
+    #[error("{dir} has board views of one camera, {camera}: a calibration of cameras takes two or more seeing the board at the same instants (<camera>_NN images with the same NN)")]
+    OneCamera { camera: String, dir: PathBuf },
     #[error("{left} and its right video: no still board pair in {searched} frame pairs searched (the board in both images in {seen}, still in {still}); film the whole board in both cameras, holding it still for half a second at each pose")]
     NoVideoPairs {
         left: PathBuf,

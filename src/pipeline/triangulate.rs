@@ -470,6 +470,13 @@ pub fn run_cameras(
 ) -> Result<TriangulatedCameras, PipelineError> {
     options.check().map_err(PipelineError::Request)?;
     let (cameras, hand) = crate::calib::file::read_cameras_toml(calib)?;
+    if cameras.len() < 2 {
+        return Err(PipelineError::Place(format!(
+            "{} has {} camera: a tip takes two or more seeing it; calibrate the cameras together (handcap calibrate with <camera>_NN views)",
+            calib.display(),
+            cameras.len()
+        )));
+    }
     let Some(hand) = hand else {
         return Err(PipelineError::Place(format!(
             "{} has no hand_rotation in its [metadata]: calibrate with <camera>_ref views of the reference board (handcap calibrate writes it)",

@@ -117,6 +117,8 @@ enum Seen {
     /// The marker's candidates' centres (px); none when no marker was found.
     Candidates(Vec<[f64; 2]>),
     Unreadable(String),
+    /// An image of another size than the camera's calibration (width, height).
+    WrongSize([usize; 2]),
     NotExamined,
 }
 
@@ -175,6 +177,15 @@ pub struct Calibration {
 /// Why there is no dataset.
 #[derive(Debug, thiserror::Error)]
 pub enum CamerasError {
+    #[error("{path} is {got_w}x{got_h} px, but camera {camera} was calibrated at {want_w}x{want_h}: calibrate the cameras at the size they film, or film at the calibrated size")]
+    WrongSize {
+        path: PathBuf,
+        camera: String,
+        got_w: usize,
+        got_h: usize,
+        want_w: i32,
+        want_h: i32,
+    },
     #[error("no step at 0, 0, 0 kPa has a tip: the hand frame's origin is the tip at rest; start the protocol with a rest step the cameras see")]
     NoOrigin,
 }
@@ -184,6 +195,7 @@ pub enum CamerasError {
 /// `interrupt` is set, the frames not yet examined are left out (and `interrupted` said).
 ///
 /// # Errors
+/// [`CamerasError::WrongSize`] for a frame of another size than its camera's calibration,
 /// [`CamerasError::NoOrigin`].
 pub fn triangulate(
     frames: &[Frame],
@@ -207,8 +219,12 @@ pub fn triangulate(
             if interrupt.load(Relaxed) {
                 return Some((k, Seen::NotExamined));
             }
+            let size = cameras[f.camera].size;
             let seen = match crate::image::decode(&f.path) {
                 Err(why) => Seen::Unreadable(format!("{}: {why}", f.path.display())),
+                Ok(image) if [image.width, image.height] != size.map(|s| s as usize) => {
+                    Seen::WrongSize([image.width, image.height])
+                }
                 Ok(image) => Seen::Candidates(
                     super::marker::find_markers(&image, &options.marker)
                         .blobs
@@ -243,6 +259,17 @@ pub fn triangulate(
                 found.frames_unreadable += 1;
             }
             Seen::NotExamined => found.interrupted = true,
+            Seen::WrongSize([got_w, got_h]) => {
+                let [want_w, want_h] = cameras[f.camera].size;
+                return Err(CamerasError::WrongSize {
+                    path: f.path.clone(),
+                    camera: cameras[f.camera].name.clone(),
+                    got_w,
+                    got_h,
+                    want_w,
+                    want_h,
+                });
+            }
         }
     }
     // 3. Each step's tip in the world.

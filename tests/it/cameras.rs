@@ -349,6 +349,17 @@ fn a_camera_tied_to_no_other_and_a_pairs_option_get_one_line() {
     );
     assert_eq!(err.trim().lines().count(), 1, "{err}");
     assert!(!d.join("cal.toml").exists());
+    // Without cam4's views, one camera is left.
+    std::fs::create_dir(d.join("one")).unwrap();
+    for entry in std::fs::read_dir(d).unwrap() {
+        let name = entry.unwrap().file_name().to_string_lossy().into_owned();
+        if name.starts_with("cam2_") || name == "board.yml" {
+            std::fs::copy(d.join(&name), d.join("one").join(&name)).unwrap();
+        }
+    }
+    let err = handcap_err(d, &["calibrate", "one", "--out", "one/cal.yml"]);
+    assert!(err.contains("has board views of one camera, cam2"), "{err}");
+    assert!(!d.join("one/cal.toml").exists());
     let err = handcap(d, &["calibrate", ".", "--bootstrap", "10"]);
     assert!(
         err.contains("--bootstrap is for a pair of cameras") && err.contains("cam2, cam4"),
@@ -684,6 +695,34 @@ fn more_cameras_bad_input_gets_one_line() {
         "{err}"
     );
     assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(!d.join("x.csv").exists());
+    // A calibration of one camera.
+    for i in 1..4 {
+        doc.remove(&format!("cam_{i}"));
+    }
+    write(d, "one.toml", &toml::to_string(&doc).unwrap());
+    let err = handcap_err(
+        d,
+        &[
+            &args[..2],
+            &["--calib", "one.toml"],
+            &args[4..],
+            &["--out", "x.csv"],
+        ]
+        .concat(),
+    );
+    assert!(
+        err.contains("one.toml has 1 camera: a tip takes two or more"),
+        "{err}"
+    );
+    // A camera filming at another size than it was calibrated at.
+    let small = encode_png(640, 360, &vec![0; 640 * 360 * 3]);
+    std::fs::write(d.join("frames/cam3_00020.png"), small).unwrap();
+    let err = handcap_err(d, &[&TRIANGULATE[..], &["--out", "x.csv"]].concat());
+    assert!(
+        err.contains("cam3_00020.png is 640x360 px, but camera cam3 was calibrated at 1280x720"),
+        "{err}"
+    );
     assert!(!d.join("x.csv").exists());
 }
 
