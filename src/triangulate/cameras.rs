@@ -338,12 +338,9 @@ pub fn triangulate(
     let (chi2, dof) = world
         .iter()
         .fold((0.0, 0), |(c, d), (_, t, _)| (c + t.chi2, d + t.dof));
-    let unit = if dof >= MIN_DOF {
-        (chi2 / dof as f64).max(1.0)
-    } else {
-        1.0
-    };
-    found.bead_noise_px = (dof >= MIN_DOF).then(|| BEAD_NOISE_PX * unit.sqrt());
+    let shown = (dof >= MIN_DOF).then(|| chi2 / dof as f64);
+    found.bead_noise_px = shown.map(|unit| BEAD_NOISE_PX * unit.sqrt());
+    let unit = shown.map_or(1.0, |unit| unit.max(1.0));
     let r: Matrix3<f64> = *hand.matrix();
     let origin: Matrix3<f64> = rest
         .iter()

@@ -29,6 +29,18 @@
 //!   true tip at its exposure.
 //! - `manifest.json`: configuration, counts, provenance.
 //!
+//! # More cameras
+//!
+//! With `cameras` of three or more ([`crate::synth::camera`]'s arc, named `cam1` … `camN`),
+//! the same layout with every camera's name in place of `left`/`right`, except that a board
+//! view is photographed only by the cameras that see it whole (`calib/<camera>_NN` exists
+//! for those; the arc's two ends never share one, so they are tied only through the cameras
+//! between; every camera gets `views` of them), the reference board by the cameras that see it,
+//! and the true rig is `truth/cameras.toml` (as `calibrate` writes more cameras: Anipose's
+//! TOML, the first camera's frame the world, `hand_rotation`) instead of `truth/rig.yml`;
+//! `truth/tips.csv`'s camera columns are the first camera's (`cam1_x_mm` …). The red cable
+//! and push-pin stand in cam2's view, as in a pair's right one.
+//!
 //! # Timing
 //!
 //! The regulator commands step k at t_k = k · 0.3 s; each muscle's pressure follows
