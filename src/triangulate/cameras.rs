@@ -33,12 +33,14 @@ use std::path::{Path, PathBuf};
 use nalgebra::{Matrix3, Matrix3x4, Rotation3, Vector3};
 use rayon::prelude::*;
 
+mod covariance;
+
 use super::nview::{self, View};
 use super::pairing::{self, Placement};
 use super::TriangulateOptions;
 use crate::calib::file::ReadCamera;
 use crate::calib::graph::CameraCovariance;
-use crate::geometry::{CamFromWorld, Intrinsics};
+use crate::geometry::Intrinsics;
 use crate::session::frames::read_frame_rows;
 use crate::session::pressures::PressureLog;
 use crate::session::SessionError;
@@ -273,14 +275,64 @@ pub fn triangulate(
         }
     }
     // 3. Each step's tip in the world.
+    let world = in_world(&views, cameras, &mut found);
+    // 4. The hand frame.
+    let rest: Vec<usize> = (0..world.len())
+        .filter(|&i| log.steps[world[i].step].pressures_kpa == [0.0; 3])
+        .collect();
+    if rest.is_empty() {
+        return Err(CamerasError::NoOrigin);
+    }
+    let at_rest: Vec<Vector3<f64>> = rest.iter().map(|&i| world[i].tip.point).collect();
+    found.origin_mm = crate::stats::median_point(&at_rest);
+    found.rest_steps = at_rest.len();
+    // 5. Each row's covariance.
+    found.calibration_in_covariance = calibration.covariance.is_some();
+    let (covariances, bead_noise_px) = covariance::of_rows(&world, &rest, calibration);
+    found.bead_noise_px = bead_noise_px;
+    found.tips = world
+        .into_iter()
+        .zip(covariances)
+        .map(|(w, covariance_mm2)| {
+            let t = w.tip;
+            StepTip {
+                step: w.step,
+                tip_mm: hand * (t.point - found.origin_mm),
+                covariance_mm2,
+                used: t.used,
+                left_out: t.left_out,
+                chi2: t.chi2,
+                frames: w.frames,
+            }
+        })
+        .collect();
+    Ok(found)
+}
+
+/// A step's tip in the world (the first camera's frame).
+pub(super) struct InWorld {
+    pub step: usize,
+    /// Its views' indices are the cameras'.
+    pub tip: nview::Triangulated,
+    /// The frames of the views used.
+    pub frames: usize,
+    /// The views used: (camera, distorted px).
+    pub pixels: Vec<(usize, [f64; 2])>,
+}
+
+/// Each step's tip from `views` (each step's cameras' groups of candidates; module docs, step
+/// 3); the steps without one are counted in `found`.
+fn in_world(
+    views: &BTreeMap<usize, Vec<Vec<Vec<[f64; 2]>>>>,
+    cameras: &[ReadCamera],
+    found: &mut Found,
+) -> Vec<InWorld> {
     let projections: Vec<Matrix3x4<f64>> = cameras
         .iter()
         .map(|c| crate::geometry::projection(&c.intrinsics, &c.pose))
         .collect();
-    let mut world: Vec<(usize, nview::Triangulated, usize)> = Vec::new();
-    // The pixels (camera, distorted px) of each tip's views used.
-    let mut pixels: Vec<Vec<(usize, [f64; 2])>> = Vec::new();
-    for (&k, by_camera) in &views {
+    let mut world = Vec::new();
+    for (&step, by_camera) in views {
         // Each camera's groups as views, the best supported first.
         let choices: Vec<(usize, Vec<Group>)> = by_camera
             .iter()
@@ -309,66 +361,25 @@ pub fn triangulate(
             })
             .collect();
         match agreed(&choices) {
-            Ok((mut t, chosen)) => {
+            Ok((mut tip, chosen)) => {
                 let camera = |i: usize| choices[i].0;
                 let group = |i: usize| &choices[i].1[chosen[i]];
-                let frames_used = t.used.iter().map(|&i| group(i).frames).sum();
-                pixels.push(t.used.iter().map(|&i| (camera(i), group(i).px)).collect());
-                t.used = t.used.iter().map(|&i| camera(i)).collect();
-                t.left_out = t.left_out.iter().map(|&i| camera(i)).collect();
-                world.push((k, t, frames_used));
+                let frames = tip.used.iter().map(|&i| group(i).frames).sum();
+                let pixels = tip.used.iter().map(|&i| (camera(i), group(i).px)).collect();
+                tip.used = tip.used.iter().map(|&i| camera(i)).collect();
+                tip.left_out = tip.left_out.iter().map(|&i| camera(i)).collect();
+                world.push(InWorld {
+                    step,
+                    tip,
+                    frames,
+                    pixels,
+                });
             }
             Err(nview::Refused::TooFewViews) => found.steps_unseen += 1,
             Err(nview::Refused::Inconsistent { .. }) => found.steps_inconsistent += 1,
         }
     }
-    // 4. The hand frame.
-    let rest: Vec<usize> = (0..world.len())
-        .filter(|&i| log.steps[world[i].0].pressures_kpa == [0.0; 3])
-        .collect();
-    if rest.is_empty() {
-        return Err(CamerasError::NoOrigin);
-    }
-    let at_rest: Vec<Vector3<f64>> = rest.iter().map(|&i| world[i].1.point).collect();
-    found.origin_mm = crate::stats::median_point(&at_rest);
-    found.rest_steps = at_rest.len();
-    // 5. The beads' pixel error the session shows: the χ² of the steps' residuals over their
-    // degrees of freedom says how far [`BEAD_NOISE_PX`] was from it. Never less: a bead's
-    // centre also errs the same way in every camera (its shading), which no residual shows.
-    let (chi2, dof) = world
-        .iter()
-        .fold((0.0, 0), |(c, d), (_, t, _)| (c + t.chi2, d + t.dof));
-    let shown = (dof >= MIN_DOF).then(|| chi2 / dof as f64);
-    found.bead_noise_px = shown.map(|unit| BEAD_NOISE_PX * unit.sqrt());
-    let unit = shown.map_or(1.0, |unit| unit.max(1.0));
-    let r: Matrix3<f64> = *hand.matrix();
-    let origin: Matrix3<f64> = rest
-        .iter()
-        .map(|&i| world[i].1.covariance)
-        .sum::<Matrix3<f64>>()
-        / (rest.len() * rest.len()) as f64;
-    let from_calibration = match &calibration.covariance {
-        Some(covariance) => calibration_term(&pixels, &rest, calibration, covariance),
-        None => vec![Matrix3::zeros(); world.len()],
-    };
-    found.calibration_in_covariance = calibration.covariance.is_some();
-    found.tips = world
-        .into_iter()
-        .zip(from_calibration)
-        .map(|((step, t, frames), calibrated)| {
-            let covariance = r * (t.covariance + origin) * r.transpose() * unit + calibrated;
-            StepTip {
-                step,
-                tip_mm: hand * (t.point - found.origin_mm),
-                covariance_mm2: covariance,
-                used: t.used,
-                left_out: t.left_out,
-                chi2: t.chi2,
-                frames,
-            }
-        })
-        .collect();
-    Ok(found)
+    world
 }
 
 /// A camera's candidates in a step's frames at one place (module docs, step 2).
@@ -382,7 +393,7 @@ struct Group {
 }
 
 /// The view of a bead seen at `px` (distorted) by a camera of `intrinsics` and `projection`.
-fn view_of(intrinsics: &Intrinsics, projection: &Matrix3x4<f64>, px: [f64; 2]) -> View {
+pub(super) fn view_of(intrinsics: &Intrinsics, projection: &Matrix3x4<f64>, px: [f64; 2]) -> View {
     let (x, y) = intrinsics.undistort(px[0], px[1]);
     View {
         projection: *projection,
@@ -392,96 +403,6 @@ fn view_of(intrinsics: &Intrinsics, projection: &Matrix3x4<f64>, px: [f64; 2]) -
         ],
         sigma_px: BEAD_NOISE_PX,
     }
-}
-
-/// Each row's covariance from the calibration's `covariance` (module docs, step 5), in the
-/// hand frame: the rows of `pixels` (each tip's views used) refitted, less the origin (the
-/// median of the `rest` rows), with each camera unknown moved either way.
-fn calibration_term(
-    pixels: &[Vec<(usize, [f64; 2])>],
-    rest: &[usize],
-    calibration: &Calibration,
-    covariance: &CameraCovariance,
-) -> Vec<Matrix3<f64>> {
-    use crate::calib::uncertainty::{intrinsic_mut, intrinsic_step, stepped, POSE_STEP};
-    let (cameras, per) = (&calibration.cameras, covariance.per_camera);
-    // The rows with the cameras as given.
-    let rows = |intrinsics: &[Intrinsics], poses: &[CamFromWorld]| -> Vec<Vector3<f64>> {
-        let projections: Vec<Matrix3x4<f64>> = intrinsics
-            .iter()
-            .zip(poses)
-            .map(|(k, pose)| crate::geometry::projection(k, pose))
-            .collect();
-        let points: Vec<Vector3<f64>> = pixels
-            .iter()
-            .map(|seen| {
-                let views: Vec<View> = seen
-                    .iter()
-                    .map(|&(c, px)| view_of(&intrinsics[c], &projections[c], px))
-                    .collect();
-                nview::through(&views).unwrap_or_else(|| Vector3::repeat(f64::NAN))
-            })
-            .collect();
-        let at_rest: Vec<Vector3<f64>> = rest.iter().map(|&i| points[i]).collect();
-        let origin = crate::stats::median_point(&at_rest);
-        points
-            .iter()
-            .map(|p| calibration.hand * (p - origin))
-            .collect()
-    };
-    let intrinsics: Vec<Intrinsics> = cameras.iter().map(|c| c.intrinsics.clone()).collect();
-    let poses: Vec<CamFromWorld> = cameras.iter().map(|c| c.pose).collect();
-    // Each row's derivative along each unknown.
-    let derivatives: Vec<Vec<Vector3<f64>>> = (0..covariance.matrix.len())
-        .into_par_iter()
-        .map(|j| {
-            let at = |sign: f64| {
-                let (mut intrinsics, mut poses) = (intrinsics.clone(), poses.clone());
-                let h = if j < per * cameras.len() {
-                    let h = intrinsic_step(j % per);
-                    *intrinsic_mut(&mut intrinsics[j / per], j % per) += sign * h;
-                    h
-                } else {
-                    let (c, q) = (
-                        1 + (j - per * cameras.len()) / 6,
-                        (j - per * cameras.len()) % 6,
-                    );
-                    let mut delta = [0.0; 6];
-                    delta[q] = sign * POSE_STEP[q];
-                    poses[c] = stepped(&poses[c], &delta);
-                    POSE_STEP[q]
-                };
-                (rows(&intrinsics, &poses), h)
-            };
-            let ((plus, h), (minus, _)) = (at(1.0), at(-1.0));
-            plus.iter()
-                .zip(&minus)
-                .map(|(p, m)| {
-                    let d = (p - m) / (2.0 * h);
-                    if d.iter().all(|v| v.is_finite()) {
-                        d
-                    } else {
-                        Vector3::zeros()
-                    }
-                })
-                .collect()
-        })
-        .collect();
-    let c = &covariance.matrix;
-    (0..pixels.len())
-        .map(|s| {
-            let mut sum = Matrix3::zeros();
-            for (j, dj) in derivatives.iter().enumerate() {
-                let weighted: Vector3<f64> = derivatives
-                    .iter()
-                    .zip(&c[j])
-                    .map(|(dl, &cjl)| dl[s] * cjl)
-                    .sum();
-                sum += dj[s] * weighted.transpose();
-            }
-            (sum + sum.transpose()) / 2.0
-        })
-        .collect()
 }
 
 /// Adds candidate `c` to the group of `groups` whose first member lies within
@@ -535,9 +456,14 @@ fn agreed(
 /// dataset has them.
 pub const HEADER: &str = "P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm,sd_x_mm,sd_y_mm,sd_z_mm,cov_xy_mm2,cov_xz_mm2,cov_yz_mm2,n_cameras,cameras,left_out,chi2,n_frames";
 
-/// The rows of `found` as CSV (camera names joined by `+`), each followed by its log row's
-/// other columns.
-pub fn csv(found: &Found, cameras: &[ReadCamera], log: &PressureLog) -> String {
+/// The rows of `found` that `keep` keeps as CSV (camera names joined by `+`), each followed
+/// by its log row's other columns.
+pub fn csv(
+    found: &Found,
+    keep: impl Fn(&StepTip) -> bool,
+    cameras: &[ReadCamera],
+    log: &PressureLog,
+) -> String {
     use std::fmt::Write as _;
     let names = |list: &[usize]| -> String {
         list.iter()
@@ -550,7 +476,7 @@ pub fn csv(found: &Found, cameras: &[ReadCamera], log: &PressureLog) -> String {
         let _ = write!(out, ",{column}");
     }
     out.push('\n');
-    for t in &found.tips {
+    for t in found.tips.iter().filter(|t| keep(t)) {
         let step = &log.steps[t.step];
         let [p1, p2, p3] = step.pressures_kpa;
         let c = &t.covariance_mm2;

@@ -43,7 +43,7 @@ pub fn phase_path(out: &Path, phase: &str) -> PathBuf {
 }
 
 /// The distinct `phases`, in the order they first appear (the per-phase files' order).
-pub(super) fn first_appearances<'a>(phases: impl Iterator<Item = &'a str>) -> Vec<&'a str> {
+pub(crate) fn first_appearances<'a>(phases: impl Iterator<Item = &'a str>) -> Vec<&'a str> {
     let mut seen: Vec<&str> = Vec::new();
     for p in phases {
         if !seen.contains(&p) {

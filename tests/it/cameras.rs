@@ -869,6 +869,12 @@ fn synth_with_four_cameras_is_calibrated_and_triangulated_to_its_truth() {
         10 * by_four >= 9 * steps,
         "{by_four} of {steps} by four: {said}"
     );
+    // Split by the log's phase, as a pair's dataset is.
+    let split: usize = ["train", "sweep_a", "sweep_b"]
+        .iter()
+        .map(|phase| crate::common::csv_rows(&d.join(format!("four_{phase}.csv"))).len())
+        .sum();
+    assert_eq!(split, steps, "{said}");
     assert_eq!(steps, truth.len(), "every step a tip: {said}");
     assert!(four < 0.03, "tip RMS {four:.4} mm: {said}");
     let mut best_pair = f64::INFINITY;
