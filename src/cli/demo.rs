@@ -19,6 +19,11 @@ pub struct Args {
     /// sweeps, a short search, 20 inverse targets
     #[arg(long)]
     quick: bool,
+    /// How many cameras film it: 2, a pair; 3 to 8 on an arc around the finger (synth
+    /// --cameras), calibrated and triangulated as more cameras, without the pair's finger in
+    /// motion
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u8).range(2..=8))]
+    cameras: u8,
     #[command(flatten)]
     frames: FrameArgs,
 }
@@ -30,11 +35,8 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         quick: a.quick,
         format,
         realism,
+        cameras: a.cameras.into(),
     };
-    let done = super::with_session(|s| demo::run(&a.out, config, s))?;
-    if let Some((_, total)) = done.timings.iter().find(|(k, _)| k == "total") {
-        println!("total {total:.1} s");
-    }
-    println!("report: {}", done.index.display());
+    print!("{}", super::with_session(|s| demo::run(&a.out, config, s))?);
     Ok(())
 }

@@ -14,6 +14,8 @@
 //! The search scores its candidates on the 50 kPa points of the grid (`DIR/search/`, the paper's
 //! 216 steps), so it takes as long as the paper's; the fit uses every step.
 
+mod cameras;
+
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -28,7 +30,7 @@ use super::demo_summary::{
 use super::fit::{self, FitJob, FitOutcome, Selection};
 use super::{io_error, Event, PipelineError, Session};
 use crate::calib::file::read_calibration;
-use crate::calib::{CalibOptions, StereoCalibration};
+use crate::calib::CalibOptions;
 use crate::data::{self, names, HAND_INPUTS, HAND_OUTPUTS};
 use crate::fsio;
 use crate::model::file::ModelFile;
@@ -39,7 +41,7 @@ use crate::synth::capture::{CaptureConfig, Realism};
 use crate::synth::image_format::ImageFormat;
 use crate::synth::plant::Plant;
 use crate::synth::SynthConfig;
-use crate::triangulate::Triangulation;
+use cameras::Seen;
 
 /// What to run.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -53,6 +55,9 @@ pub struct DemoConfig {
     pub format: ImageFormat,
     /// What the virtual lab adds to ideal frames.
     pub realism: Realism,
+    /// How many cameras film it: 2, a pair; more, on an arc (`synth --cameras`), calibrated
+    /// and triangulated as more cameras are, without the pair's finger in motion (step 6).
+    pub cameras: usize,
 }
 
 /// What the demo did: the summary it wrote to `summary.json`.
@@ -79,8 +84,18 @@ pub fn run(
     std::fs::create_dir_all(out).map_err(io_error(out))?;
     let mut demo = Demo::new(out, config, session);
     demo.synth()?;
-    let (calibrated, calibration) = demo.calibrate()?;
-    let (triangulated, triangulation) = demo.triangulate()?;
+    let seen = if config.cameras == 2 {
+        let (calibrated, calibration) = demo.calibrate()?;
+        let (triangulated, triangulation) = demo.triangulate()?;
+        Seen::Pair {
+            calibrated: Box::new(calibrated),
+            calibration,
+            triangulated: Box::new(triangulated),
+            triangulation,
+        }
+    } else {
+        demo.more_cameras()?
+    };
     let Models {
         scores,
         intervals,
@@ -88,7 +103,13 @@ pub fn run(
         coarse,
     } = demo.models()?;
     let (file, planned, inverse) = demo.inverse(coarse.as_deref())?;
-    let dynamic = demo.dynamic()?;
+    let dynamic = match seen {
+        Seen::Pair { .. } => Some(demo.dynamic()?),
+        Seen::Cameras { .. } => {
+            demo.note("      dynamic: skipped; the per-frame tip with more than two cameras is not built yet".into());
+            None
+        }
+    };
     demo.stage(7, "report".into());
     demo.timings
         .push(("total".into(), started.elapsed().as_secs_f64()));
@@ -96,8 +117,9 @@ pub fn run(
         seed: config.seed,
         quick: config.quick,
         realism: config.realism,
-        calibration,
-        triangulation,
+        calibration: seen.calibration(),
+        cameras: seen.cameras(),
+        triangulation: seen.triangulation(),
         scores,
         intervals,
         auto,
@@ -105,19 +127,23 @@ pub fn run(
         dynamic,
         provenance: session.provenance(Some(config.seed)),
     };
-    let index = demo.report(
-        &summary,
-        &triangulated.triangulation,
-        &calibrated.calibration,
-        &file,
-        &planned,
-    )?;
+    let index = demo.report(&summary, &seen, &file, &planned)?;
     demo.lap("report");
     Ok(DemoOutcome {
         summary,
         timings: demo.timings,
         index,
     })
+}
+
+impl std::fmt::Display for DemoOutcome {
+    /// The total time and where the report is.
+    fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        if let Some((_, total)) = self.timings.iter().find(|(k, _)| k == "total") {
+            writeln!(f, "total {total:.1} s")?;
+        }
+        writeln!(f, "report: {}", self.index.display())
+    }
 }
 
 /// What step 4 fitted: the models' scores and intervals, and the coarse rows the search scored
@@ -153,6 +179,10 @@ impl<'a> Demo<'a> {
             ..SynthConfig::default()
         };
         let capture = CaptureConfig {
+            rig: crate::synth::camera::RigConfig {
+                cameras: config.cameras,
+                ..Default::default()
+            },
             views: plan.views,
             window_s: plan.window_s,
             format: config.format,
@@ -197,7 +227,11 @@ impl<'a> Demo<'a> {
         self.stage(
             1,
             format!(
-                "synth: the virtual micro-hand filmed by two webcams → {}",
+                "synth: the virtual micro-hand filmed by {} webcams → {}",
+                match self.config.cameras {
+                    2 => "two".to_string(),
+                    n => n.to_string(),
+                },
                 capture.display()
             ),
         );
@@ -262,7 +296,14 @@ impl<'a> Demo<'a> {
         )?;
         self.session.emit(Event::Outcome(&triangulated));
         let checks = check_tips(&triangulated.triangulation, &capture.join("truth/tips.csv"))?;
-        for t in &checks {
+        self.note_tips(&checks);
+        self.lap("triangulate");
+        Ok((triangulated, checks))
+    }
+
+    /// The tips' errors, a line per phase.
+    fn note_tips(&self, checks: &[TipCheck]) {
+        for t in checks {
             self.note(format!(
                 "      tip vs truth, {}: RMS {:.4} mm, max {:.4} mm over {} steps; mean error {:.4} mm",
                 t.phase,
@@ -272,8 +313,6 @@ impl<'a> Demo<'a> {
                 Vector3::from(t.mean_mm).norm()
             ));
         }
-        self.lap("triangulate");
-        Ok((triangulated, checks))
     }
 
     /// Step 4: models from the triangulated data (the pipeline) and from the plant's own data.
@@ -480,8 +519,7 @@ impl<'a> Demo<'a> {
     fn report(
         &self,
         summary: &Summary,
-        triangulation: &Triangulation,
-        calibration: &StereoCalibration,
+        seen: &Seen,
         file: &ModelFile,
         planned: &[PlannedTarget],
     ) -> Result<PathBuf, PipelineError> {
@@ -505,8 +543,14 @@ impl<'a> Demo<'a> {
             self.out,
             summary,
             &self.timings,
-            triangulation,
-            calibration,
+            match seen {
+                Seen::Pair {
+                    calibrated,
+                    triangulated,
+                    ..
+                } => Some((&triangulated.triangulation, &calibrated.calibration)),
+                Seen::Cameras { .. } => None,
+            },
             file.search.as_ref(),
             planned,
         )

@@ -5,7 +5,7 @@ use std::path::Path;
 
 use nalgebra::Vector3;
 
-use super::demo_summary::{CalibrationCheck, InverseCheck, TipCheck};
+use super::demo_summary::{CalibrationCheck, CameraCheck, CamerasCheck, InverseCheck, TipCheck};
 use super::PipelineError;
 use crate::calib::file::CalibrationFile;
 use crate::calib::StereoCalibration;
@@ -112,14 +112,58 @@ pub(super) fn check_tips(
             "the synthetic log has step and phase columns".into(),
         ));
     };
+    let rows = tri.rows.iter().filter(|r| r.flags.is_empty()).map(|row| {
+        (
+            row.extra[step_col].clone(),
+            row.extra[phase_col].clone(),
+            row.tip_mm,
+        )
+    });
+    tip_checks(rows, truth)
+}
+
+/// [`check_tips`] of a dataset of more cameras (its `step`, `phase` and tip columns).
+pub(super) fn check_dataset_tips(
+    dataset: &Path,
+    truth: &Path,
+) -> Result<Vec<TipCheck>, PipelineError> {
+    tip_checks(dataset_rows(dataset)?.into_iter(), truth)
+}
+
+/// The (step, phase, tip) of each row of a dataset of more cameras, which `handcap` wrote.
+fn dataset_rows(dataset: &Path) -> Result<Vec<(String, String, [f64; 3])>, PipelineError> {
+    let text = std::fs::read_to_string(dataset).map_err(super::io_error(dataset))?;
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
+    let at = |name: &str| {
+        header.iter().position(|c| *c == name).ok_or_else(|| {
+            PipelineError::Check(format!("{} has no {name} column", dataset.display()))
+        })
+    };
+    let (step, phase) = (at("step")?, at("phase")?);
+    let xyz = [at("x_mm")?, at("y_mm")?, at("z_mm")?];
+    lines
+        .map(|line| {
+            let cells: Vec<&str> = line.split(',').collect();
+            let tip = xyz.map(|i| cells[i].parse::<f64>().unwrap_or(f64::NAN));
+            Ok((cells[step].to_string(), cells[phase].to_string(), tip))
+        })
+        .collect()
+}
+
+/// The tips' errors against `truth` (`truth/tips.csv`), per phase in the order they first
+/// appear, then `all`.
+fn tip_checks(
+    rows: impl Iterator<Item = (String, String, [f64; 3])>,
+    truth: &Path,
+) -> Result<Vec<TipCheck>, PipelineError> {
     let truth_tips = data::read_columns(truth, &names(&["step", "x_mm", "y_mm", "z_mm"]))?;
     let tips: std::collections::HashMap<u64, [f64; 3]> = truth_tips
         .iter_rows()
         .map(|r| (r[0] as u64, [r[1], r[2], r[3]]))
         .collect();
     let mut by_phase: Vec<(String, Vec<[f64; 3]>)> = Vec::new();
-    for row in tri.rows.iter().filter(|r| r.flags.is_empty()) {
-        let step = &row.extra[step_col];
+    for (step, phase, tip) in rows {
         let t = step
             .parse::<u64>()
             .ok()
@@ -127,11 +171,10 @@ pub(super) fn check_tips(
             .ok_or_else(|| {
                 PipelineError::Check(format!("step {step} not in {}", truth.display()))
             })?;
-        let e: [f64; 3] = std::array::from_fn(|k| row.tip_mm[k] - t[k]);
-        let phase = &row.extra[phase_col];
-        match by_phase.iter_mut().find(|(p, _)| p == phase) {
+        let e: [f64; 3] = std::array::from_fn(|k| tip[k] - t[k]);
+        match by_phase.iter_mut().find(|(p, _)| *p == phase) {
             Some((_, v)) => v.push(e),
-            None => by_phase.push((phase.clone(), vec![e])),
+            None => by_phase.push((phase, vec![e])),
         }
     }
     let all: Vec<[f64; 3]> = by_phase.iter().flat_map(|(_, v)| v.clone()).collect();
@@ -150,4 +193,81 @@ pub(super) fn check_tips(
             }
         })
         .collect())
+}
+
+/// More cameras' calibration `cal` against the rig `truth` they were rendered with
+/// (`truth/cameras.toml`), and their tips `found` against `tips` (`truth/tips.csv`).
+pub(super) fn check_cameras(
+    cal: &crate::calib::cameras::GraphCalibration,
+    truth: &Path,
+    found: &crate::triangulate::cameras::Found,
+    tips: &Path,
+) -> Result<CamerasCheck, PipelineError> {
+    let (rig, hand) = crate::calib::file::read_cameras_toml(truth)?;
+    let cameras = cal
+        .cameras
+        .iter()
+        .zip(&rig)
+        .map(|(got, want)| {
+            let pose = &got.pose.cam_from_world;
+            CameraCheck {
+                name: got.name.clone(),
+                views: got.views,
+                focal_error_pct: 100.0 * (got.pose.intrinsics.fx() - want.intrinsics.fx())
+                    / want.intrinsics.fx(),
+                rotation_error_deg: (pose.rotation * want.pose.rotation.inverse())
+                    .angle()
+                    .to_degrees(),
+                centre_error_mm: (pose.centre() - want.pose.centre()).norm(),
+                rotation_sd_deg: got.pose.rotation_sd_deg,
+                position_sd_mm: got.pose.position_sd_mm,
+            }
+        })
+        .collect();
+    let truth_tips = data::read_columns(tips, &names(&["step", "x_mm", "y_mm", "z_mm"]))?;
+    let true_tip: std::collections::HashMap<usize, Vector3<f64>> = truth_tips
+        .iter_rows()
+        .map(|r| (r[0] as usize, Vector3::new(r[1], r[2], r[3])))
+        .collect();
+    // χ² of 3 degrees of freedom at 0.95.
+    let inside = found
+        .tips
+        .iter()
+        .filter(|t| {
+            let e = t.tip_mm - true_tip[&t.step];
+            t.covariance_mm2
+                .try_inverse()
+                .is_some_and(|inverse| e.dot(&(inverse * e)) <= 7.815)
+        })
+        .count();
+    let mut by_cameras: Vec<(usize, usize)> = Vec::new();
+    for t in &found.tips {
+        match by_cameras.iter_mut().find(|(n, _)| *n == t.used.len()) {
+            Some((_, k)) => *k += 1,
+            None => by_cameras.push((t.used.len(), 1)),
+        }
+    }
+    by_cameras.sort_by_key(|&(n, _)| std::cmp::Reverse(n));
+    let median_sd_mm = std::array::from_fn(|i| {
+        let mut sd: Vec<f64> = found
+            .tips
+            .iter()
+            .map(|t| t.covariance_mm2[(i, i)].max(0.0).sqrt())
+            .collect();
+        crate::stats::median(&mut sd).unwrap_or(f64::NAN)
+    });
+    Ok(CamerasCheck {
+        cameras,
+        rms_px: cal.rms_px,
+        hand_axes_error_deg: cal
+            .hand_axes
+            .zip(hand)
+            .map(|(g, w)| (g.inverse() * w).angle().to_degrees()),
+        steps_with_tip: found.tips.len(),
+        by_cameras,
+        steps_with_left_out: found.tips.iter().filter(|t| !t.left_out.is_empty()).count(),
+        ellipsoid_coverage: inside as f64 / found.tips.len().max(1) as f64,
+        median_sd_mm,
+        bead_noise_px: found.bead_noise_px,
+    })
 }

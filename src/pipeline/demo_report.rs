@@ -2,7 +2,7 @@
 
 use std::path::Path;
 
-use super::demo_summary::{Score, Summary};
+use super::demo_summary::{CamerasCheck, Score, Summary};
 use crate::calib::{gates, StereoCalibration};
 use crate::model::inverse::PlannedTarget;
 use crate::model::msvr::tune::SearchSummary;
@@ -19,8 +19,7 @@ pub(super) fn page(
     out: &Path,
     s: &Summary,
     timings: &[(String, f64)],
-    tri: &Triangulation,
-    cal: &StereoCalibration,
+    pair: Option<(&Triangulation, &StereoCalibration)>,
     search: Option<&SearchSummary>,
     planned: &[PlannedTarget],
 ) -> Page {
@@ -28,22 +27,29 @@ pub(super) fn page(
         out,
         s,
         timings,
-        tri,
-        cal,
+        pair,
         search,
         planned,
     };
     let mut page = Page::new("handcap demo: the virtual micro-hand, end to end");
     summary_section(&mut page, &report);
-    calibration_section(&mut page, &report);
-    detection_section(&mut page, &report);
-    triangulation_section(&mut page, &report);
+    match (pair, &s.cameras) {
+        (Some((tri, cal)), _) => {
+            calibration_section(&mut page, &report, cal);
+            detection_section(&mut page, &report, tri);
+            triangulation_section(&mut page, &report, tri);
+        }
+        (None, Some(c)) => cameras_section(&mut page, &report, c),
+        (None, None) => {}
+    }
     aco_section(&mut page, &report);
     sweeps_section(&mut page, &report);
     errors_section(&mut page, &report);
     intervals_section(&mut page, &report);
     inverse_section(&mut page, &report);
-    dynamic_section(&mut page, &report);
+    if let Some(d) = &s.dynamic {
+        dynamic_section(&mut page, &report, d);
+    }
     manifest_section(&mut page, &report);
     page
 }
@@ -53,19 +59,50 @@ struct Report<'a> {
     out: &'a Path,
     s: &'a Summary,
     timings: &'a [(String, f64)],
-    tri: &'a Triangulation,
-    cal: &'a StereoCalibration,
+    /// A pair's triangulation and calibration; `None` with more cameras (`s.cameras`).
+    pair: Option<(&'a Triangulation, &'a StereoCalibration)>,
     search: Option<&'a SearchSummary>,
     planned: &'a [PlannedTarget],
 }
 
 /// The page's "summary" section.
 fn summary_section(page: &mut Page, r: &Report) {
-    let (s, timings, tri, cal) = (r.s, r.timings, r.tri, r.cal);
-    let c = &s.calibration;
+    let (s, timings) = (r.s, r.timings);
     let all = s.triangulation.iter().find(|t| t.phase == "all");
+    let (synth, calibrate) = match (r.pair, &s.calibration, &s.cameras) {
+        (Some((tri, cal)), Some(c), _) => (
+            format!(
+                "{} board pairs, {} pressure steps",
+                cal.pairs.len(),
+                tri.summary.steps_logged
+            ),
+            format!(
+                "RMS {:.3} px; intrinsics within {:.3} %, baseline {:.3} %, rotation {:.4}°",
+                c.rms_px, c.intrinsics_error_pct, c.baseline_error_pct, c.rotation_error_deg
+            ),
+        ),
+        (_, _, Some(c)) => {
+            let worst = |f: fn(&super::demo_summary::CameraCheck) -> f64| {
+                c.cameras.iter().map(f).fold(0.0, f64::max)
+            };
+            (
+                format!("{} cameras on an arc, {} steps with a tip", c.cameras.len(), c.steps_with_tip),
+                format!("RMS {:.3} px; focal lengths within {:.3} %, rotations {:.4}°, camera centres {:.3} mm", c.rms_px, worst(|x| x.focal_error_pct.abs()), worst(|x| x.rotation_error_deg), worst(|x| x.centre_error_mm)),
+            )
+        }
+        _ => ("-".into(), "-".into()),
+    };
+    let dynamic = s.dynamic.as_ref().map(|d| {
+        let euclid = |k: usize| d.scores.get(k).map_or(f64::NAN, |x| x.errors.euclid);
+        vec![
+            "dynamic".into(),
+            format!("per-frame tip RMS {:.4} mm; held-out trial: {:.4} mm static, {:.4} mm with input history", d.tip_rms_mm, euclid(0), euclid(1)),
+            timing(timings, "dynamic"),
+        ]
+    });
     page.paragraph(&format!(
-        "A virtual micro-hand (three McKibben muscles, 50 mm) filmed by two virtual 1280×720 webcams while its pressures step through the paper's protocol; every stage of the pipeline run on the files, and checked against the ground truth the virtual capture wrote. Seed {}{}.",
+        "A virtual micro-hand (three McKibben muscles, 50 mm) filmed by {} virtual 1280×720 webcams while its pressures step through the paper's protocol; every stage of the pipeline run on the files, and checked against the ground truth the virtual capture wrote. Seed {}{}.",
+        s.cameras.as_ref().map_or("two".into(), |c| c.cameras.len().to_string()),
         s.seed,
         if s.quick { ", reduced run (--quick)" } else { "" }
     ))
@@ -73,16 +110,8 @@ fn summary_section(page: &mut Page, r: &Report) {
     .table(
         &["stage", "result", "time (s)"],
         &[
-            vec![
-                "synth".into(),
-                format!("{} board pairs, {} pressure steps", cal.pairs.len(), tri.summary.steps_logged),
-                timing(timings, "synth"),
-            ],
-            vec![
-                "calibrate".into(),
-                format!("RMS {:.3} px; intrinsics within {:.3} %, baseline {:.3} %, rotation {:.4}°", c.rms_px, c.intrinsics_error_pct, c.baseline_error_pct, c.rotation_error_deg),
-                timing(timings, "calibrate"),
-            ],
+            vec!["synth".into(), synth, timing(timings, "synth")],
+            vec!["calibrate".into(), calibrate, timing(timings, "calibrate")],
             vec![
                 "triangulate".into(),
                 all.map_or("-".into(), |t| format!("tip RMS error {:.4} mm over {} steps", t.rms_mm, t.rows)),
@@ -107,24 +136,18 @@ fn summary_section(page: &mut Page, r: &Report) {
                 s.inverse.first().map_or("-".into(), |i| format!("planned pressures put the plant's tip {:.4} mm (mean) from the target", i.mean_mm)),
                 timing(timings, "inverse"),
             ],
-            vec![
-                "dynamic".into(),
-                {
-                    let d = &s.dynamic;
-                    let euclid = |k: usize| d.scores.get(k).map_or(f64::NAN, |x| x.errors.euclid);
-                    format!("per-frame tip RMS {:.4} mm; held-out trial: {:.4} mm static, {:.4} mm with input history", d.tip_rms_mm, euclid(0), euclid(1))
-                },
-                timing(timings, "dynamic"),
-            ],
-            vec!["total".into(), String::new(), timing(timings, "total")],
-        ],
+        ]
+        .into_iter()
+        .chain(dynamic)
+        .chain([vec!["total".into(), String::new(), timing(timings, "total")]])
+        .collect::<Vec<_>>(),
     );
 }
 
 /// The page's "calibration" section.
-fn calibration_section(page: &mut Page, r: &Report) {
-    let (out, s, cal) = (r.out, r.s, r.cal);
-    let c = &s.calibration;
+fn calibration_section(page: &mut Page, r: &Report, cal: &StereoCalibration) {
+    let (out, s) = (r.out, r.s);
+    let Some(c) = &s.calibration else { return };
     page.section("calibration", "Calibration")
         .paragraph(&format!(
             "{} chessboard pairs used. Reprojection RMS {:.3} px, mean epipolar distance {:.3} px; the boards triangulate back to {:.4} ± {:.4} squares, {:.3} mm off their plane. {} Against the true rig: focal lengths and principal points within {:.3} %, baseline within {:.3} %, rotation within {:.4}°, hand axes within {}.",
@@ -172,8 +195,8 @@ fn calibration_section(page: &mut Page, r: &Report) {
 }
 
 /// The page's "detection" section.
-fn detection_section(page: &mut Page, r: &Report) {
-    let (out, tri) = (r.out, r.tri);
+fn detection_section(page: &mut Page, r: &Report, tri: &Triangulation) {
+    let out = r.out;
     let f = &tri.summary.frames;
     page.section("detection", "Tip detection")
         .paragraph(&format!(
@@ -199,8 +222,8 @@ fn detection_section(page: &mut Page, r: &Report) {
 }
 
 /// The page's "triangulation" section.
-fn triangulation_section(page: &mut Page, r: &Report) {
-    let (s, tri) = (r.s, r.tri);
+fn triangulation_section(page: &mut Page, r: &Report, tri: &Triangulation) {
+    let s = r.s;
     let f = &tri.summary.frames;
     page.section("triangulation", "Triangulated tip against the truth")
         .paragraph(&format!(
@@ -222,11 +245,61 @@ fn triangulation_section(page: &mut Page, r: &Report) {
         ))
         .table(
             &["phase", "steps", "RMS error (mm)", "largest (mm)", "mean error x, y, z (mm)"],
-            &s.triangulation.iter().map(|t| {
-                let m = t.mean_mm;
-                vec![t.phase.clone(), t.rows.to_string(), f4(t.rms_mm), f4(t.max_mm), format!("{:+.4}, {:+.4}, {:+.4}", m[0], m[1], m[2])]
-            }).collect::<Vec<_>>(),
+            &tips_rows(s),
         );
+}
+
+/// The page's section of more cameras: their calibration against the rig they were rendered
+/// with, and their tips against the truth, each with its covariance.
+fn cameras_section(page: &mut Page, r: &Report, c: &CamerasCheck) {
+    let s = r.s;
+    page.section("cameras", "More cameras: calibration and tips against the truth")
+        .paragraph(&format!(
+            "The cameras stand on an arc around the finger, each seeing its share of the board views (the arc's two ends never one together: they are tied through the cameras between). `handcap calibrate` refines every camera's intrinsics and pose and every board pose together; every corner reprojects at {:.3} px RMS; the hand axes are within {} of the truth. Each camera against the rig it was rendered with, beside what the calibration states (1 sd):",
+            c.rms_px,
+            c.hand_axes_error_deg.map_or("(no reference board)".into(), |d| format!("{d:.4}°")),
+        ))
+        .table(
+            &["camera", "board views", "focal length error", "rotation error (stated sd)", "centre error (stated sd)"],
+            &c.cameras.iter().map(|x| vec![
+                x.name.clone(),
+                x.views.to_string(),
+                format!("{:+.3} %", x.focal_error_pct),
+                format!("{:.4}° ({:.4}°)", x.rotation_error_deg, x.rotation_sd_deg),
+                format!("{:.3} mm ({:.3} mm)", x.centre_error_mm, x.position_sd_mm),
+            ]).collect::<Vec<_>>(),
+        )
+        .paragraph(&format!(
+            "Each row of `triangulated/dataset.csv` is a pressure step's tip from every camera that saw its bead, the views gated by a χ² test (a camera left out in {} steps); its columns say which cameras it used and its covariance (`sd_*_mm`, `cov_*_mm2`: the beads' error and the calibration's). {} of {} steps have a tip ({}). The residuals show a bead error of {}; the rows' median standard deviations are {:.4} / {:.4} / {:.4} mm along x / y / z, and {:.1} % of the true tips lie inside their row's 95 % ellipsoid.",
+            c.steps_with_left_out,
+            c.steps_with_tip,
+            s.triangulation.iter().find(|t| t.phase == "all").map_or(0, |t| t.rows),
+            c.by_cameras.iter().map(|(n, k)| format!("{k} by {n} cameras")).collect::<Vec<_>>().join(", "),
+            c.bead_noise_px.map_or("(too few steps to say)".into(), |px| format!("{px:.3} px")),
+            c.median_sd_mm[0], c.median_sd_mm[1], c.median_sd_mm[2],
+            100.0 * c.ellipsoid_coverage,
+        ))
+        .table(
+            &["phase", "steps", "RMS error (mm)", "largest (mm)", "mean error x, y, z (mm)"],
+            &tips_rows(s),
+        );
+}
+
+/// The triangulated tips' errors, a row per phase.
+fn tips_rows(s: &Summary) -> Vec<Vec<String>> {
+    s.triangulation
+        .iter()
+        .map(|t| {
+            let m = t.mean_mm;
+            vec![
+                t.phase.clone(),
+                t.rows.to_string(),
+                f4(t.rms_mm),
+                f4(t.max_mm),
+                format!("{:+.4}, {:+.4}, {:+.4}", m[0], m[1], m[2]),
+            ]
+        })
+        .collect()
 }
 
 /// The page's "aco" section.
@@ -330,9 +403,8 @@ fn inverse_section(page: &mut Page, r: &Report) {
 }
 
 /// The page's "dynamic" section.
-fn dynamic_section(page: &mut Page, r: &Report) {
-    let (out, s) = (r.out, r.s);
-    let d = &s.dynamic;
+fn dynamic_section(page: &mut Page, r: &Report, d: &super::demo_dynamic::DynamicCheck) {
+    let out = r.out;
     page.section("dynamic", "The finger in motion: per-frame tips and input history")
         .paragraph(&format!(
             "A dynamic session: {} trials of {} s, each muscle commanded {} times a second by a rate-limited random sequence (APRBS) over 0-{} kPa, with rest holds at 0, 0, 0 kPa first, between trials and last. The muscles follow through a pneumatic line (delay {} ms, lags {} s, muscles 1-3), {} % of the response creeping with a time constant of {} s; the cameras run free at 30 fps, each on its own clock. `triangulate --per-frame` gives one row per left frame: the right camera's track interpolated to its instant across the clocks' offset (measured from the motion: {:+.2} ms), the pressures in force then.",

@@ -10,7 +10,7 @@ use crate::select::family::{Family, FamilyDecision};
 use crate::synth::capture::Realism;
 
 /// Calibration against the truth.
-#[derive(Serialize)]
+#[derive(Clone, Serialize)]
 pub struct CalibrationCheck {
     pub pairs_used: usize,
     pub rms_px: f64,
@@ -29,8 +29,41 @@ pub struct CalibrationCheck {
     pub validation: Option<crate::calib::validate::Validation>,
 }
 
+/// More than two cameras' calibration and tips against the truth.
+#[derive(Clone, Serialize)]
+pub struct CamerasCheck {
+    pub cameras: Vec<CameraCheck>,
+    /// Every corner's reprojection RMS in the joint refinement (px).
+    pub rms_px: f64,
+    pub hand_axes_error_deg: Option<f64>,
+    /// Steps with a tip, and how many of them by each number of cameras (n, steps).
+    pub steps_with_tip: usize,
+    pub by_cameras: Vec<(usize, usize)>,
+    /// Steps with a camera left out by the gate.
+    pub steps_with_left_out: usize,
+    /// The share of rows whose true tip lies inside the row's 95 % ellipsoid, and the rows'
+    /// median standard deviations along x, y, z (mm).
+    pub ellipsoid_coverage: f64,
+    pub median_sd_mm: [f64; 3],
+    /// The beads' error the steps' residuals show (px).
+    pub bead_noise_px: Option<f64>,
+}
+
+/// One camera of more, against the rig it was rendered with.
+#[derive(Clone, Serialize)]
+pub struct CameraCheck {
+    pub name: String,
+    pub views: usize,
+    pub focal_error_pct: f64,
+    pub rotation_error_deg: f64,
+    pub centre_error_mm: f64,
+    /// What the calibration states of its pose.
+    pub rotation_sd_deg: f64,
+    pub position_sd_mm: f64,
+}
+
 /// Triangulated tips against the truth, per phase.
-#[derive(Serialize)]
+#[derive(Clone, Serialize)]
 pub struct TipCheck {
     pub phase: String,
     pub rows: usize,
@@ -87,7 +120,11 @@ pub struct Summary {
     pub quick: bool,
     /// What the virtual lab added to the frames.
     pub realism: Realism,
-    pub calibration: CalibrationCheck,
+    /// A pair's calibration, or more cameras' calibration and tips.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub calibration: Option<CalibrationCheck>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cameras: Option<CamerasCheck>,
     pub triangulation: Vec<TipCheck>,
     pub scores: Vec<Score>,
     pub intervals: Vec<IntervalCheck>,
@@ -95,7 +132,8 @@ pub struct Summary {
     /// scores are among `scores`, its model `auto: <family>`).
     pub auto: FamilyDecision,
     pub inverse: Vec<InverseCheck>,
-    /// The finger in motion.
-    pub dynamic: super::demo_dynamic::DynamicCheck,
+    /// The finger in motion (a pair's).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dynamic: Option<super::demo_dynamic::DynamicCheck>,
     pub provenance: Provenance,
 }

@@ -531,3 +531,58 @@ fn walkdir(dir: &Path) -> Vec<std::path::PathBuf> {
     }
     out
 }
+
+/// `demo --cameras 3`: the same pipeline with three cameras on an arc, calibrated as a graph
+/// and triangulated with the χ² gate; each stage against the truth, recomputed from the files
+/// where it can be.
+#[test]
+fn the_quick_demo_with_three_cameras_holds_against_the_truth() {
+    let _cores = every_core();
+    let dir = tempdir();
+    let d = dir.path();
+    let out = handcap_ok(d, &["demo", "--out", "demo", "--quick", "--cameras", "3"]);
+    for stage in [
+        "filmed by 3 webcams",
+        "[2/7] calibrate: 3 cameras",
+        "[3/7] triangulate",
+        "[5/7] inverse",
+        "dynamic: skipped",
+        "[7/7] report",
+    ] {
+        assert!(out.contains(stage), "{stage} missing: {out}");
+    }
+    let demo = d.join("demo");
+    let summary: serde_json::Value = read_json(&demo.join("summary.json"));
+    assert!(summary.get("calibration").is_none() && summary.get("dynamic").is_none());
+    let c = &summary["cameras"];
+    let cameras = c["cameras"].as_array().unwrap();
+    assert_eq!(cameras.len(), 3, "{c}");
+    for camera in cameras {
+        let value = |k: &str| camera[k].as_f64().unwrap();
+        assert!(value("focal_error_pct").abs() < 0.1, "{camera}");
+        assert!(
+            value("rotation_error_deg") < 0.05 && value("centre_error_mm") < 0.2,
+            "{camera}"
+        );
+    }
+    assert!(c["hand_axes_error_deg"].as_f64().unwrap() < 0.1, "{c}");
+    // Every step a tip, near the truth, inside its stated ellipsoid.
+    let (rms, n) = tip_rms_against_truth(
+        &demo.join("triangulated/dataset.csv"),
+        &demo.join("capture/truth/tips.csv"),
+        |_| true,
+    );
+    assert_eq!(n, 39);
+    assert!(rms <= 0.05, "tip RMS error {rms} mm");
+    assert!(c["ellipsoid_coverage"].as_f64().unwrap() >= 0.93, "{c}");
+    // The model from those rows beats the previous one on the sweeps, against the truth.
+    for sweep in ["sweep_a", "sweep_b"] {
+        let [msvr, _, default, _] = sweep_errors_against_truth(&demo, sweep);
+        assert!(
+            3.0 * msvr <= default,
+            "{sweep}: MSVR {msvr}, previous model {default}"
+        );
+    }
+    let html = std::fs::read_to_string(demo.join("report/index.html")).unwrap();
+    assert!(html.contains("More cameras: calibration and tips against the truth"));
+}
