@@ -448,6 +448,8 @@ pub struct TriangulatedCameras {
     pub found: triangulate::cameras::Found,
     /// Frames of cameras the calibration does not have, by name (not read).
     pub not_calibrated: std::collections::BTreeMap<String, usize>,
+    /// The frames each camera listed, in the calibration's order.
+    pub listed: Vec<usize>,
     pub cameras: Vec<String>,
     pub written: Vec<PathBuf>,
 }
@@ -537,6 +539,9 @@ pub fn run_cameras(
     Ok(TriangulatedCameras {
         found,
         not_calibrated,
+        listed: (0..cameras.len())
+            .map(|c| listed.iter().filter(|f| f.camera == c).count())
+            .collect(),
         cameras: cameras.into_iter().map(|c| c.name).collect(),
         written,
     })
@@ -576,6 +581,17 @@ impl fmt::Display for TriangulatedCameras {
                 f,
                 "skipped {n} frames of camera {name}: not in the calibration"
             )?;
+        }
+        // A camera that listed far fewer frames than the others stopped or dropped frames.
+        let mut counts: Vec<f64> = self.listed.iter().map(|&n| n as f64).collect();
+        let median = crate::stats::median(&mut counts).unwrap_or(0.0);
+        for (name, &n) in self.cameras.iter().zip(&self.listed) {
+            if 2.0 * (n as f64) < median {
+                writeln!(
+                    f,
+                    "camera {name} listed {n} frames where the cameras' median is {median}: it stopped or dropped frames (its steps have fewer views)"
+                )?;
+            }
         }
         if let Some(px) = found.bead_noise_px {
             writeln!(

@@ -673,6 +673,23 @@ fn more_cameras_bad_input_gets_one_line() {
     let err = handcap_err(d, &[&TRIANGULATE[..], &["--out", "twice.csv"]].concat());
     assert!(err.contains("frame 0 is listed twice"), "{err}");
     write(d, "frames/frames.csv", &listed);
+    // A camera that stopped early: named, its steps kept with the others' views.
+    let mut cam4 = 0;
+    let stopped: String = listed
+        .lines()
+        .filter(|l| {
+            cam4 += usize::from(l.contains(",cam4,"));
+            !l.contains(",cam4,") || cam4 <= 10
+        })
+        .map(|l| format!("{l}\n"))
+        .collect();
+    write(d, "frames/frames.csv", &stopped);
+    let said = handcap_ok(d, &[&TRIANGULATE[..], &["--out", "stopped.csv"]].concat());
+    assert!(
+        said.contains("camera cam4 listed 10 frames where the cameras' median is 36"),
+        "{said}"
+    );
+    write(d, "frames/frames.csv", &listed);
     // Anipose's own file has no hand axes.
     let text = std::fs::read_to_string(d.join("truth.toml")).unwrap();
     let mut doc: toml::Table = text.parse().unwrap();
