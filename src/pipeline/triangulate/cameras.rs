@@ -71,9 +71,11 @@ pub fn run_cameras(
         .chain(listed.iter().map(|f| f.path.as_path()))
         .collect();
     outputs::check(&inputs, &[Output::new(out, "the dataset")])?;
-    // The covariance of the cameras' unknowns, from the JSON `calibrate` wrote beside.
+    // The covariance of the cameras' unknowns, from the JSON `calibrate` wrote beside (its
+    // intrinsics have five distortion coefficients, as `calibrate` writes them).
     let json = calib.with_extension("json");
-    let covariance = if json.is_file() {
+    let five = cameras.iter().all(|c| c.intrinsics.dist.len() >= 5);
+    let covariance = if json.is_file() && five {
         crate::calib::file::read_cameras_covariance(&json, cameras.len())?
     } else {
         None
