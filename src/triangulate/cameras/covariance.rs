@@ -135,3 +135,143 @@ fn calibration_term(
         })
         .collect()
 }
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::{DMatrix, DVector, Point3};
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+    use rand_distr::{Distribution, StandardNormal};
+
+    use super::*;
+    use crate::calib::file::ReadCamera;
+    use crate::calib::uncertainty::{intrinsic_mut, stepped};
+    use crate::geometry::{relative, CamFromWorld};
+
+    /// The calibration's share of each row, carried by central differences, against the rows'
+    /// spread when the cameras are drawn from that covariance and the rows triangulated anew
+    /// (Monte Carlo): the same within the draws' own error, and nothing at the rest tip.
+    #[test]
+    fn the_calibrations_share_matches_cameras_drawn_from_its_covariance() {
+        let rig = crate::synth::camera::RigConfig {
+            cameras: 3,
+            ..Default::default()
+        }
+        .build(1);
+        let first = rig.left().pose;
+        let cameras: Vec<ReadCamera> = rig
+            .cameras
+            .iter()
+            .enumerate()
+            .map(|(i, cam)| {
+                let pose = relative(&first, &cam.pose);
+                ReadCamera {
+                    name: format!("cam{}", i + 1),
+                    size: [cam.width as i32, cam.height as i32],
+                    intrinsics: cam.intrinsics.clone(),
+                    pose: CamFromWorld::new(pose.rotation, pose.translation),
+                }
+            })
+            .collect();
+        // The rest tip and four tips around it (hand frame = the synth's world), in the world
+        // of the cameras (the first camera's frame), seen without noise.
+        let tips = [
+            [0.0, 0.0, 0.0],
+            [10.0, 0.0, 2.0],
+            [-10.0, 5.0, 1.0],
+            [0.0, -10.0, 2.0],
+            [6.0, 8.0, 1.5],
+        ];
+        let world: Vec<Point3<f64>> = tips
+            .iter()
+            .map(|t| first.apply(&Point3::from(*t)))
+            .collect();
+        let pixels: Vec<Vec<(usize, [f64; 2])>> = world
+            .iter()
+            .map(|p| {
+                (0..cameras.len())
+                    .map(|c| {
+                        let seen = cameras[c].pose.apply(p);
+                        (c, cameras[c].intrinsics.pixel(&seen).unwrap())
+                    })
+                    .collect()
+            })
+            .collect();
+        // A covariance of calibration-like size, correlated: 0.3 px on fx … cy, 1e-3 on the
+        // distortion, 3e-4 rad and 0.05 mm on the poses.
+        let per = 9;
+        let k = per * 3 + 6 * 2;
+        let scale: Vec<f64> = (0..k)
+            .map(|j| match j {
+                j if j < per * 3 && j % per < 4 => 0.3,
+                j if j < per * 3 => 1e-3,
+                j if (j - per * 3) % 6 < 3 => 3e-4,
+                _ => 0.05,
+            })
+            .collect();
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let a = DMatrix::<f64>::from_fn(k, k, |_, _| StandardNormal.sample(&mut rng));
+        let shape = DMatrix::<f64>::identity(k, k) * 0.5 + &a * a.transpose() * (0.5 / k as f64);
+        let matrix = DMatrix::<f64>::from_fn(k, k, |i, j| scale[i] * shape[(i, j)] * scale[j]);
+        let covariance = CameraCovariance {
+            per_camera: per,
+            matrix: (0..k)
+                .map(|i| matrix.row(i).iter().copied().collect())
+                .collect(),
+        };
+        let calibration = Calibration {
+            cameras: cameras.clone(),
+            hand: first.rotation.inverse(),
+            covariance: Some(covariance.clone()),
+        };
+        let borrowed: Vec<&[(usize, [f64; 2])]> = pixels.iter().map(|p| &p[..]).collect();
+        let carried = calibration_term(&borrowed, &[0], &calibration, &covariance);
+        // The cameras drawn from the covariance; each draw's rows from the same pixels.
+        let chol = matrix.clone().cholesky().unwrap().l();
+        let draws = 600;
+        let mut spread = vec![Matrix3::<f64>::zeros(); tips.len()];
+        for _ in 0..draws {
+            let z = DVector::<f64>::from_fn(k, |_, _| StandardNormal.sample(&mut rng));
+            let delta = &chol * z;
+            let mut moved = cameras.clone();
+            for (c, camera) in moved.iter_mut().enumerate() {
+                for i in 0..per {
+                    *intrinsic_mut(&mut camera.intrinsics, i) += delta[per * c + i];
+                }
+                if c > 0 {
+                    let at = per * 3 + 6 * (c - 1);
+                    let step: Vec<f64> = (0..6).map(|q| delta[at + q]).collect();
+                    camera.pose = stepped(&camera.pose, &step);
+                }
+            }
+            let points: Vec<Vector3<f64>> = pixels
+                .iter()
+                .map(|seen| {
+                    let views: Vec<View> = seen
+                        .iter()
+                        .map(|&(c, px)| {
+                            let projection =
+                                crate::geometry::projection(&moved[c].intrinsics, &moved[c].pose);
+                            view_of(&moved[c].intrinsics, &projection, px)
+                        })
+                        .collect();
+                    nview::through(&views).unwrap()
+                })
+                .collect();
+            for (s, p) in points.iter().enumerate() {
+                let e = calibration.hand * (p - points[0]) - Vector3::from(tips[s]);
+                spread[s] += e * e.transpose() / draws as f64;
+            }
+        }
+        for s in 1..tips.len() {
+            for i in 0..3 {
+                let (drawn, said) = (spread[s][(i, i)].sqrt(), carried[s][(i, i)].sqrt());
+                assert!(
+                    (said / drawn - 1.0).abs() < 0.15 && said > 1e-4,
+                    "row {s}, axis {i}: carried {said:.6} mm, drawn {drawn:.6} mm"
+                );
+            }
+        }
+        assert!(carried[0].norm() < 1e-12 && spread[0].norm() < 1e-12);
+    }
+}
