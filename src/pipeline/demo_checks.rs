@@ -122,33 +122,27 @@ pub(super) fn check_tips(
     tip_checks(rows, truth)
 }
 
-/// [`check_tips`] of a dataset of more cameras (its `step`, `phase` and tip columns).
-pub(super) fn check_dataset_tips(
-    dataset: &Path,
+/// [`check_tips`] of more cameras' tips `found` in the steps of `log`.
+pub(super) fn check_cameras_tips(
+    found: &crate::triangulate::cameras::Found,
+    log: &crate::session::pressures::PressureLog,
     truth: &Path,
 ) -> Result<Vec<TipCheck>, PipelineError> {
-    tip_checks(dataset_rows(dataset)?.into_iter(), truth)
-}
-
-/// The (step, phase, tip) of each row of a dataset of more cameras, which `handcap` wrote.
-fn dataset_rows(dataset: &Path) -> Result<Vec<(String, String, [f64; 3])>, PipelineError> {
-    let text = std::fs::read_to_string(dataset).map_err(super::io_error(dataset))?;
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
-    let at = |name: &str| {
-        header.iter().position(|c| *c == name).ok_or_else(|| {
-            PipelineError::Check(format!("{} has no {name} column", dataset.display()))
-        })
+    let column = |name: &str| log.extra_columns.iter().position(|c| c == name);
+    let (Some(step_col), Some(phase_col)) = (column("step"), column("phase")) else {
+        return Err(PipelineError::Check(
+            "the synthetic log has step and phase columns".into(),
+        ));
     };
-    let (step, phase) = (at("step")?, at("phase")?);
-    let xyz = [at("x_mm")?, at("y_mm")?, at("z_mm")?];
-    lines
-        .map(|line| {
-            let cells: Vec<&str> = line.split(',').collect();
-            let tip = xyz.map(|i| cells[i].parse::<f64>().unwrap_or(f64::NAN));
-            Ok((cells[step].to_string(), cells[phase].to_string(), tip))
-        })
-        .collect()
+    let rows = found.tips.iter().map(|t| {
+        let extra = &log.steps[t.step].extra;
+        (
+            extra[step_col].clone(),
+            extra[phase_col].clone(),
+            t.tip_mm.into(),
+        )
+    });
+    tip_checks(rows, truth)
 }
 
 /// The tips' errors against `truth` (`truth/tips.csv`), per phase in the order they first

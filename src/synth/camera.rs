@@ -91,9 +91,13 @@ impl Rig {
         &self.cameras[1]
     }
 
-    /// The cameras' names, in order, as in file names.
+    /// The cameras' names, in order, as in file names: `left`, `right` for two, else `cam1`
+    /// … `camN`.
     pub fn names(&self) -> Vec<String> {
-        names(self.cameras.len())
+        match self.cameras.len() {
+            2 => vec!["left".into(), "right".into()],
+            n => (1..=n).map(|i| format!("cam{i}")).collect(),
+        }
     }
 
     /// The right camera's pose relative to the left: p_right = R p_left + T (OpenCV's R, T).
@@ -110,15 +114,6 @@ impl Rig {
             right: self.right().intrinsics.clone(),
             right_from_left: self.right_from_left(),
         }
-    }
-}
-
-/// The names of a rig of `n` cameras: `left`, `right` for two, else `cam1` … `camN`.
-pub fn names(n: usize) -> Vec<String> {
-    if n == 2 {
-        vec!["left".into(), "right".into()]
-    } else {
-        (1..=n).map(|i| format!("cam{i}")).collect()
     }
 }
 

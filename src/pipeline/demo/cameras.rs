@@ -1,7 +1,7 @@
 //! The demo's steps 2 and 3 with more than two cameras (`demo --cameras N`), and what steps 2
 //! and 3 found either way.
 
-use super::super::demo_checks::{check_cameras, check_dataset_tips};
+use super::super::demo_checks::{check_cameras, check_cameras_tips};
 use super::super::demo_summary::{CalibrationCheck, CamerasCheck, TipCheck};
 use super::super::{io_error, Event, PipelineError};
 use super::Demo;
@@ -84,7 +84,7 @@ impl Demo<'_> {
         )?;
         self.session.emit(Event::Outcome(&triangulated));
         let tips = capture.join("truth/tips.csv");
-        let triangulation = check_dataset_tips(&dataset, &tips)?;
+        let triangulation = check_cameras_tips(&triangulated.found, &triangulated.log, &tips)?;
         let check = check_cameras(
             &calibrated.calibration,
             &capture.join("truth/cameras.toml"),

@@ -29,6 +29,8 @@ pub struct TriangulatedCameras {
     /// The frames each camera listed, in the calibration's order.
     pub listed: Vec<usize>,
     pub cameras: Vec<String>,
+    /// The regulator's log the tips' steps index.
+    pub log: crate::session::pressures::PressureLog,
     pub written: Vec<PathBuf>,
 }
 
@@ -123,6 +125,7 @@ pub fn run_cameras(
             .map(|c| listed.iter().filter(|f| f.camera == c).count())
             .collect(),
         cameras: cameras.into_iter().map(|c| c.name).collect(),
+        log,
         written,
     })
 }
