@@ -62,7 +62,11 @@ pub struct Args {
     /// (a dynamic protocol): the right camera's track interpolated to each left frame's time
     /// (and the cameras' clock offset measured from the motion), the pressures in force then;
     /// columns time_s, the log's others, P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm,frame,reproj_px,
-    /// flag. The log must start with a rest hold at 0, 0, 0 kPa (the hand frame's origin)
+    /// flag. The log must start with a rest hold at 0, 0, 0 kPa (the hand frame's origin).
+    /// With more cameras (an Anipose TOML), one row per frame of the first camera, every other
+    /// camera's track interpolated to it (its clock offset measured from the motion), the tip
+    /// from the cameras that agree, as for steps; the columns of steps' rows with more cameras
+    /// (sd_*, cov_*, n_cameras, cameras, left_out, chi2) beside frame, reproj_px, flag
     #[arg(long, conflicts_with_all = ["max_dt_ms", "settle_s", "min_frames", "max_spread_mm"])]
     per_frame: bool,
 }
@@ -87,14 +91,12 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     options.latency_s =
         super::left_right("--latency-ms", &a.latency_ms)?.map(|ms| ms.map(|ms| ms / 1e3));
     if triangulate::more_cameras(&a.calib) {
-        if a.per_frame {
-            usage!("--per-frame takes a pair's calibration; with more cameras, triangulate the held steps");
-        }
         let done = super::with_session(|s| {
-            triangulate::run_cameras(&a.frames, &a.calib, &pressures, &options, &a.out, s)
+            let (frames, calib, per_frame) = (&a.frames, &a.calib, a.per_frame);
+            triangulate::run_more_cameras(frames, calib, &pressures, &options, per_frame, &a.out, s)
         })?;
         print!("{done}");
-        super::print_written(&done.written);
+        super::print_written(done.written());
         return Ok(());
     }
     // Files first (written by the stage), then the printing: a closed pipe must not cost the

@@ -3,7 +3,10 @@
 
 mod cameras;
 
-pub use cameras::{more_cameras, run_cameras, TriangulatedCameras};
+pub use cameras::{
+    more_cameras, run_cameras, run_more_cameras, run_per_frame_cameras, MoreCameras,
+    TriangulatedCameras, TriangulatedFrames,
+};
 
 use std::fmt;
 use std::path::{Path, PathBuf};
@@ -197,7 +200,7 @@ pub fn run(
 
 /// The run's provenance: the calibration, the log and the frame list (when there is one) as its
 /// inputs.
-fn provenance(
+pub(super) fn provenance(
     session: &Session,
     frames: &Path,
     calib: &Path,

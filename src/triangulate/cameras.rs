@@ -33,7 +33,7 @@ use std::path::{Path, PathBuf};
 use nalgebra::{Matrix3, Matrix3x4, Rotation3, Vector3};
 use rayon::prelude::*;
 
-mod covariance;
+pub(super) mod covariance;
 
 use super::nview::{self, View};
 use super::pairing::{self, Placement};
@@ -114,14 +114,42 @@ pub fn read_frames(
     Ok((frames, other.into_inner()))
 }
 
-/// What one frame in a step showed.
-enum Seen {
-    /// The marker's candidates' centres (px); none when no marker was found.
-    Candidates(Vec<[f64; 2]>),
+/// What one frame showed.
+pub(super) enum Examined {
+    /// The marker's candidates, most red first; none when no marker was found.
+    Markers(Vec<super::marker::Blob>),
     Unreadable(String),
     /// An image of another size than the camera's calibration (width, height).
     WrongSize([usize; 2]),
-    NotExamined,
+    Skipped,
+}
+
+/// Frame `f` examined: decoded, its size checked against its camera's, the marker's candidates
+/// found.
+pub(super) fn examine(f: &Frame, cameras: &[ReadCamera], options: &TriangulateOptions) -> Examined {
+    let size = cameras[f.camera].size;
+    match crate::image::decode(&f.path) {
+        Err(why) => Examined::Unreadable(format!("{}: {why}", f.path.display())),
+        Ok(image) if [image.width, image.height] != size.map(|s| s as usize) => {
+            Examined::WrongSize([image.width, image.height])
+        }
+        Ok(image) => Examined::Markers(super::marker::find_markers(&image, &options.marker).blobs),
+    }
+}
+
+impl CamerasError {
+    /// The error of frame `f` of camera `camera`, `got` pixels wide and high.
+    pub(super) fn wrong_size(f: &Frame, camera: &ReadCamera, [got_w, got_h]: [usize; 2]) -> Self {
+        let [want_w, want_h] = camera.size;
+        CamerasError::WrongSize {
+            path: f.path.clone(),
+            camera: camera.name.clone(),
+            got_w,
+            got_h,
+            want_w,
+            want_h,
+        }
+    }
 }
 
 /// A step's tip.
@@ -190,6 +218,9 @@ pub enum CamerasError {
     },
     #[error("no step at 0, 0, 0 kPa has a tip: the hand frame's origin is the tip at rest; start the protocol with a rest step the cameras see")]
     NoOrigin,
+    /// Per frame: what a pair's per-frame run would refuse too.
+    #[error(transparent)]
+    PerFrame(#[from] super::TriangulateError),
 }
 
 /// The tips of `frames` in `log`'s steps (module docs), seen by the cameras of `calibration`
@@ -211,7 +242,7 @@ pub fn triangulate(
     use std::sync::atomic::Ordering::{Relaxed, SeqCst};
     let (cameras, hand) = (&calibration.cameras, calibration.hand);
     let done = std::sync::atomic::AtomicUsize::new(0);
-    let seen: Vec<Option<(usize, Seen)>> = frames
+    let seen: Vec<Option<(usize, Examined)>> = frames
         .par_iter()
         .map(|f| {
             let Placement::Step(k) = pairing::place(log, f.time_s, f.time_s, options.settle_s, 0.0)
@@ -219,22 +250,9 @@ pub fn triangulate(
                 return None;
             };
             if interrupt.load(Relaxed) {
-                return Some((k, Seen::NotExamined));
+                return Some((k, Examined::Skipped));
             }
-            let size = cameras[f.camera].size;
-            let seen = match crate::image::decode(&f.path) {
-                Err(why) => Seen::Unreadable(format!("{}: {why}", f.path.display())),
-                Ok(image) if [image.width, image.height] != size.map(|s| s as usize) => {
-                    Seen::WrongSize([image.width, image.height])
-                }
-                Ok(image) => Seen::Candidates(
-                    super::marker::find_markers(&image, &options.marker)
-                        .blobs
-                        .iter()
-                        .map(|b| b.centre_px)
-                        .collect(),
-                ),
-            };
+            let seen = examine(f, cameras, options);
             progress(done.fetch_add(1, SeqCst) + 1, frames.len());
             Some((k, seen))
         })
@@ -249,28 +267,20 @@ pub fn triangulate(
             .entry(k)
             .or_insert_with(|| vec![Vec::new(); cameras.len()]);
         match seen {
-            Seen::Candidates(centres) => {
-                found.frames_without_marker += usize::from(centres.is_empty());
-                found.frames_with_several += usize::from(centres.len() > 1);
-                for c in centres {
-                    group(&mut step[f.camera], c);
+            Examined::Markers(blobs) => {
+                found.frames_without_marker += usize::from(blobs.is_empty());
+                found.frames_with_several += usize::from(blobs.len() > 1);
+                for b in blobs {
+                    group(&mut step[f.camera], b.centre_px);
                 }
             }
-            Seen::Unreadable(why) => {
+            Examined::Unreadable(why) => {
                 found.unreadable.get_or_insert(why);
                 found.frames_unreadable += 1;
             }
-            Seen::NotExamined => found.interrupted = true,
-            Seen::WrongSize([got_w, got_h]) => {
-                let [want_w, want_h] = cameras[f.camera].size;
-                return Err(CamerasError::WrongSize {
-                    path: f.path.clone(),
-                    camera: cameras[f.camera].name.clone(),
-                    got_w,
-                    got_h,
-                    want_w,
-                    want_h,
-                });
+            Examined::Skipped => found.interrupted = true,
+            Examined::WrongSize(got) => {
+                return Err(CamerasError::wrong_size(f, &cameras[f.camera], got));
             }
         }
     }
@@ -383,13 +393,13 @@ fn in_world(
 }
 
 /// A camera's candidates in a step's frames at one place (module docs, step 2).
-struct Group {
+pub(super) struct Group {
     /// The median of their centres, undistorted.
-    view: View,
+    pub view: View,
     /// How many frames saw it.
-    frames: usize,
+    pub frames: usize,
     /// The median of their centres (distorted px).
-    px: [f64; 2],
+    pub px: [f64; 2],
 }
 
 /// The view of a bead seen at `px` (distorted) by a camera of `intrinsics` and `projection`.
@@ -418,7 +428,7 @@ fn group(groups: &mut Vec<Vec<[f64; 2]>>, c: [f64; 2]) {
 /// The tip from one view per camera of `choices` (each camera's groups, the best supported
 /// first): every choice tried (up to [`MOST_CHOICES`], the best supported first),
 /// the one the most views agree on kept, then the least χ². The tip and each camera's choice.
-fn agreed(
+pub(super) fn agreed(
     choices: &[(usize, Vec<Group>)],
 ) -> Result<(nview::Triangulated, Vec<usize>), nview::Refused> {
     let mut best: Option<(nview::Triangulated, Vec<usize>)> = None;
@@ -465,12 +475,6 @@ pub fn csv(
     log: &PressureLog,
 ) -> String {
     use std::fmt::Write as _;
-    let names = |list: &[usize]| -> String {
-        list.iter()
-            .map(|&c| cameras[c].name.as_str())
-            .collect::<Vec<_>>()
-            .join("+")
-    };
     let mut out = String::from(HEADER);
     for column in &log.extra_columns {
         let _ = write!(out, ",{column}");
@@ -479,23 +483,16 @@ pub fn csv(
     for t in found.tips.iter().filter(|t| keep(t)) {
         let step = &log.steps[t.step];
         let [p1, p2, p3] = step.pressures_kpa;
-        let c = &t.covariance_mm2;
-        let sd = |i: usize| c[(i, i)].max(0.0).sqrt();
         let _ = write!(
             out,
-            "{p1},{p2},{p3},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.3e},{:.3e},{:.3e},{},{},{},{:.3},{}",
+            "{p1},{p2},{p3},{:.4},{:.4},{:.4},{},{},{},{},{:.3},{}",
             t.tip_mm.x,
             t.tip_mm.y,
             t.tip_mm.z,
-            sd(0),
-            sd(1),
-            sd(2),
-            c[(0, 1)],
-            c[(0, 2)],
-            c[(1, 2)],
+            covariance_fields(&t.covariance_mm2),
             t.used.len(),
-            names(&t.used),
-            names(&t.left_out),
+            camera_names(cameras, &t.used),
+            camera_names(cameras, &t.left_out),
             t.chi2,
             t.frames
         );
@@ -505,4 +502,25 @@ pub fn csv(
         out.push('\n');
     }
     out
+}
+
+/// A tip's covariance as the dataset's fields: `sd_x_mm,sd_y_mm,sd_z_mm` (4 decimals),
+/// `cov_xy_mm2,cov_xz_mm2,cov_yz_mm2`.
+pub(super) fn covariance_fields(c: &Matrix3<f64>) -> String {
+    let sd = |i: usize| c[(i, i)].max(0.0).sqrt();
+    format!(
+        "{:.4},{:.4},{:.4},{:.3e},{:.3e},{:.3e}",
+        sd(0),
+        sd(1),
+        sd(2),
+        c[(0, 1)],
+        c[(0, 2)],
+        c[(1, 2)]
+    )
+}
+
+/// The names of cameras `list`, joined by `+`.
+pub(super) fn camera_names(cameras: &[ReadCamera], list: &[usize]) -> String {
+    let names: Vec<&str> = list.iter().map(|&c| cameras[c].name.as_str()).collect();
+    names.join("+")
 }

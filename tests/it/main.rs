@@ -4,6 +4,7 @@ mod bad_input;
 mod basis;
 mod calibrate;
 mod cameras;
+mod cameras_motion;
 mod capture;
 mod cli;
 mod common;

@@ -224,16 +224,23 @@ pub fn read_anipose_toml(path: &Path) -> Result<CalibrationFile, StereoError> {
             ),
         });
     }
-    let between = relative(&left.pose, &right.pose);
     Ok(CalibrationFile {
         path: path.to_path_buf(),
-        rig: StereoRig {
-            image_size: left.size,
-            left: left.intrinsics.clone(),
-            right: right.intrinsics.clone(),
-            right_from_left: RightFromLeft::new(between.rotation, between.translation),
-        },
+        rig: left.pair_with(right),
         r_hand: None,
         t_hand: None,
     })
+}
+
+impl ReadCamera {
+    /// This camera as a stereo pair's left, `right` its right (the image size this one's).
+    pub fn pair_with(&self, right: &ReadCamera) -> StereoRig {
+        let between = relative(&self.pose, &right.pose);
+        StereoRig {
+            image_size: self.size,
+            left: self.intrinsics.clone(),
+            right: right.intrinsics.clone(),
+            right_from_left: RightFromLeft::new(between.rotation, between.translation),
+        }
+    }
 }

@@ -12,7 +12,7 @@ use crate::triangulate::nview::{self, View};
 /// Each row's covariance in the hand frame (mm²), the tips of `world` less the origin (the
 /// median of the `rest` ones'), and the beads' error the steps' residuals show (px), when they
 /// have [`MIN_DOF`] degrees of freedom or more.
-pub(super) fn of_rows(
+pub(in crate::triangulate) fn of_rows(
     world: &[InWorld],
     rest: &[usize],
     calibration: &Calibration,

@@ -49,12 +49,16 @@
 //!    flagged `reach`; a tip that rests on a region's plain centroid in a frame it used (the
 //!    sub-pixel fit did not settle there) `centroid`. Both keep their tips.
 
+mod cameras;
 mod clock_offset;
 mod live;
 mod output;
 mod rows;
 mod track;
 
+pub use cameras::{
+    triangulate_per_frame_cameras, CameraTrack, CamerasRow, CamerasSummary, PerFrameCameras,
+};
 pub use live::{tips_as_they_come, LiveClock, LiveTip};
 pub use output::errors_against;
 use std::collections::BTreeMap;
@@ -223,7 +227,14 @@ pub fn triangulate_per_frame(
 
     // 5. Each left frame's step.
     let centroid_only = centroid_only(&left, &right, &seen, results, &located);
-    let (mut rows, points) = rows::frame_rows(&left, records, log, located);
+    let (mut rows, points) = rows::frame_rows(
+        &left,
+        |i| records[i].index,
+        log,
+        located
+            .into_iter()
+            .map(|f| f.map(|f| (f.point, f.reproj_px))),
+    );
     for (row, _) in rows.iter_mut().zip(centroid_only).filter(|(_, c)| *c) {
         row.flags.push(CENTROID);
     }
@@ -277,7 +288,7 @@ fn locate_frames(
     };
     let pass = locate_all(rig, options, left, right, centres, &clock);
     let seen = seen_in(left, right, &pass);
-    let smoothed = smoothed_tracks(left, right, &seen);
+    let smoothed = smoothed_tracks(&[left, right], &seen);
     let chosen = |i: usize| match smoothed.get(&i) {
         Some(c) => Ok(vec![*c]),
         None => centres(i),
@@ -490,55 +501,8 @@ fn locate_between(
     b: usize,
     t: f64,
 ) -> Result<Vec<Located>, &'static str> {
-    let (ca, cb) = (centres(right.order[a])?, centres(right.order[b])?);
-    if ca.is_empty() || cb.is_empty() {
-        return Err("no_marker_right");
-    }
-    let s = (t - right.times[a]) / (right.times[b] - right.times[a]);
-    let (before, after) = (
-        a.checked_sub(1),
-        Some(b + 1).filter(|&k| k < right.times.len()),
-    );
-    // The right candidates in the two frames taken for one object: those near enough to be
-    // (a red object in one frame and the bead in the next, interpolated, would lie anywhere
-    // between them, and on the epipolar line when the bead is about to appear).
-    let pairs: Vec<([f64; 2], [f64; 2])> = ca
-        .iter()
-        .flat_map(|&p| cb.iter().map(move |&q| (p, q)))
-        .filter(|&(p, q)| distance_px(p, q) <= right.px(NEIGHBOUR_PX))
-        .collect();
-    if pairs.is_empty() {
-        return Err("no_marker_right");
-    }
-    // Each pair's point at `t`: on the spline where the track is sure enough of the tip
-    // between the two frames, on their line where a side has no frame to bend it (never across
-    // a frame left out: nothing would say the tip did not jump there).
-    let wide = right.periods_apart(a, b) > 1.5;
-    let nearest = |pos: Option<usize>, to: [f64; 2]| right.nearest(pos?, to, centres);
-    let at_t = |(p, q): ([f64; 2], [f64; 2])| -> Result<[f64; 2], &'static str> {
-        match (nearest(before, p), nearest(after, q), right.knots(a, b)) {
-            (Some(o), Some(r), Some(knots)) => {
-                let points = [o, p, q, r];
-                if track_spread_px(points, knots) <= right.px(MAX_SPREAD_PX) {
-                    Ok(catmull_rom(points, knots, t))
-                } else {
-                    Err("fast")
-                }
-            }
-            _ if wide => Err("gap"),
-            _ => Ok(lerp(p, q, s)),
-        }
-    };
-    let tried: Vec<_> = pairs.into_iter().map(|pair| (pair, at_t(pair))).collect();
-    // Why a pair was not used, to name a row that has no tip for it.
-    let unused = tried.iter().find_map(|(_, c)| c.err());
-    let (pairs, cr): (Vec<_>, Vec<_>) = tried
-        .into_iter()
-        .filter_map(|(pair, c)| Some((pair, c.ok()?)))
-        .unzip();
-    if pairs.is_empty() {
-        return Err(unused.unwrap_or("no_marker_right"));
-    }
+    let (points, unused) = right.at_instant(centres, a, b, t)?;
+    let (pairs, cr): (Vec<_>, Vec<_>) = points.into_iter().unzip();
     let combos = combinations(rig, cl, &cr, options).map_err(|_| "reprojection")?;
     let consistent: Vec<Located> = combos
         .iter()
@@ -554,6 +518,72 @@ fn locate_between(
         return Err(unused.unwrap_or("reprojection"));
     }
     Ok(consistent)
+}
+
+/// Pairs of candidates of two frames taken for one object, each with its point at an instant
+/// between them, and the flag of the pairs left out, if any ([`Track::at_instant`]).
+type AtInstant = (Vec<(([f64; 2], [f64; 2]), [f64; 2])>, Option<&'static str>);
+
+impl Track {
+    /// The candidates of this track's frames `a` and `b` (positions) taken for one object, each
+    /// pair with its point at `t` between them: on the spline where the track is sure enough
+    /// of the tip between the two frames, on their line where a side has no frame to bend it
+    /// (never across a frame left out: nothing would say the tip did not jump there). The flag
+    /// when none: `no_marker_right` (a frame without candidates, or none near enough to be
+    /// one object), `fast` (the track unsure of the tip), `gap` (a frame left out and no frame
+    /// beyond to bend it); the flag of the pairs left out beside those kept.
+    fn at_instant(
+        &self,
+        centres: &Centres<'_>,
+        a: usize,
+        b: usize,
+        t: f64,
+    ) -> Result<AtInstant, &'static str> {
+        let (ca, cb) = (centres(self.order[a])?, centres(self.order[b])?);
+        // The candidates in the two frames taken for one object: those near enough to be (a
+        // red object in one frame and the bead in the next, interpolated, would lie anywhere
+        // between them, and on the epipolar line when the bead is about to appear).
+        let pairs: Vec<([f64; 2], [f64; 2])> = ca
+            .iter()
+            .flat_map(|&p| cb.iter().map(move |&q| (p, q)))
+            .filter(|&(p, q)| distance_px(p, q) <= self.px(NEIGHBOUR_PX))
+            .collect();
+        if pairs.is_empty() {
+            return Err("no_marker_right");
+        }
+        let s = (t - self.times[a]) / (self.times[b] - self.times[a]);
+        let (before, after) = (
+            a.checked_sub(1),
+            Some(b + 1).filter(|&k| k < self.times.len()),
+        );
+        let wide = self.periods_apart(a, b) > 1.5;
+        let nearest = |pos: Option<usize>, to: [f64; 2]| self.nearest(pos?, to, centres);
+        let at_t = |(p, q): ([f64; 2], [f64; 2])| -> Result<[f64; 2], &'static str> {
+            match (nearest(before, p), nearest(after, q), self.knots(a, b)) {
+                (Some(o), Some(r), Some(knots)) => {
+                    let points = [o, p, q, r];
+                    if track_spread_px(points, knots) <= self.px(MAX_SPREAD_PX) {
+                        Ok(catmull_rom(points, knots, t))
+                    } else {
+                        Err("fast")
+                    }
+                }
+                _ if wide => Err("gap"),
+                _ => Ok(lerp(p, q, s)),
+            }
+        };
+        let tried: Vec<_> = pairs.into_iter().map(|pair| (pair, at_t(pair))).collect();
+        // Why a pair was not used, to name a row that has no point for it.
+        let unused = tried.iter().find_map(|(_, c)| c.err());
+        let points: Vec<_> = tried
+            .into_iter()
+            .filter_map(|(pair, c)| Some((pair, c.ok()?)))
+            .collect();
+        if points.is_empty() {
+            return Err(unused.unwrap_or("no_marker_right"));
+        }
+        Ok((points, unused))
+    }
 }
 
 #[cfg(test)]

@@ -29,32 +29,10 @@ impl PerFrame {
         );
         let mut csv = Csv::new(header);
         let number = |v: Option<f64>| v.map_or_else(String::new, crate::data::format_number);
-        let measured: Option<Vec<usize>> = MEASURED_COLUMNS
-            .iter()
-            .map(|name| log.extra_columns.iter().position(|c| c == name))
-            .collect();
+        let in_force = InForce::of(log);
         for r in self.rows.iter().filter(|r| keep(r)) {
             let mut record = vec![format!("{:.6}", r.time_s)];
-            match r.step {
-                Some(k) => {
-                    let step = &log.steps[k];
-                    record.extend(step.extra.iter().cloned());
-                    // The pressures measured while the command held, where a streaming
-                    // regulator reported them; else the command's.
-                    let measured: Option<Vec<String>> = measured.as_ref().and_then(|cols| {
-                        let m: Vec<String> = cols.iter().map(|&c| step.extra[c].clone()).collect();
-                        m.iter().all(|v| !v.trim().is_empty()).then_some(m)
-                    });
-                    match measured {
-                        Some(m) => record.extend(m),
-                        None => record.extend(step.pressures_kpa.map(crate::data::format_number)),
-                    }
-                }
-                None => record.extend(std::iter::repeat_n(
-                    String::new(),
-                    log.extra_columns.len() + 3,
-                )),
-            }
+            record.extend(in_force.fields(r.step));
             let tip = r
                 .tip_mm
                 .filter(|_| r.flags.iter().all(|f| [REACH, CENTROID].contains(f)));
@@ -68,8 +46,7 @@ impl PerFrame {
     }
 
     /// Writes `out` (every row), `OUT_<phase>.csv` per phase of the log, and
-    /// `OUT_summary.json`; removes what a previous run into the same place wrote and this one
-    /// did not (its summary lists them); returns the files written.
+    /// `OUT_summary.json` ([`write_rows`]); returns the files written.
     ///
     /// # Errors
     /// [`TriangulateError::Write`] naming the file.
@@ -79,26 +56,7 @@ impl PerFrame {
         log: &PressureLog,
         provenance: &Provenance,
     ) -> Result<Vec<PathBuf>, TriangulateError> {
-        let write = |path: &Path, text: &str| {
-            crate::fsio::write_bytes(path, text.as_bytes()).map_err(|e| TriangulateError::Write {
-                path: path.to_path_buf(),
-                message: e.to_string(),
-            })
-        };
-        let path = beside(out, "_summary.json");
-        let previous = crate::fsio::listed_files(&path);
-        let mut written = vec![out.to_path_buf()];
-        write(out, &self.csv(log, |_| true))?;
-        if let Some(col) = log.extra_columns.iter().position(|c| c == "phase") {
-            let phase_of = |r: &FrameRow| r.step.map(|k| log.steps[k].extra[col].as_str());
-            for phase in first_appearances(self.rows.iter().filter_map(phase_of)) {
-                let path = phase_path(out, phase);
-                write(&path, &self.csv(log, |r| phase_of(r) == Some(phase)))?;
-                written.push(path);
-            }
-        }
-        written.push(path.clone());
-        let json = serde_json::json!({
+        let summary = serde_json::json!({
             "per_frame": true,
             "summary": self.summary,
             "hand_from_left": {
@@ -107,15 +65,96 @@ impl PerFrame {
             },
             "options": self.options,
             "provenance": provenance,
-            "files": crate::fsio::file_names(&written),
         });
-        write(
-            &path,
-            &(serde_json::to_string_pretty(&json).expect("serialisable") + "\n"),
-        )?;
-        let dir = out.parent().unwrap_or(Path::new("."));
-        crate::fsio::remove_stale(dir, &previous, &written, |p| ours(out, p));
-        Ok(written)
+        let steps: Vec<Option<usize>> = self.rows.iter().map(|r| r.step).collect();
+        write_rows(out, log, &steps, summary, &|keep| {
+            self.csv(log, |r| keep(r.step))
+        })
+    }
+}
+
+/// Which rows to write, by their step in the log.
+pub(in crate::triangulate) type Keep<'a> = &'a dyn Fn(Option<usize>) -> bool;
+
+/// Writes per-frame rows (each one's step in the log `steps`): `out`, every row
+/// (`csv(keep)`, the rows whose step `keep` keeps), `OUT_<phase>.csv` per phase of the log,
+/// and `OUT_summary.json` (`summary` with the files written); removes what a previous run
+/// into the same place wrote and this one did not (its summary lists them); returns the files
+/// written.
+///
+/// # Errors
+/// [`TriangulateError::Write`] naming the file.
+pub(in crate::triangulate) fn write_rows(
+    out: &Path,
+    log: &PressureLog,
+    steps: &[Option<usize>],
+    mut summary: serde_json::Value,
+    csv: &dyn Fn(Keep<'_>) -> String,
+) -> Result<Vec<PathBuf>, TriangulateError> {
+    let write = |path: &Path, text: &str| {
+        crate::fsio::write_bytes(path, text.as_bytes()).map_err(|e| TriangulateError::Write {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })
+    };
+    let path = beside(out, "_summary.json");
+    let previous = crate::fsio::listed_files(&path);
+    let mut written = vec![out.to_path_buf()];
+    write(out, &csv(&|_| true))?;
+    if let Some(col) = log.extra_columns.iter().position(|c| c == "phase") {
+        let phase_of = |step: Option<usize>| step.map(|k| log.steps[k].extra[col].as_str());
+        for phase in first_appearances(steps.iter().filter_map(|&s| phase_of(s))) {
+            let path = phase_path(out, phase);
+            write(&path, &csv(&|s| phase_of(s) == Some(phase)))?;
+            written.push(path);
+        }
+    }
+    written.push(path.clone());
+    summary["files"] = serde_json::json!(crate::fsio::file_names(&written));
+    write(
+        &path,
+        &(serde_json::to_string_pretty(&summary).expect("serialisable") + "\n"),
+    )?;
+    let dir = out.parent().unwrap_or(Path::new("."));
+    crate::fsio::remove_stale(dir, &previous, &written, |p| ours(out, p));
+    Ok(written)
+}
+
+/// A row's log columns: those of the step in force, then its pressures — those measured while
+/// the command held, where a streaming regulator reported them, else the command's; empty
+/// outside the log.
+pub(in crate::triangulate) struct InForce<'a> {
+    log: &'a PressureLog,
+    /// The log's columns of measured pressures, when it has all three.
+    measured: Option<Vec<usize>>,
+}
+
+impl<'a> InForce<'a> {
+    pub(in crate::triangulate) fn of(log: &'a PressureLog) -> Self {
+        let measured = MEASURED_COLUMNS
+            .iter()
+            .map(|name| log.extra_columns.iter().position(|c| c == name))
+            .collect();
+        InForce { log, measured }
+    }
+
+    /// The log's other columns and the three pressures of `step`.
+    pub(in crate::triangulate) fn fields(&self, step: Option<usize>) -> Vec<String> {
+        let log = self.log;
+        let Some(k) = step else {
+            return vec![String::new(); log.extra_columns.len() + 3];
+        };
+        let step = &log.steps[k];
+        let mut fields = step.extra.clone();
+        let measured: Option<Vec<String>> = self.measured.as_ref().and_then(|cols| {
+            let m: Vec<String> = cols.iter().map(|&c| step.extra[c].clone()).collect();
+            m.iter().all(|v| !v.trim().is_empty()).then_some(m)
+        });
+        match measured {
+            Some(m) => fields.extend(m),
+            None => fields.extend(step.pressures_kpa.map(crate::data::format_number)),
+        }
+        fields
     }
 }
 

@@ -5,19 +5,20 @@ use std::collections::BTreeMap;
 
 use nalgebra::Vector3;
 
-use super::{FrameRow, Located, Track};
+use super::{FrameRow, Tip, Track};
 use crate::geometry::HandFromLeft;
-use crate::session::frames::FrameRecord;
 use crate::session::pressures::PressureLog;
 use crate::triangulate::{options, TriangulateError, TriangulateOptions};
 
-/// Step 4-5's rows: one per left frame, in time order, with its step in the log, and the
-/// point located there (in the left camera's frame) or the flag saying why there is none.
+/// Step 4-5's rows: one per frame of the rows' camera (`left`, its frames' numbers by record
+/// `frame_of`), in time order, with its step in the log, and the point located there (in the
+/// world: the left camera's frame) with its reprojection error, or the flag saying why there
+/// is none.
 pub(super) fn frame_rows(
     left: &Track,
-    records: &[FrameRecord],
+    frame_of: impl Fn(usize) -> usize,
     log: &PressureLog,
-    located: Vec<Result<Located, &'static str>>,
+    located: impl IntoIterator<Item = Tip<(Vector3<f64>, f64)>>,
 ) -> (Vec<FrameRow>, Vec<Option<Vector3<f64>>>) {
     let mut rows = Vec::with_capacity(left.order.len());
     let mut points = Vec::with_capacity(left.order.len());
@@ -29,7 +30,7 @@ pub(super) fn frame_rows(
             .checked_sub(1)
             .filter(|&k| t < log.end_s(k));
         let mut row = FrameRow {
-            frame: records[i].index,
+            frame: frame_of(i),
             time_s: t,
             step,
             tip_mm: None,
@@ -40,9 +41,9 @@ pub(super) fn frame_rows(
             row.flags.push("outside_log");
         }
         match found {
-            Ok(found) => {
-                row.reproj_px = Some(found.reproj_px);
-                points.push(Some(found.point));
+            Ok((point, reproj_px)) => {
+                row.reproj_px = Some(reproj_px);
+                points.push(Some(point));
             }
             Err(flag) => {
                 row.flags.push(flag);

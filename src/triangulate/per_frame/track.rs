@@ -4,7 +4,7 @@
 
 use std::path::Path;
 
-use super::{Centres, Seen};
+use super::Centres;
 use crate::session::frames::FrameRecord;
 use crate::stereo::Side;
 use crate::triangulate::{distance_px, TriangulateError};
@@ -76,18 +76,24 @@ impl Track {
             }
         }
         let stamps: Vec<f64> = order.iter().map(|&i| records[i].time_s - shift_s).collect();
+        Ok(Track::of_stamps(order, stamps, focal_px))
+    }
+
+    /// A camera's frames `order` (indices of its records, in frame order) stamped `stamps`
+    /// (increasing), for a camera of focal length `focal_px`.
+    pub(super) fn of_stamps(order: Vec<usize>, stamps: Vec<f64>, focal_px: f64) -> Track {
         let period_s = crate::frame_times::period(&stamps);
         let (times, jitter_s) = match crate::frame_times::regular(&stamps, period_s) {
             Some((times, rms)) => (times, Some(rms)),
             None => (stamps, None),
         };
-        Ok(Track {
+        Track {
             order,
             times,
             period_s,
             jitter_s,
             px_scale: focal_px / REFERENCE_FOCAL_PX,
-        })
+        }
     }
 
     /// A pixel limit measured on the reference rig, in this camera's pixels.
@@ -176,13 +182,12 @@ impl Track {
 /// 17, 12, −3 over 35), exact for a tip moving at constant acceleration, which averages out
 /// the frame-to-frame error of a moving bead's JPEG chroma. Keyed by frame record.
 pub(super) fn smoothed_tracks(
-    left: &Track,
-    right: &Track,
-    seen: &Seen,
+    tracks: &[&Track],
+    seen: &[Vec<Option<[f64; 2]>>],
 ) -> std::collections::HashMap<usize, [f64; 2]> {
     const WEIGHTS: [f64; 5] = [-3.0, 12.0, 17.0, 12.0, -3.0];
     let mut out = std::collections::HashMap::new();
-    for (track, seen) in [left, right].into_iter().zip(seen) {
+    for (track, seen) in tracks.iter().zip(seen) {
         for k in 2..track.times.len().saturating_sub(2) {
             let window: Option<Vec<[f64; 2]>> = (k - 2..=k + 2).map(|j| seen[j]).collect();
             let even = (k - 2..k + 2).all(|j| (track.periods_apart(j, j + 1) - 1.0).abs() <= 0.25);

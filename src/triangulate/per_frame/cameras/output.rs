@@ -1,0 +1,104 @@
+//! What `--per-frame` with more cameras writes: the rows as CSV (all, and per phase), the
+//! summary.
+
+use std::path::{Path, PathBuf};
+
+use super::{CamerasRow, PerFrameCameras};
+use crate::calib::file::ReadCamera;
+use crate::data::{Csv, HAND_INPUTS, HAND_OUTPUTS};
+use crate::provenance::Provenance;
+use crate::session::pressures::PressureLog;
+use crate::triangulate::cameras::{camera_names, covariance_fields};
+use crate::triangulate::per_frame::output::{write_rows, InForce};
+use crate::triangulate::per_frame::rows::REACH;
+use crate::triangulate::per_frame::CENTROID;
+use crate::triangulate::TriangulateError;
+
+/// The columns after the pressures: the tip, how sure it is, the cameras it used, the row's
+/// frame (of the rows' camera), its worst reprojection residual and its flags.
+const COLUMNS: [&str; 13] = [
+    "sd_x_mm",
+    "sd_y_mm",
+    "sd_z_mm",
+    "cov_xy_mm2",
+    "cov_xz_mm2",
+    "cov_yz_mm2",
+    "n_cameras",
+    "cameras",
+    "left_out",
+    "chi2",
+    "frame",
+    "reproj_px",
+    "flag",
+];
+
+impl PerFrameCameras {
+    /// The rows `keep` keeps as CSV: `time_s`, the log's other columns, the pressures in
+    /// force, the tip, its deviations and covariances, `n_cameras`, `cameras`, `left_out`
+    /// (names joined by `+`), `chi2`, `frame`, `reproj_px`, `flag`. A flagged row's tip is
+    /// empty but for `reach` and `centroid`, as a pair's.
+    pub fn csv(
+        &self,
+        log: &PressureLog,
+        cameras: &[ReadCamera],
+        keep: impl Fn(&CamerasRow) -> bool,
+    ) -> String {
+        let mut header = vec!["time_s".to_string()];
+        header.extend(log.extra_columns.iter().cloned());
+        header.extend(
+            HAND_INPUTS
+                .into_iter()
+                .chain(HAND_OUTPUTS)
+                .chain(COLUMNS)
+                .map(String::from),
+        );
+        let mut csv = Csv::new(header);
+        let in_force = InForce::of(log);
+        for r in self.rows.iter().filter(|r| keep(r)) {
+            let row = &r.row;
+            let mut record = vec![format!("{:.6}", row.time_s)];
+            record.extend(in_force.fields(row.step));
+            let written = row.flags.iter().all(|f| [REACH, CENTROID].contains(f));
+            match (row.tip_mm.filter(|_| written), &r.covariance_mm2) {
+                (Some(tip), Some(c)) => {
+                    record.extend(tip.map(|v| format!("{v:.4}")));
+                    record.extend(covariance_fields(c).split(',').map(String::from));
+                    record.push(r.used.len().to_string());
+                    record.push(camera_names(cameras, &r.used));
+                    record.push(camera_names(cameras, &r.left_out));
+                    record.push(format!("{:.3}", r.chi2));
+                }
+                _ => record.extend(std::iter::repeat_n(String::new(), 13)),
+            }
+            record.push(row.frame.to_string());
+            record.push(crate::data::format_fixed(row.reproj_px, 4));
+            record.push(row.flags.join(";"));
+            csv.row(record);
+        }
+        csv.into_string()
+    }
+
+    /// Writes `out` (every row), `OUT_<phase>.csv` per phase of the log, and
+    /// `OUT_summary.json`, as a pair's per-frame rows are ([`write_rows`]); returns the files
+    /// written.
+    ///
+    /// # Errors
+    /// [`TriangulateError::Write`] naming the file.
+    pub fn write(
+        &self,
+        out: &Path,
+        log: &PressureLog,
+        cameras: &[ReadCamera],
+        provenance: &Provenance,
+    ) -> Result<Vec<PathBuf>, TriangulateError> {
+        let summary = serde_json::json!({
+            "per_frame": true,
+            "summary": self.summary,
+            "provenance": provenance,
+        });
+        let steps: Vec<Option<usize>> = self.rows.iter().map(|r| r.row.step).collect();
+        write_rows(out, log, &steps, summary, &|keep| {
+            self.csv(log, cameras, |r| keep(r.row.step))
+        })
+    }
+}
