@@ -103,13 +103,10 @@ pub fn run(
         coarse,
     } = demo.models()?;
     let (file, planned, inverse) = demo.inverse(coarse.as_deref())?;
-    let dynamic = match seen {
-        Seen::Pair { .. } => Some(demo.dynamic()?),
-        Seen::Cameras { .. } => {
-            demo.note("      dynamic: skipped; the per-frame tip with more than two cameras is not built yet".into());
-            None
-        }
-    };
+    let dynamic = Some(demo.dynamic(match seen {
+        Seen::Pair { .. } => "calib.yml",
+        Seen::Cameras { .. } => "calib.toml",
+    })?);
     demo.stage(7, "report".into());
     demo.timings
         .push(("total".into(), started.elapsed().as_secs_f64()));
@@ -473,8 +470,9 @@ impl<'a> Demo<'a> {
         Ok((file, planned, checks))
     }
 
-    /// Step 6: the finger in motion.
-    fn dynamic(&mut self) -> Result<super::demo_dynamic::DynamicCheck, PipelineError> {
+    /// Step 6: the finger in motion, seen by the cameras of the calibration `calib` (in the
+    /// demo's folder).
+    fn dynamic(&mut self, calib: &str) -> Result<super::demo_dynamic::DynamicCheck, PipelineError> {
         let plan = &self.plan;
         self.stage(
             6,
@@ -489,7 +487,7 @@ impl<'a> Demo<'a> {
             &self.capture,
             plan.dynamic.clone(),
             plan.dynamic_budget,
-            &self.out.join("calib.yml"),
+            &self.out.join(calib),
             self.session,
         )?;
         let scores: Vec<String> = dynamic

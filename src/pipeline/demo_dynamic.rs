@@ -45,7 +45,8 @@ pub struct DynamicCheck {
     /// The unflagged rows' tips against the truth at their instants (mm).
     pub tip_rms_mm: f64,
     pub tip_max_mm: f64,
-    /// The right camera's stamps ahead of the left's, as the motion showed (ms).
+    /// The right camera's stamps ahead of the left's, as the motion showed (ms); with more
+    /// cameras, the second camera's ahead of the first's.
     pub clock_offset_ms: f64,
     /// The trial held out.
     pub held_out: String,
@@ -92,18 +93,35 @@ pub fn run(
         ));
     }
 
-    // 2. Per-frame tips against the truth.
+    // 2. Per-frame tips against the truth (more cameras' rows are the first camera's frames,
+    // as the truth's are).
     let dataset = dir.join("dataset.csv");
-    let done = super::triangulate::run_per_frame(
-        &capture_dir.join("frames"),
-        calib,
-        &capture_dir.join("pressures.csv"),
-        &TriangulateOptions::default(),
-        &dataset,
-        session,
-    )?;
+    let (frames, pressures) = (
+        capture_dir.join("frames"),
+        capture_dir.join("pressures.csv"),
+    );
+    let options = TriangulateOptions::default();
+    let (rows, good_rows, clock_offset_ms) = if super::triangulate::more_cameras(calib) {
+        let done = super::triangulate::run_per_frame_cameras(
+            &frames, calib, &pressures, &options, &dataset, session,
+        )?;
+        let s = &done.per_frame.summary;
+        let rows: Vec<per_frame::FrameRow> =
+            done.per_frame.rows.iter().map(|r| r.row.clone()).collect();
+        (
+            rows,
+            s.good_rows,
+            s.cameras.get(1).map_or(0.0, |c| c.clock_offset_ms),
+        )
+    } else {
+        let done = super::triangulate::run_per_frame(
+            &frames, calib, &pressures, &options, &dataset, session,
+        )?;
+        let s = &done.per_frame.summary;
+        (done.per_frame.rows, s.good_rows, s.clock_offset_ms)
+    };
     let truth_path = capture_dir.join("truth/per_frame.csv");
-    let errors = per_frame::errors_against(&done.per_frame.rows, &truth_by_frame(&truth_path)?);
+    let errors = per_frame::errors_against(&rows, &truth_by_frame(&truth_path)?);
     let tip_rms_mm =
         (errors.iter().map(|e| e * e).sum::<f64>() / errors.len().max(1) as f64).sqrt();
 
@@ -123,11 +141,11 @@ pub fn run(
     Ok(DynamicCheck {
         design,
         dynamics: Dynamics::PNEUMATIC,
-        rows: done.per_frame.summary.rows,
-        unflagged: done.per_frame.summary.good_rows,
+        rows: rows.len(),
+        unflagged: good_rows,
         tip_rms_mm,
         tip_max_mm: errors.iter().copied().fold(0.0, f64::max),
-        clock_offset_ms: done.per_frame.summary.clock_offset_ms,
+        clock_offset_ms,
         held_out: models.held_out,
         history: models.history,
         scores: models.scores,

@@ -278,7 +278,8 @@ struct DynamicBars {
 
 /// The dynamic part's summary against its files and the truth: the per-frame tips recomputed
 /// from `dynamic/dataset.csv` and `truth/per_frame.csv` by frame, at least 95 % of the frames
-/// giving an unflagged row; the clock offset against the one the capture's stamps hold; the
+/// giving an unflagged row; the clock offset (the second camera's) against the one the
+/// capture's stamps hold; the
 /// models' held-out errors against `bars`.
 fn dynamic_holds_against_truth(demo: &Path, bars: &DynamicBars) {
     let summary: serde_json::Value = read_json(&demo.join("summary.json"));
@@ -325,9 +326,15 @@ fn dynamic_holds_against_truth(demo: &Path, bars: &DynamicBars) {
                 )
             })
             .collect();
+    // With more cameras, the second camera's (cam2) against the first's.
     let mut lead = [Vec::new(), Vec::new()];
     for r in csv_rows(&dir.join("capture/frames/frames.csv")) {
-        let k = usize::from(r["camera"] == "right");
+        let Some(k) = [["left", "cam1"], ["right", "cam2"]]
+            .iter()
+            .position(|names| names.contains(&r["camera"].as_str()))
+        else {
+            continue;
+        };
         let stamp: f64 = r["time_s"].parse().unwrap();
         lead[k].push(stamp - exposure[&(r["camera"].clone(), r["frame"].clone())]);
     }
@@ -546,14 +553,14 @@ fn the_quick_demo_with_three_cameras_holds_against_the_truth() {
         "[2/7] calibrate: 3 cameras",
         "[3/7] triangulate",
         "[5/7] inverse",
-        "dynamic: skipped",
+        "[6/7] dynamic",
         "[7/7] report",
     ] {
         assert!(out.contains(stage), "{stage} missing: {out}");
     }
     let demo = d.join("demo");
     let summary: serde_json::Value = read_json(&demo.join("summary.json"));
-    assert!(summary.get("calibration").is_none() && summary.get("dynamic").is_none());
+    assert!(summary.get("calibration").is_none());
     let c = &summary["cameras"];
     let cameras = c["cameras"].as_array().unwrap();
     assert_eq!(cameras.len(), 3, "{c}");
@@ -585,4 +592,14 @@ fn the_quick_demo_with_three_cameras_holds_against_the_truth() {
     }
     let html = std::fs::read_to_string(demo.join("report/index.html")).unwrap();
     assert!(html.contains("More cameras: calibration and tips against the truth"));
+    // The finger in motion, per frame with the three cameras (measured 0.0199 mm; history
+    // 3.3 times better than static, 0.99 times the truth's).
+    dynamic_holds_against_truth(
+        &demo,
+        &DynamicBars {
+            tip_rms_mm: 0.05,
+            history_over_static: 2.0,
+            history_over_truth: 1.5,
+        },
+    );
 }

@@ -61,7 +61,7 @@ impl PerFrameCameras {
             let written = row.flags.iter().all(|f| [REACH, CENTROID].contains(f));
             match (row.tip_mm.filter(|_| written), &r.covariance_mm2) {
                 (Some(tip), Some(c)) => {
-                    record.extend(tip.map(|v| format!("{v:.4}")));
+                    record.extend(tip.map(crate::data::format_number));
                     record.extend(covariance_fields(c).split(',').map(String::from));
                     record.push(r.used.len().to_string());
                     record.push(camera_names(cameras, &r.used));
