@@ -34,6 +34,11 @@ impl AsRef<str> for Side {
 }
 
 impl Side {
+    /// The pair's camera at place `i` in its list (0 left, 1 right).
+    pub fn of_index(i: usize) -> Side {
+        [Side::Left, Side::Right][i]
+    }
+
     /// `left` or `right`, as in file names.
     pub fn name(self) -> &'static str {
         match self {

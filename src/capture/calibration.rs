@@ -168,7 +168,7 @@ impl Judge {
         for grabbed in [left, right] {
             let path = self.dir.join(format!(
                 "{}_{name}.{}",
-                grabbed.side.name(),
+                grabbed.side().name(),
                 grabbed.frame.extension
             ));
             fsio::write_bytes(&path, &grabbed.frame.bytes)

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 
 use super::regulator::{pressures_csv, Commanded};
 use super::url::redact;
-use super::{CaptureError, CaptureOptions, CaptureSummary, Side};
+use super::{CaptureError, CaptureOptions, CaptureSummary};
 use crate::data::Csv;
 use crate::fsio;
 use crate::session::frames::{frames_rows, frames_table};
@@ -134,7 +134,7 @@ impl<'a> SessionFiles<'a> {
     /// after them.
     pub fn write(
         &mut self,
-        rows: &[(Side, usize, f64)],
+        rows: &[(usize, usize, f64)],
         log: &[Commanded],
         summary: &CaptureSummary,
     ) -> Result<(), CaptureError> {
@@ -146,7 +146,7 @@ impl<'a> SessionFiles<'a> {
         let mut bytes = description.len();
         if options.calibration.is_none() {
             let (csv, listed) = &mut self.frames;
-            frames_rows(csv, rows[*listed..].iter().copied());
+            frames_rows(csv, named(options, &rows[*listed..]));
             *listed = rows.len();
             bytes += csv.as_bytes().len();
             save(&self.out.join("frames/frames.csv"), csv)?;
@@ -163,7 +163,7 @@ impl<'a> SessionFiles<'a> {
     /// Each file is tried even when one before it fails; the first failure is returned.
     pub fn finish(
         mut self,
-        rows: &[(Side, usize, f64)],
+        rows: &[(usize, usize, f64)],
         log: &[Commanded],
         summary: &CaptureSummary,
     ) -> Result<(), CaptureError> {
@@ -180,7 +180,7 @@ impl<'a> SessionFiles<'a> {
         }
         if options.calibration.is_none() {
             let mut csv = frames_table();
-            frames_rows(&mut csv, rows.iter().copied());
+            frames_rows(&mut csv, named(options, rows));
             keep(save(&self.out.join("frames/frames.csv"), &mut csv));
         }
         keep(write(
@@ -190,15 +190,28 @@ impl<'a> SessionFiles<'a> {
         first.map_or(Ok(()), Err)
     }
 
-    /// `capture.json`'s text.
+    /// `capture.json`'s text: with more cameras than a pair, their names beside their sources.
     fn description(&self, summary: &CaptureSummary) -> String {
         let options = self.options;
         let json = serde_json::json!({
-            "sources": options.sources.each_ref().map(|s| redact(s)),
+            "sources": options.sources.iter().map(|s| redact(&s.source)).collect::<Vec<_>>(),
             "requested": {"width": options.width, "height": options.height, "fps": options.fps},
             "clock": "time_s = CLOCK_MONOTONIC seconds - start_monotonic_s (Python: time.monotonic() - start_monotonic_s)",
             "summary": summary,
         });
+        let mut json = json;
+        if !options.is_pair() {
+            json["cameras"] = options.sources.iter().map(|s| s.name.clone()).collect();
+        }
         serde_json::to_string_pretty(&json).expect("serialisable") + "\n"
     }
+}
+
+/// Frame rows `(camera, frame, time_s)` with each camera by its name.
+fn named<'a>(
+    options: &'a CaptureOptions,
+    rows: &'a [(usize, usize, f64)],
+) -> impl Iterator<Item = (&'a str, usize, f64)> + 'a {
+    rows.iter()
+        .map(|&(c, frame, t)| (options.sources[c].name.as_str(), frame, t))
 }

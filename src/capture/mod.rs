@@ -65,9 +65,10 @@ pub const STREAM_OPEN_S: f64 = 5.0;
 /// Errors of capturing.
 #[derive(Debug, thiserror::Error)]
 pub enum CaptureError {
-    #[error("cannot open the {side} camera {camera:?}: {why}; {hint}")]
+    #[error("cannot open the {name} camera {camera:?}: {why}; {hint}")]
     NotOpened {
-        side: &'static str,
+        /// The camera's name in the session.
+        name: String,
         /// The source, its password hidden ([`url::redact`]).
         camera: String,
         why: String,
@@ -100,11 +101,73 @@ pub enum CaptureError {
     },
 }
 
+/// A camera of the session: its name (`left` and `right` for a pair) and what it films from
+/// (see the module docs).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Source {
+    pub name: String,
+    pub source: String,
+}
+
+impl Source {
+    /// The cameras of `--left`/`--right`, or of `--camera NAME=SOURCE` repeated (`named`):
+    /// names of lower-case letters and digits, a letter first, each once; two cameras or more.
+    ///
+    /// # Errors
+    /// What is wrong, in words naming the option.
+    pub fn list(
+        left: &Option<String>,
+        right: &Option<String>,
+        named: &[String],
+    ) -> Result<Vec<Source>, String> {
+        let source = |name: &str, source: &str| Source {
+            name: name.into(),
+            source: source.into(),
+        };
+        let sources: Vec<Source> = match (left.as_deref(), right.as_deref(), named) {
+            (Some(l), Some(r), []) => return Ok(vec![source("left", l), source("right", r)]),
+            (None, None, [_, _, ..]) => named
+                .iter()
+                .map(|given| {
+                    let (name, from) = given.split_once('=').ok_or_else(|| {
+                        format!("--camera {given}: give NAME=SOURCE (cam1=/dev/video0, say)")
+                    })?;
+                    let mut chars = name.chars();
+                    let word = chars.next().is_some_and(|c| c.is_ascii_lowercase())
+                        && chars.all(|c| c.is_ascii_lowercase() || c.is_ascii_digit());
+                    if !word || from.trim().is_empty() {
+                        return Err(format!("--camera {given}: give NAME=SOURCE, the name of lower-case letters and digits (a letter first), the source not empty"));
+                    }
+                    Ok(source(name, from))
+                })
+                .collect::<Result<_, String>>()?,
+            (None, None, [_]) => {
+                return Err("--camera names one camera: a tip takes two or more; repeat --camera NAME=SOURCE for each".into())
+            }
+            (None, None, []) | (Some(_), None, []) | (None, Some(_), []) => {
+                return Err("give --left and --right (a pair), or --camera NAME=SOURCE for each of two or more cameras".into())
+            }
+            _ => return Err("--camera names every camera: leave out --left and --right".into()),
+        };
+        if let Some(twice) = sources
+            .iter()
+            .enumerate()
+            .find(|(i, s)| sources[..*i].iter().any(|t| t.name == s.name))
+        {
+            return Err(format!(
+                "--camera {} is named twice: give each camera its own name",
+                twice.1.name
+            ));
+        }
+        Ok(sources)
+    }
+}
+
 /// What a session does.
 #[derive(Clone, Debug)]
 pub struct CaptureOptions {
-    /// The left and right camera (see the module docs).
-    pub sources: [String; 2],
+    /// The cameras, in order: a pair's `left` and `right`, or more.
+    pub sources: Vec<Source>,
     pub width: u32,
     pub height: u32,
     pub fps: f64,
@@ -130,6 +193,12 @@ pub struct CaptureOptions {
 }
 
 impl CaptureOptions {
+    /// Whether the cameras are a pair, `left` and `right`.
+    pub fn is_pair(&self) -> bool {
+        let names: Vec<&str> = self.sources.iter().map(|s| s.name.as_str()).collect();
+        names == ["left", "right"]
+    }
+
     /// Settings that cannot work, named as `field=value`.
     ///
     /// # Errors
@@ -144,11 +213,33 @@ impl CaptureOptions {
                 return Err(format!("{name}={value} must be positive"));
             }
         }
-        if self.sources[0].trim() == self.sources[1].trim() {
+        let sources = &self.sources;
+        let same = (0..sources.len()).find_map(|i| {
+            let b = sources[..i]
+                .iter()
+                .find(|b| b.source.trim() == sources[i].source.trim())?;
+            Some((b, &sources[i]))
+        });
+        if let Some((a, b)) = same {
             return Err(format!(
-                "the left and right cameras are the same source ({}); give each camera its own",
-                url::redact(&self.sources[0])
+                "the {} and {} cameras are the same source ({}); give each camera its own",
+                a.name,
+                b.name,
+                url::redact(&a.source)
             ));
+        }
+        if !self.is_pair() {
+            let pairs_only = [
+                (self.calibration.is_some(), "--calib", "save each camera's board views as calib/<camera>_NN.jpg (one NN an instant) for handcap calibrate"),
+                (self.flash.is_some(), "--flash", "film without it; triangulate --per-frame measures each camera's clock from the motion"),
+                (self.sync_led, "--sync-led", "film without it; triangulate --per-frame measures each camera's clock from the motion"),
+                (self.view.is_some(), "--view", "film without it"),
+            ];
+            if let Some((_, option, instead)) = pairs_only.into_iter().find(|p| p.0) {
+                return Err(format!(
+                    "{option} is built for a pair (--left, --right): with more cameras, {instead}"
+                ));
+            }
         }
         if self.stall_s.is_nan() || self.stall_s <= 0.0 {
             return Err(format!(
@@ -212,7 +303,7 @@ pub enum Ending {
     Interrupted,
     /// A camera stopped delivering at `time_s`, after `frames` frames.
     CameraStopped {
-        side: Side,
+        camera: String,
         time_s: f64,
         frames: usize,
     },
@@ -258,18 +349,20 @@ impl Ending {
 /// Live and final figures of a session.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct Stats {
-    pub frames: [usize; 2],
+    /// Per camera, in the session's order.
+    pub frames: Vec<usize>,
     /// Of them, those stamped by the camera's driver (a V4L2 device), not at grab time.
-    pub by_driver: [usize; 2],
+    pub by_driver: Vec<usize>,
     /// Frames per second over the session, each camera.
-    pub fps: [f64; 2],
+    pub fps: Vec<f64>,
     /// Frames each camera dropped ([`crate::frame_times::dropped`]).
-    pub drops: [usize; 2],
+    pub drops: Vec<usize>,
     /// Frames each camera stamped late ([`crate::frame_times::late`]: they waited in a queue, a
     /// busy machine or network), and the latest of them (ms).
-    pub late: [usize; 2],
-    pub late_max_ms: [f64; 2],
-    /// Median |left − right| time of nearest frames (ms).
+    pub late: Vec<usize>,
+    pub late_max_ms: Vec<f64>,
+    /// Median |left − right| time of nearest frames (ms); with more cameras, the largest of
+    /// each camera's from the first.
     pub skew_ms: f64,
     pub steps_done: usize,
     /// Steps whose `--set-pressure` command returned only after the step's hold was over: the
@@ -305,7 +398,7 @@ pub struct CaptureSummary {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub sync_led: Option<sync_led::SyncLed>,
     /// Per camera: the settings the backend refused.
-    pub refused: [Vec<String>; 2],
+    pub refused: Vec<Vec<String>>,
     pub start_monotonic_s: f64,
     pub start_unix_s: f64,
 }
@@ -364,8 +457,8 @@ fn camera_figures(times: &[f64]) -> (f64, usize, usize, f64) {
 /// The session's figures so far, over every row: recomputed each second while filming (an
 /// hour's 216 000 rows at 30 fps take about 14 ms).
 fn stats(
-    rows: &[(Side, usize, f64)],
-    by_driver: [usize; 2],
+    rows: &[(usize, usize, f64)],
+    by_driver: &[usize],
     steps: &[regulator::Commanded],
     judge: Option<&calibration::Judge>,
 ) -> Stats {
@@ -384,18 +477,23 @@ fn stats(
         .collect();
     let command_late_ms =
         crate::stats::quantiles(&mut late, [0.5, 1.0]).map_or([0.0; 2], |q| q.map(|t| 1e3 * t));
-    let times =
-        |side: Side| -> Vec<f64> { rows.iter().filter(|r| r.0 == side).map(|r| r.2).collect() };
-    let (l, r) = (times(Side::Left), times(Side::Right));
-    let ((fl, dl, ll, ml), (fr, dr, lr, mr)) = (camera_figures(&l), camera_figures(&r));
+    let times: Vec<Vec<f64>> = (0..by_driver.len())
+        .map(|c| rows.iter().filter(|r| r.0 == c).map(|r| r.2).collect())
+        .collect();
+    let figures: Vec<_> = times.iter().map(|t| camera_figures(t)).collect();
+    // The largest of the other cameras' skews from the first.
+    let skew_ms = times[1..]
+        .iter()
+        .map(|t| 1e3 * crate::frame_times::skew(&times[0], t))
+        .fold(0.0, f64::max);
     Stats {
-        frames: [l.len(), r.len()],
-        by_driver,
-        fps: [fl, fr],
-        drops: [dl, dr],
-        late: [ll, lr],
-        late_max_ms: [ml, mr],
-        skew_ms: 1e3 * crate::frame_times::skew(&l, &r),
+        frames: times.iter().map(Vec::len).collect(),
+        by_driver: by_driver.to_vec(),
+        fps: figures.iter().map(|f| f.0).collect(),
+        drops: figures.iter().map(|f| f.1).collect(),
+        late: figures.iter().map(|f| f.2).collect(),
+        late_max_ms: figures.iter().map(|f| f.3).collect(),
+        skew_ms,
         steps_done: steps.len(),
         over_hold,
         command_ms,
@@ -431,7 +529,7 @@ mod tests {
             scheduled_s: None,
             ..streamed.clone()
         };
-        let stats = |log: &[Commanded]| super::stats(&[], [0; 2], log, None);
+        let stats = |log: &[Commanded]| super::stats(&[], &[0; 2], log, None);
         assert_eq!(stats(&[streamed]).over_hold, 0);
         assert_eq!(stats(&[per_step]).over_hold, 1);
     }

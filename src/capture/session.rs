@@ -41,7 +41,8 @@ pub fn capture(
     std::thread::scope(|scope| {
         let threads = Threads::spawn(scope, cameras, &shared, options, recorder.judge.is_some());
         while recorder.step(&threads, &shared, live, interrupt) {}
-        threads.join(&mut recorder.ending);
+        let names: Vec<&str> = options.sources.iter().map(|s| s.name.as_str()).collect();
+        threads.join(&mut recorder.ending, &names);
     });
     // 3. The session's end: the regulator vented when aborted, the files written.
     recorder.finish(shared)
@@ -68,18 +69,19 @@ fn refuse_existing(out: &Path, options: &CaptureOptions) -> Result<(), CaptureEr
     }
 }
 
-/// Both cameras opened, and the frames' folder made (not for a calibration capture).
+/// Every camera opened, and the frames' folder made (not for a calibration capture).
 fn open_cameras(
     out: &Path,
     options: &CaptureOptions,
-) -> Result<[Box<dyn FrameSource>; 2], CaptureError> {
+) -> Result<Vec<Box<dyn FrameSource>>, CaptureError> {
     // The backends' own warnings (GStreamer trying a file name as a pipeline, …) would bury
     // handcap's one line; what failed is said there.
     let _ = opencv::core::set_log_level(opencv::core::LogLevel::LOG_LEVEL_SILENT);
-    let cameras = [
-        source::open(Side::Left, &options.sources[0], options)?,
-        source::open(Side::Right, &options.sources[1], options)?,
-    ];
+    let cameras = options
+        .sources
+        .iter()
+        .map(|s| source::open(&s.name, &s.source, options))
+        .collect::<Result<Vec<_>, _>>()?;
     if options.calibration.is_none() {
         let frames_dir = out.join("frames");
         std::fs::create_dir_all(&frames_dir).map_err(|source| CaptureError::Write {
@@ -132,7 +134,7 @@ impl Shared {
 /// protocol after the flash, or one for the flash alone.
 struct Threads<'scope> {
     frames: mpsc::Receiver<Grabbed>,
-    filming: Vec<(Side, ScopedJoinHandle<'scope, CameraEnd>)>,
+    filming: Vec<ScopedJoinHandle<'scope, CameraEnd>>,
     driving: Option<ScopedJoinHandle<'scope, Option<Ending>>>,
     flashing: Option<ScopedJoinHandle<'scope, ()>>,
 }
@@ -140,21 +142,20 @@ struct Threads<'scope> {
 impl<'scope> Threads<'scope> {
     fn spawn<'env>(
         scope: &'scope Scope<'scope, 'env>,
-        cameras: [Box<dyn FrameSource>; 2],
+        cameras: Vec<Box<dyn FrameSource>>,
         shared: &'env Shared,
         options: &'env CaptureOptions,
         measure_motion: bool,
     ) -> Self {
         let (tx, frames) = mpsc::channel::<Grabbed>();
         let mut filming = Vec::new();
-        for (side, camera) in [Side::Left, Side::Right].into_iter().zip(cameras) {
+        for (k, camera) in cameras.into_iter().enumerate() {
             let tx = tx.clone();
             // A calibration capture measures the motion its judge needs.
             let meter = measure_motion.then(motion::Meter::default);
-            filming.push((
-                side,
-                scope.spawn(move || film(side, camera, &shared.clock, &tx, &shared.stop, meter)),
-            ));
+            filming.push(
+                scope.spawn(move || film(k, camera, &shared.clock, &tx, &shared.stop, meter)),
+            );
         }
         let fire = move || {
             if let Some(command) = &options.flash {
@@ -207,8 +208,9 @@ impl<'scope> Threads<'scope> {
     }
 
     /// Joins every thread: a camera that stopped, a failing command or a thread that panicked
-    /// ends the session so (a camera's stop only when nothing ended it before).
-    fn join(self, ending: &mut Option<Ending>) {
+    /// ends the session so (a camera's stop only when nothing ended it before); `names` are the
+    /// cameras'.
+    fn join(self, ending: &mut Option<Ending>, names: &[&str]) {
         let failed = |thread: String, payload: Box<dyn std::any::Any + Send>| {
             let message = payload
                 .downcast_ref::<&str>()
@@ -217,17 +219,17 @@ impl<'scope> Threads<'scope> {
                 .unwrap_or_else(|| "a panic".into());
             Ending::ThreadFailed { thread, message }
         };
-        for (side, thread) in self.filming {
+        for (name, thread) in names.iter().zip(self.filming) {
             match thread.join() {
                 Ok(CameraEnd::Failed { time_s, frames }) => {
                     ending.get_or_insert(Ending::CameraStopped {
-                        side,
+                        camera: name.to_string(),
                         time_s,
                         frames,
                     });
                 }
                 Ok(CameraEnd::Stopped) => {}
-                Err(payload) => *ending = Some(failed(format!("{} camera", side.name()), payload)),
+                Err(payload) => *ending = Some(failed(format!("{name} camera"), payload)),
             }
         }
         if let Some(driving) = self.driving {
@@ -250,21 +252,22 @@ struct Recorder<'a> {
     frames_dir: PathBuf,
     files: SessionFiles<'a>,
     judge: Option<calibration::Judge>,
-    refused: [Vec<String>; 2],
+    refused: Vec<Vec<String>>,
     /// Which cameras can stall (live ones; a video file only ends).
-    can_stall: [bool; 2],
-    rows: Vec<(Side, usize, f64)>,
-    by_driver: [usize; 2],
+    can_stall: Vec<bool>,
+    /// Each frame kept: its camera (its place in the session's), number and time.
+    rows: Vec<(usize, usize, f64)>,
+    by_driver: Vec<usize>,
     ending: Option<Ending>,
     /// A file that could not be written.
     failure: Option<CaptureError>,
     watch: Option<flash::Watch>,
     flash: Option<FlashLatency>,
     sync_led: Option<super::sync_led::SyncLed>,
-    last_seen: [f64; 2],
-    received: [usize; 2],
+    last_seen: Vec<f64>,
+    received: Vec<usize>,
     /// Each camera's latest frame (a calibration capture keeps no other).
-    latest: [Option<Grabbed>; 2],
+    latest: Vec<Option<Grabbed>>,
     last_look: f64,
     last_shown: f64,
     last_viewed: f64,
@@ -274,8 +277,9 @@ impl<'a> Recorder<'a> {
     fn new(
         out: &'a Path,
         options: &'a CaptureOptions,
-        cameras: &[Box<dyn FrameSource>; 2],
+        cameras: &[Box<dyn FrameSource>],
     ) -> Result<Self, CaptureError> {
+        let n = cameras.len();
         Ok(Recorder {
             out,
             options,
@@ -286,19 +290,19 @@ impl<'a> Recorder<'a> {
                 .clone()
                 .map(|spec| calibration::Judge::new(spec, out))
                 .transpose()?,
-            refused: [cameras[0].refused(), cameras[1].refused()],
-            can_stall: [cameras[0].live(), cameras[1].live()],
+            refused: cameras.iter().map(|c| c.refused()).collect(),
+            can_stall: cameras.iter().map(|c| c.live()).collect(),
             rows: Vec::new(),
-            by_driver: [0; 2],
+            by_driver: vec![0; n],
             ending: None,
             failure: None,
             watch: options.flash.as_ref().map(|_| flash::Watch::default()),
             flash: None,
             sync_led: None,
             // The first frame may take a while longer: a device warms up.
-            last_seen: [options.stall_s; 2],
-            received: [0; 2],
-            latest: [None, None],
+            last_seen: vec![options.stall_s; n],
+            received: vec![0; n],
+            latest: (0..n).map(|_| None).collect(),
             last_look: 0.0,
             last_shown: 0.0,
             last_viewed: f64::NEG_INFINITY,
@@ -339,7 +343,7 @@ impl<'a> Recorder<'a> {
             let driven = threads.driving.as_ref().is_some_and(|d| d.is_finished());
             self.ending = self.end(now, &flash_now, driven, interrupt);
             // A camera whose stream ended says so when joined.
-            if self.ending.is_some() || threads.filming.iter().any(|(_, t)| t.is_finished()) {
+            if self.ending.is_some() || threads.filming.iter().any(|t| t.is_finished()) {
                 shared.stop();
             }
         }
@@ -371,18 +375,20 @@ impl<'a> Recorder<'a> {
     /// A frame arrived: its time and count noted, the flash's watch fed, and the frame stored
     /// (a calibration capture keeps only each camera's latest frame, and its motion).
     fn keep(&mut self, grabbed: Grabbed, fired: Option<flash::Fired>, shared: &Shared) {
-        let side = grabbed.side as usize;
-        self.last_seen[side] = grabbed.frame.time_s;
-        self.received[side] += 1;
+        let camera = grabbed.camera;
+        self.last_seen[camera] = grabbed.frame.time_s;
+        self.received[camera] += 1;
         if let Some(watch) = self.watch.as_mut() {
             let (time_s, bytes) = (grabbed.frame.time_s, &grabbed.frame.bytes);
-            watch.add(grabbed.side, time_s, bytes, fired);
+            watch.add(grabbed.side(), time_s, bytes, fired);
         }
         if let Some(judge) = self.judge.as_mut() {
             if let Some(change) = grabbed.change {
-                judge.motion.add(grabbed.side, grabbed.frame.time_s, change);
+                judge
+                    .motion
+                    .add(grabbed.side(), grabbed.frame.time_s, change);
             }
-            self.latest[side] = Some(grabbed);
+            self.latest[camera] = Some(grabbed);
             return;
         }
         if let Some(view) = &self.options.view {
@@ -390,17 +396,15 @@ impl<'a> Recorder<'a> {
         }
         let name = format!(
             "{}_{:05}.{}",
-            grabbed.side.name(),
-            grabbed.index,
-            grabbed.frame.extension
+            self.options.sources[camera].name, grabbed.index, grabbed.frame.extension
         );
         let path = self.frames_dir.join(name);
         match fsio::write_bytes(&path, &grabbed.frame.bytes) {
             Err(source) => self.fail(CaptureError::Write { path, source }, shared),
             Ok(()) => {
                 self.rows
-                    .push((grabbed.side, grabbed.index, grabbed.frame.time_s));
-                self.by_driver[side] += usize::from(grabbed.frame.by_driver);
+                    .push((camera, grabbed.index, grabbed.frame.time_s));
+                self.by_driver[camera] += usize::from(grabbed.frame.by_driver);
             }
         }
     }
@@ -413,7 +417,7 @@ impl<'a> Recorder<'a> {
     /// A calibration capture: the board looked for in both cameras' latest frames a few times
     /// a second, until the judge has its pairs.
     fn look_for_board(&mut self, now: f64, shared: &Shared) {
-        let (Some(judge), [Some(l), Some(r)]) = (self.judge.as_mut(), &self.latest) else {
+        let (Some(judge), [Some(l), Some(r)]) = (self.judge.as_mut(), &self.latest[..]) else {
             return;
         };
         if now - self.last_look < calibration::BOARD_EVERY_S || shared.stopped() {
@@ -440,18 +444,17 @@ impl<'a> Recorder<'a> {
         driven: bool,
         interrupt: &AtomicBool,
     ) -> Option<Ending> {
-        let stalled = [Side::Left, Side::Right].into_iter().find(|s| {
-            self.can_stall[*s as usize] && now - self.last_seen[*s as usize] > self.options.stall_s
-        });
+        let stalled = (0..self.can_stall.len())
+            .find(|&c| self.can_stall[c] && now - self.last_seen[c] > self.options.stall_s);
         if interrupt.load(Ordering::SeqCst) {
             Some(Ending::Interrupted)
         } else if self.options.duration_s.is_some_and(|d| now >= d) {
             Some(Ending::Duration)
-        } else if let Some(side) = stalled {
+        } else if let Some(c) = stalled {
             Some(Ending::CameraStopped {
-                side,
-                time_s: self.last_seen[side as usize],
-                frames: self.received[side as usize],
+                camera: self.options.sources[c].name.clone(),
+                time_s: self.last_seen[c],
+                frames: self.received[c],
             })
         } else if let FlashState::Failed(message) = flash {
             Some(Ending::FlashFailed {
@@ -487,7 +490,7 @@ impl<'a> Recorder<'a> {
         CaptureSummary {
             ending,
             on_abort,
-            stats: stats(&self.rows, self.by_driver, log, self.judge.as_ref()),
+            stats: stats(&self.rows, &self.by_driver, log, self.judge.as_ref()),
             flash: self.flash.clone(),
             sync_led: self.sync_led.clone(),
             refused: self.refused.clone(),
@@ -515,7 +518,8 @@ impl<'a> Recorder<'a> {
             let paths: Vec<(Side, f64, PathBuf)> = self
                 .rows
                 .iter()
-                .filter_map(|&(side, index, t)| {
+                .filter_map(|&(camera, index, t)| {
+                    let side = Side::of_index(camera);
                     let path = ["jpg", "png"].iter().map(|ext| {
                         self.frames_dir
                             .join(format!("{}_{index:05}.{ext}", side.name()))
@@ -530,7 +534,7 @@ impl<'a> Recorder<'a> {
             let measured = super::sync_led::SyncLed::measure(switches, &frames);
             self.sync_led = Some(measured);
         }
-        self.rows.sort_by_key(|r| (r.0 as u8, r.1));
+        self.rows.sort_by_key(|r| (r.0, r.1));
         let log = std::mem::take(&mut *shared.log.lock().expect("log"));
         let ending = self.ending.take().unwrap_or(Ending::Interrupted);
         let on_abort = vent(self.options, &ending);

@@ -9,16 +9,22 @@ use crate::capture::{self, CaptureOptions, Stats};
 use crate::pipeline::capture as stage;
 use crate::session::protocol;
 
-/// The two cameras, as `capture` and `follow` take them.
+/// The cameras, as `capture` and `follow` take them.
 #[derive(clap::Args)]
 pub struct Cameras {
     /// Left camera: a device index (0), a device path (/dev/video0), a video file, or a URL or
     /// GStreamer pipeline OpenCV opens
     #[arg(long)]
-    left: String,
+    left: Option<String>,
     /// Right camera, as --left
     #[arg(long)]
-    right: String,
+    right: Option<String>,
+    /// More than a pair, instead of --left and --right: one camera, named (lower-case letters
+    /// and digits: cam1, cam2, …) and its source as --left's; repeated for each, two or more.
+    /// Their frames are `<name>_NNNNN.jpg` in frames.csv, as `triangulate` reads them with the
+    /// calibration of the same names. --calib, --flash, --sync-led and --view are a pair's
+    #[arg(long, value_name = "NAME=SOURCE")]
+    camera: Vec<String>,
     /// Frame size and rate asked of the cameras
     #[arg(long, default_value_t = 1280)]
     width: u32,
@@ -34,9 +40,10 @@ pub struct Cameras {
 
 impl Cameras {
     /// A session filming these cameras, nothing else asked yet.
-    pub fn options(&self) -> CaptureOptions {
-        CaptureOptions {
-            sources: [self.left.clone(), self.right.clone()],
+    pub fn options(&self) -> anyhow::Result<CaptureOptions> {
+        let sources = capture::Source::list(&self.left, &self.right, &self.camera);
+        Ok(CaptureOptions {
+            sources: sources.map_err(super::Usage)?,
             width: self.width,
             height: self.height,
             fps: self.fps,
@@ -48,7 +55,7 @@ impl Cameras {
             flash: None,
             sync_led: false,
             view: None,
-        }
+        })
     }
 }
 
@@ -240,6 +247,6 @@ fn options(a: &Args) -> anyhow::Result<CaptureOptions> {
         on_abort: a.on_abort.clone(),
         flash: a.flash.clone(),
         sync_led: a.sync_led,
-        ..a.cameras.options()
+        ..a.cameras.options()?
     })
 }

@@ -66,7 +66,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         repetitions: a.repetitions,
         bench: crate::capture::CaptureOptions {
             sync_led: a.sync_led,
-            ..a.cameras.options()
+            ..a.cameras.options()?
         },
         regulator: super::capture::regulator(&a.regulator, a.dialect.as_deref())?,
         rest_s: a.rest_s,

@@ -31,7 +31,11 @@ pub fn run(
 pub fn live_line(stats: &Stats, options: &CaptureOptions) -> String {
     match &options.calibration {
         Some(c) => board_line(stats, if c.reference { 1 } else { c.pairs }),
-        None => steps_line(stats, options.protocol.as_ref().map_or(0, |(s, _)| s.len())),
+        None => steps_line(
+            stats,
+            &names(options),
+            options.protocol.as_ref().map_or(0, |(s, _)| s.len()),
+        ),
     }
 }
 
@@ -55,12 +59,11 @@ pub fn ended(summary: &CaptureSummary, out: &Path) -> Result<(), PipelineError> 
             )))
         }
         Ending::CameraStopped {
-            side,
+            camera,
             time_s,
             frames,
         } => Err(format!(
-            "the {} camera stopped delivering at {time_s:.2} s, after {frames} frames; {kept}",
-            side.name()
+            "the {camera} camera stopped delivering at {time_s:.2} s, after {frames} frames; {kept}"
         )),
         Ending::CommandFailed { step, message } => {
             Err(format!("the regulator's command failed at step {step}: {message}; {kept}"))
@@ -96,8 +99,14 @@ fn board_line(s: &Stats, wanted: usize) -> String {
     )
 }
 
-/// A session's live line: frames, rates, drops, frames stamped late, skew, steps.
-fn steps_line(s: &Stats, steps: usize) -> String {
+/// The session's cameras' names.
+fn names(options: &CaptureOptions) -> Vec<&str> {
+    options.sources.iter().map(|s| s.name.as_str()).collect()
+}
+
+/// A session's live line: each camera's (of `names`) frames and rate, drops, frames stamped
+/// late, skew, steps.
+fn steps_line(s: &Stats, names: &[&str], steps: usize) -> String {
     let progress = match (steps, s.over_hold) {
         (0, _) => String::new(),
         (_, 0) => format!(", step {}/{steps}", s.steps_done),
@@ -106,19 +115,30 @@ fn steps_line(s: &Stats, steps: usize) -> String {
             s.steps_done
         ),
     };
+    let each = |v: &[usize]| v.iter().map(usize::to_string).collect::<Vec<_>>().join("/");
     let late = if s.late.iter().sum::<usize>() > 0 {
         format!(
-            ", stamped late {}/{} (up to {:.0} ms: frames queued, the machine or network fell behind; triangulate leaves them out)",
-            s.late[0],
-            s.late[1],
-            s.late_max_ms[0].max(s.late_max_ms[1])
+            ", stamped late {} (up to {:.0} ms: frames queued, the machine or network fell behind; triangulate leaves them out)",
+            each(&s.late),
+            s.late_max_ms.iter().copied().fold(0.0, f64::max)
         )
     } else {
         String::new()
     };
+    let cameras: Vec<String> = names
+        .iter()
+        .zip(s.frames.iter().zip(&s.fps))
+        .map(|(name, (frames, fps))| format!("{name} {frames} frames {fps:.1} fps"))
+        .collect();
+    let skew = match names {
+        ["left", "right"] => "left/right skew".to_string(),
+        _ => format!("skew from {} (the largest)", names[0]),
+    };
     format!(
-        "left {} frames {:.1} fps, right {} frames {:.1} fps, drops {}/{}{late}, left/right skew {:.1} ms (median){progress}",
-        s.frames[0], s.fps[0], s.frames[1], s.fps[1], s.drops[0], s.drops[1], s.skew_ms
+        "{}, drops {}{late}, {skew} {:.1} ms (median){progress}",
+        cameras.join(", "),
+        each(&s.drops),
+        s.skew_ms
     )
 }
 
@@ -133,11 +153,12 @@ impl fmt::Display for Filmed<'_> {
     fn fmt(&self, f: &mut fmt::Formatter) -> fmt::Result {
         let (summary, options, out) = (self.summary, self.options, self.out.display());
         let stats = &summary.stats;
-        for (side, refused) in ["left", "right"].iter().zip(&summary.refused) {
+        let names = names(options);
+        for (name, refused) in names.iter().zip(&summary.refused) {
             if !refused.is_empty() {
                 writeln!(
                     f,
-                    "{side} camera: the backend refused {}",
+                    "{name} camera: the backend refused {}",
                     refused.join(", ")
                 )?;
             }
@@ -150,12 +171,20 @@ impl fmt::Display for Filmed<'_> {
                 stats.board_pairs,
             )?;
         } else {
+            let frames: Vec<String> = names
+                .iter()
+                .zip(&stats.frames)
+                .map(|(name, n)| format!("{n} {name}"))
+                .collect();
             writeln!(
                 f,
-                "wrote {out}/frames/ ({} left, {} right frames), {out}/frames/frames.csv{}, {out}/capture.json",
-                stats.frames[0],
-                stats.frames[1],
-                if options.protocol.is_some() { format!(", {out}/pressures.csv") } else { String::new() },
+                "wrote {out}/frames/ ({} frames), {out}/frames/frames.csv{}, {out}/capture.json",
+                frames.join(", "),
+                if options.protocol.is_some() {
+                    format!(", {out}/pressures.csv")
+                } else {
+                    String::new()
+                },
             )?;
         }
         if let Some(flash) = &summary.flash {

@@ -305,6 +305,11 @@ pub fn run(
     session: &Session,
     said: &dyn Fn(&str),
 ) -> Result<Vec<Repetition>, PipelineError> {
+    if !f.bench.is_pair() {
+        return Err(PipelineError::Request(
+            "follow films a pair (--left, --right): its repetitions are triangulated by a pair's per-frame tip".into(),
+        ));
+    }
     std::fs::create_dir_all(f.out).map_err(io(f.out))?;
     let target = Target::read(f.target)?;
     let commands = |r: usize| f.out.join(format!("commands_{r}.csv"));

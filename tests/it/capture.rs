@@ -82,12 +82,19 @@ fn recorder(dir: &Path, ack_s: f64) -> String {
     format!("sh {} {{p1}} {{p2}} {{p3}} {{step}}", script.display())
 }
 
-/// Every frame listed is there, every image is listed, times rise with the frame number.
+/// Every frame listed is there, every image is listed, times rise with the frame number; the
+/// frames of the left and right cameras.
 fn assert_consistent(session: &Path) -> [usize; 2] {
+    let count = assert_consistent_for(session, &["left", "right"]);
+    [count[0], count[1]]
+}
+
+/// As [`assert_consistent`], the frames of each camera of `names`.
+fn assert_consistent_for(session: &Path, names: &[&str]) -> Vec<usize> {
     let rows = csv_rows(&session.join("frames/frames.csv"));
     let mut listed = HashSet::new();
-    let mut count = [0; 2];
-    for (k, camera) in ["left", "right"].iter().enumerate() {
+    let mut count = vec![0; names.len()];
+    for (k, camera) in names.iter().enumerate() {
         let mine: Vec<_> = rows.iter().filter(|r| &r["camera"] == camera).collect();
         count[k] = mine.len();
         for (i, r) in mine.iter().enumerate() {
@@ -179,6 +186,103 @@ fn capture_films_both_cameras_and_drives_the_protocol_on_one_clock() {
     // The session is kept: a second capture into it is refused.
     let msg = handcap_err(d, &args);
     assert!(msg.contains("already holds a capture"), "{msg}");
+}
+
+/// `--camera NAME=SOURCE` for each of three cameras: every camera filmed on the one clock,
+/// its frames named and listed by its name, as `triangulate` reads more cameras' sessions.
+#[test]
+fn capture_films_more_cameras_named_on_one_clock() {
+    let _cores = real_time();
+    let dir = tempdir();
+    let d = dir.path();
+    long_cameras(d);
+    std::fs::copy(
+        d.join("cams/frames/left.avi"),
+        d.join("cams/frames/third.avi"),
+    )
+    .unwrap();
+    protocol(d, "p.csv", "0.15");
+    let command = recorder(d, 0.0);
+    let cameras = [
+        "--camera",
+        "cam1=cams/frames/left.avi",
+        "--camera",
+        "cam2=cams/frames/right.avi",
+        "--camera",
+        "cam3=cams/frames/third.avi",
+    ];
+    let rest = [
+        "--out",
+        "s",
+        "--protocol",
+        "p.csv",
+        "--set-pressure",
+        &command,
+    ];
+    let out = handcap_ok(d, &[&["capture"][..], &cameras, &rest].concat());
+    assert!(out.contains("step 12/12"), "{out}");
+    let s = d.join("s");
+    let count = assert_consistent_for(&s, &["cam1", "cam2", "cam3"]);
+    assert!(count.iter().all(|&n| n >= 30), "{count:?}: {out}");
+    assert!(
+        out.contains(&format!(
+            "({} cam1, {} cam2, {} cam3 frames)",
+            count[0], count[1], count[2]
+        )),
+        "{out}"
+    );
+    let json = read_json(&s.join("capture.json"));
+    assert_eq!(json["cameras"], serde_json::json!(["cam1", "cam2", "cam3"]));
+    assert_eq!(json["summary"]["stats"]["frames"], serde_json::json!(count));
+    // One clock: the three videos start together, their first frames within a frame.
+    let rows = csv_rows(&s.join("frames/frames.csv"));
+    let first: Vec<f64> = ["cam1", "cam2", "cam3"]
+        .iter()
+        .map(|c| {
+            let r = rows.iter().find(|r| &r["camera"] == c).unwrap();
+            r["time_s"].parse().unwrap()
+        })
+        .collect();
+    let spread = first.iter().copied().fold(f64::MIN, f64::max)
+        - first.iter().copied().fold(f64::MAX, f64::min);
+    assert!(spread < 1.0 / 30.0, "{first:?}");
+    assert_eq!(crate::common::csv_rows(&s.join("pressures.csv")).len(), 12);
+    // Bad cameras: one line each, nothing filmed.
+    for (args, said) in [
+        (vec!["--camera", "cam1=a.avi"], "--camera names one camera"),
+        (
+            vec!["--camera", "Cam1=a.avi", "--camera", "cam2=b.avi"],
+            "--camera Cam1=a.avi: give NAME=SOURCE",
+        ),
+        (
+            vec!["--camera", "cam1=a.avi", "--camera", "cam1=b.avi"],
+            "--camera cam1 is named twice",
+        ),
+        (
+            vec![
+                "--camera",
+                "cam1=a.avi",
+                "--camera",
+                "cam2=b.avi",
+                "--left",
+                "c.avi",
+            ],
+            "leave out --left and --right",
+        ),
+        (
+            vec!["--left", "a.avi"],
+            "give --left and --right (a pair), or --camera",
+        ),
+        (
+            [&cameras[..2], &cameras[2..4], &["--flash", "true"]].concat(),
+            "--flash is built for a pair",
+        ),
+    ] {
+        let err =
+            crate::common::handcap_usage(d, &[&["capture"][..], &args, &["--out", "x"]].concat());
+        assert!(err.contains(said), "{args:?}: {err}");
+        assert!(!d.join("x/frames").exists());
+    }
 }
 
 #[test]
@@ -867,7 +971,10 @@ fn a_silent_or_stalled_stream_ends_the_session() {
         String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
     let json: serde_json::Value = read_json(&d.join("s/capture.json"));
     let ending = &json["summary"]["ending"];
-    assert_eq!(ending["camera_stopped"]["side"], "left", "{ending} {said}");
+    assert_eq!(
+        ending["camera_stopped"]["camera"], "left",
+        "{ending} {said}"
+    );
     let [l, r] = assert_consistent(&d.join("s"));
     assert!(l >= 20 && r > l, "{l} left, {r} right frames");
     println!("a stream stalled after 1 s: session ended after {took:.1} s, {l} left and {r} right frames kept");

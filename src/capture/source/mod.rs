@@ -47,14 +47,14 @@ pub(super) trait FrameSource: Send {
     }
 }
 
-/// Opens the `side` camera `source` as the kind of source it names.
+/// Opens camera `name`'s `source` as the kind of source it names.
 pub(super) fn open(
-    side: Side,
+    name: &str,
     source: &str,
     o: &CaptureOptions,
 ) -> Result<Box<dyn FrameSource>, CaptureError> {
     let not_opened = |why: String, hint: String| CaptureError::NotOpened {
-        side: side.name(),
+        name: name.to_string(),
         camera: redact(source),
         why,
         hint,
@@ -141,13 +141,22 @@ impl OpenCvReader {
     }
 }
 
-/// A frame as grabbed: its camera, number, time, and file bytes with their extension.
+/// A frame as grabbed: its camera (its place in the session's), number, time, and file bytes
+/// with their extension.
 pub(super) struct Grabbed {
-    pub side: Side,
+    pub camera: usize,
     pub index: usize,
     pub frame: Frame,
     /// Its change from the camera's previous frame, when measured ([`super::motion::Meter`]).
     pub change: Option<f64>,
+}
+
+impl Grabbed {
+    /// The pair's camera that grabbed it (for what a pair alone does: the flash, the LED, a
+    /// calibration capture, the page).
+    pub fn side(&self) -> Side {
+        Side::of_index(self.camera)
+    }
 }
 
 /// Why a camera's thread ended.
@@ -159,7 +168,7 @@ pub(super) enum CameraEnd {
 /// Films `source` until `stop`, sending each frame on `tx`; with `meter`, each frame's motion
 /// is measured too.
 pub(super) fn film(
-    side: Side,
+    camera: usize,
     mut source: Box<dyn FrameSource>,
     clock: &Clock,
     tx: &mpsc::Sender<Grabbed>,
@@ -176,7 +185,7 @@ pub(super) fn film(
         };
         let change = meter.as_mut().and_then(|m| m.change(&frame.bytes));
         let sent = tx.send(Grabbed {
-            side,
+            camera,
             index,
             frame,
             change,
@@ -225,7 +234,7 @@ mod tests {
             times: vec![0.1, 0.2, 0.35].into_iter(),
         });
         let end = film(
-            Side::Right,
+            2,
             source,
             &clock,
             &tx,
@@ -236,7 +245,7 @@ mod tests {
         let got: Vec<Grabbed> = rx.try_iter().collect();
         assert_eq!(got.len(), 3);
         for (k, (g, t)) in got.iter().zip([0.1, 0.2, 0.35]).enumerate() {
-            assert_eq!((g.side, g.index, g.frame.time_s), (Side::Right, k, t));
+            assert_eq!((g.camera, g.index, g.frame.time_s), (2, k, t));
             assert_eq!(g.frame.bytes, t.to_le_bytes());
             assert!(g.frame.by_driver && g.change.is_none());
         }
@@ -245,7 +254,7 @@ mod tests {
             times: vec![0.1].into_iter(),
         });
         let end = film(
-            Side::Left,
+            0,
             source,
             &clock,
             &tx,

@@ -191,7 +191,7 @@ impl View {
     /// A frame arrived: shown as its camera's latest and queued for the examiner (skipped,
     /// and counted, while the examiner is behind).
     pub(super) fn arrived(&self, grabbed: &Grabbed) {
-        let side = grabbed.side;
+        let side = grabbed.side();
         let arrived = Arrived {
             side,
             index: grabbed.index,
