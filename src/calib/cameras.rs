@@ -137,14 +137,75 @@ struct Own {
     rms_px: f64,
     views: usize,
     images: usize,
+    /// The boards' reprojection RMS with the intrinsics given for it, when given (px).
+    given_rms_px: Option<f64>,
 }
 
-/// Step 2 for camera `name`, whose images and what was found in them are `images`.
+/// Intrinsics given for every camera of `listing` or none (the joint refinement keeps all of
+/// them, or refines all).
+///
+/// # Errors
+/// [`CalibError::GivenNames`] naming the cameras without a file and the names not among them.
+fn given_for_all(
+    dir: &Path,
+    listing: &Listing,
+    given: &BTreeMap<String, super::KnownIntrinsics>,
+) -> Result<(), CalibError> {
+    let missing: Vec<&str> = listing
+        .keys()
+        .filter(|n| !given.contains_key(n.as_str()))
+        .map(String::as_str)
+        .collect();
+    let unknown: Vec<&str> = given
+        .keys()
+        .filter(|n| !listing.contains_key(n.as_str()))
+        .map(String::as_str)
+        .collect();
+    if given.is_empty() || (missing.is_empty() && unknown.is_empty()) {
+        return Ok(());
+    }
+    Err(CalibError::GivenNames {
+        missing: missing.join(", "),
+        unknown: unknown.join(", "),
+        dir: dir.to_path_buf(),
+    })
+}
+
+/// What is implausible about each camera's own fit (its RMS above the gate's) and the
+/// intrinsics `given` for it (its boards reprojected far worse with them than with its own).
+fn own_implausible(
+    names: &[&String],
+    cameras: &[Own],
+    given: &BTreeMap<String, super::KnownIntrinsics>,
+) -> Vec<String> {
+    let limit = super::gates::MAX_RMS_PX;
+    let mut implausible = Vec::new();
+    for (name, own) in names.iter().zip(cameras) {
+        if super::gates::exceeds(own.rms_px, limit) {
+            implausible.push(format!("camera {name}'s own views reproject at {:.2} px (above {limit} px): a blurred or moving board, or another camera's images among its own", own.rms_px));
+        }
+        let Some(rms) = own.given_rms_px else {
+            continue;
+        };
+        if super::gates::given_implausible(rms, own.rms_px) {
+            implausible.push(format!(
+                "{}: camera {name}'s boards reproject at {rms:.3} px with these intrinsics and at {:.3} px with the camera's own fit from the same images; they are not this camera's at this zoom and focus: calibrate it again, or give none",
+                given[name.as_str()].path.display(),
+                own.rms_px
+            ));
+        }
+    }
+    implausible
+}
+
+/// Step 2 for camera `name`, whose images and what was found in them are `images`; `given`,
+/// its intrinsics known beforehand, checked against them.
 fn own_intrinsics(
     dir: &Path,
     name: &str,
     board: &BoardSpec,
     images: &[(&PathBuf, &Found)],
+    given: Option<&super::KnownIntrinsics>,
 ) -> Result<Own, CalibError> {
     let size = images[0].1 .0;
     if let Some((path, ([w, h], _))) = images.iter().find(|(_, f)| f.0 != size) {
@@ -166,6 +227,17 @@ fn own_intrinsics(
         });
     }
     let views: Vec<View> = seen.iter().map(|s| View::from(*s)).collect();
+    if let Some(k) = given.filter(|k| k.image_size != size) {
+        return Err(CalibError::GivenSize {
+            path: k.path.clone(),
+            camera: name.to_string(),
+            given: k.image_size,
+            size,
+        });
+    }
+    let given_rms_px = given
+        .map(|k| super::gates::reprojection_rms(board, &k.intrinsics, &views))
+        .transpose()?;
     let (k, d, _, rms) = single_camera(board, size, &views)?;
     let intrinsics = Intrinsics {
         k: fixed(&k)?,
@@ -177,6 +249,7 @@ fn own_intrinsics(
         rms_px: rms,
         views: seen.len(),
         images: images.len(),
+        given_rms_px,
     })
 }
 
@@ -189,6 +262,7 @@ pub fn calibrate(
     dir: &Path,
     listing: &Listing,
     board: &BoardSpec,
+    given: &BTreeMap<String, super::KnownIntrinsics>,
     progress: &(dyn Fn(usize, usize) + Sync),
 ) -> Result<GraphCalibration, CalibError> {
     board.check()?;
@@ -199,6 +273,7 @@ pub fn calibrate(
             dir: dir.to_path_buf(),
         });
     }
+    given_for_all(dir, listing, given)?;
     let files: Vec<(usize, &String, &PathBuf)> = listing
         .values()
         .enumerate()
@@ -219,7 +294,7 @@ pub fn calibrate(
             let own: Vec<usize> = (0..files.len()).filter(|&i| files[i].0 == c).collect();
             let images: Vec<(&PathBuf, &Found)> =
                 own.iter().map(|&i| (files[i].2, &found[i])).collect();
-            own_intrinsics(dir, name, board, &images)
+            own_intrinsics(dir, name, board, &images, given.get(name.as_str()))
         })
         .collect::<Result<Vec<_>, _>>()?;
     // 3. The poses.
@@ -234,15 +309,20 @@ pub fn calibrate(
             })
         })
         .collect();
-    let intrinsics: Vec<Intrinsics> = cameras.iter().map(|c| c.intrinsics.clone()).collect();
-    let graph = graph::calibrate(board, &intrinsics, graph::Intrinsic::Refined, &sightings)
-        .map_err(|e| match e {
-            GraphError::Untied { camera } => CalibError::Untied {
-                camera: names[camera].to_string(),
-                dir: dir.to_path_buf(),
-            },
-            GraphError::Calib(e) => e,
-        })?;
+    let (intrinsics, kept): (Vec<Intrinsics>, _) = if given.is_empty() {
+        let own = cameras.iter().map(|c| c.intrinsics.clone()).collect();
+        (own, graph::Intrinsic::Refined)
+    } else {
+        let known = names.iter().map(|n| given[n.as_str()].intrinsics.clone());
+        (known.collect(), graph::Intrinsic::Given)
+    };
+    let graph = graph::calibrate(board, &intrinsics, kept, &sightings).map_err(|e| match e {
+        GraphError::Untied { camera } => CalibError::Untied {
+            camera: names[camera].to_string(),
+            dir: dir.to_path_buf(),
+        },
+        GraphError::Calib(e) => e,
+    })?;
     // 4. The hand frame's axes.
     let reference = instants.iter().position(|i| i.as_str() == REFERENCE);
     let in_world = reference.and_then(|r| graph.boards.iter().find(|b| b.0 == r));
@@ -255,12 +335,7 @@ pub fn calibrate(
         (None, _) => (None, format!("no reference board (<camera>_{REFERENCE} images)")),
     };
     let limit = super::gates::MAX_RMS_PX;
-    let mut implausible: Vec<String> = names
-        .iter()
-        .zip(&cameras)
-        .filter(|(_, own)| super::gates::exceeds(own.rms_px, limit))
-        .map(|(name, own)| format!("camera {name}'s own views reproject at {:.2} px (above {limit} px): a blurred or moving board, or another camera's images among its own", own.rms_px))
-        .collect();
+    let mut implausible = own_implausible(&names, &cameras, given);
     if super::gates::exceeds(graph.rms_px, limit) {
         implausible.push(format!("the cameras together reproject at {:.2} px (above {limit} px): views named with the same NN that were not taken at the same instant, or a camera moved between them", graph.rms_px));
     }

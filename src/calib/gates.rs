@@ -58,6 +58,12 @@ pub(super) fn reprojection_rms(
     Ok((sum / n.max(1) as f64).sqrt())
 }
 
+/// Whether given intrinsics that reproject a camera's boards at `given` px are not that
+/// camera's, its own fit from the same images reprojecting them at `own` px.
+pub(super) fn given_implausible(given: f64, own: f64) -> bool {
+    given > INTRINSICS_RATIO * own + INTRINSICS_SLACK_PX
+}
+
 /// What is wrong with the given intrinsics, checked against each camera's views of the boards
 /// (`views[0]` left, `views[1]` right) and `own_rms`, the RMS of each camera's own fit.
 pub(super) fn known_intrinsics(
@@ -110,7 +116,7 @@ pub(super) fn known_intrinsics(
             continue;
         };
         let own = own_rms[c];
-        if given > INTRINSICS_RATIO * own + INTRINSICS_SLACK_PX {
+        if given_implausible(given, own) {
             problems.push(format!(
                 "{}: the {} camera's boards reproject at {given:.3} px with these intrinsics and at {own:.3} px with the camera's own fit from the same images (focal length {:.1} px given); they are not this camera's at this zoom and focus: calibrate it again, or leave it to be solved (`-`)",
                 k.path.display(),

@@ -128,6 +128,19 @@ pub enum CalibError {
     Untied { camera: String, dir: PathBuf },
     #[error("{dir} has board views of one camera, {camera}: a calibration of cameras takes two or more seeing the board at the same instants (<camera>_NN images with the same NN)")]
     OneCamera { camera: String, dir: PathBuf },
+    #[error("--intrinsics names every camera of {dir} or none: {}{}", if missing.is_empty() { String::new() } else { format!("no file for {missing}") }, if unknown.is_empty() { String::new() } else { format!("{}{unknown} not among its cameras", if missing.is_empty() { "" } else { "; " }) })]
+    GivenNames {
+        missing: String,
+        unknown: String,
+        dir: PathBuf,
+    },
+    #[error("{path} is for {}x{} images, but camera {camera}'s are {}x{}: give the intrinsics of this camera at the size it films", given[0], given[1], size[0], size[1])]
+    GivenSize {
+        path: PathBuf,
+        camera: String,
+        given: [i32; 2],
+        size: [i32; 2],
+    },
     #[error("{left} and its right video: no still board pair in {searched} frame pairs searched (the board in both images in {seen}, still in {still}); film the whole board in both cameras, holding it still for half a second at each pose")]
     NoVideoPairs {
         left: PathBuf,
@@ -173,6 +186,10 @@ pub struct CalibOptions {
     /// Intrinsics of the left and right camera fixed instead of solved (see `fit::stereo`).
     #[serde(skip)]
     pub intrinsics: [Option<KnownIntrinsics>; 2],
+    /// With more cameras, the intrinsics of every camera by name, fixed instead of solved
+    /// ([`cameras`]; none, or all of them).
+    #[serde(skip)]
+    pub named_intrinsics: std::collections::BTreeMap<String, KnownIntrinsics>,
     /// Recalibrations on pairs drawn with replacement, for [`Bootstrap`] (0: none) …
     pub bootstrap: usize,
     /// … and the seed of the draws.
@@ -194,6 +211,7 @@ impl Default for CalibOptions {
             reject_factor: 3.0,
             reject_floor_px: 0.25,
             intrinsics: [None, None],
+            named_intrinsics: std::collections::BTreeMap::new(),
             bootstrap: 0,
             seed: 1,
             video_start_s: None,

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::bail;
 
-use crate::calib::{file, CalibOptions};
+use crate::calib::CalibOptions;
 use crate::pipeline::calibrate;
 
 #[derive(clap::Args)]
@@ -24,7 +24,9 @@ pub struct Args {
     min_pairs: usize,
     /// LEFT,RIGHT: each camera's intrinsics from an earlier single-camera calibration (OpenCV
     /// YAML: camera_matrix, distortion_coefficients, image_width, image_height), fixed instead of
-    /// solved; `-` for a camera to solve (e.g. `--intrinsics left.yml,-`)
+    /// solved; `-` for a camera to solve (e.g. `--intrinsics left.yml,-`). With more cameras,
+    /// NAME=FILE for every camera (cam1=cam1.yml,cam2=cam2.yml,…), all fixed in the joint
+    /// refinement
     #[arg(long, value_delimiter = ',', num_args = 1, allow_hyphen_values = true)]
     intrinsics: Vec<PathBuf>,
     /// Also find the standard deviations by recalibrating N times on the pairs drawn with
@@ -61,18 +63,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             a.dir.display()
         );
     }
-    if !a.intrinsics.is_empty() && a.intrinsics.len() != 2 {
-        super::usage!("--intrinsics takes LEFT,RIGHT (`-` for a camera to solve)");
-    }
-    let mut intrinsics = [None, None];
-    for (slot, path) in intrinsics.iter_mut().zip(&a.intrinsics) {
-        if path.as_os_str() != "-" {
-            *slot = Some(file::read_intrinsics(path)?);
-        }
-    }
+    let (intrinsics, named_intrinsics) = calibrate::given_intrinsics(&a.intrinsics)?;
     let options = CalibOptions {
         min_pairs: a.min_pairs,
         intrinsics,
+        named_intrinsics,
         bootstrap: a.bootstrap,
         seed: a.seed,
         video_start_s: super::left_right("--video-start-s", &a.video_start_s)?,

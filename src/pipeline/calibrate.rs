@@ -1,5 +1,6 @@
 //! The calibrate stage: chessboard pairs → the calibration file and its figures.
 
+use std::collections::BTreeMap;
 use std::fmt;
 use std::path::{Path, PathBuf};
 
@@ -7,7 +8,7 @@ use super::outputs::{self, Output};
 use super::{io_error, PipelineError, Session, Task};
 use crate::calib::uncertainty::{self, ParameterSd};
 use crate::calib::{
-    self, file, validate, BoardSpec, CalibOptions, PartialBoard, StereoCalibration,
+    self, file, validate, BoardSpec, CalibOptions, KnownIntrinsics, PartialBoard, StereoCalibration,
 };
 use crate::fsio;
 
@@ -382,11 +383,17 @@ pub fn run_any(
 ) -> Result<Done, PipelineError> {
     let listing = calib::cameras::list(dir).map_err(io_error(dir))?;
     if !calib::cameras::is_graph(&listing) {
+        if !options.named_intrinsics.is_empty() {
+            return Err(PipelineError::Request(format!(
+                "--intrinsics NAME=FILE is for more cameras; {} holds a pair's views: give --intrinsics LEFT,RIGHT",
+                dir.display()
+            )));
+        }
         return run(dir, board, options, out, session).map(|done| Done::Pair(Box::new(done)));
     }
     let pair_only = [
         (
-            "--intrinsics",
+            "--intrinsics LEFT,RIGHT (with more cameras, --intrinsics NAME=FILE,…)",
             options.intrinsics.iter().any(Option::is_some),
         ),
         ("--bootstrap", options.bootstrap > 0),
@@ -401,13 +408,64 @@ pub fn run_any(
             listing.keys().cloned().collect::<Vec<_>>().join(", ")
         )));
     }
-    run_cameras(dir, &listing, board, options.force, out, session)
+    let given = &options.named_intrinsics;
+    run_cameras(dir, &listing, board, given, options.force, out, session)
         .map(|done| Done::Cameras(Box::new(done)))
+}
+
+/// `--intrinsics`' files read: `LEFT,RIGHT` for a pair (`-` for a camera to solve), or
+/// `NAME=FILE` for each of more cameras; the pair's, and the named ones'.
+///
+/// # Errors
+/// [`PipelineError::Request`] for a list of neither form; an unreadable file.
+#[allow(clippy::type_complexity)]
+pub fn given_intrinsics(
+    list: &[PathBuf],
+) -> Result<
+    (
+        [Option<KnownIntrinsics>; 2],
+        BTreeMap<String, KnownIntrinsics>,
+    ),
+    PipelineError,
+> {
+    let texts: Vec<String> = list.iter().map(|p| p.to_string_lossy().into()).collect();
+    let named: Vec<(&str, &str)> = texts.iter().filter_map(|t| t.split_once('=')).collect();
+    let mut pair = [None, None];
+    if named.is_empty() {
+        if !list.is_empty() && list.len() != 2 {
+            return Err(PipelineError::Request(
+                "--intrinsics takes LEFT,RIGHT (`-` for a camera to solve), or NAME=FILE for each of more cameras".into(),
+            ));
+        }
+        for (slot, path) in pair.iter_mut().zip(list) {
+            if path.as_os_str() != "-" {
+                *slot = Some(file::read_intrinsics(path)?);
+            }
+        }
+        return Ok((pair, BTreeMap::new()));
+    }
+    if named.len() != list.len() {
+        return Err(PipelineError::Request(
+            "--intrinsics with more cameras takes NAME=FILE for each of them (cam1=cam1.yml,cam2=cam2.yml,…)".into(),
+        ));
+    }
+    let mut given = BTreeMap::new();
+    for (name, path) in named {
+        let known = file::read_intrinsics(Path::new(path))?;
+        if given.insert(name.to_string(), known).is_some() {
+            return Err(PipelineError::Request(format!(
+                "--intrinsics names camera {name} twice: give each camera's file once"
+            )));
+        }
+    }
+    Ok((pair, given))
 }
 
 /// What the calibration of more than two cameras did and wrote.
 pub struct CalibratedCameras {
     pub calibration: calib::cameras::GraphCalibration,
+    /// The cameras whose intrinsics were given, and their files.
+    pub given: Vec<(String, PathBuf)>,
     pub written: Vec<PathBuf>,
 }
 
@@ -419,10 +477,12 @@ pub struct CalibratedCameras {
 /// [`PipelineError`]: too few views, a camera tied to none of the others, a gate failed
 /// without `force`, unreadable images, a file that cannot be written, or the output naming an
 /// input.
+#[allow(clippy::too_many_arguments)]
 pub fn run_cameras(
     dir: &Path,
     listing: &calib::cameras::Listing,
     board: &BoardSpec,
+    given: &BTreeMap<String, KnownIntrinsics>,
     force: bool,
     out: &Path,
     session: &Session,
@@ -432,6 +492,7 @@ pub fn run_cameras(
         .values()
         .flat_map(|views| views.values().map(PathBuf::as_path))
         .chain([board_file.as_path()])
+        .chain(given.values().map(|k| k.path.as_path()))
         .collect();
     let (toml, json) = (file::toml_path(out), file::json_path(out));
     outputs::check(
@@ -441,7 +502,8 @@ pub fn run_cameras(
             Output::new(&json, "the calibration as JSON"),
         ],
     )?;
-    let result = calib::cameras::calibrate(dir, listing, board, &session.counter(Task::Detect));
+    let progress = session.counter(Task::Detect);
+    let result = calib::cameras::calibrate(dir, listing, board, given, &progress);
     session.emit(super::Event::Finished(Task::Detect));
     let calibration = result?;
     refuse_implausible(dir, &calibration.implausible, force, session)?;
@@ -461,6 +523,10 @@ pub fn run_cameras(
     fsio::write_bytes(&json, text.as_bytes()).map_err(io_error(&json))?;
     Ok(CalibratedCameras {
         calibration,
+        given: given
+            .iter()
+            .map(|(n, k)| (n.clone(), k.path.clone()))
+            .collect(),
         written: vec![toml, json],
     })
 }
@@ -501,6 +567,13 @@ impl fmt::Display for CalibratedCameras {
                 "poorly tied: {} (fewer than {} instants shared with another camera); add views where it and another camera see the board at once",
                 c.poorly_tied.join(", "),
                 calib::graph::MIN_SHARED
+            )?;
+        }
+        for (name, path) in &self.given {
+            writeln!(
+                f,
+                "{name} intrinsics fixed as {} gives them",
+                path.display()
             )?;
         }
         writeln!(f, "hand frame axes: {}", c.hand_axes_note)

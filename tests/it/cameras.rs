@@ -953,3 +953,143 @@ fn ellipsoid_coverage(path: &Path, truth: &[[f64; 3]]) -> f64 {
         .count();
     inside as f64 / rows.len() as f64
 }
+
+/// Camera `i` of an Anipose TOML as an OpenCV YAML intrinsics file (as a single-camera
+/// calibration writes it), its focal lengths scaled by `scale`, at `size`.
+fn intrinsics_yaml(doc: &toml::Table, i: usize, scale: f64, size: [i64; 2]) -> String {
+    let cam = doc[&format!("cam_{i}")].as_table().unwrap();
+    let numbers = |v: &toml::Value| -> Vec<f64> {
+        v.as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x.as_float().unwrap())
+            .collect()
+    };
+    let mut k: Vec<f64> = cam["matrix"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .flat_map(numbers)
+        .collect();
+    k[0] *= scale;
+    k[4] *= scale;
+    let d = numbers(&cam["distortions"]);
+    let list = |v: &[f64]| {
+        v.iter()
+            .map(|x| format!("{x:e}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    format!(
+        "%YAML:1.0\n---\nimage_width: {}\nimage_height: {}\ncamera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ {} ]\ndistortion_coefficients: !!opencv-matrix\n   rows: 1\n   cols: {}\n   dt: d\n   data: [ {} ]\n",
+        size[0],
+        size[1],
+        list(&k),
+        d.len(),
+        list(&d)
+    )
+}
+
+/// `calibrate --intrinsics NAME=FILE,…` with more cameras: every camera's intrinsics kept as
+/// given in the joint refinement, the poses then against the rig the views were rendered with;
+/// a list that misses a camera or names another, a file of another size, a pair's form, and
+/// intrinsics that are not the camera's, each refused in one line with nothing written.
+#[test]
+fn more_cameras_given_intrinsics_are_kept_and_checked() {
+    let dir = tempdir();
+    let d = dir.path();
+    let synth = [
+        "synth",
+        "--out",
+        "s",
+        "--cameras",
+        "3",
+        "--views",
+        "10",
+        "--grid-step-kpa",
+        "250",
+        "--sweep-step-kpa",
+        "250",
+    ];
+    handcap_ok(d, &synth);
+    let truth: toml::Table = std::fs::read_to_string(d.join("s/truth/cameras.toml"))
+        .unwrap()
+        .parse()
+        .unwrap();
+    for i in 0..3 {
+        let text = intrinsics_yaml(&truth, i, 1.0, [1280, 720]);
+        write(d, &format!("cam{}.yml", i + 1), &text);
+    }
+    write(d, "small.yml", &intrinsics_yaml(&truth, 0, 1.0, [640, 720]));
+    write(
+        d,
+        "zoomed.yml",
+        &intrinsics_yaml(&truth, 1, 1.1, [1280, 720]),
+    );
+    let calibrate = |list: &str| {
+        let args = ["calibrate", "s/calib", "--out", "cal.yml", "--intrinsics"];
+        crate::common::handcap(d, &[&args[..], &[list]].concat())
+    };
+    let all = "cam1=cam1.yml,cam2=cam2.yml,cam3=cam3.yml";
+    let out = calibrate(all);
+    let said = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{said}");
+    assert!(
+        said.contains("cam3 intrinsics fixed as cam3.yml gives them"),
+        "{said}"
+    );
+    let calibrated: toml::Table = std::fs::read_to_string(d.join("cal.toml"))
+        .unwrap()
+        .parse()
+        .unwrap();
+    for i in 0..3 {
+        assert_eq!(
+            calibrated[&format!("cam_{i}")]["matrix"],
+            truth[&format!("cam_{i}")]["matrix"],
+            "cam{} kept as given",
+            i + 1
+        );
+        let ((got, _), (want, _)) = (toml_camera(&calibrated, i), toml_camera(&truth, i));
+        let turned = (got.rotation * want.rotation.inverse())
+            .angle()
+            .to_degrees();
+        let moved = (got.centre() - want.centre()).norm();
+        assert!(
+            turned < 0.03 && moved < 0.06,
+            "cam{}: {turned}°, {moved} mm",
+            i + 1
+        );
+    }
+    std::fs::remove_file(d.join("cal.toml")).unwrap();
+    for (list, code, said) in [
+        ("cam1=cam1.yml,cam2=cam2.yml", 1, "no file for cam3"),
+        (
+            "cam1=cam1.yml,cam2=cam2.yml,cam3=cam3.yml,cam9=cam3.yml",
+            1,
+            "cam9 not among its cameras",
+        ),
+        (
+            "cam1=small.yml,cam2=cam2.yml,cam3=cam3.yml",
+            1,
+            "small.yml is for 640x720 images, but camera cam1's are 1280x720",
+        ),
+        ("cam1.yml,cam2.yml", 2, "is for a pair of cameras"),
+        (
+            "cam1=cam1.yml,cam2=zoomed.yml,cam3=cam3.yml",
+            1,
+            "they are not this camera's",
+        ),
+    ] {
+        let args = [
+            "calibrate",
+            "s/calib",
+            "--out",
+            "cal.yml",
+            "--intrinsics",
+            list,
+        ];
+        let err = crate::common::handcap_fails(d, &args, code);
+        assert!(err.contains(said), "{list}: {err}");
+        assert!(!d.join("cal.toml").exists(), "{list}");
+    }
+}

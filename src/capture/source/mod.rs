@@ -233,14 +233,7 @@ mod tests {
         let source = Box::new(Scripted {
             times: vec![0.1, 0.2, 0.35].into_iter(),
         });
-        let end = film(
-            2,
-            source,
-            &clock,
-            &tx,
-            &AtomicBool::new(false),
-            None,
-        );
+        let end = film(2, source, &clock, &tx, &AtomicBool::new(false), None);
         assert!(matches!(end, CameraEnd::Failed { frames: 3, .. }));
         let got: Vec<Grabbed> = rx.try_iter().collect();
         assert_eq!(got.len(), 3);
@@ -253,14 +246,7 @@ mod tests {
         let source = Box::new(Scripted {
             times: vec![0.1].into_iter(),
         });
-        let end = film(
-            0,
-            source,
-            &clock,
-            &tx,
-            &AtomicBool::new(true),
-            None,
-        );
+        let end = film(0, source, &clock, &tx, &AtomicBool::new(true), None);
         assert!(matches!(end, CameraEnd::Stopped));
         assert_eq!(rx.try_iter().count(), 0);
     }

@@ -63,6 +63,7 @@ impl Demo<'_> {
             &calib_dir,
             &listing,
             &board,
+            &std::collections::BTreeMap::new(),
             false,
             &calib,
             self.session,
