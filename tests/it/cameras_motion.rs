@@ -215,6 +215,12 @@ fn more_cameras_in_motion_bad_input_gets_one_line() {
         "--out",
         "x.csv",
     ];
+    // A pair's clock options.
+    let err = crate::common::handcap_usage(d, &[&args[..], &["--latency-ms", "10,20"]].concat());
+    assert!(
+        err.contains("--latency-ms takes a pair's LEFT,RIGHT"),
+        "{err}"
+    );
     let listed = std::fs::read_to_string(d.join("s/frames/frames.csv")).unwrap();
     let edit = |f: &dyn Fn(&str) -> String| {
         let text: String = listed.lines().map(|l| f(l) + "\n").collect();

@@ -141,6 +141,16 @@ pub fn run_more_cameras(
     out: &Path,
     session: &Session,
 ) -> Result<MoreCameras, PipelineError> {
+    let pair_only = [
+        (options.latency_s.is_some(), "--latency-ms"),
+        (options.video_start_s.is_some(), "--video-start-s"),
+    ];
+    if let Some((_, flag)) = pair_only.iter().find(|p| p.0) {
+        return Err(PipelineError::Request(format!(
+            "{flag} takes a pair's LEFT,RIGHT; {} holds more cameras, whose frames are images and whose clocks --per-frame measures from the motion",
+            calib.display()
+        )));
+    }
     Ok(if per_frame {
         MoreCameras::Frames(run_per_frame_cameras(
             frames, calib, pressures, options, out, session,
