@@ -52,10 +52,7 @@ pub fn list(dir: &Path) -> std::io::Result<Listing> {
         let Some((camera, instant)) = stem.rsplit_once('_') else {
             continue;
         };
-        let word = camera.starts_with(|c: char| c.is_ascii_lowercase())
-            && camera
-                .chars()
-                .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit());
+        let word = crate::session::frames::is_camera_name(camera);
         let instant_ok = instant == REFERENCE
             || (!instant.is_empty() && instant.bytes().all(|b| b.is_ascii_digit()));
         if word && instant_ok {

@@ -132,9 +132,7 @@ impl Source {
                     let (name, from) = given.split_once('=').ok_or_else(|| {
                         format!("--camera {given}: give NAME=SOURCE (cam1=/dev/video0, say)")
                     })?;
-                    let mut chars = name.chars();
-                    let word = chars.next().is_some_and(|c| c.is_ascii_lowercase())
-                        && chars.all(|c| c.is_ascii_lowercase() || c.is_ascii_digit());
+                    let word = crate::session::frames::is_camera_name(name);
                     if !word || from.trim().is_empty() {
                         return Err(format!("--camera {given}: give NAME=SOURCE, the name of lower-case letters and digits (a letter first), the source not empty"));
                     }

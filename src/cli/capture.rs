@@ -126,7 +126,7 @@ pub struct Args {
     /// Serve a page to watch the session on (127.0.0.1, a random token in its URL, printed as
     /// `view URL`): each camera's latest frame and the bead in it, the pressures commanded and
     /// measured, the progress and flags; with --view-calib the tip's track live
-    #[arg(long)]
+    #[arg(long, conflicts_with = "camera")]
     view: bool,
     /// With --view: the port (default: any free one)
     #[arg(long, default_value_t = 0, requires = "view")]

@@ -429,7 +429,12 @@ pub fn given_intrinsics(
     PipelineError,
 > {
     let texts: Vec<String> = list.iter().map(|p| p.to_string_lossy().into()).collect();
-    let named: Vec<(&str, &str)> = texts.iter().filter_map(|t| t.split_once('=')).collect();
+    // A pair's path may hold `=`: the named form's name is a camera's.
+    let named: Vec<(&str, &str)> = texts
+        .iter()
+        .filter_map(|t| t.split_once('='))
+        .filter(|(name, _)| crate::session::frames::is_camera_name(name))
+        .collect();
     let mut pair = [None, None];
     if named.is_empty() {
         if !list.is_empty() && list.len() != 2 {

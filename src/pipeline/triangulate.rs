@@ -115,6 +115,12 @@ fn check_outputs(
         .chain(listed.paths.iter().flatten().map(PathBuf::as_path))
         .chain(listed.videos.iter().flatten().map(PathBuf::as_path))
         .collect();
+    outputs::check(&inputs, &planned_outputs(out, log))
+}
+
+/// Every file a triangulation into `out` may write: the dataset, one per phase of `log`, and
+/// the files beside it.
+fn planned_outputs(out: &Path, log: &PressureLog) -> Vec<Output> {
     let mut planned = vec![Output::new(out, "the dataset")];
     if let Some(col) = log.extra_columns.iter().position(|c| c == "phase") {
         let mut phases: Vec<&str> = log.steps.iter().map(|s| s.extra[col].as_str()).collect();
@@ -132,7 +138,7 @@ fn check_outputs(
             .iter()
             .map(|(suffix, role)| Output::new(output::beside(out, suffix), *role)),
     );
-    outputs::check(&inputs, &planned)
+    planned
 }
 
 /// The run's inputs, read and checked: `frames` a directory, the options in their ranges, the

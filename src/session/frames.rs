@@ -27,6 +27,15 @@ pub struct FrameRecord {
     pub late_s: Option<f64>,
 }
 
+/// Whether `name` can name a camera: lower-case letters and digits, a letter first (`left`,
+/// `cam1`), as the session's files (`<camera>_NNNNN.jpg`, `<camera>_NN.png`) spell it.
+pub fn is_camera_name(name: &str) -> bool {
+    name.starts_with(|c: char| c.is_ascii_lowercase())
+        && name
+            .chars()
+            .all(|c| c.is_ascii_lowercase() || c.is_ascii_digit())
+}
+
 /// Reads `dir/frames.csv`.
 ///
 /// # Errors

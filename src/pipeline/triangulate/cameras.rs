@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 use std::fmt;
 use std::path::{Path, PathBuf};
 
-use super::super::outputs::{self, Output};
+use super::super::outputs;
 use super::super::{io_error, PipelineError, Session, Task};
 use crate::session::pressures::read_pressure_log;
 use crate::triangulate::{self, TriangulateOptions};
@@ -75,7 +75,7 @@ impl Inputs {
             .into_iter()
             .chain(listed.iter().map(|f| f.path.as_path()))
             .collect();
-        outputs::check(&inputs, &[Output::new(out, "the dataset")])?;
+        outputs::check(&inputs, &super::planned_outputs(out, &log))?;
         let json = calib.with_extension("json");
         let five = cameras.iter().all(|c| c.intrinsics.dist.len() >= 5);
         let covariance = if json.is_file() && five {

@@ -50,6 +50,8 @@ impl Locator<'_> {
     fn locate(&self, centres: &Centres<'_>, k: usize) -> Tip<Located> {
         let t = self.tracks[self.first].times[k];
         let mut fast = false;
+        // Why the rows' camera's own frame gave no view, when it could not be examined.
+        let mut own_flag = None;
         let mut choices: Vec<(usize, Vec<Group>)> = Vec::new();
         let mut sources: Vec<Vec<Candidate>> = Vec::new();
         for (c, track) in self.tracks.iter().enumerate() {
@@ -67,6 +69,10 @@ impl Locator<'_> {
                     fast = true;
                     continue;
                 }
+                Err(flag @ ("skipped" | "no_image")) if c == self.first => {
+                    own_flag = Some(flag);
+                    continue;
+                }
                 _ => continue,
             };
             let camera = &self.calibration.cameras[c].intrinsics;
@@ -82,7 +88,11 @@ impl Locator<'_> {
             sources.push(candidates);
         }
         if choices.len() < 2 {
-            return Err(if fast { "fast" } else { "unseen" });
+            return Err(match (fast, own_flag) {
+                (true, _) => "fast",
+                (false, Some(flag)) => flag,
+                (false, None) => "unseen",
+            });
         }
         let (mut tip, chosen) = agreed(&choices).map_err(|why| match why {
             nview::Refused::TooFewViews => "unseen",
@@ -129,7 +139,8 @@ impl Locator<'_> {
     }
 
     /// A camera's candidates at `t` on its clock: from the two frames around it, else (none
-    /// there) from those either side with one of the two left out, as if dropped.
+    /// there) from those either side with one of the two left out, as if dropped, where
+    /// exactly one of the two ways gives points.
     fn interpolated(
         &self,
         track: &Track,
@@ -157,17 +168,16 @@ impl Locator<'_> {
                 .filter(|&r| r < track.times.len())
                 .map(|r| (a, r)),
         ];
-        let found: Vec<Candidate> = wider
+        // Exactly one of the two ways, as a pair's right camera: both giving points is no
+        // frame hidden but a jump.
+        let mut found = wider
             .into_iter()
             .flatten()
             .filter(|&(a, b)| track.close(a, b))
-            .filter_map(|(a, b)| between(a, b).ok())
-            .flatten()
-            .collect();
-        if found.is_empty() {
-            Err(flag)
-        } else {
-            Ok(found)
+            .filter_map(|(a, b)| between(a, b).ok());
+        match (found.next(), found.next()) {
+            (Some(points), None) => Ok(points),
+            _ => Err(flag),
         }
     }
 }

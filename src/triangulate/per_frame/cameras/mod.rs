@@ -48,7 +48,8 @@ use locate::{Located, Locator};
 /// One row: a frame of the rows' camera.
 #[derive(Clone, Debug)]
 pub struct CamerasRow {
-    /// Its frame, time, step, tip (hand frame), the views' RMS reprojection error and flags.
+    /// Its frame, time, step, tip (hand frame), the largest reprojection residual of the views
+    /// used and flags.
     pub row: FrameRow,
     /// The cameras used and left out by the gate (indices into the calibration's).
     pub used: Vec<usize>,
@@ -205,7 +206,7 @@ pub fn triangulate_per_frame_cameras(
     let located = locator.locate_all(&chosen);
 
     // 5. The rows, the origin, the hand frame.
-    let centroid_only = centroid_only(&tracks, &examined, &located);
+    let centroid_only = centroid_only(&tracks, &examined, &seen, &located);
     let (mut rows, points) = rows::frame_rows(
         rows_track,
         |i| frames[i].index,
@@ -258,12 +259,21 @@ fn examine_all(
         .collect()
 }
 
-/// Per row of `located`, whether a frame a camera it used saw it in was seen as a region whose
-/// sub-pixel fit did not settle (the row's flag [`CENTROID`]).
-fn centroid_only(tracks: &[Track], examined: &[Examined], located: &[Tip<Located>]) -> Vec<bool> {
-    let unfitted = |c: usize, pos: usize, px: [f64; 2]| match &examined[tracks[c].order[pos]] {
-        Examined::Markers(blobs) => blobs.iter().any(|b| b.centre_px == px && !b.fitted),
-        _ => false,
+/// Per row of `located`, whether a frame a camera it used saw it in was seen, by the first
+/// pass (`seen`: the second's centres may be smoothed), as a region whose sub-pixel fit did not
+/// settle (the row's flag [`CENTROID`]), as a pair's rows are flagged.
+fn centroid_only(
+    tracks: &[Track],
+    examined: &[Examined],
+    seen: &[Vec<Option<[f64; 2]>>],
+    located: &[Tip<Located>],
+) -> Vec<bool> {
+    let unfitted = |c: usize, pos: usize| {
+        let (Some(px), Examined::Markers(blobs)) = (seen[c][pos], &examined[tracks[c].order[pos]])
+        else {
+            return false;
+        };
+        blobs.iter().any(|b| b.centre_px == px && !b.fitted)
     };
     located
         .iter()
@@ -272,7 +282,7 @@ fn centroid_only(tracks: &[Track], examined: &[Examined], located: &[Tip<Located
                 f.frames
                     .iter()
                     .filter(|(c, _, _)| f.tip.used.contains(c))
-                    .any(|&(c, pos, px)| unfitted(c, pos, px))
+                    .any(|&(c, pos, _)| unfitted(c, pos))
             })
         })
         .collect()
