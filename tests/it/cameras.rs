@@ -1093,3 +1093,26 @@ fn more_cameras_given_intrinsics_are_kept_and_checked() {
         assert!(!d.join("cal.toml").exists(), "{list}");
     }
 }
+
+/// `--intrinsics`' two forms told apart by the name before `=`: a pair's file whose path holds
+/// `=` (a folder `zoom=2`) is still a pair's, and `cam1=FILE` names a camera.
+#[test]
+fn intrinsics_paths_holding_an_equals_sign_stay_a_pairs() {
+    use handcap::pipeline::calibrate::given_intrinsics;
+    use std::path::PathBuf;
+    let dir = tempdir();
+    let d = dir.path();
+    let camera: toml::Table = "[cam_0]\nname = \"cam1\"\nsize = [1280, 720]\nmatrix = [[900.0, 0.0, 640.0], [0.0, 900.0, 360.0], [0.0, 0.0, 1.0]]\ndistortions = [0.0, 0.0, 0.0, 0.0, 0.0]\n"
+        .parse()
+        .unwrap();
+    std::fs::create_dir(d.join("zoom=2")).unwrap();
+    let file = d.join("zoom=2/left.yml");
+    std::fs::write(&file, intrinsics_yaml(&camera, 0, 1.0, [1280, 720])).unwrap();
+    let (pair, named) = given_intrinsics(&[file.clone(), PathBuf::from("-")]).unwrap();
+    assert!(pair[0].is_some() && pair[1].is_none() && named.is_empty());
+    let named_form = PathBuf::from(format!("cam1={}", file.display()));
+    let (pair, named) = given_intrinsics(&[named_form]).unwrap();
+    assert!(pair.iter().all(Option::is_none));
+    assert_eq!(named.keys().collect::<Vec<_>>(), ["cam1"]);
+    assert_eq!(named["cam1"].intrinsics.fx(), 900.0);
+}

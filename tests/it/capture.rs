@@ -277,6 +277,11 @@ fn capture_films_more_cameras_named_on_one_clock() {
             [&cameras[..2], &cameras[2..4], &["--flash", "true"]].concat(),
             "--flash is built for a pair",
         ),
+        // Refused before the page's server starts.
+        (
+            [&cameras[..2], &cameras[2..4], &["--view"]].concat(),
+            "cannot be used with '--view'",
+        ),
     ] {
         let err =
             crate::common::handcap_usage(d, &[&["capture"][..], &args, &["--out", "x"]].concat());
