@@ -217,10 +217,7 @@ pub fn triangulate_per_frame(
     // 3-4. The clock offset, each left frame's tip.
     let (clock, seen, located) = locate_frames(rig, options, [&left, &right], &centres, None)?;
     summary.clock_offset_ms = 1e3 * clock.offset_s;
-    summary.clock_drift_ms = match (left.times.first(), left.times.last()) {
-        (Some(a), Some(b)) => 1e3 * clock.drift * (b - a),
-        _ => 0.0,
-    };
+    summary.clock_drift_ms = 1e3 * clock.drift * left.length_s();
     summary.clock_frames = clock.frames;
     summary.delays_ms = options.latency_s.map(|s| s.map(|s| 1e3 * s));
     summary.clocks_measured = options.clocks_measured;
@@ -300,9 +297,8 @@ fn locate_frames(
 /// Why the two tracks cannot make pairs, if they cannot: a camera without frames, or their
 /// times apart by more than the clock offset is looked for within.
 fn apart(left: &Track, right: &Track) -> Option<String> {
-    let span = |t: &Track| Some((*t.times.first()?, *t.times.last()?));
-    let (Some(l), Some(r)) = (span(left), span(right)) else {
-        let missing = match span(left) {
+    let (Some(l), Some(r)) = (left.span_s(), right.span_s()) else {
+        let missing = match left.span_s() {
             None => Side::Left.name(),
             Some(_) => Side::Right.name(),
         };
@@ -466,26 +462,9 @@ fn locate_at(
     if cl.is_empty() {
         return Err("no_marker_left");
     }
-    let between = |a: usize, b: usize| locate_between(rig, options, right, centres, &cl, a, b, t);
-    let flag = match between(a, b) {
-        Ok(found) => return Ok(found),
-        Err(flag) => flag,
-    };
-    let wider = [
-        a.checked_sub(1).map(|o| (o, b)),
-        Some(b + 1)
-            .filter(|&r| r < right.times.len())
-            .map(|r| (a, r)),
-    ];
-    let mut found = wider
-        .into_iter()
-        .flatten()
-        .filter(|&(a, b)| right.close(a, b))
-        .filter_map(|(a, b)| between(a, b).ok());
-    match (found.next(), found.next()) {
-        (Some(tips), None) => Ok(tips),
-        _ => Err(flag),
-    }
+    right.around_or_dropped((a, b), |a, b| {
+        locate_between(rig, options, right, centres, &cl, a, b, t)
+    })
 }
 
 /// The consistent tips of the left candidates `cl` with the right track between its frames

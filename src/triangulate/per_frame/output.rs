@@ -18,24 +18,12 @@ impl PerFrame {
     /// The rows as CSV: `time_s`, the log's other columns, the pressures in force, the tip,
     /// `frame`, `reproj_px`, `flag`.
     pub fn csv(&self, log: &PressureLog, keep: impl Fn(&FrameRow) -> bool) -> String {
-        let mut header = vec!["time_s".to_string()];
-        header.extend(log.extra_columns.iter().cloned());
-        header.extend(
-            HAND_INPUTS
-                .into_iter()
-                .chain(HAND_OUTPUTS)
-                .chain(["frame", "reproj_px", "flag"])
-                .map(String::from),
-        );
-        let mut csv = Csv::new(header);
-        let number = |v: Option<f64>| v.map_or_else(String::new, crate::data::format_number);
         let in_force = InForce::of(log);
+        let mut csv = Csv::new(in_force.header(&["frame", "reproj_px", "flag"]));
+        let number = |v: Option<f64>| v.map_or_else(String::new, crate::data::format_number);
         for r in self.rows.iter().filter(|r| keep(r)) {
-            let mut record = vec![format!("{:.6}", r.time_s)];
-            record.extend(in_force.fields(r.step));
-            let tip = r
-                .tip_mm
-                .filter(|_| r.flags.iter().all(|f| [REACH, CENTROID].contains(f)));
+            let mut record = in_force.start(r.time_s, r.step);
+            let tip = written_tip(r);
             record.extend((0..3).map(|c| number(tip.map(|t| t[c]))));
             record.push(r.frame.to_string());
             record.push(crate::data::format_fixed(r.reproj_px, 4));
@@ -138,6 +126,23 @@ impl<'a> InForce<'a> {
         InForce { log, measured }
     }
 
+    /// A per-frame dataset's header: `time_s`, the log's other columns, the pressures, the
+    /// tip, then the columns `after`.
+    pub(in crate::triangulate) fn header(&self, after: &[&str]) -> Vec<String> {
+        let mut header = vec!["time_s".to_string()];
+        header.extend(self.log.extra_columns.iter().cloned());
+        let named = HAND_INPUTS.into_iter().chain(HAND_OUTPUTS);
+        header.extend(named.chain(after.iter().copied()).map(String::from));
+        header
+    }
+
+    /// A row's first fields: its time (at a microsecond), then [`Self::fields`].
+    pub(in crate::triangulate) fn start(&self, time_s: f64, step: Option<usize>) -> Vec<String> {
+        let mut record = vec![format!("{time_s:.6}")];
+        record.extend(self.fields(step));
+        record
+    }
+
     /// The log's other columns and the three pressures of `step`.
     pub(in crate::triangulate) fn fields(&self, step: Option<usize>) -> Vec<String> {
         let log = self.log;
@@ -156,6 +161,13 @@ impl<'a> InForce<'a> {
         }
         fields
     }
+}
+
+/// A row's tip as the dataset writes it: a flagged row's is left empty but for the flags
+/// `reach` and `centroid`, which keep it for a user who would rather have it.
+pub(in crate::triangulate) fn written_tip(row: &FrameRow) -> Option<[f64; 3]> {
+    row.tip_mm
+        .filter(|_| row.flags.iter().all(|f| [REACH, CENTROID].contains(f)))
 }
 
 /// The rows' tips against a truth table with a `frame` column (the synth's

@@ -62,6 +62,15 @@ pub(super) struct RestOrigin {
     pub spread_mm: f64,
 }
 
+/// How many steps the log's first rest hold is: the steps at 0 kPa (within `zero_kpa`) it
+/// starts with.
+pub(super) fn rest_steps(log: &PressureLog, options: &TriangulateOptions) -> usize {
+    log.steps
+        .iter()
+        .take_while(|s| s.pressures_kpa.iter().all(|p| p.abs() <= options.zero_kpa))
+        .count()
+}
+
 /// Step 6: the origin from the rows of the log's first rest hold (the steps at 0 kPa it
 /// starts with).
 ///
@@ -74,11 +83,7 @@ pub(super) fn rest_origin(
     log: &PressureLog,
     options: &TriangulateOptions,
 ) -> Result<RestOrigin, TriangulateError> {
-    let rest_steps = log
-        .steps
-        .iter()
-        .take_while(|s| s.pressures_kpa.iter().all(|p| p.abs() <= options.zero_kpa))
-        .count();
+    let rest_steps = rest_steps(log, options);
     let in_rest = |r: &FrameRow| r.step.is_some_and(|k| k < rest_steps);
     let at_rest: Vec<Vector3<f64>> = rows
         .iter()

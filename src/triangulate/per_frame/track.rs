@@ -115,6 +115,46 @@ impl Track {
         Ok((a, b, (t - self.times[a]) / (self.times[b] - self.times[a])))
     }
 
+    /// The times of its first and last frames, when it has any.
+    pub(super) fn span_s(&self) -> Option<(f64, f64)> {
+        Some((*self.times.first()?, *self.times.last()?))
+    }
+
+    /// How long it films from its first frame to its last (s; 0 without frames).
+    pub(super) fn length_s(&self) -> f64 {
+        self.span_s().map_or(0.0, |(a, b)| b - a)
+    }
+
+    /// What `between` makes of its frames `a` and `b` (those around an instant); when that
+    /// is nothing, of the frames either side with one of the two left out, as if dropped (the
+    /// bead hidden in it, or the frame unreadable), where exactly one of the two ways gives
+    /// something (both giving is no frame hidden but a jump); else `between(a, b)`'s flag.
+    pub(super) fn around_or_dropped<T>(
+        &self,
+        (a, b): (usize, usize),
+        between: impl Fn(usize, usize) -> Result<T, &'static str>,
+    ) -> Result<T, &'static str> {
+        let flag = match between(a, b) {
+            Ok(found) => return Ok(found),
+            Err(flag) => flag,
+        };
+        let wider = [
+            a.checked_sub(1).map(|o| (o, b)),
+            Some(b + 1)
+                .filter(|&r| r < self.times.len())
+                .map(|r| (a, r)),
+        ];
+        let mut found = wider
+            .into_iter()
+            .flatten()
+            .filter(|&(a, b)| self.close(a, b))
+            .filter_map(|(a, b)| between(a, b).ok());
+        match (found.next(), found.next()) {
+            (Some(found), None) => Ok(found),
+            _ => Err(flag),
+        }
+    }
+
     /// How many frame periods apart the frames at `a` and `b` are.
     pub(super) fn periods_apart(&self, a: usize, b: usize) -> f64 {
         (self.times[b] - self.times[a]) / self.period_s

@@ -148,7 +148,7 @@ impl Locator<'_> {
         t: f64,
     ) -> Result<Vec<Candidate>, &'static str> {
         let (a, b, _) = track.around(t)?;
-        let between = |a: usize, b: usize| -> Result<Vec<Candidate>, &'static str> {
+        track.around_or_dropped((a, b), |a, b| {
             let (points, _) = track.at_instant(centres, a, b, t)?;
             Ok(points
                 .into_iter()
@@ -157,27 +157,6 @@ impl Locator<'_> {
                     frames: vec![(a, p), (b, q)],
                 })
                 .collect())
-        };
-        let flag = match between(a, b) {
-            Ok(found) => return Ok(found),
-            Err(flag) => flag,
-        };
-        let wider = [
-            a.checked_sub(1).map(|o| (o, b)),
-            Some(b + 1)
-                .filter(|&r| r < track.times.len())
-                .map(|r| (a, r)),
-        ];
-        // Exactly one of the two ways, as a pair's right camera: both giving points is no
-        // frame hidden but a jump.
-        let mut found = wider
-            .into_iter()
-            .flatten()
-            .filter(|&(a, b)| track.close(a, b))
-            .filter_map(|(a, b)| between(a, b).ok());
-        match (found.next(), found.next()) {
-            (Some(points), None) => Ok(points),
-            _ => Err(flag),
-        }
+        })
     }
 }

@@ -168,13 +168,9 @@ pub fn triangulate_per_frame_cameras(
     // 2. Each camera's clock against the rows' camera's.
     let clocks = clocks(calibration, &tracks, first, &centres, options, index)?;
     let rows_track = &tracks[first];
-    let span = match (rows_track.times.first(), rows_track.times.last()) {
-        (Some(a), Some(b)) => b - a,
-        _ => 0.0,
-    };
     for (camera, clock) in summary.cameras.iter_mut().zip(&clocks) {
         camera.clock_offset_ms = 1e3 * clock.offset_s;
-        camera.clock_drift_ms = 1e3 * clock.drift * span;
+        camera.clock_drift_ms = 1e3 * clock.drift * rows_track.length_s();
         camera.clock_frames = clock.frames;
     }
 
@@ -377,10 +373,9 @@ fn clocks(
             .collect()
     };
     let reference = candidates(&tracks[first]);
-    let span = |t: &Track| Some((*t.times.first()?, *t.times.last()?));
     (0..cameras.len())
         .map(|c| {
-            let (Some(l), Some(r)) = (span(&tracks[first]), span(&tracks[c])) else {
+            let (Some(l), Some(r)) = (tracks[first].span_s(), tracks[c].span_s()) else {
                 return Ok(ClockOffset::default());
             };
             let gap = (r.0 - l.1).max(l.0 - r.1);
@@ -421,11 +416,7 @@ fn with_covariances(
     log: &PressureLog,
     options: &TriangulateOptions,
 ) -> (Vec<CamerasRow>, Option<f64>) {
-    let rest_steps = log
-        .steps
-        .iter()
-        .take_while(|s| s.pressures_kpa.iter().all(|p| p.abs() <= options.zero_kpa))
-        .count();
+    let rest_steps = rows::rest_steps(log, options);
     let mut world = Vec::new();
     let mut rest = Vec::new();
     let mut of_row = Vec::with_capacity(rows.len());

@@ -5,13 +5,11 @@ use std::path::{Path, PathBuf};
 
 use super::{CamerasRow, PerFrameCameras};
 use crate::calib::file::ReadCamera;
-use crate::data::{Csv, HAND_INPUTS, HAND_OUTPUTS};
+use crate::data::Csv;
 use crate::provenance::Provenance;
 use crate::session::pressures::PressureLog;
 use crate::triangulate::cameras::{camera_names, covariance_fields};
-use crate::triangulate::per_frame::output::{write_rows, InForce};
-use crate::triangulate::per_frame::rows::REACH;
-use crate::triangulate::per_frame::CENTROID;
+use crate::triangulate::per_frame::output::{write_rows, written_tip, InForce};
 use crate::triangulate::TriangulateError;
 
 /// The columns after the pressures: the tip, how sure it is, the cameras it used, the row's
@@ -43,23 +41,12 @@ impl PerFrameCameras {
         cameras: &[ReadCamera],
         keep: impl Fn(&CamerasRow) -> bool,
     ) -> String {
-        let mut header = vec!["time_s".to_string()];
-        header.extend(log.extra_columns.iter().cloned());
-        header.extend(
-            HAND_INPUTS
-                .into_iter()
-                .chain(HAND_OUTPUTS)
-                .chain(COLUMNS)
-                .map(String::from),
-        );
-        let mut csv = Csv::new(header);
         let in_force = InForce::of(log);
+        let mut csv = Csv::new(in_force.header(&COLUMNS));
         for r in self.rows.iter().filter(|r| keep(r)) {
             let row = &r.row;
-            let mut record = vec![format!("{:.6}", row.time_s)];
-            record.extend(in_force.fields(row.step));
-            let written = row.flags.iter().all(|f| [REACH, CENTROID].contains(f));
-            match (row.tip_mm.filter(|_| written), &r.covariance_mm2) {
+            let mut record = in_force.start(row.time_s, row.step);
+            match (written_tip(row), &r.covariance_mm2) {
                 (Some(tip), Some(c)) => {
                     record.extend(tip.map(crate::data::format_number));
                     record.extend(covariance_fields(c).split(',').map(String::from));
