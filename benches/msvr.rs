@@ -20,14 +20,15 @@ use rand_distr::{Distribution, Normal};
 use handcap::data::{names, Columns, Dataset, HAND_INPUTS, HAND_OUTPUTS};
 use std::sync::atomic::AtomicBool;
 
-use handcap::model::msvr::fitness::FitnessKind;
-use handcap::model::msvr::folds::{self, FoldsBy};
-use handcap::model::msvr::tune::BasisChoice;
 use handcap::model::msvr::PAPER_TABLE2;
-use handcap::model::msvr::{tune, Basis, Hyper, Loss, MsvrParams, ValidMsvrParams};
+use handcap::model::msvr::{Basis, Hyper, Loss, MsvrParams, ValidMsvrParams};
 use handcap::model::Predict;
 use handcap::search::aco_r::AcoR;
 use handcap::search::Method;
+use handcap::select::fitness::FitnessKind;
+use handcap::select::folds::{self, FoldsBy};
+use handcap::select::tune;
+use handcap::select::tune::BasisChoice;
 use handcap::synth::plant::Plant;
 
 fn random_hand_data(n: usize, seed: u64) -> Dataset {

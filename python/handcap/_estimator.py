@@ -97,15 +97,17 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
                              ensure_min_samples=_core.MIN_FIT_ROWS)
         if self.search not in ("aco-r", "none"):
             raise ValueError(f"search {self.search!r}: give 'aco-r' or 'none'")
+        families = dict(_core.FAMILIES)
+        if self.model != "auto" and self.model not in families:
+            names = ", ".join(repr(name) for name in ["auto", *families])
+            raise ValueError(f"model {self.model!r}: give {names}")
         if self.search == "none":
-            # Kernel ridge has no tube: its epsilon is 0.
+            # A family holds the parameters it does not move (kernel ridge's epsilon is 0).
+            moved = families.get(self.model, ["c", "epsilon", "sigma"])
             given = {"C": self.C, "epsilon": self.epsilon, "sigma": self.sigma}
-            if self.model == "krr":
-                del given["epsilon"]
+            given = {name: value for name, value in given.items() if name.lower() in moved}
             if any(h is None for h in given.values()):
                 raise ValueError(f"search='none' uses {', '.join(given)} as given: set them all")
-        if self.model not in ("msvr", "krr", "auto"):
-            raise ValueError(f"model {self.model!r}: give 'msvr', 'krr' or 'auto'")
         self._single_output = y.ndim == 1
         Y = y.reshape(-1, 1) if self._single_output else y
         groups = _labels(groups, X.shape[0])

@@ -19,12 +19,12 @@ use handcap_core::data::{Columns, Dataset};
 use handcap_core::model::file::{ModelFile, ModelFileError};
 use handcap_core::model::history::{HistoryChoice, Series};
 use handcap_core::model::inverse::{self, InverseOptions};
-use handcap_core::model::msvr::folds::FoldsBy;
-use handcap_core::model::msvr::tune::{BasisChoice, Pinned};
 use handcap_core::model::msvr::{self, Loss, MsvrParams, MIN_FIT_ROWS};
 use handcap_core::model::{Differentiable, Predict, StoredModel};
 use handcap_core::provenance::Provenance;
-use handcap_core::select::family::FamilyChoice;
+use handcap_core::select::family::{Family, FamilyChoice};
+use handcap_core::select::folds::FoldsBy;
+use handcap_core::select::tune::{BasisChoice, Pinned};
 use handcap_core::select::{self, Plan, Selection, Table};
 
 /// A core message in Python's words: its parameters are named `field=value` already, but
@@ -668,5 +668,11 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(fit, m)?)?;
     m.add_class::<Model>()?;
     m.add("MIN_FIT_ROWS", MIN_FIT_ROWS)?;
+    // Each family's name and the axes of (C, ε, σ) its search moves (the others it holds).
+    let families: Vec<(&str, Vec<&str>)> = Family::ALL
+        .iter()
+        .map(|f| (f.name(), f.axes().to_vec()))
+        .collect();
+    m.add("FAMILIES", families)?;
     Ok(())
 }

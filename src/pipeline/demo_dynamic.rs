@@ -21,12 +21,12 @@ use super::{PipelineError, Session};
 use crate::data::{self, names, Csv, HAND_INPUTS, HAND_OUTPUTS};
 use crate::model::file::ModelFile;
 use crate::model::history::{HistoryChoice, Memory};
-use crate::model::msvr::folds::FoldsBy;
-use crate::model::msvr::tune::{BasisChoice, Pinned};
 use crate::model::msvr::MsvrParams;
 use crate::model::Errors;
 use crate::plot::{self, LinePlot, Mark, Series};
 use crate::select::family::FamilyChoice;
+use crate::select::folds::FoldsBy;
+use crate::select::tune::{BasisChoice, Pinned};
 use crate::session::protocol::DynamicDesign;
 use crate::synth::capture::{CaptureConfig, DynamicSession};
 use crate::synth::dynamics::Dynamics;
@@ -265,7 +265,7 @@ fn job(data: &Path, test: &Path, out: &Path, history: bool, selection: Selection
         inputs: names(&HAND_INPUTS),
         outputs: names(&HAND_OUTPUTS),
         // The paper's model, its headline.
-        family: FamilyChoice::Msvr,
+        family: FamilyChoice::MSVR,
         params: MsvrParams::default(),
         pinned: Pinned::default(),
         selection,

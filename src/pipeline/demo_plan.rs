@@ -5,14 +5,14 @@ use std::path::PathBuf;
 use super::fit::{FitJob, Selection};
 use crate::data::{names, HAND_INPUTS, HAND_OUTPUTS};
 use crate::model::history::HistoryChoice;
-use crate::model::msvr::fitness::FitnessKind;
-use crate::model::msvr::folds::FoldsBy;
-use crate::model::msvr::tune::{BasisChoice, Pinned};
 use crate::model::msvr::{Loss, MsvrParams};
 use crate::search::aco_paper::AcoPaper;
 use crate::search::aco_r::AcoR;
 use crate::search::Method;
 use crate::select::family::FamilyChoice;
+use crate::select::fitness::FitnessKind;
+use crate::select::folds::FoldsBy;
+use crate::select::tune::{BasisChoice, Pinned};
 use crate::session::protocol::DynamicDesign;
 use crate::synth::capture::CaptureConfig;
 use crate::triangulate::TriangulateOptions;
@@ -111,7 +111,7 @@ pub(super) fn job(
         inputs: names(&HAND_INPUTS),
         outputs: names(&HAND_OUTPUTS),
         // The paper's model, its headline.
-        family: FamilyChoice::Msvr,
+        family: FamilyChoice::MSVR,
         params: MsvrParams::default(),
         pinned: Pinned::default(),
         selection: Selection::Search {

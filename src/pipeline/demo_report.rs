@@ -5,8 +5,8 @@ use std::path::Path;
 use super::demo_summary::{CamerasCheck, Score, Summary};
 use crate::calib::{gates, StereoCalibration};
 use crate::model::inverse::PlannedTarget;
-use crate::model::msvr::tune::SearchSummary;
 use crate::report::html::Page;
+use crate::select::tune::SearchSummary;
 use crate::triangulate::Triangulation;
 
 fn f4(v: f64) -> String {

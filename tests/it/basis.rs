@@ -5,10 +5,10 @@ use faer::Mat;
 
 use handcap::data::{Columns, Dataset};
 use handcap::model::msvr::basis::{kmeans_pp, NystromMap};
-use handcap::model::msvr::fitness::{Fitness, FitnessKind};
 use handcap::model::msvr::reduced::{self, FeatureRows, ReducedProblem};
 use handcap::model::msvr::{Basis, Loss, MinMaxScaler, MsvrParams};
 use handcap::model::{evaluate, ModelSpec};
+use handcap::select::fitness::{Fitness, FitnessKind};
 
 use crate::common::{handcap_ok, handcap_usage, read_json, tempdir, write, Lcg};
 

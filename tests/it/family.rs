@@ -112,14 +112,14 @@ fn a_family_that_cannot_take_the_request_says_which_option() {
         &[&base[..], &["--model", "krr", "--epsilon", "0.1"]].concat(),
     );
     assert!(
-        err.contains("no tube") && err.contains("--model msvr"),
+        err.contains("holds epsilon at 0") && err.contains("--model msvr"),
         "{err}"
     );
     let err = handcap_usage(
         d,
         &[&base[..], &["--model", "krr", "--loss", "robust"]].concat(),
     );
-    assert!(err.contains("squared"), "{err}");
+    assert!(err.contains("fits with the quadratic loss"), "{err}");
     let paper = ["--model", "krr", "--search", "aco-paper"];
     let err = handcap_usage(d, &[&base[..], &paper].concat());
     assert!(

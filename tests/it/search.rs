@@ -3,14 +3,14 @@
 use std::sync::atomic::AtomicBool;
 
 use handcap::data::Dataset;
-use handcap::model::msvr::fitness::{Fitness, FitnessKind};
-use handcap::model::msvr::tune;
 use handcap::model::msvr::MsvrParams;
 use handcap::model::msvr::{Hyper, PAPER_TABLE2 as T2};
 use handcap::search::aco_paper::{decode, is_valid_path, AcoPaper};
 use handcap::search::aco_r::AcoR;
 use handcap::search::grid::Grid;
 use handcap::search::{Method, Point, Search, SearchSpace, SearchStop};
+use handcap::select::fitness::{Fitness, FitnessKind};
+use handcap::select::tune;
 use handcap::synth::{self, SynthConfig};
 
 /// A cheap objective whose optimum is the paper's Table 2 : the
@@ -585,8 +585,8 @@ fn drifting_ramps(seed: u64, ramps: usize) -> Dataset {
 #[test]
 fn auto_folds_on_a_time_series_estimate_the_error_on_new_ramps() {
     use handcap::model::evaluate;
-    use handcap::model::msvr::folds::{self, FoldScheme, FoldsBy};
-    use handcap::model::msvr::tune;
+    use handcap::select::folds::{self, FoldScheme, FoldsBy};
+    use handcap::select::tune;
     let train = drifting_ramps(1, 24);
     let unseen = drifting_ramps(2, 12);
     let auto = folds::plan(&FoldsBy::Auto, &train, &[], 5).unwrap();

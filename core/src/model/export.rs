@@ -32,7 +32,6 @@ use std::fmt::Write;
 use crate::model::file::ModelFile;
 use crate::model::history::Memory;
 use crate::model::StoredModel;
-use crate::select::family::Family;
 
 /// The header for `file`; `source` names the model file in its comment.
 pub fn c_header(file: &ModelFile, source: &str) -> String {
@@ -99,10 +98,7 @@ static const char *const handcap_output_names[HANDCAP_N_OUTPUTS] = {{{output_str
         source = comment(&file_name(source)),
         version = comment(&file.provenance.handcap_version),
         sigma = msvr.params.sigma,
-        family = match file.family() {
-            Family::Msvr => "multi-output support vector regression",
-            Family::Krr => "kernel ridge regression",
-        },
+        family = file.family().description(),
         input_names = comment(&inputs.join(", ")),
         output_names = comment(&msvr.outputs.join(", ")),
         memory_doc = comment(&memory_doc),

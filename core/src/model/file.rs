@@ -26,11 +26,11 @@ use crate::data::{self, Columns, DataError};
 use crate::fsio;
 use crate::model::history::{History, HistoryDecision, Memory, SteadyState};
 use crate::model::interval::{IntervalError, Intervals};
-use crate::model::msvr::tune::{BasisDecision, SearchSummary};
 use crate::model::Predict;
 pub use crate::model::StoredModel;
 use crate::provenance::Provenance;
 use crate::select::family::{Family, FamilyDecision};
+use crate::select::tune::{BasisDecision, SearchSummary};
 
 /// The `format` field of every model file.
 pub const FORMAT: &str = "handcap-model";
@@ -109,7 +109,7 @@ impl ModelFile {
 
     /// The family of its model, as the file says (MSVR when it does not).
     pub fn family(&self) -> Family {
-        self.family.as_ref().map_or(Family::Msvr, |d| d.used)
+        self.family.as_ref().map_or(Family::MSVR, |d| d.used)
     }
 
     /// The prediction interval's radius at `level` (output units).

@@ -18,8 +18,8 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::msvr::folds::FoldChoice;
 use crate::data::Columns;
+use crate::select::folds::FoldChoice;
 
 /// The levels every model file carries radii for.
 pub const LEVELS: [f64; 2] = [0.9, 0.95];

@@ -3,7 +3,7 @@
 //! A search sees only an objective — a function scoring a batch of candidates, lower is better —
 //! and a box of named axes ([`SearchSpace`]), and reports each iteration to an [`Observer`] (progress bars and history writers
 //! live there). It knows nothing of MSVR or data: the bridge that scores candidates by fitting
-//! MSVR is [`crate::model::msvr::tune`]. Every search takes a seed; the same seed gives the same
+//! MSVR is [`crate::select::tune`]. Every search takes a seed; the same seed gives the same
 //! result.
 //!
 //! - [`aco_paper`]: the paper's digit-encoded ant colony (§2.3.2, Table 1), on its own box of
@@ -119,7 +119,7 @@ impl std::fmt::Display for Point {
 /// nesting, the last axis varying slowest: an objective whose work is shared between candidates
 /// that agree on one axis (MSVR's kernel, one per σ) puts that axis last. A range with lo = hi
 /// holds its axis at that value. The MSVR bridge derives its box from the data
-/// ([`crate::model::msvr::tune::space_for`]).
+/// ([`crate::select::tune::space_for`]).
 pub type SearchSpace = Named<(f64, f64)>;
 
 impl SearchSpace {

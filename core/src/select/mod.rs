@@ -6,8 +6,8 @@
 //! 1. the feature sets to try: the present inputs, and with a time series
 //!    the histories [`Plan::history`] asks for (groups too short for them refused first);
 //! 2. the rows and folds every set is scored on (`Scoring`: at most
-//!    [`crate::model::msvr::tune::SEARCH_ROWS`] evenly spaced rows, the folds cut from the present inputs);
-//! 3. each set's parameters chosen ([`crate::model::msvr::tune::choose`]: the search, or the given ones), `auto`'s
+//!    [`crate::select::tune::SEARCH_ROWS`] evenly spaced rows, the folds cut from the present inputs);
+//! 3. each set's parameters chosen ([`crate::select::tune::choose`]: the search, or the given ones), `auto`'s
 //!    ladders of time constants screened on a small grid around the present inputs'
 //!    parameters first;
 //! 4. the set kept ([`history::decide`]; the present inputs kept over the histories are
@@ -30,18 +30,20 @@ use crate::model::history::{
     series_error, Context, History, HistoryChoice, HistoryDecision, HistoryError, Series,
 };
 use crate::model::interval::Intervals;
-use crate::model::msvr::fitness::FitnessKind;
-use crate::model::msvr::folds::{FoldsBy, FoldsError};
-use crate::model::msvr::tune::{
-    BasisChoice, BasisDecision, BasisError, Pinned, Searched, TuneError,
-};
-use crate::model::msvr::{MsvrError, MsvrParams};
+use crate::model::msvr::{Hyper, MsvrError, MsvrParams};
 use crate::model::{self, ModelSpec, StoredModel};
 use crate::provenance::Provenance;
 use crate::search::{IterationRecord, Method, Observer};
+use crate::select::fitness::FitnessKind;
+use crate::select::folds::{FoldsBy, FoldsError};
+use crate::select::tune::{BasisChoice, BasisDecision, BasisError, Pinned, Searched, TuneError};
 
+pub mod auto_basis;
 pub mod family;
+pub mod fitness;
+pub mod folds;
 mod run;
+pub mod tune;
 
 use family::{Family, FamilyChoice, FamilyDecision};
 use run::{Candidates, Run};
@@ -132,10 +134,10 @@ pub enum Selection {
     Fixed { folds: usize, folds_by: FoldsBy },
     Search {
         method: Method,
-        /// Candidates at most (ACO_R, grid); `None`: [`crate::model::msvr::tune::budget_for`] the rows scored.
+        /// Candidates at most (ACO_R, grid); `None`: [`crate::select::tune::budget_for`] the rows scored.
         budget: Option<usize>,
         fitness: FitnessKind,
-        /// How cross-validation cuts the rows ([`crate::model::msvr::folds::plan`]).
+        /// How cross-validation cuts the rows ([`crate::select::folds::plan`]).
         folds_by: FoldsBy,
         seed: u64,
     },
@@ -206,7 +208,8 @@ pub struct Plan {
 }
 
 impl Plan {
-    /// Refuses a plan whose parts do not fit together, naming them as `field=value`: too few
+    /// Refuses a plan whose parts do not fit together, naming them as `field=value`: parameters
+    /// a family cannot fit with, too few
     /// folds, folds cut for a fitness that has none, a history without times or compared
     /// without cross-validation, a budget the method has no use for or cannot start with.
     ///
@@ -214,6 +217,11 @@ impl Plan {
     /// [`SelectError::Parameter`] saying what to change.
     pub fn check(&self) -> Result<(), SelectError> {
         let refuse = |why: String| Err(SelectError::Parameter(why));
+        for family in self.family.families() {
+            if let Err(e) = family.solver(self.params).check() {
+                return refuse(format!("model parameters: {e}"));
+            }
+        }
         // The folds cross-validation cuts (none for the training fitness), and how.
         let (folds, folds_by) = match &self.selection {
             Selection::Fixed { folds, folds_by }
@@ -249,17 +257,22 @@ impl Plan {
             (Some(_), HistoryChoice::Auto) if train => return refuse("history=auto compares feature sets by cross-validation: use fitness=cv, or name the history (history=none, ema, lags:K)".into()),
             _ => {}
         }
+        let asked = match self.family {
+            FamilyChoice::One(family) => Some(family),
+            FamilyChoice::Auto => None,
+        };
         if self.selection.paper() {
-            if self.family == FamilyChoice::Krr {
-                return refuse("model=krr with search=aco-paper: the paper's colony searches MSVR's (C, ε, σ); use model=msvr (or auto), or search=aco-r or grid".into());
+            if let Some(family) = asked.filter(|f| f.axes() != Hyper::AXES) {
+                return refuse(format!("model={family} with search=aco-paper: the paper's colony searches all three of (C, ε, σ) and {} moves {}; use model={} (or auto), or search=aco-r or grid", family.title(), family.moves(), Family::moving(&Hyper::AXES)));
             }
             if let Some((name, value)) = self.pinned.values().next() {
                 return refuse(format!("{name}={value} is held by search=aco-r and search=grid; the paper's colony searches all three of its digits"));
             }
         }
-        if let (FamilyChoice::Krr, Some(e)) = (self.family, self.pinned.epsilon) {
-            if e != 0.0 {
-                return refuse(format!("epsilon={e} with model=krr: kernel ridge has no tube (ε = 0); leave epsilon out, or use model=msvr"));
+        for (axis, value) in self.pinned.values() {
+            let held = asked.and_then(|f| Some((f, f.holds(axis, self.params)?)));
+            if let Some((family, held)) = held.filter(|(_, held)| *held != value) {
+                return refuse(format!("{axis}={value} with model={family}: {} holds {axis} at {held} (it does not move it); leave it out, or use model={}", family.title(), Family::moving(&[axis])));
             }
         }
         if let Selection::Search {
@@ -390,7 +403,7 @@ pub fn select(
 ) -> Result<Selected, SelectError> {
     let run = Run {
         plan,
-        family: Family::Msvr,
+        family: Family::MSVR,
         train,
         search_on,
         listener,

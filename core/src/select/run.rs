@@ -8,11 +8,11 @@ use crate::control::Since;
 use crate::data::Dataset;
 use crate::model::history::{self, History, HistoryChoice, HistoryDecision, HistoryTrial, Memory};
 use crate::model::interval::Intervals;
-use crate::model::msvr::fitness::{Dealing, FitnessKind};
-use crate::model::msvr::folds::{self, FoldPlan};
-use crate::model::msvr::tune::{self, BasisChoice, BasisDecision, Chosen, TuneError};
 use crate::model::msvr::{self, Basis, Hyper, MsvrParams, MIN_FIT_ROWS};
 use crate::search::{Search, SearchError};
+use crate::select::fitness::{Dealing, FitnessKind};
+use crate::select::folds::{self, FoldPlan};
+use crate::select::tune::{self, BasisChoice, BasisDecision, Chosen, TuneError};
 
 /// One selection under way.
 #[derive(Clone, Copy)]
@@ -111,10 +111,6 @@ pub(super) type Kept = (Option<HistoryDecision>, Chosen, Scoring);
 impl Run<'_> {
     pub(super) fn check(&self) -> Result<(), SelectError> {
         self.plan.check()?;
-        self.plan
-            .params
-            .check()
-            .map_err(|e| SelectError::Parameter(e.to_string()))?;
         self.train.data.check_fittable(MIN_FIT_ROWS)?;
         for table in std::iter::once(self.train).chain(self.search_on) {
             table.check_series(self.plan.time.is_some())?;

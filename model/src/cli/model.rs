@@ -7,9 +7,6 @@ use super::usage;
 
 use crate::data::{HAND_INPUTS, HAND_OUTPUTS};
 use crate::model::history::HistoryChoice;
-use crate::model::msvr::fitness::FitnessKind;
-use crate::model::msvr::folds::FoldsBy;
-use crate::model::msvr::tune::{BasisChoice, Pinned};
 use crate::model::msvr::{Loss, MsvrParams, DEFAULT_MAX_ITER, DEFAULT_TOL, PAPER_TABLE2};
 use crate::pipeline::fit::{self, FitJob, Selection};
 use crate::search::aco_paper::AcoPaper;
@@ -17,6 +14,9 @@ use crate::search::aco_r::AcoR;
 use crate::search::grid::Grid;
 use crate::search::{Method, SearchStop};
 use crate::select::family::FamilyChoice;
+use crate::select::fitness::FitnessKind;
+use crate::select::folds::FoldsBy;
+use crate::select::tune::{BasisChoice, Pinned};
 use crate::DEFAULT_SEED;
 
 /// How the hyper-parameters are chosen.
@@ -197,8 +197,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     }
     // All three given: nothing is left to search.
     let method = method.filter(|_| a.c.is_none() || a.epsilon.is_none() || a.sigma.is_none());
-    if a.model == FamilyChoice::Krr && a.loss == LossArg::Robust {
-        usage!("--loss robust with --model krr: kernel ridge's loss is the squared one; leave --loss out, or use --model msvr");
+    if let FamilyChoice::One(family) = a.model {
+        let fixed = family.fixed_loss().filter(|fixed| *fixed != loss);
+        if let Some(fixed) = fixed.filter(|_| a.loss != LossArg::Auto) {
+            usage!("--loss {loss} with --model {family}: {} fits with the {fixed} loss; leave --loss out, or use --model msvr", family.title());
+        }
     }
     let job = FitJob {
         family: a.model,

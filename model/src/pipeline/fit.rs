@@ -9,8 +9,6 @@ use super::{io_error, Event, PipelineError, Session, Task};
 use crate::data::{self, HAND_INPUTS, HAND_OUTPUTS};
 use crate::model;
 use crate::model::history::{self, HistoryChoice};
-use crate::model::msvr::folds::FoldsBy;
-use crate::model::msvr::tune::{self, BasisChoice, Pinned};
 use crate::model::msvr::MsvrParams;
 use crate::model::previous::{self, PreviousModel};
 use crate::report::{
@@ -19,6 +17,8 @@ use crate::report::{
 };
 use crate::search::{IterationRecord, Search, SearchStop};
 use crate::select::family::FamilyChoice;
+use crate::select::folds::FoldsBy;
+use crate::select::tune::{self, BasisChoice, Pinned};
 use crate::select::{self, Listener, Plan, SelectError, Selected, Table};
 
 pub use crate::select::Selection;
@@ -137,9 +137,6 @@ impl Listener for Session<'_> {
 /// [`PipelineError`]: bad parameters, unreadable or unusable data, `--out` naming an input, a
 /// search or fit failure, or a file that cannot be written.
 pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError> {
-    job.params
-        .check()
-        .map_err(|e| PipelineError::Request(format!("model parameters: {e}")))?;
     job.plan()
         .check()
         .map_err(|e| PipelineError::Request(e.to_string()))?;

@@ -128,11 +128,11 @@ pub enum PipelineError {
     #[error(transparent)]
     Msvr(#[from] crate::model::msvr::MsvrError),
     #[error(transparent)]
-    Tune(#[from] crate::model::msvr::tune::TuneError),
+    Tune(#[from] crate::select::tune::TuneError),
     #[error(transparent)]
     Select(crate::select::SelectError),
     #[error(transparent)]
-    Folds(#[from] crate::model::msvr::folds::FoldsError),
+    Folds(#[from] crate::select::folds::FoldsError),
     #[error(transparent)]
     Previous(#[from] crate::model::previous::PreviousError),
     #[error(transparent)]

@@ -14,13 +14,13 @@ use crate::data::{format_number, Columns, Csv, Dataset};
 use crate::fsio;
 use crate::model::history::HistoryDecision;
 use crate::model::interval::{HeldOut, TestCoverage};
-use crate::model::msvr::tune::{BasisDecision, SearchSummary};
 use crate::model::msvr::FitDiagnostics;
 use crate::model::previous::{Calibration, PreviousParams};
 use crate::model::{Errors, ModelSpec, Predict};
 use crate::provenance::Provenance;
 use crate::search::IterationRecord;
-use crate::select::family::{Family, FamilyDecision};
+use crate::select::family::FamilyDecision;
+use crate::select::tune::{BasisDecision, SearchSummary};
 
 use crate::plot as figures;
 pub mod html;
@@ -78,14 +78,11 @@ pub struct ModelReport {
 
 impl ModelReport {
     /// The model's settings by name, as the log and the report show them: the family's name,
-    /// and for kernel ridge without what it fixes (ε = 0, the squared loss).
+    /// without what it fixes (kernel ridge's ε = 0 and squared loss).
     pub fn settings(&self) -> Vec<(&'static str, String)> {
         let mut settings = self.spec.settings();
         settings[0].1 = self.family.used.title().to_string();
-        if self.family.used == Family::Krr {
-            settings.retain(|(name, _)| !matches!(*name, "ε" | "loss"));
-        }
-        settings
+        self.family.used.shown(settings)
     }
 }
 

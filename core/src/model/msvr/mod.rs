@@ -23,17 +23,13 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
-pub mod auto_basis;
 pub mod basis;
-pub mod fitness;
-pub mod folds;
 pub mod hyper;
 pub mod irwls;
 pub mod kernel;
 mod params;
 pub mod reduced;
 pub mod tube;
-pub mod tune;
 
 use faer::{Mat, MatRef};
 use serde::{Deserialize, Serialize};

@@ -37,12 +37,12 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::basis::{self, NystromMap};
-use super::irwls::StopReason;
-use super::kernel::{self, rbf_from_squared};
-use super::reduced::{self, FeatureRows, ReducedProblem};
-use super::{Basis, Hyper, MinMaxScaler, MsvrError, MsvrParams, ValidMsvrParams};
 use crate::data::{Columns, Dataset};
+use crate::model::msvr::basis::{self, NystromMap};
+use crate::model::msvr::irwls::StopReason;
+use crate::model::msvr::kernel::{self, rbf_from_squared};
+use crate::model::msvr::reduced::{self, FeatureRows, ReducedProblem};
+use crate::model::msvr::{Basis, Hyper, MinMaxScaler, MsvrError, MsvrParams, ValidMsvrParams};
 
 /// How candidates are scored.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]

@@ -270,7 +270,7 @@ fn neighbour_ratio(inputs: &Columns) -> f64 {
     if n < 3 {
         return 1.0;
     }
-    let scaler = super::MinMaxScaler::fit(inputs);
+    let scaler = crate::model::msvr::MinMaxScaler::fit(inputs);
     let scaled = scaler.transform(inputs);
     let distance = |a: usize, b: usize| -> f64 {
         scaled

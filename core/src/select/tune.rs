@@ -22,9 +22,9 @@ pub use super::auto_basis::{
 };
 use super::fitness::{Counters, Dealing, Fitness, FitnessError, FitnessKind};
 use super::folds::{FoldChoice, FoldPlan};
-use super::{kernel, Basis, Hyper, MinMaxScaler, MsvrParams};
 use crate::data::Dataset;
 use crate::model::interval::Intervals;
+use crate::model::msvr::{kernel, Basis, Hyper, MinMaxScaler, MsvrParams};
 use crate::search::{
     Method, Observer, Point, Search, SearchError, SearchResult, SearchSpace, SearchStop,
 };
@@ -37,7 +37,7 @@ pub enum TuneError {
     #[error(transparent)]
     Folds(#[from] FitnessError),
     #[error(transparent)]
-    Msvr(#[from] super::MsvrError),
+    Msvr(#[from] crate::model::msvr::MsvrError),
 }
 
 /// What the model file records of the search that chose its parameters.
@@ -130,7 +130,7 @@ pub fn budget_for(rows: usize) -> usize {
 
 /// The solver controls of a method's fits: the paper's colony factors afresh at every change
 /// of the support set, as its histories were computed, so they stay bit for bit; the others
-/// update the factor ([`super::irwls::SolverOptions::factor_updates`]).
+/// update the factor ([`crate::model::msvr::irwls::SolverOptions::factor_updates`]).
 pub fn solver_for(method: &Method, solver: &MsvrParams) -> MsvrParams {
     MsvrParams {
         factor_updates: !matches!(method, Method::AcoPaper(_)),
@@ -186,7 +186,7 @@ pub fn run(
     observer: &mut dyn Observer,
     interrupt: &AtomicBool,
 ) -> Result<Ran, TuneError> {
-    super::check_memory(data.rows(), solver.basis)?;
+    crate::model::msvr::check_memory(data.rows(), solver.basis)?;
     let labels = folds.labels.as_deref();
     let scorer = Fitness::new(data, fitness, seed, labels, &solver_for(method, solver))?;
     let held = solver.hyper();
@@ -263,7 +263,7 @@ fn scorer(
     folds: &FoldPlan,
     solver: &MsvrParams,
 ) -> Result<Fitness, TuneError> {
-    super::check_memory(data.rows(), solver.basis)?;
+    crate::model::msvr::check_memory(data.rows(), solver.basis)?;
     Ok(Fitness::new(
         data,
         fitness,
@@ -287,7 +287,7 @@ pub fn held_out_predictions(
     dealing: Dealing,
     params: &MsvrParams,
 ) -> Result<Mat<f64>, TuneError> {
-    super::check_memory(data.rows(), params.basis)?;
+    crate::model::msvr::check_memory(data.rows(), params.basis)?;
     let scorer = Fitness::dealt(
         data,
         FitnessKind::Cv { folds: folds.folds },
@@ -307,7 +307,7 @@ pub fn intervals(
     dealing: Dealing,
     predicted: &Mat<f64>,
 ) -> Intervals {
-    let predicted = super::to_columns(data.outputs.names.clone(), predicted.as_ref());
+    let predicted = crate::model::msvr::to_columns(data.outputs.names.clone(), predicted.as_ref());
     let mut choice = folds.choice.clone();
     if dealing == Dealing::Consecutive {
         choice.reason += "; for the intervals, each fold a block of consecutive runs";

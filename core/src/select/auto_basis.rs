@@ -10,8 +10,8 @@ use serde::{Deserialize, Serialize};
 use super::fitness::{assign_folds, fold_maes, Dealing, Fitness, FitnessKind};
 use super::folds::FoldPlan;
 use super::tune::TuneError;
-use super::{Basis, MsvrParams};
 use crate::data::Dataset;
+use crate::model::msvr::{Basis, MsvrParams};
 
 /// Up to this many rows, `--basis auto` fits exact MSVR (a kernel at every row): a search of
 /// 120 candidates × 5 folds stays within minutes on 2 cores, and the n × n kernel within 0.2 GB.
@@ -100,7 +100,7 @@ pub fn initial_basis(
             tried: Vec::new(),
         },
         BasisChoice::Auto => {
-            let fits = super::check_memory(rows, Basis::Exact).is_ok();
+            let fits = crate::model::msvr::check_memory(rows, Basis::Exact).is_ok();
             if rows <= AUTO_EXACT_ROWS && fits {
                 BasisDecision {
                     basis: Basis::Exact,
@@ -206,7 +206,7 @@ pub fn grow_basis(
                 at_last,
             );
         }
-        if super::check_memory(
+        if crate::model::msvr::check_memory(
             data.rows(),
             Basis::Reduced {
                 centres: next,
@@ -252,7 +252,7 @@ pub fn grow_basis(
 mod tests {
     use super::*;
     use crate::data::Columns;
-    use crate::model::msvr::folds::{FoldChoice, FoldScheme};
+    use crate::select::folds::{FoldChoice, FoldScheme};
 
     fn trial(centres: usize, fitness: f64) -> BasisTrial {
         BasisTrial {
