@@ -122,7 +122,9 @@ fn not_stopped() -> Result<(), String> {
 
 fn file_error(e: ModelFileError) -> PyErr {
     match e {
-        ModelFileError::Invalid { .. } | ModelFileError::Version { .. } => value_error(e),
+        ModelFileError::Invalid { .. }
+        | ModelFileError::Version { .. }
+        | ModelFileError::Family { .. } => value_error(e),
         _ => PyOSError::new_err(e.to_string()),
     }
 }

@@ -4,7 +4,7 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
-use crate::common::{handcap_ok, handcap_usage, read_json, tempdir, write, Lcg};
+use crate::common::{handcap_err, handcap_ok, handcap_usage, read_json, tempdir, write, Lcg};
 
 /// `rows` rows of a smooth 2 → 2 map with near-Gaussian noise of standard deviation `noise`
 /// (a sum of three uniforms) on the outputs, and
@@ -65,6 +65,18 @@ fn krr_is_fitted_without_a_tube_and_its_search_moves_c_and_sigma() {
             .count(),
         3
     );
+    // A file of a family this build does not know: one line naming it, nothing written.
+    let stored = std::fs::read_to_string(d.join("krr.json")).unwrap();
+    let unknown = stored.replacen("\"used\": \"krr\"", "\"used\": \"gp\"", 1);
+    assert_ne!(unknown, stored);
+    write(d, "gp.json", &unknown);
+    let err = handcap_err(d, &["predict", "gp.json", "probe.csv", "--out", "q.csv"]);
+    assert!(
+        err.contains("gp.json: a model of the family `gp`") && err.contains("msvr or krr"),
+        "{err}"
+    );
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(!d.join("q.csv").exists());
 }
 
 /// `auto` searches both families on the same folds: MSVR's robust tube keeps it where a

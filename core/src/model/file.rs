@@ -51,6 +51,12 @@ pub enum ModelFileError {
     Invalid { path: PathBuf, reason: String },
     #[error("{path}: model file version {found}, this handcap reads version {VERSION}; refit with this version")]
     Version { path: PathBuf, found: u32 },
+    #[error("{path}: a model of the family `{name}`, which this handcap does not know (it knows {known}); use the handcap that wrote it, or fit the model again")]
+    Family {
+        path: PathBuf,
+        name: String,
+        known: String,
+    },
     #[error("writing {path}: {source}")]
     Write {
         path: PathBuf,
@@ -174,8 +180,8 @@ impl ModelFile {
     /// Reads and checks a model file.
     ///
     /// # Errors
-    /// [`ModelFileError::Read`], [`ModelFileError::Version`], or [`ModelFileError::Invalid`] with
-    /// what is wrong.
+    /// [`ModelFileError::Read`], [`ModelFileError::Version`], [`ModelFileError::Family`] (a
+    /// family this build does not know), or [`ModelFileError::Invalid`] with what is wrong.
     pub fn load(path: &Path) -> Result<Self, ModelFileError> {
         let bytes = std::fs::read(path).map_err(|source| ModelFileError::Read {
             path: path.into(),
@@ -189,6 +195,11 @@ impl ModelFile {
         struct Header {
             format: Option<String>,
             version: Option<u32>,
+            family: Option<FamilyHeader>,
+        }
+        #[derive(Deserialize)]
+        struct FamilyHeader {
+            used: Option<String>,
         }
         let header: Header =
             serde_json::from_slice(&bytes).map_err(|e| invalid(format!("not JSON: {e}")))?;
@@ -204,6 +215,14 @@ impl ModelFile {
                 })
             }
             None => return Err(invalid("no `version`".into())),
+        }
+        let family = header.family.and_then(|f| f.used);
+        if let Some(name) = family.filter(|name| Family::named(name).is_none()) {
+            return Err(ModelFileError::Family {
+                path: path.into(),
+                name,
+                known: Family::names(),
+            });
         }
         let file: ModelFile = serde_json::from_slice(&bytes).map_err(|e| invalid(e.to_string()))?;
         file.validate().map_err(invalid)?;
