@@ -466,6 +466,46 @@ pub(super) fn agreed(
 /// dataset has them.
 pub const HEADER: &str = "P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm,sd_x_mm,sd_y_mm,sd_z_mm,cov_xy_mm2,cov_xz_mm2,cov_yz_mm2,n_cameras,cameras,left_out,chi2,n_frames";
 
+impl Found {
+    /// Writes `out` (every step's tip), `OUT_<phase>.csv` per phase of the log, and
+    /// `OUT_summary.json`, as a pair's datasets are, removing what a previous run into the same
+    /// place wrote and this one did not; returns the files written.
+    ///
+    /// # Errors
+    /// [`super::TriangulateError::Write`] naming the file.
+    pub fn write(
+        &self,
+        out: &Path,
+        log: &PressureLog,
+        cameras: &[ReadCamera],
+        provenance: &crate::provenance::Provenance,
+    ) -> Result<Vec<PathBuf>, super::TriangulateError> {
+        let summary = serde_json::json!({
+            "per_frame": false,
+            "summary": {
+                "cameras": cameras.iter().map(|c| &c.name).collect::<Vec<_>>(),
+                "tips": self.tips.len(),
+                "frames_in_steps": self.frames_in_steps,
+                "frames_without_marker": self.frames_without_marker,
+                "frames_with_several": self.frames_with_several,
+                "frames_unreadable": self.frames_unreadable,
+                "steps_unseen": self.steps_unseen,
+                "steps_inconsistent": self.steps_inconsistent,
+                "origin_mm": self.origin_mm.as_slice(),
+                "rest_steps": self.rest_steps,
+                "bead_noise_px": self.bead_noise_px,
+                "calibration_in_covariance": self.calibration_in_covariance,
+                "interrupted": self.interrupted,
+            },
+            "provenance": provenance,
+        });
+        let steps: Vec<Option<usize>> = self.tips.iter().map(|t| Some(t.step)).collect();
+        super::per_frame::write_rows(out, log, &steps, summary, &|keep| {
+            csv(self, |t| keep(Some(t.step)), cameras, log)
+        })
+    }
+}
+
 /// The rows of `found` that `keep` keeps as CSV (camera names joined by `+`), each followed
 /// by its log row's other columns.
 pub fn csv(

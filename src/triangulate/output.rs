@@ -55,7 +55,8 @@ pub(crate) fn first_appearances<'a>(phases: impl Iterator<Item = &'a str>) -> Ve
 
 /// Whether `path` is a file a triangulation into `out` writes: one of [`BESIDE`], or a
 /// per-phase file ([`phase_path`]) that holds a dataset (its header is a step dataset's or a
-/// per-frame one's), so that a stale listing never removes another file.
+/// per-frame one's, of a pair or of more cameras), so that a stale listing never removes
+/// another file.
 pub(super) fn ours(out: &Path, path: &Path) -> bool {
     let name = |p: &Path| p.file_name().map(|n| n.to_string_lossy().into_owned());
     let (Some(name), Some(stem)) = (name(path), name(&beside(out, ""))) else {
@@ -77,13 +78,14 @@ pub(super) fn ours(out: &Path, path: &Path) -> bool {
     let dataset = |line: Vec<u8>| {
         let line = line.strip_suffix(b"\n").unwrap_or(&line);
         line.starts_with(DATASET_HEAD.as_bytes())
+            || line.starts_with(super::cameras::HEADER.as_bytes())
             || (line.starts_with(b"time_s,") && line.ends_with(PER_FRAME_TAIL.as_bytes()))
     };
     name.starts_with(&format!("{stem}_")) && name.ends_with(".csv") && header().is_some_and(dataset)
 }
 
-/// The last columns of a per-frame dataset's header.
-const PER_FRAME_TAIL: &str = "x_mm,y_mm,z_mm,frame,reproj_px,flag";
+/// The last columns of a per-frame dataset's header (a pair's and more cameras').
+const PER_FRAME_TAIL: &str = ",frame,reproj_px,flag";
 
 /// The dataset's first columns, which every dataset and per-phase file starts with.
 const DATASET_HEAD: &str = "P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm,n_frames,spread_mm,reproj_px,dt_ms";

@@ -161,6 +161,25 @@ fn four_cameras_in_motion_give_each_frame_a_tip_closer_than_any_pair_with_the_fi
         .map(|phase| csv_rows(&d.join(format!("four_{phase}.csv"))).len())
         .sum();
     assert_eq!(split, rows.len());
+    // The held steps into the same place replace the per-frame files: the summary is theirs
+    // and lists every file of the dataset's left (the per-frame run's dyn_1 file is gone).
+    let args = ["triangulate", "s/frames", "--calib", "cal.toml"];
+    let steps = [
+        &args[..],
+        &["--pressures", "s/pressures.csv", "--out", "four.csv"],
+    ]
+    .concat();
+    handcap_ok(d, &steps);
+    let summary = read_json(&d.join("four_summary.json"));
+    assert_eq!(summary["per_frame"], false, "{summary}");
+    let listed = summary["files"].as_array().unwrap();
+    for entry in std::fs::read_dir(d).unwrap() {
+        let name = entry.unwrap().file_name().to_string_lossy().into_owned();
+        if name.starts_with("four") {
+            assert!(listed.iter().any(|f| f == &name), "{name} left: {summary}");
+        }
+    }
+    assert!(!d.join("four_dyn_1.csv").exists());
     // Each pair with cam1, of the same calibration.
     let calibrated: toml::Table = std::fs::read_to_string(d.join("cal.toml"))
         .unwrap()

@@ -6,7 +6,7 @@ use std::fmt;
 use std::path::{Path, PathBuf};
 
 use super::super::outputs;
-use super::super::{io_error, PipelineError, Session, Task};
+use super::super::{PipelineError, Session, Task};
 use crate::session::pressures::read_pressure_log;
 use crate::triangulate::{self, TriangulateOptions};
 
@@ -191,21 +191,8 @@ pub fn run_cameras(
     );
     session.emit(super::super::Event::Finished(Task::Frames));
     let found = result.map_err(|e| PipelineError::Place(e.to_string()))?;
-    let cameras = &calibration.cameras;
-    let text = triangulate::cameras::csv(&found, |_| true, cameras, log);
-    crate::fsio::write_bytes(out, text.as_bytes()).map_err(io_error(out))?;
-    let mut written = vec![out.to_path_buf()];
-    // OUT_<phase>.csv, as a pair's dataset has them.
-    if let Some(col) = log.extra_columns.iter().position(|c| c == "phase") {
-        let phase_of = |t: &triangulate::cameras::StepTip| log.steps[t.step].extra[col].as_str();
-        let phases = triangulate::output::first_appearances(found.tips.iter().map(phase_of));
-        for phase in phases {
-            let path = triangulate::output::phase_path(out, phase);
-            let text = triangulate::cameras::csv(&found, |t| phase_of(t) == phase, cameras, log);
-            crate::fsio::write_bytes(&path, text.as_bytes()).map_err(io_error(&path))?;
-            written.push(path);
-        }
-    }
+    let provenance = super::provenance(session, frames, calib, pressures)?;
+    let written = found.write(out, log, &calibration.cameras, &provenance)?;
     if found.interrupted {
         return Err(PipelineError::Interrupted(format!(
             "interrupted: {} holds the steps of the frames examined before Ctrl-C; run again for all of them",

@@ -54,6 +54,7 @@ mod clock_offset;
 mod live;
 mod output;
 mod rows;
+pub(in crate::triangulate) use output::write_rows;
 mod track;
 
 pub use cameras::{
