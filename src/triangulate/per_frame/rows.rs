@@ -101,7 +101,7 @@ pub(super) fn rest_origin(
             }
             let said: Vec<String> = why.iter().map(|(f, n)| format!("{n} {f}")).collect();
             format!(
-                "its left frames: {}",
+                "its rows: {}",
                 if said.is_empty() {
                     "none".into()
                 } else {
