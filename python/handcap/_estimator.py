@@ -98,9 +98,9 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
         if self.search not in ("aco-r", "none"):
             raise ValueError(f"search {self.search!r}: give 'aco-r' or 'none'")
         families = dict(_core.FAMILIES)
-        if self.model != "auto" and self.model not in families:
-            names = ", ".join(repr(name) for name in ["auto", *families])
-            raise ValueError(f"model {self.model!r}: give {names}")
+        if not (isinstance(self.model, str) and self.model in ["auto", *families]):
+            *others, last = [repr(name) for name in ["auto", *families]]
+            raise ValueError(f"model {self.model!r}: give {', '.join(others)} or {last}")
         if self.search == "none":
             # A family holds the parameters it does not move (kernel ridge's epsilon is 0).
             moved = families.get(self.model, ["c", "epsilon", "sigma"])

@@ -304,7 +304,7 @@ fn fit(
         Some(_) => FoldsBy::Column("groups".into()),
         None => FoldsBy::Auto,
     };
-    let searched = c.is_none() || epsilon.is_none() || sigma.is_none();
+    let searched = family.searches([c, epsilon, sigma]);
     let selection = if searched {
         Selection::aco_r(seed, budget, folds, folds_by)
     } else {

@@ -478,6 +478,7 @@ impl Found {
         out: &Path,
         log: &PressureLog,
         cameras: &[ReadCamera],
+        options: &TriangulateOptions,
         provenance: &crate::provenance::Provenance,
     ) -> Result<Vec<PathBuf>, super::TriangulateError> {
         let summary = serde_json::json!({
@@ -489,6 +490,7 @@ impl Found {
                 "frames_without_marker": self.frames_without_marker,
                 "frames_with_several": self.frames_with_several,
                 "frames_unreadable": self.frames_unreadable,
+                "first_unreadable": self.unreadable,
                 "steps_unseen": self.steps_unseen,
                 "steps_inconsistent": self.steps_inconsistent,
                 "origin_mm": self.origin_mm.as_slice(),
@@ -497,6 +499,7 @@ impl Found {
                 "calibration_in_covariance": self.calibration_in_covariance,
                 "interrupted": self.interrupted,
             },
+            "options": options,
             "provenance": provenance,
         });
         let steps: Vec<Option<usize>> = self.tips.iter().map(|t| Some(t.step)).collect();

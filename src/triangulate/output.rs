@@ -87,7 +87,8 @@ pub(super) fn ours(out: &Path, path: &Path) -> bool {
 /// The last columns of a per-frame dataset's header (a pair's and more cameras').
 const PER_FRAME_TAIL: &str = ",frame,reproj_px,flag";
 
-/// The dataset's first columns, which every dataset and per-phase file starts with.
+/// A pair's step dataset's first columns, which its per-phase files start with too (more
+/// cameras' start with [`super::cameras::HEADER`]).
 const DATASET_HEAD: &str = "P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm,n_frames,spread_mm,reproj_px,dt_ms";
 
 const PAIRS: &str = "_pairs.csv";

@@ -65,6 +65,29 @@ fn krr_is_fitted_without_a_tube_and_its_search_moves_c_and_sigma() {
             .count(),
         3
     );
+    // C and σ given: kernel ridge has nothing left to search (ε it holds at 0).
+    let args = [
+        "model",
+        "train.csv",
+        "--inputs",
+        "P1_kpa,P2_kpa",
+        "--outputs",
+        "x_mm,y_mm",
+    ];
+    let given = [
+        "--model",
+        "krr",
+        "--c",
+        "10",
+        "--sigma",
+        "0.3",
+        "--out",
+        "given.json",
+    ];
+    handcap_ok(d, &[&args[..], &given].concat());
+    let given = read_json(&d.join("given.json"));
+    assert!(given.get("search").is_none(), "{}", given["search"]);
+    assert_eq!(given["model"]["params"]["c"], 10.0);
     // A file of a family this build does not know: one line naming it, nothing written.
     let stored = std::fs::read_to_string(d.join("krr.json")).unwrap();
     let unknown = stored.replacen("\"used\": \"krr\"", "\"used\": \"gp\"", 1);

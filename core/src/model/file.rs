@@ -195,11 +195,7 @@ impl ModelFile {
         struct Header {
             format: Option<String>,
             version: Option<u32>,
-            family: Option<FamilyHeader>,
-        }
-        #[derive(Deserialize)]
-        struct FamilyHeader {
-            used: Option<String>,
+            family: Option<serde_json::Value>,
         }
         let header: Header =
             serde_json::from_slice(&bytes).map_err(|e| invalid(format!("not JSON: {e}")))?;
@@ -216,11 +212,12 @@ impl ModelFile {
             }
             None => return Err(invalid("no `version`".into())),
         }
-        let family = header.family.and_then(|f| f.used);
-        if let Some(name) = family.filter(|name| Family::named(name).is_none()) {
+        // The family kept; one `auto` only tried may be unknown to this build.
+        let used = header.family.as_ref().and_then(|f| f.get("used")?.as_str());
+        if let Some(name) = used.filter(|name| Family::named(name).is_none()) {
             return Err(ModelFileError::Family {
                 path: path.into(),
-                name,
+                name: name.to_string(),
                 known: Family::names(),
             });
         }

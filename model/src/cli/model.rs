@@ -13,7 +13,7 @@ use crate::search::aco_paper::AcoPaper;
 use crate::search::aco_r::AcoR;
 use crate::search::grid::Grid;
 use crate::search::{Method, SearchStop};
-use crate::select::family::FamilyChoice;
+use crate::select::family::{Family, FamilyChoice};
 use crate::select::fitness::FitnessKind;
 use crate::select::folds::FoldsBy;
 use crate::select::tune::{BasisChoice, Pinned};
@@ -195,12 +195,17 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if a.budget.is_some() && !matches!(a.search, SearchKind::AcoR | SearchKind::Grid) {
         usage!("--budget is the candidate budget of --search aco-r and grid");
     }
-    // All three given: nothing is left to search.
-    let method = method.filter(|_| a.c.is_none() || a.epsilon.is_none() || a.sigma.is_none());
+    // Every parameter the family moves given: nothing is left to search.
+    let method = method.filter(|_| a.model.searches([a.c, a.epsilon, a.sigma]));
     if let FamilyChoice::One(family) = a.model {
         let fixed = family.fixed_loss().filter(|fixed| *fixed != loss);
         if let Some(fixed) = fixed.filter(|_| a.loss != LossArg::Auto) {
-            usage!("--loss {loss} with --model {family}: {} fits with the {fixed} loss; leave --loss out, or use --model msvr", family.title());
+            let free: Vec<&str> = Family::ALL
+                .iter()
+                .filter(|f| f.fixed_loss().is_none())
+                .map(|f| f.name())
+                .collect();
+            usage!("--loss {loss} with --model {family}: {} fits with the {fixed} loss; leave --loss out, or use --model {}", family.title(), free.join(" or "));
         }
     }
     let job = FitJob {

@@ -192,7 +192,7 @@ pub fn run_cameras(
     session.emit(super::super::Event::Finished(Task::Frames));
     let found = result.map_err(|e| PipelineError::Place(e.to_string()))?;
     let provenance = super::provenance(session, frames, calib, pressures)?;
-    let written = found.write(out, log, &calibration.cameras, &provenance)?;
+    let written = found.write(out, log, &calibration.cameras, options, &provenance)?;
     if found.interrupted {
         return Err(PipelineError::Interrupted(format!(
             "interrupted: {} holds the steps of the frames examined before Ctrl-C; run again for all of them",
@@ -253,7 +253,8 @@ pub fn run_per_frame_cameras(
     session.emit(super::super::Event::Finished(Task::Frames));
     let per_frame = result.map_err(|e| PipelineError::Place(e.to_string()))?;
     let provenance = super::provenance(session, frames, calib, pressures)?;
-    let written = per_frame.write(out, &inputs.log, &inputs.calibration.cameras, &provenance)?;
+    let cameras = &inputs.calibration.cameras;
+    let written = per_frame.write(out, &inputs.log, cameras, options, &provenance)?;
     if per_frame.summary.interrupted {
         return Err(PipelineError::Interrupted(format!(
             "interrupted: {} holds the rows of the frames examined before Ctrl-C; run again for all of them",

@@ -64,11 +64,11 @@ impl PerFrame {
 /// Which rows to write, by their step in the log.
 pub(in crate::triangulate) type Keep<'a> = &'a dyn Fn(Option<usize>) -> bool;
 
-/// Writes per-frame rows (each one's step in the log `steps`): `out`, every row
-/// (`csv(keep)`, the rows whose step `keep` keeps), `OUT_<phase>.csv` per phase of the log,
-/// and `OUT_summary.json` (`summary` with the files written); removes what a previous run
-/// into the same place wrote and this one did not (its summary lists them); returns the files
-/// written.
+/// Writes rows (per frame, or more cameras' held steps; each one's step in the log `steps`):
+/// `out`, every row (`csv(keep)`, the rows whose step `keep` keeps), `OUT_<phase>.csv` per
+/// phase of the log, and `OUT_summary.json` (`summary` with the files written); removes what a
+/// previous run into the same place wrote and this one did not (its summary lists them);
+/// returns the files written.
 ///
 /// # Errors
 /// [`TriangulateError::Write`] naming the file.

@@ -184,7 +184,7 @@ impl<'de> Deserialize<'de> for Family {
         let name = String::deserialize(d)?;
         Family::named(&name).ok_or_else(|| {
             serde::de::Error::custom(format!(
-                "model family `{name}` is not one this handcap knows ({}): use the handcap that wrote the file, or fit the model again",
+                "model family `{name}` unknown to this handcap (it knows {})",
                 Family::names()
             ))
         })
@@ -208,6 +208,22 @@ impl Default for FamilyChoice {
 impl FamilyChoice {
     /// The paper's family alone.
     pub const MSVR: FamilyChoice = FamilyChoice::One(Family::MSVR);
+
+    /// The axes of (C, ε, σ) a search moves for it: its family's, or for `auto` all three.
+    pub fn axes(self) -> &'static [&'static str] {
+        match self {
+            FamilyChoice::Auto => &Hyper::AXES,
+            FamilyChoice::One(family) => family.axes(),
+        }
+    }
+
+    /// Whether `given` (C, ε, σ, each when given) leaves an axis it moves to search.
+    pub fn searches(self, given: [Option<f64>; 3]) -> bool {
+        Hyper::AXES
+            .iter()
+            .zip(given)
+            .any(|(axis, value)| value.is_none() && self.axes().contains(axis))
+    }
 
     /// The families it searches, the paper's first.
     pub fn families(self) -> Vec<Family> {
@@ -257,9 +273,28 @@ pub struct FamilyTrial {
 pub struct FamilyDecision {
     pub used: Family,
     pub reason: String,
-    /// Each family `auto` searched on the same folds.
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    /// Each family `auto` searched on the same folds (read: those this build knows).
+    #[serde(
+        default,
+        skip_serializing_if = "Vec::is_empty",
+        deserialize_with = "known_trials"
+    )]
     pub tried: Vec<FamilyTrial>,
+}
+
+/// The trials of a stored decision, less those of families this build does not know (a file
+/// of a newer build whose `auto` also tried another family still serves its model).
+fn known_trials<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<FamilyTrial>, D::Error> {
+    let stored = Vec::<serde_json::Value>::deserialize(d)?;
+    let known = |t: &serde_json::Value| {
+        let name = t.get("family").and_then(serde_json::Value::as_str);
+        name.is_none_or(|name| Family::named(name).is_some())
+    };
+    stored
+        .into_iter()
+        .filter(known)
+        .map(|t| serde_json::from_value(t).map_err(serde::de::Error::custom))
+        .collect()
 }
 
 impl FamilyDecision {
@@ -288,35 +323,37 @@ pub fn decide(tried: Vec<FamilyTrial>) -> FamilyDecision {
         .iter()
         .min_by(|a, b| a.fitness.total_cmp(&b.fitness))
         .expect("a family was tried");
-    let simpler = |t: &&FamilyTrial| t.family.simpler_than(best.family);
-    let within = tried
+    // Each simpler family with its paired difference above the best and its standard error.
+    let simpler: Vec<(&FamilyTrial, f64, f64)> = tried
         .iter()
-        .filter(simpler)
-        .filter(|t| {
+        .filter(|t| t.family.simpler_than(best.family))
+        .map(|t| {
             let (margin, se) = paired(t, best);
-            margin <= se
+            (t, margin, se)
         })
-        .min_by(|a, b| {
-            (a.family.axes().len(), a.fitness)
-                .partial_cmp(&(b.family.axes().len(), b.fitness))
+        .collect();
+    let simplest_within = simpler
+        .iter()
+        .filter(|(_, margin, se)| margin <= se)
+        .min_by(|(a, ..), (b, ..)| {
+            let key = |t: &FamilyTrial| (t.family.axes().len(), t.fitness);
+            key(a)
+                .partial_cmp(&key(b))
                 .unwrap_or(std::cmp::Ordering::Equal)
         });
-    let nearest = tried
+    let nearest = simpler
         .iter()
-        .filter(simpler)
-        .min_by(|a, b| a.fitness.total_cmp(&b.fitness));
+        .min_by(|(a, ..), (b, ..)| a.fitness.total_cmp(&b.fitness));
     let (title, k, lower) = (best.family.title(), best.folds.len(), best.fitness);
-    let (used, verdict) = match (within, nearest) {
-        (Some(simple), _) => {
-            let (margin, se) = paired(simple, best);
+    let (used, verdict) = match (simplest_within, nearest) {
+        (Some(&(simple, margin, se)), _) => {
             let (name, ridge) = (simple.family.title(), simple.fitness);
             (
                 simple.family,
                 format!("{title}'s {lower:.5} is within one standard error of {name}'s {ridge:.5} (difference {margin:.5} ≤ {se:.5} over {k} folds): the simpler, {name}"),
             )
         }
-        (None, Some(simple)) => {
-            let (margin, se) = paired(simple, best);
+        (None, Some(&(simple, margin, se))) => {
             let (name, ridge) = (simple.family.title(), simple.fitness);
             (
                 best.family,
@@ -362,7 +399,7 @@ impl Run<'_> {
         let reason = match (self.plan.family, planned) {
             (FamilyChoice::Auto, 1) => "model=auto: MSVR, the paper's (families are compared by a cross-validated search of their own box; the parameters given, fitness=train and the paper's colony leave none)".to_string(),
             (FamilyChoice::Auto, _) => format!(
-                "model=auto: {} (a stop came before the other family was searched)",
+                "model=auto: {} (a stop came before the other families were searched)",
                 family.title()
             ),
             _ => return FamilyDecision::asked(family),
@@ -493,9 +530,22 @@ mod tests {
         let err = serde_json::from_str::<Family>("\"gp\"").unwrap_err();
         assert!(
             err.to_string()
-                .contains("`gp` is not one this handcap knows (msvr or krr)"),
+                .contains("`gp` unknown to this handcap (it knows msvr or krr)"),
             "{err}"
         );
+        // A newer build's decision that also tried a family this one does not know.
+        let mut decided = decide(vec![
+            trial(Family::MSVR, &[1.0, 2.0]),
+            trial(Family::KRR, &[1.5, 2.5]),
+        ]);
+        let mut stored = serde_json::to_value(&decided).unwrap();
+        let mut other = stored["tried"][1].clone();
+        other["family"] = "gp".into();
+        stored["tried"].as_array_mut().unwrap().push(other);
+        let read: FamilyDecision = serde_json::from_value(stored).unwrap();
+        assert_eq!(read, decided);
+        decided.tried.clear();
+        assert_eq!(serde_json::to_value(&decided).unwrap().get("tried"), None);
     }
 
     /// What a family fixes is what the refusals and the report read: kernel ridge holds ε at

@@ -10,7 +10,7 @@ use crate::provenance::Provenance;
 use crate::session::pressures::PressureLog;
 use crate::triangulate::cameras::{camera_names, covariance_fields};
 use crate::triangulate::per_frame::output::{write_rows, written_tip, InForce};
-use crate::triangulate::TriangulateError;
+use crate::triangulate::{TriangulateError, TriangulateOptions};
 
 /// The columns after the pressures: the tip, how sure it is, the cameras it used, the row's
 /// frame (of the rows' camera), its worst reprojection residual and its flags.
@@ -76,11 +76,13 @@ impl PerFrameCameras {
         out: &Path,
         log: &PressureLog,
         cameras: &[ReadCamera],
+        options: &TriangulateOptions,
         provenance: &Provenance,
     ) -> Result<Vec<PathBuf>, TriangulateError> {
         let summary = serde_json::json!({
             "per_frame": true,
             "summary": self.summary,
+            "options": options,
             "provenance": provenance,
         });
         let steps: Vec<Option<usize>> = self.rows.iter().map(|r| r.row.step).collect();
