@@ -33,11 +33,20 @@ fn plant(seed: u64, rows: usize, noise: f64, gross: f64) -> String {
     csv
 }
 
+/// `handcap model` on the plant's rows.
+const MODEL: [&str; 6] = [
+    "model",
+    "train.csv",
+    "--inputs",
+    "P1_kpa,P2_kpa",
+    "--outputs",
+    "x_mm,y_mm",
+];
+
 /// `handcap model` of `train.csv` in `d` with `model` and a small search: the model file.
 fn fit(d: &Path, model: &str, out: &str) -> serde_json::Value {
-    let args = ["model", "train.csv", "--inputs", "P1_kpa,P2_kpa"];
-    let more = ["--outputs", "x_mm,y_mm", "--budget", "60", "--model", model];
-    handcap_ok(d, &[&args[..], &more, &["--out", out]].concat());
+    let more = ["--budget", "60", "--model", model, "--out", out];
+    handcap_ok(d, &[&MODEL[..], &more].concat());
     read_json(&d.join(out))
 }
 
@@ -66,14 +75,6 @@ fn krr_is_fitted_without_a_tube_and_its_search_moves_c_and_sigma() {
         3
     );
     // C and σ given: kernel ridge has nothing left to search (ε it holds at 0).
-    let args = [
-        "model",
-        "train.csv",
-        "--inputs",
-        "P1_kpa,P2_kpa",
-        "--outputs",
-        "x_mm,y_mm",
-    ];
     let given = [
         "--model",
         "krr",
@@ -84,7 +85,7 @@ fn krr_is_fitted_without_a_tube_and_its_search_moves_c_and_sigma() {
         "--out",
         "given.json",
     ];
-    handcap_ok(d, &[&args[..], &given].concat());
+    handcap_ok(d, &[&MODEL[..], &given].concat());
     let given = read_json(&d.join("given.json"));
     assert!(given.get("search").is_none(), "{}", given["search"]);
     assert_eq!(given["model"]["params"]["c"], 10.0);
@@ -129,14 +130,7 @@ fn a_family_that_cannot_take_the_request_says_which_option() {
     let dir = tempdir();
     let d = dir.path();
     write(d, "train.csv", &plant(7, 60, 0.05, 0.0));
-    let base = [
-        "model",
-        "train.csv",
-        "--inputs",
-        "P1_kpa,P2_kpa",
-        "--outputs",
-        "x_mm,y_mm",
-    ];
+    let base = MODEL;
     let err = handcap_usage(d, &[&base[..], &["--model", "svr"]].concat());
     assert!(
         err.contains("--model") && err.contains("auto, msvr or krr"),

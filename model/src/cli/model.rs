@@ -200,12 +200,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if let FamilyChoice::One(family) = a.model {
         let fixed = family.fixed_loss().filter(|fixed| *fixed != loss);
         if let Some(fixed) = fixed.filter(|_| a.loss != LossArg::Auto) {
-            let free: Vec<&str> = Family::ALL
-                .iter()
-                .filter(|f| f.fixed_loss().is_none())
-                .map(|f| f.name())
-                .collect();
-            usage!("--loss {loss} with --model {family}: {} fits with the {fixed} loss; leave --loss out, or use --model {}", family.title(), free.join(" or "));
+            usage!("--loss {loss} with --model {family}: {} fits with the {fixed} loss; leave --loss out, or use --model {}", family.title(), Family::taking_any_loss());
         }
     }
     let job = FitJob {

@@ -84,6 +84,16 @@ impl Family {
         or_list(&names)
     }
 
+    /// The families that fit with any loss, as a message lists them.
+    pub fn taking_any_loss() -> String {
+        let names: Vec<&str> = Family::ALL
+            .iter()
+            .filter(|f| f.fixed_loss().is_none())
+            .map(|f| f.name())
+            .collect();
+        or_list(&names)
+    }
+
     /// The axes it moves as a message names them: `C and σ`.
     pub fn moves(self) -> String {
         let labels: Vec<&str> = self.axes().iter().map(|a| label(a)).collect();
