@@ -103,7 +103,7 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
             raise ValueError(f"model {self.model!r}: give {', '.join(others)} or {last}")
         if self.search == "none":
             # A family holds the parameters it does not move (kernel ridge's epsilon is 0).
-            moved = families.get(self.model, ["c", "epsilon", "sigma"])
+            moved = families.get(self.model) or {a for axes in families.values() for a in axes}
             given = {"C": self.C, "epsilon": self.epsilon, "sigma": self.sigma}
             given = {name: value for name, value in given.items() if name.lower() in moved}
             if any(h is None for h in given.values()):

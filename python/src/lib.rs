@@ -304,7 +304,8 @@ fn fit(
         Some(_) => FoldsBy::Column("groups".into()),
         None => FoldsBy::Auto,
     };
-    let searched = family.searches([c, epsilon, sigma]);
+    let pinned = Pinned { c, epsilon, sigma };
+    let searched = family.searches(&pinned);
     let selection = if searched {
         Selection::aco_r(seed, budget, folds, folds_by)
     } else {
@@ -324,7 +325,7 @@ fn fit(
             family,
             params,
             selection,
-            pinned: Pinned { c, epsilon, sigma },
+            pinned,
             basis,
             history,
             time: with_time.then(|| "time".to_string()),

@@ -263,7 +263,7 @@ impl Plan {
         };
         if self.selection.paper() {
             if let Some(family) = asked.filter(|f| f.axes() != Hyper::AXES) {
-                return refuse(format!("model={family} with search=aco-paper: the paper's colony searches all three of (C, ε, σ) and {} moves {}; use model={} (or auto), or search=aco-r or grid", family.title(), family.moves(), Family::moving(&Hyper::AXES)));
+                return refuse(format!("model={family} with search=aco-paper: the paper's colony searches all three of (C, ε, σ) and {} moves {}; use model={} (or auto), or search=aco-r or grid", family.title(), family.moves(), Family::names_where(|f| f.axes() == Hyper::AXES)));
             }
             if let Some((name, value)) = self.pinned.values().next() {
                 return refuse(format!("{name}={value} is held by search=aco-r and search=grid; the paper's colony searches all three of its digits"));
@@ -272,7 +272,7 @@ impl Plan {
         for (axis, value) in self.pinned.values() {
             let held = asked.and_then(|f| Some((f, f.holds(axis, self.params)?)));
             if let Some((family, held)) = held.filter(|(_, held)| *held != value) {
-                return refuse(format!("{axis}={value} with model={family}: {} holds {axis} at {held} (it does not move it); leave it out, or use model={}", family.title(), Family::moving(&[axis])));
+                return refuse(format!("{axis}={value} with model={family}: {} holds {axis} at {held} (it does not move it); leave it out, or use model={}", family.title(), Family::names_where(|f| f.axes().contains(&axis))));
             }
         }
         if let Selection::Search {

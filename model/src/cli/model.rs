@@ -196,11 +196,16 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         usage!("--budget is the candidate budget of --search aco-r and grid");
     }
     // Every parameter the family moves given: nothing is left to search.
-    let method = method.filter(|_| a.model.searches([a.c, a.epsilon, a.sigma]));
+    let pinned = Pinned {
+        c: a.c,
+        epsilon: a.epsilon,
+        sigma: a.sigma,
+    };
+    let method = method.filter(|_| a.model.searches(&pinned));
     if let FamilyChoice::One(family) = a.model {
         let fixed = family.fixed_loss().filter(|fixed| *fixed != loss);
         if let Some(fixed) = fixed.filter(|_| a.loss != LossArg::Auto) {
-            usage!("--loss {loss} with --model {family}: {} fits with the {fixed} loss; leave --loss out, or use --model {}", family.title(), Family::taking_any_loss());
+            usage!("--loss {loss} with --model {family}: {} fits with the {fixed} loss; leave --loss out, or use --model {}", family.title(), Family::names_where(|f| f.fixed_loss().is_none()));
         }
     }
     let job = FitJob {
@@ -216,11 +221,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         .tol(a.solver_tol)
         .max_iter(a.solver_max_iter)
         .loss(loss),
-        pinned: Pinned {
-            c: a.c,
-            epsilon: a.epsilon,
-            sigma: a.sigma,
-        },
+        pinned,
         selection: match method {
             None => Selection::Fixed {
                 folds: a.folds,

@@ -21,7 +21,7 @@ use super::run::{Kept, Run, Scoring};
 use super::SelectError;
 use crate::model::msvr::{Hyper, Loss, MsvrParams};
 use crate::select::fitness::{self, Dealing, FitnessKind};
-use crate::select::tune::{self, Chosen, TuneError};
+use crate::select::tune::{self, Chosen, Pinned, TuneError};
 
 mod krr;
 mod msvr;
@@ -71,27 +71,21 @@ impl Family {
 
     /// The families' names, as a message lists them: `msvr or krr`.
     pub fn names() -> String {
-        or_list(&Family::ALL.map(|f| f.name()))
+        Family::names_where(|_| true)
     }
 
-    /// The families that move every one of `axes`, as a message lists them.
-    pub fn moving(axes: &[&str]) -> String {
+    /// The names of the families `keep` keeps, as a message lists them: `a, b or c`.
+    pub fn names_where(keep: impl Fn(&Family) -> bool) -> String {
         let names: Vec<&str> = Family::ALL
             .iter()
-            .filter(|f| axes.iter().all(|a| f.axes().contains(a)))
+            .filter(|f| keep(f))
             .map(|f| f.name())
             .collect();
-        or_list(&names)
-    }
-
-    /// The families that fit with any loss, as a message lists them.
-    pub fn taking_any_loss() -> String {
-        let names: Vec<&str> = Family::ALL
-            .iter()
-            .filter(|f| f.fixed_loss().is_none())
-            .map(|f| f.name())
-            .collect();
-        or_list(&names)
+        match names.split_last() {
+            Some((last, [])) => (*last).to_string(),
+            Some((last, rest)) => format!("{} or {last}", rest.join(", ")),
+            None => String::new(),
+        }
     }
 
     /// The axes it moves as a message names them: `C and σ`.
@@ -138,15 +132,6 @@ fn label(axis: &str) -> &'static str {
         "c" => "C",
         "epsilon" => "ε",
         _ => "σ",
-    }
-}
-
-/// `a, b or c`.
-fn or_list(names: &[&str]) -> String {
-    match names.split_last() {
-        Some((last, [])) => (*last).to_string(),
-        Some((last, rest)) => format!("{} or {last}", rest.join(", ")),
-        None => String::new(),
     }
 }
 
@@ -227,12 +212,11 @@ impl FamilyChoice {
         }
     }
 
-    /// Whether `given` (C, ε, σ, each when given) leaves an axis it moves to search.
-    pub fn searches(self, given: [Option<f64>; 3]) -> bool {
-        Hyper::AXES
+    /// Whether the parameters `pinned` holds leave an axis it moves to search.
+    pub fn searches(self, pinned: &Pinned) -> bool {
+        self.axes()
             .iter()
-            .zip(given)
-            .any(|(axis, value)| value.is_none() && self.axes().contains(axis))
+            .any(|axis| !pinned.values().any(|(name, _)| name == *axis))
     }
 
     /// The families it searches, the paper's first.
