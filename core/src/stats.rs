@@ -4,7 +4,8 @@
 //! an even count. [`upper_median`] is the upper of the two middle values (`v[n / 2]` of the
 //! sorted values): always one of the data, which a robust threshold or a reference element
 //! needs. Both return `None` for no values, as do [`quantiles`] (nearest rank) for summaries
-//! and [`mean_sd`]. [`paired_difference`] compares two models' scores on the same folds.
+//! and [`mean_sd`]. [`quantile_upper_bound`] bounds a quantile from above with a stated
+//! confidence. [`paired_difference`] compares two models' scores on the same folds.
 //! [`Line`] is the least-squares line through points. [`chi_square_quantile`]
 //! is the χ² distribution's quantile, for gates on sums of squared normalized residuals.
 
@@ -55,6 +56,29 @@ pub fn quantiles<const N: usize>(values: &mut [f64], q: [f64; N]) -> Option<[f64
     values.sort_by(f64::total_cmp);
     let last = (values.len() - 1) as f64;
     Some(q.map(|q| values[(last * q).round() as usize]))
+}
+
+/// An upper confidence bound of the `q` quantile of the distribution the `values` are drawn
+/// from (independently): the smallest order statistic that lies at or above that quantile with
+/// probability `confidence` whatever the distribution. The k-th smallest of n does so with
+/// probability P(Binomial(n, q) ≤ k − 1), so k − 1 is that binomial's `confidence` quantile.
+/// `None` when n values are too few for any (q^n > 1 − `confidence`: 22 values for 0.9 and
+/// 0.9). Sorts `values`.
+pub fn quantile_upper_bound(values: &mut [f64], q: f64, confidence: f64) -> Option<f64> {
+    let n = values.len();
+    // P(Binomial(n, q) = j) summed up from j = 0, each term from the last in logarithms.
+    let odds = (q / (1.0 - q)).ln();
+    let mut log_pmf = n as f64 * (1.0 - q).ln();
+    let mut cdf = 0.0;
+    for j in 0..n {
+        cdf += log_pmf.exp();
+        if cdf >= confidence {
+            values.sort_by(f64::total_cmp);
+            return Some(values[j]);
+        }
+        log_pmf += ((n - j) as f64 / (j + 1) as f64).ln() + odds;
+    }
+    None
 }
 
 /// The mean of `a` less `b`, fold by fold (each fold's score weighed by its `weights`, e.g.
@@ -236,6 +260,34 @@ mod tests {
     }
 
     use super::*;
+
+    #[test]
+    fn a_quantiles_upper_bound_is_the_binomials_order_statistic_and_holds_its_confidence() {
+        // scipy.stats.binom.ppf(0.9, n, 0.9) + 1 is the 1-based rank: 113 of 120, 549+1 of 600.
+        for (n, rank) in [(22, 22), (30, 30), (60, 58), (120, 113), (600, 550)] {
+            let mut v: Vec<f64> = (1..=n).rev().map(|i| i as f64).collect();
+            let got = quantile_upper_bound(&mut v, 0.9, 0.9);
+            assert_eq!(got, Some(rank as f64), "n = {n}");
+        }
+        assert_eq!(quantile_upper_bound(&mut [1.0; 21], 0.9, 0.9), None);
+        assert_eq!(quantile_upper_bound(&mut [], 0.9, 0.9), None);
+        // Uniform draws: the 0.9 quantile is 0.9; the bound lies above it in about 90 % of
+        // samples of 120 (binomial: 0.9 ± 0.03 over 1000 samples).
+        let mut state = 12345u64;
+        let mut uniform = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let held = (0..1000)
+            .filter(|_| {
+                let mut v: Vec<f64> = (0..120).map(|_| uniform()).collect();
+                quantile_upper_bound(&mut v, 0.9, 0.9).unwrap() >= 0.9
+            })
+            .count();
+        assert!((870..=930).contains(&held), "{held} of 1000");
+    }
 
     #[test]
     fn a_line_goes_through_the_means_with_the_least_squares_slope() {

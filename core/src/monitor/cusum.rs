@@ -48,15 +48,21 @@ impl Cusum {
     }
 }
 
+/// How sure the reference is to lie at or above the baseline's quantile it stands for
+/// ([`crate::stats::quantile_upper_bound`] over the baseline's looks).
+const REFERENCE_CONFIDENCE: f64 = 0.95;
+
 /// One channel watched as its values come: its values kept until the baseline ends, then a
 /// look every `look_s` through a [`Cusum`] against the baseline's reference.
 #[derive(Clone, Debug)]
 pub(super) struct Watcher {
-    /// The reference: this quantile of the baseline's values, at most `cap`.
+    /// The reference: an upper confidence bound of this quantile of the baseline, at most
+    /// `cap`.
     quantile: f64,
     cap: f64,
-    /// The baseline's values, until the reference is set.
+    /// The baseline's values, and those at its looks, until the reference is set.
     baseline: Vec<f64>,
+    baseline_looks: Vec<f64>,
     /// Once the baseline ended: the reference (`None`: no finite one), and the baseline's
     /// median (+∞ when more than half its values were).
     pub(super) decided: Option<(Option<f64>, f64)>,
@@ -74,6 +80,7 @@ impl Watcher {
             quantile,
             cap,
             baseline: Vec::new(),
+            baseline_looks: Vec::new(),
             decided: None,
             cusum: Cusum::new(p0, threshold),
             next_look: f64::NEG_INFINITY,
@@ -82,16 +89,27 @@ impl Watcher {
         }
     }
 
-    /// The baseline's reference (without values, `cap` when it is finite), and its median;
-    /// decided once.
+    /// The baseline's reference and its median; decided once. The reference is the
+    /// [`REFERENCE_CONFIDENCE`] upper bound of the baseline's `quantile` over its looks (a
+    /// baseline that happened to be calmer than the session does not set a reference the rest
+    /// misses more often than p₀); a baseline of too few looks for the bound (fewer than 29 at
+    /// 0.95) gives the quantile of all its values. At most `cap`; without values, `cap` when it
+    /// is finite.
     pub(super) fn decide(&mut self) -> (Option<f64>, f64) {
         *self.decided.get_or_insert_with(|| {
             let q = crate::stats::quantiles(&mut self.baseline, [self.quantile, 0.5]);
-            let reference = q
-                .map(|[q, _]| q.min(self.cap))
+            let bound = crate::stats::quantile_upper_bound(
+                &mut self.baseline_looks,
+                self.quantile,
+                REFERENCE_CONFIDENCE,
+            );
+            let reference = bound
+                .or(q.map(|[q, _]| q))
+                .map(|r| r.min(self.cap))
                 .or(Some(self.cap))
                 .filter(|r| r.is_finite());
             self.baseline = Vec::new();
+            self.baseline_looks = Vec::new();
             (reference, q.map_or(0.0, |[_, median]| median))
         })
     }
@@ -100,15 +118,21 @@ impl Watcher {
     /// the change began.
     pub(super) fn take(&mut self, t: f64, v: f64, baseline_end: f64, look_s: f64) -> Option<f64> {
         self.seen = true;
+        let look = t >= self.next_look;
+        if look {
+            self.next_look = t + look_s;
+        }
         if t < baseline_end {
             self.baseline.push(v);
+            if look {
+                self.baseline_looks.push(v);
+            }
             return None;
         }
         let reference = self.decide().0?;
-        if t < self.next_look {
+        if !look {
             return None;
         }
-        self.next_look = t + look_s;
         self.look_times.push(t);
         let back = self.cusum.look(v > reference)?;
         let n = self.look_times.len();

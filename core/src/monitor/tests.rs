@@ -55,6 +55,43 @@ fn the_band_holds_its_level_through_a_change_and_widens_after_it() {
     assert!((model[0].change_s - 666.7).abs() < 30.0, "{:?}", model[0]);
 }
 
+/// A baseline is a sample: its 0.9 quantile falls below the errors' own in about half the
+/// sessions, and the rest of such a session then misses more often than p₀. The reference is
+/// a 95 % upper bound of it over the baseline's looks: below the errors' quantile (1.645) in
+/// about 5 % of sessions, and in so few of them that the session's looks miss p₀ at most.
+#[test]
+fn the_reference_bounds_the_baselines_quantile_from_above_in_nineteen_sessions_of_twenty() {
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let settings = Settings::default();
+    let (sessions, rows) = (400, 130 * 30);
+    let times: Vec<f64> = (0..rows).map(|k| k as f64 / 30.0).collect();
+    let (mut below, mut plain_below) = (0, 0);
+    for _ in 0..sessions {
+        let e = errors(&mut rng, rows, 1.0);
+        let watched = watch(
+            Series {
+                times: &times,
+                values: &e,
+            },
+            None,
+            None,
+            100.0,
+            &settings,
+        );
+        below += usize::from(watched.model_reference < 1.645);
+        let mut baseline = e[..120 * 30].to_vec();
+        let [plain] = crate::stats::quantiles(&mut baseline, [0.9]).unwrap();
+        plain_below += usize::from(plain < 1.645);
+    }
+    let share = below as f64 / sessions as f64;
+    assert!(
+        (0.02..=0.08).contains(&share),
+        "below in {below} of {sessions}"
+    );
+    // The plain quantile of the same baselines, for scale: below in about half.
+    assert!(plain_below > sessions / 3, "{plain_below} of {sessions}");
+}
+
 /// 550 hours of looks with nothing changed, a fresh CUSUM after each false alarm: they
 /// come no more often than asked (here once per 2 h at most, on average).
 #[test]
