@@ -145,26 +145,35 @@ pub(super) fn check_cameras_tips(
     tip_checks(rows, truth)
 }
 
+/// The virtual finger's tip at each step of `truth/tips.csv`.
+fn true_tips(
+    truth: &Path,
+) -> Result<std::collections::HashMap<usize, Vector3<f64>>, PipelineError> {
+    let tips = data::read_columns(truth, &names(&["step", "x_mm", "y_mm", "z_mm"]))?;
+    Ok(tips
+        .iter_rows()
+        .map(|r| (r[0] as usize, Vector3::new(r[1], r[2], r[3])))
+        .collect())
+}
+
+fn not_in(step: &str, truth: &Path) -> PipelineError {
+    PipelineError::Check(format!("step {step} not in {}", truth.display()))
+}
+
 /// The tips' errors against `truth` (`truth/tips.csv`), per phase in the order they first
 /// appear, then `all`.
 fn tip_checks(
     rows: impl Iterator<Item = (String, String, [f64; 3])>,
     truth: &Path,
 ) -> Result<Vec<TipCheck>, PipelineError> {
-    let truth_tips = data::read_columns(truth, &names(&["step", "x_mm", "y_mm", "z_mm"]))?;
-    let tips: std::collections::HashMap<u64, [f64; 3]> = truth_tips
-        .iter_rows()
-        .map(|r| (r[0] as u64, [r[1], r[2], r[3]]))
-        .collect();
+    let tips = true_tips(truth)?;
     let mut by_phase: Vec<(String, Vec<[f64; 3]>)> = Vec::new();
     for (step, phase, tip) in rows {
         let t = step
-            .parse::<u64>()
+            .parse::<usize>()
             .ok()
             .and_then(|k| tips.get(&k))
-            .ok_or_else(|| {
-                PipelineError::Check(format!("step {step} not in {}", truth.display()))
-            })?;
+            .ok_or_else(|| not_in(&step, truth))?;
         let e: [f64; 3] = std::array::from_fn(|k| tip[k] - t[k]);
         match by_phase.iter_mut().find(|(p, _)| *p == phase) {
             Some((_, v)) => v.push(e),
@@ -218,22 +227,20 @@ pub(super) fn check_cameras(
             }
         })
         .collect();
-    let truth_tips = data::read_columns(tips, &names(&["step", "x_mm", "y_mm", "z_mm"]))?;
-    let true_tip: std::collections::HashMap<usize, Vector3<f64>> = truth_tips
-        .iter_rows()
-        .map(|r| (r[0] as usize, Vector3::new(r[1], r[2], r[3])))
-        .collect();
+    let true_tip = true_tips(tips)?;
     // χ² of 3 degrees of freedom at 0.95.
-    let inside = found
-        .tips
-        .iter()
-        .filter(|t| {
-            let e = t.tip_mm - true_tip[&t.step];
+    let mut inside = 0;
+    for t in &found.tips {
+        let truth = true_tip
+            .get(&t.step)
+            .ok_or_else(|| not_in(&t.step.to_string(), tips))?;
+        let e = t.tip_mm - truth;
+        inside += usize::from(
             t.covariance_mm2
                 .try_inverse()
-                .is_some_and(|inverse| e.dot(&(inverse * e)) <= 7.815)
-        })
-        .count();
+                .is_some_and(|inverse| e.dot(&(inverse * e)) <= 7.815),
+        );
+    }
     let mut by_cameras: Vec<(usize, usize)> = Vec::new();
     for t in &found.tips {
         match by_cameras.iter_mut().find(|(n, _)| *n == t.used.len()) {
