@@ -12,11 +12,13 @@ monitor's defaults:
   40 s, as the models were trained (`--trials` seeds): every alarm there is false;
 - 300 s sessions with a fault at 150 s (`--faults` seeds): seconds from the fault to each
   channel's alarm, and which test of the finger's raised it (`exceed`: the errors against the
-  baseline's reference; `resp`: the finger's response).
+  baseline's reference; `resp`: the finger's response); and the share of the 60 rows after the
+  fault that the online band held, beside the model file's fixed radius (split conformal).
 Prints markdown tables. Sessions and models are kept in `--out` and reused.
 """
 
 import argparse
+import csv
 import json
 import os
 import subprocess
@@ -48,11 +50,23 @@ def session(out, name, synth_args):
 
 
 def watch(out, model, name, rows):
-    """The alarms of `handcap monitor` on `rows` with `model`."""
+    """What `handcap monitor` wrote of `rows` with `model`: its summary, and its rows (time,
+    error, band and whether it held) from `monitor.csv`."""
     where = os.path.join(out, "watched", model, name)
     run(["monitor", rows, "--model", os.path.join(out, f"{model}.json"), "--out", where])
     with open(os.path.join(where, "monitor.json")) as f:
-        return json.load(f)
+        summary = json.load(f)
+    with open(os.path.join(where, "monitor.csv")) as f:
+        watched = [(float(r["time_s"]), float(r["error"]), int(r["covered"]))
+                   for r in csv.DictReader(f)]
+    return summary, watched
+
+
+def held_after(watched, radius, at=150.0, rows=60):
+    """The shares of the `rows` rows from `at` on the band held, and `radius` would have."""
+    after = [w for w in watched if w[0] >= at][:rows]
+    return (sum(c for _, _, c in after) / len(after),
+            sum(e <= radius for _, e, _ in after) / len(after))
 
 
 def fitted(out, model, extra):
@@ -97,7 +111,7 @@ def main():
             for s in chosen:
                 name = f"{'run' if kind == '600 s runs' else 'trials'}_{s}"
                 rows = session(a.out, name, [*synth_args, "--seed", str(s)])
-                w = watch(a.out, model, name, rows)
+                w, _ = watch(a.out, model, name, rows)
                 with open(rows) as f:
                     last = f.readlines()[-1]
                 hours += float(last.split(",")[0]) / 3600
@@ -109,23 +123,31 @@ def main():
                   f"{alarms['finger'] or ''} | {len(alarms['camera'])} | "
                   f"{sum(coverage) / len(coverage):.3f} |", flush=True)
     print()
-    print("| fault at 150 s | model | camera alarm (s after) | finger alarm (s after) |")
-    print("|---|---|---|---|")
+    print("| fault at 150 s | model | camera alarm (s after) | finger alarm (s after) "
+          "| first 60 rows after: band held, file's radius held |")
+    print("|---|---|---|---|---|")
     for fault in FAULTS:
         kind, amount = fault.split("@")[0], fault.split("=")[1]
         for model in models:
             after = {"camera": [], "finger": []}
+            band, fixed = [], []
             for s in seeds(a.faults):
                 name = f"{kind}_{amount}_{s}"
                 rows = session(a.out, name, ["--trials", "1", "--duration-s", "300", "--seed",
                                              str(s), "--fault", fault])
-                got = {x["channel"]: x for x in watch(a.out, model, name, rows)["alarms"]}
+                summary, watched = watch(a.out, model, name, rows)
+                got = {x["channel"]: x for x in summary["alarms"]}
+                held = held_after(watched, summary["start_radius"])
+                band.append(held[0])
+                fixed.append(held[1])
                 for channel in after:
                     x = got.get(channel)
                     after[channel].append("-" if x is None else
                                           f"{x['time_s'] - 150:.0f}{said(x)}")
             print(f"| {kind} {amount} | {model} | {', '.join(after['camera'])} | "
-                  f"{', '.join(after['finger'])} |", flush=True)
+                  f"{', '.join(after['finger'])} | {sum(band) / len(band):.2f} "
+                  f"({min(band):.2f}-{max(band):.2f}), {sum(fixed) / len(fixed):.2f} |",
+                  flush=True)
 
 
 if __name__ == "__main__":
