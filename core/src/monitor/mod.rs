@@ -6,12 +6,21 @@
 //! The band's radius starts at the model file's calibrated radius r₀ at the level asked and
 //! follows the errors seen by quantile tracking (the P part of conformal PID control,
 //! Angelopoulos, Candès & Tibshirani 2023, which is adaptive conformal inference on the
-//! radius itself): after each row, r ← r + η (1[e > r] − α), α = 1 − level, η = `gain` times
+//! radius itself): after each row, r ← r + η (1[e > r] − α), α = 1 − level, η a step times
 //! the larger of r₀ and the largest of the last 100 errors (conformal PID scales its step so,
 //! by the scores seen). Whatever the errors do, the radius stays within [−η, max e + η], so
 //! over T rows the share the band missed comes to α, within about (max e + 2η) / (η T): the
-//! stated level holds on any session, drift or none, and after a change the band widens
-//! within a few dozen rows, even when the errors grow tenfold.
+//! stated level holds on any session, drift or none.
+//!
+//! Which step? A small one gives a steady radius and follows a change slowly; a large one
+//! follows a change within a few rows and the errors' every swing. The band runs six
+//! trackers, `gain` × ¼, ½, 1, 2, 4, 8, and its radius is their mean weighted by how well
+//! each has tracked the quantile lately (dynamically-tuned adaptive conformal inference,
+//! Gibbs & Candès 2024: exponential weights on each tracker's pinball loss, scaled as the
+//! step is, with a fixed share that lets a tracker left behind come back; the learning rate
+//! and the share from the paper's interval of [`INTERVAL_ROWS`] rows). On calm rows the
+//! weights follow the errors' swings from region to region; after a change they move to the
+//! quick trackers within a few rows (measured in `band.rs`).
 //!
 //! # The alarms
 //! A band that follows the errors never says they changed; the alarms do. Each is a Bernoulli
@@ -73,8 +82,10 @@
 
 use serde::Serialize;
 
+mod band;
 mod cusum;
 mod response;
+pub use band::{Band, INTERVAL_ROWS, STEP_WINDOW};
 pub use cusum::Cusum;
 use cusum::Watcher;
 use response::Response;
@@ -84,7 +95,8 @@ use response::Response;
 pub struct Settings {
     /// The band's coverage (e.g. 0.9).
     pub level: f64,
-    /// The band's step per row, a share of its starting radius.
+    /// The band's middle tracker's step per row, a share of the errors' scale (its trackers
+    /// step ¼ … 8 times this).
     pub gain: f64,
     /// One look for the alarms every this many seconds.
     pub look_s: f64,
@@ -150,53 +162,6 @@ impl Settings {
         (self.false_alarm_hours * 3600.0 / self.look_s)
             .max(2.0)
             .ln()
-    }
-}
-
-/// The online band's radius ([module docs](self)).
-#[derive(Clone, Debug)]
-pub struct Band {
-    radius: f64,
-    gain: f64,
-    miss: f64,
-    /// The starting radius, the least scale of a step.
-    start: f64,
-    /// The last [`STEP_WINDOW`] errors, for the step's scale.
-    recent: std::collections::VecDeque<f64>,
-}
-
-/// How many of the last errors set the band's step ([`Band`]).
-pub const STEP_WINDOW: usize = 100;
-
-impl Band {
-    /// A band starting at `radius` that tracks the `level` quantile with steps of `gain` times
-    /// the larger of `radius` and the largest of the last [`STEP_WINDOW`] errors (conformal
-    /// PID's scaled step: errors grown tenfold are followed in tens of rows, not hundreds).
-    pub fn new(radius: f64, level: f64, gain: f64) -> Band {
-        Band {
-            radius,
-            gain,
-            miss: 1.0 - level,
-            start: radius,
-            recent: std::collections::VecDeque::with_capacity(STEP_WINDOW),
-        }
-    }
-
-    /// The radius for the next row.
-    pub fn radius(&self) -> f64 {
-        self.radius
-    }
-
-    /// Takes the row's error; whether the band held it.
-    pub fn update(&mut self, error: f64) -> bool {
-        if self.recent.len() == STEP_WINDOW {
-            self.recent.pop_front();
-        }
-        self.recent.push_back(error);
-        let scale = self.recent.iter().copied().fold(self.start, f64::max);
-        let covered = error <= self.radius;
-        self.radius += self.gain * scale * (f64::from(u8::from(!covered)) - self.miss);
-        covered
     }
 }
 
