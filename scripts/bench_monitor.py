@@ -99,7 +99,8 @@ def main():
     a = ap.parse_args()
     os.makedirs(a.out, exist_ok=True)
     models = {"auto": [], "msvr": ["--model", "msvr"]}
-    print("| model | sessions | hours | finger alarms | camera alarms | band coverage (mean) |")
+    print("| model | sessions | hours watched | finger alarms | camera alarms "
+          "| band coverage (mean) |")
     print("|---|---|---|---|---|---|")
     for model, extra in models.items():
         family = fitted(a.out, model, extra)
@@ -114,13 +115,14 @@ def main():
                 w, _ = watch(a.out, model, name, rows)
                 with open(rows) as f:
                     last = f.readlines()[-1]
-                hours += float(last.split(",")[0]) / 3600
+                # Watched: the rows after the baseline, where an alarm can fire.
+                hours += (float(last.split(",")[0]) - w["settings"]["baseline_s"]) / 3600
                 coverage.append(w["coverage"])
                 for alarm in w["alarms"]:
                     alarms[alarm["channel"]].append(f"{s} at {alarm['time_s']:.0f} s")
             print(f"| {model} ({family}) | {len(chosen)} × {kind}, seeds {chosen.start}-"
                   f"{chosen.stop - 1} | {hours:.1f} | {len(alarms['finger'])} "
-                  f"{alarms['finger'] or ''} | {len(alarms['camera'])} | "
+                  f"{', '.join(alarms['finger'])} | {len(alarms['camera'])} | "
                   f"{sum(coverage) / len(coverage):.3f} |", flush=True)
     print()
     print("| fault at 150 s | model | camera alarm (s after) | finger alarm (s after) "

@@ -1,7 +1,9 @@
 //! The online band ([module docs](super)): quantile trackers of several steps, weighed by
 //! how well each has tracked the errors' quantile lately (DtACI, Gibbs & Candès 2024).
 //!
-//! Measured (`scripts/bench_monitor.py`'s sessions, replayed): on calm 600 s runs the single
+//! Measured on `scripts/bench_monitor.py`'s sessions (the six by the script; the single tracker
+//! it replaced replayed on the same errors in Python, outside the repository): on calm 600 s
+//! runs the single
 //! tracker of step 0.05 held 0.896 of the rows with a mean radius of 0.71 mm and one 60-row
 //! window in twenty at 0.72 or less; the six held 0.904 with 0.61 mm and 0.85. In the 60 rows
 //! after an abrupt fault (a camera turned, the finger 10-20 % softer, 1 g hung on it) the
@@ -68,13 +70,18 @@ impl Band {
         }
     }
 
-    /// The radius for the next row.
+    /// The radius for the next row (at least 0).
     pub fn radius(&self) -> f64 {
-        self.trackers.iter().map(|t| t.weight * t.radius).sum()
+        let r: f64 = self.trackers.iter().map(|t| t.weight * t.radius).sum();
+        r.max(0.0)
     }
 
-    /// Takes the row's error; whether the band held it.
+    /// Takes the row's error; whether the band held it. An error that is not a finite number
+    /// is a miss that moves nothing.
     pub fn update(&mut self, error: f64) -> bool {
+        if !error.is_finite() {
+            return false;
+        }
         let covered = error <= self.radius();
         if self.recent.len() == STEP_WINDOW {
             self.recent.pop_front();
@@ -82,20 +89,27 @@ impl Band {
         self.recent.push_back(error);
         let scale = self.recent.iter().copied().fold(self.start, f64::max);
         let alpha = self.miss;
-        for t in &mut self.trackers {
-            // The pinball loss of the `level` quantile, in units of the step's scale.
-            let over = error - t.radius;
-            let loss = if over > 0.0 {
-                (1.0 - alpha) * over
-            } else {
-                -alpha * over
-            } / scale;
-            t.weight *= (-self.learning_rate * loss).exp();
+        if scale > 0.0 && scale.is_finite() {
+            for t in &mut self.trackers {
+                // The pinball loss of the `level` quantile, in units of the step's scale.
+                let over = error - t.radius;
+                let loss = if over > 0.0 {
+                    (1.0 - alpha) * over
+                } else {
+                    -alpha * over
+                } / scale;
+                t.weight *= (-self.learning_rate * loss).exp();
+            }
         }
         let total: f64 = self.trackers.iter().map(|t| t.weight).sum();
-        let even = self.share / self.trackers.len() as f64;
+        let k = self.trackers.len() as f64;
         for t in &mut self.trackers {
-            t.weight = (1.0 - self.share) * t.weight / total + even;
+            let weight = if total > 0.0 && total.is_finite() {
+                t.weight / total
+            } else {
+                1.0 / k
+            };
+            t.weight = (1.0 - self.share) * weight + self.share / k;
             let missed = f64::from(u8::from(error > t.radius));
             t.radius += t.step * scale * (missed - alpha);
         }

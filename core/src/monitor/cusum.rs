@@ -92,9 +92,10 @@ impl Watcher {
     /// The baseline's reference and its median; decided once. The reference is the
     /// [`REFERENCE_CONFIDENCE`] upper bound of the baseline's `quantile` over its looks (a
     /// baseline that happened to be calmer than the session does not set a reference the rest
-    /// misses more often than p₀); a baseline of too few looks for the bound (fewer than 29 at
-    /// 0.95) gives the quantile of all its values. At most `cap`; without values, `cap` when it
-    /// is finite.
+    /// misses more often than p₀). A baseline of too few looks for the bound (fewer than
+    /// ⌈ln(1 − 0.95) / ln q⌉: 29 for the 0.9 quantile, 59 for 0.95), or whose bound is +∞ (a
+    /// camera's refused rows at its upper looks), gives the quantile of all its values. At most
+    /// `cap`; without values, `cap` when it is finite.
     pub(super) fn decide(&mut self) -> (Option<f64>, f64) {
         *self.decided.get_or_insert_with(|| {
             let q = crate::stats::quantiles(&mut self.baseline, [self.quantile, 0.5]);
@@ -103,8 +104,10 @@ impl Watcher {
                 self.quantile,
                 REFERENCE_CONFIDENCE,
             );
+            let plain = q.map(|[q, _]| q);
             let reference = bound
-                .or(q.map(|[q, _]| q))
+                .filter(|b| b.is_finite())
+                .or(plain)
                 .map(|r| r.min(self.cap))
                 .or(Some(self.cap))
                 .filter(|r| r.is_finite());

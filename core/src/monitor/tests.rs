@@ -57,7 +57,7 @@ fn the_band_holds_its_level_through_a_change_and_widens_after_it() {
 
 /// After an abrupt change (the errors three times as large from one row on), the band
 /// holds at least 80 % of the next 60 rows (2 s at 30 fps) on average: its quick trackers
-/// take over within a few rows. A single tracker of the middle step (the band before stop 77)
+/// take over within a few rows. A single tracker of the middle step (the band before them)
 /// held 74 % of the same kind of rows (a replica in Python, 50 sessions).
 #[test]
 fn after_an_abrupt_change_the_band_holds_most_of_the_next_two_seconds() {
@@ -77,6 +77,47 @@ fn after_an_abrupt_change_the_band_holds_most_of_the_next_two_seconds() {
         held >= 0.8,
         "held {held:.3} of the 60 rows after the change"
     );
+}
+
+/// The reference is exactly the 114th of the baseline's 120 looks (one a second; scipy's
+/// `binom.ppf(0.95, 120, 0.9) + 1`), at most the cap; a baseline of 28 looks, too few for
+/// the bound, gives its plain 0.9 quantile; a bound that is +∞ (refused rows) does too.
+#[test]
+fn the_reference_is_the_binomial_order_statistic_of_the_baselines_looks() {
+    let watched = |values: &[f64], cap: f64| {
+        let mut w = Watcher::new(0.9, cap, 0.1, 10.0);
+        for (k, &v) in values.iter().enumerate() {
+            w.take(k as f64, v, values.len() as f64, 1.0);
+        }
+        w.decide().0
+    };
+    // 1, 2, …, 120 in a scrambled order (49 is prime to 120).
+    let looks: Vec<f64> = (0..120).map(|k| f64::from((k * 49) % 120 + 1)).collect();
+    assert_eq!(watched(&looks, f64::INFINITY), Some(114.0));
+    assert_eq!(watched(&looks, 100.0), Some(100.0));
+    let few: Vec<f64> = (1..=28).map(f64::from).collect();
+    // Nearest rank: position round(27 × 0.9) = 24 of 0..27.
+    assert_eq!(watched(&few, f64::INFINITY), Some(25.0));
+    let mut refused = looks.clone();
+    for v in refused.iter_mut().filter(|v| **v > 112.0) {
+        *v = f64::INFINITY;
+    }
+    assert_eq!(watched(&refused, f64::INFINITY), Some(108.0));
+}
+
+/// A band of radius 0 fed errors of 0, or fed a value that is not a number, stays a number.
+#[test]
+fn the_band_stays_a_number_on_zero_and_non_finite_errors() {
+    let mut band = Band::new(0.0, 0.9, Settings::default().gain);
+    for _ in 0..100 {
+        assert!(band.update(0.0));
+    }
+    assert!(band.radius().is_finite());
+    let mut band = Band::new(1.0, 0.9, Settings::default().gain);
+    assert!(!band.update(f64::NAN));
+    assert!(!band.update(f64::INFINITY));
+    assert!(band.update(0.5));
+    assert!(band.radius().is_finite() && band.radius() > 0.0);
 }
 
 /// A baseline is a sample: its 0.9 quantile falls below the errors' own in about half the
