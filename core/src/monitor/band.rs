@@ -3,11 +3,10 @@
 //!
 //! Measured on `scripts/bench_monitor.py`'s sessions (the six by the script; the single tracker
 //! it replaced replayed on the same errors in Python, outside the repository): on calm 600 s
-//! runs the single
-//! tracker of step 0.05 held 0.896 of the rows with a mean radius of 0.71 mm and one 60-row
-//! window in twenty at 0.72 or less; the six held 0.904 with 0.61 mm and 0.85. In the 60 rows
-//! after an abrupt fault (a camera turned, the finger 10-20 % softer, 1 g hung on it) the
-//! single one held 0.71-0.82 on average over five seeds, the six 0.85-0.90.
+//! runs the single tracker of step 0.05 held 0.896 of the rows with a mean radius of 0.71 mm
+//! and one 60-row window in twenty at 0.72 or less; the six held 0.904 with 0.61 mm and 0.85.
+//! In the 60 rows after an abrupt fault (a camera turned, the finger 10-20 % softer, 1 g hung
+//! on it) the single one held 0.71-0.82 on average over five seeds, the six 0.85-0.90.
 
 use std::collections::VecDeque;
 

@@ -93,7 +93,7 @@ impl Watcher {
     /// [`REFERENCE_CONFIDENCE`] upper bound of the baseline's `quantile` over its looks (a
     /// baseline that happened to be calmer than the session does not set a reference the rest
     /// misses more often than p₀). A baseline of too few looks for the bound (fewer than
-    /// ⌈ln(1 − 0.95) / ln q⌉: 29 for the 0.9 quantile, 59 for 0.95), or whose bound is +∞ (a
+    /// ⌈ln(1 − confidence) / ln q⌉: 29 for the 0.9 quantile, 59 for 0.95), or whose bound is +∞ (a
     /// camera's refused rows at its upper looks), gives the quantile of all its values. At most
     /// `cap`; without values, `cap` when it is finite.
     pub(super) fn decide(&mut self) -> (Option<f64>, f64) {
