@@ -44,6 +44,7 @@ fn bench(c: &mut Criterion) {
             let m = watch(
                 errors,
                 Some(geometry),
+                &[],
                 Some(outputs),
                 0.9,
                 &Settings::default(),

@@ -99,7 +99,8 @@ pub struct Args {
     #[arg(long, conflicts_with_all = ["dynamic", "window_ms"])]
     protocol: Option<PathBuf>,
     /// With --dynamic or --protocol: a fault at a time, KIND@T=AMOUNT (repeatable):
-    /// camera@40=0.5 tilts the right camera 0.5° at 40 s, stiffness@40=-0.1 makes the finger
+    /// camera@40=0.5 tilts the right camera 0.5° at 40 s (pan@40=0.5 turns it about its
+    /// vertical axis instead), stiffness@40=-0.1 makes the finger
     /// 10 % softer, leak@40=0.05 loses up to 5 % of muscle 1's pressure over the next minute,
     /// payload@40=0.2 hangs 0.2 g on the tip
     #[arg(long = "fault", value_name = "KIND@T=AMOUNT")]

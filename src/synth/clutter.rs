@@ -4,7 +4,12 @@
 //!
 //! Drawn in image space (the wall is far behind the finger, so parallax does not matter), as
 //! albedos that the view's illumination field then lights. Every choice comes from the seed.
+//! A camera turned about its centre (a knock) sees the same wall moved: [`turned`].
 
+use nalgebra::{Point3, Vector3};
+use rayon::prelude::*;
+
+use super::camera::Camera;
 use super::canvas::{splitmix, uniform};
 
 /// Albedo of the bare wall.
@@ -86,6 +91,38 @@ pub fn wall(width: usize, height: usize, seed: u64, red: bool, keep_clear: Keep)
 }
 
 /// An albedo from hue (0-1), saturation and value.
+/// The wall `albedo` that camera `from` sees, as camera `to` sees it: `to` is `from` turned
+/// about its centre, so each of its pixels shows the wall where its ray met `from`'s image
+/// (through both lenses' distortion, bilinear between `from`'s pixels, its edge held beyond).
+/// The wall moves in a turned camera's image as the far scene of a real one does (a 0.5°
+/// tilt: about 8 px), which is what tells a camera that moved from the still scene.
+pub fn turned(albedo: &[f64], from: &Camera, to: &Camera) -> Vec<f64> {
+    let (w, h) = (to.width as usize, to.height as usize);
+    let (fw, fh) = (from.width as usize, from.height as usize);
+    let to_from = from.pose.rotation * to.pose.rotation.inverse();
+    let at = |i: usize, j: usize, c: usize| albedo[3 * (j.min(fh - 1) * fw + i.min(fw - 1)) + c];
+    (0..h)
+        .into_par_iter()
+        .flat_map_iter(|j| {
+            (0..w).flat_map(move |i| {
+                let (x, y) = to.intrinsics.undistort(i as f64, j as f64);
+                let ray = to_from * Vector3::new(x, y, 1.0);
+                let [u, v] = from
+                    .intrinsics
+                    .pixel(&Point3::from(ray))
+                    .unwrap_or([-1.0, -1.0])
+                    .map(|p| p.max(0.0));
+                let (i0, j0) = (u.floor() as usize, v.floor() as usize);
+                let (a, b) = (u - u.floor(), v - v.floor());
+                (0..3).map(move |c| {
+                    (1.0 - b) * ((1.0 - a) * at(i0, j0, c) + a * at(i0 + 1, j0, c))
+                        + b * ((1.0 - a) * at(i0, j0 + 1, c) + a * at(i0 + 1, j0 + 1, c))
+                })
+            })
+        })
+        .collect()
+}
+
 fn muted(hue: f64, saturation: f64, value: f64) -> [f64; 3] {
     let rgb = |n: f64| {
         let k = (n + hue * 6.0) % 6.0;

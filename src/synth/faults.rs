@@ -3,9 +3,13 @@
 //!
 //! - `camera@T=DEG`: the right (second) camera tilts by DEG degrees about its own x axis at T
 //!   (a bump). Its beads leave their epipolar lines by about f·tan(DEG), so the reprojection residual
-//!   says so, and the tip moves. A pan (about the camera's y axis) would move the bead along
-//!   the epipolar lines of a side-by-side pair: the tip would shift in depth with no residual
-//!   to tell, which two cameras cannot see and the model's errors can.
+//!   says so, and the tip moves.
+//! - `pan@T=DEG`: the right camera turns by DEG degrees about its own y axis at T. Its beads
+//!   move along the epipolar lines of a side-by-side pair: the tip shifts in depth with little
+//!   residual to tell. The still scene behind the finger moves in its picture all the same
+//!   (as after a tilt: the renderer's wall is seen through the turned camera), which
+//!   [`crate::triangulate::scene`] measures. One camera fault per session: the first of the
+//!   two.
 //! - `stiffness@T=SHARE`: from T the finger's bending and axial stiffness are 1 + SHARE times
 //!   what they were (−0.1: 10 % softer).
 //! - `leak@T=SHARE`: muscle 1 loses up to SHARE of its pressure, linearly over the minute after
@@ -35,6 +39,7 @@ pub struct Fault {
 #[serde(rename_all = "snake_case")]
 pub enum FaultKind {
     Camera,
+    Pan,
     Stiffness,
     Leak,
     Payload,
@@ -45,12 +50,13 @@ impl FromStr for Fault {
 
     fn from_str(s: &str) -> Result<Fault, String> {
         let usage = || {
-            format!("{s:?} is not a fault: give KIND@T=AMOUNT, KIND one of camera, stiffness, leak, payload (e.g. stiffness@40=-0.1)")
+            format!("{s:?} is not a fault: give KIND@T=AMOUNT, KIND one of camera, pan, stiffness, leak, payload (e.g. stiffness@40=-0.1)")
         };
         let (kind, rest) = s.split_once('@').ok_or_else(usage)?;
         let (at, amount) = rest.split_once('=').ok_or_else(usage)?;
         let kind = match kind {
             "camera" => FaultKind::Camera,
+            "pan" => FaultKind::Pan,
             "stiffness" => FaultKind::Stiffness,
             "leak" => FaultKind::Leak,
             "payload" => FaultKind::Payload,
@@ -61,7 +67,7 @@ impl FromStr for Fault {
             return Err(usage());
         };
         let fine = match kind {
-            FaultKind::Camera => amount.abs() <= 10.0,
+            FaultKind::Camera | FaultKind::Pan => amount.abs() <= 10.0,
             FaultKind::Stiffness => amount > -0.9 && amount <= 10.0,
             FaultKind::Leak => (0.0..=1.0).contains(&amount),
             FaultKind::Payload => (0.0..=20.0).contains(&amount),
@@ -113,13 +119,20 @@ impl Timeline {
             before: Plant::new(params.clone()),
             after,
             leak: of(FaultKind::Leak).map(|f| (f.at_s, f.amount)),
-            knocked: of(FaultKind::Camera).map(|f| {
-                let turn = Rotation3::from_axis_angle(&Vector3::x_axis(), f.amount.to_radians());
-                let mut right = rig.right().clone();
-                right.pose.rotation = turn * right.pose.rotation;
-                right.pose.translation = turn * right.pose.translation;
-                (f.at_s, right)
-            }),
+            knocked: (faults.iter())
+                .filter(|f| matches!(f.kind, FaultKind::Camera | FaultKind::Pan))
+                .min_by(|a, b| a.at_s.total_cmp(&b.at_s))
+                .map(|f| {
+                    let axis = match f.kind {
+                        FaultKind::Pan => Vector3::y_axis(),
+                        _ => Vector3::x_axis(),
+                    };
+                    let turn = Rotation3::from_axis_angle(&axis, f.amount.to_radians());
+                    let mut right = rig.right().clone();
+                    right.pose.rotation = turn * right.pose.rotation;
+                    right.pose.translation = turn * right.pose.translation;
+                    (f.at_s, right)
+                }),
         }
     }
 

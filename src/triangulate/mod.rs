@@ -40,6 +40,7 @@ pub mod options;
 pub mod output;
 pub mod pairing;
 pub mod per_frame;
+pub mod scene;
 mod steps;
 pub mod subpixel;
 pub mod summary;
@@ -234,7 +235,7 @@ pub fn triangulate(
     let r_hand = hand_axes(calibration)?;
     let rig = &calibration.rig;
     // 1. Markers in every frame.
-    let found = find_all_markers(frames, rig, options, progress, interrupt)?;
+    let found = find_all_markers(frames, rig, options, false, progress, interrupt)?;
     let mut summary = Summary {
         interrupted: interrupt.load(Ordering::SeqCst),
         steps_logged: log.steps.len(),
@@ -366,22 +367,30 @@ fn hand_axes(calibration: &CalibrationFile) -> Result<nalgebra::Rotation3<f64>, 
 struct Found {
     /// Per frame record.
     results: Vec<FrameResult>,
+    /// Per frame record, when asked for: how far its camera's view of the still scene moved
+    /// since the camera's first frame read ([`scene`]; px).
+    scene: Vec<Option<f64>>,
     decoded_video: [Option<String>; 2],
     video_ended: [Option<frames::VideoEnd>; 2],
 }
 
 /// The marker candidates in every frame: handed out in order (a video is read front to back) a
 /// chunk at a time, examined in parallel; `interrupt` leaves the rest [`FrameResult::Skipped`].
+/// With `scene`, also how far each frame's view of the still scene lies from its camera's first
+/// frame read (the earliest: a camera's frames are read in order).
 fn find_all_markers(
     frames: &FrameList,
     rig: &StereoRig,
     options: &TriangulateOptions,
+    scene: bool,
     progress: &(dyn Fn(usize, usize) + Sync),
     interrupt: &AtomicBool,
 ) -> Result<Found, TriangulateError> {
     let records = &frames.records;
     let done = AtomicUsize::new(0);
     let mut results: Vec<FrameResult> = vec![FrameResult::Skipped; records.len()];
+    let mut shifts = vec![None; if scene { records.len() } else { 0 }];
+    let mut first = scene::FirstFrames::default();
     let mut reader = frames.reader()?;
     let decoded_video = reader.decoded_codecs();
     for chunk in frames.reading_order().chunks(256) {
@@ -392,23 +401,45 @@ fn find_all_markers(
             .iter()
             .map(|&i| Ok((i, reader.read(i)?)))
             .collect::<Result<Vec<_>, TriangulateError>>()?;
-        let examined: Vec<(usize, Result<FrameResult, TriangulateError>)> = data
+        let examined: Vec<(
+            usize,
+            Result<FrameResult, TriangulateError>,
+            Option<scene::Thumbnail>,
+        )> = data
             .into_par_iter()
             .map_init(
                 || (RgbImage::default(), Buffers::default()),
                 |(image, buffers), (i, data)| {
                     let result = examine(&data, frames, i, rig, options, interrupt, image, buffers);
+                    let seen = matches!(result, Ok(FrameResult::Markers(_)));
+                    let thumbnail = (scene && seen)
+                        .then(|| scene::Thumbnail::of(image).ok())
+                        .flatten();
                     progress(done.fetch_add(1, Ordering::SeqCst) + 1, records.len());
-                    (i, result)
+                    (i, result, thumbnail)
                 },
             )
             .collect();
-        for (i, result) in examined {
+        let mut thumbnails = Vec::new();
+        for (i, result, thumbnail) in examined {
             results[i] = result?;
+            if let Some(thumbnail) = thumbnail {
+                let camera = records[i].camera as usize;
+                first.offer(camera, &thumbnail);
+                thumbnails.push((i, camera, thumbnail));
+            }
+        }
+        let moved: Vec<(usize, Option<f64>)> = thumbnails
+            .into_par_iter()
+            .map(|(i, camera, thumbnail)| (i, first.shift(camera, &thumbnail)))
+            .collect();
+        for (i, shift) in moved {
+            shifts[i] = shift;
         }
     }
     Ok(Found {
         results,
+        scene: shifts,
         decoded_video,
         video_ended: reader.ended(),
     })

@@ -244,28 +244,7 @@ fn a_session_directory_is_triangulated_then_watched_and_a_knocked_camera_seen() 
     let _machine = every_core();
     let dir = tempdir();
     let d = dir.path();
-    let session = [
-        "--duration-s",
-        "8",
-        "--trials",
-        "1",
-        "--fault",
-        "camera@6=0.3",
-    ];
-    crate::triangulate::dynamic_session_with(d, &session);
-    fit(d);
-    let mut args = vec![
-        "monitor",
-        "s",
-        "--calib",
-        "calib.yml",
-        "--model",
-        "model.json",
-    ];
-    // The baseline has the finger moving (a rest hold alone is no reference for motion).
-    args.extend(["--baseline-s", "4.5", "--look-s", "0.1", "--out", "w"]);
-    let said = handcap_ok(d, &args);
-    let rows = csv_rows(&d.join("w/rows.csv"));
+    let (said, rows) = watch_rendered(d, "camera@6=0.3");
     let time = |r: &Row| -> f64 { r["time_s"].parse().unwrap() };
     let refused: Vec<&Row> = rows
         .iter()
@@ -288,10 +267,14 @@ fn a_session_directory_is_triangulated_then_watched_and_a_knocked_camera_seen() 
         .filter(|a| a["channel"] == "camera")
         .map(|a| a["time_s"].as_f64().unwrap())
         .collect();
+    // Two camera alarms: the beads' residual, and the right camera's view of the still
+    // scene (the wall behind the finger moved in its picture); the left camera's stays.
     assert!(
-        camera.len() == 1 && camera[0] > 6.0 && camera[0] < 7.5,
+        camera.len() == 2 && camera.iter().all(|&t| t > 6.0 && t < 7.5),
         "{said}"
     );
+    assert!(said.contains("alarm: camera (right) at"), "{said}");
+    assert!(!said.contains("(left)"), "{said}");
     // Before the knock the rendered finger is the modelled one: its errors are the model's.
     let watched = csv_rows(&d.join("w/monitor.csv"));
     let mut errors: Vec<f64> = watched
@@ -317,4 +300,76 @@ fn a_session_directory_is_triangulated_then_watched_and_a_knocked_camera_seen() 
     assert!(e.contains("--calib"), "{e}");
 }
 
+/// A camera that pans (turns about its vertical axis) moves its beads along their epipolar
+/// lines: the triangulation refuses few rows and the residual raises nothing, the tips shift by
+/// millimetres. Its view of the still scene moved: the monitor names the right camera, and the
+/// finger alarm the shifted tips raise says to recalibrate first (without the still scene it
+/// would say to refit the model on a moved camera's tips).
+#[test]
+fn a_camera_that_pans_is_named_by_its_view_of_the_still_scene_though_its_beads_agree() {
+    let _machine = every_core();
+    let dir = tempdir();
+    let d = dir.path();
+    let (said, rows) = watch_rendered(d, "pan@6=0.5");
+    let time = |r: &Row| -> f64 { r["time_s"].parse().unwrap() };
+    let scene =
+        |r: &Row, camera: &str| -> Option<f64> { r[&format!("scene_{camera}_px")].parse().ok() };
+    // The beads still agree after the pan but in a few rows (3 of 150 on this seed, where the
+    // finger's reach takes them off the lines); the right camera's picture moved by f·tan 0.5°
+    // (7.9 px) at its centre and up to 1.5 times that at its sides (f·0.5°/cos² of the angle
+    // off its axis: the tiles' median 9.5-9.8 px on this seed), the left one's stayed within
+    // a few tenths of a pixel throughout.
+    let after: Vec<&Row> = rows.iter().filter(|r| time(r) >= 6.1).collect();
+    assert!(after.len() > 50, "{}", after.len());
+    let refused = after.iter().filter(|r| r["flag"] == "reprojection").count();
+    assert!(refused * 20 < after.len(), "{refused} of {}", after.len());
+    assert!(
+        after
+            .iter()
+            .filter_map(|r| scene(r, "right"))
+            .all(|px| (7.5..12.0).contains(&px)),
+        "the right camera's view"
+    );
+    let left = rows
+        .iter()
+        .filter_map(|r| scene(r, "left"))
+        .fold(0.0, f64::max);
+    assert!(left < 0.5, "the left camera's view moved {left} px");
+    let v = read_json(&d.join("w/monitor.json"));
+    let alarms = v["alarms"].as_array().unwrap();
+    let camera: Vec<&serde_json::Value> =
+        alarms.iter().filter(|a| a["channel"] == "camera").collect();
+    assert_eq!(camera.len(), 1, "{said}");
+    assert_eq!(camera[0]["camera"], "right", "{said}");
+    let raised = camera[0]["time_s"].as_f64().unwrap();
+    assert!(raised > 6.0 && raised < 7.5, "{said}");
+    assert!(said.contains("alarm: camera (right) at"), "{said}");
+    // The tips moved by millimetres with the camera: the finger alarm they raise (before the
+    // camera's, on this seed) points at the camera, not at a refit.
+    let finger = alarms.iter().find(|a| a["channel"] == "finger");
+    let advice = finger.map_or("", |a| a["advice"].as_str().unwrap());
+    assert!(advice.contains("recalibrate"), "{said}");
+}
+
 type Row = std::collections::HashMap<String, String>;
+
+/// An 8 s rendered session in `d/s` with `fault`, its calibration, [`fit`]'s model, and
+/// `handcap monitor` of the session directory into `d/w` (a 4.5 s baseline with the finger
+/// moving: a rest hold alone is no reference for motion; a look every 0.1 s): what it said,
+/// and the rows it triangulated.
+fn watch_rendered(d: &Path, fault: &str) -> (String, Vec<Row>) {
+    let session = ["--duration-s", "8", "--trials", "1", "--fault", fault];
+    crate::triangulate::dynamic_session_with(d, &session);
+    fit(d);
+    let mut args = vec![
+        "monitor",
+        "s",
+        "--calib",
+        "calib.yml",
+        "--model",
+        "model.json",
+    ];
+    args.extend(["--baseline-s", "4.5", "--look-s", "0.1", "--out", "w"]);
+    let said = handcap_ok(d, &args);
+    (said, csv_rows(&d.join("w/rows.csv")))
+}

@@ -56,9 +56,10 @@ const REFERENCE_CONFIDENCE: f64 = 0.95;
 /// look every `look_s` through a [`Cusum`] against the baseline's reference.
 #[derive(Clone, Debug)]
 pub(super) struct Watcher {
-    /// The reference: an upper confidence bound of this quantile of the baseline, at most
-    /// `cap`.
+    /// The reference: an upper confidence bound of this quantile of the baseline, at least
+    /// `floor` and at most `cap`.
     quantile: f64,
+    floor: f64,
     cap: f64,
     /// The baseline's values, and those at its looks, until the reference is set.
     baseline: Vec<f64>,
@@ -78,6 +79,7 @@ impl Watcher {
     pub(super) fn new(quantile: f64, cap: f64, p0: f64, threshold: f64) -> Watcher {
         Watcher {
             quantile,
+            floor: 0.0,
             cap,
             baseline: Vec::new(),
             baseline_looks: Vec::new(),
@@ -89,13 +91,20 @@ impl Watcher {
         }
     }
 
+    /// The same watcher whose reference is at least `floor`: a change smaller than that does
+    /// not matter however calm the baseline was.
+    pub(super) fn at_least(mut self, floor: f64) -> Watcher {
+        self.floor = floor;
+        self
+    }
+
     /// The baseline's reference and its median; decided once. The reference is the
     /// [`REFERENCE_CONFIDENCE`] upper bound of the baseline's `quantile` over its looks (a
     /// baseline that happened to be calmer than the session does not set a reference the rest
     /// misses more often than p₀). A baseline of too few looks for the bound (fewer than
     /// ⌈ln(1 − confidence) / ln q⌉: 29 for the 0.9 quantile, 59 for 0.95), or whose bound is +∞ (a
-    /// camera's refused rows at its upper looks), gives the quantile of all its values. At most
-    /// `cap`; without values, `cap` when it is finite.
+    /// camera's refused rows at its upper looks), gives the quantile of all its values. At least
+    /// `floor`, at most `cap`; without values, `cap` when it is finite.
     pub(super) fn decide(&mut self) -> (Option<f64>, f64) {
         *self.decided.get_or_insert_with(|| {
             let q = crate::stats::quantiles(&mut self.baseline, [self.quantile, 0.5]);
@@ -108,7 +117,7 @@ impl Watcher {
             let reference = bound
                 .filter(|b| b.is_finite())
                 .or(plain)
-                .map(|r| r.min(self.cap))
+                .map(|r| r.max(self.floor).min(self.cap))
                 .or(Some(self.cap))
                 .filter(|r| r.is_finite());
             self.baseline = Vec::new();

@@ -47,7 +47,12 @@
 //! - **A camera moved** (geometry channel): the look's reprojection residual (px: how far the
 //!   triangulated tip reprojects from the beads found, model-free) against the 90th
 //!   percentile of the session's first `baseline_s`, p₀ = 0.1. A camera that turned no longer
-//!   agrees with the calibration; the tip it gives is wrong however good the model.
+//!   agrees with the calibration; the tip it gives is wrong however good the model. And, per
+//!   camera where the rows have it, how far its view of the still scene moved since the
+//!   session's first frame (px, `triangulate --per-frame`'s `scene_<camera>_px`) against the
+//!   same quantile, at least [`SCENE_FLOOR_PX`]: it sees a turn the residual cannot (a pan of
+//!   one camera of a side-by-side pair moves its beads along their epipolar lines) and names
+//!   the camera that turned.
 //!
 //! A baseline's quantile is a sample's: in about half the sessions it falls below the
 //! errors' own, and the rest of such a session misses more often than p₀. Each reference is
@@ -88,10 +93,12 @@ use serde::Serialize;
 
 mod band;
 mod cusum;
+mod replay;
 mod response;
 pub use band::{Band, INTERVAL_ROWS, STEP_WINDOW};
 pub use cusum::Cusum;
 use cusum::Watcher;
+pub use replay::{watch, Outputs, Scene};
 use response::Response;
 
 /// How the monitor watches.
@@ -215,6 +222,16 @@ pub const RESPONSE_SHIFT: f64 = 0.1;
 /// displacement summed over looks past the allowance ([module docs](self)).
 pub const RESPONSE_THRESHOLD: f64 = 1.0;
 
+/// The least reference of a camera's still-scene channel (px): the scene's shift between
+/// frames of an unmoved webcam is noise of a few tenths of a pixel (0.3 at most on the virtual
+/// lab's JPEG frames), and a move below half a pixel does not yet spoil a calibration's
+/// triangulation by more than its own error.
+pub const SCENE_FLOOR_PX: f64 = 0.5;
+
+/// A scene alarm's advice.
+const SCENE_MOVED: &str =
+    "its view of the still scene moved: recalibrate, then triangulate the session again";
+
 /// How long after a finger change a camera's may be dated and still explain it (s): the
 /// CUSUM dates a change to within a few looks.
 const CAMERA_FIRST_S: f64 = 10.0;
@@ -238,14 +255,21 @@ pub struct Alarm {
     pub change_s: f64,
     /// The row the alarm was raised at (0-based).
     pub row: usize,
+    /// The camera whose view of the still scene moved, for a scene alarm.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub camera: Option<String>,
     pub advice: &'static str,
 }
 
 impl std::fmt::Display for Alarm {
     fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        let camera = self
+            .camera
+            .as_ref()
+            .map_or_else(String::new, |c| format!(" ({c})"));
         write!(
             f,
-            "alarm: {} at {:.1} s (the change began about {:.1} s): {}",
+            "alarm: {}{camera} at {:.1} s (the change began about {:.1} s): {}",
             self.channel.name(),
             self.time_s,
             self.change_s,
@@ -286,6 +310,9 @@ pub struct Monitored {
     /// counts as +∞), when the rows have residuals: over [`MISFIT_PX`], the calibration is not
     /// this rig's.
     pub baseline_median_px: Option<f64>,
+    /// Each still-scene channel's reference (px), by camera, when the rows have it.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub scene_references_px: Vec<(String, Option<f64>)>,
     /// The alarms' threshold h.
     pub threshold: f64,
 }
@@ -309,6 +336,8 @@ pub struct Monitor {
     baseline_end: Option<f64>,
     finger: Watcher,
     camera: Watcher,
+    /// Each camera's still-scene channel, by name, in the order they came.
+    scene: Vec<(String, Watcher)>,
     /// With the rows' outputs ([`Monitor::with_rest`]).
     response: Option<Response>,
     rows: Vec<Seen>,
@@ -326,6 +355,7 @@ impl Monitor {
             baseline_end: None,
             finger: Watcher::new(settings.level, radius, 1.0 - settings.level, h),
             camera: Watcher::new(0.9, f64::INFINITY, 0.1, h),
+            scene: Vec::new(),
             response: None,
             rows: Vec::new(),
             alarms: Vec::new(),
@@ -362,6 +392,7 @@ impl Monitor {
             time_s: t,
             change_s,
             row: self.rows.len(),
+            camera: None,
             advice: if camera_first(change_s, &self.alarms) {
                 FINGER_AFTER_CAMERA
             } else {
@@ -383,16 +414,45 @@ impl Monitor {
     pub fn geometry(&mut self, t: f64, px: f64) -> Option<Alarm> {
         let end = self.baseline_end(t);
         let change_s = self.camera.take(t, px, end, self.settings.look_s)?;
+        Some(self.camera_alarm(t, change_s, None, Channel::Camera.advice()))
+    }
+
+    /// How far `camera`'s view of the still scene lay at `t` from the session's first frame's
+    /// (px); that camera's alarm, when it fires.
+    pub fn scene(&mut self, camera: &str, t: f64, px: f64) -> Option<Alarm> {
+        let end = self.baseline_end(t);
+        let k = match self.scene.iter().position(|(name, _)| name == camera) {
+            Some(k) => k,
+            None => {
+                let h = self.settings.threshold();
+                let watcher = Watcher::new(0.9, f64::INFINITY, 0.1, h).at_least(SCENE_FLOOR_PX);
+                self.scene.push((camera.to_string(), watcher));
+                self.scene.len() - 1
+            }
+        };
+        let change_s = self.scene[k].1.take(t, px, end, self.settings.look_s)?;
+        Some(self.camera_alarm(t, change_s, Some(camera.to_string()), SCENE_MOVED))
+    }
+
+    /// A camera alarm at `t`, the change dated `change_s`, kept and returned.
+    fn camera_alarm(
+        &mut self,
+        t: f64,
+        change_s: f64,
+        camera: Option<String>,
+        advice: &'static str,
+    ) -> Alarm {
         let alarm = Alarm {
             channel: Channel::Camera,
             time_s: t,
             change_s,
             // The next model row.
             row: self.rows.len(),
-            advice: Channel::Camera.advice(),
+            camera,
+            advice,
         };
         self.alarms.push(alarm.clone());
-        Some(alarm)
+        alarm
     }
 
     /// A row's model error at `t`: the row as seen, and the finger alarm when it fires.
@@ -442,6 +502,11 @@ impl Monitor {
         } else {
             (None, None)
         };
+        let scene_references_px = self
+            .scene
+            .iter_mut()
+            .map(|(name, watcher)| (name.clone(), watcher.decide().0))
+            .collect();
         let last = self.rows.len().saturating_sub(1);
         let alarms = self.alarms.clone();
         for alarm in &mut self.alarms {
@@ -463,6 +528,7 @@ impl Monitor {
             model_reference,
             geometry_reference_px,
             baseline_median_px,
+            scene_references_px,
             threshold: self.settings.threshold(),
         }
     }
@@ -488,53 +554,6 @@ fn camera_first(change_s: f64, alarms: &[Alarm]) -> bool {
     alarms
         .iter()
         .any(|a| a.channel == Channel::Camera && a.change_s <= change_s + CAMERA_FIRST_S)
-}
-
-/// The rows' predicted and measured outputs, row after row (`rest.len()` each), and the
-/// model's outputs at rest.
-#[derive(Clone, Copy, Debug)]
-pub struct Outputs<'a> {
-    pub predicted: &'a [f64],
-    pub measured: &'a [f64],
-    pub rest: &'a [f64],
-}
-
-/// Watches the model's `errors` (the distance from each prediction to its measured tip), when
-/// known the `geometry` (each row's reprojection residual, px; +∞ where the views disagreed
-/// beyond the triangulation's gate) and the `outputs` (for the finger's response); `radius`
-/// is the model file's calibrated radius at `settings.level`. The rows go through a
-/// [`Monitor`] in time order.
-pub fn watch(
-    errors: Series,
-    geometry: Option<Series>,
-    outputs: Option<Outputs>,
-    radius: f64,
-    settings: &Settings,
-) -> Monitored {
-    let mut monitor = Monitor::new(radius, settings);
-    if let Some(o) = outputs {
-        monitor = monitor.with_rest(o.rest.to_vec());
-    }
-    let empty = Series {
-        times: &[],
-        values: &[],
-    };
-    let geometry = geometry.unwrap_or(empty);
-    let mut g = geometry.times.iter().zip(geometry.values).peekable();
-    for (k, (&t, &e)) in errors.times.iter().zip(errors.values).enumerate() {
-        while let Some((&s, &px)) = g.next_if(|(&s, _)| s <= t) {
-            monitor.geometry(s, px);
-        }
-        if let Some(o) = outputs {
-            let row = k * o.rest.len()..(k + 1) * o.rest.len();
-            monitor.outputs(t, &o.predicted[row.clone()], &o.measured[row]);
-        }
-        monitor.error(t, e);
-    }
-    for (&s, &px) in g {
-        monitor.geometry(s, px);
-    }
-    monitor.finish()
 }
 
 #[cfg(test)]

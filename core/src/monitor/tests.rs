@@ -14,6 +14,14 @@ fn errors(rng: &mut ChaCha8Rng, n: usize, scale: f64) -> Vec<f64> {
         .collect()
 }
 
+/// The one alarm `watched` raised, a camera's.
+fn the_one_camera_alarm(watched: &Monitored) -> &Alarm {
+    assert_eq!(watched.alarms.len(), 1, "{:?}", watched.alarms);
+    let alarm = &watched.alarms[0];
+    assert_eq!(alarm.channel, Channel::Camera);
+    alarm
+}
+
 #[test]
 fn the_band_holds_its_level_through_a_change_and_widens_after_it() {
     let mut rng = ChaCha8Rng::seed_from_u64(1);
@@ -25,7 +33,7 @@ fn the_band_holds_its_level_through_a_change_and_widens_after_it() {
         times: &times,
         values: &e,
     };
-    let watched = watch(errors, None, None, 1.645, &Settings::default());
+    let watched = watch(errors, None, &[], None, 1.645, &Settings::default());
     assert!(
         (watched.coverage - 0.9).abs() < 0.005,
         "{}",
@@ -140,6 +148,7 @@ fn the_reference_bounds_the_baselines_quantile_from_above_in_nineteen_sessions_o
                 values: &e,
             },
             None,
+            &[],
             None,
             100.0,
             &settings,
@@ -201,10 +210,15 @@ fn a_camera_that_moves_raises_the_geometry_alarm_not_the_models() {
             values: &r,
         },
     );
-    let watched = watch(errors, Some(geometry), None, 1.645, &Settings::default());
-    assert_eq!(watched.alarms.len(), 1, "{:?}", watched.alarms);
-    let alarm = &watched.alarms[0];
-    assert_eq!(alarm.channel, Channel::Camera);
+    let watched = watch(
+        errors,
+        Some(geometry),
+        &[],
+        None,
+        1.645,
+        &Settings::default(),
+    );
+    let alarm = the_one_camera_alarm(&watched);
     assert!(alarm.time_s >= 200.0 && alarm.time_s < 230.0, "{alarm:?}");
     assert!((alarm.change_s - 200.0).abs() < 10.0, "{alarm:?}");
 }
@@ -227,6 +241,7 @@ fn a_finger_alarm_after_a_camera_alarm_points_at_the_camera() {
     let watched = watch(
         series(&e),
         Some(series(&r)),
+        &[],
         None,
         1.645,
         &Settings::default(),
@@ -237,7 +252,7 @@ fn a_finger_alarm_after_a_camera_alarm_points_at_the_camera() {
         .find(|a| a.channel == Channel::Finger)
         .unwrap();
     assert_eq!(finger.advice, FINGER_AFTER_CAMERA);
-    let alone = watch(series(&e), None, None, 1.645, &Settings::default());
+    let alone = watch(series(&e), None, &[], None, 1.645, &Settings::default());
     assert_eq!(alone.alarms[0].advice, Channel::Finger.advice());
 }
 
@@ -268,10 +283,8 @@ fn rows_refused_as_inconsistent_are_camera_misses() {
         times: &times,
         values: &r,
     };
-    let watched = watch(errors, Some(geometry), None, 1.0, &Settings::default());
-    assert_eq!(watched.alarms.len(), 1, "{:?}", watched.alarms);
-    let alarm = &watched.alarms[0];
-    assert_eq!(alarm.channel, Channel::Camera);
+    let watched = watch(errors, Some(geometry), &[], None, 1.0, &Settings::default());
+    let alarm = the_one_camera_alarm(&watched);
     assert!(alarm.time_s >= 200.0 && alarm.time_s < 215.0, "{alarm:?}");
     assert_eq!(alarm.row, n - 1);
 }
@@ -325,4 +338,50 @@ fn settings_out_of_range_are_named() {
     };
     assert!(bad.check().unwrap_err().contains("level"));
     assert!(Settings::default().check().is_ok());
+}
+
+/// A camera that pans moves its beads along their epipolar lines: the residual stays calm,
+/// the still scene in its view moves. The scene channel names that camera, and a drift of
+/// the scene below [`SCENE_FLOOR_PX`] (a camera's view a few tenths of a pixel off after a
+/// calm, very steady baseline) raises nothing.
+#[test]
+fn a_camera_whose_view_of_the_still_scene_moved_is_named() {
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    let n = 30 * 300;
+    let times: Vec<f64> = (0..n).map(|k| k as f64 / 30.0).collect();
+    let e = errors(&mut rng, n, 1.0);
+    let r = errors(&mut rng, n, 0.1);
+    let steady = errors(&mut rng, n, 0.01);
+    let drifting: Vec<f64> = steady
+        .iter()
+        .zip(&times)
+        .map(|(v, &t)| v + if t >= 200.0 { 0.3 } else { 0.0 })
+        .collect();
+    let mut moved = errors(&mut rng, n, 0.05);
+    for v in &mut moved[30 * 200..] {
+        *v += 8.0;
+    }
+    let series = |values| Series {
+        times: &times,
+        values,
+    };
+    let scene = [("left", series(&drifting)), ("right", series(&moved))];
+    let watched = watch(
+        series(&e),
+        Some(series(&r)),
+        &scene,
+        None,
+        1.645,
+        &Settings::default(),
+    );
+    let alarm = the_one_camera_alarm(&watched);
+    assert_eq!(alarm.camera.as_deref(), Some("right"));
+    assert!(alarm.time_s >= 200.0 && alarm.time_s < 215.0, "{alarm:?}");
+    assert!((alarm.change_s - 200.0).abs() <= 2.0, "{alarm:?}");
+    assert!(alarm.to_string().contains("camera (right)"), "{alarm}");
+    // The steady camera's reference is the floor, not its baseline's 0.02 px.
+    assert_eq!(
+        watched.scene_references_px[0],
+        ("left".into(), Some(SCENE_FLOOR_PX))
+    );
 }

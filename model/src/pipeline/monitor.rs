@@ -18,6 +18,10 @@ use crate::provenance::Provenance;
 /// The column of the tips' reprojection residual (px) `triangulate` writes, read when present.
 pub const RESIDUAL_COLUMN: &str = "reproj_px";
 
+/// A camera's still-scene column `triangulate --per-frame` writes, `scene_<camera>_px` (how
+/// far its view of the still scene lay from the session's first frame's), read when present.
+const SCENE_COLUMN: (&str, &str) = ("scene_", "_px");
+
 /// What to watch.
 pub struct Watch<'a> {
     pub session: &'a Path,
@@ -81,9 +85,15 @@ pub fn run(watch: &Watch, provenance: Provenance) -> Result<Watched, PipelineErr
         measured: &replay.measured.values,
         rest: &replay.rest,
     };
+    let scene: Vec<monitor::Scene> = replay
+        .scene
+        .iter()
+        .map(|(camera, (times, values))| (camera.as_str(), monitor::Series { times, values }))
+        .collect();
     let monitored = monitor::watch(
         errors,
         geometry,
+        &scene,
         Some(outputs),
         replay.radius,
         &watch.settings,
@@ -138,6 +148,9 @@ pub fn write(replay: &Replay, watched: &Watched) -> Result<(), PipelineError> {
 /// Times and values of one channel.
 pub type Samples = (Vec<f64>, Vec<f64>);
 
+/// Per camera (its name), its still-scene channel.
+pub type SceneSamples = Vec<(String, Samples)>;
+
 /// A session's rows as the monitor replays them.
 pub struct Replay {
     /// The time column's name, and its values.
@@ -150,6 +163,9 @@ pub struct Replay {
     /// Every row's time and reprojection residual (px; +∞ where the views disagreed), when
     /// the rows have residuals.
     pub geometry: Option<Samples>,
+    /// Per camera (its name), the rows' times and how far its view of the still scene lay
+    /// from the session's first frame's (px), where the rows have that.
+    pub scene: SceneSamples,
     /// The model file's radius at the level, and its outputs at rest.
     pub radius: f64,
     pub rest: Vec<f64>,
@@ -195,7 +211,7 @@ impl Replay {
                     .sqrt()
             })
             .collect();
-        let geometry = geometry(watch.session, &time)?;
+        let (geometry, scene) = geometry(watch.session, &time)?;
         Ok(Replay {
             time,
             times,
@@ -203,16 +219,17 @@ impl Replay {
             measured,
             errors,
             geometry,
+            scene,
             radius,
             rest: file.at_rest(),
         })
     }
 
-    /// The reprojection residual of model row `i`, when the rows have them.
-    fn residual(&self, i: usize) -> Option<f64> {
-        let (times, residuals) = self.geometry.as_ref()?;
+    /// The value of `samples` at model row `i`'s time (the first at or after it).
+    fn at(&self, samples: &Samples, i: usize) -> Option<f64> {
+        let (times, values) = samples;
         let k = times.partition_point(|&t| t < self.times[i]);
-        residuals.get(k).copied()
+        values.get(k).copied()
     }
 
     /// `monitor.csv`: each row's time, prediction, measured tip, error, band, statistics and
@@ -232,10 +249,15 @@ impl Replay {
                         "response_cusum",
                         RESIDUAL_COLUMN,
                         "geometry_cusum",
-                        "alarm",
                     ]
                     .map(String::from),
-                ),
+                )
+                .chain(
+                    self.scene
+                        .iter()
+                        .map(|(camera, _)| format!("{}{camera}{}", SCENE_COLUMN.0, SCENE_COLUMN.1)),
+                )
+                .chain(["alarm".to_string()]),
         );
         let number = data::format_number;
         for (i, row) in monitored.rows.iter().enumerate() {
@@ -248,10 +270,15 @@ impl Replay {
                 u8::from(row.covered).to_string(),
                 number(row.model_stat),
                 row.response_stat.map_or_else(String::new, number),
-                self.residual(i).map_or_else(String::new, number),
+                (self.geometry.as_ref())
+                    .and_then(|g| self.at(g, i))
+                    .map_or_else(String::new, number),
                 row.geometry_stat.map_or_else(String::new, number),
-                row.alarm.map_or_else(String::new, |c| c.name().to_string()),
             ]);
+            record.extend(
+                (self.scene.iter()).map(|(_, s)| self.at(s, i).map_or_else(String::new, number)),
+            );
+            record.push(row.alarm.map_or_else(String::new, |c| c.name().to_string()));
             csv.row(record);
         }
         Ok(csv.write(path)?)
@@ -260,16 +287,26 @@ impl Replay {
 
 /// Every row's time and reprojection residual, flagged rows too: a row the triangulation
 /// refused because its views disagree (`reprojection`) is +∞, a miss of the camera channel;
-/// rows flagged for anything else say nothing of the cameras. `None` without a
-/// [`RESIDUAL_COLUMN`].
-fn geometry(path: &Path, time: &str) -> Result<Option<Samples>, PipelineError> {
+/// rows flagged for anything else say nothing of the cameras (`None` without a
+/// [`RESIDUAL_COLUMN`]). And each camera's still-scene column ([`SCENE_COLUMN`]), its rows
+/// with a value, whatever their flags.
+fn geometry(path: &Path, time: &str) -> Result<(Option<Samples>, SceneSamples), PipelineError> {
     let table = data::Table::open(path, "a time column and reproj_px")?;
-    let Ok(residual) = table.column(RESIDUAL_COLUMN) else {
-        return Ok(None);
-    };
+    let residual = table.column(RESIDUAL_COLUMN).ok();
+    let (prefix, suffix) = SCENE_COLUMN;
+    let scene: Vec<(usize, String)> = (table.header.iter().enumerate())
+        .filter_map(|(k, name)| {
+            let camera = name.strip_prefix(prefix)?.strip_suffix(suffix)?;
+            (!camera.is_empty()).then(|| (k, camera.to_string()))
+        })
+        .collect();
+    if residual.is_none() && scene.is_empty() {
+        return Ok((None, Vec::new()));
+    }
     let at = table.column(time)?;
     let flag = table.column("flag").ok();
-    let (mut times, mut residuals) = (Vec::new(), Vec::new());
+    let mut residuals: Samples = (Vec::new(), Vec::new());
+    let mut scenes: Vec<Samples> = vec![(Vec::new(), Vec::new()); scene.len()];
     for (line, record) in table.records()? {
         let number = |k: usize| record.get(k).and_then(|c| c.parse::<f64>().ok());
         let Some(t) = number(at) else {
@@ -279,14 +316,21 @@ fn geometry(path: &Path, time: &str) -> Result<Option<Samples>, PipelineError> {
         let value = if flags.split(';').any(|f| f == monitor::DISAGREED) {
             Some(f64::INFINITY)
         } else {
-            number(residual).filter(|r| r.is_finite())
+            residual.and_then(number).filter(|r| r.is_finite())
         };
         if let Some(value) = value {
-            times.push(t);
-            residuals.push(value);
+            residuals.0.push(t);
+            residuals.1.push(value);
+        }
+        for ((k, _), samples) in scene.iter().zip(&mut scenes) {
+            if let Some(px) = number(*k).filter(|v| v.is_finite()) {
+                samples.0.push(t);
+                samples.1.push(px);
+            }
         }
     }
-    Ok(Some((times, residuals)))
+    let cameras = scene.into_iter().map(|(_, camera)| camera);
+    Ok((residual.map(|_| residuals), cameras.zip(scenes).collect()))
 }
 
 /// The file of the rows from the finger's change on.

@@ -93,9 +93,18 @@ pub(super) struct TrustPage {
     alarms: Vec<Alarm>,
 }
 
-/// A left frame the track took: its time, the command in force, and its tip in the left
-/// camera with its residual, or why none.
-type Taken = (f64, [f64; 3], Result<(Vector3<f64>, f64), &'static str>);
+/// A left frame the track took: its time, the command in force, its tip in the left camera
+/// with its residual, or why none, and how far each camera's view of the still scene lay from
+/// its first frame's then (px; left, right), where measured.
+type Taken = (
+    f64,
+    [f64; 3],
+    Result<(Vector3<f64>, f64), &'static str>,
+    [Option<f64>; 2],
+);
+
+/// The cameras' names in the still scene's channels (`triangulate --per-frame`'s).
+const CAMERAS: [&str; 2] = ["left", "right"];
 
 /// The monitor of a live session.
 pub struct Trust {
@@ -135,6 +144,7 @@ impl Trust {
                 measured: columns(""),
                 errors: Vec::new(),
                 geometry: Some((Vec::new(), Vec::new())),
+                scene: Vec::new(),
                 radius: watching.radius,
                 rest,
             },
@@ -160,7 +170,7 @@ impl Trust {
             return Vec::new();
         };
         let mut said = Vec::new();
-        for (t, command, found) in std::mem::take(&mut self.pending) {
+        for (t, command, found, scene) in std::mem::take(&mut self.pending) {
             let file = &self.watching.file;
             let mut x = vec![0.0; file.model.predictor().inputs().len()];
             if let (None, Some(h)) = (&self.running, file.history()) {
@@ -169,6 +179,21 @@ impl Trust {
             match &mut self.running {
                 Some(running) => running.step(&command, t, &mut x),
                 None => x.copy_from_slice(&command),
+            }
+            for (camera, px) in CAMERAS.into_iter().zip(scene) {
+                let Some(px) = px else { continue };
+                let k = match self.replay.scene.iter().position(|(c, _)| c == camera) {
+                    Some(k) => k,
+                    None => {
+                        self.replay
+                            .scene
+                            .push((camera.to_string(), Default::default()));
+                        self.replay.scene.len() - 1
+                    }
+                };
+                self.replay.scene[k].1 .0.push(t);
+                self.replay.scene[k].1 .1.push(px);
+                said.extend(self.monitor.scene(camera, t, px).map(|a| a.to_string()));
             }
             let px = match found {
                 Ok((_, px)) => px,
@@ -318,7 +343,7 @@ mod tests {
             } else {
                 Vector3::new(3.0, wobble, 10.0)
             };
-            trust.take((t, [k as f64, 20.0, 30.0], Ok((tip, 0.1))));
+            trust.take((t, [k as f64, 20.0, 30.0], Ok((tip, 0.1)), [None; 2]));
             trust.watch(Some((Rotation3::identity(), Vector3::zeros())));
         }
         let provenance = Provenance::new(vec!["test".into()], None);

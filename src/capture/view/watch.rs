@@ -18,6 +18,7 @@ use crate::session::frames::FrameRecord;
 use crate::stereo::Side;
 use crate::triangulate::marker::{find_markers, MAX_CANDIDATES};
 use crate::triangulate::per_frame::{tips_as_they_come, LiveClock, LiveTip};
+use crate::triangulate::scene::{FirstFrames, Thumbnail};
 use crate::triangulate::TriangulateOptions;
 
 /// The track's points the page gets: the last 30 s at 30 fps.
@@ -92,6 +93,7 @@ fn watch(
     }
     let mut image = RgbImage::default();
     let mut bgr = opencv::core::Mat::default();
+    let mut first = FirstFrames::default();
     while let Some(frame) = next(view) {
         let found = crate::image::decode_bytes(&frame.bytes, &mut image, &mut bgr)
             .map(|()| find_markers(&image, &TriangulateOptions::default().marker));
@@ -100,7 +102,15 @@ fn watch(
         let Some(tracker) = tracker.as_mut() else {
             continue;
         };
-        tracker.add(&frame, centres);
+        // The still scene, for the monitor: frames of the calibration's size.
+        let scene_px = (tracker.trust.is_some() && centres != Err("no_image"))
+            .then(|| Thumbnail::of(&image).ok())
+            .flatten()
+            .and_then(|thumbnail| {
+                first.offer(frame.side as usize, &thumbnail);
+                first.shift(frame.side as usize, &thumbnail)
+            });
+        tracker.add(&frame, centres, scene_px);
         if tracker.due() {
             let (rest_until_s, protocol) = {
                 let mut s = view.lock();
@@ -191,6 +201,9 @@ struct Tracker {
     /// The frames of the last seconds, with their candidates or why none.
     records: Vec<FrameRecord>,
     centres: Vec<Result<Vec<[f64; 2]>, &'static str>>,
+    /// How far each frame's view of the still scene lies from its camera's first (px), where
+    /// measured.
+    scene: Vec<Option<f64>>,
     /// The newest left frame taken, and its time (s).
     taken: Option<usize>,
     taken_until_s: f64,
@@ -218,6 +231,7 @@ impl Tracker {
             options: TriangulateOptions::default(),
             records: Vec::new(),
             centres: Vec::new(),
+            scene: Vec::new(),
             taken: None,
             taken_until_s: f64::NEG_INFINITY,
             located_at_s: f64::NEG_INFINITY,
@@ -231,7 +245,12 @@ impl Tracker {
         }
     }
 
-    fn add(&mut self, frame: &Arrived, centres: Result<Vec<[f64; 2]>, &'static str>) {
+    fn add(
+        &mut self,
+        frame: &Arrived,
+        centres: Result<Vec<[f64; 2]>, &'static str>,
+        scene_px: Option<f64>,
+    ) {
         self.records.push(FrameRecord {
             camera: frame.side,
             index: frame.index,
@@ -240,6 +259,23 @@ impl Tracker {
             late_s: None,
         });
         self.centres.push(centres);
+        self.scene.push(scene_px);
+    }
+
+    /// The still scene's shift at left frame `frame` (time `t`): that frame's, and the right
+    /// frame's nearest in time.
+    fn scene_at(&self, frame: usize, t: f64) -> [Option<f64>; 2] {
+        let of = |side: Side, near: &dyn Fn(&FrameRecord) -> f64| {
+            (0..self.records.len())
+                .filter(|&k| self.records[k].camera == side)
+                .min_by(|&a, &b| near(&self.records[a]).total_cmp(&near(&self.records[b])))
+                .and_then(|k| self.scene[k])
+        };
+        let left = |r: &FrameRecord| if r.index == frame { 0.0 } else { 1.0 };
+        [
+            of(Side::Left, &left),
+            of(Side::Right, &|r| (r.time_s - t).abs()),
+        ]
     }
 
     /// The commands sent since last taken; the first may be the newest one taken, measured
@@ -317,8 +353,9 @@ impl Tracker {
             (self.taken, self.taken_until_s) = (Some(frame), t);
             self.page.rows += 1;
             let command = self.commands.iter().rev().find(|c| c.0 <= t);
+            let scene = self.scene_at(frame, t);
             if let (Some(trust), Some(&(_, command))) = (self.trust.as_mut(), command) {
-                trust.take((t, command, tip.map(|(p, px)| (Vector3::from(p), px))));
+                trust.take((t, command, tip.map(|(p, px)| (Vector3::from(p), px)), scene));
             }
             match tip {
                 Ok((p, _)) => {
@@ -358,6 +395,8 @@ impl Tracker {
         self.records.retain(|_| *k.next().unwrap_or(&true));
         let mut k = keep.iter();
         self.centres.retain(|_| *k.next().unwrap_or(&true));
+        let mut k = keep.iter();
+        self.scene.retain(|_| *k.next().unwrap_or(&true));
         let in_force = self.commands.partition_point(|c| c.0 <= self.taken_until_s);
         self.commands.drain(..in_force.saturating_sub(1));
         if self.tips.len() > 2 * TRACK_POINTS && self.origin.is_some() {

@@ -69,26 +69,50 @@ pub(crate) fn views(
     tips: &[[f64; 3]],
 ) -> Vec<View> {
     let view = |(place, camera): (usize, &Camera)| {
-        let lighting = Lighting::from_seed(seed ^ place as u64);
-        let wall = realism.clutter.then(|| {
-            let base = plant.centre_line([0.0; 3]).map(|line| line[0]);
-            let keep = workspace_box(camera, tips.iter().chain(base.as_ref().ok()));
-            let red = realism.red_distractors && place == 1;
-            clutter::wall(
-                camera.width as usize,
-                camera.height as usize,
-                seed ^ (place as u64 + 1) << 8,
-                red,
-                keep,
-            )
-        });
-        let surroundings = Surroundings {
-            wall,
-            specular: realism.specular,
-        };
-        View::new(camera.clone(), lighting, surroundings)
+        let wall = wall(place, camera, seed, realism, plant, tips);
+        view_of(place, camera, seed, realism, wall)
     };
     rig.cameras.iter().enumerate().map(view).collect()
+}
+
+/// Camera `camera`'s view at place `place` in front of `wall`.
+fn view_of(
+    place: usize,
+    camera: &Camera,
+    seed: u64,
+    realism: &Realism,
+    wall: Option<Vec<f64>>,
+) -> View {
+    let lighting = Lighting::from_seed(seed ^ place as u64);
+    let surroundings = Surroundings {
+        wall,
+        specular: realism.specular,
+    };
+    View::new(camera.clone(), lighting, surroundings)
+}
+
+/// The wall camera `camera` at place `place` sees, with clutter; it keeps clear of where the
+/// finger's `tips` and base are seen, and holds the red things in the second camera's view.
+fn wall(
+    place: usize,
+    camera: &Camera,
+    seed: u64,
+    realism: &Realism,
+    plant: &Plant,
+    tips: &[[f64; 3]],
+) -> Option<Vec<f64>> {
+    realism.clutter.then(|| {
+        let base = plant.centre_line([0.0; 3]).map(|line| line[0]);
+        let keep = workspace_box(camera, tips.iter().chain(base.as_ref().ok()));
+        let red = realism.red_distractors && place == 1;
+        clutter::wall(
+            camera.width as usize,
+            camera.height as usize,
+            seed ^ (place as u64 + 1) << 8,
+            red,
+            keep,
+        )
+    })
 }
 
 /// The second camera's view once a fault knocked it, and from when.
@@ -102,11 +126,11 @@ pub(crate) fn knocked_view(
     timeline: &Timeline,
     tips: &[[f64; 3]],
 ) -> Option<Knocked> {
-    timeline.knocked().map(|(at, camera)| {
-        let mut rig = rig.clone();
-        rig.cameras[1] = camera.clone();
-        let mut views = views(&rig, seed, realism, timeline.plant(), tips);
-        (*at, views.swap_remove(1))
+    timeline.knocked().map(|(at, knocked)| {
+        let before = rig.right();
+        let wall = wall(1, before, seed, realism, timeline.plant(), tips)
+            .map(|wall| clutter::turned(&wall, before, knocked));
+        (*at, view_of(1, knocked, seed, realism, wall))
     })
 }
 

@@ -104,6 +104,10 @@ pub struct FrameRow {
     /// The tip in the hand frame (mm), when found.
     pub tip_mm: Option<[f64; 3]>,
     pub reproj_px: Option<f64>,
+    /// How far each camera's view of the still scene lies from its first frame's (px; the
+    /// left frame's, the right frame's nearest in time), where measured
+    /// ([`crate::triangulate::scene`]).
+    pub scene_px: [Option<f64>; 2],
     pub flags: Vec<&'static str>,
 }
 
@@ -184,7 +188,7 @@ pub fn triangulate_per_frame(
     if let Some(why) = apart(&left, &right) {
         return Err(unpaired(why));
     }
-    let found = find_all_markers(frames, rig, options, progress, interrupt)?;
+    let found = find_all_markers(frames, rig, options, true, progress, interrupt)?;
     let results = &found.results;
     let mut summary = PerFrameSummary {
         interrupted: interrupt.load(Ordering::SeqCst),
@@ -235,6 +239,12 @@ pub fn triangulate_per_frame(
     );
     for (row, _) in rows.iter_mut().zip(centroid_only).filter(|(_, c)| *c) {
         row.flags.push(CENTROID);
+    }
+    if !found.scene.is_empty() {
+        for (row, (&i, &t)) in rows.iter_mut().zip(left.order.iter().zip(&left.times)) {
+            let near = right.nearest_frame(t).map(|pos| right.order[pos]);
+            row.scene_px = [Some(i), near].map(|i| i.and_then(|i| found.scene[i]));
+        }
     }
 
     // 6. The hand frame from the first rest hold.

@@ -16,15 +16,24 @@ use crate::triangulate::TriangulateError;
 
 impl PerFrame {
     /// The rows as CSV: `time_s`, the log's other columns, the pressures in force, the tip,
-    /// `frame`, `reproj_px`, `flag`.
+    /// how far each camera's view of the still scene moved (`scene_left_px`,
+    /// `scene_right_px`), `frame`, `reproj_px`, `flag`.
     pub fn csv(&self, log: &PressureLog, keep: impl Fn(&FrameRow) -> bool) -> String {
         let in_force = InForce::of(log);
-        let mut csv = Csv::new(in_force.header(&["frame", "reproj_px", "flag"]));
+        let after = [
+            "scene_left_px",
+            "scene_right_px",
+            "frame",
+            "reproj_px",
+            "flag",
+        ];
+        let mut csv = Csv::new(in_force.header(&after));
         let number = |v: Option<f64>| v.map_or_else(String::new, crate::data::format_number);
         for r in self.rows.iter().filter(|r| keep(r)) {
             let mut record = in_force.start(r.time_s, r.step);
             let tip = written_tip(r);
             record.extend((0..3).map(|c| number(tip.map(|t| t[c]))));
+            record.extend(r.scene_px.map(|px| crate::data::format_fixed(px, 3)));
             record.push(r.frame.to_string());
             record.push(crate::data::format_fixed(r.reproj_px, 4));
             record.push(r.flags.join(";"));

@@ -35,6 +35,7 @@ pub(super) fn frame_rows(
             step,
             tip_mm: None,
             reproj_px: None,
+            scene_px: [None; 2],
             flags: Vec::new(),
         };
         if step.is_none() {

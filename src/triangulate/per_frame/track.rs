@@ -115,6 +115,22 @@ impl Track {
         Ok((a, b, (t - self.times[a]) / (self.times[b] - self.times[a])))
     }
 
+    /// The position of its frame nearest `t`, when it has any.
+    pub(super) fn nearest_frame(&self, t: f64) -> Option<usize> {
+        let after = self.times.partition_point(|&s| s <= t);
+        [
+            after.checked_sub(1),
+            Some(after).filter(|&a| a < self.times.len()),
+        ]
+        .into_iter()
+        .flatten()
+        .min_by(|&a, &b| {
+            (self.times[a] - t)
+                .abs()
+                .total_cmp(&(self.times[b] - t).abs())
+        })
+    }
+
     /// The times of its first and last frames, when it has any.
     pub(super) fn span_s(&self) -> Option<(f64, f64)> {
         Some((*self.times.first()?, *self.times.last()?))
