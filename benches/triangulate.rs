@@ -25,6 +25,7 @@ use handcap::synth::plant::Plant;
 use handcap::synth::render::{Lighting, Surroundings, View};
 use handcap::synth::scene::Finger;
 use handcap::triangulate::marker::{find_markers, MarkerOptions};
+use handcap::triangulate::scene::Thumbnail;
 
 /// Reads, decodes and searches both frames, then triangulates and reprojects the tip.
 fn pair(rig: &StereoRig, files: [&Path; 2], image: &mut RgbImage, buf: &mut Buffers) -> f64 {
@@ -79,6 +80,13 @@ fn bench(c: &mut Criterion) {
     decode_into(&files[0], &mut image, &mut buf).unwrap();
     g.bench_function("find markers 1280x720", |b| {
         b.iter(|| black_box(find_markers(&image, &MarkerOptions::default())))
+    });
+    let first = Thumbnail::of(&image).unwrap();
+    g.bench_function("still scene's shift 1280x720 (thumbnail, 12 tiles)", |b| {
+        b.iter(|| {
+            let thumbnail = Thumbnail::of(&image).unwrap();
+            black_box(thumbnail.shift_from(&first).unwrap())
+        })
     });
     g.bench_function("frame pair, one core", |b| {
         b.iter(|| black_box(pair(&cams, [&files[0], &files[1]], &mut image, &mut buf)))

@@ -376,8 +376,9 @@ struct Found {
 
 /// The marker candidates in every frame: handed out in order (a video is read front to back) a
 /// chunk at a time, examined in parallel; `interrupt` leaves the rest [`FrameResult::Skipped`].
-/// With `scene`, also how far each frame's view of the still scene lies from its camera's first
-/// frame read (the earliest: a camera's frames are read in order).
+/// With `scene`, also how far the view of the still scene lies from its camera's first frame
+/// read (the earliest: a camera's frames are read in order), in one frame in
+/// [`scene::EVERY`].
 fn find_all_markers(
     frames: &FrameList,
     rig: &StereoRig,
@@ -412,9 +413,8 @@ fn find_all_markers(
                 |(image, buffers), (i, data)| {
                     let result = examine(&data, frames, i, rig, options, interrupt, image, buffers);
                     let seen = matches!(result, Ok(FrameResult::Markers(_)));
-                    let thumbnail = (scene && seen)
-                        .then(|| scene::Thumbnail::of(image).ok())
-                        .flatten();
+                    let measured = scene && seen && records[i].index.is_multiple_of(scene::EVERY);
+                    let thumbnail = measured.then(|| scene::Thumbnail::of(image).ok()).flatten();
                     progress(done.fetch_add(1, Ordering::SeqCst) + 1, records.len());
                     (i, result, thumbnail)
                 },

@@ -1,8 +1,8 @@
 //! How far each camera's view of the still scene moved since its first frame (`triangulate
 //! --per-frame`'s `scene_left_px`, `scene_right_px`): the frame shrunk to a grey thumbnail
 //! ([`THUMB`] × [`THUMB`] pixels averaged), and its shift against the camera's first
-//! thumbnail by phase correlation (OpenCV's `phaseCorrelate` under a Hanning window), in the
-//! frame's pixels.
+//! thumbnail by phase correlation (OpenCV's `phaseCorrelate` under a Hanning window, tile by
+//! tile), in the frame's pixels; in one frame in [`EVERY`] of each camera.
 //!
 //! The finger moves over a small part of the picture; the wall, the bench and the rig around it
 //! do not, unless the camera moved. The bead's reprojection residual (the cameras' agreement)
@@ -21,6 +21,11 @@ use crate::image::RgbImage;
 /// its picture about 8 px, two thumbnail pixels; phase correlation's sub-pixel peak places
 /// it to about a tenth of that.
 pub const THUMB: usize = 4;
+
+/// The still scene is measured in the frames whose number is a multiple of this: five times a
+/// second at 30 fps, for a monitor that looks once a second (a frame's measure costs 1.4 ms on
+/// one core, about half what finding its bead does).
+pub const EVERY: usize = 6;
 
 /// The thumbnail's tiles, across and down, each correlated on its own: the finger moves in a
 /// few of them, and the median of the tiles' shifts is the still scene's.
@@ -44,18 +49,23 @@ impl Thumbnail {
     /// OpenCV's, making the matrix.
     pub fn of(image: &RgbImage) -> opencv::Result<Thumbnail> {
         let (w, h) = (image.width / THUMB, image.height / THUMB);
-        let mut grey = vec![0f32; w * h];
-        for (j, row) in grey.chunks_mut(w.max(1)).enumerate().take(h) {
+        // Luma in integers (ITU-R 601 weights over 256), summed over each block.
+        let mut sums = vec![0u32; w];
+        let mut grey = Vec::with_capacity(w * h);
+        for j in 0..h {
+            sums.fill(0);
             for y in j * THUMB..(j + 1) * THUMB {
-                let line = &image.data[3 * y * image.width..3 * (y + 1) * image.width];
-                for (i, g) in row.iter_mut().enumerate() {
-                    for p in line[3 * i * THUMB..3 * (i + 1) * THUMB].chunks_exact(3) {
-                        *g += 0.299 * f32::from(p[0])
-                            + 0.587 * f32::from(p[1])
-                            + 0.114 * f32::from(p[2]);
-                    }
+                let line = &image.data[3 * y * image.width..][..3 * w * THUMB];
+                for (sum, block) in sums.iter_mut().zip(line.chunks_exact(3 * THUMB)) {
+                    *sum += block
+                        .chunks_exact(3)
+                        .map(|p| {
+                            77 * u32::from(p[0]) + 150 * u32::from(p[1]) + 29 * u32::from(p[2])
+                        })
+                        .sum::<u32>();
                 }
             }
+            grey.extend(sums.iter().map(|&s| s as f32));
         }
         let mat = Mat::from_slice(&grey)?.reshape(1, h as i32)?.try_clone()?;
         Ok(Thumbnail(mat))

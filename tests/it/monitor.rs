@@ -268,9 +268,10 @@ fn a_session_directory_is_triangulated_then_watched_and_a_knocked_camera_seen() 
         .map(|a| a["time_s"].as_f64().unwrap())
         .collect();
     // Two camera alarms: the beads' residual, and the right camera's view of the still
-    // scene (the wall behind the finger moved in its picture); the left camera's stays.
+    // scene (the wall behind the finger moved in its picture; measured five times a second,
+    // so its eight looks past the reference take 1.6 s); the left camera's stays.
     assert!(
-        camera.len() == 2 && camera.iter().all(|&t| t > 6.0 && t < 7.5),
+        camera.len() == 2 && camera.iter().all(|&t| t > 6.0 && t < 8.0),
         "{said}"
     );
     assert!(said.contains("alarm: camera (right) at"), "{said}");
@@ -342,7 +343,7 @@ fn a_camera_that_pans_is_named_by_its_view_of_the_still_scene_though_its_beads_a
     assert_eq!(camera.len(), 1, "{said}");
     assert_eq!(camera[0]["camera"], "right", "{said}");
     let raised = camera[0]["time_s"].as_f64().unwrap();
-    assert!(raised > 6.0 && raised < 7.5, "{said}");
+    assert!(raised > 6.0 && raised < 8.0, "{said}");
     assert!(said.contains("alarm: camera (right) at"), "{said}");
     // The tips moved by millimetres with the camera: the finger alarm they raise (before the
     // camera's, on this seed) points at the camera, not at a refit.

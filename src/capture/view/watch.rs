@@ -18,7 +18,7 @@ use crate::session::frames::FrameRecord;
 use crate::stereo::Side;
 use crate::triangulate::marker::{find_markers, MAX_CANDIDATES};
 use crate::triangulate::per_frame::{tips_as_they_come, LiveClock, LiveTip};
-use crate::triangulate::scene::{FirstFrames, Thumbnail};
+use crate::triangulate::scene::{self, FirstFrames, Thumbnail};
 use crate::triangulate::TriangulateOptions;
 
 /// The track's points the page gets: the last 30 s at 30 fps.
@@ -102,8 +102,9 @@ fn watch(
         let Some(tracker) = tracker.as_mut() else {
             continue;
         };
-        // The still scene, for the monitor: frames of the calibration's size.
-        let scene_px = (tracker.trust.is_some() && centres != Err("no_image"))
+        // The still scene, for the monitor: one frame in scene::EVERY, of the calibration's size.
+        let measured = frame.index.is_multiple_of(scene::EVERY) && centres != Err("no_image");
+        let scene_px = (tracker.trust.is_some() && measured)
             .then(|| Thumbnail::of(&image).ok())
             .flatten()
             .and_then(|thumbnail| {
@@ -262,20 +263,24 @@ impl Tracker {
         self.scene.push(scene_px);
     }
 
-    /// The still scene's shift at left frame `frame` (time `t`): that frame's, and the right
-    /// frame's nearest in time.
+    /// The still scene's shift at left frame `frame` (time `t`), when it was measured: that
+    /// frame's, and the right frame's measured nearest in time.
     fn scene_at(&self, frame: usize, t: f64) -> [Option<f64>; 2] {
-        let of = |side: Side, near: &dyn Fn(&FrameRecord) -> f64| {
-            (0..self.records.len())
-                .filter(|&k| self.records[k].camera == side)
-                .min_by(|&a, &b| near(&self.records[a]).total_cmp(&near(&self.records[b])))
-                .and_then(|k| self.scene[k])
-        };
-        let left = |r: &FrameRecord| if r.index == frame { 0.0 } else { 1.0 };
-        [
-            of(Side::Left, &left),
-            of(Side::Right, &|r| (r.time_s - t).abs()),
-        ]
+        let at = |k: usize| self.scene[k].map(|px| (k, px));
+        let left = (0..self.records.len())
+            .find(|&k| self.records[k].camera == Side::Left && self.records[k].index == frame)
+            .and_then(at);
+        let right = (0..self.records.len())
+            .filter(|&k| self.records[k].camera == Side::Right)
+            .filter_map(at)
+            .min_by(|a, b| {
+                let apart = |k: usize| (self.records[k].time_s - t).abs();
+                apart(a.0).total_cmp(&apart(b.0))
+            });
+        match (left, right) {
+            (Some((_, l)), right) => [Some(l), right.map(|(_, r)| r)],
+            (None, _) => [None, None],
+        }
     }
 
     /// The commands sent since last taken; the first may be the newest one taken, measured

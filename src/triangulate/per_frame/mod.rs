@@ -77,7 +77,9 @@ use track::{
 use super::locate::combinations;
 use super::marker::MAX_CANDIDATES;
 use super::summary::{count_frames, FrameCounts};
-use super::{distance_px, find_all_markers, FrameResult, TriangulateError, TriangulateOptions};
+use super::{
+    distance_px, find_all_markers, scene, FrameResult, TriangulateError, TriangulateOptions,
+};
 use crate::calib::file::CalibrationFile;
 use crate::geometry::HandFromLeft;
 use crate::session::frames::FrameList;
@@ -105,8 +107,8 @@ pub struct FrameRow {
     pub tip_mm: Option<[f64; 3]>,
     pub reproj_px: Option<f64>,
     /// How far each camera's view of the still scene lies from its first frame's (px; the
-    /// left frame's, the right frame's nearest in time), where measured
-    /// ([`crate::triangulate::scene`]).
+    /// left frame's, the right frame's measured nearest in time), on the rows of the left
+    /// frames measured ([`scene`]: one in [`scene::EVERY`]).
     pub scene_px: [Option<f64>; 2],
     pub flags: Vec<&'static str>,
 }
@@ -241,9 +243,12 @@ pub fn triangulate_per_frame(
         row.flags.push(CENTROID);
     }
     if !found.scene.is_empty() {
+        // The rows of the left frames measured, with the right camera's measure nearest.
+        let measured = |track: &Track, pos: usize| found.scene[track.order[pos]];
         for (row, (&i, &t)) in rows.iter_mut().zip(left.order.iter().zip(&left.times)) {
-            let near = right.nearest_frame(t).map(|pos| right.order[pos]);
-            row.scene_px = [Some(i), near].map(|i| i.and_then(|i| found.scene[i]));
+            if let Some(px) = found.scene[i] {
+                row.scene_px = [Some(px), right.nearest_with(t, scene::EVERY, &measured)];
+            }
         }
     }
 

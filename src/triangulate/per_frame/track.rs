@@ -115,20 +115,19 @@ impl Track {
         Ok((a, b, (t - self.times[a]) / (self.times[b] - self.times[a])))
     }
 
-    /// The position of its frame nearest `t`, when it has any.
-    pub(super) fn nearest_frame(&self, t: f64) -> Option<usize> {
-        let after = self.times.partition_point(|&s| s <= t);
-        [
-            after.checked_sub(1),
-            Some(after).filter(|&a| a < self.times.len()),
-        ]
-        .into_iter()
-        .flatten()
-        .min_by(|&a, &b| {
-            (self.times[a] - t)
-                .abs()
-                .total_cmp(&(self.times[b] - t).abs())
-        })
+    /// Of its frames within `within` positions of the one nearest `t`, the value `of` the one
+    /// nearest `t` that has one.
+    pub(super) fn nearest_with<T>(
+        &self,
+        t: f64,
+        within: usize,
+        of: &dyn Fn(&Track, usize) -> Option<T>,
+    ) -> Option<T> {
+        let near = self.times.partition_point(|&s| s <= t);
+        let span = near.saturating_sub(within + 1)..(near + within).min(self.times.len());
+        span.filter_map(|pos| Some(((self.times[pos] - t).abs(), of(self, pos)?)))
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .map(|(_, v)| v)
     }
 
     /// The times of its first and last frames, when it has any.
