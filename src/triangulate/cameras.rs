@@ -37,6 +37,7 @@ pub(super) mod covariance;
 
 use super::nview::{self, View};
 use super::pairing::{self, Placement};
+use super::scene;
 use super::TriangulateOptions;
 use crate::calib::file::ReadCamera;
 use crate::calib::graph::CameraCovariance;
@@ -125,15 +126,30 @@ pub(super) enum Examined {
 }
 
 /// Frame `f` examined: decoded, its size checked against its camera's, the marker's candidates
-/// found.
-pub(super) fn examine(f: &Frame, cameras: &[ReadCamera], options: &TriangulateOptions) -> Examined {
+/// found; with `thumbnail`, also the frame's [`scene::Thumbnail`] when it was read at its camera's
+/// size.
+pub(super) fn examine(
+    f: &Frame,
+    cameras: &[ReadCamera],
+    options: &TriangulateOptions,
+    thumbnail: bool,
+) -> (Examined, Option<scene::Thumbnail>) {
     let size = cameras[f.camera].size;
     match crate::image::decode(&f.path) {
-        Err(why) => Examined::Unreadable(format!("{}: {why}", f.path.display())),
+        Err(why) => (
+            Examined::Unreadable(format!("{}: {why}", f.path.display())),
+            None,
+        ),
         Ok(image) if [image.width, image.height] != size.map(|s| s as usize) => {
-            Examined::WrongSize([image.width, image.height])
+            (Examined::WrongSize([image.width, image.height]), None)
         }
-        Ok(image) => Examined::Markers(super::marker::find_markers(&image, &options.marker).blobs),
+        Ok(image) => {
+            let blobs = super::marker::find_markers(&image, &options.marker).blobs;
+            let small = thumbnail
+                .then(|| scene::Thumbnail::of(&image).ok())
+                .flatten();
+            (Examined::Markers(blobs), small)
+        }
     }
 }
 
@@ -252,7 +268,7 @@ pub fn triangulate(
             if interrupt.load(Relaxed) {
                 return Some((k, Examined::Skipped));
             }
-            let seen = examine(f, cameras, options);
+            let seen = examine(f, cameras, options, false).0;
             progress(done.fetch_add(1, SeqCst) + 1, frames.len());
             Some((k, seen))
         })

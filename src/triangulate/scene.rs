@@ -115,21 +115,24 @@ impl Thumbnail {
     }
 }
 
-/// Each camera's first thumbnail (by its place: 0 the left, 1 the right), the reference its
-/// later frames' shifts are measured from.
+/// Each camera's first thumbnail (by its place in the rig: a pair's 0 left, 1 right), the
+/// reference its later frames' shifts are measured from.
 #[derive(Default)]
-pub struct FirstFrames([Option<Thumbnail>; 2]);
+pub struct FirstFrames(Vec<Option<Thumbnail>>);
 
 impl FirstFrames {
     /// Keeps `thumbnail` as camera `camera`'s first, when it has none yet.
     pub fn offer(&mut self, camera: usize, thumbnail: &Thumbnail) {
+        if self.0.len() <= camera {
+            self.0.resize(camera + 1, None);
+        }
         self.0[camera].get_or_insert_with(|| thumbnail.clone());
     }
 
     /// How far `thumbnail` of camera `camera` lies from that camera's first (px), when it can
     /// be told ([`Thumbnail::shift_from`]).
     pub fn shift(&self, camera: usize, thumbnail: &Thumbnail) -> Option<f64> {
-        let first = self.0[camera].as_ref()?;
+        let first = self.0.get(camera)?.as_ref()?;
         thumbnail.shift_from(first).ok().flatten().map(length)
     }
 }

@@ -145,6 +145,21 @@ fn four_cameras_in_motion_give_each_frame_a_tip_closer_than_any_pair_with_the_fi
     }
     assert!(four < 0.025, "tip RMS {four:.4} mm: {said}");
     assert!(inside >= 0.93, "{inside}");
+    // Each camera's view of the still scene, on one row in six: none moved, none wandered
+    // half a pixel.
+    for camera in ["cam1", "cam2", "cam3", "cam4"] {
+        let column = format!("scene_{camera}_px");
+        let px: Vec<f64> = rows
+            .iter()
+            .filter_map(|r| r[&column].parse().ok())
+            .collect();
+        assert!(
+            px.len() * 7 > rows.len() && px.len() * 5 < rows.len(),
+            "{column}: {}",
+            px.len()
+        );
+        assert!(px.iter().all(|&v| v < 0.5), "{column}: {px:?}");
+    }
     // Each camera's clock against cam1's, from the motion: the truth is how far its stamps
     // lead its exposures less how far cam1's do.
     let summary = read_json(&d.join("four_summary.json"));

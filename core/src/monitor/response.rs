@@ -15,7 +15,8 @@ pub(super) struct Response {
     next_look: f64,
     baseline: Vec<f64>,
     reference: Option<f64>,
-    /// The statistics up and down, and when each was last 0 (s).
+    /// The statistics up and down, and when each was last 0 (s; from the first look after the
+    /// baseline).
     stat: [f64; 2],
     zero_s: [f64; 2],
     threshold: f64,
@@ -74,10 +75,15 @@ impl Response {
             self.baseline.push(s);
             return None;
         }
-        let baseline = &mut self.baseline;
-        let reference = *self.reference.get_or_insert_with(|| {
-            crate::stats::quantiles(baseline, [0.5]).map_or(0.0, |[median]| median)
-        });
+        let reference = match self.reference {
+            Some(reference) => reference,
+            None => {
+                // The first look after the baseline: a change is dated no earlier.
+                let median = crate::stats::quantiles(&mut self.baseline, [0.5]);
+                self.zero_s = [t; 2];
+                *self.reference.insert(median.map_or(0.0, |[m]| m))
+            }
+        };
         let d = s - reference;
         let k = RESPONSE_SHIFT / 2.0;
         for (side, step) in [d - k, -d - k].into_iter().enumerate() {

@@ -328,6 +328,12 @@ fn a_finger_responding_more_or_less_than_modelled_is_told_within_half_a_minute()
     }
     let calm = responding(7200.0, f64::INFINITY, 1.0);
     assert!(calm.is_empty(), "{calm:?}");
+    // A change in the baseline's last seconds: the statistic is never 0 after the baseline,
+    // and the change is dated at its first look after it (it was −∞).
+    let at_once = responding(300.0, 110.0, 1.3);
+    assert_eq!(at_once.len(), 1, "{at_once:?}");
+    let change = at_once[0].change_s;
+    assert!((120.0..122.0).contains(&change), "{:?}", at_once[0]);
 }
 
 #[test]

@@ -77,9 +77,7 @@ use track::{
 use super::locate::combinations;
 use super::marker::MAX_CANDIDATES;
 use super::summary::{count_frames, FrameCounts};
-use super::{
-    distance_px, find_all_markers, scene, FrameResult, TriangulateError, TriangulateOptions,
-};
+use super::{distance_px, find_all_markers, FrameResult, TriangulateError, TriangulateOptions};
 use crate::calib::file::CalibrationFile;
 use crate::geometry::HandFromLeft;
 use crate::session::frames::FrameList;
@@ -106,10 +104,11 @@ pub struct FrameRow {
     /// The tip in the hand frame (mm), when found.
     pub tip_mm: Option<[f64; 3]>,
     pub reproj_px: Option<f64>,
-    /// How far each camera's view of the still scene lies from its first frame's (px; the
-    /// left frame's, the right frame's measured nearest in time), on the rows of the left
-    /// frames measured ([`scene`]: one in [`scene::EVERY`]).
-    pub scene_px: [Option<f64>; 2],
+    /// How far each camera's view of the still scene lies from its first frame's (px; per
+    /// camera: the rows' camera's frame, the others' measured nearest in time), on the rows
+    /// whose frame was measured ([`crate::triangulate::scene`]: one in
+    /// [`crate::triangulate::scene::EVERY`]); empty on the others.
+    pub scene_px: Vec<Option<f64>>,
     pub flags: Vec<&'static str>,
 }
 
@@ -242,15 +241,7 @@ pub fn triangulate_per_frame(
     for (row, _) in rows.iter_mut().zip(centroid_only).filter(|(_, c)| *c) {
         row.flags.push(CENTROID);
     }
-    if !found.scene.is_empty() {
-        // The rows of the left frames measured, with the right camera's measure nearest.
-        let measured = |track: &Track, pos: usize| found.scene[track.order[pos]];
-        for (row, (&i, &t)) in rows.iter_mut().zip(left.order.iter().zip(&left.times)) {
-            if let Some(px) = found.scene[i] {
-                row.scene_px = [Some(px), right.nearest_with(t, scene::EVERY, &measured)];
-            }
-        }
-    }
+    rows::with_scene(&mut rows, &left, &[&left, &right], &found.scene);
 
     // 6. The hand frame from the first rest hold.
     let origin = rows::rest_origin(&rows, &points, log, options)?;

@@ -14,6 +14,11 @@ use crate::session::pressures::{PressureLog, MEASURED_COLUMNS};
 use crate::triangulate::output::{beside, first_appearances, ours, phase_path};
 use crate::triangulate::TriangulateError;
 
+/// Camera `camera`'s still-scene field of a row's `scene_px` (empty where not measured).
+pub(in crate::triangulate) fn scene_field(scene_px: &[Option<f64>], camera: usize) -> String {
+    crate::data::format_fixed(scene_px.get(camera).copied().flatten(), 3)
+}
+
 impl PerFrame {
     /// The rows as CSV: `time_s`, the log's other columns, the pressures in force, the tip,
     /// how far each camera's view of the still scene moved (`scene_left_px`,
@@ -33,7 +38,7 @@ impl PerFrame {
             let mut record = in_force.start(r.time_s, r.step);
             let tip = written_tip(r);
             record.extend((0..3).map(|c| number(tip.map(|t| t[c]))));
-            record.extend(r.scene_px.map(|px| crate::data::format_fixed(px, 3)));
+            record.extend((0..2).map(|c| scene_field(&r.scene_px, c)));
             record.push(r.frame.to_string());
             record.push(crate::data::format_fixed(r.reproj_px, 4));
             record.push(r.flags.join(";"));

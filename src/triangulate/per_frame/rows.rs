@@ -8,6 +8,7 @@ use nalgebra::Vector3;
 use super::{FrameRow, Tip, Track};
 use crate::geometry::HandFromLeft;
 use crate::session::pressures::PressureLog;
+use crate::triangulate::scene::EVERY;
 use crate::triangulate::{options, TriangulateError, TriangulateOptions};
 
 /// Step 4-5's rows: one per frame of the rows' camera (`left`, its frames' numbers by record
@@ -35,7 +36,7 @@ pub(super) fn frame_rows(
             step,
             tip_mm: None,
             reproj_px: None,
-            scene_px: [None; 2],
+            scene_px: Vec::new(),
             flags: Vec::new(),
         };
         if step.is_none() {
@@ -54,6 +55,28 @@ pub(super) fn frame_rows(
         rows.push(row);
     }
     (rows, points)
+}
+
+/// Each camera's still scene ([`crate::triangulate::scene`]; `scene` per frame record, where
+/// measured) on the rows whose own frame (of `rows_track`) was measured: per camera of
+/// `tracks`, its frame measured nearest the row's time.
+pub(super) fn with_scene(
+    rows: &mut [FrameRow],
+    rows_track: &Track,
+    tracks: &[&Track],
+    scene: &[Option<f64>],
+) {
+    if scene.is_empty() {
+        return;
+    }
+    let measured = |track: &Track, pos: usize| scene[track.order[pos]];
+    let frames = rows_track.order.iter().zip(&rows_track.times);
+    for (row, (&i, &t)) in rows.iter_mut().zip(frames) {
+        if scene[i].is_some() {
+            let near = |track: &&Track| track.nearest_with(t, EVERY, &measured);
+            row.scene_px = tracks.iter().map(near).collect();
+        }
+    }
 }
 
 /// The hand frame's origin: the median tip over the first rest hold, its rows and spread.

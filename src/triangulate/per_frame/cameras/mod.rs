@@ -42,7 +42,7 @@ use crate::triangulate::cameras::{
     covariance, examine, Calibration, CamerasError, Examined, Frame, InWorld,
 };
 use crate::triangulate::marker::MAX_CANDIDATES;
-use crate::triangulate::{nview, TriangulateError, TriangulateOptions};
+use crate::triangulate::{nview, scene, TriangulateError, TriangulateOptions};
 use locate::{Located, Locator};
 
 /// One row: a frame of the rows' camera.
@@ -145,7 +145,7 @@ pub fn triangulate_per_frame_cameras(
         }
         .into());
     }
-    let examined = examine_all(frames, cameras, options, progress, interrupt);
+    let (examined, scene) = examine_all(frames, cameras, options, progress, interrupt);
     let mut summary = CamerasSummary {
         rows_camera: cameras[first].name.clone(),
         clocks_measured: options.clocks_measured,
@@ -216,6 +216,7 @@ pub fn triangulate_per_frame_cameras(
     for (row, _) in rows.iter_mut().zip(&centroid_only).filter(|(_, c)| **c) {
         row.flags.push(CENTROID);
     }
+    rows::with_scene(&mut rows, rows_track, &track_refs, &scene);
     let origin = rows::rest_origin(&rows, &points, log, options)?;
     summary.origin_world_mm = origin.point.into();
     summary.origin_rows = origin.rows;
@@ -233,26 +234,38 @@ pub fn triangulate_per_frame_cameras(
 }
 
 /// Every frame examined ([`examine`]), in parallel; `progress(done, total)` counts them; once
-/// `interrupt` is set the rest are skipped.
+/// `interrupt` is set the rest are skipped. And, in the frames whose number is a multiple of
+/// [`scene::EVERY`], how far the view of the still scene lies from its camera's first such
+/// frame's (px).
 fn examine_all(
     frames: &[Frame],
     cameras: &[crate::calib::file::ReadCamera],
     options: &TriangulateOptions,
     progress: &(dyn Fn(usize, usize) + Sync),
     interrupt: &AtomicBool,
-) -> Vec<Examined> {
+) -> (Vec<Examined>, Vec<Option<f64>>) {
+    let measured = |f: &Frame| f.index.is_multiple_of(scene::EVERY);
+    let mut first = scene::FirstFrames::default();
+    for camera in 0..cameras.len() {
+        let of_camera = frames.iter().filter(|f| f.camera == camera && measured(f));
+        if let Some(f) = of_camera.min_by_key(|f| f.index) {
+            if let (_, Some(thumbnail)) = examine(f, cameras, options, true) {
+                first.offer(camera, &thumbnail);
+            }
+        }
+    }
     let done = AtomicUsize::new(0);
     frames
         .par_iter()
         .map(|f| {
             if interrupt.load(Ordering::Relaxed) {
-                return Examined::Skipped;
+                return (Examined::Skipped, None);
             }
-            let e = examine(f, cameras, options);
+            let (e, thumbnail) = examine(f, cameras, options, measured(f));
             progress(done.fetch_add(1, Ordering::SeqCst) + 1, frames.len());
-            e
+            (e, thumbnail.and_then(|t| first.shift(f.camera, &t)))
         })
-        .collect()
+        .unzip()
 }
 
 /// Per row of `located`, whether a frame a camera it used saw it in was seen, by the first

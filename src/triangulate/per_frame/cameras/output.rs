@@ -9,11 +9,12 @@ use crate::data::Csv;
 use crate::provenance::Provenance;
 use crate::session::pressures::PressureLog;
 use crate::triangulate::cameras::{camera_names, covariance_fields};
-use crate::triangulate::per_frame::output::{write_rows, written_tip, InForce};
+use crate::triangulate::per_frame::output::{scene_field, write_rows, written_tip, InForce};
 use crate::triangulate::{TriangulateError, TriangulateOptions};
 
-/// The columns after the pressures: the tip, how sure it is, the cameras it used, the row's
-/// frame (of the rows' camera), its worst reprojection residual and its flags.
+/// The columns after the pressures: the tip, how sure it is, the cameras it used (then each
+/// camera's `scene_<name>_px`), the row's frame (of the rows' camera), its worst reprojection
+/// residual and its flags.
 const COLUMNS: [&str; 13] = [
     "sd_x_mm",
     "sd_y_mm",
@@ -33,8 +34,9 @@ const COLUMNS: [&str; 13] = [
 impl PerFrameCameras {
     /// The rows `keep` keeps as CSV: `time_s`, the log's other columns, the pressures in
     /// force, the tip, its deviations and covariances, `n_cameras`, `cameras`, `left_out`
-    /// (names joined by `+`), `chi2`, `frame`, `reproj_px`, `flag`. A flagged row's tip is
-    /// empty but for `reach` and `centroid`, as a pair's.
+    /// (names joined by `+`), `chi2`, each camera's `scene_<name>_px` (how far its view of the
+    /// still scene lay from its first frame's), `frame`, `reproj_px`, `flag`. A flagged row's
+    /// tip is empty but for `reach` and `centroid`, as a pair's.
     pub fn csv(
         &self,
         log: &PressureLog,
@@ -42,7 +44,14 @@ impl PerFrameCameras {
         keep: impl Fn(&CamerasRow) -> bool,
     ) -> String {
         let in_force = InForce::of(log);
-        let mut csv = Csv::new(in_force.header(&COLUMNS));
+        let scene: Vec<String> = cameras
+            .iter()
+            .map(|c| format!("scene_{}_px", c.name))
+            .collect();
+        let (tip, tail) = COLUMNS.split_at(COLUMNS.len() - 3);
+        let names = tip.iter().copied().chain(scene.iter().map(String::as_str));
+        let columns: Vec<&str> = names.chain(tail.iter().copied()).collect();
+        let mut csv = Csv::new(in_force.header(&columns));
         for r in self.rows.iter().filter(|r| keep(r)) {
             let row = &r.row;
             let mut record = in_force.start(row.time_s, row.step);
@@ -57,6 +66,7 @@ impl PerFrameCameras {
                 }
                 _ => record.extend(std::iter::repeat_n(String::new(), 13)),
             }
+            record.extend((0..cameras.len()).map(|c| scene_field(&row.scene_px, c)));
             record.push(row.frame.to_string());
             record.push(crate::data::format_fixed(row.reproj_px, 4));
             record.push(row.flags.join(";"));
