@@ -85,7 +85,7 @@ fn bench(c: &mut Criterion) {
     g.bench_function("still scene's shift 1280x720 (thumbnail, 12 tiles)", |b| {
         b.iter(|| {
             let thumbnail = Thumbnail::of(&image).unwrap();
-            black_box(thumbnail.shift_from(&first).unwrap())
+            black_box(thumbnail.motion_from(&first).unwrap())
         })
     });
     g.bench_function("frame pair, one core", |b| {

@@ -88,7 +88,8 @@ def main():
             alarms = json.load(open(os.path.join(out, "monitor.json")))["alarms"]
             said = [f"{a.get('camera', 'residual') if a['channel'] == 'camera' else 'finger'} "
                     f"{a['time_s'] - FAULT_S:+.1f}" for a in alarms]
-            cells = [f"{max(still[c]):.2f} / {percentile(still[c], 0.99):.2f}" for c in ["left", "right"]]
+            cells = [f"{max(still[c]):.2f} / {percentile(still[c], 0.99):.2f}" if still[c] else "none"
+                     for c in ["left", "right"]]
             print(f"| {seed} | {fault or 'none'} | {cells[0]} | {cells[1]} | "
                   f"{measured} of {len(rows)} | {', '.join(said) or 'none'} |", flush=True)
 

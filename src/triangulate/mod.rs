@@ -377,7 +377,8 @@ struct Found {
 /// The marker candidates in every frame: handed out in order (a video is read front to back) a
 /// chunk at a time, examined in parallel; `interrupt` leaves the rest [`FrameResult::Skipped`].
 /// With `scene`, also how far the view of the still scene lies from its camera's first frame
-/// read (the earliest: a camera's frames are read in order), in one frame in
+/// read (in the reading order: a video's, or frames.csv's, which lists a camera's frames
+/// in time order as capture writes it), in one frame in
 /// [`scene::EVERY`].
 fn find_all_markers(
     frames: &FrameList,

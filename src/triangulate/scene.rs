@@ -1,14 +1,16 @@
 //! How far each camera's view of the still scene moved since its first frame (`triangulate
 //! --per-frame`'s `scene_left_px`, `scene_right_px`): the frame shrunk to a grey thumbnail
-//! ([`THUMB`] × [`THUMB`] pixels averaged), and its shift against the camera's first
-//! thumbnail by phase correlation (OpenCV's `phaseCorrelate` under a Hanning window, tile by
-//! tile), in the frame's pixels; in one frame in [`EVERY`] of each camera.
+//! ([`THUMB`] × [`THUMB`] pixels summed), each of its tiles' shift against the camera's first
+//! thumbnail by phase correlation (OpenCV's `phaseCorrelate` under a Hanning window), a shift
+//! and a turn about the centre fitted to the tiles, and the farthest a tile moved under them,
+//! in the frame's pixels; in one frame in [`EVERY`] of each camera.
 //!
 //! The finger moves over a small part of the picture; the wall, the bench and the rig around it
 //! do not, unless the camera moved. The bead's reprojection residual (the cameras' agreement)
 //! cannot see every move: a camera of a side-by-side pair that pans moves its beads along their
 //! epipolar lines, and the tip shifts in depth with no residual to tell. The still scene sees
-//! any turn of a camera, and says which camera turned. A picture with nothing to lock on (a
+//! a camera turned any way (a pan or a tilt shifts its picture, a roll turns it), and says
+//! which camera turned. A picture with nothing to lock on (a
 //! plain backdrop) gives no shift rather than a guess: a correlation peak under
 //! [`MIN_RESPONSE`].
 
@@ -28,7 +30,7 @@ pub const THUMB: usize = 4;
 pub const EVERY: usize = 6;
 
 /// The thumbnail's tiles, across and down, each correlated on its own: the finger moves in a
-/// few of them, and the median of the tiles' shifts is the still scene's.
+/// few of them, which the fit leaves out ([`Thumbnail::motion_from`]).
 pub const TILES: [i32; 2] = [4, 3];
 
 /// The least correlation peak (0-1) a tile's shift is taken from: a textured tile of a still
@@ -37,7 +39,7 @@ pub const TILES: [i32; 2] = [4, 3];
 /// of 80 × 60.
 pub const MIN_RESPONSE: f64 = 0.2;
 
-/// A frame shrunk to grey ([`THUMB`] × [`THUMB`] blocks of luma averaged, the last partial
+/// A frame shrunk to grey ([`THUMB`] × [`THUMB`] blocks of luma summed, the last partial
 /// blocks left out).
 #[derive(Clone, Debug)]
 pub struct Thumbnail(Mat);
@@ -71,14 +73,13 @@ impl Thumbnail {
         Ok(Thumbnail(mat))
     }
 
-    /// How far the scene in `self` lies from where it lay in `reference` ([x, y] in the frame's
-    /// pixels): the median over the tiles ([`TILES`]) whose correlation peaks at
-    /// [`MIN_RESPONSE`] or more, of at least half the tiles; `None` when fewer agree to be
-    /// measured, or the two are of different sizes.
+    /// How the scene in `self` moved from where it lay in `reference`, from the tiles
+    /// ([`TILES`]) whose correlation peaks at [`MIN_RESPONSE`] or more, at least half of them;
+    /// `None` when fewer lock on, or the two are of different sizes.
     ///
     /// # Errors
     /// OpenCV's.
-    pub fn shift_from(&self, reference: &Thumbnail) -> opencv::Result<Option<[f64; 2]>> {
+    pub fn motion_from(&self, reference: &Thumbnail) -> opencv::Result<Option<Motion>> {
         let size = self.0.size()?;
         let [across, down] = TILES;
         let (w, h) = (size.width / across, size.height / down);
@@ -87,32 +88,85 @@ impl Thumbnail {
         }
         let mut window = Mat::default();
         opencv::imgproc::create_hanning_window(&mut window, Size::new(w, h), CV_32F)?;
-        let mut shifts = Vec::new();
+        let scale = THUMB as f64;
+        // Each tile's centre from the picture's (px of the frame), and its shift.
+        let mut tiles = Vec::new();
         for (i, j) in (0..down).flat_map(|j| (0..across).map(move |i| (i, j))) {
             let tile = Rect::new(i * w, j * h, w, h);
             let (a, b) = (centred(&reference.0, tile)?, centred(&self.0, tile)?);
             let mut response = 0.0;
             let shift = opencv::imgproc::phase_correlate(&a, &b, &window, Some(&mut response))?;
-            if std::env::var("TILEDBG").is_ok() {
-                eprintln!(
-                    "tile {i},{j} resp {response:.3} {:.3},{:.3}",
-                    shift.x, shift.y
-                );
-            }
             if response >= MIN_RESPONSE {
-                shifts.push([shift.x, shift.y]);
+                let centre = |k: i32, n: i32, of: i32| {
+                    scale * f64::from(n) * (f64::from(k) + 0.5 - 0.5 * f64::from(of))
+                };
+                let c = [centre(i, w, across), centre(j, h, down)];
+                tiles.push((c, [scale * shift.x, scale * shift.y]));
             }
         }
-        if 2 * shifts.len() < (across * down) as usize {
+        if 2 * tiles.len() < (across * down) as usize {
             return Ok(None);
         }
-        let scale = THUMB as f64;
-        let median = |c: usize| {
-            let mut v: Vec<f64> = shifts.iter().map(|s| s[c]).collect();
-            crate::stats::quantiles(&mut v, [0.5]).map_or(0.0, |[m]| scale * m)
+        // A shift and a turn about the picture's centre (a camera rolled about its axis moves
+        // the tiles on either side of the centre apart), fitted to the tiles by least squares,
+        // then again without the tiles it leaves more than three times the median residual
+        // (at least half a pixel) from it: those the finger crossed.
+        let (mut shift, mut roll_rad) = fit_motion(&tiles);
+        let off = |(c, s): &([f64; 2], [f64; 2]), shift: [f64; 2], roll: f64| {
+            (s[0] - shift[0] + roll * c[1]).hypot(s[1] - shift[1] - roll * c[0])
         };
-        Ok(Some([median(0), median(1)]))
+        let mut residuals: Vec<f64> = tiles.iter().map(|t| off(t, shift, roll_rad)).collect();
+        let [median] = crate::stats::quantiles(&mut residuals, [0.5]).unwrap_or([0.0]);
+        let kept: Vec<_> = (tiles.iter())
+            .filter(|t| off(t, shift, roll_rad) <= (3.0 * median).max(0.5))
+            .copied()
+            .collect();
+        if 2 * kept.len() < (across * down) as usize {
+            return Ok(None);
+        }
+        (shift, roll_rad) = fit_motion(&kept);
+        let largest_px = kept
+            .iter()
+            .map(|(c, _)| (shift[0] - roll_rad * c[1]).hypot(shift[1] + roll_rad * c[0]))
+            .fold(0.0, f64::max);
+        Ok(Some(Motion {
+            shift,
+            roll_rad,
+            largest_px,
+        }))
     }
+}
+
+/// The shift [x, y] and the turn θ (rad) that carry the tiles' centres `c` (from the picture's
+/// centre) by their shifts `s` best (least squares): s ≈ shift + θ (−c_y, c_x).
+fn fit_motion(tiles: &[([f64; 2], [f64; 2])]) -> ([f64; 2], f64) {
+    let (mut ata, mut atb) = (
+        nalgebra::Matrix3::<f64>::zeros(),
+        nalgebra::Vector3::<f64>::zeros(),
+    );
+    for ([cx, cy], [sx, sy]) in tiles {
+        for (row, value) in [([1.0, 0.0, -cy], sx), ([0.0, 1.0, *cx], sy)] {
+            let a = nalgebra::Vector3::from(row);
+            ata += a * a.transpose();
+            atb += a * *value;
+        }
+    }
+    match ata.lu().solve(&atb) {
+        Some(x) => ([x[0], x[1]], x[2]),
+        None => ([0.0; 2], 0.0),
+    }
+}
+
+/// How a camera's picture of the still scene moved ([`Thumbnail::motion_from`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Motion {
+    /// The shift ([x, y], px of the frame).
+    pub shift: [f64; 2],
+    /// The turn about the picture's centre (rad; x towards y).
+    pub roll_rad: f64,
+    /// How far the shift and the turn moved the picture at the tile the farthest moved (px):
+    /// what the channel watches.
+    pub largest_px: f64,
 }
 
 /// Each camera's first thumbnail (by its place in the rig: a pair's 0 left, 1 right), the
@@ -129,11 +183,12 @@ impl FirstFrames {
         self.0[camera].get_or_insert_with(|| thumbnail.clone());
     }
 
-    /// How far `thumbnail` of camera `camera` lies from that camera's first (px), when it can
-    /// be told ([`Thumbnail::shift_from`]).
+    /// How far `thumbnail` of camera `camera` lies from that camera's first (px,
+    /// [`Motion::largest_px`]), when it can be told ([`Thumbnail::motion_from`]).
     pub fn shift(&self, camera: usize, thumbnail: &Thumbnail) -> Option<f64> {
         let first = self.0.get(camera)?.as_ref()?;
-        thumbnail.shift_from(first).ok().flatten().map(length)
+        let motion = thumbnail.motion_from(first).ok().flatten()?;
+        Some(motion.largest_px)
     }
 }
 
@@ -149,30 +204,36 @@ fn centred(thumbnail: &Mat, tile: Rect) -> opencv::Result<Mat> {
     Ok(out)
 }
 
-/// The length of a shift (px).
-pub fn length(shift: [f64; 2]) -> f64 {
-    shift[0].hypot(shift[1])
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    /// The virtual lab's cluttered wall (1280 × 720, albedo to 8 bits), shifted by `by` whole
-    /// pixels, with a 'finger' (a bright bar) drawn at `finger` px from the left.
-    fn wall(by: [usize; 2], finger: usize) -> RgbImage {
-        let (w, h) = (1280, 720);
-        let albedo = crate::synth::clutter::wall(w + 40, h + 40, 7, false, [0.0; 4]);
+    /// The virtual lab's cluttered wall (1282 × 722: not a multiple of the blocks or tiles;
+    /// albedo to 8 bits), shifted by `by` px and turned by `roll` rad about the picture's
+    /// centre (bilinear), with a 'finger' (a bright bar) drawn at `finger` px from the left.
+    fn wall(by: [f64; 2], roll: f64, finger: usize) -> RgbImage {
+        let (w, h, margin) = (1282, 722, 40);
+        let stride = w + 2 * margin;
+        let albedo = crate::synth::clutter::wall(stride, h + 2 * margin, 7, false, [0.0; 4]);
+        let (cx, cy) = (0.5 * w as f64, 0.5 * h as f64);
         let mut data = Vec::with_capacity(3 * w * h);
         for y in 0..h {
             for x in 0..w {
-                let k = (y + 20 - by[1]) * (w + 40) + x + 20 - by[0];
+                // Where this pixel's wall was before the move.
+                let (dx, dy) = (x as f64 - cx - by[0], y as f64 - cy - by[1]);
+                let (c, s) = (roll.cos(), roll.sin());
+                let u = c * dx + s * dy + cx + margin as f64;
+                let v = -s * dx + c * dy + cy + margin as f64;
+                let (i, j, a, b) = (u as usize, v as usize, u.fract(), v.fract());
+                let at = |i: usize, j: usize, k: usize| albedo[3 * (j * stride + i) + k];
                 let bar = (finger..finger + 24).contains(&x) && (200..500).contains(&y);
-                data.extend((0..3).map(|c| {
+                data.extend((0..3).map(|k| {
+                    let value = (1.0 - b) * ((1.0 - a) * at(i, j, k) + a * at(i + 1, j, k))
+                        + b * ((1.0 - a) * at(i, j + 1, k) + a * at(i + 1, j + 1, k));
                     if bar {
                         240
                     } else {
-                        (220.0 * albedo[3 * k + c]) as u8
+                        (220.0 * value) as u8
                     }
                 }));
             }
@@ -185,21 +246,38 @@ mod tests {
         }
     }
 
-    /// A picture moved by (12, 8) px reads as moved by that much, whichever way; the finger
-    /// moving across a still one moves nothing; a plain one gives no shift at all.
+    /// A picture moved by (12, 8) px reads as moved by that much, whichever way; one turned by
+    /// 0.3° about its centre reads as turned so (its corners' tiles about 2.6 px), which the
+    /// tiles' median shift alone would not see; the finger moving across a still one moves
+    /// nothing; a plain one gives no shift at all.
     #[test]
     fn the_still_scene_shift_is_the_pictures_not_the_fingers() {
-        let reference = Thumbnail::of(&wall([0, 0], 600)).unwrap();
-        let moved = Thumbnail::of(&wall([12, 8], 600)).unwrap();
-        let [x, y] = moved.shift_from(&reference).unwrap().unwrap();
-        assert!((x - 12.0).abs() < 0.5 && (y - 8.0).abs() < 0.5, "{x} {y}");
-        let [x, y] = reference.shift_from(&moved).unwrap().unwrap();
-        assert!((x + 12.0).abs() < 0.5 && (y + 8.0).abs() < 0.5, "{x} {y}");
+        let reference = Thumbnail::of(&wall([0.0; 2], 0.0, 600)).unwrap();
+        let motion = |image: &RgbImage, from: &Thumbnail| {
+            Thumbnail::of(image).unwrap().motion_from(from).unwrap()
+        };
+        let moved = wall([12.0, 8.0], 0.0, 600);
+        let m = motion(&moved, &reference).unwrap();
+        let [x, y] = m.shift;
+        assert!((x - 12.0).abs() < 0.5 && (y - 8.0).abs() < 0.5, "{m:?}");
+        assert!(
+            (m.largest_px - 14.42).abs() < 0.5 && m.roll_rad.abs() < 2e-4,
+            "{m:?}"
+        );
+        let back = motion(&wall([0.0; 2], 0.0, 600), &Thumbnail::of(&moved).unwrap()).unwrap();
+        assert!((back.shift[0] + 12.0).abs() < 0.5 && (back.shift[1] + 8.0).abs() < 0.5);
+        let roll = 0.3_f64.to_radians();
+        let turned = motion(&wall([0.0; 2], roll, 600), &reference).unwrap();
+        assert!((turned.roll_rad - roll).abs() < 0.15 * roll, "{turned:?}");
+        assert!(turned.shift[0].hypot(turned.shift[1]) < 0.3, "{turned:?}");
+        assert!(
+            turned.largest_px > 2.0 && turned.largest_px < 3.5,
+            "{turned:?}"
+        );
         // Twice over: OpenCV's phaseCorrelate would window its inputs in place.
         for _ in 0..2 {
-            let finger = Thumbnail::of(&wall([0, 0], 640)).unwrap();
-            let shift = finger.shift_from(&reference).unwrap().unwrap();
-            assert!(length(shift) < 0.1, "{shift:?}");
+            let finger = motion(&wall([0.0; 2], 0.0, 640), &reference).unwrap();
+            assert!(finger.largest_px < 0.1, "{finger:?}");
         }
         // A plain grey backdrop: sensor noise alone, another in each frame.
         let plain = |seed: u64| {
@@ -216,14 +294,29 @@ mod tests {
             };
             Thumbnail::of(&image).unwrap()
         };
-        assert_eq!(plain(2).shift_from(&plain(1)).unwrap(), None);
-        let small = Thumbnail::of(&RgbImage {
+        assert_eq!(plain(2).motion_from(&plain(1)).unwrap(), None);
+        let small = RgbImage {
             width: 64,
             height: 48,
             data: vec![0; 3 * 64 * 48],
             ..RgbImage::default()
-        })
-        .unwrap();
-        assert_eq!(small.shift_from(&reference).unwrap(), None);
+        };
+        assert_eq!(motion(&small, &reference), None);
+    }
+}
+#[cfg(test)]
+mod probe {
+    #[test]
+    #[ignore]
+    fn probe_motion() {
+        let dir = std::env::var("PROBE").unwrap();
+        let img = |name: &str| {
+            crate::image::decode(std::path::Path::new(&format!("{dir}/{name}"))).unwrap()
+        };
+        let r = super::Thumbnail::of(&img("cam2_00000.jpg")).unwrap();
+        for k in [60, 120, 150, 200, 289] {
+            let t = super::Thumbnail::of(&img(&format!("cam2_{k:05}.jpg"))).unwrap();
+            println!("{k} {:?}", t.motion_from(&r).unwrap());
+        }
     }
 }

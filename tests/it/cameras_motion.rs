@@ -87,10 +87,9 @@ fn score(path: &Path, truth: &BTreeMap<usize, Truth>) -> (usize, f64, f64) {
     (n, (sum / n as f64).sqrt(), inside as f64 / n.max(1) as f64)
 }
 
-#[test]
-fn four_cameras_in_motion_give_each_frame_a_tip_closer_than_any_pair_with_the_first() {
-    let dir = tempdir();
-    let d = dir.path();
+/// A dynamic session of four cameras in `d/s` (12 board views; `more` given to synth), and its
+/// calibration `d/cal.yml` (and `cal.toml`).
+fn four_cameras(d: &Path, more: &[&str]) {
     let synth = [
         "synth",
         "--out",
@@ -100,20 +99,24 @@ fn four_cameras_in_motion_give_each_frame_a_tip_closer_than_any_pair_with_the_fi
         "--dynamic",
         "--trials",
         "1",
-        "--duration-s",
-        "8",
-        "--views",
-        "12",
     ];
-    handcap_ok(d, &synth);
+    handcap_ok(d, &[&synth[..], &["--views", "12"], more].concat());
     handcap_ok(d, &["calibrate", "s/calib", "--out", "cal.yml"]);
-    let triangulate = |calib: &str, out: &str| {
-        let args = ["triangulate", "s/frames", "--per-frame", "--calib", calib];
-        handcap_ok(
-            d,
-            &[&args[..], &["--pressures", "s/pressures.csv", "--out", out]].concat(),
-        )
-    };
+}
+
+/// `triangulate s/frames --per-frame` in `d` with `calib`, into `out`: what it said.
+fn per_frame(d: &Path, calib: &str, out: &str) -> String {
+    let args = ["triangulate", "s/frames", "--per-frame", "--calib", calib];
+    let to = ["--pressures", "s/pressures.csv", "--out", out];
+    handcap_ok(d, &[&args[..], &to].concat())
+}
+
+#[test]
+fn four_cameras_in_motion_give_each_frame_a_tip_closer_than_any_pair_with_the_first() {
+    let dir = tempdir();
+    let d = dir.path();
+    four_cameras(d, &["--duration-s", "8"]);
+    let triangulate = |calib: &str, out: &str| per_frame(d, calib, out);
     let said = triangulate("cal.toml", "four.csv");
     let truth = truth_of(&d.join("s"), "cam1");
     let rows = csv_rows(&d.join("four.csv"));
@@ -216,6 +219,52 @@ fn four_cameras_in_motion_give_each_frame_a_tip_closer_than_any_pair_with_the_fi
         four < best_pair,
         "four {four:.4} mm, the best pair with cam1 {best_pair:.4}"
     );
+}
+
+/// Four cameras, the second (cam2) panned 0.5° at 4 s: its view of the still scene moves by
+/// f·tan 0.5° or more from then on, the other three's stay within half a pixel, and `handcap
+/// monitor` of the rows names cam2 alone.
+#[test]
+fn of_four_cameras_the_one_that_panned_is_named_by_its_view_of_the_still_scene() {
+    let dir = tempdir();
+    let d = dir.path();
+    four_cameras(d, &["--duration-s", "6", "--fault", "pan@4=0.5"]);
+    per_frame(d, "cal.toml", "rows.csv");
+    let rows = csv_rows(&d.join("rows.csv"));
+    for camera in ["cam1", "cam2", "cam3", "cam4"] {
+        let column = format!("scene_{camera}_px");
+        let seen: Vec<(f64, f64)> = rows
+            .iter()
+            .filter_map(|r| Some((r["time_s"].parse().ok()?, r[&column].parse().ok()?)))
+            .collect();
+        let after: Vec<f64> = seen.iter().filter(|(t, _)| *t > 4.1).map(|s| s.1).collect();
+        assert!(after.len() > 10, "{column}: {}", after.len());
+        // Before the pan cam2's view stayed too (its frames rendered before the pan once
+        // drew on canvases its panned view had handed back: 9 px off, some of them).
+        let still: Vec<f64> = (seen.iter())
+            .filter(|(t, _)| camera != "cam2" || *t < 3.9)
+            .map(|s| s.1)
+            .collect();
+        assert!(still.iter().all(|&px| px < 0.5), "{column}: {still:?}");
+        if camera == "cam2" {
+            let panned = after.iter().all(|&px| (7.5..12.0).contains(&px));
+            assert!(panned, "{column}: {after:?}");
+        }
+    }
+    crate::monitor::fit(d);
+    let watch = ["monitor", "rows.csv", "--model", "model.json", "--out", "w"];
+    let said = handcap_ok(
+        d,
+        &[&watch[..], &["--baseline-s", "3", "--look-s", "0.1"]].concat(),
+    );
+    let v = read_json(&d.join("w/monitor.json"));
+    let named: Vec<&str> = v["alarms"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|a| a["camera"].as_str())
+        .collect();
+    assert_eq!(named, ["cam2"], "{said}");
 }
 
 #[test]

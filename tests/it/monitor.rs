@@ -336,6 +336,14 @@ fn a_camera_that_pans_is_named_by_its_view_of_the_still_scene_though_its_beads_a
         .filter_map(|r| scene(r, "left"))
         .fold(0.0, f64::max);
     assert!(left < 0.5, "the left camera's view moved {left} px");
+    // Before the pan the right camera's view stayed too.
+    let before = (rows.iter().filter(|r| time(r) < 5.9))
+        .filter_map(|r| scene(r, "right"))
+        .fold(0.0, f64::max);
+    assert!(
+        before < 0.5,
+        "the right camera's view moved {before} px before the pan"
+    );
     let v = read_json(&d.join("w/monitor.json"));
     let alarms = v["alarms"].as_array().unwrap();
     let camera: Vec<&serde_json::Value> =

@@ -104,7 +104,8 @@ impl Watcher {
     /// misses more often than p₀). A baseline of too few looks for the bound (fewer than
     /// ⌈ln(1 − confidence) / ln q⌉: 29 for the 0.9 quantile, 59 for 0.95), or whose bound is +∞ (a
     /// camera's refused rows at its upper looks), gives the quantile of all its values. At least
-    /// `floor`, at most `cap`; without values, `cap` when it is finite.
+    /// `floor`, at most `cap`; without values, `cap` when it is finite, else `floor` when it is
+    /// set.
     pub(super) fn decide(&mut self) -> (Option<f64>, f64) {
         *self.decided.get_or_insert_with(|| {
             let q = crate::stats::quantiles(&mut self.baseline, [self.quantile, 0.5]);
@@ -118,7 +119,11 @@ impl Watcher {
                 .filter(|b| b.is_finite())
                 .or(plain)
                 .map(|r| r.max(self.floor).min(self.cap))
-                .or(Some(self.cap))
+                .or_else(|| {
+                    [self.cap, self.floor]
+                        .into_iter()
+                        .find(|&r| r > 0.0 && r.is_finite())
+                })
                 .filter(|r| r.is_finite());
             self.baseline = Vec::new();
             self.baseline_looks = Vec::new();

@@ -223,7 +223,7 @@ pub const RESPONSE_SHIFT: f64 = 0.1;
 pub const RESPONSE_THRESHOLD: f64 = 1.0;
 
 /// The least reference of a camera's still-scene channel (px): the scene's shift between
-/// frames of an unmoved webcam is noise of a few tenths of a pixel (0.3 at most on the virtual
+/// frames of an unmoved webcam is noise of a few tenths of a pixel (0.36 at most on the virtual
 /// lab's JPEG frames), and a move below half a pixel does not yet spoil a calibration's
 /// triangulation by more than its own error.
 pub const SCENE_FLOOR_PX: f64 = 0.5;
@@ -421,16 +421,11 @@ impl Monitor {
     /// (px); that camera's alarm, when it fires.
     pub fn scene(&mut self, camera: &str, t: f64, px: f64) -> Option<Alarm> {
         let end = self.baseline_end(t);
-        let k = match self.scene.iter().position(|(name, _)| name == camera) {
-            Some(k) => k,
-            None => {
-                let h = self.settings.threshold();
-                let watcher = Watcher::new(0.9, f64::INFINITY, 0.1, h).at_least(SCENE_FLOOR_PX);
-                self.scene.push((camera.to_string(), watcher));
-                self.scene.len() - 1
-            }
-        };
-        let change_s = self.scene[k].1.take(t, px, end, self.settings.look_s)?;
+        let h = self.settings.threshold();
+        let watcher = named(&mut self.scene, camera, || {
+            Watcher::new(0.9, f64::INFINITY, 0.1, h).at_least(SCENE_FLOOR_PX)
+        });
+        let change_s = watcher.take(t, px, end, self.settings.look_s)?;
         Some(self.camera_alarm(t, change_s, Some(camera.to_string()), SCENE_MOVED))
     }
 
@@ -532,6 +527,22 @@ impl Monitor {
             threshold: self.settings.threshold(),
         }
     }
+}
+
+/// The value named `name` in `list`, made by `new` (and kept) when it has none.
+pub fn named<'a, T>(
+    list: &'a mut Vec<(String, T)>,
+    name: &str,
+    new: impl FnOnce() -> T,
+) -> &'a mut T {
+    let k = match list.iter().position(|(n, _)| n == name) {
+        Some(k) => k,
+        None => {
+            list.push((name.to_string(), new()));
+            list.len() - 1
+        }
+    };
+    &mut list[k].1
 }
 
 /// What a baseline whose median residual is `median_px` says, when it is over [`MISFIT_PX`].

@@ -390,4 +390,19 @@ fn a_camera_whose_view_of_the_still_scene_moved_is_named() {
         watched.scene_references_px[0],
         ("left".into(), Some(SCENE_FLOOR_PX))
     );
+    // A camera whose scene was first told after the baseline (none in it) is watched against
+    // the floor.
+    let late = 30 * 150;
+    let scene = [(
+        "right",
+        Series {
+            times: &times[late..],
+            values: &moved[late..],
+        },
+    )];
+    let watched = watch(series(&e), None, &scene, None, 1.645, &Settings::default());
+    let reference = &watched.scene_references_px[0];
+    assert_eq!(reference, &("right".into(), Some(SCENE_FLOOR_PX)));
+    let alarm = the_one_camera_alarm(&watched);
+    assert!(alarm.time_s >= 200.0 && alarm.time_s < 215.0, "{alarm:?}");
 }

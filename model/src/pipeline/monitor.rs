@@ -65,6 +65,7 @@ pub fn run(watch: &Watch, provenance: Provenance) -> Result<Watched, PipelineErr
         AFTER_CHANGE,
         "monitor.png",
         "monitor.svg",
+        "monitor.md",
     ];
     let files: Vec<Output> = names
         .iter()
@@ -140,9 +141,77 @@ pub fn write(replay: &Replay, watched: &Watched) -> Result<(), PipelineError> {
         monitored,
         watched.settings.level,
     )?;
+    let path = out.join("monitor.md");
+    crate::fsio::write_bytes(&path, section(watched).as_bytes()).map_err(super::io_error(&path))?;
     let json = serde_json::to_vec_pretty(watched).expect("the monitor's summary serialises");
     let path = out.join("monitor.json");
     crate::fsio::write_bytes(&path, &json).map_err(super::io_error(&path))
+}
+
+/// `monitor.md`: the session watched as a section of a report: what was watched, the band's
+/// coverage, each channel's reference, the alarms and the figure.
+fn section(watched: &Watched) -> String {
+    let (m, settings) = (&watched.monitored, &watched.settings);
+    let mut md = format!(
+        "## The session watched\n\n`{}` against `{}`: {} rows; the online {} % band held {:.1} % of them (it started at the model's radius {:.4}). A look every {} s; the first {} s the baseline; at most one false alarm per {} h of looks.\n\n",
+        watched.session.display(),
+        watched.model.display(),
+        watched.rows,
+        100.0 * settings.level,
+        100.0 * m.coverage,
+        m.start_radius,
+        settings.look_s,
+        settings.baseline_s,
+        settings.false_alarm_hours,
+    );
+    md.push_str("| channel | reference |\n|---|---|\n");
+    md.push_str(&format!(
+        "| finger (the model's error) | {:.4} |\n",
+        m.model_reference
+    ));
+    let px = |r: Option<f64>| r.map_or("none (no baseline)".to_string(), |r| format!("{r:.3} px"));
+    if m.baseline_median_px.is_some() {
+        md.push_str(&format!(
+            "| camera (the beads' residual) | {} |\n",
+            px(m.geometry_reference_px)
+        ));
+    }
+    for (camera, reference) in &m.scene_references_px {
+        md.push_str(&format!(
+            "| camera (the still scene, {camera}) | {} |\n",
+            px(*reference)
+        ));
+    }
+    if m.alarms.is_empty() {
+        md.push_str("\nNo alarm.\n");
+    } else {
+        md.push_str(
+            "\n| alarm | raised (s) | the change began (s) | what to do |\n|---|---|---|---|\n",
+        );
+        for a in &m.alarms {
+            let camera = a
+                .camera
+                .as_ref()
+                .map_or_else(String::new, |c| format!(" ({c})"));
+            md.push_str(&format!(
+                "| {}{camera} | {:.1} | {:.1} | {} |\n",
+                a.channel.name(),
+                a.time_s,
+                a.change_s,
+                a.advice
+            ));
+        }
+    }
+    if let Some(path) = &watched.after_change {
+        md.push_str(&format!(
+            "\nThe rows from the change on: `{}`.\n",
+            path.display()
+        ));
+    }
+    md.push_str(
+        "\n![The model's error, the band and the alarms as the session ran](monitor.png)\n",
+    );
+    md
 }
 
 /// Times and values of one channel.
@@ -225,11 +294,12 @@ impl Replay {
         })
     }
 
-    /// The value of `samples` at model row `i`'s time (the first at or after it).
+    /// The value of `samples` at model row `i`'s time, when it has one then (a still scene is
+    /// measured on one row in six).
     fn at(&self, samples: &Samples, i: usize) -> Option<f64> {
         let (times, values) = samples;
         let k = times.partition_point(|&t| t < self.times[i]);
-        values.get(k).copied()
+        (times.get(k) == Some(&self.times[i])).then(|| values[k])
     }
 
     /// `monitor.csv`: each row's time, prediction, measured tip, error, band, statistics and

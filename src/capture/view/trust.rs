@@ -100,7 +100,7 @@ type Taken = (
     f64,
     [f64; 3],
     Result<(Vector3<f64>, f64), &'static str>,
-    [Option<f64>; 2],
+    Vec<Option<f64>>,
 );
 
 /// The cameras' names in the still scene's channels (`triangulate --per-frame`'s).
@@ -182,17 +182,10 @@ impl Trust {
             }
             for (camera, px) in CAMERAS.into_iter().zip(scene) {
                 let Some(px) = px else { continue };
-                let k = match self.replay.scene.iter().position(|(c, _)| c == camera) {
-                    Some(k) => k,
-                    None => {
-                        self.replay
-                            .scene
-                            .push((camera.to_string(), Default::default()));
-                        self.replay.scene.len() - 1
-                    }
-                };
-                self.replay.scene[k].1 .0.push(t);
-                self.replay.scene[k].1 .1.push(px);
+                let samples =
+                    crate::monitor::named(&mut self.replay.scene, camera, Default::default);
+                samples.0.push(t);
+                samples.1.push(px);
                 said.extend(self.monitor.scene(camera, t, px).map(|a| a.to_string()));
             }
             let px = match found {
@@ -343,7 +336,7 @@ mod tests {
             } else {
                 Vector3::new(3.0, wobble, 10.0)
             };
-            trust.take((t, [k as f64, 20.0, 30.0], Ok((tip, 0.1)), [None; 2]));
+            trust.take((t, [k as f64, 20.0, 30.0], Ok((tip, 0.1)), Vec::new()));
             trust.watch(Some((Rotation3::identity(), Vector3::zeros())));
         }
         let provenance = Provenance::new(vec!["test".into()], None);

@@ -263,24 +263,21 @@ impl Tracker {
         self.scene.push(scene_px);
     }
 
-    /// The still scene's shift at left frame `frame` (time `t`), when it was measured: that
-    /// frame's, and the right frame's measured nearest in time.
-    fn scene_at(&self, frame: usize, t: f64) -> [Option<f64>; 2] {
-        let at = |k: usize| self.scene[k].map(|px| (k, px));
-        let left = (0..self.records.len())
-            .find(|&k| self.records[k].camera == Side::Left && self.records[k].index == frame)
-            .and_then(at);
-        let right = (0..self.records.len())
-            .filter(|&k| self.records[k].camera == Side::Right)
-            .filter_map(at)
-            .min_by(|a, b| {
-                let apart = |k: usize| (self.records[k].time_s - t).abs();
-                apart(a.0).total_cmp(&apart(b.0))
-            });
-        match (left, right) {
-            (Some((_, l)), right) => [Some(l), right.map(|(_, r)| r)],
-            (None, _) => [None, None],
+    /// The still scene's shift at left frame `frame` (time `t`), when it is one the scene is
+    /// measured in: per camera, its frame measured nearest in time (the left one's own, unless
+    /// it could not be told).
+    fn scene_at(&self, frame: usize, t: f64) -> Vec<Option<f64>> {
+        if !frame.is_multiple_of(scene::EVERY) {
+            return Vec::new();
         }
+        let nearest = |side: Side| {
+            (0..self.records.len())
+                .filter(|&k| self.records[k].camera == side)
+                .filter_map(|k| Some(((self.records[k].time_s - t).abs(), self.scene[k]?)))
+                .min_by(|a, b| a.0.total_cmp(&b.0))
+                .map(|(_, px)| px)
+        };
+        vec![nearest(Side::Left), nearest(Side::Right)]
     }
 
     /// The commands sent since last taken; the first may be the newest one taken, measured

@@ -138,7 +138,9 @@ impl Studio<'_> {
     /// Renders shot `id` (its number in the fixed order seeds its sensor noise).
     fn render(&self, id: usize, shot: &Shot) -> Result<Rendered, SynthError> {
         let (c, ext) = (self.config, self.config.format.extension());
-        let (camera, path, mut canvas, time) = match shot {
+        // The view that draws the shot takes its canvas back: a knocked camera's backdrop is
+        // not its view before the knock's.
+        let (camera, path, mut canvas, time, view) = match shot {
             Shot::Board {
                 camera,
                 name,
@@ -148,7 +150,8 @@ impl Studio<'_> {
                 let path = self
                     .dir
                     .join(format!("calib/{}_{name}.{ext}", self.names[*camera]));
-                (*camera, path, view.board(&self.boards[*board].board), 0.0)
+                let board = view.board(&self.boards[*board].board);
+                (*camera, path, board, 0.0, view)
             }
             Shot::Frame {
                 camera,
@@ -166,13 +169,13 @@ impl Studio<'_> {
                 let path = self
                     .dir
                     .join(format!("frames/{}_{index:05}.{ext}", self.names[*camera]));
-                (*camera, path, canvas, *exposure_s)
+                (*camera, path, canvas, *exposure_s, view)
             }
         };
         let gain = exposure_gain(c, camera, time);
         let size = [canvas.width as u32, canvas.height as u32];
         let rgb = canvas.develop(gain, self.seed, id as u64);
-        self.views[camera].recycle(canvas);
+        view.recycle(canvas);
         Ok(Rendered { path, size, rgb })
     }
 }

@@ -241,7 +241,7 @@ pub fn triangulate_per_frame(
     for (row, _) in rows.iter_mut().zip(centroid_only).filter(|(_, c)| *c) {
         row.flags.push(CENTROID);
     }
-    rows::with_scene(&mut rows, &left, &[&left, &right], &found.scene);
+    rows::with_scene(&mut rows, &[&left, &right], &found.scene);
 
     // 6. The hand frame from the first rest hold.
     let origin = rows::rest_origin(&rows, &points, log, options)?;

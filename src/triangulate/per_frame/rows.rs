@@ -58,24 +58,17 @@ pub(super) fn frame_rows(
 }
 
 /// Each camera's still scene ([`crate::triangulate::scene`]; `scene` per frame record, where
-/// measured) on the rows whose own frame (of `rows_track`) was measured: per camera of
-/// `tracks`, its frame measured nearest the row's time.
-pub(super) fn with_scene(
-    rows: &mut [FrameRow],
-    rows_track: &Track,
-    tracks: &[&Track],
-    scene: &[Option<f64>],
-) {
+/// measured) on the rows whose own frame is one the scene is measured in (its number a
+/// multiple of [`EVERY`]): per camera of `tracks`, its frame measured nearest the row's time
+/// (the rows' camera's own frame, unless it was unreadable or its scene could not be told).
+pub(super) fn with_scene(rows: &mut [FrameRow], tracks: &[&Track], scene: &[Option<f64>]) {
     if scene.is_empty() {
         return;
     }
     let measured = |track: &Track, pos: usize| scene[track.order[pos]];
-    let frames = rows_track.order.iter().zip(&rows_track.times);
-    for (row, (&i, &t)) in rows.iter_mut().zip(frames) {
-        if scene[i].is_some() {
-            let near = |track: &&Track| track.nearest_with(t, EVERY, &measured);
-            row.scene_px = tracks.iter().map(near).collect();
-        }
+    for row in rows.iter_mut().filter(|r| r.frame.is_multiple_of(EVERY)) {
+        let near = |track: &&Track| track.nearest_with(row.time_s, EVERY, &measured);
+        row.scene_px = tracks.iter().map(near).collect();
     }
 }
 

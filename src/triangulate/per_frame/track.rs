@@ -124,7 +124,7 @@ impl Track {
         of: &dyn Fn(&Track, usize) -> Option<T>,
     ) -> Option<T> {
         let near = self.times.partition_point(|&s| s <= t);
-        let span = near.saturating_sub(within + 1)..(near + within).min(self.times.len());
+        let span = near.saturating_sub(within + 1)..(near + within + 1).min(self.times.len());
         span.filter_map(|pos| Some(((self.times[pos] - t).abs(), of(self, pos)?)))
             .min_by(|a, b| a.0.total_cmp(&b.0))
             .map(|(_, v)| v)

@@ -216,7 +216,7 @@ pub fn triangulate_per_frame_cameras(
     for (row, _) in rows.iter_mut().zip(&centroid_only).filter(|(_, c)| **c) {
         row.flags.push(CENTROID);
     }
-    rows::with_scene(&mut rows, rows_track, &track_refs, &scene);
+    rows::with_scene(&mut rows, &track_refs, &scene);
     let origin = rows::rest_origin(&rows, &points, log, options)?;
     summary.origin_world_mm = origin.point.into();
     summary.origin_rows = origin.rows;
@@ -247,11 +247,16 @@ fn examine_all(
     let measured = |f: &Frame| f.index.is_multiple_of(scene::EVERY);
     let mut first = scene::FirstFrames::default();
     for camera in 0..cameras.len() {
-        let of_camera = frames.iter().filter(|f| f.camera == camera && measured(f));
-        if let Some(f) = of_camera.min_by_key(|f| f.index) {
-            if let (_, Some(thumbnail)) = examine(f, cameras, options, true) {
-                first.offer(camera, &thumbnail);
-            }
+        let mut of_camera: Vec<&Frame> = (frames.iter())
+            .filter(|f| f.camera == camera && measured(f))
+            .collect();
+        of_camera.sort_by_key(|f| f.index);
+        // The first that reads, at the camera's size.
+        let first_read = of_camera
+            .iter()
+            .find_map(|f| examine(f, cameras, options, true).1);
+        if let Some(thumbnail) = first_read {
+            first.offer(camera, &thumbnail);
         }
     }
     let done = AtomicUsize::new(0);
