@@ -353,6 +353,13 @@ fn a_camera_that_pans_is_named_by_its_view_of_the_still_scene_though_its_beads_a
     let raised = camera[0]["time_s"].as_f64().unwrap();
     assert!(raised > 6.0 && raised < 8.0, "{said}");
     assert!(said.contains("alarm: camera (right) at"), "{said}");
+    // The report's section says so too.
+    let section = std::fs::read_to_string(d.join("w/monitor.md")).unwrap();
+    assert!(section.contains("| camera (right) |"), "{section}");
+    assert!(
+        section.contains("camera (the still scene, left) | 0.750 px"),
+        "{section}"
+    );
     // The tips moved by millimetres with the camera: the finger alarm they raise (before the
     // camera's, on this seed) points at the camera, not at a refit.
     let finger = alarms.iter().find(|a| a["channel"] == "finger");

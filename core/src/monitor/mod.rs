@@ -222,11 +222,11 @@ pub const RESPONSE_SHIFT: f64 = 0.1;
 /// displacement summed over looks past the allowance ([module docs](self)).
 pub const RESPONSE_THRESHOLD: f64 = 1.0;
 
-/// The least reference of a camera's still-scene channel (px): the scene's shift between
-/// frames of an unmoved webcam is noise of a few tenths of a pixel (0.36 at most on the virtual
-/// lab's JPEG frames), and a move below half a pixel does not yet spoil a calibration's
-/// triangulation by more than its own error.
-pub const SCENE_FLOOR_PX: f64 = 0.5;
+/// The least reference of a camera's still-scene channel (px): the scene of an unmoved webcam
+/// wanders from frame to frame by noise of a few tenths of a pixel (0.4 at most on the virtual
+/// lab's JPEG frames, `scripts/bench_scene.py`), and a turn of 0.05° (0.8 px of a C920's
+/// picture) or more is what it is to catch; a pan or a tilt of 0.1° moves the picture 1.6 px.
+pub const SCENE_FLOOR_PX: f64 = 0.75;
 
 /// A scene alarm's advice.
 const SCENE_MOVED: &str =
