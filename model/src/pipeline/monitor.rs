@@ -22,6 +22,11 @@ pub const RESIDUAL_COLUMN: &str = "reproj_px";
 /// far its view of the still scene lay from the session's first frame's), read when present.
 const SCENE_COLUMN: (&str, &str) = ("scene_", "_px");
 
+/// Camera `camera`'s still-scene column ([`SCENE_COLUMN`]).
+pub fn scene_column(camera: &str) -> String {
+    format!("{}{camera}{}", SCENE_COLUMN.0, SCENE_COLUMN.1)
+}
+
 /// What to watch.
 pub struct Watch<'a> {
     pub session: &'a Path,
@@ -322,11 +327,7 @@ impl Replay {
                     ]
                     .map(String::from),
                 )
-                .chain(
-                    self.scene
-                        .iter()
-                        .map(|(camera, _)| format!("{}{camera}{}", SCENE_COLUMN.0, SCENE_COLUMN.1)),
-                )
+                .chain(self.scene.iter().map(|(camera, _)| scene_column(camera)))
                 .chain(["alarm".to_string()]),
         );
         let number = data::format_number;

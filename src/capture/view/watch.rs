@@ -393,12 +393,9 @@ impl Tracker {
     fn forget(&mut self) {
         let keep_from = self.taken_until_s - KEEP_S;
         let keep: Vec<bool> = self.records.iter().map(|r| r.time_s >= keep_from).collect();
-        let mut k = keep.iter();
-        self.records.retain(|_| *k.next().unwrap_or(&true));
-        let mut k = keep.iter();
-        self.centres.retain(|_| *k.next().unwrap_or(&true));
-        let mut k = keep.iter();
-        self.scene.retain(|_| *k.next().unwrap_or(&true));
+        retain_kept(&mut self.records, &keep);
+        retain_kept(&mut self.centres, &keep);
+        retain_kept(&mut self.scene, &keep);
         let in_force = self.commands.partition_point(|c| c.0 <= self.taken_until_s);
         self.commands.drain(..in_force.saturating_sub(1));
         if self.tips.len() > 2 * TRACK_POINTS && self.origin.is_some() {
@@ -448,4 +445,10 @@ impl Tracker {
             ))
         }
     }
+}
+
+/// The items of `items` whose place in `keep` is true (those past its end kept).
+fn retain_kept<T>(items: &mut Vec<T>, keep: &[bool]) {
+    let mut k = keep.iter();
+    items.retain(|_| *k.next().unwrap_or(&true));
 }

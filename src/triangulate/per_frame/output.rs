@@ -9,6 +9,7 @@ use nalgebra::Vector3;
 use super::rows::REACH;
 use super::{FrameRow, PerFrame, CENTROID};
 use crate::data::{Csv, HAND_INPUTS, HAND_OUTPUTS};
+use crate::pipeline::monitor::scene_column;
 use crate::provenance::Provenance;
 use crate::session::pressures::{PressureLog, MEASURED_COLUMNS};
 use crate::triangulate::output::{beside, first_appearances, ours, phase_path};
@@ -25,13 +26,8 @@ impl PerFrame {
     /// `scene_right_px`), `frame`, `reproj_px`, `flag`.
     pub fn csv(&self, log: &PressureLog, keep: impl Fn(&FrameRow) -> bool) -> String {
         let in_force = InForce::of(log);
-        let after = [
-            "scene_left_px",
-            "scene_right_px",
-            "frame",
-            "reproj_px",
-            "flag",
-        ];
+        let scene = ["left", "right"].map(scene_column);
+        let after = [&scene[0], &scene[1], "frame", "reproj_px", "flag"];
         let mut csv = Csv::new(in_force.header(&after));
         let number = |v: Option<f64>| v.map_or_else(String::new, crate::data::format_number);
         for r in self.rows.iter().filter(|r| keep(r)) {

@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use super::{CamerasRow, PerFrameCameras};
 use crate::calib::file::ReadCamera;
 use crate::data::Csv;
+use crate::pipeline::monitor::scene_column;
 use crate::provenance::Provenance;
 use crate::session::pressures::PressureLog;
 use crate::triangulate::cameras::{camera_names, covariance_fields};
@@ -44,10 +45,7 @@ impl PerFrameCameras {
         keep: impl Fn(&CamerasRow) -> bool,
     ) -> String {
         let in_force = InForce::of(log);
-        let scene: Vec<String> = cameras
-            .iter()
-            .map(|c| format!("scene_{}_px", c.name))
-            .collect();
+        let scene: Vec<String> = cameras.iter().map(|c| scene_column(&c.name)).collect();
         let (tip, tail) = COLUMNS.split_at(COLUMNS.len() - 3);
         let names = tip.iter().copied().chain(scene.iter().map(String::as_str));
         let columns: Vec<&str> = names.chain(tail.iter().copied()).collect();
