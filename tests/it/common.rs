@@ -302,6 +302,17 @@ pub fn read_json(path: &Path) -> serde_json::Value {
     serde_json::from_slice(&std::fs::read(path).unwrap()).unwrap()
 }
 
+/// Of a model file's tried (or screened) entries, the one of lowest `fitness`.
+pub fn lowest_fitness(entries: &serde_json::Value) -> &serde_json::Value {
+    let fitness = |e: &serde_json::Value| e["fitness"].as_f64().unwrap();
+    entries
+        .as_array()
+        .unwrap()
+        .iter()
+        .min_by(|a, b| fitness(a).total_cmp(&fitness(b)))
+        .unwrap()
+}
+
 /// The rows of a CSV file as maps from column name to cell.
 pub fn csv_rows(path: &Path) -> Vec<std::collections::HashMap<String, String>> {
     let mut reader = csv::Reader::from_path(path).expect("readable CSV");

@@ -10,7 +10,8 @@ use handcap::model::msvr::{Loss, MsvrParams};
 use handcap::model::{Differentiable, ModelSpec, Predict};
 
 use crate::common::{
-    csv_rows, handcap, handcap_err, handcap_ok, handcap_usage, read_json, tempdir, write, Lcg,
+    csv_rows, handcap, handcap_err, handcap_ok, handcap_usage, lowest_fitness, read_json, tempdir,
+    write, Lcg,
 };
 
 /// Time step of the lagging plant's log (s) and its lag's time constant (s).
@@ -244,17 +245,7 @@ fn the_ladder_screen_follows_the_plants_lag() {
         args.extend(["--out".to_string(), format!("{name}.json")]);
         handcap_ok(d, &args.iter().map(String::as_str).collect::<Vec<_>>());
         let decision = &read_json(&d.join(format!("{name}.json")))["history"];
-        let best = decision["screened"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .min_by(|a, b| {
-                a["fitness"]
-                    .as_f64()
-                    .unwrap()
-                    .total_cmp(&b["fitness"].as_f64().unwrap())
-            })
-            .unwrap();
+        let best = lowest_fitness(&decision["screened"]);
         let first_tau = best["memory"]["tau"][0].as_f64().unwrap();
         let present = decision["tried"][0]["fitness"].as_f64().unwrap();
         eprintln!(

@@ -65,7 +65,7 @@ pub struct Args {
     outputs: Vec<String>,
     /// The model: msvr (the paper's: C, ε and σ shared by the outputs), krr (kernel ridge: the
     /// squared loss, no tube; C and σ), or auto (each searched on the same folds, the lower
-    /// cross-validated error kept; within one standard error, kernel ridge)
+    /// cross-validated error kept)
     #[arg(long, default_value = "auto", value_parser = clap::value_parser!(FamilyChoice))]
     model: FamilyChoice,
     /// How to choose C, ε and σ

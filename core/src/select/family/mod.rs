@@ -12,8 +12,13 @@
 //! its tests (in its module) and its line in `docs/models.md`.
 //!
 //! `auto` searches each on the same rows and folds and keeps the one with the lowest
-//! cross-validated error, unless a simpler family (fewer axes) is within one standard error
-//! of its paired difference over the folds: then the simplest such.
+//! cross-validated error. Keeping the family with fewer axes (kernel ridge) whenever it was
+//! within one standard error of the paired fold differences was measured on every held-out
+//! block of the two real datasets (`docs/benchmarks.md`, ten static splits): it cost the
+//! tendon arm 16 % (17.41 against 14.97 mm held out, one near tie kept the squared loss on a
+//! block of transients: 22.89 against 10.69) and the soft trunk 0.5 %, and was dropped. The
+//! history's and the basis' near-tie rules stay: there the simpler choice is nested in the
+//! other.
 
 use serde::{Deserialize, Serialize};
 
@@ -92,11 +97,6 @@ impl Family {
     pub fn moves(self) -> String {
         let labels: Vec<&str> = self.axes().iter().map(|a| label(a)).collect();
         labels.join(" and ")
-    }
-
-    /// Whether it is simpler than `other`: it moves fewer axes.
-    pub fn simpler_than(self, other: Family) -> bool {
-        self.axes().len() < other.axes().len()
     }
 
     /// The value it holds `axis` at when fitting with `params`, when it does not move it.
@@ -310,57 +310,39 @@ impl FamilyDecision {
 }
 
 /// `auto`'s choice among `tried` (each scored on the same folds): the lowest cross-validated
-/// error, unless a simpler family's is within one standard error of the paired fold
-/// differences above it (then the simplest such, the lower error between equals).
+/// error, as a user's grid search refits its best. The reason gives each other family's
+/// paired difference above it and that difference's standard error, and calls a difference
+/// within one standard error a near tie. A rule keeping the family with fewer axes in a near
+/// tie was measured and dropped (module docs).
 pub fn decide(tried: Vec<FamilyTrial>) -> FamilyDecision {
     let best = tried
         .iter()
         .min_by(|a, b| a.fitness.total_cmp(&b.fitness))
         .expect("a family was tried");
-    // Each simpler family with its paired difference above the best and its standard error.
-    let simpler: Vec<(&FamilyTrial, f64, f64)> = tried
+    let (title, k, lower) = (best.family.title(), best.folds.len(), best.fitness);
+    let others: Vec<String> = tried
         .iter()
-        .filter(|t| t.family.simpler_than(best.family))
+        .filter(|t| t.family != best.family)
         .map(|t| {
             let (margin, se) = paired(t, best);
-            (t, margin, se)
+            let tie = if margin <= se { ": a near tie" } else { "" };
+            format!(
+                "{}'s {:.5} (difference {margin:.5}, one standard error {se:.5} over {k} folds{tie})",
+                t.family.title(),
+                t.fitness
+            )
         })
         .collect();
-    let simplest_within = simpler
-        .iter()
-        .filter(|(_, margin, se)| margin <= se)
-        .min_by(|(a, ..), (b, ..)| {
-            let key = |t: &FamilyTrial| (t.family.axes().len(), t.fitness);
-            key(a)
-                .partial_cmp(&key(b))
-                .unwrap_or(std::cmp::Ordering::Equal)
-        });
-    let nearest = simpler
-        .iter()
-        .min_by(|(a, ..), (b, ..)| a.fitness.total_cmp(&b.fitness));
-    let (title, k, lower) = (best.family.title(), best.folds.len(), best.fitness);
-    let (used, verdict) = match (simplest_within, nearest) {
-        (Some(&(simple, margin, se)), _) => {
-            let (name, ridge) = (simple.family.title(), simple.fitness);
-            (
-                simple.family,
-                format!("{title}'s {lower:.5} is within one standard error of {name}'s {ridge:.5} (difference {margin:.5} ≤ {se:.5} over {k} folds): the simpler, {name}"),
-            )
-        }
-        (None, Some(&(simple, margin, se))) => {
-            let (name, ridge) = (simple.family.title(), simple.fitness);
-            (
-                best.family,
-                format!("{title} lowers the cross-validated error from {name}'s {ridge:.5} to {lower:.5} (by {margin:.5}, more than one standard error, {se:.5}, over {k} folds)"),
-            )
-        }
-        (None, None) => (
-            best.family,
-            format!("{title} has the lowest cross-validated error ({lower:.5})"),
-        ),
+    let verdict = if others.is_empty() {
+        format!("{title} has the lowest cross-validated error ({lower:.5})")
+    } else {
+        format!(
+            "{title} has the lowest cross-validated error, {lower:.5}, against {}",
+            others.join(", ")
+        )
     };
     FamilyDecision {
-        used,
+        used: best.family,
         reason: format!("model=auto: {verdict}"),
         tried,
     }
@@ -479,28 +461,42 @@ mod tests {
     }
 
     #[test]
-    fn auto_keeps_kernel_ridge_within_one_standard_error_and_msvr_beyond_it() {
-        // MSVR lower by 0.02 on average, the folds disagreeing by far more: a tie.
+    fn auto_keeps_the_lowest_cross_validated_error_and_names_a_near_tie() {
+        // MSVR lower by 0.02 on average, the folds disagreeing by far more: a near tie, kept
+        // all the same (kernel ridge, with fewer axes, was kept here before).
         let tie = decide(vec![
             trial(Family::MSVR, &[1.0, 2.0, 1.5, 1.2, 0.9]),
             trial(Family::KRR, &[1.2, 1.8, 1.6, 1.1, 1.0]),
         ]);
-        assert_eq!(tie.used, Family::KRR, "{}", tie.reason);
-        assert!(tie.reason.contains("within one standard error"));
-        // MSVR lower on every fold by 0.1 ± 0.01: kept.
+        assert_eq!(tie.used, Family::MSVR, "{}", tie.reason);
+        assert!(tie.reason.contains("a near tie"), "{}", tie.reason);
+        assert!(
+            tie.reason.contains("kernel ridge's 1.34000"),
+            "{}",
+            tie.reason
+        );
+        // MSVR lower on every fold by 0.1 ± 0.01: kept, no tie.
         let won = decide(vec![
             trial(Family::MSVR, &[1.0, 2.0, 1.5, 1.2, 0.9]),
             trial(Family::KRR, &[1.1, 2.11, 1.59, 1.3, 1.01]),
         ]);
         assert_eq!(won.used, Family::MSVR, "{}", won.reason);
-        assert!(won.reason.contains("more than one standard error"));
-        // Kernel ridge lower: kept, whatever the margin.
-        let ridge = decide(vec![
-            trial(Family::MSVR, &[1.1, 2.11, 1.59, 1.3, 1.01]),
-            trial(Family::KRR, &[1.0, 2.0, 1.5, 1.2, 0.9]),
-        ]);
-        assert_eq!(ridge.used, Family::KRR);
-        assert_eq!(ridge.tried.len(), 2);
+        assert!(!won.reason.contains("tie"), "{}", won.reason);
+        // Kernel ridge lower, in whichever order they were tried: kept.
+        for tried in [
+            vec![
+                trial(Family::MSVR, &[1.1, 2.11, 1.59, 1.3, 1.01]),
+                trial(Family::KRR, &[1.0, 2.0, 1.5, 1.2, 0.9]),
+            ],
+            vec![
+                trial(Family::KRR, &[1.0, 2.0, 1.5, 1.2, 0.9]),
+                trial(Family::MSVR, &[1.1, 2.11, 1.59, 1.3, 1.01]),
+            ],
+        ] {
+            let ridge = decide(tried);
+            assert_eq!(ridge.used, Family::KRR, "{}", ridge.reason);
+            assert_eq!(ridge.tried.len(), 2);
+        }
         // One family: kept.
         let alone = decide(vec![trial(Family::MSVR, &[1.0, 2.0])]);
         assert_eq!(alone.used, Family::MSVR);
