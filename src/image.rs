@@ -48,7 +48,8 @@ impl ChromaSampling {
     };
 
     /// From a JPEG file's header: the frame header's sampling factors (luma's over the
-    /// chroma's) and the quantisation table of the first chroma component. [`Self::FULL`]
+    /// chroma's) and the quantisation table of the first chroma component, read up to the
+    /// first scan. [`Self::FULL`]
     /// when the bytes are not a colour baseline or progressive JPEG.
     pub fn of_jpeg(bytes: &[u8]) -> ChromaSampling {
         Self::parse(bytes).unwrap_or(ChromaSampling::FULL)
@@ -59,6 +60,8 @@ impl ChromaSampling {
             return None;
         }
         let mut tables: [Option<[f64; 64]>; 4] = [None; 4];
+        // The chroma's sampling and table id, from the frame header.
+        let mut frame = None;
         let mut i = 2;
         loop {
             let (marker, len) = (*bytes.get(i + 1)?, bytes.get(i + 2..i + 4)?);
@@ -104,8 +107,14 @@ impl ChromaSampling {
                     if ch == 0 || cv == 0 || lh % ch != 0 || lv % cv != 0 {
                         return None;
                     }
+                    frame = Some(([lh / ch, lv / cv], tq));
+                }
+                // The first scan: its tables came before it, before or after the frame header
+                // (libjpeg writes them before, the `image` crate after).
+                0xda => {
+                    let (block, tq) = frame?;
                     return Some(ChromaSampling {
-                        block: [lh / ch, lv / cv],
+                        block,
                         steps: *tables.get(tq)?,
                     });
                 }
@@ -113,6 +122,52 @@ impl ChromaSampling {
             }
             i += 2 + len;
         }
+    }
+}
+
+/// libjpeg's (the IJG's) chroma table at quality 50 (row-major), which every quality scales.
+const IJG_CHROMA: [f64; 64] = {
+    let mut t = [99.0; 64];
+    let head = [
+        [17.0, 18.0, 24.0, 47.0],
+        [18.0, 21.0, 26.0, 66.0],
+        [24.0, 26.0, 56.0, 99.0],
+        [47.0, 66.0, 99.0, 99.0],
+    ];
+    let mut k = 0;
+    while k < 16 {
+        t[(k / 4) * 8 + k % 4] = head[k / 4][k % 4];
+        k += 1;
+    }
+    t
+};
+
+/// The chroma table libjpeg writes at `quality` (1-100), as baseline files hold it.
+fn ijg_chroma(quality: u8) -> [f64; 64] {
+    let q = f64::from(quality.clamp(1, 100));
+    let scale = if q < 50.0 {
+        5000.0 / q
+    } else {
+        200.0 - 2.0 * q
+    };
+    IJG_CHROMA.map(|t| ((t * scale + 50.0) / 100.0).floor().clamp(1.0, 255.0))
+}
+
+impl ChromaSampling {
+    /// The quality (1-100, libjpeg's scale) whose chroma table is nearest the file's (in the
+    /// steps' logarithms): the file's own for a libjpeg-written JPEG, an equivalent for a
+    /// camera's own tables. `None` without a quantisation table (PNG).
+    pub fn quality(&self) -> Option<u8> {
+        let steps = self.steps?;
+        let distance = |quality: u8| -> f64 {
+            let table = ijg_chroma(quality);
+            steps
+                .iter()
+                .zip(&table)
+                .map(|(s, t)| (s.max(1.0).ln() - t.ln()).abs())
+                .sum()
+        };
+        (1..=100).min_by(|&a, &b| distance(a).total_cmp(&distance(b)))
     }
 }
 

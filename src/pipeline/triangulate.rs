@@ -9,6 +9,7 @@ pub use cameras::{
 };
 
 use std::fmt;
+use std::io::Read;
 use std::path::{Path, PathBuf};
 
 use super::outputs::{self, Output};
@@ -17,6 +18,7 @@ use crate::calib::file::{read_calibration, CalibrationFile};
 use crate::capture::flash::FlashLatency;
 use crate::capture::sync_led::SyncLed;
 use crate::capture::CAPTURE_FILE;
+use crate::image::ChromaSampling;
 use crate::session::frames::FrameList;
 use crate::session::pressures::{read_pressure_log, PressureLog};
 use crate::triangulate::per_frame::{self, PerFrame};
@@ -28,6 +30,8 @@ pub struct Triangulated {
     pub triangulation: Triangulation,
     /// The dataset first, then the files beside it.
     pub written: Vec<PathBuf>,
+    /// How the cameras stored their frames' colour ([`stored_colour`]).
+    pub colour: Option<String>,
 }
 
 /// The regulator's log: `given`, else `pressures.csv` beside the frames directory.
@@ -201,6 +205,7 @@ pub fn run(
     Ok(Triangulated {
         triangulation,
         written,
+        colour: stored_colour(frames),
     })
 }
 
@@ -225,6 +230,8 @@ pub(super) fn provenance(
 pub struct TriangulatedPerFrame {
     pub per_frame: PerFrame,
     pub written: Vec<PathBuf>,
+    /// How the cameras stored their frames' colour ([`stored_colour`]).
+    pub colour: Option<String>,
 }
 
 /// The tip at every left frame's instant of `frames` (`triangulate --per-frame`), in the hand
@@ -258,7 +265,68 @@ pub fn run_per_frame(
     let per_frame = result?;
     let provenance = provenance(session, frames, calib, pressures)?;
     let written = per_frame.write(out, &log, &provenance)?;
-    Ok(TriangulatedPerFrame { per_frame, written })
+    Ok(TriangulatedPerFrame {
+        per_frame,
+        written,
+        colour: stored_colour(frames),
+    })
+}
+
+/// Below this JPEG quality (libjpeg's scale) the chroma's rounding, not the fit, limits the
+/// tip in motion: on ten rendered sessions at quality 85 the per-frame tip was 0.040-0.086 mm
+/// RMS, at 95 0.020-0.051 (`scripts/bench_per_frame_seeds.py`, docs/motion.md).
+pub const COARSE_JPEG_QUALITY: u8 = 90;
+
+/// How each camera stored its frames' colour, from its first JPEG file in `frames`
+/// (`<camera>_NNNNN.jpg`): the chroma's sampling and the quality its table is written at, one
+/// line, with advice when a camera's is below [`COARSE_JPEG_QUALITY`]. `None` when no frame
+/// is a JPEG file.
+pub fn stored_colour(frames: &Path) -> Option<String> {
+    let mut first: std::collections::BTreeMap<String, PathBuf> = Default::default();
+    for entry in std::fs::read_dir(frames).ok()?.flatten() {
+        let path = entry.path();
+        let name = path.file_name()?.to_string_lossy().into_owned();
+        let jpeg = [".jpg", ".jpeg"].iter().any(|e| name.ends_with(e));
+        if let Some((camera, _)) = name.rsplit_once('_').filter(|_| jpeg) {
+            let kept = first
+                .entry(camera.to_string())
+                .or_insert_with(|| path.clone());
+            if path < *kept {
+                *kept = path;
+            }
+        }
+    }
+    let mut lowest = 100;
+    let cameras: Vec<String> = first
+        .iter()
+        .filter_map(|(camera, path)| {
+            // The tables come before the first scan, in the first kilobytes.
+            let mut head = Vec::new();
+            let file = std::fs::File::open(path).ok()?;
+            file.take(1 << 16).read_to_end(&mut head).ok()?;
+            let stored = ChromaSampling::of_jpeg(&head);
+            let quality = stored.quality()?;
+            lowest = lowest.min(quality);
+            let sampling = match stored.block {
+                [2, 2] => "4:2:0",
+                [2, 1] => "4:2:2",
+                _ => "4:4:4",
+            };
+            Some(format!("{camera} {sampling} at quality {quality}"))
+        })
+        .collect();
+    if cameras.is_empty() {
+        return None;
+    }
+    let advice = if lowest < COARSE_JPEG_QUALITY {
+        "; below 90 the chroma's rounding holds the tip in motion to about 0.04-0.09 mm RMS (0.02-0.05 at quality 95, docs/motion.md): raise the cameras' MJPEG quality where they let it be set"
+    } else {
+        ""
+    };
+    Some(format!(
+        "colour: JPEG, {} (libjpeg's scale, read from the chroma tables){advice}",
+        cameras.join(", ")
+    ))
 }
 
 /// What became of the frames, one line.
@@ -283,6 +351,9 @@ impl fmt::Display for TriangulatedPerFrame {
     fn fmt(&self, f: &mut fmt::Formatter) -> fmt::Result {
         let s = &self.per_frame.summary;
         writeln!(f, "{}", frames_line(&s.frames))?;
+        if let Some(colour) = &self.colour {
+            writeln!(f, "{colour}")?;
+        }
         let flagged: Vec<String> = s.flagged.iter().map(|(k, v)| format!("{v} {k}")).collect();
         writeln!(
             f,
@@ -332,6 +403,9 @@ impl fmt::Display for Triangulated {
         let t = &self.triangulation;
         let s = &t.summary;
         writeln!(f, "{}", frames_line(&s.frames))?;
+        if let Some(colour) = &self.colour {
+            writeln!(f, "{colour}")?;
+        }
         let frames = &s.frames;
         if let Some(first) = &frames.first_unreadable {
             writeln!(f, "  first unreadable: {first}")?;

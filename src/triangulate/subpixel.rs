@@ -640,11 +640,19 @@ mod tests {
             (steps[0], steps[1], steps[8], steps[63]),
             (5.0, 5.0, 5.0, 30.0)
         );
+        // Its quality read back from the table, at any quality libjpeg writes.
+        for quality in [10u8, 50, 75, 85, 90, 95, 100] {
+            let file = crate::cv::encode_jpeg(48, &rgb, quality).unwrap();
+            assert_eq!(ChromaSampling::of_jpeg(&file).quality(), Some(quality));
+        }
+        assert_eq!(ChromaSampling::FULL.quality(), None);
         let mut full = Vec::new();
         image::codecs::jpeg::JpegEncoder::new_with_quality(&mut full, 85)
             .encode(&rgb, 64, 48, image::ColorType::Rgb8)
             .unwrap();
-        assert_eq!(ChromaSampling::of_jpeg(&full).block, [1, 1]);
+        // The `image` crate writes its tables after the frame header: read all the same.
+        let full = ChromaSampling::of_jpeg(&full);
+        assert_eq!((full.block, full.quality()), ([1, 1], Some(85)));
         assert_eq!(
             ChromaSampling::of_jpeg(b"\x89PNG...."),
             ChromaSampling::FULL

@@ -507,6 +507,11 @@ fn four_cameras_against_their_pairs(
     let truth = step_session(d, format);
     let said = handcap_ok(d, &[&TRIANGULATE[..], &["--out", "dataset.csv"]].concat());
     eprintln!("{said}");
+    // Each camera's stored colour, from its first frame's tables (none on PNG frames).
+    let colour = "colour: JPEG, cam1 4:2:0 at quality 85, cam2 4:2:0 at quality 85, cam3 4:2:0 at quality 85, cam4 4:2:0 at quality 85";
+    let jpeg = format == ImageFormat::WEBCAM;
+    assert_eq!(said.contains(colour), jpeg, "{said}");
+    assert_eq!(said.contains("colour: "), jpeg, "{said}");
     let rows = crate::common::csv_rows(&d.join("dataset.csv"));
     assert_eq!(rows.len(), truth.len(), "every step a tip: {said}");
     for row in &rows {

@@ -404,6 +404,12 @@ fn a_webcam_in_a_lab_gives_every_step_and_the_tip_to_a_twentieth_of_a_millimetre
         out.contains("39 rows") && out.contains("0 without a tip"),
         "{out}"
     );
+    // The frames' quality read from their tables, and what it costs said.
+    assert!(
+        out.contains("colour: JPEG, left 4:2:0 at quality 85, right 4:2:0 at quality 85")
+            && out.contains("raise the cameras' MJPEG quality"),
+        "{out}"
+    );
     let truth = d.join("truth/tips.csv");
     let (rms, n) = tip_rms_against_truth(&d.join("out/dataset.csv"), &truth, |_| true);
     println!("{out}\ntip RMS error {rms:.4} mm over {n} steps");
@@ -455,12 +461,24 @@ fn png_and_both_jpeg_chromas_give_the_same_tips() {
         chroma,
     };
     let formats = [ImageFormat::Png, jpeg(Chroma::Full), jpeg(Chroma::Half)];
+    let colours = [
+        None,
+        Some("left 4:4:4 at quality 95"),
+        Some("left 4:2:0 at quality 95"),
+    ];
     let dirs: Vec<_> = formats
         .iter()
-        .map(|&format| {
+        .zip(colours)
+        .map(|(&format, colour)| {
             let dir = tempdir();
             capture_as(dir.path(), 34, 3, [250.0, 125.0], (format, Realism::CLEAN));
-            triangulate_with_truth(dir.path(), "out/dataset.csv");
+            let out = triangulate_with_truth(dir.path(), "out/dataset.csv");
+            // PNG frames have no line on their colour; quality 95 no advice.
+            let line = out.lines().find(|l| l.starts_with("colour: "));
+            assert_eq!(line.is_some(), colour.is_some(), "{out}");
+            if let (Some(line), Some(colour)) = (line, colour) {
+                assert!(line.contains(colour) && !line.contains("raise"), "{line}");
+            }
             dir
         })
         .collect();

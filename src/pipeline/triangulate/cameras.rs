@@ -33,6 +33,8 @@ pub struct TriangulatedCameras {
     /// The regulator's log the tips' steps index.
     pub log: crate::session::pressures::PressureLog,
     pub written: Vec<PathBuf>,
+    /// How the cameras stored their frames' colour ([`super::stored_colour`]).
+    pub colour: Option<String>,
 }
 
 /// What `triangulate` read for more cameras: the calibration, the log, the frames listed and
@@ -212,6 +214,7 @@ pub fn run_cameras(
             .collect(),
         log: inputs.log,
         written,
+        colour: super::stored_colour(frames),
     })
 }
 
@@ -221,6 +224,8 @@ pub struct TriangulatedFrames {
     /// Frames of cameras the calibration does not have, by name (not read).
     pub not_calibrated: BTreeMap<String, usize>,
     pub written: Vec<PathBuf>,
+    /// How the cameras stored their frames' colour ([`super::stored_colour`]).
+    pub colour: Option<String>,
 }
 
 /// One row per frame of the first camera, the finger in motion, seen by the cameras of
@@ -265,6 +270,7 @@ pub fn run_per_frame_cameras(
         per_frame,
         not_calibrated: inputs.not_calibrated,
         written,
+        colour: super::stored_colour(frames),
     })
 }
 
@@ -296,6 +302,9 @@ impl fmt::Display for TriangulatedFrames {
                 flagged.join(", ")
             }
         )?;
+        if let Some(colour) = &self.colour {
+            writeln!(f, "{colour}")?;
+        }
         for c in &s.cameras {
             let clock = if c.name == s.rows_camera {
                 "the rows' clock".to_string()
@@ -351,6 +360,9 @@ impl fmt::Display for TriangulatedCameras {
             found.steps_unseen,
             found.steps_inconsistent
         )?;
+        if let Some(colour) = &self.colour {
+            writeln!(f, "{colour}")?;
+        }
         if let Some(why) = &found.unreadable {
             writeln!(
                 f,
