@@ -186,6 +186,10 @@ impl fmt::Display for Filmed<'_> {
                     String::new()
                 },
             )?;
+            // What the cameras' JPEG quality allows, said before the session is triangulated.
+            if let Some(colour) = super::triangulate::stored_colour(&self.out.join("frames")) {
+                writeln!(f, "{colour}")?;
+            }
         }
         if let Some(flash) = &summary.flash {
             writeln!(f, "{flash}")?;

@@ -145,6 +145,11 @@ fn capture_films_both_cameras_and_drives_the_protocol_on_one_clock() {
         "--on-abort runs only when the protocol does not finish"
     );
     assert!(out.contains("step 12/12"), "{out}");
+    // The cameras' JPEG quality, said at the end, as the frames' tables give it.
+    assert!(
+        out.contains("colour: JPEG, left 4:2:0 at quality 85, right 4:2:0 at quality 85"),
+        "{out}"
+    );
     let s = d.join("s");
     let [l, r] = assert_consistent(&s);
     assert!(l >= 10 && r >= 10, "{l} left, {r} right frames");
