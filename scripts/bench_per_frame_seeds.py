@@ -21,6 +21,7 @@ import argparse
 import csv
 import math
 import os
+import statistics
 import subprocess
 import sys
 
@@ -44,6 +45,8 @@ def tips(path, unflagged):
 def figures(measured, truth):
     """RMS error, mean error and the slope of each axis' error on the true z."""
     frames = [f for f in measured if f in truth]
+    if not frames:
+        sys.exit("no unflagged row has a truth to compare with")
     errors = [[m - t for m, t in zip(measured[f], truth[f])] for f in frames]
     z = [truth[f][2] for f in frames]
     n = len(frames)
@@ -84,7 +87,7 @@ def main():
         worst.append(rms)
         print(f"| {seed} | {n} | {rms:.4f} | {', '.join(f'{v:+.4f}' for v in mean)} | "
               f"{', '.join(f'{v:+.4f}' for v in slope)} |")
-    print(f"largest {max(worst):.4f} mm, median {sorted(worst)[len(worst) // 2]:.4f} mm")
+    print(f"largest {max(worst):.4f} mm, median {statistics.median(worst):.4f} mm")
 
 
 if __name__ == "__main__":

@@ -91,7 +91,11 @@ impl ChromaSampling {
                     }
                 }
                 0xc0..=0xc2 => {
+                    // 8-bit samples only: a 12-bit file's tables are on another scale.
                     let n = usize::from(*body.get(5)?);
+                    if *body.first()? != 8 {
+                        return None;
+                    }
                     if n < 3 {
                         return None;
                     }
@@ -126,13 +130,13 @@ impl ChromaSampling {
 }
 
 /// libjpeg's (the IJG's) chroma table at quality 50 (row-major), which every quality scales.
-const IJG_CHROMA: [f64; 64] = {
-    let mut t = [99.0; 64];
+const IJG_CHROMA: [u32; 64] = {
+    let mut t = [99; 64];
     let head = [
-        [17.0, 18.0, 24.0, 47.0],
-        [18.0, 21.0, 26.0, 66.0],
-        [24.0, 26.0, 56.0, 99.0],
-        [47.0, 66.0, 99.0, 99.0],
+        [17, 18, 24, 47],
+        [18, 21, 26, 66],
+        [24, 26, 56, 99],
+        [47, 66, 99, 99],
     ];
     let mut k = 0;
     while k < 16 {
@@ -142,15 +146,12 @@ const IJG_CHROMA: [f64; 64] = {
     t
 };
 
-/// The chroma table libjpeg writes at `quality` (1-100), as baseline files hold it.
+/// The chroma table libjpeg writes at `quality` (1-100) for a baseline file, in its integer
+/// arithmetic (`jpeg_quality_scaling`, `jpeg_add_quant_table`).
 fn ijg_chroma(quality: u8) -> [f64; 64] {
-    let q = f64::from(quality.clamp(1, 100));
-    let scale = if q < 50.0 {
-        5000.0 / q
-    } else {
-        200.0 - 2.0 * q
-    };
-    IJG_CHROMA.map(|t| ((t * scale + 50.0) / 100.0).floor().clamp(1.0, 255.0))
+    let q = u32::from(quality.clamp(1, 100));
+    let scale = if q < 50 { 5000 / q } else { 200 - 2 * q };
+    IJG_CHROMA.map(|t| f64::from(((t * scale + 50) / 100).clamp(1, 255)))
 }
 
 impl ChromaSampling {
@@ -167,6 +168,7 @@ impl ChromaSampling {
                 .map(|(s, t)| (s.max(1.0).ln() - t.ln()).abs())
                 .sum()
         };
+        // Equal tables (qualities 1-3 all step 255) read as the lowest: the cautious side.
         (1..=100).min_by(|&a, &b| distance(a).total_cmp(&distance(b)))
     }
 }

@@ -24,8 +24,8 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
     model : {"msvr", "krr", "auto"}
         The paper's MSVR; kernel ridge ("krr": the squared loss and no tube, MSVR with epsilon 0,
         searching C and sigma; `loss` does not apply and epsilon stays None); or "auto", both
-        searched on the same folds and the lower cross-validated error kept (within one standard
-        error of their fold differences, kernel ridge), as `handcap model --model auto`.
+        searched on the same folds and the lower cross-validated error kept, as
+        `handcap model --model auto`.
     search : {"aco-r", "none"}
         "none" requires C, epsilon and sigma.
     budget : int or None

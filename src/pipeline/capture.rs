@@ -187,9 +187,8 @@ impl fmt::Display for Filmed<'_> {
                 },
             )?;
             // What the cameras' JPEG quality allows, said before the session is triangulated.
-            if let Some(colour) = super::triangulate::stored_colour(&self.out.join("frames")) {
-                writeln!(f, "{colour}")?;
-            }
+            let colour = super::triangulate::stored_colour(&self.out.join("frames"));
+            super::triangulate::write_colour(f, colour.as_ref())?;
         }
         if let Some(flash) = &summary.flash {
             writeln!(f, "{flash}")?;

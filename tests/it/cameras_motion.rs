@@ -118,6 +118,11 @@ fn four_cameras_in_motion_give_each_frame_a_tip_closer_than_any_pair_with_the_fi
     four_cameras(d, &["--duration-s", "8"]);
     let triangulate = |calib: &str, out: &str| per_frame(d, calib, out);
     let said = triangulate("cal.toml", "four.csv");
+    // Each camera's JPEG quality said, per frame as for the steps.
+    assert!(
+        said.contains("colour: JPEG, cam1 4:2:0 at quality 85, cam2 4:2:0 at quality 85"),
+        "{said}"
+    );
     let truth = truth_of(&d.join("s"), "cam1");
     let rows = csv_rows(&d.join("four.csv"));
     assert_eq!(rows.len(), truth.len(), "a row per cam1 frame: {said}");

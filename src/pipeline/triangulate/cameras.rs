@@ -302,9 +302,7 @@ impl fmt::Display for TriangulatedFrames {
                 flagged.join(", ")
             }
         )?;
-        if let Some(colour) = &self.colour {
-            writeln!(f, "{colour}")?;
-        }
+        super::write_colour(f, self.colour.as_ref())?;
         for c in &s.cameras {
             let clock = if c.name == s.rows_camera {
                 "the rows' clock".to_string()
@@ -360,9 +358,7 @@ impl fmt::Display for TriangulatedCameras {
             found.steps_unseen,
             found.steps_inconsistent
         )?;
-        if let Some(colour) = &self.colour {
-            writeln!(f, "{colour}")?;
-        }
+        super::write_colour(f, self.colour.as_ref())?;
         if let Some(why) = &found.unreadable {
             writeln!(
                 f,
