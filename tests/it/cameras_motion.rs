@@ -7,7 +7,9 @@ use std::path::Path;
 
 use nalgebra::{Matrix3, Vector3};
 
-use crate::common::{csv_rows, handcap_err, handcap_ok, read_json, tempdir, write};
+use crate::common::{
+    cameras_alarmed, csv_rows, handcap_err, handcap_ok, read_json, tempdir, write,
+};
 
 /// Per frame of camera `camera` in `truth/frames.csv`: the true tip, whether the bead was
 /// hidden from it, and its stamp less its exposure's middle (s, from `frames/frames.csv`).
@@ -263,12 +265,7 @@ fn of_four_cameras_the_one_that_panned_is_named_by_its_view_of_the_still_scene()
         &[&watch[..], &["--baseline-s", "3", "--look-s", "0.1"]].concat(),
     );
     let v = read_json(&d.join("w/monitor.json"));
-    let named: Vec<&str> = v["alarms"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .filter_map(|a| a["camera"].as_str())
-        .collect();
+    let named = cameras_alarmed(&v);
     assert_eq!(named, ["cam2"], "{said}");
 }
 

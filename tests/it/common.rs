@@ -313,6 +313,16 @@ pub fn lowest_fitness(entries: &serde_json::Value) -> &serde_json::Value {
         .unwrap()
 }
 
+/// The cameras a monitor's alarms name (`monitor.json`), in the alarms' order.
+pub fn cameras_alarmed(watched: &serde_json::Value) -> Vec<&str> {
+    watched["alarms"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|a| a["camera"].as_str())
+        .collect()
+}
+
 /// The rows of a CSV file as maps from column name to cell.
 pub fn csv_rows(path: &Path) -> Vec<std::collections::HashMap<String, String>> {
     let mut reader = csv::Reader::from_path(path).expect("readable CSV");

@@ -7,7 +7,7 @@ use std::net::TcpStream;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use crate::common::{csv_rows, handcap_ok, read_json, real_time, tempdir};
+use crate::common::{cameras_alarmed, csv_rows, handcap_ok, read_json, real_time, tempdir};
 use crate::lab::{dynamic_protocol, Lab, Truth};
 
 /// The browser the page is tested in.
@@ -323,12 +323,7 @@ fn a_camera_knocked_during_a_live_session_raises_the_live_monitors_camera_alarm_
         "{printed:?}"
     );
     // The right camera's view of the still scene moved: the live monitor names it, and only it.
-    let named: Vec<&str> = live["alarms"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .filter_map(|a| a["camera"].as_str())
-        .collect();
+    let named = cameras_alarmed(&live);
     assert_eq!(named, ["right"], "{said}");
     // The frames the examiner skipped while the browser took the cores, counted: a left
     // frame's row needs the right camera's frames around it too, so either camera's count.
