@@ -358,6 +358,9 @@ fn a_camera_knocked_during_a_live_session_raises_the_live_monitors_camera_alarm_
         raised_off > knock_s && raised_off < knock_s + 8.0 && raised >= raised_off - 2.0,
         "knocked at {knock_s:.2} s: live {raised:.2} s, offline {raised_off:.2} s"
     );
+    // Each row keyed by its time in microseconds. A row's time is its left frame's on the
+    // camera's clock, a line fitted to the frames' stamps: live over the seconds in view,
+    // afterwards over the whole session, so the two differ by a fraction of a millisecond.
     let rows = |path: &str| -> std::collections::BTreeMap<i64, [f64; 3]> {
         csv_rows(&d.join(path))
             .iter()
@@ -365,32 +368,48 @@ fn a_camera_knocked_during_a_live_session_raises_the_live_monitors_camera_alarm_
                 let t: f64 = r["time_s"].parse().unwrap();
                 let p =
                     ["x_mm", "y_mm", "z_mm"].map(|k| r[&format!("predicted_{k}")].parse().unwrap());
-                ((t * 100.0).round() as i64, p)
+                ((t * 1e6).round() as i64, p)
             })
             .collect()
     };
     let (live_rows, offline_rows) = (rows("live/monitor/monitor.csv"), rows("off/monitor.csv"));
-    let mut apart: Vec<f64> = live_rows
+    // Each offline row's live row: the nearest in time, within a tenth of a frame (3.3 ms).
+    let nearest = |t: i64| {
+        let before = live_rows.range(..=t).next_back();
+        let after = live_rows.range(t..).next();
+        [before, after]
+            .into_iter()
+            .flatten()
+            .min_by_key(|(s, _)| (**s - t).abs())
+            .filter(|(s, _)| (**s - t).abs() <= 3_333)
+    };
+    let mut gaps_us: Vec<i64> = Vec::new();
+    let mut apart: Vec<f64> = offline_rows
         .iter()
-        .filter_map(|(t, p)| {
-            let q = offline_rows.get(t)?;
+        .filter_map(|(t, q)| {
+            let (s, p) = nearest(*t)?;
+            gaps_us.push((s - t).abs());
             Some((0..3).map(|k| (p[k] - q[k]).abs()).fold(0.0, f64::max))
         })
         .collect();
     apart.sort_by(f64::total_cmp);
+    gaps_us.sort_unstable();
     eprintln!(
-        "live: {} rows, {} offline, {} at the same times; predictions apart {:.4} mm median",
+        "live: {} rows, {} offline, {} matched within 3.3 ms (times apart {} us median, {} us at most); predictions apart {:.4} mm median",
         live_rows.len(),
         offline_rows.len(),
         apart.len(),
+        gaps_us[gaps_us.len() / 2],
+        gaps_us[gaps_us.len() - 1],
         apart[apart.len() / 2]
     );
-    // Most offline rows have a live row at the same instant: 468 of 468 in one run, 397 of 467
-    // in another (each alone on 2 cores), 395 and 402 of 468 in parallel test runs, with no
-    // frame counted skipped: the live examiner loses rows it does not count, not yet
-    // understood. Three in four.
+    // Every offline row has its live row, but for the frames the examiner skipped on a busy
+    // machine: 468 of 468 and 467 of 467 in two runs, 0.8 ms apart at most. (Keyed by time
+    // rounded to 10 ms, as this test was before, 0, 66, 70 and 73 rows in four runs fell either
+    // side of a rounding: no row was lost.) A skipped right frame can cost a left row or two,
+    // hence the margin.
     assert!(
-        (apart.len() + skipped) * 4 >= offline_rows.len() * 3,
+        apart.len() + skipped >= offline_rows.len() * 95 / 100,
         "{} of {} ({skipped} skipped)",
         apart.len(),
         offline_rows.len()
