@@ -192,14 +192,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     };
     let summary = super::with_session(|session| stage::run(&a.out, &options, session, &live))?;
     bar.finish_and_clear();
-    print!(
-        "{}",
-        stage::Filmed {
-            summary: &summary,
-            out: &a.out,
-            options: &options,
-        }
-    );
+    print!("{}", stage::Filmed::new(&summary, &a.out, &options));
     if let Some(result) = &summary.on_abort {
         eprintln!("ran --on-abort: {result}");
     }

@@ -144,9 +144,32 @@ fn steps_line(s: &Stats, names: &[&str], steps: usize) -> String {
 
 /// What a session filmed and wrote, as `handcap capture` says it at the end.
 pub struct Filmed<'a> {
-    pub summary: &'a CaptureSummary,
-    pub out: &'a Path,
-    pub options: &'a CaptureOptions,
+    summary: &'a CaptureSummary,
+    out: &'a Path,
+    options: &'a CaptureOptions,
+    /// How the cameras stored their frames' colour: what their JPEG quality allows, said
+    /// before the session is triangulated ([`super::triangulate::stored_colour`]).
+    colour: Option<String>,
+}
+
+impl<'a> Filmed<'a> {
+    /// The session `summary` filmed into `out` with `options`; reads its frames' colour.
+    pub fn new(
+        summary: &'a CaptureSummary,
+        out: &'a Path,
+        options: &'a CaptureOptions,
+    ) -> Filmed<'a> {
+        let filmed = options.calibration.is_none();
+        let colour = filmed
+            .then(|| super::triangulate::stored_colour(&out.join("frames"), &names(options)))
+            .flatten();
+        Filmed {
+            summary,
+            out,
+            options,
+            colour,
+        }
+    }
 }
 
 impl fmt::Display for Filmed<'_> {
@@ -186,9 +209,7 @@ impl fmt::Display for Filmed<'_> {
                     String::new()
                 },
             )?;
-            // What the cameras' JPEG quality allows, said before the session is triangulated.
-            let colour = super::triangulate::stored_colour(&self.out.join("frames"));
-            super::triangulate::write_colour(f, colour.as_ref())?;
+            super::triangulate::write_colour(f, self.colour.as_ref())?;
         }
         if let Some(flash) = &summary.flash {
             writeln!(f, "{flash}")?;

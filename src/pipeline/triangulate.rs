@@ -2,11 +2,14 @@
 //! beside it.
 
 mod cameras;
+mod colour;
 
 pub use cameras::{
     more_cameras, run_cameras, run_more_cameras, run_per_frame_cameras, MoreCameras,
     TriangulatedCameras, TriangulatedFrames,
 };
+pub use colour::stored_colour;
+pub(super) use colour::write_colour;
 
 use std::fmt;
 use std::path::{Path, PathBuf};
@@ -17,8 +20,7 @@ use crate::calib::file::{read_calibration, CalibrationFile};
 use crate::capture::flash::FlashLatency;
 use crate::capture::sync_led::SyncLed;
 use crate::capture::CAPTURE_FILE;
-use crate::image::ChromaSampling;
-use crate::session::frames::{is_camera_name, FrameList};
+use crate::session::frames::FrameList;
 use crate::session::pressures::{read_pressure_log, PressureLog};
 use crate::triangulate::per_frame::{self, PerFrame};
 use crate::triangulate::summary::FrameCounts;
@@ -204,7 +206,7 @@ pub fn run(
     Ok(Triangulated {
         triangulation,
         written,
-        colour: stored_colour(frames),
+        colour: stored_colour(frames, &["left", "right"]),
     })
 }
 
@@ -267,80 +269,8 @@ pub fn run_per_frame(
     Ok(TriangulatedPerFrame {
         per_frame,
         written,
-        colour: stored_colour(frames),
+        colour: stored_colour(frames, &["left", "right"]),
     })
-}
-
-/// Below this JPEG quality (libjpeg's scale) the chroma's rounding, not the fit, limits the
-/// tip in motion ([`COARSE_JPEG_ADVICE`]; `scripts/bench_per_frame_seeds.py`, docs/motion.md).
-pub const COARSE_JPEG_QUALITY: u8 = 90;
-
-/// What a coarser quality costs, measured on ten rendered sessions of the demo's design: the
-/// per-frame tip 0.040-0.086 mm RMS at quality 85, 0.020-0.051 at 95.
-const COARSE_JPEG_ADVICE: &str = "the chroma's rounding holds the tip in motion to about 0.04-0.09 mm RMS (0.02-0.05 at quality 95, docs/motion.md): raise the cameras' MJPEG quality where they let it be set";
-
-/// How each camera stored its frames' colour, from its first JPEG file in `frames`
-/// (`<camera>_NNNNN.jpg`, the smallest number): the chroma's sampling and the quality its
-/// table is written at, one line, with advice when a camera's is below
-/// [`COARSE_JPEG_QUALITY`]. `None` when no frame is a JPEG file (PNG frames, videos).
-pub fn stored_colour(frames: &Path) -> Option<String> {
-    let mut first: std::collections::BTreeMap<String, PathBuf> = Default::default();
-    for entry in std::fs::read_dir(frames).ok()?.flatten() {
-        let path = entry.path();
-        let name = path.file_name()?.to_string_lossy().to_lowercase();
-        let Some((stem, _)) = name
-            .rsplit_once(".jp")
-            .filter(|(_, e)| ["g", "eg"].contains(e))
-        else {
-            continue;
-        };
-        let Some((camera, _)) = stem.rsplit_once('_').filter(|(c, _)| is_camera_name(c)) else {
-            continue;
-        };
-        let kept = first
-            .entry(camera.to_string())
-            .or_insert_with(|| path.clone());
-        if path < *kept {
-            *kept = path;
-        }
-    }
-    let mut lowest = 100;
-    let cameras: Vec<String> = first
-        .iter()
-        .map(|(camera, path)| {
-            let stored = std::fs::read(path).map(|bytes| ChromaSampling::of_jpeg(&bytes));
-            match stored.as_ref().map(|s| (s.block, s.quality())) {
-                Ok((block, Some(quality))) => {
-                    lowest = lowest.min(quality);
-                    let sampling = match block {
-                        [1, 1] => "4:4:4".to_string(),
-                        [2, 1] => "4:2:2".to_string(),
-                        [2, 2] => "4:2:0".to_string(),
-                        [h, v] => format!("chroma {h} × {v} pixels"),
-                    };
-                    format!("{camera} {sampling} at quality {quality}")
-                }
-                _ => format!("{camera} unknown ({} unread)", path.display()),
-            }
-        })
-        .collect();
-    if cameras.is_empty() {
-        return None;
-    }
-    let advice = if lowest < COARSE_JPEG_QUALITY {
-        format!("; below {COARSE_JPEG_QUALITY} {COARSE_JPEG_ADVICE}")
-    } else {
-        String::new()
-    };
-    Some(format!(
-        "colour: JPEG, {} (libjpeg's scale, read from the chroma tables){advice}",
-        cameras.join(", ")
-    ))
-}
-
-/// Writes `colour` ([`stored_colour`]) as a line, when there is one.
-pub(super) fn write_colour(f: &mut fmt::Formatter, colour: Option<&String>) -> fmt::Result {
-    colour.map_or(Ok(()), |c| writeln!(f, "{c}"))
 }
 
 /// What became of the frames, one line.

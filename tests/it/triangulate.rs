@@ -556,6 +556,9 @@ fn recorded_as_videos_the_capture_gives_the_same_tips() {
     for d in [images.path(), v] {
         let out = triangulate_with_truth(d, "out/dataset.csv");
         assert!(out.contains("39 rows"), "{out}");
+        // The frames' quality read from the images, and from the videos' first frames.
+        let colour = "colour: JPEG, left 4:2:0 at quality 85, right 4:2:0 at quality 85";
+        assert!(out.contains(colour), "{out}");
         let truth = d.join("truth/tips.csv");
         rms.push(tip_rms_against_truth(&d.join("out/dataset.csv"), &truth, |_| true).0);
     }
@@ -587,6 +590,7 @@ fn recorded_as_videos_the_capture_gives_the_same_tips() {
         out.contains("39 rows") && out.contains("videos not Motion-JPEG (left mp4v, right mp4v)"),
         "{out}"
     );
+    assert!(!out.contains("colour: "), "no JPEG tables to read: {out}");
     let s = summary(&m.join("out/dataset_summary.json"));
     assert_eq!(s["decoded_video"], serde_json::json!(["mp4v", "mp4v"]));
     let (mpeg4, _) = tip_rms_against_truth(

@@ -103,6 +103,14 @@ impl Inputs {
             .map(|c| self.listed.iter().filter(|f| f.camera == c).count())
             .collect()
     }
+
+    /// How the calibrated cameras stored their frames' colour in `frames`.
+    fn colour(&self, frames: &Path) -> Option<String> {
+        let names: Vec<&str> = (self.calibration.cameras.iter())
+            .map(|c| c.name.as_str())
+            .collect();
+        super::stored_colour(frames, &names)
+    }
 }
 
 /// What `triangulate` did with more than two cameras: held steps, or one row per frame.
@@ -201,7 +209,7 @@ pub fn run_cameras(
             out.display()
         )));
     }
-    let listed = inputs.listed_per_camera();
+    let (listed, colour) = (inputs.listed_per_camera(), inputs.colour(frames));
     Ok(TriangulatedCameras {
         found,
         not_calibrated: inputs.not_calibrated,
@@ -214,7 +222,7 @@ pub fn run_cameras(
             .collect(),
         log: inputs.log,
         written,
-        colour: super::stored_colour(frames),
+        colour,
     })
 }
 
@@ -268,9 +276,9 @@ pub fn run_per_frame_cameras(
     }
     Ok(TriangulatedFrames {
         per_frame,
+        colour: inputs.colour(frames),
         not_calibrated: inputs.not_calibrated,
         written,
-        colour: super::stored_colour(frames),
     })
 }
 
