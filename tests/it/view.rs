@@ -361,13 +361,15 @@ fn a_camera_knocked_during_a_live_session_raises_the_live_monitors_camera_alarm_
     // Each row keyed by its time in microseconds. A row's time is its left frame's on the
     // camera's clock, a line fitted to the frames' stamps: live over the seconds in view,
     // afterwards over the whole session, so the two differ by a fraction of a millisecond.
-    let rows = |path: &str| -> std::collections::BTreeMap<i64, [f64; 3]> {
+    // Its predictions, and the right camera's still scene where measured (NaN elsewhere).
+    let rows = |path: &str| -> std::collections::BTreeMap<i64, [f64; 4]> {
         csv_rows(&d.join(path))
             .iter()
             .map(|r| {
                 let t: f64 = r["time_s"].parse().unwrap();
-                let p =
-                    ["x_mm", "y_mm", "z_mm"].map(|k| r[&format!("predicted_{k}")].parse().unwrap());
+                let p = ["x_mm", "y_mm", "z_mm"].map(|k| format!("predicted_{k}"));
+                let p = [&p[0], &p[1], &p[2], "scene_right_px"]
+                    .map(|k| r[k].parse().unwrap_or(f64::NAN));
                 ((t * 1e6).round() as i64, p)
             })
             .collect()
@@ -384,11 +386,15 @@ fn a_camera_knocked_during_a_live_session_raises_the_live_monitors_camera_alarm_
             .filter(|(s, _)| (**s - t).abs() <= 3_333)
     };
     let mut gaps_us: Vec<i64> = Vec::new();
+    let mut scenes: Vec<[f64; 2]> = Vec::new();
     let mut apart: Vec<f64> = offline_rows
         .iter()
         .filter_map(|(t, q)| {
             let (s, p) = nearest(*t)?;
             gaps_us.push((s - t).abs());
+            if !(p[3].is_nan() && q[3].is_nan()) {
+                scenes.push([p[3], q[3]]);
+            }
             Some((0..3).map(|k| (p[k] - q[k]).abs()).fold(0.0, f64::max))
         })
         .collect();
@@ -413,6 +419,13 @@ fn a_camera_knocked_during_a_live_session_raises_the_live_monitors_camera_alarm_
         "{} of {} ({skipped} skipped)",
         apart.len(),
         offline_rows.len()
+    );
+    // The still scene on the same rows, measured in the same frames, live as afterwards (one
+    // row in six; the offline file writes it to 0.001 px): 76 rows, every one equal.
+    assert!(scenes.len() * 8 >= offline_rows.len(), "{scenes:?}");
+    assert!(
+        scenes.iter().all(|[l, o]| (l - o).abs() <= 0.0006),
+        "live, offline: {scenes:?}"
     );
     // 0.004 mm on an idle machine; under a parallel test run the board's measurements reach
     // the live monitor later than its rows (it then takes the command itself): 0.036 mm, a

@@ -263,23 +263,6 @@ impl Tracker {
         self.scene.push(scene_px);
     }
 
-    /// The still scene's shift at left frame `frame` (time `t`), when it is one the scene is
-    /// measured in: per camera, its frame measured nearest in time (the left one's own, unless
-    /// it could not be told).
-    fn scene_at(&self, frame: usize, t: f64) -> Vec<Option<f64>> {
-        if !frame.is_multiple_of(scene::EVERY) {
-            return Vec::new();
-        }
-        let nearest = |side: Side| {
-            (0..self.records.len())
-                .filter(|&k| self.records[k].camera == side)
-                .filter_map(|k| Some(((self.records[k].time_s - t).abs(), self.scene[k]?)))
-                .min_by(|a, b| a.0.total_cmp(&b.0))
-                .map(|(_, px)| px)
-        };
-        vec![nearest(Side::Left), nearest(Side::Right)]
-    }
-
     /// The commands sent since last taken; the first may be the newest one taken, measured
     /// since.
     fn take_commands(&mut self, sent: &mut Vec<(f64, [f64; 3])>) {
@@ -313,7 +296,8 @@ impl Tracker {
         // The clock offset from the motion of the frames in view; at rest, the last one.
         let locate = |clock| {
             let rig = &self.calibration.rig;
-            tips_as_they_come(rig, &self.options, &self.records, &self.centres, clock)
+            let (records, centres) = (&self.records, &self.centres);
+            tips_as_they_come(rig, &self.options, records, centres, &self.scene, clock)
         };
         let mut located = locate(None);
         if let (Ok((_, clock)), Some(last)) = (&located, self.clock) {
@@ -337,6 +321,7 @@ impl Tracker {
             frame,
             time_s: t,
             tip,
+            scene_px: scene,
         } in tips
         {
             if self.taken.is_some_and(|k| frame <= k) {
@@ -355,7 +340,6 @@ impl Tracker {
             (self.taken, self.taken_until_s) = (Some(frame), t);
             self.page.rows += 1;
             let command = self.commands.iter().rev().find(|c| c.0 <= t);
-            let scene = self.scene_at(frame, t);
             if let (Some(trust), Some(&(_, command))) = (self.trust.as_mut(), command) {
                 trust.take((t, command, tip.map(|(p, px)| (Vector3::from(p), px)), scene));
             }

@@ -9,8 +9,9 @@ use crate::stereo::{Side, StereoRig};
 use crate::triangulate::{TriangulateError, TriangulateOptions};
 
 /// The tips of frames as they arrive (`capture --view`): steps 2-4 on the frames `records`
-/// whose candidates (or why none) are `centres[i]`, on the clock offset `clock` (measured from
-/// the motion when `None`): each left frame in time order, and the clock offset used.
+/// whose candidates (or why none) are `centres[i]` and whose view of the still scene is
+/// `scene[i]` (where measured), on the clock offset `clock` (measured from the motion when
+/// `None`): each left frame in time order, and the clock offset used.
 ///
 /// # Errors
 /// [`TriangulateError`]: stamps going back.
@@ -19,6 +20,7 @@ pub fn tips_as_they_come(
     options: &TriangulateOptions,
     records: &[FrameRecord],
     centres: &[Result<Vec<[f64; 2]>, &'static str>],
+    scene: &[Option<f64>],
     clock: Option<LiveClock>,
 ) -> Result<(Vec<LiveTip>, LiveClock), TriangulateError> {
     let index = Path::new("the frames as they came");
@@ -38,6 +40,7 @@ pub fn tips_as_they_come(
             frame: records[i].index,
             time_s: t,
             tip: found.map(|f| (f.point.into(), f.reproj_px)),
+            scene_px: super::rows::scene_near(records[i].index, t, &[&left, &right], scene),
         })
         .collect();
     Ok((tips, LiveClock(clock)))
@@ -49,6 +52,9 @@ pub struct LiveTip {
     pub frame: usize,
     pub time_s: f64,
     pub tip: Tip<([f64; 3], f64)>,
+    /// How far each camera's view of the still scene moved, on a frame it is measured in
+    /// (as `triangulate --per-frame`'s rows: each camera's measured frame nearest in time).
+    pub scene_px: Vec<Option<f64>>,
 }
 
 /// The clock offset [`tips_as_they_come`] measured, to be given again.

@@ -62,14 +62,25 @@ pub(super) fn frame_rows(
 /// multiple of [`EVERY`]): per camera of `tracks`, its frame measured nearest the row's time
 /// (the rows' camera's own frame, unless it was unreadable or its scene could not be told).
 pub(super) fn with_scene(rows: &mut [FrameRow], tracks: &[&Track], scene: &[Option<f64>]) {
-    if scene.is_empty() {
-        return;
+    for row in rows.iter_mut() {
+        row.scene_px = scene_near(row.frame, row.time_s, tracks, scene);
+    }
+}
+
+/// [`with_scene`] for one row: its frame `frame` at `time_s`; empty when the scene is not
+/// measured in that frame (or nowhere: `scene` empty). Live and afterwards alike.
+pub(super) fn scene_near(
+    frame: usize,
+    time_s: f64,
+    tracks: &[&Track],
+    scene: &[Option<f64>],
+) -> Vec<Option<f64>> {
+    if scene.is_empty() || !frame.is_multiple_of(EVERY) {
+        return Vec::new();
     }
     let measured = |track: &Track, pos: usize| scene[track.order[pos]];
-    for row in rows.iter_mut().filter(|r| r.frame.is_multiple_of(EVERY)) {
-        let near = |track: &&Track| track.nearest_with(row.time_s, EVERY, &measured);
-        row.scene_px = tracks.iter().map(near).collect();
-    }
+    let near = |track: &&Track| track.nearest_with(time_s, EVERY, &measured);
+    tracks.iter().map(near).collect()
 }
 
 /// The hand frame's origin: the median tip over the first rest hold, its rows and spread.
