@@ -31,6 +31,7 @@ pub fn tips_as_they_come(
     let centres = |i: usize| centres[i].clone();
     let (clock, _, located) =
         locate_frames(rig, options, [&left, &right], &centres, clock.map(|c| c.0))?;
+    let (tracks, clocks) = ([&left, &right], [ClockOffset::default(), clock]);
     let tips = left
         .order
         .iter()
@@ -40,7 +41,7 @@ pub fn tips_as_they_come(
             frame: records[i].index,
             time_s: t,
             tip: found.map(|f| (f.point.into(), f.reproj_px)),
-            scene_px: super::rows::scene_near(records[i].index, t, &[&left, &right], scene),
+            scene_px: super::rows::scene_near(records[i].index, t, &tracks, &clocks, scene),
         })
         .collect();
     Ok((tips, LiveClock(clock)))

@@ -241,7 +241,8 @@ pub fn triangulate_per_frame(
     for (row, _) in rows.iter_mut().zip(centroid_only).filter(|(_, c)| *c) {
         row.flags.push(CENTROID);
     }
-    rows::with_scene(&mut rows, &[&left, &right], &found.scene);
+    let clocks = [ClockOffset::default(), clock];
+    rows::with_scene(&mut rows, &[&left, &right], &clocks, &found.scene);
 
     // 6. The hand frame from the first rest hold.
     let origin = rows::rest_origin(&rows, &points, log, options)?;

@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 
 use nalgebra::Vector3;
 
-use super::{FrameRow, Tip, Track};
+use super::{ClockOffset, FrameRow, Tip, Track};
 use crate::geometry::HandFromLeft;
 use crate::session::pressures::PressureLog;
 use crate::triangulate::scene::EVERY;
@@ -59,11 +59,17 @@ pub(super) fn frame_rows(
 
 /// Each camera's still scene ([`crate::triangulate::scene`]; `scene` per frame record, where
 /// measured) on the rows whose own frame is one the scene is measured in (its number a
-/// multiple of [`EVERY`]): per camera of `tracks`, its frame measured nearest the row's time
-/// (the rows' camera's own frame, unless it was unreadable or its scene could not be told).
-pub(super) fn with_scene(rows: &mut [FrameRow], tracks: &[&Track], scene: &[Option<f64>]) {
+/// multiple of [`EVERY`]): per camera of `tracks`, its frame measured nearest the row's
+/// instant on that camera's clock (its stamps `clocks` ahead of the rows' camera's), the
+/// rows' camera's own frame unless it was unreadable or its scene could not be told.
+pub(super) fn with_scene(
+    rows: &mut [FrameRow],
+    tracks: &[&Track],
+    clocks: &[ClockOffset],
+    scene: &[Option<f64>],
+) {
     for row in rows.iter_mut() {
-        row.scene_px = scene_near(row.frame, row.time_s, tracks, scene);
+        row.scene_px = scene_near(row.frame, row.time_s, tracks, clocks, scene);
     }
 }
 
@@ -73,14 +79,16 @@ pub(super) fn scene_near(
     frame: usize,
     time_s: f64,
     tracks: &[&Track],
+    clocks: &[ClockOffset],
     scene: &[Option<f64>],
 ) -> Vec<Option<f64>> {
     if scene.is_empty() || !frame.is_multiple_of(EVERY) {
         return Vec::new();
     }
     let measured = |track: &Track, pos: usize| scene[track.order[pos]];
-    let near = |track: &&Track| track.nearest_with(time_s, EVERY, &measured);
-    tracks.iter().map(near).collect()
+    (tracks.iter().zip(clocks))
+        .map(|(track, clock)| track.nearest_with(time_s + clock.at(time_s), EVERY, &measured))
+        .collect()
 }
 
 /// The hand frame's origin: the median tip over the first rest hold, its rows and spread.
@@ -170,5 +178,38 @@ pub(super) fn in_hand_frame(
             }
             row.tip_mm = Some(tip.into());
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Two cameras at 30 fps, the right one's stamps 0.25 s ahead: the still scene of a row is
+    /// each camera's measured frame nearest the row's instant on its own clock.
+    #[test]
+    fn the_scene_of_a_row_is_looked_up_on_each_cameras_own_clock() {
+        let stamps = |ahead: f64| (0..60).map(|k| f64::from(k) / 30.0 + ahead).collect();
+        let left = Track::of_stamps((0..60).collect(), stamps(0.0), 1000.0);
+        let right = Track::of_stamps((60..120).collect(), stamps(0.25), 1000.0);
+        // Measured in one frame in six: the left's value its frame number, the right's 100 more.
+        let scene: Vec<Option<f64>> = (0..120)
+            .map(|i: usize| (i % 60 % EVERY == 0).then(|| (i % 60 + 100 * (i / 60)) as f64))
+            .collect();
+        let ahead = ClockOffset {
+            offset_s: 0.25,
+            ..ClockOffset::default()
+        };
+        let tracks = [&left, &right];
+        // Frame 12 at 0.4 s: the right camera filmed that instant at 0.65 s, its frame 12.
+        let near = |clocks: [ClockOffset; 2]| scene_near(12, 0.4, &tracks, &clocks, &scene);
+        assert_eq!(
+            near([ClockOffset::default(), ahead]),
+            [Some(12.0), Some(112.0)]
+        );
+        // On the left's clock alone, the right frame measured nearest 0.4 s is its frame 6.
+        assert_eq!(near([ClockOffset::default(); 2]), [Some(12.0), Some(106.0)]);
+        // A frame the scene is not measured in has none.
+        assert!(scene_near(13, 13.0 / 30.0, &tracks, &[ahead; 2], &scene).is_empty());
     }
 }

@@ -216,7 +216,7 @@ pub fn triangulate_per_frame_cameras(
     for (row, _) in rows.iter_mut().zip(&centroid_only).filter(|(_, c)| **c) {
         row.flags.push(CENTROID);
     }
-    rows::with_scene(&mut rows, &track_refs, &scene);
+    rows::with_scene(&mut rows, &track_refs, &clocks, &scene);
     let origin = rows::rest_origin(&rows, &points, log, options)?;
     summary.origin_world_mm = origin.point.into();
     summary.origin_rows = origin.rows;
