@@ -194,7 +194,11 @@ mod tests {
         let right = Track::of_stamps((60..120).collect(), stamps(0.25), 1000.0);
         // Measured in one frame in six: the left's value its frame number, the right's 100 more.
         let scene: Vec<Option<f64>> = (0..120)
-            .map(|i: usize| (i % 60 % EVERY == 0).then(|| (i % 60 + 100 * (i / 60)) as f64))
+            .map(|i: usize| {
+                (i % 60)
+                    .is_multiple_of(EVERY)
+                    .then(|| (i % 60 + 100 * (i / 60)) as f64)
+            })
             .collect();
         let ahead = ClockOffset {
             offset_s: 0.25,
