@@ -281,6 +281,22 @@ fn a_camera_knocked_during_a_live_session_raises_the_live_monitors_camera_alarm_
     let dom = browse(&url, 1000, &d.join("chromium"));
     let shown = attribute(&dom, "id=\"trust\"", "data-alarms").expect("the monitor's panel");
     assert!(shown.contains("@"), "{shown:?}");
+    // The still scene's figure: the knocked right camera's view moved by pixels, the left's
+    // by a fraction of one.
+    let scene = attribute(&dom, "id=\"trust\"", "data-scene").expect("the still scene");
+    eprintln!("live: the page's newest still-scene shifts (left;right px) {scene}");
+    let shifts: Vec<f64> = scene.split(';').map(|v| v.parse().unwrap()).collect();
+    assert!(shifts[0] < 1.0 && shifts[1] > 3.0, "{scene:?}");
+    // Drawn: both figures' lines have points, and the scene's its label.
+    for figure in ["id=\"trust-plot\"", "id=\"trust-scene\""] {
+        let drawn = &dom[dom.find(figure).expect(figure)..];
+        let drawn = &drawn[..drawn.find("</svg>").unwrap()];
+        assert!(
+            drawn.contains(" points=\"") && !drawn.contains(" points=\"\""),
+            "{drawn}"
+        );
+    }
+    assert!(dom.contains("still scene moved (px): left blue, right red, 0 to"));
     // The finger's response test's statistic beside the alarms' (a CUSUM: never negative).
     let response = attribute(&dom, "id=\"trust\"", "data-response").expect("the response test");
     assert!(

@@ -83,6 +83,9 @@ pub(super) struct TrustPage {
     coverage: f64,
     /// The last [`WINDOW_S`]: time (s), error and band (mm).
     points: Vec<[f64; 3]>,
+    /// The last [`WINDOW_S`] of the still scene: time (s), and how far the left and the right
+    /// camera's view of it lay from its first frame's (px), where measured.
+    scene: Vec<(f64, Option<f64>, Option<f64>)>,
     /// Each channel's statistic now, and the alarm's threshold; the finger's response test's
     /// statistic and threshold.
     finger_stat: f64,
@@ -180,6 +183,9 @@ impl Trust {
                 Some(running) => running.step(&command, t, &mut x),
                 None => x.copy_from_slice(&command),
             }
+            if let [left, right] = scene[..] {
+                self.page.scene.push((t, left, right));
+            }
             for (camera, px) in CAMERAS.into_iter().zip(scene) {
                 let Some(px) = px else { continue };
                 let samples =
@@ -227,6 +233,8 @@ impl Trust {
             .points
             .partition_point(|p| p[0] < newest - WINDOW_S);
         self.page.points.drain(..old);
+        let old = (self.page.scene).partition_point(|p| p.0 < newest - WINDOW_S);
+        self.page.scene.drain(..old);
         self.page.rows = self.replay.times.len();
         self.page.coverage = self.monitor.coverage();
         self.page.alarms = self.monitor.alarms().to_vec();
