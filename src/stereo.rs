@@ -40,7 +40,7 @@ impl Side {
     }
 
     /// `left` or `right`, as in file names.
-    pub fn name(self) -> &'static str {
+    pub const fn name(self) -> &'static str {
         match self {
             Side::Left => "left",
             Side::Right => "right",

@@ -22,6 +22,7 @@ use crate::capture::sync_led::SyncLed;
 use crate::capture::CAPTURE_FILE;
 use crate::session::frames::FrameList;
 use crate::session::pressures::{read_pressure_log, PressureLog};
+use crate::stereo::Side;
 use crate::triangulate::per_frame::{self, PerFrame};
 use crate::triangulate::summary::FrameCounts;
 use crate::triangulate::{self, output, TriangulateOptions, Triangulation};
@@ -206,7 +207,7 @@ pub fn run(
     Ok(Triangulated {
         triangulation,
         written,
-        colour: stored_colour(frames, &["left", "right"]),
+        colour: stored_colour(frames, &PAIR),
     })
 }
 
@@ -269,9 +270,12 @@ pub fn run_per_frame(
     Ok(TriangulatedPerFrame {
         per_frame,
         written,
-        colour: stored_colour(frames, &["left", "right"]),
+        colour: stored_colour(frames, &PAIR),
     })
 }
+
+/// The pair's cameras, as their frames are named.
+const PAIR: [&str; 2] = [Side::Left.name(), Side::Right.name()];
 
 /// What became of the frames, one line.
 fn frames_line(c: &FrameCounts) -> String {

@@ -158,12 +158,21 @@ fn mark_late(records: &mut [FrameRecord]) {
     }
 }
 
-/// The image file of a frame: `{camera}_{index:05}` with a PNG or JPEG extension.
-pub fn frame_path(dir: &Path, f: &FrameRecord) -> Option<PathBuf> {
-    ["png", "jpg", "jpeg"]
+/// The extensions a frame's image file may have, in the order they are looked for.
+pub const FRAME_EXTENSIONS: [&str; 3] = ["png", "jpg", "jpeg"];
+
+/// The image file of camera `camera`'s frame `index` in `dir`: `{camera}_{index:05}` with one
+/// of [`FRAME_EXTENSIONS`].
+pub fn image_path(dir: &Path, camera: &str, index: usize) -> Option<PathBuf> {
+    FRAME_EXTENSIONS
         .iter()
-        .map(|ext| dir.join(format!("{}_{:05}.{ext}", f.camera.name(), f.index)))
+        .map(|ext| dir.join(format!("{camera}_{index:05}.{ext}")))
         .find(|p| p.is_file())
+}
+
+/// The image file of a frame of the pair ([`image_path`]).
+pub fn frame_path(dir: &Path, f: &FrameRecord) -> Option<PathBuf> {
+    image_path(dir, f.camera.name(), f.index)
 }
 
 /// A session's frames: the records of `frames.csv` and where each one's image is, read once

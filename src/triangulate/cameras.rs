@@ -95,15 +95,13 @@ pub fn read_frames(
         .into_iter()
         .map(|(camera, index, time_s, line)| {
             let name = &cameras[camera].name;
-            let path = ["png", "jpg", "jpeg"]
-                .iter()
-                .map(|ext| dir.join(format!("{name}_{index:05}.{ext}")))
-                .find(|p| p.exists())
-                .ok_or_else(|| crate::data::DataError::Input {
+            let path = crate::session::frames::image_path(dir, name, index).ok_or_else(|| {
+                crate::data::DataError::Input {
                     path: dir.join("frames.csv"),
                     line,
                     message: format!("no image {name}_{index:05}.png (or .jpg) beside it"),
-                })?;
+                }
+            })?;
             Ok(Frame {
                 camera,
                 index,

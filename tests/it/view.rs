@@ -384,8 +384,9 @@ fn a_camera_knocked_during_a_live_session_raises_the_live_monitors_camera_alarm_
             .map(|r| {
                 let t: f64 = r["time_s"].parse().unwrap();
                 let p = ["x_mm", "y_mm", "z_mm"].map(|k| format!("predicted_{k}"));
-                let p = [&p[0], &p[1], &p[2], "scene_right_px"]
-                    .map(|k| r[k].parse().unwrap_or(f64::NAN));
+                let p = [&p[0], &p[1], &p[2]].map(|k| r[k].parse().unwrap());
+                let scene = r["scene_right_px"].parse().unwrap_or(f64::NAN);
+                let p = [p[0], p[1], p[2], scene];
                 ((t * 1e6).round() as i64, p)
             })
             .collect()
@@ -414,6 +415,7 @@ fn a_camera_knocked_during_a_live_session_raises_the_live_monitors_camera_alarm_
             Some((0..3).map(|k| (p[k] - q[k]).abs()).fold(0.0, f64::max))
         })
         .collect();
+    assert!(!apart.is_empty(), "no offline row has a live row");
     apart.sort_by(f64::total_cmp);
     gaps_us.sort_unstable();
     eprintln!(
@@ -437,12 +439,12 @@ fn a_camera_knocked_during_a_live_session_raises_the_live_monitors_camera_alarm_
         offline_rows.len()
     );
     // The still scene on the same rows, measured in the same frames, live as afterwards (one
-    // row in six; the offline file writes it to 0.001 px): 76 rows, every one equal.
+    // row in six; the offline file writes it to 0.001 px): 76 rows, every one equal. A frame
+    // the examiner skipped has the next one measured stand in for it live.
     assert!(scenes.len() * 8 >= offline_rows.len(), "{scenes:?}");
-    assert!(
-        scenes.iter().all(|[l, o]| (l - o).abs() <= 0.0006),
-        "live, offline: {scenes:?}"
-    );
+    let equal = |[l, o]: &&[f64; 2]| (l - o).abs() <= 0.0006;
+    let unequal = scenes.iter().filter(|s| !equal(s));
+    assert!(unequal.count() <= skipped, "live, offline: {scenes:?}");
     // 0.004 mm on an idle machine; under a parallel test run the board's measurements reach
     // the live monitor later than its rows (it then takes the command itself): 0.036 mm, a
     // thirtieth of the band.

@@ -27,8 +27,8 @@ const TRACK_POINTS: usize = 900;
 const EVERY_S: f64 = 0.5;
 /// Frames kept before the newest tip taken, for the tracks' splines and the clock (s).
 const KEEP_S: f64 = 4.0;
-/// A left frame's tip is taken once the right camera has filmed this far past its instant (s):
-/// the spline through the right frames has its frame after.
+/// A left frame's tip is taken once the right camera has filmed this far past its instant (s,
+/// on the right camera's clock): the spline through the right frames has its frame after.
 const SETTLED_S: f64 = 0.1;
 /// The origin is the median of this many tips at rest, at least.
 const ORIGIN_TIPS: usize = 10;
@@ -334,7 +334,7 @@ impl Tracker {
                 }
                 continue;
             }
-            if t > settled {
+            if clock.right_instant(t) > settled {
                 continue;
             }
             (self.taken, self.taken_until_s) = (Some(frame), t);

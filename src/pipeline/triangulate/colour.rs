@@ -8,29 +8,32 @@ use std::fmt;
 use std::path::{Path, PathBuf};
 
 use crate::image::ChromaSampling;
+use crate::session::frames::FRAME_EXTENSIONS;
 use crate::video::{Frame, VideoReader};
 
 /// Below this JPEG quality (libjpeg's scale) the chroma's rounding, not the fit, limits the
 /// tip in motion ([`COARSE_JPEG_ADVICE`]; `scripts/bench_per_frame_seeds.py`, docs/motion.md).
-pub const COARSE_JPEG_QUALITY: u8 = 90;
+const COARSE_JPEG_QUALITY: u8 = 90;
 
 /// What a coarser quality costs, measured on ten rendered sessions of the demo's design: the
 /// per-frame tip 0.040-0.086 mm RMS at quality 85, 0.020-0.051 at 95.
 const COARSE_JPEG_ADVICE: &str = "the chroma's rounding holds the tip in motion to about 0.04-0.09 mm RMS (0.02-0.05 at quality 95, docs/motion.md): raise the cameras' MJPEG quality where they let it be set";
 
 /// How each of `cameras` stored its frames' colour in `frames`: from its first JPEG file
-/// (`<camera>_NNNNN.jpg`, the smallest number), else the first frame of its Motion-JPEG video
-/// (`<camera>.avi`, …), the chroma's sampling and the quality its table is written at; one
-/// line, with advice when a camera's is below [`COARSE_JPEG_QUALITY`]. `None` when no camera's
-/// frames are JPEGs (PNG frames, videos of other codecs).
+/// (`<camera>_NNNNN.jpg`, the smallest number), or where it has no image files, the first
+/// frame of its Motion-JPEG video (`<camera>.avi`, …), as the session is read: the chroma's
+/// sampling and the quality its table is written at; one line, with advice when a camera's is
+/// below [`COARSE_JPEG_QUALITY`]. `None` when no camera's frames are JPEGs (PNG frames, videos
+/// of other codecs).
 pub fn stored_colour(frames: &Path, cameras: &[&str]) -> Option<String> {
-    let files = first_jpeg_files(frames, cameras);
+    let files = first_frame_files(frames, cameras);
     let mut lowest = 100;
     let stored: Vec<String> = cameras
         .iter()
         .filter_map(|&camera| {
             let (source, bytes) = match files.get(camera) {
-                Some(path) => (path.clone(), std::fs::read(path).ok()),
+                Some(path) if is_jpeg(path) => (path.clone(), std::fs::read(path).ok()),
+                Some(_) => return None,
                 None => {
                     let video = crate::video::find(frames, camera).ok()??;
                     let bytes = first_video_jpeg(&video)?;
@@ -69,34 +72,40 @@ pub(in crate::pipeline) fn write_colour(
     colour.map_or(Ok(()), |c| writeln!(f, "{c}"))
 }
 
-/// Each of `cameras`' first JPEG file in `frames` (`<camera>_NNNNN.jpg` or `.jpeg`, any case):
-/// one listing of the directory for all of them.
-fn first_jpeg_files(frames: &Path, cameras: &[&str]) -> BTreeMap<String, PathBuf> {
-    let mut first: BTreeMap<String, PathBuf> = BTreeMap::new();
+/// Each of `cameras`' first frame file in `frames` (`<camera>_NNNNN.<ext>`, the smallest
+/// number, `ext` one of [`FRAME_EXTENSIONS`], as the session reads them): one listing of the
+/// directory for all of them.
+fn first_frame_files<'a>(frames: &Path, cameras: &[&'a str]) -> BTreeMap<&'a str, PathBuf> {
+    let mut first: BTreeMap<&str, PathBuf> = BTreeMap::new();
     let Ok(entries) = std::fs::read_dir(frames) else {
         return first;
     };
     for path in entries.flatten().map(|e| e.path()) {
-        let Some(name) = path.file_name().map(|n| n.to_string_lossy().to_lowercase()) else {
+        let Some(stem) = path.file_stem().map(|s| s.to_string_lossy()) else {
             continue;
         };
-        let Some((stem, _)) = name
-            .rsplit_once(".jp")
-            .filter(|(_, e)| ["g", "eg"].contains(e))
-        else {
+        let Some((name, number)) = stem.rsplit_once('_') else {
             continue;
         };
-        let Some((camera, _)) = stem.rsplit_once('_').filter(|(c, _)| cameras.contains(c)) else {
+        let extension = path.extension().map(|e| e.to_string_lossy());
+        let image = extension.is_some_and(|e| FRAME_EXTENSIONS.contains(&&*e));
+        let Some(&camera) = cameras.iter().find(|&&c| c == name) else {
             continue;
         };
-        let kept = first
-            .entry(camera.to_string())
-            .or_insert_with(|| path.clone());
+        if !image || number.is_empty() || !number.bytes().all(|b| b.is_ascii_digit()) {
+            continue;
+        }
+        let kept = first.entry(camera).or_insert_with(|| path.clone());
         if path < *kept {
             *kept = path;
         }
     }
     first
+}
+
+/// Whether `path` names a JPEG file (by its extension).
+fn is_jpeg(path: &Path) -> bool {
+    (path.extension()).is_some_and(|e| e != "png")
 }
 
 /// The first frame's bytes of a Motion-JPEG `video`; `None` for other codecs or an unreadable
@@ -142,15 +151,22 @@ mod tests {
         let d = dir.path();
         // cam1's first frame (the smallest number) is at 92, a later one at 50.
         std::fs::write(d.join("cam1_00002.jpg"), frame(jpeg(50))).unwrap();
-        std::fs::write(d.join("cam1_00001.JPG"), frame(jpeg(92))).unwrap();
+        std::fs::write(d.join("cam1_00001.jpeg"), frame(jpeg(92))).unwrap();
+        // Not a frame, though it sorts first: no number after the name.
+        std::fs::write(d.join("cam1_.jpg"), frame(jpeg(20))).unwrap();
         // cam2 filmed to a Motion-JPEG video at 70.
-        let mut video =
-            crate::video::MjpegWriter::create(&d.join("cam2.avi"), 30.0, [64, 48], 70).unwrap();
-        video.write(&vec![128; 64 * 48 * 3]).unwrap();
-        video.finish().unwrap();
-        // cam3 is not among the cameras asked for (not calibrated); cam4's frames are PNG.
+        let video = |name: &str, quality| {
+            let path = d.join(name);
+            let mut video = crate::video::MjpegWriter::create(&path, 30.0, [64, 48], quality);
+            video.as_mut().unwrap().write(&[128; 64 * 48 * 3]).unwrap();
+            video.unwrap().finish().unwrap();
+        };
+        video("cam2.avi", 70);
+        // cam3 is not among the cameras asked for (not calibrated); cam4's frames are PNG, which
+        // the session reads before the video beside them.
         std::fs::write(d.join("cam3_00001.jpg"), frame(jpeg(30))).unwrap();
         std::fs::write(d.join("cam4_00001.png"), frame(ImageFormat::Png)).unwrap();
+        video("cam4.avi", 40);
 
         let line = stored_colour(d, &["cam1", "cam2", "cam4"]).unwrap();
         assert!(

@@ -54,7 +54,8 @@ pub struct LiveTip {
     pub time_s: f64,
     pub tip: Tip<([f64; 3], f64)>,
     /// How far each camera's view of the still scene moved, on a frame it is measured in
-    /// (as `triangulate --per-frame`'s rows: each camera's measured frame nearest in time).
+    /// (as `triangulate --per-frame`'s rows: each camera's measured frame nearest the row's
+    /// instant on its own clock).
     pub scene_px: Vec<Option<f64>>,
 }
 
@@ -67,5 +68,10 @@ impl LiveClock {
     /// (0: not measured).
     pub fn offset_ms(&self) -> (f64, usize) {
         (1e3 * self.0.offset_s, self.0.frames)
+    }
+
+    /// The right camera's stamp of the left camera's instant `t` (s).
+    pub fn right_instant(&self, t: f64) -> f64 {
+        t + self.0.at(t)
     }
 }
