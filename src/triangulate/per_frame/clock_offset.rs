@@ -43,8 +43,8 @@ fn student_t_995(dof: usize) -> f64 {
     }
 }
 
-/// The offset between the cameras' clocks: a left instant `t` is `t + at(t)` on the right
-/// camera's clock.
+/// The offset between the cameras' clocks: a left instant `t` is [`Self::stamp_of`]`(t)` on
+/// the right camera's clock.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub(super) struct ClockOffset {
     /// The offset at `mid_s` (s).
@@ -57,8 +57,11 @@ pub(super) struct ClockOffset {
 }
 
 impl ClockOffset {
-    pub fn at(&self, t: f64) -> f64 {
-        self.offset_s + self.drift * (t - self.mid_s)
+    /// The other camera's stamp of the rows' camera's instant `t` (s): `t` plus the offset
+    /// then.
+    pub fn stamp_of(&self, t: f64) -> f64 {
+        let offset = self.offset_s + self.drift * (t - self.mid_s);
+        t + offset
     }
 }
 

@@ -72,6 +72,6 @@ impl LiveClock {
 
     /// The right camera's stamp of the left camera's instant `t` (s).
     pub fn right_instant(&self, t: f64) -> f64 {
-        t + self.0.at(t)
+        self.0.stamp_of(t)
     }
 }

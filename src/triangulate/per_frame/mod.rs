@@ -399,7 +399,7 @@ fn locate_all(
         .order
         .par_iter()
         .zip(&left.times)
-        .map(|(&i, &t)| locate_at(rig, options, right, centres, i, t + clock.at(t)))
+        .map(|(&i, &t)| locate_at(rig, options, right, centres, i, clock.stamp_of(t)))
         .collect();
     // The single tip of each frame, for its neighbours to be told by.
     let single: Vec<Option<Vector3<f64>>> = found

@@ -87,7 +87,7 @@ pub(super) fn scene_near(
     }
     let measured = |track: &Track, pos: usize| scene[track.order[pos]];
     (tracks.iter().zip(clocks))
-        .map(|(track, clock)| track.nearest_with(time_s + clock.at(time_s), EVERY, &measured))
+        .map(|(track, clock)| track.nearest_with(clock.stamp_of(time_s), EVERY, &measured))
         .collect()
 }
 

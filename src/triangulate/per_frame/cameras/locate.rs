@@ -61,7 +61,7 @@ impl Locator<'_> {
             let found = if c == self.first {
                 self.own(centres, k)
             } else {
-                self.interpolated(track, centres, t + self.clocks[c].at(t))
+                self.interpolated(track, centres, self.clocks[c].stamp_of(t))
             };
             let candidates = match found {
                 Ok(list) if !list.is_empty() => list,
