@@ -5,10 +5,10 @@
 
 use std::collections::BTreeMap;
 use std::fmt;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use crate::image::ChromaSampling;
-use crate::session::frames::FRAME_EXTENSIONS;
+use crate::session::frames::{image_path, FRAME_EXTENSIONS};
 use crate::video::{Frame, VideoReader};
 
 /// Below this JPEG quality (libjpeg's scale) the chroma's rounding, not the fit, limits the
@@ -19,21 +19,27 @@ const COARSE_JPEG_QUALITY: u8 = 90;
 /// per-frame tip 0.040-0.086 mm RMS at quality 85, 0.020-0.051 at 95.
 const COARSE_JPEG_ADVICE: &str = "the chroma's rounding holds the tip in motion to about 0.04-0.09 mm RMS (0.02-0.05 at quality 95, docs/motion.md): raise the cameras' MJPEG quality where they let it be set";
 
-/// How each of `cameras` stored its frames' colour in `frames`: from its first JPEG file
-/// (`<camera>_NNNNN.jpg`, the smallest number), or where it has no image files, the first
-/// frame of its Motion-JPEG video (`<camera>.avi`, …), as the session is read: the chroma's
-/// sampling and the quality its table is written at; one line, with advice when a camera's is
-/// below [`COARSE_JPEG_QUALITY`]. `None` when no camera's frames are JPEGs (PNG frames, videos
-/// of other codecs).
+/// How each of `cameras` stored its frames' colour in `frames`: from its first frame's file
+/// (`<camera>_NNNNN.jpg`, the smallest number) when it is a JPEG, or where it has no image
+/// files, the first frame of its Motion-JPEG video (`<camera>.avi`, …), as the session is
+/// read: the chroma's sampling and the quality its table is written at; one line, with advice
+/// when a camera's is below [`COARSE_JPEG_QUALITY`]. `None` when no camera's frames are JPEGs
+/// (PNG frames, videos of other codecs).
 pub fn stored_colour(frames: &Path, cameras: &[&str]) -> Option<String> {
-    let files = first_frame_files(frames, cameras);
+    let first = first_frame_numbers(frames, cameras);
     let mut lowest = 100;
     let stored: Vec<String> = cameras
         .iter()
         .filter_map(|&camera| {
-            let (source, bytes) = match files.get(camera) {
-                Some(path) if is_jpeg(path) => (path.clone(), std::fs::read(path).ok()),
-                Some(_) => return None,
+            let (source, bytes) = match first.get(camera) {
+                Some(&index) => {
+                    let path = image_path(frames, camera, index)?;
+                    if !is_jpeg(&path) {
+                        return None;
+                    }
+                    let bytes = std::fs::read(&path).ok();
+                    (path, bytes)
+                }
                 None => {
                     let video = crate::video::find(frames, camera).ok()??;
                     let bytes = first_video_jpeg(&video)?;
@@ -72,33 +78,36 @@ pub(in crate::pipeline) fn write_colour(
     colour.map_or(Ok(()), |c| writeln!(f, "{c}"))
 }
 
-/// Each of `cameras`' first frame file in `frames` (`<camera>_NNNNN.<ext>`, the smallest
-/// number, `ext` one of [`FRAME_EXTENSIONS`], as the session reads them): one listing of the
-/// directory for all of them.
-fn first_frame_files<'a>(frames: &Path, cameras: &[&'a str]) -> BTreeMap<&'a str, PathBuf> {
-    let mut first: BTreeMap<&str, PathBuf> = BTreeMap::new();
+/// Each of `cameras`' first frame number in `frames` (of its files `<camera>_NNNNN.<ext>`,
+/// `ext` one of [`FRAME_EXTENSIONS`]): one listing of the directory for all of them. The
+/// frame's file is then the one the session reads ([`image_path`]).
+fn first_frame_numbers<'a>(frames: &Path, cameras: &[&'a str]) -> BTreeMap<&'a str, usize> {
+    let mut first: BTreeMap<&str, usize> = BTreeMap::new();
     let Ok(entries) = std::fs::read_dir(frames) else {
         return first;
     };
     for path in entries.flatten().map(|e| e.path()) {
+        let extension = path.extension().map(|e| e.to_string_lossy());
+        if !extension.is_some_and(|e| FRAME_EXTENSIONS.contains(&&*e)) {
+            continue;
+        }
         let Some(stem) = path.file_stem().map(|s| s.to_string_lossy()) else {
             continue;
         };
         let Some((name, number)) = stem.rsplit_once('_') else {
             continue;
         };
-        let extension = path.extension().map(|e| e.to_string_lossy());
-        let image = extension.is_some_and(|e| FRAME_EXTENSIONS.contains(&&*e));
         let Some(&camera) = cameras.iter().find(|&&c| c == name) else {
             continue;
         };
-        if !image || number.is_empty() || !number.bytes().all(|b| b.is_ascii_digit()) {
+        if !number.bytes().all(|b| b.is_ascii_digit()) {
             continue;
         }
-        let kept = first.entry(camera).or_insert_with(|| path.clone());
-        if path < *kept {
-            *kept = path;
-        }
+        let Ok(index) = number.parse::<usize>() else {
+            continue;
+        };
+        let kept = first.entry(camera).or_insert(index);
+        *kept = (*kept).min(index);
     }
     first
 }
@@ -185,5 +194,9 @@ mod tests {
         std::fs::write(d.join("cam5_00001.jpg"), b"not a jpeg").unwrap();
         let unread = stored_colour(d, &["cam5"]).unwrap();
         assert!(unread.contains("cam5 unknown ("), "{unread}");
+        // A frame kept as PNG and JPEG alike is read as the session reads it: the PNG.
+        std::fs::write(d.join("cam6_00001.png"), frame(ImageFormat::Png)).unwrap();
+        std::fs::write(d.join("cam6_00001.jpg"), frame(jpeg(60))).unwrap();
+        assert_eq!(stored_colour(d, &["cam6"]), None);
     }
 }
