@@ -47,6 +47,7 @@ fn random_hand_data(n: usize, seed: u64) -> Dataset {
         source: "bench".into(),
         inputs: Columns::new(names(&HAND_INPUTS), x),
         outputs: Columns::new(names(&HAND_OUTPUTS), y),
+        weights: None,
     }
 }
 
@@ -66,6 +67,7 @@ fn random_six_input_data(n: usize, seed: u64) -> Dataset {
         source: "bench".into(),
         inputs: Columns::new((0..6).map(|i| format!("p{i}_kPa")).collect(), inputs),
         outputs: Columns::new(names(&HAND_OUTPUTS), outputs),
+        weights: None,
     }
 }
 

@@ -291,6 +291,7 @@ fn fit(
             source: PathBuf::from("python"),
             inputs: columns(&input_names, x),
             outputs: columns(&output_names, y),
+            weights: None,
         },
         series,
         lines: (1..=x.nrows() as u64).collect(),

@@ -278,6 +278,7 @@ fn job(data: &Path, test: &Path, out: &Path, history: bool, selection: Selection
         basis: BasisChoice::Auto,
         time: history.then(|| "time_s".to_string()),
         group,
+        weight: None,
         history: if history {
             HistoryChoice::Auto
         } else {

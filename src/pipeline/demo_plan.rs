@@ -130,6 +130,7 @@ pub(super) fn job(
         basis: BasisChoice::Auto,
         time: None,
         group: None,
+        weight: None,
         history: HistoryChoice::None,
     }
 }

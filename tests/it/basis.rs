@@ -31,6 +31,7 @@ fn smooth(seed: u64, n: usize) -> Dataset {
         source: "smooth".into(),
         inputs: Columns::new(vec!["P1_kpa".into(), "P2_kpa".into(), "P3_kpa".into()], x),
         outputs: Columns::new(vec!["x_mm".into(), "y_mm".into(), "z_mm".into()], y),
+        weights: None,
     }
 }
 
@@ -111,6 +112,7 @@ fn streamed_features_give_the_stored_fit() {
             targets: y.as_ref(),
             tube,
             gram: None,
+            weights: Default::default(),
         };
         reduced::solve(
             &problem,

@@ -122,6 +122,7 @@ pub fn dataset(d: usize, x: Vec<f64>, q: usize, y: Vec<f64>) -> Dataset {
         source: "generated".into(),
         inputs: Columns::new((0..d).map(|j| format!("x{j}")).collect(), x),
         outputs: Columns::new((0..q).map(|j| format!("y{j}")).collect(), y),
+        weights: None,
     }
 }
 

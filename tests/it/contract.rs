@@ -142,6 +142,7 @@ fn training_data() -> Dataset {
         source: "train.csv".into(),
         inputs: rec.pressures,
         outputs: rec.tips,
+        weights: None,
     }
 }
 

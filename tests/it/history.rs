@@ -334,6 +334,7 @@ fn the_steady_state_jacobian_sums_the_copies() {
         source: "lag".into(),
         inputs: features,
         outputs: Columns::new(vec!["y1".into(), "y2".into()], y),
+        weights: None,
     };
     let fitted = ModelSpec::Msvr(MsvrParams::new(100.0, 0.01, 0.8).loss(Loss::Robust))
         .fit(&data)

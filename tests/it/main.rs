@@ -27,3 +27,4 @@ mod search;
 mod trajectory;
 mod triangulate;
 mod view;
+mod weight;

@@ -77,6 +77,7 @@ fn epsilon_zero_is_kernel_ridge_regression() {
         c,
         epsilon: 0.0,
         loss: Loss::Quadratic,
+        weights: Default::default(),
     };
     let sol = irwls::solve(&problem, &OPTIONS, None).unwrap();
 
@@ -144,6 +145,7 @@ fn a_tube_wider_than_every_residual_gives_beta_zero() {
         c: 100.0,
         epsilon: widest * 1.01,
         loss: Loss::Quadratic,
+        weights: Default::default(),
     };
     // From the default start and from a warm start far from β = 0: an iterate with every
     // sample inside the tube must step towards β = 0, not stop or collapse elsewhere.
@@ -288,6 +290,7 @@ fn objective_matches_an_independent_lbfgs_solver() {
             c,
             epsilon: eps,
             loss,
+            weights: Default::default(),
         };
         let sol = irwls::solve(&problem, &OPTIONS, None).unwrap();
         assert!(sol.stop.converged(), "case {case}: {:?}", sol.stop);
@@ -334,6 +337,7 @@ fn objective_matches_lbfgs_on_a_well_conditioned_rbf_kernel() {
         c,
         epsilon: eps,
         loss: Loss::Quadratic,
+        weights: Default::default(),
     };
     let sol = irwls::solve(&problem, &OPTIONS, None).unwrap();
     let dual = |z: &[f64]| {
@@ -377,6 +381,7 @@ fn hand_data(name: &str) -> Dataset {
         source: format!("{name}.csv").into(),
         inputs: rec.pressures,
         outputs: rec.tips,
+        weights: None,
     }
 }
 
@@ -413,6 +418,7 @@ fn permuting_rows_or_outputs_permutes_the_solution() {
         source: train.source.clone(),
         inputs: permute_rows(&train.inputs, &order),
         outputs: permute_rows(&train.outputs, &order),
+        weights: None,
     };
     let rows = params.fit(&shuffled).unwrap();
     let rel = (rows.fit.objective - base.fit.objective).abs() / base.fit.objective;
@@ -516,6 +522,7 @@ fn monotone_objective_and_few_iterations_on_a_larger_problem() {
         c: 500.0,
         epsilon: 0.01,
         loss: Loss::Quadratic,
+        weights: Default::default(),
     };
     let mut last = f64::INFINITY;
     for iters in 1..=8 {
@@ -665,6 +672,7 @@ fn factor_updates_reach_the_same_optimum_with_fewer_factorisations() {
             c: 50.0,
             epsilon: 0.02,
             loss,
+            weights: Default::default(),
         };
         let fresh = irwls::solve(
             &problem,

@@ -327,6 +327,7 @@ fn hand_train() -> Dataset {
         source: "train.csv".into(),
         inputs: rec.pressures,
         outputs: rec.tips,
+        weights: None,
     }
 }
 
@@ -575,6 +576,7 @@ fn drifting_ramps(seed: u64, ramps: usize) -> Dataset {
         source: "ramps.csv".into(),
         inputs: handcap::data::Columns::new(vec!["p".into()], x),
         outputs: handcap::data::Columns::new(vec!["y".into()], y),
+        weights: None,
     }
 }
 

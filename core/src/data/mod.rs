@@ -169,7 +169,6 @@ impl Columns {
         self.iter_rows().map(move |r| r[j])
     }
 
-    /// The names joined by commas, as on a command line.
     /// The listed rows, in the listed order.
     pub fn select_rows(&self, rows: &[usize]) -> Columns {
         Columns::new(
@@ -178,32 +177,44 @@ impl Columns {
         )
     }
 
+    /// The names joined by commas, as on a command line.
     pub fn names_list(&self) -> String {
         self.names.join(",")
     }
 }
 
-/// Inputs and outputs of one file, row-aligned.
+/// Inputs and outputs of one file, row-aligned, and each row's weight in a fit's loss when
+/// the rows are not all alike (`None`: every row weighs 1).
 #[derive(Clone, Debug)]
 pub struct Dataset {
     pub source: PathBuf,
     pub inputs: Columns,
     pub outputs: Columns,
+    pub weights: Option<Vec<f64>>,
 }
 
 impl Dataset {
     /// The rows [`evenly_spaced`] keeps, in order.
     pub fn subsample(&self, max: usize) -> Dataset {
-        let rows = evenly_spaced(self.rows(), max);
-        let pick = |c: &Columns| {
-            let values = rows.iter().flat_map(|&i| c.row(i).to_vec()).collect();
-            Columns::new(c.names.clone(), values)
-        };
+        self.select_rows(&evenly_spaced(self.rows(), max))
+    }
+
+    /// The listed rows, in the list's order.
+    pub fn select_rows(&self, rows: &[usize]) -> Dataset {
         Dataset {
             source: self.source.clone(),
-            inputs: pick(&self.inputs),
-            outputs: pick(&self.outputs),
+            inputs: self.inputs.select_rows(rows),
+            outputs: self.outputs.select_rows(rows),
+            weights: self
+                .weights
+                .as_ref()
+                .map(|w| rows.iter().map(|&i| w[i]).collect()),
         }
+    }
+
+    /// Each row's weight in a fit's loss, as the solvers take them.
+    pub fn row_weights(&self) -> crate::model::msvr::RowWeights<'_> {
+        crate::model::msvr::RowWeights(self.weights.as_deref())
     }
 
     pub fn rows(&self) -> usize {
@@ -291,6 +302,25 @@ pub fn read_columns_with_lines(
     Ok((Columns::new(names.to_vec(), values), lines))
 }
 
+/// A column of row weights (`--weight`): finite and above 0 on every row the model reads.
+///
+/// # Errors
+/// As [`read_columns`]; [`DataError::Input`] naming the line of a weight of 0 or below.
+pub fn read_weights(path: &Path, column: &str) -> Result<Vec<f64>, DataError> {
+    let (weights, lines) = read_columns_with_lines(path, &[column.to_string()])?;
+    let weights = weights.values;
+    match weights.iter().zip(&lines).find(|(w, _)| **w <= 0.0) {
+        Some((w, &line)) => Err(DataError::Input {
+            path: path.to_path_buf(),
+            line,
+            message: format!(
+                "weight {w} in column `{column}`: give every row a weight above 0 (a row of weight 0 is one to leave out of the file)"
+            ),
+        }),
+        None => Ok(weights),
+    }
+}
+
 /// Every column of a CSV file but those in `skip` (and `flag`) that holds a finite number on
 /// every row [`read_columns`] reads, by name, in the header's order; one pass over the file
 /// however many columns it has (the candidates for the folds' groups).
@@ -352,6 +382,7 @@ pub fn read_dataset(
         source: path.to_path_buf(),
         inputs: Columns::new(inputs.to_vec(), x),
         outputs: Columns::new(outputs.to_vec(), y),
+        weights: None,
     })
 }
 

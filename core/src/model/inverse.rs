@@ -325,6 +325,7 @@ mod tests {
             source: "generated".into(),
             inputs: Columns::new(crate::data::names(&crate::data::HAND_INPUTS), x),
             outputs: Columns::new(crate::data::names(&crate::data::HAND_OUTPUTS), y),
+            weights: None,
         };
         let m = MsvrParams::new(1000.0, 0.001, 0.5)
             .check()

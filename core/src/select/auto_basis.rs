@@ -292,6 +292,7 @@ mod tests {
             source: "inline".into(),
             inputs: Columns::new(vec!["a".into(), "b".into()], x),
             outputs: Columns::new(vec!["y".into()], y),
+            weights: None,
         };
         let folds = FoldPlan {
             choice: FoldChoice {

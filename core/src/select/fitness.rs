@@ -42,7 +42,9 @@ use crate::model::msvr::basis::{self, NystromMap};
 use crate::model::msvr::irwls::StopReason;
 use crate::model::msvr::kernel::{self, rbf_from_squared};
 use crate::model::msvr::reduced::{self, FeatureRows, ReducedProblem};
-use crate::model::msvr::{Basis, Hyper, MinMaxScaler, MsvrError, MsvrParams, ValidMsvrParams};
+use crate::model::msvr::{
+    Basis, Hyper, MinMaxScaler, MsvrError, MsvrParams, RowWeights, ValidMsvrParams,
+};
 
 /// How candidates are scored.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -74,13 +76,15 @@ pub enum FitnessError {
     },
 }
 
-/// One fold: its training and held-out rows and their targets; for the exact basis also the
-/// squared distances among its training rows and from its held-out rows to them.
+/// One fold: its training and held-out rows, their targets, and the training rows' weights
+/// when the rows carry weights. A fold's held-out error counts every row once, as a user's
+/// cross-validation scores it: the weights are the fit's, not the score's.
 struct Fold {
     train: Vec<usize>,
     held_out: Vec<usize>,
     y_train: Mat<f64>,
     y_held_out: Mat<f64>,
+    w_train: Option<Vec<f64>>,
 }
 
 /// What every fold needs of one σ: the exact basis's kernel of every row with every row (each
@@ -206,6 +210,8 @@ pub struct Fitness {
     solver: MsvrParams,
     /// What the kernels of every σ come from.
     expansion: Expansion,
+    /// Every row's weight, when the rows carry weights.
+    weights: Option<Vec<f64>>,
     memo: Mutex<HashMap<[u64; 3], f64>>,
     kernels: Mutex<HashMap<u64, Arc<PerSigma>>>,
     kernel_cache_entries: usize,
@@ -295,9 +301,14 @@ impl Fitness {
                         data.outputs.row(rows[r])[j]
                     })
                 };
+                let weights = |rows: &[usize]| {
+                    let w = data.weights.as_ref()?;
+                    Some(rows.iter().map(|&i| w[i]).collect())
+                };
                 Fold {
                     y_train: targets(&train),
                     y_held_out: targets(&held_out),
+                    w_train: weights(&train),
                     train,
                     held_out,
                 }
@@ -331,6 +342,7 @@ impl Fitness {
                 ..*solver
             },
             expansion,
+            weights: data.weights.clone(),
             memo: Mutex::new(HashMap::new()),
             kernels: Mutex::new(HashMap::new()),
             kernel_cache_entries: (KERNEL_CACHE_BYTES / per_sigma.max(1)).max(1),
@@ -495,7 +507,8 @@ impl Fitness {
                 let k_held_out = Mat::from_fn(held_out.len(), train.len(), |r, c| {
                     kernel[(held_out[r], train[c])]
                 });
-                let sol = params.solve(k_train.as_ref(), fold.y_train.as_ref(), Par::Seq, since)?;
+                let (y, w) = (fold.y_train.as_ref(), RowWeights(fold.w_train.as_deref()));
+                let sol = params.solve(k_train.as_ref(), y, w, Par::Seq, since)?;
                 if sol.stop == StopReason::Interrupted {
                     return Err(MsvrError::Interrupted);
                 }
@@ -509,6 +522,7 @@ impl Fitness {
                     },
                     targets: fold.y_train.as_ref(),
                     tube: params.params().tube(),
+                    weights: RowWeights(fold.w_train.as_deref()),
                     gram: Some(grams[k].as_ref()),
                 };
                 let p = params.params();
@@ -549,19 +563,27 @@ impl Fitness {
             Expansion::Exact { d2 } => PerSigma::Exact(rbf_from_squared(d2.as_ref(), sigma)),
             Expansion::Reduced { scaled, centres } => {
                 let features = NystromMap::new(centres, sigma).features(scaled);
-                let rows = |rows| FeatureRows::Stored {
-                    all: features.as_ref(),
-                    rows,
+                let weights_of = |listed: &[usize]| {
+                    let w = self.weights.as_ref()?;
+                    Some(listed.iter().map(|&i| w[i]).collect::<Vec<f64>>())
                 };
-                let all = rows(None).gram(Par::rayon(0));
+                let gram = |listed: Option<&[usize]>| {
+                    let w = listed.map_or_else(|| self.weights.clone(), weights_of);
+                    let rows = FeatureRows::Stored {
+                        all: features.as_ref(),
+                        rows: listed,
+                    };
+                    rows.gram(RowWeights(w.as_deref()), Par::rayon(0))
+                };
+                let all = gram(None);
                 let grams = self
                     .folds
                     .iter()
                     .map(|f| {
                         if f.held_out.len() == f.train.len() {
-                            return rows(Some(&f.train)).gram(Par::rayon(0)); // the training fitness
+                            return gram(Some(&f.train)); // the training fitness
                         }
-                        &all - rows(Some(&f.held_out)).gram(Par::rayon(0))
+                        &all - gram(Some(&f.held_out))
                     })
                     .collect();
                 PerSigma::Reduced { features, grams }

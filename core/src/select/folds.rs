@@ -339,6 +339,7 @@ mod tests {
             source: "t.csv".into(),
             inputs: Columns::new((0..d).map(|j| format!("x{j}")).collect(), x),
             outputs: Columns::new(vec!["y".into()], vec![0.0; n]),
+            weights: None,
         }
     }
 

@@ -77,6 +77,7 @@ impl Table {
                     .features_at(context, &self.lines)
                     .map_err(|e| series_error(&self.data.source, &context.lines, e))?,
                 outputs: self.data.outputs.clone(),
+                weights: self.data.weights.clone(),
             }),
             (Some(h), Some(series), None) => h
                 .dataset(&self.data, series)

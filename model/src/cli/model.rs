@@ -89,6 +89,11 @@ pub struct Args {
     /// The same as --folds-by COLUMN
     #[arg(long, conflicts_with = "folds_by")]
     group_by: Option<String>,
+    /// Weigh each row's loss in the fit by this column (above 0; a row of weight 3 counts as
+    /// three copies of it), e.g. runs played since the session against the session. The folds'
+    /// scores and the intervals count every row once
+    #[arg(long, value_name = "COLUMN")]
+    weight: Option<String>,
     /// Seed of the search and of the folds' shuffle
     #[arg(long, default_value_t = DEFAULT_SEED)]
     seed: u64,
@@ -208,6 +213,11 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             usage!("--loss {loss} with --model {family}: {} fits with the {fixed} loss; leave --loss out, or use --model {}", family.title(), Family::names_where(|f| f.fixed_loss().is_none()));
         }
     }
+    if let Some(w) = a.weight.as_ref() {
+        if a.inputs.contains(w) || a.outputs.contains(w) {
+            usage!("--weight {w}: the model reads `{w}` as an input or output; name the column of the rows' weights");
+        }
+    }
     let job = FitJob {
         family: a.model,
         data: a.data,
@@ -247,6 +257,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         basis: a.basis,
         time: a.time,
         group,
+        weight: a.weight,
         history: a.history,
     };
     let outcome = super::with_session(|s| fit::run(&job, s))?;

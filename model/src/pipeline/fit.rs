@@ -48,6 +48,8 @@ pub struct FitJob {
     pub time: Option<String>,
     /// The column naming the runs of a time series (history restarts in each).
     pub group: Option<String>,
+    /// The column of each row's weight in the fit's loss (`--weight`).
+    pub weight: Option<String>,
     /// What history to try (with `time`).
     pub history: HistoryChoice,
     /// Intervals also without a search (k more fits when nothing else made the held-out
@@ -223,9 +225,13 @@ fn note_flagged(job: &FitJob, session: &Session) -> Result<(), PipelineError> {
 }
 
 /// A data file's job columns, its time series (checked for order) when `--time` was given,
-/// and with `folds` the columns the folds may be cut by.
-fn read_table(path: &Path, job: &FitJob, folds: bool) -> Result<Table, PipelineError> {
-    let data = data::read_dataset(path, &job.inputs, &job.outputs)?;
+/// and for a file a model is fitted or searched on (`fitted`) the columns the folds may be cut
+/// by and the rows' weights.
+fn read_table(path: &Path, job: &FitJob, fitted: bool) -> Result<Table, PipelineError> {
+    let mut data = data::read_dataset(path, &job.inputs, &job.outputs)?;
+    if let Some(column) = job.weight.as_ref().filter(|_| fitted) {
+        data.weights = Some(data::read_weights(path, column)?);
+    }
     let (series, lines, context) = match &job.time {
         None => (None, Vec::new(), None),
         Some(time) => {
@@ -236,7 +242,7 @@ fn read_table(path: &Path, job: &FitJob, folds: bool) -> Result<Table, PipelineE
         }
     };
     let fold_columns = match &job.selection {
-        _ if !folds => Vec::new(),
+        _ if !fitted => Vec::new(),
         Selection::Fixed { folds_by, .. } | Selection::Search { folds_by, .. } => {
             fold_columns(path, folds_by, job)?
         }
@@ -263,7 +269,10 @@ fn fold_columns(
         FoldsBy::Shuffle | FoldsBy::Blocks => Vec::new(),
         FoldsBy::Column(column) => vec![(column.clone(), data::read_labels(path, column)?.0)],
         FoldsBy::Auto => {
-            let skip: Vec<String> = job.inputs.iter().chain(&job.outputs).cloned().collect();
+            let skip: Vec<String> = (job.inputs.iter().chain(&job.outputs))
+                .chain(&job.weight)
+                .cloned()
+                .collect();
             data::numeric_columns(path, &skip)?
         }
     })
@@ -438,9 +447,10 @@ impl fmt::Display for FitOutcome {
             .skip(1)
             .map(|(name, value)| format!("{name} = {value}"))
             .collect();
+        let weighted = fit.weights.map_or_else(String::new, |w| format!(" ({w})"));
         writeln!(
             f,
-            "{} on {}: {} rows, {}",
+            "{} on {}: {} rows{weighted}, {}",
             r.family.used.title(),
             r.training_file,
             fit.rows,

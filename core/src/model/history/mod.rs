@@ -385,6 +385,7 @@ impl History {
             source: raw.source.clone(),
             inputs: self.features(&raw.inputs, series)?,
             outputs: raw.outputs.clone(),
+            weights: raw.weights.clone(),
         })
     }
 

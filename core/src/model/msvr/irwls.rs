@@ -1,8 +1,9 @@
 //! The MSVR training problem on a given kernel matrix, solved by iteratively reweighted least
 //! squares (IRWLS) with an exact line search on the true objective.
 //!
-//! Minimises F(β, b) = ½ tr(βᵀKβ) + C Σᵢ L(uᵢ), uᵢ = ‖yᵢ − (Kβ)ᵢ − b‖₂, with the tube's
-//! [`Loss`] ([`super::tube`]: the paper's quadratic or the robust one).
+//! Minimises F(β, b) = ½ tr(βᵀKβ) + C Σᵢ wᵢ L(uᵢ), uᵢ = ‖yᵢ − (Kβ)ᵢ − b‖₂, with the tube's
+//! [`Loss`] ([`super::tube`]: the paper's quadratic or the robust one) and each row's weight
+//! wᵢ (1 unless given; the weights below are then wᵢ times theirs).
 //!
 //! Each iteration:
 //! 1. the strict support set S = {i : uᵢ > ε} (a sample on the tube's edge is not in S, so
@@ -58,7 +59,7 @@ use faer::{Accum, Col, Mat, MatRef, Par};
 use serde::{Deserialize, Serialize};
 
 use super::tube::{frobenius_dot, row_norm, Tube};
-pub use super::tube::{Loss, ROBUST_ZONE};
+pub use super::tube::{Loss, RowWeights, ROBUST_ZONE};
 
 /// Why the solver stopped.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -107,6 +108,7 @@ pub struct Problem<'a> {
     pub c: f64,
     pub epsilon: f64,
     pub loss: Loss,
+    pub weights: RowWeights<'a>,
 }
 
 /// The solver's result.
@@ -422,7 +424,7 @@ impl Problem<'_> {
 
     /// F from β, Kβ and the residuals they leave.
     fn objective_with(&self, beta: MatRef<f64>, k_beta: MatRef<f64>, resid: MatRef<f64>) -> f64 {
-        0.5 * frobenius_dot(beta, k_beta) + self.tube().data_term(resid)
+        0.5 * frobenius_dot(beta, k_beta) + self.tube().data_term(resid, self.weights)
     }
 
     fn residuals(&self, k_beta: MatRef<f64>, bias: &[f64]) -> Mat<f64> {
@@ -462,7 +464,10 @@ impl Problem<'_> {
     ) -> Result<(Mat<f64>, Vec<f64>), NotPositiveDefinite> {
         let (n, q) = self.targets.shape();
         let rows: Vec<Option<(f64, f64)>> = (0..n)
-            .map(|i| self.tube().step_row(row_norm(it.resid.as_ref(), i)))
+            .map(|i| {
+                let u = row_norm(it.resid.as_ref(), i);
+                self.tube().step_row(u, self.weights.of(i))
+            })
             .collect();
         let support: Vec<(usize, f64)> = rows
             .iter()
@@ -526,9 +531,13 @@ impl Problem<'_> {
         let q1 = frobenius_dot(delta.as_ref(), it.k_beta.as_ref());
         let q2 = frobenius_dot(delta.as_ref(), k_delta.as_ref());
         let g = Mat::from_fn(n, q, |i, j| k_delta[(i, j)] + bias_delta[j]);
-        let (t, objective) =
-            self.tube()
-                .step_along(it.resid.as_ref(), g.as_ref(), [q0, q1, q2], it.objective)?;
+        let (t, objective) = self.tube().step_along(
+            it.resid.as_ref(),
+            g.as_ref(),
+            [q0, q1, q2],
+            it.objective,
+            self.weights,
+        )?;
         if t == 1.0 {
             it.beta = beta_star;
             it.bias = bias_star;

@@ -39,7 +39,7 @@ use crate::model::{Differentiable, Predict};
 pub use hyper::{Hyper, InvalidParam, PAPER_TABLE2};
 use irwls::{NotPositiveDefinite, StopReason};
 pub use params::{MsvrParams, ValidMsvrParams};
-pub use tube::{Loss, ROBUST_ZONE};
+pub use tube::{Loss, RowWeights, ROBUST_ZONE};
 
 /// Default relative tolerance on the objective's decrease.
 pub const DEFAULT_TOL: f64 = 1e-8;
@@ -126,6 +126,15 @@ struct Expansion {
     basis: Option<BasisFit>,
 }
 
+impl Expansion {
+    /// Whether its objective, bias and coefficients are all finite numbers.
+    fn is_finite(&self) -> bool {
+        self.objective.is_finite()
+            && self.bias.iter().all(|b| b.is_finite())
+            && self.coefficients.iter().flatten().all(|b| b.is_finite())
+    }
+}
+
 /// Features of a reduced fit are stored when they take at most this many bytes, else computed
 /// block by block at every pass.
 pub const STORED_FEATURE_BYTES: usize = 1 << 30;
@@ -177,6 +186,40 @@ pub struct FitDiagnostics {
     /// The reduced basis's figures (absent for an exact fit).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub basis: Option<BasisFit>,
+    /// The rows' weights in the loss, when they were given.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub weights: Option<Weighing>,
+}
+
+/// The span and sum of the rows' weights a model was fitted with.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Weighing {
+    pub min: f64,
+    pub max: f64,
+    pub total: f64,
+}
+
+impl Weighing {
+    pub fn of(weights: &[f64]) -> Weighing {
+        Weighing {
+            min: weights.iter().copied().fold(f64::INFINITY, f64::min),
+            max: weights.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+            total: weights.iter().sum(),
+        }
+    }
+}
+
+impl std::fmt::Display for Weighing {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let number = crate::data::format_number;
+        write!(
+            f,
+            "weighted {} to {}, {:.1} in all",
+            number(self.min),
+            number(self.max),
+            self.total
+        )
+    }
 }
 
 /// Per-column min-max scaling to [0, 1], with the training minimum and maximum.

@@ -5,10 +5,11 @@ use faer::{MatRef, Par};
 use serde::{Deserialize, Serialize};
 
 use super::irwls::{NotPositiveDefinite, Problem, SolverOptions, StopReason};
+use super::tube::RowWeights;
 use super::{
     basis, check_memory, irwls, kernel, reduced, to_columns, to_mat, tube, Basis, BasisFit,
     Expansion, FitDiagnostics, Hyper, InvalidParam, Loss, MinMaxScaler, Msvr, MsvrError, MsvrRepr,
-    DEFAULT_MAX_ITER, DEFAULT_TOL, MIN_FIT_ROWS, PAPER_TABLE2, STORED_FEATURE_BYTES,
+    Weighing, DEFAULT_MAX_ITER, DEFAULT_TOL, MIN_FIT_ROWS, PAPER_TABLE2, STORED_FEATURE_BYTES,
 };
 use crate::data::{Columns, Dataset};
 
@@ -154,8 +155,9 @@ impl ValidMsvrParams {
         &self.0
     }
 
-    /// Solves the training problem on a kernel matrix and targets with these parameters,
-    /// stopping at a stop asked after `since` ([`StopReason::Interrupted`]).
+    /// Solves the training problem on a kernel matrix and targets (each row weighted by
+    /// `weights`) with these parameters, stopping at a stop asked after `since`
+    /// ([`StopReason::Interrupted`]).
     ///
     /// # Errors
     /// [`NotPositiveDefinite`] when the linear algebra fails.
@@ -163,6 +165,7 @@ impl ValidMsvrParams {
         &self,
         kernel: MatRef<f64>,
         targets: MatRef<f64>,
+        weights: RowWeights,
         par: Par,
         since: crate::control::Since,
     ) -> Result<irwls::Solution, NotPositiveDefinite> {
@@ -173,6 +176,7 @@ impl ValidMsvrParams {
             c: p.c,
             epsilon: p.epsilon,
             loss: p.loss,
+            weights,
         };
         let options = SolverOptions {
             tol: p.tol,
@@ -222,7 +226,8 @@ impl ValidMsvrParams {
         let expansion = match p.basis {
             Basis::Exact => {
                 let k = kernel::rbf_gram(&scaled, p.sigma);
-                let solution = self.solve(k.as_ref(), y.as_ref(), par, since)?;
+                let solution =
+                    self.solve(k.as_ref(), y.as_ref(), data.row_weights(), par, since)?;
                 let mut k_beta = k.as_ref() * &solution.beta;
                 for (j, b) in solution.bias.iter().enumerate() {
                     k_beta.col_mut(j).iter_mut().for_each(|v| *v += b);
@@ -265,6 +270,7 @@ impl ValidMsvrParams {
                     features,
                     targets: y.as_ref(),
                     tube: p.tube(),
+                    weights: data.row_weights(),
                     gram: None,
                 };
                 let solution = reduced::solve(&problem, p.tol, p.max_iter, par, since)?;
@@ -290,14 +296,7 @@ impl ValidMsvrParams {
         if expansion.stop == StopReason::Interrupted {
             return Err(MsvrError::Interrupted);
         }
-        let finite = expansion.objective.is_finite()
-            && expansion.bias.iter().all(|b| b.is_finite())
-            && expansion
-                .coefficients
-                .iter()
-                .flatten()
-                .all(|b| b.is_finite());
-        if !finite {
+        if !expansion.is_finite() {
             return Err(MsvrError::NonFinite {
                 c: p.c,
                 epsilon: p.epsilon,
@@ -312,6 +311,7 @@ impl ValidMsvrParams {
             converged: expansion.stop.converged(),
             stop: expansion.stop,
             basis: expansion.basis,
+            weights: data.weights.as_deref().map(Weighing::of),
         };
         let model = Msvr::from_repr(MsvrRepr {
             inputs: data.inputs.names.clone(),

@@ -1,15 +1,16 @@
 //! MSVR on a reduced basis ([`super::basis`]): the same tube, loss and IRWLS as [`super::irwls`],
 //! on the Nyström features of m centres, for any number of rows.
 //!
-//! Minimises F(w, b) = ½‖w‖² + C Σᵢ L(uᵢ), uᵢ = ‖yᵢ − Φᵢw − b‖₂, Φ the n × r features, which is
-//! exact MSVR's objective with β restricted to the centres (β = L⁻ᵀ w, ½‖w‖² = ½ tr(βᵀK_mmβ)).
+//! Minimises F(w, b) = ½‖w‖² + C Σᵢ wᵢ L(uᵢ), uᵢ = ‖yᵢ − Φᵢw − b‖₂, Φ the n × r features and
+//! wᵢ each row's weight (1 unless given), which is exact MSVR's objective with β restricted to
+//! the centres (β = L⁻ᵀ w, ½‖w‖² = ½ tr(βᵀK_mmβ)).
 //! Each iteration:
 //! 1. every row's part from [`Tube::step_row`]: weight aᵢ (0 inside the tube) and its pulled-in
 //!    target y'ᵢ, as in the exact solver (so the same fixed point: F's optimum);
 //! 2. the weighted least-squares step in the primal, with Φ̃ = [Φ 1] and R = diag(1, …, 1, 0):
 //!    (R + Φ̃ᵀ A Φ̃) [w*; b*ᵀ] = Φ̃ᵀ A Y', an (r + 1)² system whatever n. Its matrix is built from
 //!    the rows that are not in the loss's quadratic zone when they are fewer than the support:
-//!    Φ̃ᵀAΦ̃ = 2C G − Σ_{i not quadratic} (2C − aᵢ) φ̃ᵢφ̃ᵢᵀ, with G = Φ̃ᵀΦ̃ computed once per fit
+//!    Φ̃ᵀAΦ̃ = 2C G − Σ_{i not quadratic} (2Cwᵢ − aᵢ) φ̃ᵢφ̃ᵢᵀ, with G = Φ̃ᵀWΦ̃ computed once per fit
 //!    (an ε-tube holding few rows, or few far rows in the robust loss, makes an iteration cost
 //!    O(k r²) for those k rows instead of O(n r²));
 //! 3. the exact line search along (w, b) → (w*, b*) ([`Tube::step_along`]), so F never rises;
@@ -26,7 +27,7 @@ use faer::{Accum, Mat, MatMut, MatRef, Par, Side};
 
 use super::basis::NystromMap;
 use super::irwls::{NotPositiveDefinite, StopReason};
-use super::tube::{frobenius_dot, row_norm, Tube};
+use super::tube::{frobenius_dot, row_norm, RowWeights, Tube};
 use crate::data::Columns;
 
 /// Rows per block of features.
@@ -170,11 +171,11 @@ impl FeatureRows<'_> {
         }
     }
 
-    /// Φ̃ᵀΦ̃ ((r + 1)², Φ̃ = [Φ 1]) over the problem's rows: its lower triangle only (the
-    /// upper triangle stays zero).
-    pub fn gram(&self, par: Par) -> Mat<f64> {
+    /// Φ̃ᵀWΦ̃ ((r + 1)², Φ̃ = [Φ 1], W the rows' weights) over the problem's rows: its lower
+    /// triangle only (the upper triangle stays zero).
+    pub fn gram(&self, weights: RowWeights, par: Par) -> Mat<f64> {
         let r = self.width();
-        let all: Vec<(usize, f64)> = (0..self.nrows()).map(|i| (i, 1.0)).collect();
+        let all: Vec<(usize, f64)> = (0..self.nrows()).map(|i| (i, weights.of(i))).collect();
         let mut gram = Mat::<f64>::zeros(r + 1, r + 1);
         self.accumulate(&all, Some((1.0, gram.as_mut())), None, par);
         gram
@@ -224,8 +225,10 @@ pub struct ReducedProblem<'a> {
     /// Targets Y (n × q).
     pub targets: MatRef<'a, f64>,
     pub tube: Tube,
-    /// Φ̃ᵀΦ̃ over the problem's rows ([`FeatureRows::gram`]) when the caller has it (a search's
-    /// folds share one per σ); computed by the solver otherwise.
+    /// Each row's weight in the loss.
+    pub weights: RowWeights<'a>,
+    /// Φ̃ᵀWΦ̃ over the problem's rows ([`FeatureRows::gram`] with the weights) when the caller
+    /// has it (a search's folds share one per σ); computed by the solver otherwise.
     pub gram: Option<MatRef<'a, f64>>,
 }
 
@@ -265,7 +268,7 @@ pub fn solve(
     let gram = match problem.gram {
         Some(g) => g,
         None => {
-            computed = problem.features.gram(par);
+            computed = problem.features.gram(problem.weights, par);
             computed.as_ref()
         }
     };
@@ -278,7 +281,7 @@ pub fn solve(
     let residuals =
         |f: &Mat<f64>, bias: &[f64]| Mat::from_fn(n, q, |i, j| y[(i, j)] - f[(i, j)] - bias[j]);
     let mut resid = residuals(&f, &bias);
-    let mut objective = tube.data_term(resid.as_ref());
+    let mut objective = tube.data_term(resid.as_ref(), problem.weights);
     let mut iterations = 0;
     let stop = loop {
         if iterations == max_iter {
@@ -291,7 +294,7 @@ pub fn solve(
         crate::control::iteration_done();
         // 1. Each row's weight and pulled-in target.
         let parts: Vec<Option<(f64, f64)>> = (0..n)
-            .map(|i| tube.step_row(row_norm(resid.as_ref(), i)))
+            .map(|i| tube.step_row(row_norm(resid.as_ref(), i), problem.weights.of(i)))
             .collect();
         // 2. The step target.
         let (w_star, bias_star) = step_target(problem, gram, &parts, resid.as_ref(), &bias, par)?;
@@ -307,8 +310,8 @@ pub fn solve(
             frobenius_dot(delta.as_ref(), delta.as_ref()),
         ];
         let previous = objective;
-        let Some((t, reached)) = tube.step_along(resid.as_ref(), g.as_ref(), quad, objective)
-        else {
+        let step = tube.step_along(resid.as_ref(), g.as_ref(), quad, objective, problem.weights);
+        let Some((t, reached)) = step else {
             break StopReason::NoDescent;
         };
         w += faer::Scale(t) * &delta;
@@ -348,7 +351,7 @@ fn step_target(
 ) -> Result<(Mat<f64>, Vec<f64>), NotPositiveDefinite> {
     let (r, tube, y) = (problem.features.width(), problem.tube, problem.targets);
     let q = y.ncols();
-    let quadratic_weight = 2.0 * tube.c;
+    let quadratic_weight = |i: usize| 2.0 * tube.c * problem.weights.of(i);
     let support: Vec<(usize, f64)> = parts
         .iter()
         .enumerate()
@@ -362,7 +365,7 @@ fn step_target(
         .enumerate()
         .filter_map(|(i, p)| {
             let a = p.map_or(0.0, |(inv, _)| 1.0 / inv);
-            (a != quadratic_weight).then_some((i, quadratic_weight - a))
+            (a != quadratic_weight(i)).then_some((i, quadratic_weight(i) - a))
         })
         .collect();
     // Right-hand side Φ̃ᵀ A Y' over the support; the matrix from G and the rows outside the
@@ -377,7 +380,7 @@ fn step_target(
     let features = &problem.features;
     if not_quadratic.len() < support.len() {
         system.copy_from(gram);
-        system *= faer::Scale(quadratic_weight);
+        system *= faer::Scale(2.0 * tube.c);
         features.accumulate(&not_quadratic, Some((-1.0, system.as_mut())), None, par);
         features.accumulate(&support, None, Some((targets.as_ref(), rhs.as_mut())), par);
     } else {

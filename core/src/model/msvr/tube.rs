@@ -2,6 +2,10 @@
 //! [`super::reduced`]): what a row's residual norm costs, its part in a reweighted
 //! least-squares step, and the exact line search along a step.
 //!
+//! A row may carry a weight wᵢ > 0 ([`RowWeights`]): its loss counts wᵢ times, C wᵢ L(uᵢ), as
+//! wᵢ copies of the row would when wᵢ is whole (a lab weighting the runs it is learning on
+//! against the session the model was fitted on).
+//!
 //! With uᵢ = ‖yᵢ − f(xᵢ)‖₂ the residual norm of row i, the [`Loss`] is
 //! - quadratic (the paper's, Sánchez-Fernández et al. 2004, eqs. 11-12): L(u) = 0 for u ≤ ε and
 //!   (u − ε)² above;
@@ -46,6 +50,18 @@ impl std::fmt::Display for Loss {
     }
 }
 
+/// Each row's weight in the data term C Σᵢ wᵢ L(uᵢ), indexed like the problem's targets
+/// (`None`: every row 1).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct RowWeights<'a>(pub Option<&'a [f64]>);
+
+impl RowWeights<'_> {
+    /// Row `i`'s weight.
+    pub fn of(self, i: usize) -> f64 {
+        self.0.map_or(1.0, |w| w[i])
+    }
+}
+
 /// The penalty C, the tube's radius ε and the loss beyond it: C Σᵢ L(uᵢ) is the data term of
 /// both solvers' objective.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -76,27 +92,29 @@ impl Tube {
         }
     }
 
-    /// C Σᵢ L(uᵢ) over the rows of a residual matrix.
-    pub fn data_term(&self, resid: MatRef<f64>) -> f64 {
+    /// C Σᵢ wᵢ L(uᵢ) over the rows of a residual matrix.
+    pub fn data_term(&self, resid: MatRef<f64>, weights: RowWeights) -> f64 {
         self.c
             * (0..resid.nrows())
-                .map(|i| self.loss(row_norm(resid, i)))
+                .map(|i| weights.of(i) * self.loss(row_norm(resid, i)))
                 .sum::<f64>()
     }
 
     /// A row's part in a reweighted least-squares step, `None` inside the tube: its inverse
     /// weight 1/aᵢ and the share of its residual its target is pulled in by
-    /// (y'ᵢ = yᵢ − shrink · rᵢ). In the quadratic zone 1/(2C) and ε/uᵢ (the target at the tube's
-    /// edge: weight 2C with the shifted target has the loss's gradient and is exact along the
-    /// residual), in the robust loss's linear part uᵢ/(2Cδ) and 0 (the target itself: the usual
-    /// majoriser of a norm, which does not overshoot).
-    pub fn step_row(&self, u: f64) -> Option<(f64, f64)> {
+    /// (y'ᵢ = yᵢ − shrink · rᵢ), for a row of weight `w`. In the quadratic zone 1/(2Cw) and
+    /// ε/uᵢ (the target at the tube's edge: weight 2Cw with the shifted target has the loss's
+    /// gradient and is exact along the residual), in the robust loss's linear part
+    /// uᵢ/(2Cwδ) and 0 (the target itself: the usual majoriser of a norm, which does not
+    /// overshoot).
+    pub fn step_row(&self, u: f64, w: f64) -> Option<(f64, f64)> {
         let (excess, zone) = (u - self.epsilon, self.zone());
+        let cw = self.c * w;
         (excess > 0.0).then(|| {
             if excess > zone {
-                (u / (2.0 * self.c * zone), 0.0)
+                (u / (2.0 * cw * zone), 0.0)
             } else {
-                (0.5 / self.c, self.epsilon / u)
+                (0.5 / cw, self.epsilon / u)
             }
         })
     }
@@ -108,7 +126,7 @@ impl Tube {
 
     /// The exact line search of both solvers. Along a step the residuals are r − t g and the
     /// regulariser (twice its value) is q0 + 2 t q1 + t² q2, so F(t) = ½(q0 + 2tq1 + t²q2) +
-    /// C Σ L(‖rᵢ − t gᵢ‖) is convex in t and costs O(nq). Returns the step t ∈ (0, 4] minimising
+    /// C Σ wᵢ L(‖rᵢ − t gᵢ‖) is convex in t and costs O(nq). Returns the step t ∈ (0, 4] minimising
     /// it (from F′ by regula falsi) and F there, halved back towards 0 should rounding make it
     /// worse than `current`; `None` when no step down to 2⁻⁴⁰ lowers F.
     pub fn step_along(
@@ -117,6 +135,7 @@ impl Tube {
         g: MatRef<f64>,
         [q0, q1, q2]: [f64; 3],
         current: f64,
+        weights: RowWeights,
     ) -> Option<(f64, f64)> {
         let (n, q) = resid.shape();
         let along = |t: f64| {
@@ -124,9 +143,11 @@ impl Tube {
             for i in 0..n {
                 let e = |j: usize| resid[(i, j)] - t * g[(i, j)];
                 let u = (0..q).map(|j| e(j) * e(j)).sum::<f64>().sqrt();
-                loss += self.loss(u);
+                let w = weights.of(i);
+                loss += w * self.loss(u);
                 if u > self.epsilon {
-                    slope -= self.c * self.pull(u) * (0..q).map(|j| e(j) * g[(i, j)]).sum::<f64>();
+                    let along = (0..q).map(|j| e(j) * g[(i, j)]).sum::<f64>();
+                    slope -= self.c * w * self.pull(u) * along;
                 }
             }
             (0.5 * (q0 + t * (2.0 * q1 + t * q2)) + self.c * loss, slope)

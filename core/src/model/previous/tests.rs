@@ -150,6 +150,7 @@ fn grid_dataset(params: &PreviousParams) -> Dataset {
         source: "grid".into(),
         inputs: Columns::new(names(&HAND_INPUTS), x),
         outputs: Columns::new(names(&HAND_OUTPUTS), y),
+        weights: None,
     }
 }
 

@@ -61,6 +61,7 @@ mod tests {
             source: "inline".into(),
             inputs: Columns::new(vec!["p".into()], x.clone()),
             outputs: Columns::new(vec!["a".into(), "b".into()], y.clone()),
+            weights: None,
         };
         let (c, sigma) = (40.0, 0.15);
         let params = Family::KRR.solver(MsvrParams::new(c, 0.3, sigma).loss(Loss::Robust));
