@@ -242,7 +242,7 @@ fn bad_weights_are_refused_with_one_line_naming_the_row() {
         ("-2", "weighted.csv line 6: weight -2 in column `w`"),
         (
             "heavy",
-            "weighted.csv line 6, column `w`: `heavy` is not a number",
+            "weighted.csv: line 6, column `w`: `heavy` is not a number",
         ),
     ] {
         let fifth = |i| if i == 4 { weight.into() } else { "1".into() };
