@@ -47,6 +47,12 @@ pub struct Args {
     /// finger's tip at every left exposure
     #[arg(long)]
     truth: Option<PathBuf>,
+    /// The session the model was fitted on: after each repetition the model is fitted again
+    /// with its own settings on it and the repetitions played (together weighing as much as
+    /// its rows), and the next repetition learned with that model: on a finger whose dynamics
+    /// the model does not know, it learns them
+    #[arg(long, value_name = "SESSION")]
+    refit: Option<PathBuf>,
     #[command(flatten)]
     plan: PlanArgs,
 }
@@ -72,6 +78,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         rest_s: a.rest_s,
         lead_in_s: a.lead_in_s,
         truth: a.truth.as_deref(),
+        refit: a.refit.as_deref(),
         plan: trajectory::Request {
             model: &a.model,
             target: &a.trajectory,

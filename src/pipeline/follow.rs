@@ -10,6 +10,8 @@
 //!   path's commands as phase `path`, a second's rest), `rep_R/rows.csv` its per-frame rows;
 //! - `measured_R.csv`: the path's rows on the commands' clock (time from the path's first
 //!   command), what the learning step reads;
+//! - with `--refit`, `refit_R.csv` and `model_R.json`: the rows the model was fitted again on
+//!   after repetition R and that model, which the next learning step uses ([`refit`]);
 //! - `follow.csv`: `repetition,rows,tracking_rms_triangulated_mm,tracking_rms_truth_mm`, each
 //!   repetition's tracking RMS after the lead-in against the target, from the triangulated
 //!   frames and, with `--truth LAB/truth` (`handcap lab`'s), from the lab's tip at each left
@@ -18,9 +20,11 @@
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
+use super::fit::{self, FitJob};
 use super::trajectory::{self, Request};
 use super::{PipelineError, Session};
 use crate::capture::{CaptureOptions, Regulator};
+use crate::model::file::ModelFile;
 use crate::session::protocol::Step;
 use crate::triangulate::TriangulateOptions;
 
@@ -43,6 +47,9 @@ pub struct Follow<'a> {
     pub truth: Option<&'a Path>,
     /// The learning step's and the planner's settings, as `inverse --trajectory` takes them.
     pub plan: Request<'a>,
+    /// The session the model was fitted on, to fit it again after each repetition on that
+    /// session and the repetitions played ([`refit`]).
+    pub refit: Option<&'a Path>,
 }
 
 /// One repetition's figures.
@@ -295,6 +302,120 @@ fn write_measured(
     crate::fsio::write_bytes(path, text.as_bytes()).map_err(io(path))
 }
 
+/// The column of the refit's row weights.
+const REFIT_WEIGHT: &str = "refit_weight";
+
+/// The model fitted again after repetition `r` (`--refit`), with its own settings (no search),
+/// on `refit_R.csv`: the session `data` it was fitted on, and every repetition's unflagged
+/// rows so far, each repetition a group of its own (`rep_K`), the repetitions' rows weighing
+/// together as much as the session's. Appended once, the session's rows outweigh a run and the
+/// model hardly learns the finger it is on (`docs/motion.md`). Returns `model_R.json`.
+fn refit(
+    f: &Follow,
+    data: &Path,
+    r: usize,
+    session: &Session,
+    said: &dyn Fn(&str),
+) -> Result<PathBuf, PipelineError> {
+    let model = ModelFile::load(f.model).map_err(|e| request(e.to_string()))?;
+    let (csv_path, out) = (
+        f.out.join(format!("refit_{r}.csv")),
+        f.out.join(format!("model_{r}.json")),
+    );
+    let job = FitJob::refit(
+        &model,
+        csv_path.clone(),
+        Some(REFIT_WEIGHT.into()),
+        out.clone(),
+    );
+    let failed = |e: csv::Error| request(format!("{}: {e}", data.display()));
+    let mut reader = csv::Reader::from_path(data).map_err(failed)?;
+    let header: Vec<String> = reader
+        .headers()
+        .map_err(failed)?
+        .iter()
+        .map(String::from)
+        .collect();
+    let needed: Vec<&String> = job.inputs.iter().chain(&job.outputs).collect();
+    let named = [(job.time.as_ref(), "time_s"), (job.group.as_ref(), "")];
+    for column in needed
+        .iter()
+        .copied()
+        .chain(named.iter().filter_map(|n| n.0))
+    {
+        if !header.contains(column) {
+            return Err(request(format!("{}: no column `{column}`, which {} was fitted with: give --refit the session the model was fitted on", data.display(), f.model.display())));
+        }
+    }
+    let session_rows: Vec<csv::StringRecord> =
+        reader.records().collect::<Result<_, _>>().map_err(failed)?;
+    let flag = header.iter().position(|h| h == "flag");
+    let read = session_rows
+        .iter()
+        .filter(|row| flag.is_none_or(|i| row.get(i).is_none_or(str::is_empty)))
+        .count();
+    // Each repetition's rows in the session's columns: the time, its group, the inputs and
+    // outputs; the session's other columns left empty.
+    let mut runs: Vec<Vec<String>> = Vec::new();
+    for k in 0..=r {
+        for row in rows(&f.out.join(format!("rep_{k}/rows.csv")))? {
+            if !row.get("flag").is_none_or(String::is_empty)
+                || needed.iter().any(|c| number(&row, c).is_none())
+            {
+                continue;
+            }
+            let cell = |name: &String| {
+                if Some(name) == job.time.as_ref() {
+                    row.get("time_s").cloned().unwrap_or_default()
+                } else if Some(name) == job.group.as_ref() {
+                    format!("rep_{k}")
+                } else if needed.contains(&name) {
+                    row[name].clone()
+                } else {
+                    String::new()
+                }
+            };
+            runs.push(header.iter().map(cell).collect());
+        }
+    }
+    let weight = read as f64 / runs.len().max(1) as f64;
+    let mut writer = csv::Writer::from_writer(Vec::new());
+    let mut write = |cells: Vec<&str>| {
+        writer
+            .write_record(cells)
+            .map_err(|e| request(e.to_string()))
+    };
+    write(
+        header
+            .iter()
+            .map(String::as_str)
+            .chain([REFIT_WEIGHT])
+            .collect(),
+    )?;
+    for row in &session_rows {
+        write(row.iter().chain(["1"]).collect())?;
+    }
+    let weight_cell = weight.to_string();
+    for row in &runs {
+        write(
+            row.iter()
+                .map(String::as_str)
+                .chain([weight_cell.as_str()])
+                .collect(),
+        )?;
+    }
+    let bytes = writer.into_inner().map_err(|e| request(e.to_string()))?;
+    crate::fsio::write_bytes(&csv_path, &bytes).map_err(io(&csv_path))?;
+    fit::run(&job, session)?;
+    said(&format!(
+        "refitted on {read} session rows and {} rows of {} repetitions (each weighing {weight:.3}): {}",
+        runs.len(),
+        r + 1,
+        out.display()
+    ));
+    Ok(out)
+}
+
 /// Runs the loop (see the module docs); `said` hears a line per stage.
 ///
 /// # Errors
@@ -374,7 +495,12 @@ pub fn run(
         crate::fsio::write_bytes(&path, table.as_bytes()).map_err(io(&path))?;
         said(&one.to_string());
         done.push(one);
+        let refitted = match f.refit {
+            Some(data) => Some(refit(f, data, r, session, said)?),
+            None => None,
+        };
         trajectory::run(&Request {
+            model: refitted.as_deref().unwrap_or(f.model),
             out: &commands(r + 1),
             learn: Some((&commands(r), &measured)),
             ..f.plan

@@ -557,45 +557,40 @@ fn a_bad_serial_line_or_port_is_one_line_naming_it() {
     assert!(lab.stop().success());
 }
 
-#[test]
-fn follow_learns_a_figure_eight_on_the_lab_scored_against_its_truth() {
-    let _machine = real_time();
-    let dir = tempdir();
-    let d = dir.path();
-    // A history model of the lab's finger (the plant's own session: no cameras) and a
-    // figure-eight about its tip at 125 kPa each.
+/// `handcap follow` along a figure-eight on a lab, three repetitions, with `extra` options: a
+/// history model of the lab's finger (the plant's own session, `session.csv`: no cameras) and
+/// a figure-eight about its tip at 125 kPa each. What it said, and `follow.csv`'s rows.
+fn follow_on_lab(d: &Path, extra: &[&str]) -> (String, Vec<HashMap<String, String>>) {
     let plant = handcap::synth::plant::Plant::new(handcap::synth::plant::PlantParams::default());
     crate::trajectory::fit_models(d, &plant);
     let (target, _) = crate::trajectory::figure_eight(&plant, 7.0);
     std::fs::write(d.join("target.csv"), target).unwrap();
     let lab = Lab::start(d, &[]);
     let serial = format!("serial:{}", lab.regulator);
-    let said = handcap(
-        d,
-        &[
-            "follow",
-            "model.json",
-            "--trajectory",
-            "target.csv",
-            "--repetitions",
-            "3",
-            "--calib",
-            "lab/truth/rig.yml",
-            "--out",
-            "follow",
-            "--left",
-            &lab.cameras["left"],
-            "--right",
-            &lab.cameras["right"],
-            "--regulator",
-            &serial,
-            "--sync-led",
-            "--truth",
-            "lab/truth",
-        ],
-    );
+    let follow = [
+        "follow",
+        "model.json",
+        "--trajectory",
+        "target.csv",
+        "--repetitions",
+        "3",
+        "--calib",
+        "lab/truth/rig.yml",
+        "--out",
+        "follow",
+        "--left",
+        &lab.cameras["left"],
+        "--right",
+        &lab.cameras["right"],
+        "--regulator",
+        &serial,
+        "--sync-led",
+        "--truth",
+        "lab/truth",
+    ];
+    let said = handcap(d, &[&follow[..], extra].concat());
     assert!(lab.stop().success());
-    let stdout = String::from_utf8_lossy(&said.stdout);
+    let stdout = String::from_utf8_lossy(&said.stdout).to_string();
     assert!(
         said.status.success(),
         "{stdout}{}",
@@ -604,7 +599,20 @@ fn follow_learns_a_figure_eight_on_the_lab_scored_against_its_truth() {
     eprintln!("{stdout}");
     let runs = csv_rows(&d.join("follow/follow.csv"));
     assert_eq!(runs.len(), 3);
-    let rms = |r: &HashMap<String, String>, k: &str| r[k].parse::<f64>().unwrap();
+    assert!(d.join("follow/commands_3.csv").is_file());
+    (stdout, runs)
+}
+
+fn rms(r: &HashMap<String, String>, k: &str) -> f64 {
+    r[k].parse::<f64>().unwrap()
+}
+
+#[test]
+fn follow_learns_a_figure_eight_on_the_lab_scored_against_its_truth() {
+    let _machine = real_time();
+    let dir = tempdir();
+    let d = dir.path();
+    let (_, runs) = follow_on_lab(d, &[]);
     let truth: Vec<f64> = runs
         .iter()
         .map(|r| rms(r, "tracking_rms_truth_mm"))
@@ -620,7 +628,60 @@ fn follow_learns_a_figure_eight_on_the_lab_scored_against_its_truth() {
         assert!((seen - real).abs() <= 0.05 + 0.2 * real, "{r:?}");
         assert!(rms(r, "rows") >= 350.0, "{r:?}");
     }
-    assert!(d.join("follow/commands_3.csv").is_file());
+}
+
+#[test]
+fn follow_refits_the_model_on_the_session_and_each_repetition_played() {
+    let _machine = real_time();
+    let dir = tempdir();
+    let d = dir.path();
+    let (said, runs) = follow_on_lab(d, &["--refit", "session.csv"]);
+    let truth: Vec<f64> = runs
+        .iter()
+        .map(|r| rms(r, "tracking_rms_truth_mm"))
+        .collect();
+    assert!(truth[2] < truth[0], "{truth:?}");
+    // After each repetition: the session's rows weighing 1 each, every repetition's so far
+    // weighing as much together, each repetition its own phase; the model fitted on them
+    // with the model's own settings, and the next repetition learned with it.
+    let session = csv_rows(&d.join("session.csv")).len() as f64;
+    for r in 0..3 {
+        let rows = csv_rows(&d.join(format!("follow/refit_{r}.csv")));
+        let weight = |phase: &dyn Fn(&str) -> bool| -> f64 {
+            rows.iter()
+                .filter(|row| phase(&row["phase"]))
+                .map(|row| rms(row, "refit_weight"))
+                .sum()
+        };
+        let played = weight(&|p: &str| p.starts_with("rep_"));
+        assert!(
+            (played - session).abs() < 1e-6 * session,
+            "{played} against {session}"
+        );
+        assert_eq!(weight(&|p: &str| !p.starts_with("rep_")), session);
+        let phases: std::collections::BTreeSet<&str> = rows
+            .iter()
+            .map(|row| row["phase"].as_str())
+            .filter(|p| p.starts_with("rep_"))
+            .collect();
+        assert_eq!(phases.len(), r + 1, "{phases:?}");
+        let model = read_json(&d.join(format!("follow/model_{r}.json")));
+        let fit = &model["model"]["fit"];
+        assert!((fit["weights"]["total"].as_f64().unwrap() - 2.0 * session).abs() < 1e-3);
+        let (refitted, first) = (
+            &model["model"]["params"],
+            &read_json(&d.join("model.json"))["model"]["params"],
+        );
+        assert_eq!(refitted["sigma"], first["sigma"]);
+        assert_eq!(
+            model["history"]["used"],
+            read_json(&d.join("model.json"))["history"]["used"]
+        );
+    }
+    assert!(
+        said.contains(&format!("refitted on {session} session rows")),
+        "{said}"
+    );
 }
 
 /// A firmware that is not handcap's (the Harvard `pressure_controller`'s `SET;<time>;<p…>` in

@@ -21,24 +21,8 @@ pub fn fit(d: &Path) {
         ]
         .concat(),
     );
-    let mut args = vec![
-        "model",
-        "train/session.csv",
-        "--inputs",
-        "P1_kpa,P2_kpa,P3_kpa",
-    ];
-    args.extend([
-        "--outputs",
-        "x_mm,y_mm,z_mm",
-        "--time",
-        "time_s",
-        "--group-by",
-        "phase",
-    ]);
-    args.extend(["--history", "ema:0.0167,0.0667,0.267", "--search", "none"]);
-    args.extend(["--c", "156.67", "--epsilon", "0.0301", "--sigma", "1.364"]);
-    args.extend(["--intervals", "--folds", "3", "--out", "model.json"]);
-    handcap_ok(d, &args);
+    let intervals = ["--intervals", "--folds", "3"];
+    crate::trajectory::fit_history_model(d, "train/session.csv", &intervals, "model.json");
 }
 
 /// A 300 s data-level session of seed 5 with `fault` (if any) in `d/name`, watched into

@@ -273,6 +273,22 @@ fn play(d: &Path, bench: &Bench, from: usize) -> f64 {
     (sum / (commands.len() - from) as f64).sqrt()
 }
 
+/// The run just played as rows of a session (without the header) in phase `phase`: a second
+/// at rest, then `commands.csv` and the bench's tips in `run.csv`.
+fn run_rows(d: &Path, phase: &str) -> Vec<String> {
+    let rest = (0..RATE as usize).map(|k| format!("{:.6},{phase},0,0,0,0,0,0", k as f64 / RATE));
+    let commands = csv_rows(&d.join("commands.csv"));
+    let played = commands.iter().zip(tips(&d.join("run.csv"))).map(|(c, x)| {
+        let t = 1.0 + c["time_s"].parse::<f64>().unwrap();
+        let p = [&c["P1_kpa"], &c["P2_kpa"], &c["P3_kpa"]];
+        format!(
+            "{t:.6},{phase},{},{},{},{:.6},{:.6},{:.6}",
+            p[0], p[1], p[2], x[0], x[1], x[2]
+        )
+    });
+    rest.chain(played).collect()
+}
+
 /// A history model and a static model of a dynamic session on the pneumatic plant, in `d`
 /// (`model.json`, `static.json`): the kernel `handcap model`'s search chooses on it, given to
 /// spare the test the search (4020 rows, a basis of 200 centres), and the history the demo's
@@ -289,12 +305,7 @@ pub fn fit_models(d: &Path, plant: &Plant) {
         "--outputs",
         "x_mm,y_mm,z_mm",
     ];
-    let mut history = vec!["model", "session.csv"];
-    history.extend(columns);
-    history.extend(["--time", "time_s", "--group-by", "phase"]);
-    history.extend(["--history", "ema:0.0167,0.0667,0.267", "--search", "none"]);
-    history.extend(["--c", "156.67", "--epsilon", "0.0301", "--sigma", "1.364"]);
-    handcap_ok(d, &[&history[..], &["--out", "model.json"]].concat());
+    fit_history_model(d, "session.csv", &[], "model.json");
     // The static model of the same session: its plan is the pointwise inverse of its map.
     let mut fixed = vec!["model", "session.csv"];
     fixed.extend(columns);
@@ -309,6 +320,23 @@ pub fn fit_models(d: &Path, plant: &Plant) {
         "6.7",
     ]);
     handcap_ok(d, &[&fixed[..], &["--out", "static.json"]].concat());
+}
+
+/// The history model of `data` (a session as [`session`] writes it) with the kernel and
+/// history [`fit_models`] gives, and `more` options, into `out`.
+pub fn fit_history_model(d: &Path, data: &str, more: &[&str], out: &str) {
+    let mut history = vec!["model", data, "--inputs", "P1_kpa,P2_kpa,P3_kpa"];
+    history.extend([
+        "--outputs",
+        "x_mm,y_mm,z_mm",
+        "--time",
+        "time_s",
+        "--group-by",
+        "phase",
+    ]);
+    history.extend(["--history", "ema:0.0167,0.0667,0.267", "--search", "none"]);
+    history.extend(["--c", "156.67", "--epsilon", "0.0301", "--sigma", "1.364"]);
+    handcap_ok(d, &[&history[..], more, &["--out", out]].concat());
 }
 
 /// Plans the path `target.csv` with `model`, writes `commands.csv`; what handcap said.
@@ -328,11 +356,30 @@ fn plan_path(d: &Path, model: &str) -> String {
 
 /// Six repetitions of `handcap inverse --previous --measured` on the bench, from the commands
 /// in `commands.csv` (played first): the tracking RMS of each run, against the bench's truth.
-fn learn_six_times(d: &Path, bench: &Bench, lead: usize) -> Vec<f64> {
+/// With `refit`, before each learning step the history model is fitted again with the same
+/// settings on the session and every run played so far (each its own phase, after a second at
+/// rest: its commands and the bench's tips), the runs' rows weighed so that together they
+/// weigh as much as the session's (`--weight`), and the step learns with that model.
+fn learn_six_times(d: &Path, bench: &Bench, lead: usize, refit: bool) -> Vec<f64> {
+    let session = std::fs::read_to_string(d.join("session.csv")).unwrap();
+    let mut runs = Vec::new();
     let mut errors = vec![play(d, bench, lead)];
-    for _ in 0..6 {
+    for rep in 0..6 {
+        let model = if refit {
+            runs.extend(run_rows(d, &format!("run{rep}")));
+            let weight = (session.lines().count() - 1) as f64 / runs.len() as f64;
+            let mut lines = session.lines();
+            let mut text = format!("{},weight\n", lines.next().unwrap());
+            lines.for_each(|l| text += &format!("{l},1\n"));
+            runs.iter().for_each(|l| text += &format!("{l},{weight}\n"));
+            write(d, "refit.csv", &text);
+            fit_history_model(d, "refit.csv", &["--weight", "weight"], "refit.json");
+            "refit.json"
+        } else {
+            "model.json"
+        };
         std::fs::copy(d.join("commands.csv"), d.join("previous.csv")).unwrap();
-        let args = ["inverse", "model.json", "--trajectory", "target.csv"];
+        let args = ["inverse", model, "--trajectory", "target.csv"];
         let learn = ["--previous", "previous.csv", "--measured", "run.csv"];
         let said = handcap_ok(d, &[&args[..], &learn, &["--out", "commands.csv"]].concat());
         assert!(said.contains("tracking RMS"), "{said}");
@@ -362,7 +409,7 @@ fn the_dynamic_inverse_anticipates_the_lag_and_learning_closes_the_rest() {
         for figure in ["commands_path.svg", "commands_path.png"] {
             assert!(d.join(figure).exists(), "{figure}");
         }
-        let errors = learn_six_times(d, &bench, lead);
+        let errors = learn_six_times(d, &bench, lead, false);
         assert!(
             errors[0] <= 0.5 * pointwise,
             "figure-eight of {period} s: dynamic feed-forward {:.4} mm RMS, pointwise {pointwise:.4}",
@@ -387,20 +434,21 @@ fn the_dynamic_inverse_anticipates_the_lag_and_learning_closes_the_rest() {
 
 /// Issue 61: the learning loop was tested only on the plant its model was fitted on. Here the
 /// model of the pneumatic plant (30 ms of delay, lags 0.15, 0.25, 0.4 s, 8 % creeping over 3 s,
-/// no play) learns on three fingers whose dynamics it does not know, each scored against its
-/// truth beside the textbook ILC tuned on it:
+/// no play) learns on three fingers whose dynamics it does not know, fitted again before each
+/// learning step on its session and the runs played so far, weighed together as much as the
+/// session (as `follow --refit` does), each scored against its truth beside the textbook ILC
+/// tuned on it:
 ///
 /// | finger | delay | lags (s) | creep | play | 6.5 s: handcap, textbook | 3.5 s: handcap, textbook |
 /// |---|---|---|---|---|---|---|
-/// | slower | 50 ms | 0.3, 0.12, 0.22 | 12 % over 5 s | 8 kPa | 0.0323, 0.0266 | 0.0476, 0.0552 |
-/// | quicker | 40 ms | 0.2, 0.35, 0.1 | 5 % over 2 s | 4 kPa | 0.0258, 0.0250 | 0.0735, 0.0662 |
-/// | playful | 20 ms | 0.25, 0.5, 0.3 | 10 % over 4 s | 12 kPa | 0.0801, 0.0685 | 0.0867, 0.2170 |
+/// | slower | 50 ms | 0.3, 0.12, 0.22 | 12 % over 5 s | 8 kPa | 0.0257, 0.0266 | 0.0458, 0.0552 |
+/// | quicker | 40 ms | 0.2, 0.35, 0.1 | 5 % over 2 s | 4 kPa | 0.0155, 0.0250 | 0.0269, 0.0662 |
+/// | playful | 20 ms | 0.25, 0.5, 0.3 | 10 % over 4 s | 12 kPa | 0.0672, 0.0685 | 0.1110, 0.2170 |
 ///
-/// (mm RMS after six repetitions). Each repetition shifts its error by how late the finger's
-/// outputs run against the model's prediction of them (on the first finger, before: 0.0437 and
-/// 0.0618; a gain of 0.7 or more stalls or diverges there). The issue's bar, no worse than the
-/// textbook at both periods, is met at 3.5 s (two of the six); asserted: every repetition better than
-/// the one before, and within 1.3 times the textbook's error.
+/// (mm RMS after six repetitions). Without the refit the same loop ends at 0.0323, 0.0476;
+/// 0.0258, 0.0735; 0.0801, 0.0867 (two of the six below the textbook). Asserted, the issue's
+/// bar: every repetition better than the one before, and after six no worse than the textbook
+/// ILC tuned on the finger, at both periods on every finger.
 #[test]
 fn learning_holds_on_a_finger_the_model_does_not_know() {
     let dir = tempdir();
@@ -426,7 +474,7 @@ fn learning_holds_on_a_finger_the_model_does_not_know() {
             let (target, lead) = figure_eight(&plant, period);
             write(d, "target.csv", &target);
             plan_path(d, "model.json");
-            let errors = learn_six_times(d, &bench, lead);
+            let errors = learn_six_times(d, &bench, lead, true);
             let textbook = tuned_textbook_ilc(d, &bench, lead);
             let said = format!("lags {:?} s, play {} kPa, figure-eight of {period} s: planned and learning {errors:.4?}, tuned textbook ILC {textbook:.4?}", bench.dynamics.lag_s, bench.play_kpa);
             eprintln!("{said}");
@@ -434,7 +482,7 @@ fn learning_holds_on_a_finger_the_model_does_not_know() {
                 assert!(w[1] < w[0], "learning went back: {said}");
             }
             let last = *errors.last().unwrap();
-            assert!(last <= 1.3 * textbook[6], "{said}");
+            assert!(last <= textbook[6], "{said}");
         }
     }
 }

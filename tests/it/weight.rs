@@ -255,5 +255,8 @@ fn bad_weights_are_refused_with_one_line_naming_the_row() {
     let message = handcap_err(d, &args("mass"));
     assert!(message.contains("no column `mass`"), "{message}");
     let message = handcap_usage(d, &args("u"));
-    assert!(message.contains("--weight u"), "{message}");
+    assert!(
+        message.contains("--weight u: the model reads `u`"),
+        "{message}"
+    );
 }

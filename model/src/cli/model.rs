@@ -213,11 +213,6 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             usage!("--loss {loss} with --model {family}: {} fits with the {fixed} loss; leave --loss out, or use --model {}", family.title(), Family::names_where(|f| f.fixed_loss().is_none()));
         }
     }
-    if let Some(w) = a.weight.as_ref() {
-        if a.inputs.contains(w) || a.outputs.contains(w) {
-            usage!("--weight {w}: the model reads `{w}` as an input or output; name the column of the rows' weights");
-        }
-    }
     let job = FitJob {
         family: a.model,
         data: a.data,

@@ -8,15 +8,17 @@ use super::outputs::{self, Output};
 use super::{io_error, Event, PipelineError, Session, Task};
 use crate::data::{self, HAND_INPUTS, HAND_OUTPUTS};
 use crate::model;
-use crate::model::history::{self, HistoryChoice};
-use crate::model::msvr::MsvrParams;
+use crate::model::file::ModelFile;
+use crate::model::history::{self, HistoryChoice, Memory};
+use crate::model::msvr::{Basis, MsvrParams};
 use crate::model::previous::{self, PreviousModel};
+use crate::model::StoredModel;
 use crate::report::{
     self, Comparison, IntervalReport, ModelReport, NamedModel, PreviousSummary, TestCoverageReport,
     TestResult,
 };
 use crate::search::{IterationRecord, Search, SearchStop};
-use crate::select::family::FamilyChoice;
+use crate::select::family::{Family, FamilyChoice};
 use crate::select::folds::FoldsBy;
 use crate::select::tune::{self, BasisChoice, Pinned};
 use crate::select::{self, Listener, Plan, SelectError, Selected, Table};
@@ -58,6 +60,56 @@ pub struct FitJob {
 }
 
 impl FitJob {
+    /// The job that fits `model`'s own settings again on `data`, its rows weighed by the
+    /// `weight` column: the same family, C, ε, σ, loss, basis, history, time and group columns,
+    /// no search, into `out` (the learning loop's refit on the runs it played).
+    pub fn refit(model: &ModelFile, data: PathBuf, weight: Option<String>, out: PathBuf) -> Self {
+        let StoredModel::Msvr(fitted) = &model.model;
+        let used = model.history.as_ref().and_then(|h| h.used.as_ref());
+        let params = fitted.params;
+        let h = params.hyper();
+        FitJob {
+            data,
+            inputs: used.map_or_else(|| fitted.inputs.clone(), |u| u.inputs.clone()),
+            outputs: fitted.outputs.clone(),
+            family: FamilyChoice::One(
+                model
+                    .family
+                    .as_ref()
+                    .map_or_else(Family::default, |f| f.used),
+            ),
+            params,
+            selection: Selection::Fixed {
+                folds: 5,
+                folds_by: used
+                    .and_then(|u| u.group.clone())
+                    .map_or(FoldsBy::Auto, FoldsBy::Column),
+            },
+            pinned: Pinned {
+                c: Some(h.c),
+                epsilon: Some(h.epsilon),
+                sigma: Some(h.sigma),
+            },
+            search_on: None,
+            tests: Vec::new(),
+            out,
+            report: None,
+            max_rows: None,
+            basis: match params.basis {
+                Basis::Exact => BasisChoice::Exact,
+                Basis::Reduced { centres, .. } => BasisChoice::Centres(centres),
+            },
+            time: used.map(|u| u.time.clone()),
+            group: used.and_then(|u| u.group.clone()),
+            weight,
+            history: used.map_or(HistoryChoice::None, |u| match &u.memory {
+                Memory::Ema { tau } => HistoryChoice::Ema(tau.clone()),
+                Memory::Lags { rows } => HistoryChoice::Lags(*rows),
+            }),
+            intervals: false,
+        }
+    }
+
     /// What [`select::select`] is asked.
     fn plan(&self) -> Plan {
         Plan {
@@ -142,6 +194,13 @@ pub fn run(job: &FitJob, session: &Session) -> Result<FitOutcome, PipelineError>
     job.plan()
         .check()
         .map_err(|e| PipelineError::Request(e.to_string()))?;
+    if let Some(w) = job
+        .weight
+        .as_ref()
+        .filter(|w| job.inputs.contains(w) || job.outputs.contains(w))
+    {
+        return Err(PipelineError::Request(format!("weight={w}: the model reads `{w}` as an input or output; name the column of the rows' weights")));
+    }
     if job.search_on.is_some() && !job.selection.searched() {
         return Err(PipelineError::Request(
             "search_on=FILE gives the rows a search scores candidates on: use it with a search"
