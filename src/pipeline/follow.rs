@@ -11,7 +11,7 @@
 //! - `measured_R.csv`: the path's rows on the commands' clock (time from the path's first
 //!   command), what the learning step reads;
 //! - with `--refit`, `refit_R.csv` and `model_R.json`: the rows the model was fitted again on
-//!   after repetition R and that model, which the next learning step uses ([`refit`]);
+//!   after repetition R and that model, which the next learning step uses ([`Refit`]);
 //! - `follow.csv`: `repetition,rows,tracking_rms_triangulated_mm,tracking_rms_truth_mm`, each
 //!   repetition's tracking RMS after the lead-in against the target, from the triangulated
 //!   frames and, with `--truth LAB/truth` (`handcap lab`'s), from the lab's tip at each left
@@ -22,7 +22,7 @@ use std::path::{Path, PathBuf};
 
 use super::fit::{self, FitJob};
 use super::trajectory::{self, Request};
-use super::{PipelineError, Session};
+use super::{Event, PipelineError, Session};
 use crate::capture::{CaptureOptions, Regulator};
 use crate::model::file::ModelFile;
 use crate::session::protocol::Step;
@@ -48,7 +48,7 @@ pub struct Follow<'a> {
     /// The learning step's and the planner's settings, as `inverse --trajectory` takes them.
     pub plan: Request<'a>,
     /// The session the model was fitted on, to fit it again after each repetition on that
-    /// session and the repetitions played ([`refit`]).
+    /// session and the repetitions played ([`Refit`]).
     pub refit: Option<&'a Path>,
 }
 
@@ -305,115 +305,148 @@ fn write_measured(
 /// The column of the refit's row weights.
 const REFIT_WEIGHT: &str = "refit_weight";
 
-/// The model fitted again after repetition `r` (`--refit`), with its own settings (no search),
-/// on `refit_R.csv`: the session `data` it was fitted on, and every repetition's unflagged
-/// rows so far, each repetition a group of its own (`rep_K`), the repetitions' rows weighing
-/// together as much as the session's. Appended once, the session's rows outweigh a run and the
-/// model hardly learns the finger it is on (`docs/motion.md`). Returns `model_R.json`.
-fn refit(
-    f: &Follow,
-    data: &Path,
-    r: usize,
-    session: &Session,
-    said: &dyn Fn(&str),
-) -> Result<PathBuf, PipelineError> {
-    let model = ModelFile::load(f.model).map_err(|e| request(e.to_string()))?;
-    let (csv_path, out) = (
-        f.out.join(format!("refit_{r}.csv")),
-        f.out.join(format!("model_{r}.json")),
-    );
-    let job = FitJob::refit(
-        &model,
-        csv_path.clone(),
-        Some(REFIT_WEIGHT.into()),
-        out.clone(),
-    );
-    let failed = |e: csv::Error| request(format!("{}: {e}", data.display()));
-    let mut reader = csv::Reader::from_path(data).map_err(failed)?;
-    let header: Vec<String> = reader
-        .headers()
-        .map_err(failed)?
-        .iter()
-        .map(String::from)
-        .collect();
-    let needed: Vec<&String> = job.inputs.iter().chain(&job.outputs).collect();
-    let named = [(job.time.as_ref(), "time_s"), (job.group.as_ref(), "")];
-    for column in needed
-        .iter()
-        .copied()
-        .chain(named.iter().filter_map(|n| n.0))
-    {
-        if !header.contains(column) {
-            return Err(request(format!("{}: no column `{column}`, which {} was fitted with: give --refit the session the model was fitted on", data.display(), f.model.display())));
-        }
-    }
-    let session_rows: Vec<csv::StringRecord> =
-        reader.records().collect::<Result<_, _>>().map_err(failed)?;
-    let flag = header.iter().position(|h| h == "flag");
-    let read = session_rows
-        .iter()
-        .filter(|row| flag.is_none_or(|i| row.get(i).is_none_or(str::is_empty)))
-        .count();
-    // Each repetition's rows in the session's columns: the time, its group, the inputs and
-    // outputs; the session's other columns left empty.
-    let mut runs: Vec<Vec<String>> = Vec::new();
-    for k in 0..=r {
-        for row in rows(&f.out.join(format!("rep_{k}/rows.csv")))? {
-            if !row.get("flag").is_none_or(String::is_empty)
-                || needed.iter().any(|c| number(&row, c).is_none())
-            {
-                continue;
-            }
-            let cell = |name: &String| {
-                if Some(name) == job.time.as_ref() {
-                    row.get("time_s").cloned().unwrap_or_default()
-                } else if Some(name) == job.group.as_ref() {
-                    format!("rep_{k}")
-                } else if needed.contains(&name) {
-                    row[name].clone()
-                } else {
-                    String::new()
-                }
-            };
-            runs.push(header.iter().map(cell).collect());
-        }
-    }
-    let weight = read as f64 / runs.len().max(1) as f64;
-    let mut writer = csv::Writer::from_writer(Vec::new());
-    let mut write = |cells: Vec<&str>| {
-        writer
-            .write_record(cells)
-            .map_err(|e| request(e.to_string()))
-    };
-    write(
-        header
+/// `--refit`: the session the model was fitted on, read before the first repetition, to fit
+/// the model again after each on it and the repetitions played ([`Refit::after`]).
+struct Refit {
+    model: ModelFile,
+    data: PathBuf,
+    header: Vec<String>,
+    rows: Vec<csv::StringRecord>,
+    /// The session's rows a fit reads (unflagged).
+    read: usize,
+}
+
+impl Refit {
+    /// Reads the session `data`, which must hold every column the model was fitted with.
+    fn read(f: &Follow, data: &Path) -> Result<Refit, PipelineError> {
+        let model = ModelFile::load(f.model).map_err(|e| request(e.to_string()))?;
+        let failed = |e: csv::Error| request(format!("{}: {e}", data.display()));
+        let mut reader = csv::Reader::from_path(data).map_err(failed)?;
+        let header: Vec<String> = (reader.headers().map_err(failed)?.iter())
+            .map(String::from)
+            .collect();
+        let rows: Vec<csv::StringRecord> =
+            reader.records().collect::<Result<_, _>>().map_err(failed)?;
+        let flag = header.iter().position(|h| h == "flag");
+        let read = rows
             .iter()
-            .map(String::as_str)
-            .chain([REFIT_WEIGHT])
-            .collect(),
-    )?;
-    for row in &session_rows {
-        write(row.iter().chain(["1"]).collect())?;
+            .filter(|row| flag.is_none_or(|i| row.get(i).is_none_or(str::is_empty)))
+            .count();
+        let refit = Refit {
+            model,
+            data: data.to_path_buf(),
+            header,
+            rows,
+            read,
+        };
+        let job = refit.job(f, 0);
+        let named = job.time.iter().chain(&job.group);
+        let columns = job.inputs.iter().chain(&job.outputs).chain(named);
+        if let Some(column) = columns.into_iter().find(|c| !refit.header.contains(c)) {
+            return Err(request(format!(
+                "{}: no column `{column}`, which {} was fitted with: give --refit the session the model was fitted on",
+                data.display(),
+                f.model.display()
+            )));
+        }
+        Ok(refit)
     }
-    let weight_cell = weight.to_string();
-    for row in &runs {
-        write(
-            row.iter()
-                .map(String::as_str)
-                .chain([weight_cell.as_str()])
-                .collect(),
-        )?;
+
+    /// The fit after repetition `r`: the model's own settings on `refit_R.csv` into
+    /// `model_R.json`.
+    fn job(&self, f: &Follow, r: usize) -> FitJob {
+        let data = f.out.join(format!("refit_{r}.csv"));
+        let out = f.out.join(format!("model_{r}.json"));
+        FitJob::refit(&self.model, data, Some(REFIT_WEIGHT.into()), out)
     }
-    let bytes = writer.into_inner().map_err(|e| request(e.to_string()))?;
-    crate::fsio::write_bytes(&csv_path, &bytes).map_err(io(&csv_path))?;
-    fit::run(&job, session)?;
-    said(&format!(
-        "refitted on {read} session rows and {} rows of {} repetitions (each weighing {weight:.3}): {}",
-        runs.len(),
-        r + 1,
-        out.display()
-    ));
-    Ok(out)
+
+    /// Fits the model again after repetition `r` on `refit_R.csv`: the session's rows, and
+    /// every repetition's unflagged rows so far, each repetition a group of its own (`rep_K`),
+    /// the repetitions' rows weighing together as much as the session's (appended once, the
+    /// session's rows outweigh a run and the model hardly learns the finger it is on:
+    /// `docs/motion.md`). Returns the model file written.
+    fn after(
+        &self,
+        f: &Follow,
+        r: usize,
+        session: &Session,
+        said: &dyn Fn(&str),
+    ) -> Result<PathBuf, PipelineError> {
+        let job = self.job(f, r);
+        // Each repetition's rows in the session's columns: the time, its group, the commands
+        // in force (as the session's inputs are: a streaming regulator's measured pressures,
+        // which the rows carry, lag them) and the tip; the session's other columns left empty.
+        let mut runs: Vec<Vec<String>> = Vec::new();
+        for k in 0..=r {
+            let rep = f.out.join(format!("rep_{k}"));
+            let log: Vec<(f64, HashMap<String, String>)> = rows(&rep.join("pressures.csv"))?
+                .into_iter()
+                .filter_map(|c| Some((number(&c, "time_s")?, c)))
+                .collect();
+            for row in rows(&rep.join("rows.csv"))? {
+                let t = number(&row, "time_s").filter(|_| row["flag"].is_empty());
+                let held =
+                    t.and_then(|t| log.get(log.partition_point(|c| c.0 <= t).checked_sub(1)?));
+                let Some((_, command)) = held else {
+                    continue;
+                };
+                let cell = |name: &String| {
+                    let value = match name {
+                        _ if Some(name) == job.time.as_ref() => row.get("time_s"),
+                        _ if Some(name) == job.group.as_ref() => return Some(format!("rep_{k}")),
+                        _ if job.inputs.contains(name) => command.get(name),
+                        _ if job.outputs.contains(name) => row.get(name),
+                        _ => return Some(String::new()),
+                    };
+                    value
+                        .filter(|v| v.parse::<f64>().is_ok_and(f64::is_finite))
+                        .cloned()
+                };
+                if let Some(cells) = self.header.iter().map(cell).collect::<Option<Vec<_>>>() {
+                    runs.push(cells);
+                }
+            }
+        }
+        let weight = self.read as f64 / runs.len().max(1) as f64;
+        let mut writer = csv::Writer::from_writer(Vec::new());
+        let mut write = |cells: Vec<&str>| writer.write_record(cells);
+        let (header, weight_cell) = (self.header.iter().map(String::as_str), weight.to_string());
+        let written = write(header.chain([REFIT_WEIGHT]).collect())
+            .and_then(|()| {
+                (self.rows.iter()).try_for_each(|row| write(row.iter().chain(["1"]).collect()))
+            })
+            .and_then(|()| {
+                runs.iter().try_for_each(|row| {
+                    let cells = row.iter().map(String::as_str);
+                    write(cells.chain([weight_cell.as_str()]).collect())
+                })
+            });
+        written.map_err(|e| request(format!("{}: {e}", job.data.display())))?;
+        let bytes = writer.into_inner().map_err(|e| request(e.to_string()))?;
+        crate::fsio::write_bytes(&job.data, &bytes).map_err(io(&job.data))?;
+        // The fit's notes (its basis, its history, no intervals) repeat the model's: the loop
+        // says what it refitted on instead.
+        let quiet = |event: Event| {
+            if !matches!(event, Event::Note(_)) {
+                session.emit(event);
+            }
+        };
+        let quiet = Session {
+            command: session.command.clone(),
+            interrupt: session.interrupt,
+            events: &quiet,
+        };
+        fit::run(&job, &quiet)?;
+        said(&format!(
+            "refitted on {} rows of {} and {} rows of {} repetitions (each weighing {weight:.3}): {}",
+            self.read,
+            self.data.display(),
+            runs.len(),
+            r + 1,
+            job.out.display()
+        ));
+        Ok(job.out)
+    }
 }
 
 /// Runs the loop (see the module docs); `said` hears a line per stage.
@@ -439,6 +472,7 @@ pub fn run(
         learn: None,
         ..f.plan
     })?;
+    let refit = f.refit.map(|data| Refit::read(f, data)).transpose()?;
     let mut done = Vec::new();
     let mut table =
         String::from("repetition,rows,tracking_rms_triangulated_mm,tracking_rms_truth_mm\n");
@@ -495,8 +529,8 @@ pub fn run(
         crate::fsio::write_bytes(&path, table.as_bytes()).map_err(io(&path))?;
         said(&one.to_string());
         done.push(one);
-        let refitted = match f.refit {
-            Some(data) => Some(refit(f, data, r, session, said)?),
+        let refitted = match &refit {
+            Some(refit) => Some(refit.after(f, r, session, said)?),
             None => None,
         };
         trajectory::run(&Request {

@@ -679,9 +679,43 @@ fn follow_refits_the_model_on_the_session_and_each_repetition_played() {
         );
     }
     assert!(
-        said.contains(&format!("refitted on {session} session rows")),
+        said.contains(&format!("refitted on {session} rows of session.csv")),
         "{said}"
     );
+}
+
+#[test]
+fn follow_refuses_a_refit_session_without_the_models_columns_before_playing() {
+    let dir = tempdir();
+    let d = dir.path();
+    let plant = handcap::synth::plant::Plant::new(handcap::synth::plant::PlantParams::default());
+    crate::trajectory::fit_models(d, &plant);
+    let (target, _) = crate::trajectory::figure_eight(&plant, 7.0);
+    std::fs::write(d.join("target.csv"), target).unwrap();
+    let session = std::fs::read_to_string(d.join("session.csv")).unwrap();
+    std::fs::write(d.join("other.csv"), session.replacen("phase", "trial", 1)).unwrap();
+    let follow = [
+        "follow",
+        "model.json",
+        "--trajectory",
+        "target.csv",
+        "--calib",
+        "rig.yml",
+        "--out",
+        "loop",
+        "--left",
+        "0",
+        "--right",
+        "1",
+        "--regulator",
+        "serial:/dev/null",
+    ];
+    let said = crate::common::handcap_usage(d, &[&follow[..], &["--refit", "other.csv"]].concat());
+    assert!(
+        said.contains("other.csv: no column `phase`, which model.json was fitted with"),
+        "{said}"
+    );
+    assert!(!d.join("loop/rep_0").exists(), "a repetition was played");
 }
 
 /// A firmware that is not handcap's (the Harvard `pressure_controller`'s `SET;<time>;<p…>` in

@@ -79,7 +79,7 @@ fn a_row_of_weight_k_is_fitted_as_k_copies_of_it_by_the_reduced_solver() {
     let (weighted, copied) = weighted_and_copied(&data, &copies);
     let scaled = MinMaxScaler::fit(&data.inputs).transform(&data.inputs);
     let map = NystromMap::new(&scaled.select_rows(&kmeans_pp(&scaled, 40, 5)), 0.3);
-    let solve = |d: &Dataset, loss| {
+    let solve = |d: &Dataset, loss, c| {
         let features = map.features(&MinMaxScaler::fit(&d.inputs).transform(&d.inputs));
         let y = Mat::from_fn(d.rows(), 2, |i, j| d.outputs.row(i)[j]);
         let problem = ReducedProblem {
@@ -88,15 +88,15 @@ fn a_row_of_weight_k_is_fitted_as_k_copies_of_it_by_the_reduced_solver() {
                 rows: None,
             },
             targets: y.as_ref(),
-            tube: MsvrParams::new(30.0, 0.02, 0.3).loss(loss).tube(),
+            tube: MsvrParams::new(c, 0.02, 0.3).loss(loss).tube(),
             weights: d.row_weights(),
             gram: None,
         };
         let since = handcap::control::Since::START;
-        reduced::solve(&problem, 1e-13, 2000, faer::Par::Seq, since).unwrap()
+        reduced::solve(&problem, 1e-13, 2000, faer::Par::Seq, since).expect("a fit")
     };
     for loss in [Loss::Quadratic, Loss::Robust] {
-        let (w, c) = (solve(&weighted, loss), solve(&copied, loss));
+        let (w, c) = (solve(&weighted, loss, 30.0), solve(&copied, loss, 30.0));
         assert!(
             (w.objective - c.objective).abs() <= 1e-9 * c.objective,
             "{loss}: objective weighted {}, copied {}",
@@ -108,6 +108,17 @@ fn a_row_of_weight_k_is_fitted_as_k_copies_of_it_by_the_reduced_solver() {
             apart < 1e-5 * c.w.norm_max(),
             "{loss}: weights {apart} apart"
         );
+        // Rows of weight 1 beside rows of a weight whose 2Cw rounds otherwise than
+        // 1/(1/(2Cw)) does (C = 10, w = 4020/1639, a lab's refit): the second kind, in the
+        // loss's quadratic zone, once counted as leaving it with a negative share, and the
+        // step's system was not positive definite.
+        let w = 4020.0 / 1639.0;
+        let mixed = Dataset {
+            weights: Some((0..data.rows()).map(|i| [1.0, w][i % 2]).collect()),
+            ..data.clone()
+        };
+        let fitted = solve(&mixed, loss, 10.0);
+        assert!(fitted.stop.converged(), "{loss}: {:?}", fitted.stop);
     }
 }
 

@@ -351,7 +351,10 @@ fn step_target(
 ) -> Result<(Mat<f64>, Vec<f64>), NotPositiveDefinite> {
     let (r, tube, y) = (problem.features.width(), problem.tube, problem.targets);
     let q = y.ncols();
-    let quadratic_weight = |i: usize| 2.0 * tube.c * problem.weights.of(i);
+    // A quadratic row's weight as `Tube::step_row` computes it, so that such rows compare
+    // equal: 2C wᵢ written otherwise can differ by a rounding, which made rows of the quadratic
+    // zone count as leaving it with a negative share (NaN under its square root).
+    let quadratic_weight = |i: usize| 1.0 / tube.quadratic_inverse_weight(problem.weights.of(i));
     let support: Vec<(usize, f64)> = parts
         .iter()
         .enumerate()
@@ -365,7 +368,7 @@ fn step_target(
         .enumerate()
         .filter_map(|(i, p)| {
             let a = p.map_or(0.0, |(inv, _)| 1.0 / inv);
-            (a != quadratic_weight(i)).then_some((i, quadratic_weight(i) - a))
+            (a < quadratic_weight(i)).then_some((i, quadratic_weight(i) - a))
         })
         .collect();
     // Right-hand side Φ̃ᵀ A Y' over the support; the matrix from G and the rows outside the

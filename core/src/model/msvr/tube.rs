@@ -109,14 +109,18 @@ impl Tube {
     /// overshoot).
     pub fn step_row(&self, u: f64, w: f64) -> Option<(f64, f64)> {
         let (excess, zone) = (u - self.epsilon, self.zone());
-        let cw = self.c * w;
         (excess > 0.0).then(|| {
             if excess > zone {
-                (u / (2.0 * cw * zone), 0.0)
+                (u / (2.0 * self.c * w * zone), 0.0)
             } else {
-                (0.5 / cw, self.epsilon / u)
+                (self.quadratic_inverse_weight(w), self.epsilon / u)
             }
         })
+    }
+
+    /// 1/aᵢ of a row of weight `w` in the loss's quadratic zone: 1/(2Cw).
+    pub fn quadratic_inverse_weight(&self, w: f64) -> f64 {
+        0.5 / (self.c * w)
     }
 
     /// L′(u) / u: the loss's pull on a residual vector per unit of its length.
