@@ -340,6 +340,12 @@ impl Refit {
             read,
         };
         let job = refit.job(f, 0);
+        if job.time.is_some() && job.group.is_none() {
+            return Err(request(format!(
+                "{}: its history runs over one series (no --group-by), and --refit adds each repetition as a run of its own: fit it with --group-by",
+                f.model.display()
+            )));
+        }
         let named = job.time.iter().chain(&job.group);
         let columns = job.inputs.iter().chain(&job.outputs).chain(named);
         if let Some(column) = columns.into_iter().find(|c| !refit.header.contains(c)) {

@@ -716,6 +716,34 @@ fn follow_refuses_a_refit_session_without_the_models_columns_before_playing() {
         "{said}"
     );
     assert!(!d.join("loop/rep_0").exists(), "a repetition was played");
+    // A history over one series cannot take each repetition as a run of its own.
+    let mut one = vec![
+        "model",
+        "session.csv",
+        "--time",
+        "time_s",
+        "--search",
+        "none",
+    ];
+    one.extend(["--history", "ema:0.0167,0.0667,0.267", "--c", "156.67"]);
+    one.extend([
+        "--epsilon",
+        "0.0301",
+        "--sigma",
+        "1.364",
+        "--out",
+        "one.json",
+    ]);
+    handcap_ok(d, &one);
+    let mut follow = follow.to_vec();
+    follow[1] = "one.json";
+    let said =
+        crate::common::handcap_usage(d, &[&follow[..], &["--refit", "session.csv"]].concat());
+    assert!(
+        said.contains("one.json: its history runs over one series"),
+        "{said}"
+    );
+    assert!(!d.join("loop/rep_0").exists(), "a repetition was played");
 }
 
 /// A firmware that is not handcap's (the Harvard `pressure_controller`'s `SET;<time>;<p…>` in

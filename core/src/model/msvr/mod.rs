@@ -14,6 +14,7 @@
 //!     source: "inline".into(),
 //!     inputs: Columns::new(vec!["p".into()], x),
 //!     outputs: Columns::new(vec!["z".into()], y),
+//!     weights: None,
 //! };
 //! let model = MsvrParams::new(100.0, 0.001, 0.2).check()?.fit(&data)?;
 //! assert!(model.fit.converged);
