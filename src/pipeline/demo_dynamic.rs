@@ -20,7 +20,7 @@ use super::fit::{self, FitJob, Selection};
 use super::{PipelineError, Session};
 use crate::data::{self, names, Csv, HAND_INPUTS, HAND_OUTPUTS};
 use crate::model::file::ModelFile;
-use crate::model::history::{HistoryChoice, Memory};
+use crate::model::history::HistoryChoice;
 use crate::model::msvr::MsvrParams;
 use crate::model::Errors;
 use crate::plot::{self, LinePlot, Mark, Series};
@@ -303,14 +303,9 @@ fn same_model(
         .as_ref()
         .and_then(|h| h.used.as_ref())
         .map(|h| &h.memory);
-    let history = match memory {
-        None => HistoryChoice::None,
-        Some(Memory::Ema { tau }) => HistoryChoice::Ema(tau.clone()),
-        Some(Memory::Lags { rows }) => HistoryChoice::Lags(*rows),
-    };
     FitJob {
         params,
-        history,
+        history: HistoryChoice::of(memory),
         ..job(data, test, out, true, phases(folds))
     }
 }

@@ -25,6 +25,7 @@ use super::trajectory::{self, Request};
 use super::{Event, PipelineError, Session};
 use crate::capture::{CaptureOptions, Regulator};
 use crate::model::file::ModelFile;
+use crate::session::pressures::{read_pressure_log, PRESSURE_COLUMNS};
 use crate::session::protocol::Step;
 use crate::triangulate::TriangulateOptions;
 
@@ -314,6 +315,8 @@ struct Refit {
     rows: Vec<csv::StringRecord>,
     /// The session's rows a fit reads (unflagged).
     read: usize,
+    /// The repetitions' rows so far, in the session's columns.
+    runs: Vec<Vec<String>>,
 }
 
 impl Refit {
@@ -338,6 +341,7 @@ impl Refit {
             header,
             rows,
             read,
+            runs: Vec::new(),
         };
         let job = refit.job(f, 0);
         if job.time.is_some() && job.group.is_none() {
@@ -367,52 +371,47 @@ impl Refit {
     }
 
     /// Fits the model again after repetition `r` on `refit_R.csv`: the session's rows, and
-    /// every repetition's unflagged rows so far, each repetition a group of its own (`rep_K`),
-    /// the repetitions' rows weighing together as much as the session's (appended once, the
-    /// session's rows outweigh a run and the model hardly learns the finger it is on:
-    /// `docs/motion.md`). Returns the model file written.
+    /// every repetition's unflagged rows so far (repetition `r`'s added to the others), each
+    /// repetition a group of its own (`rep_K`), the repetitions' rows weighing together as much
+    /// as the session's (appended once, the session's rows outweigh a run and the model hardly
+    /// learns the finger it is on: `docs/motion.md`). Returns the model file written.
     fn after(
-        &self,
+        &mut self,
         f: &Follow,
         r: usize,
         session: &Session,
         said: &dyn Fn(&str),
     ) -> Result<PathBuf, PipelineError> {
         let job = self.job(f, r);
-        // Each repetition's rows in the session's columns: the time, its group, the commands
-        // in force (as the session's inputs are: a streaming regulator's measured pressures,
-        // which the rows carry, lag them) and the tip; the session's other columns left empty.
-        let mut runs: Vec<Vec<String>> = Vec::new();
-        for k in 0..=r {
-            let rep = f.out.join(format!("rep_{k}"));
-            let log: Vec<(f64, HashMap<String, String>)> = rows(&rep.join("pressures.csv"))?
-                .into_iter()
-                .filter_map(|c| Some((number(&c, "time_s")?, c)))
-                .collect();
-            for row in rows(&rep.join("rows.csv"))? {
-                let t = number(&row, "time_s").filter(|_| row["flag"].is_empty());
-                let held =
-                    t.and_then(|t| log.get(log.partition_point(|c| c.0 <= t).checked_sub(1)?));
-                let Some((_, command)) = held else {
-                    continue;
-                };
-                let cell = |name: &String| {
-                    let value = match name {
-                        _ if Some(name) == job.time.as_ref() => row.get("time_s"),
-                        _ if Some(name) == job.group.as_ref() => return Some(format!("rep_{k}")),
-                        _ if job.inputs.contains(name) => command.get(name),
-                        _ if job.outputs.contains(name) => row.get(name),
-                        _ => return Some(String::new()),
-                    };
-                    value
-                        .filter(|v| v.parse::<f64>().is_ok_and(f64::is_finite))
-                        .cloned()
-                };
-                if let Some(cells) = self.header.iter().map(cell).collect::<Option<Vec<_>>>() {
-                    runs.push(cells);
-                }
+        // Repetition r's rows in the session's columns: the time, its group, the commands in
+        // force (as the session's inputs are: a streaming regulator's measured pressures, which
+        // the rows carry, lag them) and the tip; the session's other columns left empty.
+        let rep = f.out.join(format!("rep_{r}"));
+        let log =
+            read_pressure_log(&rep.join("pressures.csv")).map_err(|e| request(e.to_string()))?;
+        for row in rows(&rep.join("rows.csv"))? {
+            let t = number(&row, "time_s").filter(|_| row["flag"].is_empty());
+            let Some(step) = t.and_then(|t| log.step_at(t)) else {
+                continue;
+            };
+            let command = |name: &String| {
+                let p = PRESSURE_COLUMNS.iter().position(|c| c == name)?;
+                Some(log.steps[step].pressures_kpa[p].to_string())
+            };
+            // The row's own cell, when it holds a number.
+            let kept = |key: &str| number(&row, key).map(|_| row[key].clone());
+            let cell = |name: &String| match name {
+                _ if Some(name) == job.time.as_ref() => kept("time_s"),
+                _ if Some(name) == job.group.as_ref() => Some(format!("rep_{r}")),
+                _ if job.inputs.contains(name) => command(name),
+                _ if job.outputs.contains(name) => kept(name),
+                _ => Some(String::new()),
+            };
+            if let Some(cells) = self.header.iter().map(cell).collect::<Option<Vec<_>>>() {
+                self.runs.push(cells);
             }
         }
+        let runs = &self.runs;
         let weight = self.read as f64 / runs.len().max(1) as f64;
         let mut writer = csv::Writer::from_writer(Vec::new());
         let mut write = |cells: Vec<&str>| writer.write_record(cells);
@@ -478,7 +477,7 @@ pub fn run(
         learn: None,
         ..f.plan
     })?;
-    let refit = f.refit.map(|data| Refit::read(f, data)).transpose()?;
+    let mut refit = f.refit.map(|data| Refit::read(f, data)).transpose()?;
     let mut done = Vec::new();
     let mut table =
         String::from("repetition,rows,tracking_rms_triangulated_mm,tracking_rms_truth_mm\n");
@@ -535,7 +534,7 @@ pub fn run(
         crate::fsio::write_bytes(&path, table.as_bytes()).map_err(io(&path))?;
         said(&one.to_string());
         done.push(one);
-        let refitted = match &refit {
+        let refitted = match &mut refit {
             Some(refit) => Some(refit.after(f, r, session, said)?),
             None => None,
         };

@@ -37,6 +37,15 @@ pub struct PressureLog {
 }
 
 impl PressureLog {
+    /// The step in force at `t` (`None` before the first command or after the last step).
+    pub fn step_at(&self, t: f64) -> Option<usize> {
+        let k = self
+            .steps
+            .partition_point(|s| s.time_s <= t)
+            .checked_sub(1)?;
+        (t < self.end_s(k)).then_some(k)
+    }
+
     /// When step `k` ends: the next command, or its hold after the last one.
     pub fn end_s(&self, k: usize) -> f64 {
         self.steps

@@ -63,15 +63,6 @@ impl ClockCheck {
     }
 }
 
-/// The step a time falls in (`None` before the first command or after the last step).
-fn step_of(log: &PressureLog, t: f64) -> Option<usize> {
-    let k = log
-        .steps
-        .partition_point(|s| s.time_s <= t)
-        .checked_sub(1)?;
-    (t < log.end_s(k)).then_some(k)
-}
-
 /// Pairs whose median the next difference is unwrapped against.
 pub const UNWRAP_WINDOW: usize = 15;
 
@@ -88,7 +79,7 @@ pub fn check(
     for (side, cam) in [Side::Left, Side::Right].into_iter().zip(0..) {
         let times: Vec<(f64, Option<usize>)> = in_time_order(frames, side)
             .into_iter()
-            .map(|i| (frames[i].time_s, step_of(log, frames[i].time_s)))
+            .map(|i| (frames[i].time_s, log.step_at(frames[i].time_s)))
             .collect();
         // Each step's frames, in time order.
         let runs: Vec<Vec<f64>> = times
@@ -152,7 +143,7 @@ pub fn check(
         match place(log, a, b, settle_s, guard_s) {
             Placement::Step(k) => placed[k] = true,
             Placement::Settling => {
-                if let Some(k) = step_of(log, a.min(b)) {
+                if let Some(k) = log.step_at(a.min(b)) {
                     settling[k] = true;
                 }
             }

@@ -205,11 +205,14 @@ impl Dataset {
             source: self.source.clone(),
             inputs: self.inputs.select_rows(rows),
             outputs: self.outputs.select_rows(rows),
-            weights: self
-                .weights
-                .as_ref()
-                .map(|w| rows.iter().map(|&i| w[i]).collect()),
+            weights: self.weights_of(rows),
         }
+    }
+
+    /// The listed rows' weights, when the rows carry weights.
+    pub fn weights_of(&self, rows: &[usize]) -> Option<Vec<f64>> {
+        let w = self.weights.as_ref()?;
+        Some(rows.iter().map(|&i| w[i]).collect())
     }
 
     /// Each row's weight in a fit's loss, as the solvers take them.

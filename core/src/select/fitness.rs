@@ -76,15 +76,17 @@ pub enum FitnessError {
     },
 }
 
-/// One fold: its training and held-out rows, their targets, and the training rows' weights
-/// when the rows carry weights. A fold's held-out error counts every row once, as a user's
-/// cross-validation scores it: the weights are the fit's, not the score's.
+/// One fold: its training and held-out rows, their targets, and their weights when the rows
+/// carry weights (the held-out rows' for the reduced basis' Gram matrices). A fold's held-out
+/// error counts every row once, as a user's cross-validation scores it: the weights are the
+/// fit's, not the score's.
 struct Fold {
     train: Vec<usize>,
     held_out: Vec<usize>,
     y_train: Mat<f64>,
     y_held_out: Mat<f64>,
     w_train: Option<Vec<f64>>,
+    w_held_out: Option<Vec<f64>>,
 }
 
 /// What every fold needs of one σ: the exact basis's kernel of every row with every row (each
@@ -301,14 +303,11 @@ impl Fitness {
                         data.outputs.row(rows[r])[j]
                     })
                 };
-                let weights = |rows: &[usize]| {
-                    let w = data.weights.as_ref()?;
-                    Some(rows.iter().map(|&i| w[i]).collect())
-                };
                 Fold {
                     y_train: targets(&train),
                     y_held_out: targets(&held_out),
-                    w_train: weights(&train),
+                    w_train: data.weights_of(&train),
+                    w_held_out: data.weights_of(&held_out),
                     train,
                     held_out,
                 }
@@ -563,27 +562,20 @@ impl Fitness {
             Expansion::Exact { d2 } => PerSigma::Exact(rbf_from_squared(d2.as_ref(), sigma)),
             Expansion::Reduced { scaled, centres } => {
                 let features = NystromMap::new(centres, sigma).features(scaled);
-                let weights_of = |listed: &[usize]| {
-                    let w = self.weights.as_ref()?;
-                    Some(listed.iter().map(|&i| w[i]).collect::<Vec<f64>>())
+                let gram = |rows: Option<&[usize]>, weights: &Option<Vec<f64>>| {
+                    let all = features.as_ref();
+                    let weights = RowWeights(weights.as_deref());
+                    FeatureRows::Stored { all, rows }.gram(weights, Par::rayon(0))
                 };
-                let gram = |listed: Option<&[usize]>| {
-                    let w = listed.map_or_else(|| self.weights.clone(), weights_of);
-                    let rows = FeatureRows::Stored {
-                        all: features.as_ref(),
-                        rows: listed,
-                    };
-                    rows.gram(RowWeights(w.as_deref()), Par::rayon(0))
-                };
-                let all = gram(None);
+                let all = gram(None, &self.weights);
                 let grams = self
                     .folds
                     .iter()
                     .map(|f| {
                         if f.held_out.len() == f.train.len() {
-                            return gram(Some(&f.train)); // the training fitness
+                            return gram(Some(&f.train), &f.w_train); // the training fitness
                         }
-                        &all - gram(Some(&f.held_out))
+                        &all - gram(Some(&f.held_out), &f.w_held_out)
                     })
                     .collect();
                 PerSigma::Reduced { features, grams }

@@ -9,7 +9,7 @@ use super::{io_error, Event, PipelineError, Session, Task};
 use crate::data::{self, HAND_INPUTS, HAND_OUTPUTS};
 use crate::model;
 use crate::model::file::ModelFile;
-use crate::model::history::{self, HistoryChoice, Memory};
+use crate::model::history::{self, HistoryChoice};
 use crate::model::msvr::{Basis, MsvrParams};
 use crate::model::previous::{self, PreviousModel};
 use crate::model::StoredModel;
@@ -102,10 +102,7 @@ impl FitJob {
             time: used.map(|u| u.time.clone()),
             group: used.and_then(|u| u.group.clone()),
             weight,
-            history: used.map_or(HistoryChoice::None, |u| match &u.memory {
-                Memory::Ema { tau } => HistoryChoice::Ema(tau.clone()),
-                Memory::Lags { rows } => HistoryChoice::Lags(*rows),
-            }),
+            history: HistoryChoice::of(used.map(|u| &u.memory)),
             intervals: false,
         }
     }

@@ -25,11 +25,7 @@ pub(super) fn frame_rows(
     let mut points = Vec::with_capacity(left.order.len());
     for ((k, &i), found) in left.order.iter().enumerate().zip(located) {
         let t = left.times[k];
-        let step = log
-            .steps
-            .partition_point(|s| s.time_s <= t)
-            .checked_sub(1)
-            .filter(|&k| t < log.end_s(k));
+        let step = log.step_at(t);
         let mut row = FrameRow {
             frame: frame_of(i),
             time_s: t,

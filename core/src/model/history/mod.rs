@@ -149,6 +149,17 @@ pub enum HistoryChoice {
     Lags(usize),
 }
 
+impl HistoryChoice {
+    /// The choice of exactly `memory` (`None`: no history): a model's own, fitted again.
+    pub fn of(memory: Option<&Memory>) -> HistoryChoice {
+        match memory {
+            None => HistoryChoice::None,
+            Some(Memory::Ema { tau }) => HistoryChoice::Ema(tau.clone()),
+            Some(Memory::Lags { rows }) => HistoryChoice::Lags(*rows),
+        }
+    }
+}
+
 impl std::str::FromStr for HistoryChoice {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
