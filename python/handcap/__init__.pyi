@@ -102,6 +102,7 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
         y: ArrayLike,
         groups: Optional[ArrayLike] = None,
         time: Optional[ArrayLike] = None,
+        sample_weight: Optional[ArrayLike] = None,
     ) -> "MSVRRegressor": ...
     def predict(
         self, X: ArrayLike, time: Optional[ArrayLike] = None, groups: Optional[ArrayLike] = None

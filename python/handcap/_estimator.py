@@ -2,7 +2,7 @@
 
 import numpy as np
 from sklearn.base import BaseEstimator, RegressorMixin
-from sklearn.utils.validation import check_is_fitted, validate_data
+from sklearn.utils.validation import _check_sample_weight, check_is_fitted, validate_data
 
 from . import _core
 
@@ -88,13 +88,20 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
         tags.target_tags.single_output = True
         return tags
 
-    def fit(self, X, y, groups=None, time=None):
+    def fit(self, X, y, groups=None, time=None, sample_weight=None):
         """Fits the model (searching the hyper-parameters left None). `groups`: one label per
         row; the search holds whole groups out together (runs, trials, ramps). `time`: each
         row's time in seconds, increasing within each group: the model may see its inputs'
-        history (`history`), as `handcap model --time --group-by` does."""
+        history (`history`), as `handcap model --time --group-by` does. `sample_weight`: each
+        row's weight in the loss (C w L, as `handcap model --weight`): a row of weight k is
+        fitted as k copies of it; the folds' scores and the intervals count every row once.
+        Rows of weight 0 are left out (not with `time`, whose history needs every row)."""
         X, y = validate_data(self, X, y, multi_output=True, y_numeric=True, dtype=np.float64,
                              ensure_min_samples=_core.MIN_FIT_ROWS)
+        weights = None
+        if sample_weight is not None:
+            weights = _check_sample_weight(sample_weight, X, dtype=np.float64,
+                                           ensure_non_negative=True)
         if self.search not in ("aco-r", "none"):
             raise ValueError(f"search {self.search!r}: give 'aco-r' or 'none'")
         families = dict(_core.FAMILIES)
@@ -119,6 +126,17 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
             if not np.all(np.isfinite(time)):
                 row = int(np.flatnonzero(~np.isfinite(time))[0])
                 raise ValueError(f"row {row}: time {time[row]} is not a number of seconds")
+        if weights is not None and not np.all(weights > 0):
+            kept = weights > 0
+            if time is not None:
+                row = int(np.flatnonzero(~kept)[0])
+                raise ValueError(f"row {row}: sample_weight 0 with time given; the history "
+                                 "needs every row: give every row a weight above 0")
+            if kept.sum() < _core.MIN_FIT_ROWS:
+                raise ValueError(f"sample_weight leaves {kept.sum()} rows above 0; the fit "
+                                 f"needs at least {_core.MIN_FIT_ROWS}")
+            X, Y, weights = X[kept], Y[kept], weights[kept]
+            groups = None if groups is None else groups[kept]
         seed = DEFAULT_SEED if self.random_state is None else self.random_state
         if not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**64:
             raise ValueError(f"random_state {seed!r}: give None or an int from 0 to 2**64 - 1")
@@ -138,7 +156,8 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
             epsilon=None if self.epsilon is None else float(self.epsilon),
             sigma=None if self.sigma is None else float(self.sigma),
             loss=self.loss, basis=str(self.basis), budget=self.budget, folds=int(self.folds),
-            groups=groups, time=time, history=str(self.history), seed=int(seed),
+            groups=groups, time=time, weights=weights, history=str(self.history),
+            seed=int(seed),
             tol=float(self.tol), max_iter=int(self.max_iter), intervals=bool(self.intervals))
         self.C_, self.epsilon_, self.sigma_ = self.model_.hyper
         self.support_vectors_ = self.model_.support_vectors

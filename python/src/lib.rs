@@ -212,7 +212,7 @@ fn rows(message: String) -> String {
 /// intervals when the search made no held-out predictions (k more fits). Returns the model.
 #[pyfunction]
 #[pyo3(signature = (x, y, *, input_names, output_names, model="msvr", c=None, epsilon=None,
-    sigma=None, loss="robust", basis="auto", budget=None, folds=5, groups=None, time=None, history="auto",
+    sigma=None, loss="robust", basis="auto", budget=None, folds=5, groups=None, time=None, weights=None, history="auto",
     seed=2020, tol=msvr::DEFAULT_TOL, max_iter=msvr::DEFAULT_MAX_ITER, intervals=false))]
 #[allow(clippy::too_many_arguments)]
 fn fit(
@@ -231,6 +231,7 @@ fn fit(
     folds: usize,
     groups: Option<&Bound<'_, PyAny>>,
     time: Option<&Bound<'_, PyAny>>,
+    weights: Option<&Bound<'_, PyAny>>,
     history: &str,
     seed: u64,
     tol: f64,
@@ -240,6 +241,7 @@ fn fit(
     let (x, y) = (array2(x, "X")?, array2(y, "y")?);
     let groups = groups.map(|g| array1(g, "groups")).transpose()?;
     let time = time.map(|t| array1(t, "time")).transpose()?;
+    let weights = weights.map(|w| array1(w, "sample_weight")).transpose()?;
     let (x, y) = (x.as_array(), y.as_array());
     if x.nrows() != y.nrows() {
         return Err(value_error(format!(
@@ -282,6 +284,17 @@ fn fit(
     };
     let groups = per_row(groups, "groups")?;
     let time = per_row(time, "time")?;
+    let weights = per_row(weights, "sample_weight")?;
+    if let Some((row, w)) = weights
+        .iter()
+        .flatten()
+        .enumerate()
+        .find(|(_, w)| !(w.is_finite() && **w > 0.0))
+    {
+        return Err(value_error(format!(
+            "row {row}: sample_weight {w}; give every row a finite weight above 0"
+        )));
+    }
     let series = time.map(|time| Series {
         time,
         group: groups.clone(),
@@ -291,7 +304,7 @@ fn fit(
             source: PathBuf::from("python"),
             inputs: columns(&input_names, x),
             outputs: columns(&output_names, y),
-            weights: None,
+            weights,
         },
         series,
         lines: (1..=x.nrows() as u64).collect(),
