@@ -7,8 +7,9 @@ use std::sync::atomic::AtomicBool;
 use faer::Mat;
 use serde::{Deserialize, Serialize};
 
-use super::fitness::{assign_folds, fold_maes, Dealing, Fitness, FitnessKind};
+use super::fitness::{fold_maes, Fitness, FitnessKind};
 use super::folds::FoldPlan;
+use super::folds::{assign_folds, Dealing};
 use super::tune::TuneError;
 use crate::data::Dataset;
 use crate::model::msvr::{Basis, MsvrParams};

@@ -31,12 +31,10 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 
 use faer::{Mat, Par};
-use rand::seq::SliceRandom;
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use super::folds::{assign_folds, Dealing};
 use crate::data::{Columns, Dataset};
 use crate::model::msvr::basis::{self, NystromMap};
 use crate::model::msvr::irwls::StopReason;
@@ -102,18 +100,6 @@ enum PerSigma {
     },
 }
 
-/// How groups are dealt to folds.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Dealing {
-    /// Shuffled with the seed, each to the fold with the fewest rows so far: every fold holds
-    /// runs from all over the data (what a search scores parameters on).
-    Shuffled,
-    /// In label order, consecutive groups to one fold until it holds its share of the rows:
-    /// each fold a block of consecutive runs, as new runs meet a model (what intervals are
-    /// calibrated on: runs recorded one after another drift).
-    Consecutive,
-}
-
 /// Each fold's MAE of `predicted` (rows × outputs: every row's prediction by the model fitted
 /// without its fold) against `data`'s outputs, and each fold's held-out values; `fold_of` as
 /// [`assign_folds`] gives it, over `folds` folds.
@@ -132,59 +118,6 @@ pub fn fold_maes(
     }
     let maes = sum.iter().zip(&count).map(|(s, &c)| s / c.max(1) as f64);
     (maes.collect(), count)
-}
-
-/// The fold of every row. Groups (every row its own group when `groups` is `None`) are dealt
-/// to the folds as `dealing` says, so folds are balanced and a group is never split between
-/// training and held-out rows.
-pub fn assign_folds(
-    n: usize,
-    folds: usize,
-    seed: u64,
-    groups: Option<&[f64]>,
-    dealing: Dealing,
-) -> Result<Vec<usize>, FitnessError> {
-    let mut members: Vec<Vec<usize>> = match groups {
-        None => (0..n).map(|i| vec![i]).collect(),
-        Some(labels) => {
-            let mut sorted: Vec<usize> = (0..n).collect();
-            sorted.sort_by(|&a, &b| labels[a].total_cmp(&labels[b]));
-            sorted
-                .chunk_by(|&a, &b| labels[a] == labels[b])
-                .map(<[usize]>::to_vec)
-                .collect()
-        }
-    };
-    let bad = FitnessError::BadFolds {
-        folds,
-        rows: n,
-        groups: members.len(),
-    };
-    if folds < 2 || members.len() < folds {
-        return Err(bad);
-    }
-    let mut sizes = vec![0usize; folds];
-    let mut fold_of = vec![0; n];
-    let mut before = 0;
-    if dealing == Dealing::Shuffled {
-        members.shuffle(&mut ChaCha8Rng::seed_from_u64(seed));
-    }
-    for group in &members {
-        let f = match dealing {
-            Dealing::Shuffled => (0..folds).min_by_key(|&f| sizes[f]).expect("folds ≥ 2"),
-            // The fold whose share of the rows holds the group's middle row.
-            Dealing::Consecutive => ((before + group.len() / 2) * folds / n).min(folds - 1),
-        };
-        before += group.len();
-        sizes[f] += group.len();
-        for &i in group {
-            fold_of[i] = f;
-        }
-    }
-    if sizes.iter().any(|&s| s < 2 || n - s < 2) {
-        return Err(bad);
-    }
-    Ok(fold_of)
 }
 
 /// Counters of the work done, for the search report.
@@ -587,42 +520,5 @@ impl Fitness {
         }
         cache.insert(sigma.to_bits(), Arc::clone(&computed));
         computed
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn consecutive_dealing_gives_each_fold_a_block_of_runs_in_label_order() {
-        // Twelve runs of 3-8 rows, labelled out of order in the rows.
-        let sizes = [3, 8, 5, 4, 6, 7, 3, 5, 8, 4, 6, 5];
-        let mut labels = Vec::new();
-        for (run, &size) in sizes.iter().enumerate() {
-            labels.extend(std::iter::repeat_n((11 - run) as f64, size));
-        }
-        let n = labels.len();
-        let fold_of = assign_folds(n, 4, 1, Some(&labels), Dealing::Consecutive).unwrap();
-        // Along the labels (11 - run) the folds never decrease: each fold is a block of runs.
-        let mut by_label: Vec<(f64, usize)> = labels.iter().copied().zip(fold_of.clone()).collect();
-        by_label.sort_by(|a, b| a.0.total_cmp(&b.0));
-        assert!(
-            by_label.windows(2).all(|w| w[0].1 <= w[1].1),
-            "{by_label:?}"
-        );
-        // Each fold holds about a quarter of the rows, and a run is never split.
-        for f in 0..4 {
-            let rows = fold_of.iter().filter(|&&g| g == f).count();
-            assert!(rows.abs_diff(n / 4) <= 8, "fold {f}: {rows} of {n}");
-        }
-        for w in labels.windows(2).zip(fold_of.windows(2)) {
-            if w.0[0] == w.0[1] {
-                assert_eq!(w.1[0], w.1[1]);
-            }
-        }
-        // Shuffled dealing mixes them (the seed's order).
-        let shuffled = assign_folds(n, 4, 1, Some(&labels), Dealing::Shuffled).unwrap();
-        assert_ne!(shuffled, fold_of);
     }
 }

@@ -19,11 +19,16 @@
 //!
 //! `shuffle`, `blocks` or a column name choose directly. The choice and its reason go to the
 //! output and the model file.
+//!
+//! [`assign_folds`] then deals the rows, or whole groups, to the folds: shuffled with the seed
+//! for a search, or in blocks of consecutive runs for the intervals ([`Dealing`]).
 
+use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
+use super::fitness::FitnessError;
 use crate::data::{Columns, Dataset};
 
 /// Inputs with at most this many distinct values make a designed grid.
@@ -306,6 +311,71 @@ fn neighbour_ratio(inputs: &Columns) -> f64 {
     }
 }
 
+/// How groups are dealt to folds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Dealing {
+    /// Shuffled with the seed, each to the fold with the fewest rows so far: every fold holds
+    /// runs from all over the data (what a search scores parameters on).
+    Shuffled,
+    /// In label order, consecutive groups to one fold until it holds its share of the rows:
+    /// each fold a block of consecutive runs, as new runs meet a model (what intervals are
+    /// calibrated on: runs recorded one after another drift).
+    Consecutive,
+}
+
+/// The fold of every row. Groups (every row its own group when `groups` is `None`) are dealt
+/// to the folds as `dealing` says, so folds are balanced and a group is never split between
+/// training and held-out rows.
+pub fn assign_folds(
+    n: usize,
+    folds: usize,
+    seed: u64,
+    groups: Option<&[f64]>,
+    dealing: Dealing,
+) -> Result<Vec<usize>, FitnessError> {
+    let mut members: Vec<Vec<usize>> = match groups {
+        None => (0..n).map(|i| vec![i]).collect(),
+        Some(labels) => {
+            let mut sorted: Vec<usize> = (0..n).collect();
+            sorted.sort_by(|&a, &b| labels[a].total_cmp(&labels[b]));
+            sorted
+                .chunk_by(|&a, &b| labels[a] == labels[b])
+                .map(<[usize]>::to_vec)
+                .collect()
+        }
+    };
+    let bad = FitnessError::BadFolds {
+        folds,
+        rows: n,
+        groups: members.len(),
+    };
+    if folds < 2 || members.len() < folds {
+        return Err(bad);
+    }
+    let mut sizes = vec![0usize; folds];
+    let mut fold_of = vec![0; n];
+    let mut before = 0;
+    if dealing == Dealing::Shuffled {
+        members.shuffle(&mut ChaCha8Rng::seed_from_u64(seed));
+    }
+    for group in &members {
+        let f = match dealing {
+            Dealing::Shuffled => (0..folds).min_by_key(|&f| sizes[f]).expect("folds ≥ 2"),
+            // The fold whose share of the rows holds the group's middle row.
+            Dealing::Consecutive => ((before + group.len() / 2) * folds / n).min(folds - 1),
+        };
+        before += group.len();
+        sizes[f] += group.len();
+        for &i in group {
+            fold_of[i] = f;
+        }
+    }
+    if sizes.iter().any(|&s| s < 2 || n - s < 2) {
+        return Err(bad);
+    }
+    Ok(fold_of)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -413,5 +483,37 @@ mod tests {
         let p = plan(&FoldsBy::Column("run".into()), &data, &three, 5).unwrap();
         assert_eq!(p.folds, 3, "each group its own fold");
         assert!(p.choice.reason.contains("3 groups, so 3 folds"), "{p:?}");
+    }
+
+    #[test]
+    fn consecutive_dealing_gives_each_fold_a_block_of_runs_in_label_order() {
+        // Twelve runs of 3-8 rows, labelled out of order in the rows.
+        let sizes = [3, 8, 5, 4, 6, 7, 3, 5, 8, 4, 6, 5];
+        let mut labels = Vec::new();
+        for (run, &size) in sizes.iter().enumerate() {
+            labels.extend(std::iter::repeat_n((11 - run) as f64, size));
+        }
+        let n = labels.len();
+        let fold_of = assign_folds(n, 4, 1, Some(&labels), Dealing::Consecutive).unwrap();
+        // Along the labels (11 - run) the folds never decrease: each fold is a block of runs.
+        let mut by_label: Vec<(f64, usize)> = labels.iter().copied().zip(fold_of.clone()).collect();
+        by_label.sort_by(|a, b| a.0.total_cmp(&b.0));
+        assert!(
+            by_label.windows(2).all(|w| w[0].1 <= w[1].1),
+            "{by_label:?}"
+        );
+        // Each fold holds about a quarter of the rows, and a run is never split.
+        for f in 0..4 {
+            let rows = fold_of.iter().filter(|&&g| g == f).count();
+            assert!(rows.abs_diff(n / 4) <= 8, "fold {f}: {rows} of {n}");
+        }
+        for w in labels.windows(2).zip(fold_of.windows(2)) {
+            if w.0[0] == w.0[1] {
+                assert_eq!(w.1[0], w.1[1]);
+            }
+        }
+        // Shuffled dealing mixes them (the seed's order).
+        let shuffled = assign_folds(n, 4, 1, Some(&labels), Dealing::Shuffled).unwrap();
+        assert_ne!(shuffled, fold_of);
     }
 }

@@ -10,7 +10,8 @@ use crate::model::history::{self, History, HistoryChoice, HistoryDecision, Histo
 use crate::model::interval::Intervals;
 use crate::model::msvr::{self, Basis, Hyper, MsvrParams, MIN_FIT_ROWS};
 use crate::search::{Search, SearchError};
-use crate::select::fitness::{Dealing, FitnessKind};
+use crate::select::fitness::FitnessKind;
+use crate::select::folds::Dealing;
 use crate::select::folds::{self, FoldPlan};
 use crate::select::tune::{self, BasisChoice, BasisDecision, Chosen, TuneError};
 

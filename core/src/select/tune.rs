@@ -20,8 +20,8 @@ pub use super::auto_basis::{
     grow_basis, initial_basis, BasisChoice, BasisDecision, BasisError, BasisTrial, AUTO_EXACT_ROWS,
     AUTO_FIRST_CENTRES, AUTO_GAIN, AUTO_MAX_CENTRES,
 };
-use super::fitness::{Counters, Dealing, Fitness, FitnessError, FitnessKind};
-use super::folds::{FoldChoice, FoldPlan};
+use super::fitness::{Counters, Fitness, FitnessError, FitnessKind};
+use super::folds::{Dealing, FoldChoice, FoldPlan};
 use crate::data::Dataset;
 use crate::model::interval::Intervals;
 use crate::model::msvr::{kernel, Basis, Hyper, MinMaxScaler, MsvrParams};

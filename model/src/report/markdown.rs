@@ -8,6 +8,7 @@ use crate::data::format_number;
 use crate::model::history::HistoryDecision;
 use crate::model::interval::Coverage;
 use crate::select::family::FamilyDecision;
+use crate::select::tune::SearchSummary;
 
 /// The previous model's constants, default and calibrated, and how the calibration went.
 pub(super) fn previous_section(p: &PreviousSummary) -> String {
@@ -303,6 +304,32 @@ pub(super) fn coverage_table(groups: &[Coverage]) -> String {
     s
 }
 
+/// The search's section of the report: what it did and what it found.
+fn search_section(s: &mut String, search: &SearchSummary) {
+    let _ = writeln!(s, "## Hyper-parameter search\n");
+    let _ = writeln!(
+        s,
+        "{} scored by {}{}: {} iterations, stopped by {:?}; {} candidates scored ({} stopped early by racing, {} fits, {} memo hits). Best fitness {:.5} at C = {}, ε = {}, σ = {}. Per-iteration history: `history.csv`; Figures 7-8: `fig7_min_mae.png`, `fig8_mean_mae.png` (and `.svg`).\n",
+        search.method,
+        search.fitness,
+        search
+            .folds
+            .as_ref()
+            .map(|f| format!(" over {f}"))
+            .unwrap_or_default(),
+        search.iterations,
+        search.stop,
+        search.evaluations,
+        search.raced,
+        search.fits,
+        search.memo_hits,
+        search.best_fitness,
+        search.best.c,
+        search.best.epsilon,
+        search.best.sigma
+    );
+}
+
 pub(super) fn markdown(r: &ModelReport, sweeps: &[SweepFigures]) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "# handcap model report\n");
@@ -315,28 +342,7 @@ pub(super) fn markdown(r: &ModelReport, sweeps: &[SweepFigures]) -> String {
         r.outputs.join(", ")
     );
     if let Some(search) = &r.search {
-        let _ = writeln!(s, "## Hyper-parameter search\n");
-        let _ = writeln!(
-            s,
-            "{} scored by {}{}: {} iterations, stopped by {:?}; {} candidates scored ({} stopped early by racing, {} fits, {} memo hits). Best fitness {:.5} at C = {}, ε = {}, σ = {}. Per-iteration history: `history.csv`; Figures 7-8: `fig7_min_mae.png`, `fig8_mean_mae.png` (and `.svg`).\n",
-            search.method,
-            search.fitness,
-            search
-                .folds
-                .as_ref()
-                .map(|f| format!(" over {f}"))
-                .unwrap_or_default(),
-            search.iterations,
-            search.stop,
-            search.evaluations,
-            search.raced,
-            search.fits,
-            search.memo_hits,
-            search.best_fitness,
-            search.best.c,
-            search.best.epsilon,
-            search.best.sigma
-        );
+        search_section(&mut s, search);
     }
     let _ = writeln!(s, "## Fit\n");
     let settings = r.settings();

@@ -25,7 +25,8 @@ use serde::{Deserialize, Serialize};
 use super::run::{Kept, Run, Scoring};
 use super::SelectError;
 use crate::model::msvr::{Hyper, Loss, MsvrParams};
-use crate::select::fitness::{self, Dealing, FitnessKind};
+use crate::select::fitness::{self, FitnessKind};
+use crate::select::folds::{self, Dealing};
 use crate::select::tune::{self, Chosen, Pinned, TuneError};
 
 mod krr;
@@ -440,7 +441,7 @@ impl Run<'_> {
             }
         };
         let labels = scored.plan.labels.as_deref();
-        let fold_of = fitness::assign_folds(rows.rows(), folds, seed, labels, Dealing::Shuffled)
+        let fold_of = folds::assign_folds(rows.rows(), folds, seed, labels, Dealing::Shuffled)
             .map_err(TuneError::from)?;
         Ok(fitness::fold_maes(rows, predicted, &fold_of, folds))
     }
