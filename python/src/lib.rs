@@ -15,7 +15,7 @@ use pyo3::exceptions::{PyOSError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyTuple;
 
-use handcap_core::data::{Columns, Dataset};
+use handcap_core::data::{self, Columns, Dataset};
 use handcap_core::model::file::{ModelFile, ModelFileError};
 use handcap_core::model::history::{HistoryChoice, Series};
 use handcap_core::model::inverse::{self, InverseOptions};
@@ -285,15 +285,13 @@ fn fit(
     let groups = per_row(groups, "groups")?;
     let time = per_row(time, "time")?;
     let weights = per_row(weights, "sample_weight")?;
-    if let Some((row, w)) = weights
-        .iter()
-        .flatten()
-        .enumerate()
-        .find(|(_, w)| !(w.is_finite() && **w > 0.0))
-    {
-        return Err(value_error(format!(
-            "row {row}: sample_weight {w}; give every row a finite weight above 0"
-        )));
+    if let Some(w) = &weights {
+        if let Some(row) = data::refused_weight(w) {
+            return Err(value_error(format!(
+                "row {row}: sample_weight {}; give every row a finite weight above 0",
+                w[row]
+            )));
+        }
     }
     let series = time.map(|time| Series {
         time,

@@ -312,16 +312,22 @@ pub fn read_columns_with_lines(
 pub fn read_weights(path: &Path, column: &str) -> Result<Vec<f64>, DataError> {
     let (weights, lines) = read_columns_with_lines(path, &[column.to_string()])?;
     let weights = weights.values;
-    match weights.iter().zip(&lines).find(|(w, _)| **w <= 0.0) {
-        Some((w, &line)) => Err(DataError::Input {
+    match refused_weight(&weights) {
+        Some(i) => Err(DataError::Input {
             path: path.to_path_buf(),
-            line,
+            line: lines[i],
             message: format!(
-                "weight {w} in column `{column}`: give every row a weight above 0 (a row of weight 0 is one to leave out of the file)"
+                "weight {} in column `{column}`: give every row a weight above 0 (a row of weight 0 is one to leave out of the file)",
+                weights[i]
             ),
         }),
         None => Ok(weights),
     }
+}
+
+/// The first row whose weight a fit refuses: not a finite number above 0.
+pub fn refused_weight(weights: &[f64]) -> Option<usize> {
+    weights.iter().position(|w| !(w.is_finite() && *w > 0.0))
 }
 
 /// Every column of a CSV file but those in `skip` (and `flag`) that holds a finite number on

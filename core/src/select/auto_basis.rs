@@ -8,8 +8,7 @@ use faer::Mat;
 use serde::{Deserialize, Serialize};
 
 use super::fitness::{fold_maes, Fitness, FitnessKind};
-use super::folds::FoldPlan;
-use super::folds::{assign_folds, Dealing};
+use super::folds::{assign_folds, Dealing, FoldPlan};
 use super::tune::TuneError;
 use crate::data::Dataset;
 use crate::model::msvr::{Basis, MsvrParams};

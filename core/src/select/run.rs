@@ -11,8 +11,7 @@ use crate::model::interval::Intervals;
 use crate::model::msvr::{self, Basis, Hyper, MsvrParams, MIN_FIT_ROWS};
 use crate::search::{Search, SearchError};
 use crate::select::fitness::FitnessKind;
-use crate::select::folds::Dealing;
-use crate::select::folds::{self, FoldPlan};
+use crate::select::folds::{self, Dealing, FoldPlan};
 use crate::select::tune::{self, BasisChoice, BasisDecision, Chosen, TuneError};
 
 /// One selection under way.
