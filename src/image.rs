@@ -148,7 +148,7 @@ const IJG_CHROMA: [u32; 64] = {
 
 /// The chroma table libjpeg writes at `quality` (1-100) for a baseline file, in its integer
 /// arithmetic (`jpeg_quality_scaling`, `jpeg_add_quant_table`).
-fn ijg_chroma(quality: u8) -> [f64; 64] {
+pub(crate) fn ijg_chroma(quality: u8) -> [f64; 64] {
     let q = u32::from(quality.clamp(1, 100));
     let scale = if q < 50 { 5000 / q } else { 200 - 2 * q };
     IJG_CHROMA.map(|t| f64::from(((t * scale + 50) / 100).clamp(1, 255)))

@@ -76,11 +76,15 @@ const PIXEL_NOISE: f64 = 4.0;
 /// start.
 const BEAD_EXTENT: f64 = 1.5;
 /// Variance (levels²) per sample of the background's G − B below which its slope is shrunk
-/// towards 0: about JPEG's chroma noise at quality 85. Without it the slope follows the bead's
-/// ringing beside a plain wall (beads alone 0.109, 0.116 px RMS at radius 2.5 against 0.091,
-/// 0.098 with it); 10, 100 and 300 measured too (per-frame tip median over nine seeds 0.0510,
-/// 0.0500, 0.0511 mm; 30: 0.0489; the luma alone: 0.0511).
-const HUE_PRIOR: f64 = 30.0;
+/// towards 0, in a file of quality 85: about JPEG's chroma noise there. Without it the slope
+/// follows the bead's ringing beside a plain wall (beads alone 0.109, 0.116 px RMS at radius
+/// 2.5 against 0.091, 0.098 with it); 10, 100 and 300 measured too (per-frame tip median over
+/// nine seeds 0.0510, 0.0500, 0.0511 mm; 30: 0.0489; the luma alone: 0.0511). Other files get
+/// it scaled by their chroma steps' squares (the quantisation noise's variance,
+/// [`hue_prior`]): held at 30 in a finely quantised file it shrank a real slope, and the dark
+/// rim of a shaded tube, which keeps the tube's hue, pulled the bead 0.051 px at quality 100
+/// (0.009 scaled).
+const HUE_PRIOR_Q85: f64 = 30.0;
 /// The blur of the bead's edge the fit starts from (px): a sharp webcam's.
 const START_EDGE_PX: f64 = 0.8;
 
@@ -243,6 +247,8 @@ struct Plane {
     groups: Vec<Group>,
     /// Samples in the window.
     size: usize,
+    /// The shrinkage of the background's G − B slope ([`hue_prior`]).
+    hue_prior: f64,
 }
 
 impl Plane {
@@ -287,6 +293,7 @@ impl Plane {
             recover,
             groups,
             size,
+            hue_prior: hue_prior(sampling),
         }
     }
 
@@ -327,9 +334,9 @@ impl Plane {
                 atb += a * red[(j, i)];
             }
         }
-        // Priors: one level² of luma variance per sample, `HUE_PRIOR` of G − B.
+        // Priors: one level² of luma variance per sample, the file's `hue_prior` of G − B.
         ata[(3, 3)] += ata[(0, 0)];
-        ata[(4, 4)] += ata[(0, 0)] * HUE_PRIOR;
+        ata[(4, 4)] += ata[(0, 0)] * self.hue_prior;
         ata.cholesky().map_or([0.0; 2], |c| {
             let s = c.solve(&atb);
             [s[3], s[4]]
@@ -368,6 +375,15 @@ impl Plane {
         }
         DVector::from_vec(out)
     }
+}
+
+/// [`HUE_PRIOR_Q85`] scaled by the file's chroma quantisation noise against quality 85's: the
+/// sum of its steps' squares over that of libjpeg's table at 85 (a file without quantisation,
+/// PNG, as steps of 1: 30 × 64 / 47 718 ≈ 0.04; quality 95: 3.3).
+fn hue_prior(sampling: &ChromaSampling) -> f64 {
+    let power = |steps: &[f64; 64]| steps.iter().map(|q| q * q).sum::<f64>();
+    let steps = sampling.steps.unwrap_or([1.0; 64]);
+    HUE_PRIOR_Q85 * power(&steps) / power(&crate::image::ijg_chroma(85))
 }
 
 /// The inverse of the Cholesky factor of the quantisation noise's covariance of the samples
@@ -585,11 +601,30 @@ mod tests {
     fn a_shaded_tube_behind_the_bead_pulls_it_less() {
         // The tube's rim is dark but keeps the tube's hue; with the background's redness
         // modelled by its luma alone it reads as red and pulled the bead 0.086 px towards the
-        // tube at quality 100 (0.177 at 85); with its G − B too, 0.051 (0.138). Measured with
-        // a radius of 3.3 px, the demo's.
-        let (_, mean) = placed(3.3, Tube::Shaded, 100);
-        println!("shaded tube, quality 100: mean {mean:.3?} px");
-        assert!(mean[1].abs() <= 0.065, "pulled {mean:?} px");
+        // tube at quality 100 (0.177 at 85); with its G − B too, 0.051 (0.138), and 0.009 at
+        // 100 (0.050 at 95) since the G − B slope's shrinkage follows the file's steps rather
+        // than quality 85's. Measured with a radius of 3.3 px, the demo's.
+        for (quality, limit) in [(100, 0.02), (95, 0.065)] {
+            let (_, mean) = placed(3.3, Tube::Shaded, quality);
+            println!("shaded tube, quality {quality}: mean {mean:.3?} px");
+            assert!(
+                mean[1].abs() <= limit,
+                "quality {quality}: pulled {mean:?} px"
+            );
+        }
+    }
+
+    #[test]
+    fn the_hue_slopes_shrinkage_follows_the_files_chroma_steps() {
+        let at = |quality| {
+            hue_prior(&ChromaSampling {
+                block: [2, 2],
+                steps: Some(crate::image::ijg_chroma(quality)),
+            })
+        };
+        assert_eq!(at(85), HUE_PRIOR_Q85);
+        assert!((at(95) - 3.35).abs() < 0.01, "{}", at(95));
+        assert!(at(100) < 0.05 && hue_prior(&ChromaSampling::FULL) == at(100));
     }
 
     #[test]
