@@ -18,7 +18,8 @@ folds, and its held-out fold errors ‖y − ŷ‖ give the radius:
 
 With `--history` the inputs are followed by exponentially filtered copies of themselves, the
 time constants handcap's history kept on the single splits (the tendon arm: 0.5, 2, 8 steps;
-the soft trunk: 0.1, 0.4, 1.6 s within each ramp), filtered along the whole log.
+the soft trunk: 0.1, 0.4, 1.6 s within each ramp), filtered within each file as
+bench_splits.py filters them (a held-out block's filters start at its first row).
 
 Prints each split's pooled coverage at 90 % and 95 %, their means over the splits, and the
 median radius over the constant one.
@@ -28,20 +29,25 @@ median radius over the constant one.
 
 import os
 import sys
+import tempfile
 
 import numpy as np
 from sklearn.kernel_ridge import KernelRidge
 from sklearn.metrics.pairwise import rbf_kernel
-from sklearn.model_selection import GridSearchCV, GroupKFold, KFold
+from sklearn.model_selection import GridSearchCV
 from sklearn.multioutput import MultiOutputRegressor
 from sklearn.preprocessing import MinMaxScaler
 from sklearn.svm import SVR
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-import bench_peers as bp  # noqa: E402
+from bench_coverage import DATASETS  # noqa: E402
+from bench_peers import SPLIT, cv_folds, ema_features, load, write  # noqa: E402
 
 GAMMAS = list(np.logspace(-1, 2, 7))
 VARIANTS = [("constant", None), ("gpmax75", 0.75), ("gpmax90", 0.9), ("gpmax95", 0.95)]
+# The time constants of the filtered copies with `--history`: those handcap's history kept on
+# each dataset's single split (docs/benchmarks.md), in its time column's units.
+TAUS = {"soft_trunk": [0.1, 0.4, 1.6], "tendon_arm": [0.5, 2, 8]}
 
 
 def posterior_sd(x_train, x, gamma, alpha):
@@ -56,38 +62,22 @@ def conformal(scores, level):
     return np.sort(scores)[min(k, len(scores)) - 1]
 
 
-# Each dataset's time column, its group column, and the time constants of its filtered copies.
-HISTORY = {"tendon arm": ("step", None, [0.5, 2, 8]),
-           "soft trunk": ("t_s", "iteration", [0.1, 0.4, 1.6])}
-
-
-def table(name, history):
-    (header, body) = bp.tendon_arm_rows() if name == "tendon arm" else bp.soft_trunk_rows()
-    (_, ins, outs, _) = bp.TENDON_ARM if name == "tendon arm" else bp.SOFT_TRUNK
-    column = lambda c: np.array([float(r[header.index(c)]) for r in body])
-    x = np.stack([column(c) for c in ins], 1)
-    y = np.stack([column(c) for c in outs], 1)
-    if history:
-        time, group, taus = HISTORY[name]
-        groups = column(group) if group else np.zeros(len(x))
-        x = bp.ema(x, column(time), groups, taus)
-    return x, y, [int(r[0]) for r in body]
-
-
 def splits(history):
-    x, y, _ = table("tendon arm", history)
-    for b in range(5):
-        test = np.arange(200 * b, 200 * b + 200)
-        train = np.setdiff1d(np.arange(len(x)), test)
-        yield "tendon arm", f"steps {200 * b}-{200 * b + 199}", x[train], y[train], x[test], \
-            y[test], list(KFold(5).split(train))
-    x, y, ramp = table("soft trunk", history)
-    ramp = np.array(ramp)
-    for w in range(5):
-        held = np.isin(ramp, range(6 * w, 6 * w + 6))
-        train = np.flatnonzero(~held)[::4]
-        yield "soft trunk", f"ramps {6 * w}-{6 * w + 5}", x[train], y[train], x[held], y[held], \
-            list(GroupKFold(5).split(train, groups=ramp[train]))
+    """(dataset, block, x, y, held-out x, held-out y, folds): bench_coverage.py's blocks and
+    bench_peers.py's folds, the inputs filtered per file with `history` as bench_splits.py
+    filters them."""
+    for name, (blocks, inputs, outputs, time_args) in DATASETS.items():
+        kind, column = SPLIT[name][1]
+        with tempfile.TemporaryDirectory() as work:
+            for label, header, train, test in blocks():
+                paths = [os.path.join(work, f) for f in ("train.csv", "test.csv")]
+                for path, rows in zip(paths, (train, test)):
+                    write(path, header, rows)
+                (x, y), (tx, ty) = (load(p, inputs, outputs) for p in paths)
+                if history:
+                    x, tx = (ema_features(p, inputs, time_args, TAUS[name]) for p in paths)
+                folds, _ = cv_folds(paths[0], kind, column, 2020)
+                yield name, label, x, y, tx, ty, folds
 
 
 def chosen(family, x, y, folds):
@@ -139,7 +129,7 @@ def main():
         print("  ".join(line), flush=True)
     print("| data | radius | coverage at 90 % / 95 %, mean over the splits | median radius / constant |")
     print("|---|---|---|---|")
-    for data in ("tendon arm", "soft trunk"):
+    for data in DATASETS:
         for name, _ in VARIANTS:
             cov = results[(data, name)]
             at = [np.mean([c for lv, c in cov if lv == level]) for level in (0.9, 0.95)]
