@@ -11,8 +11,9 @@ The notes hold out one block of each dataset (the soft trunk's ramps 24-29, the 
 over splits; one split of a time series is a few long runs of correlated rows, and its pooled
 coverage varies from split to split. This holds out each block in turn, fits `handcap model` with
 all defaults on the rest (`--history`: with the time column too), and prints each split's pooled
-coverage at the model's 90 % and 95 % radii, their mean over the splits and their spread, the
-90 % radius over the median test error, and the per-run band (radii calibrated on each held-out
+coverage at the model's 90 % and 95 % radii (each row's, as `handcap predict --interval` writes
+it), their mean over the splits and their spread, the median 90 % radius over the median test
+error, and the per-run band (radii calibrated on each held-out
 run's worst error) with the share of whole test runs inside it.
 
 Splits (from ../shared/realdata, never copied into the repository):
@@ -24,6 +25,7 @@ Splits (from ../shared/realdata, never copied into the repository):
 import argparse
 import csv
 import os
+import subprocess
 import sys
 import tempfile
 
@@ -31,7 +33,7 @@ import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
-from bench_peers import (SOFT_TRUNK, TENDON_ARM, fit_and_predict, soft_trunk_rows,  # noqa: E402
+from bench_peers import (HANDCAP, SOFT_TRUNK, TENDON_ARM, fit_and_predict, soft_trunk_rows,  # noqa: E402
                          tendon_arm_rows, write)
 
 
@@ -64,15 +66,23 @@ def coverage(work, header, train, test, inputs, outputs, extra, run_column):
     radii = [r["radius"] for r in intervals["radii"]]
     band = [r["radius"] for r in intervals.get("runs", {}).get("radii", [])]
     truth = np.array([[float(r[header.index(c)]) for c in outputs] for r in test])
-    with open(os.path.join(work, "pred.csv")) as f:
-        pred = list(csv.DictReader(f))
+    # Each row's radius at each level, as `handcap predict --interval` writes it (wider where
+    # the inputs are far from the training rows).
+    per_row = []
+    for r in intervals["radii"]:
+        subprocess.run([HANDCAP, "predict", "model.json", "test.csv", "--out", "pred.csv",
+                        "--interval", str(r["level"])], cwd=work, check=True,
+                       stdout=subprocess.DEVNULL)
+        with open(os.path.join(work, "pred.csv")) as f:
+            pred = list(csv.DictReader(f))
+        per_row.append(np.array([float(p["interval_radius"]) for p in pred]))
     predicted = np.array([[float(r[c]) for c in outputs] for r in pred])
     error = np.linalg.norm(truth - predicted, axis=1)
     runs = np.array([r[header.index(run_column)] for r in test]) if run_column else np.zeros(len(test))
     worst = np.array([error[runs == g].max() for g in np.unique(runs)])
     inside = [float((worst <= b).mean()) for b in band]
-    return [float((error <= r).mean()) for r in radii], radii, float(np.median(error)), band, \
-        inside, len(worst)
+    return [float((error <= r).mean()) for r in per_row], \
+        [float(np.median(r)) for r in per_row], float(np.median(error)), band, inside, len(worst)
 
 
 def main():

@@ -190,13 +190,24 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
         X = validate_data(self, X, reset=False, dtype=np.float64)
         return self.model_.jacobian(np.ascontiguousarray(X))
 
-    def interval_radius(self, level=0.9):
+    def interval_radius(self, level=0.9, X=None, time=None, groups=None):
         """The conformal interval's radius at `level` (output units): the truth lies within it
         of the prediction that share of the time (marginal over rows like the held-out ones).
         Calibrated on the held-out predictions of the search's folds (or, with C, epsilon and
-        sigma all given and intervals=True, the same kind of folds)."""
+        sigma all given and intervals=True, the same kind of folds).
+
+        The radius widens where the inputs are farther from the training rows than the held-out
+        rows were: without X, the radius where they are not (a number); with X (and `time`,
+        `groups` as `predict` takes them), each row's radius, (n,), as `handcap predict
+        --interval` writes it."""
         check_is_fitted(self)
-        return self.model_.interval_radius(level)
+        if X is None:
+            return self.model_.interval_radius(level)
+        X = validate_data(self, X, reset=False, dtype=np.float64)
+        if time is not None:
+            time = np.ascontiguousarray(time, dtype=np.float64)
+        groups = _labels(groups, X.shape[0])
+        return self.model_.interval_radii(np.ascontiguousarray(X), level, time=time, groups=groups)
 
     def inverse(self, targets, max_kpa=250.0, reach=0.01):
         """(inputs, achieved, error, reached) for each target row, as `handcap inverse`."""

@@ -417,47 +417,13 @@ impl Model {
         time: Option<&Bound<'py, PyAny>>,
         groups: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyArray2<f64>>> {
-        let names = self.given_inputs();
-        let x = array2(x, "X")?;
-        let time = time.map(|t| array1(t, "time")).transpose()?;
-        let groups = groups.map(|g| array1(g, "groups")).transpose()?;
-        let x = x.as_array();
-        check_width(x, &names)?;
-        let given = columns(&names, x);
-        let series = match (self.file.history(), time) {
-            (None, _) => None,
-            (Some(h), None) => {
-                return Err(value_error(format!(
-                    "the model sees its inputs' history: give time= (its `{}` column){}",
-                    h.time,
-                    h.group
-                        .as_ref()
-                        .map_or_else(String::new, |g| format!(" and groups= (its `{g}`)"))
-                )))
-            }
-            (Some(h), Some(t)) => {
-                if h.group.is_some() && groups.is_none() {
-                    return Err(value_error(format!(
-                        "the model's history restarts in each `{}`: give groups=",
-                        h.group.as_deref().unwrap_or_default()
-                    )));
-                }
-                Some(Series {
-                    time: t.as_array().to_vec(),
-                    group: groups.map(|g| g.as_array().to_vec()),
-                })
-            }
-        };
+        let (given, series) = self.given(x, time, groups)?;
         let rows = given.rows();
         let work = || {
-            let features = match (self.file.history(), &series) {
-                (Some(h), Some(s)) => h.features(&given, s).map_err(|e| e.to_string())?,
-                _ => given,
-            };
             self.file
                 .model
                 .predictor()
-                .predict(&features)
+                .predict(&self.features(given, &series)?)
                 .map_err(|e| e.to_string())
         };
         // A few rows (a controller's step) take microseconds: run here, without the thread
@@ -468,6 +434,27 @@ impl Model {
             detached(py, work)?
         };
         Ok(array(&predicted).into_pyarray(py))
+    }
+
+    /// The conformal interval's radius at `level` around the prediction at each row of `x`
+    /// (`time` and `groups` as [`Model::predict`] takes them): wider where the row's inputs
+    /// are farther from the training rows than the held-out rows were.
+    #[pyo3(signature = (x, level, time=None, groups=None))]
+    fn interval_radii<'py>(
+        &self,
+        py: Python<'py>,
+        x: &Bound<'py, PyAny>,
+        level: f64,
+        time: Option<&Bound<'py, PyAny>>,
+        groups: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Bound<'py, PyArray1<f64>>> {
+        let (given, series) = self.given(x, time, groups)?;
+        let features = self.features(given, &series).map_err(value_error)?;
+        let radii = self
+            .file
+            .interval_radii(level, &features)
+            .map_err(value_error)?;
+        Ok(radii.radii.into_pyarray(py))
     }
 
     /// ∂outputs/∂inputs at each row of `x` (rows × inputs): `(rows, outputs, inputs)`. A
@@ -666,6 +653,58 @@ impl Model {
     /// fitted without held-out rows (every hyper-parameter given).
     fn interval_radius(&self, level: f64) -> PyResult<f64> {
         self.file.interval_radius(level).map_err(value_error)
+    }
+}
+
+impl Model {
+    /// The inputs of `x` as the model's columns, with each row's time and group when the
+    /// model sees its inputs' history.
+    fn given(
+        &self,
+        x: &Bound<'_, PyAny>,
+        time: Option<&Bound<'_, PyAny>>,
+        groups: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<(Columns, Option<Series>)> {
+        let names = self.given_inputs();
+        let x = array2(x, "X")?;
+        let time = time.map(|t| array1(t, "time")).transpose()?;
+        let groups = groups.map(|g| array1(g, "groups")).transpose()?;
+        let x = x.as_array();
+        check_width(x, &names)?;
+        let given = columns(&names, x);
+        let series = match (self.file.history(), time) {
+            (None, _) => None,
+            (Some(h), None) => {
+                return Err(value_error(format!(
+                    "the model sees its inputs' history: give time= (its `{}` column){}",
+                    h.time,
+                    h.group
+                        .as_ref()
+                        .map_or_else(String::new, |g| format!(" and groups= (its `{g}`)"))
+                )))
+            }
+            (Some(h), Some(t)) => {
+                if h.group.is_some() && groups.is_none() {
+                    return Err(value_error(format!(
+                        "the model's history restarts in each `{}`: give groups=",
+                        h.group.as_deref().unwrap_or_default()
+                    )));
+                }
+                Some(Series {
+                    time: t.as_array().to_vec(),
+                    group: groups.map(|g| g.as_array().to_vec()),
+                })
+            }
+        };
+        Ok((given, series))
+    }
+
+    /// The model's own inputs of `given`: its history's features built along `series`.
+    fn features(&self, given: Columns, series: &Option<Series>) -> Result<Columns, String> {
+        match (self.file.history(), series) {
+            (Some(h), Some(s)) => h.features(&given, s).map_err(|e| e.to_string()),
+            _ => Ok(given),
+        }
     }
 }
 

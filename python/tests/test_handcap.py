@@ -117,9 +117,14 @@ def test_the_interval_radius_covers_fresh_rows_at_its_level():
     xf, yf = smooth(2000, 13)
     error = np.linalg.norm(model.predict(xf) - yf, axis=1)
     for level in (0.9, 0.95):
-        r = model.interval_radius(level)
-        assert abs((error <= r).mean() - level) < 0.05, (level, r, (error <= r).mean())
+        r = model.interval_radius(level, xf)
+        assert abs((error <= r).mean() - level) < 0.05, (level, (error <= r).mean())
     assert model.interval_radius(0.95) > model.interval_radius(0.9) > 0
+    # Each row's radius: the radius itself among the training rows, wider far from them.
+    radii = model.interval_radius(0.9, np.vstack([xf[:50], xf[:5] + 400.0]))
+    assert np.median(radii[:50]) == model.interval_radius(0.9)
+    assert (radii[:50] >= model.interval_radius(0.9)).all()
+    assert (radii[50:] > 1.5 * model.interval_radius(0.9)).all(), radii[50:]
     with pytest.raises(ValueError, match="strictly between 0 and 1"):
         model.interval_radius(1.5)
     # Every hyper-parameter given: no search made held-out predictions, so intervals cost one
@@ -127,8 +132,8 @@ def test_the_interval_radius_covers_fresh_rows_at_its_level():
     # parameters fit 4/5 of the rows worse than all of them, so the radius errs wide).
     fixed = handcap.MSVRRegressor(**FIXED, intervals=True).fit(x, y)
     error = np.linalg.norm(fixed.predict(xf) - yf, axis=1)
-    r = fixed.interval_radius(0.9)
-    assert (error <= r).mean() > 0.9 - 0.05, (r, (error <= r).mean())
+    r = fixed.interval_radius(0.9, xf)
+    assert (error <= r).mean() > 0.9 - 0.05, (error <= r).mean()
     # Without: the same model (no held-out fit touches it), and one line saying how to get them.
     bare = handcap.MSVRRegressor(**FIXED).fit(x, y)
     np.testing.assert_array_equal(bare.predict(xf), fixed.predict(xf))
@@ -432,6 +437,10 @@ def test_python_fits_history_models_as_the_command_line_does(tmp_path):
                                rtol=1e-12, atol=1e-12)
     # The search's held-out predictions gave the intervals, at no further fit.
     assert model.interval_radius(0.9) == pytest.approx(cli.interval_radius(0.9), rel=1e-12)
+    np.testing.assert_allclose(
+        model.interval_radius(0.9, x, time=time, groups=groups),
+        cli.interval_radii(x.to_numpy(), 0.9, time=time, groups=groups.astype(float)),
+        rtol=1e-12)
 
 
 def test_bad_time_series_raise_value_error_naming_the_row():

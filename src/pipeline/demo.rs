@@ -22,7 +22,9 @@ use std::time::Instant;
 use nalgebra::Vector3;
 use rand::{Rng, SeedableRng};
 
-use super::demo_checks::{check_calibration, check_tips, feedforward, inverse_stats};
+use super::demo_checks::{
+    check_calibration, check_tips, feedforward, inverse_stats, planned_radii,
+};
 use super::demo_plan::{job, with_defaults, Plan};
 use super::demo_summary::{
     CalibrationCheck, IntervalCheck, InverseCheck, Score, Summary, TipCheck,
@@ -444,7 +446,7 @@ impl<'a> Demo<'a> {
                 plan.grid_step_kpa
             ),
             &planned,
-            file.interval_radius(0.9).ok(),
+            planned_radii(&file, &planned),
         )];
         if let (Some(step), Some(coarse)) = (plan.search_grid_kpa, coarse) {
             // The same check with the same parameters fitted on the coarse grid alone: what the

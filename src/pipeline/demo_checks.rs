@@ -9,7 +9,9 @@ use super::demo_summary::{CalibrationCheck, CameraCheck, CamerasCheck, InverseCh
 use super::PipelineError;
 use crate::calib::file::CalibrationFile;
 use crate::calib::StereoCalibration;
-use crate::data::{self, names};
+use crate::data::{self, names, Columns};
+use crate::model::file::ModelFile;
+use crate::model::interval::RowRadii;
 use crate::model::inverse::{self, InverseOptions, PlannedTarget};
 use crate::model::Differentiable;
 use crate::synth::plant::Plant;
@@ -29,12 +31,24 @@ pub(super) fn feedforward(
     )?)
 }
 
-/// `radius`: the model's 90 % interval radius, whose coverage of the plant's tips around the
-/// model's is measured.
+/// The 90 % interval radius of `file`'s model (a static one: its inputs the commands) around
+/// each planned tip; `None` when it has no intervals.
+pub(super) fn planned_radii(file: &ModelFile, rows: &[PlannedTarget]) -> Option<RowRadii> {
+    let inputs = Columns::new(
+        file.model.predictor().inputs().to_vec(),
+        rows.iter()
+            .flat_map(|t| t.solution.inputs.clone())
+            .collect(),
+    );
+    file.interval_radii(0.9, &inputs).ok()
+}
+
+/// `radii`: the model's 90 % interval radius around each planned tip, whose coverage of the
+/// plant's tips around the model's is measured.
 pub(super) fn inverse_stats(
     model: &str,
     rows: &[PlannedTarget],
-    radius: Option<f64>,
+    radii: Option<RowRadii>,
 ) -> InverseCheck {
     let mut e: Vec<f64> = rows.iter().map(|r| r.plant_error).collect();
     let [median_mm, p90_mm, max_mm] =
@@ -47,20 +61,21 @@ pub(super) fn inverse_stats(
         median_mm,
         p90_mm,
         max_mm,
-        interval: radius.map(|r| {
+        interval: radii.map(|r| {
             let within = rows
                 .iter()
-                .filter(|t| {
+                .zip(&r.radii)
+                .filter(|(t, radius)| {
                     let d2: f64 = t
                         .plant
                         .iter()
                         .zip(&t.solution.achieved)
                         .map(|(a, b)| (a - b).powi(2))
                         .sum();
-                    d2.sqrt() <= r
+                    d2.sqrt() <= **radius
                 })
                 .count();
-            (r, within as f64 / rows.len() as f64)
+            (r.radius, within as f64 / rows.len() as f64)
         }),
     }
 }

@@ -25,7 +25,7 @@ use serde::{Deserialize, Serialize};
 use crate::data::{self, Columns, DataError};
 use crate::fsio;
 use crate::model::history::{History, HistoryDecision, Memory, SteadyState};
-use crate::model::interval::{IntervalError, Intervals};
+use crate::model::interval::{IntervalError, Intervals, RowRadii, Widener};
 use crate::model::Predict;
 pub use crate::model::StoredModel;
 use crate::provenance::Provenance;
@@ -127,6 +127,30 @@ impl ModelFile {
             Some(i) => i.radius(level),
             None => Err(IntervalError::Missing),
         }
+    }
+
+    /// The prediction interval's radius at `level` around the prediction at each row of
+    /// `inputs` (the model's inputs: its features, with history).
+    ///
+    /// # Errors
+    /// As [`ModelFile::interval_radius`], and a widening its centres do not give.
+    pub fn interval_radii(&self, level: f64, inputs: &Columns) -> Result<RowRadii, IntervalError> {
+        match &self.intervals {
+            Some(i) => i.radii_at(level, inputs),
+            None => Err(IntervalError::Missing),
+        }
+    }
+
+    /// What computes the interval's widening factor at the model's inputs; `None` when its
+    /// radius is the same everywhere (or it has no intervals).
+    ///
+    /// # Errors
+    /// A widening its centres do not give.
+    pub fn interval_widener(&self) -> Result<Option<Widener>, IntervalError> {
+        Ok(match &self.intervals {
+            Some(i) => i.widener()?,
+            None => None,
+        })
     }
 
     /// The input history the model was fitted on, if any.
@@ -263,7 +287,7 @@ impl ModelFile {
             }
         }
         if let Some(intervals) = &self.intervals {
-            intervals.validate()?;
+            intervals.validate(model.inputs().len())?;
         }
         Ok(())
     }

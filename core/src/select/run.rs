@@ -538,10 +538,16 @@ impl Run<'_> {
             Some(_) => Dealing::Consecutive,
             None => Dealing::Shuffled,
         };
+        let seed = self.plan.seed().unwrap_or(crate::DEFAULT_SEED);
         let intervals = match (&chosen.held_out, self.search_on) {
-            (Some(predicted), None) if dealing(&scored) == Dealing::Shuffled => {
-                tune::intervals(&scored.scored, &scored.plan, Dealing::Shuffled, predicted)
-            }
+            (Some(predicted), None) if dealing(&scored) == Dealing::Shuffled => tune::intervals(
+                &scored.scored,
+                &scored.plan,
+                Dealing::Shuffled,
+                seed,
+                &chosen.params,
+                predicted,
+            )?,
             _ if !self.plan.intervals && chosen.search.is_none() => {
                 self.listener.note(format!(
                     "prediction intervals: none (no held-out predictions were made on the way; intervals=true makes them: {folds} more fits)"
@@ -560,7 +566,6 @@ impl Run<'_> {
                         training.scoring_with(&present, kept)?
                     }
                 };
-                let seed = self.plan.seed().unwrap_or(crate::DEFAULT_SEED);
                 let predicted = tune::held_out_predictions(
                     &on.scored,
                     seed,
@@ -568,7 +573,14 @@ impl Run<'_> {
                     dealing(&on),
                     &chosen.params,
                 )?;
-                tune::intervals(&on.scored, &on.plan, dealing(&on), &predicted)
+                tune::intervals(
+                    &on.scored,
+                    &on.plan,
+                    dealing(&on),
+                    seed,
+                    &chosen.params,
+                    &predicted,
+                )?
             }
         };
         let c = &intervals.held_out;

@@ -23,7 +23,7 @@ pub use super::auto_basis::{
 use super::fitness::{Counters, Fitness, FitnessError, FitnessKind};
 use super::folds::{Dealing, FoldChoice, FoldPlan};
 use crate::data::Dataset;
-use crate::model::interval::Intervals;
+use crate::model::interval::{Intervals, Widening};
 use crate::model::msvr::{kernel, Basis, Hyper, MinMaxScaler, MsvrParams};
 use crate::search::{
     Method, Observer, Point, Search, SearchError, SearchResult, SearchSpace, SearchStop,
@@ -38,6 +38,8 @@ pub enum TuneError {
     Folds(#[from] FitnessError),
     #[error(transparent)]
     Msvr(#[from] crate::model::msvr::MsvrError),
+    #[error("prediction intervals: {0}")]
+    Widening(String),
 }
 
 /// What the model file records of the search that chose its parameters.
@@ -300,19 +302,37 @@ pub fn held_out_predictions(
 }
 
 /// Conformal prediction intervals from held-out predictions of `data`'s rows (rows × outputs,
-/// cut by `folds`, their groups dealt as `dealing` says).
+/// cut by `folds`, their groups dealt as `dealing` says, shuffled with `seed`), widening off
+/// the training rows with the kernel and C of `params`.
+///
+/// # Errors
+/// [`TuneError`] when the folds cannot be cut again or give no widening.
 pub fn intervals(
     data: &Dataset,
     folds: &FoldPlan,
     dealing: Dealing,
+    seed: u64,
+    params: &MsvrParams,
     predicted: &Mat<f64>,
-) -> Intervals {
+) -> Result<Intervals, TuneError> {
     let predicted = crate::model::msvr::to_columns(data.outputs.names.clone(), predicted.as_ref());
     let mut choice = folds.choice.clone();
     if dealing == Dealing::Consecutive {
         choice.reason += "; for the intervals, each fold a block of consecutive runs";
     }
-    Intervals::calibrate(&data.outputs, &predicted, folds.labels.as_deref(), choice)
+    let labels = folds.labels.as_deref();
+    let fold_of =
+        crate::select::folds::assign_folds(data.rows(), folds.folds, seed, labels, dealing)?;
+    let h = params.hyper();
+    let widening = Widening::calibrate(&data.inputs, &fold_of, h.sigma, h.c, seed)
+        .map_err(TuneError::Widening)?;
+    Ok(Intervals::calibrate(
+        &data.outputs,
+        &predicted,
+        labels,
+        choice,
+        Some(widening),
+    ))
 }
 
 /// How [`choose`] picks a fit's (C, ε, σ) and basis on rows scored by cross-validation.

@@ -15,7 +15,8 @@ pub struct Args {
     #[arg(long)]
     out: PathBuf,
     /// Also write `interval_radius`: the radius (output units) of the sphere around each
-    /// prediction that holds the truth this share of the time (conformal, e.g. 0.9)
+    /// prediction that holds the truth this share of the time (conformal, e.g. 0.9; wider
+    /// where the row's inputs are far from the training rows)
     #[arg(long, value_name = "LEVEL", allow_hyphen_values = true, value_parser = super::level)]
     interval: Option<f64>,
 }

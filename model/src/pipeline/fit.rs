@@ -385,11 +385,14 @@ fn score(job: &FitJob, selected: &Selected, tests: &[Table]) -> Result<Scored, P
                 coverage.push(TestCoverageReport {
                     test: name.clone(),
                     column: labels.as_ref().and(group_column.clone()),
-                    coverage: i.test(
-                        &test.outputs,
-                        &predicted,
-                        labels.as_ref().map(|l| l.values.as_slice()),
-                    ),
+                    coverage: i
+                        .test(
+                            &test.outputs,
+                            &predicted,
+                            &test.inputs,
+                            labels.as_ref().map(|l| l.values.as_slice()),
+                        )
+                        .map_err(|e| PipelineError::Input(format!("{name}: {e}")))?,
                 });
             }
             results.push(TestResult {
@@ -450,6 +453,7 @@ impl Scored {
             tests: self.tests.clone(),
             intervals: selected.intervals.as_ref().map(|i| IntervalReport {
                 held_out: i.held_out.clone(),
+                widens: i.widening.is_some(),
                 tests: self.coverage.clone(),
             }),
             provenance,

@@ -11,8 +11,10 @@ use super::PipelineError;
 use crate::data::{self, Columns};
 use crate::hand::MAX_PRESSURE_KPA;
 use crate::model::file::ModelFile;
+use crate::model::history::SteadyState;
+use crate::model::interval::RowRadii;
 use crate::model::inverse::{self, InverseOptions, InverseSolution, PlannedTarget};
-use crate::model::Differentiable;
+use crate::model::{Differentiable, Predict};
 
 /// Where the inverse may look, and when a target counts as reached.
 #[derive(Clone, Copy, Debug)]
@@ -128,15 +130,14 @@ pub fn plan_targets(job: &Targets) -> Result<PlannedTargets, PipelineError> {
     let (steady, mut notes) = steady_state(&file);
     let model: &dyn Differentiable = &steady;
     let options = job.limits.options(model)?;
-    let radius = interval_radius(&file, job.level, &mut notes);
     let targets = data::read_columns(job.targets, model.outputs())?;
     let solutions: Vec<InverseSolution> = targets
         .iter_rows()
         .map(|t| inverse::solve(model, t, &options))
         .collect::<Result<_, _>>()?;
     let planned = solution_columns(model, &solutions);
-    let interval =
-        radius.map(|r| Columns::new(vec!["interval_radius".into()], vec![r; solutions.len()]));
+    let interval = interval_radii(&file, &steady, &solutions, job.level, &mut notes)
+        .map(|r| Columns::new(vec!["interval_radius".into()], r.radii));
     let mut blocks: Vec<&Columns> = std::iter::once(&targets).chain(&planned).collect();
     blocks.extend(&interval);
     data::write_csv(job.out, &blocks)?;
@@ -192,7 +193,14 @@ pub fn plan_one(
     let model: &dyn Differentiable = &steady;
     let options = limits.options(model)?;
     let solution = inverse::solve(model, target, &options)?;
-    let interval = level.zip(interval_radius(&file, level, &mut notes));
+    let interval = interval_radii(
+        &file,
+        &steady,
+        std::slice::from_ref(&solution),
+        level,
+        &mut notes,
+    )
+    .map(|r| (r.level, r.radii[0]));
     Ok(PlannedOne {
         solution,
         target: target.to_vec(),
@@ -240,7 +248,7 @@ impl fmt::Display for PlannedOne {
         if let Some((level, r)) = self.interval {
             writeln!(
                 f,
-                "the real tip lies within {r:.4} of it {} % of the time (conformal interval, marginal over inputs like the held-out ones)",
+                "the real tip lies within {r:.4} of it {} % of the time (conformal interval, marginal over inputs like the held-out ones, wider where the inputs are far from the training rows)",
                 level * 100.0
             )?;
         }
@@ -248,14 +256,21 @@ impl fmt::Display for PlannedOne {
     }
 }
 
-/// The model's conformal radius at `level` around each planned tip (a conformal radius is the
-/// same for every input); `None` without a level, or with a note saying why there is none.
-pub fn interval_radius(
+/// The model's conformal radius at `level` around the tip of each solution (planned by
+/// `steady`, the file's model at rest); `None` without a level, or with a note saying why
+/// there is none.
+fn interval_radii(
     file: &ModelFile,
+    steady: &SteadyState,
+    solutions: &[InverseSolution],
     level: Option<f64>,
     notes: &mut Vec<String>,
-) -> Option<f64> {
-    match file.interval_radius(level?) {
+) -> Option<RowRadii> {
+    let planned = Columns::new(
+        steady.inputs().to_vec(),
+        solutions.iter().flat_map(|s| s.inputs.clone()).collect(),
+    );
+    match file.interval_radii(level?, &steady.features(&planned)) {
         Ok(r) => Some(r),
         Err(e) => {
             notes.push(format!("no interval around the planned tips: {e}"));

@@ -78,9 +78,14 @@ pub fn run(watch: &Watch, provenance: Provenance) -> Result<Watched, PipelineErr
         .collect();
     outputs::check(&[watch.session, watch.model], &files)?;
     let replay = Replay::read(watch)?;
+    // The band follows the errors over their rows' widening factors, as the radius was
+    // calibrated.
+    let widened: Vec<f64> = (replay.errors.iter().zip(&replay.factors))
+        .map(|(e, d)| e / d)
+        .collect();
     let errors = monitor::Series {
         times: &replay.times,
-        values: &replay.errors,
+        values: &widened,
     };
     let geometry = replay
         .geometry
@@ -234,6 +239,9 @@ pub struct Replay {
     pub measured: Columns,
     /// The distance from each prediction to its measured tip.
     pub errors: Vec<f64>,
+    /// Each row's widening factor of the radius (1 where the model's radius is the same
+    /// everywhere): the band around a row is the online band times it.
+    pub factors: Vec<f64>,
     /// Every row's time and reprojection residual (px; +∞ where the views disagreed), when
     /// the rows have residuals.
     pub geometry: Option<Samples>,
@@ -254,6 +262,10 @@ impl Replay {
         let predictor = file.model.predictor();
         let (_, x) = file.read_inputs(watch.session)?;
         let predicted = predictor.predict(&x)?;
+        let factors = file
+            .interval_widener()
+            .map_err(|e| PipelineError::Input(format!("{}: {e}", watch.model.display())))?
+            .map_or_else(|| vec![1.0; x.rows()], |w| w.factors(&x));
         let measured = data::read_columns(watch.session, predictor.outputs())?;
         let time = match (watch.time, file.history()) {
             (Some(t), _) => t.to_string(),
@@ -292,6 +304,7 @@ impl Replay {
             predicted,
             measured,
             errors,
+            factors,
             geometry,
             scene,
             radius,
@@ -337,7 +350,7 @@ impl Replay {
             record.extend(self.measured.row(i).iter().map(|&v| number(v)));
             record.extend([
                 number(self.errors[i]),
-                number(row.band),
+                number(row.band * self.factors[i]),
                 u8::from(row.covered).to_string(),
                 number(row.model_stat),
                 row.response_stat.map_or_else(String::new, number),
@@ -462,7 +475,7 @@ fn write_figure(
         },
         Series {
             label: format!("online band ({} %)", 100.0 * level),
-            points: at(&|i| monitored.rows[i].band),
+            points: at(&|i| monitored.rows[i].band * replay.factors[i]),
             mark: Mark::Line,
             colour: 1,
         },

@@ -8,19 +8,20 @@ use super::outputs::{self, Output};
 use super::PipelineError;
 use crate::data::{self, Columns};
 use crate::model::file::ModelFile;
+use crate::model::interval::RowRadii;
 
 /// What [`run`] wrote.
 pub struct Predicted {
     pub out: PathBuf,
     pub rows: usize,
-    /// The interval's level and radius, when asked.
-    pub interval: Option<(f64, f64)>,
+    /// The interval's radii, when asked.
+    pub interval: Option<RowRadii>,
     /// Rows outside the training range, said when there are some.
     pub warning: Option<String>,
 }
 
 /// Writes `out`: the inputs of `inputs` (and the columns beside them) with the model's
-/// outputs, and `interval_radius` at `level`.
+/// outputs, and each row's `interval_radius` at `level`.
 ///
 /// # Errors
 /// An output that would replace an input, an unreadable model or inputs file, a model without
@@ -33,10 +34,10 @@ pub fn run(
 ) -> Result<Predicted, PipelineError> {
     outputs::check(&[model, inputs], &[Output::new(out, "the predictions")])?;
     let file = ModelFile::load(model)?;
-    let radius = level
-        .map(|level| file.interval_radius(level))
-        .transpose()
-        .map_err(|e| PipelineError::Input(format!("{}: interval: {e}", model.display())))?;
+    let interval_error = |e| PipelineError::Input(format!("{}: interval: {e}", model.display()));
+    if let Some(level) = level {
+        file.interval_radius(level).map_err(interval_error)?;
+    }
     let predictor = file.model.predictor();
     let (given, x) = file.read_inputs(inputs)?;
     let outside = predictor.outside(&x);
@@ -52,14 +53,20 @@ pub fn run(
         _ => None,
     };
     let y = predictor.predict(&x)?;
-    let interval = radius.map(|r| Columns::new(vec!["interval_radius".into()], vec![r; x.rows()]));
+    let interval = level
+        .map(|level| file.interval_radii(level, &x))
+        .transpose()
+        .map_err(interval_error)?;
+    let column = interval
+        .as_ref()
+        .map(|i| Columns::new(vec!["interval_radius".into()], i.radii.clone()));
     let mut blocks = vec![&given, &y];
-    blocks.extend(&interval);
+    blocks.extend(&column);
     data::write_csv(out, &blocks)?;
     Ok(Predicted {
         out: out.to_path_buf(),
         rows: x.rows(),
-        interval: level.zip(radius),
+        interval,
         warning,
     })
 }
@@ -67,8 +74,8 @@ pub fn run(
 impl fmt::Display for Predicted {
     fn fmt(&self, f: &mut fmt::Formatter) -> fmt::Result {
         write!(f, "wrote {} ({} rows", self.out.display(), self.rows)?;
-        if let Some((level, r)) = self.interval {
-            write!(f, "; {} % interval radius {r:.4}, the same for every row: marginal coverage over rows like the held-out ones", level * 100.0)?;
+        if let Some(interval) = &self.interval {
+            write!(f, "; {interval}")?;
         }
         write!(f, ")")
     }

@@ -205,9 +205,16 @@ pub(super) fn intervals_section(report: &IntervalReport) -> String {
             .collect::<Vec<_>>()
             .join(", ")
     );
+    if report.widens {
+        let _ = writeln!(
+            s,
+            "These are the radii where the inputs are as near the training rows as nine held-out rows in ten were; farther from them the radius widens by the spread of a Gaussian process with the model's kernel (conditioned on the training rows) over that of those rows, and `predict` writes each row's.
+"
+        );
+    }
     let _ = writeln!(
         s,
-        "The guarantee is marginal: over new rows exchangeable with the held-out ones, at least that share falls within the radius. It is not a promise for each input or each run; the radius is the same everywhere, and a run unlike the training runs (another day, a drifted actuator) can fall outside more often. The coverage per group below shows where.
+        "The guarantee is marginal: over new rows exchangeable with the held-out ones, at least that share falls within the radius. It is not a promise for each input or each run: a run unlike the training runs (another day, a drifted actuator) can fall outside more often. The coverage per group below shows where.
 "
     );
     if let Some(band) = &i.runs {

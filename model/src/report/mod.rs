@@ -92,6 +92,9 @@ impl ModelReport {
 pub struct IntervalReport {
     #[serde(flatten)]
     pub held_out: HeldOut,
+    /// Whether the radius widens off the training rows (files before it: the same radius
+    /// everywhere).
+    pub widens: bool,
     pub tests: Vec<TestCoverageReport>,
 }
 

@@ -15,6 +15,7 @@ use serde::Serialize;
 use crate::data::Columns;
 use crate::model::file::ModelFile;
 use crate::model::history::Running;
+use crate::model::interval::Widener;
 use crate::monitor::{Alarm, Monitor, Settings};
 use crate::pipeline::monitor::{self as watch_files, Replay, Watched};
 use crate::provenance::Provenance;
@@ -34,6 +35,8 @@ pub struct Watching {
     pub path: PathBuf,
     file: std::sync::Arc<ModelFile>,
     radius: f64,
+    /// The radius' widening off the training rows, when the model's radius widens.
+    widener: Option<Widener>,
     pub settings: Settings,
 }
 
@@ -52,6 +55,9 @@ impl Watching {
         let radius = file.interval_radius(settings.level).map_err(|e| {
             format!("{name}: interval: {e}; the monitor needs a model fitted with --intervals")
         })?;
+        let widener = file
+            .interval_widener()
+            .map_err(|e| format!("{name}: {e}"))?;
         let predictor = file.model.predictor();
         let inputs = file.history().map_or(predictor.inputs(), |h| &h.inputs[..]);
         if inputs != PRESSURE_COLUMNS || predictor.outputs() != TIP_COLUMNS {
@@ -67,6 +73,7 @@ impl Watching {
             path: path.to_path_buf(),
             file: std::sync::Arc::new(file),
             radius,
+            widener,
             settings,
         })
     }
@@ -146,6 +153,7 @@ impl Trust {
                 predicted: columns(""),
                 measured: columns(""),
                 errors: Vec::new(),
+                factors: Vec::new(),
                 geometry: Some((Vec::new(), Vec::new())),
                 scene: Vec::new(),
                 radius: watching.radius,
@@ -208,16 +216,20 @@ impl Trust {
             let mut predicted = [0.0; 3];
             file.model.predictor().predict_row(&x, &mut predicted);
             let error = (Vector3::from(predicted) - measured).norm();
+            let factor = (self.watching.widener.as_ref()).map_or(1.0, |w| w.factor(&x));
             let response = self.monitor.outputs(t, &predicted, measured.as_slice());
             said.extend(response.map(|a| a.to_string()));
-            let (seen, alarm) = self.monitor.error(t, error);
+            // The band follows the error over the row's widening factor, as the radius was
+            // calibrated.
+            let (seen, alarm) = self.monitor.error(t, error / factor);
             said.extend(alarm.map(|a| a.to_string()));
             self.replay.times.push(t);
             self.inputs.push(command);
             self.replay.predicted.values.extend(predicted);
             self.replay.measured.values.extend(measured.iter());
             self.replay.errors.push(error);
-            self.page.points.push([t, error, seen.band]);
+            self.replay.factors.push(factor);
+            self.page.points.push([t, error, seen.band * factor]);
             self.page.finger_stat = seen.model_stat;
             self.page.camera_stat = seen.geometry_stat;
             self.page.response_stat = seen.response_stat;

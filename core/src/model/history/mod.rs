@@ -533,6 +533,17 @@ impl<'a> SteadyState<'a> {
             copies: 1 + history.memory.blocks(),
         }
     }
+
+    /// The model's own inputs at rows of present inputs `x`: each row with its filters and
+    /// lags equal to it.
+    pub fn features(&self, x: &Columns) -> Columns {
+        Columns::new(
+            self.model.inputs().to_vec(),
+            x.iter_rows()
+                .flat_map(|row| row.repeat(self.copies))
+                .collect(),
+        )
+    }
 }
 
 impl Predict for SteadyState<'_> {
