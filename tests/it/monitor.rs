@@ -110,6 +110,16 @@ fn a_softer_finger_and_a_tilted_camera_each_raise_their_own_alarm_and_nothing_el
             }
         }
     }
+    // Each row's band is the online band times the row's widening factor (the model's radius
+    // widens off its training rows), and a row counts as covered when its error lies within
+    // it: the errors the band tracked were scaled as the band is.
+    let rows = csv_rows(&d.join("soft_watch/monitor.csv"));
+    for r in &rows {
+        let (e, band): (f64, f64) = (r["error"].parse().unwrap(), r["band"].parse().unwrap());
+        if (e - band).abs() > 1e-9 * band {
+            assert_eq!(r["covered"] == "1", e < band, "{r:?}");
+        }
+    }
     // monitor.csv: a row per session row, the alarm on the row it was raised at.
     let rows = csv_rows(&d.join("tilt_watch/monitor.csv"));
     let raised: Vec<&str> = rows
