@@ -4,11 +4,10 @@
 
 use std::sync::atomic::AtomicBool;
 
-use faer::Mat;
 use serde::{Deserialize, Serialize};
 
-use super::fitness::{fold_maes, Fitness, FitnessKind};
-use super::folds::{assign_folds, Dealing, FoldPlan};
+use super::fitness::{Fitness, FitnessKind, HeldOutRows};
+use super::folds::FoldPlan;
 use super::tune::TuneError;
 use crate::data::Dataset;
 use crate::model::msvr::{Basis, MsvrParams};
@@ -144,23 +143,15 @@ pub fn grow_basis(
     folds: &FoldPlan,
     solver: &MsvrParams,
     interrupt: &AtomicBool,
-) -> Result<(BasisDecision, Option<Mat<f64>>), TuneError> {
+) -> Result<(BasisDecision, Option<HeldOutRows>), TuneError> {
     let Basis::Reduced { centres, seed } = start.basis else {
         return Ok((start, None));
     };
     let limit = AUTO_MAX_CENTRES.min(data.rows() / 2).max(centres);
     let labels = folds.labels.as_deref();
-    // The folds the scorer cuts, for each size's errors fold by fold (none: no folds).
-    let fold_of = match fitness {
-        FitnessKind::Cv { folds } => Some((
-            assign_folds(data.rows(), folds, seed, labels, Dealing::Shuffled)?,
-            folds,
-        )),
-        FitnessKind::Train => None,
-    };
     // A size's score and held-out predictions (for the intervals of the one chosen, and the
     // paired fold differences between sizes).
-    let score = |m: usize| -> Result<(BasisTrial, Option<Mat<f64>>), TuneError> {
+    let score = |m: usize| -> Result<(BasisTrial, Option<HeldOutRows>), TuneError> {
         let params = solver.basis(Basis::Reduced { centres: m, seed });
         let scorer = Fitness::new(data, fitness, seed, labels, &params)?;
         let fitness = scorer.evaluate(&[solver.hyper()], f64::INFINITY)[0];
@@ -173,12 +164,9 @@ pub fn grow_basis(
     };
     // The standard error of the paired fold differences of two sizes' held-out predictions
     // (0 without folds).
-    let se = |a: &Option<Mat<f64>>, b: &Option<Mat<f64>>| match (a, b, &fold_of) {
-        (Some(a), Some(b), Some((fold_of, k))) => {
-            let ((a, values), (b, _)) = (
-                fold_maes(data, a, fold_of, *k),
-                fold_maes(data, b, fold_of, *k),
-            );
+    let se = |a: &Option<HeldOutRows>, b: &Option<HeldOutRows>| match (a, b) {
+        (Some(a), Some(b)) => {
+            let ((a, values), (b, _)) = (a.fold_maes(data), b.fold_maes(data));
             crate::stats::paired_difference(&a, &b, &values).1
         }
         _ => 0.0,

@@ -100,24 +100,32 @@ enum PerSigma {
     },
 }
 
-/// Each fold's MAE of `predicted` (rows × outputs: every row's prediction by the model fitted
-/// without its fold) against `data`'s outputs, and each fold's held-out values; `fold_of` as
-/// [`assign_folds`] gives it, over `folds` folds.
-pub fn fold_maes(
-    data: &Dataset,
-    predicted: &Mat<f64>,
-    fold_of: &[usize],
-    folds: usize,
-) -> (Vec<f64>, Vec<usize>) {
-    let (mut sum, mut count) = (vec![0.0; folds], vec![0usize; folds]);
-    for (i, y) in data.outputs.iter_rows().enumerate() {
-        for (j, v) in y.iter().enumerate() {
-            sum[fold_of[i]] += (v - predicted[(i, j)]).abs();
-            count[fold_of[i]] += 1;
+/// Every row's prediction by the model fitted without its fold, and each row's fold: the
+/// out-of-fold predictions of one tuple (for conformal intervals and paired fold differences).
+#[derive(Clone, Debug)]
+pub struct HeldOutRows {
+    /// Rows × outputs, in the data's row order.
+    pub predicted: Mat<f64>,
+    /// Each row's fold.
+    pub fold_of: Vec<usize>,
+}
+
+impl HeldOutRows {
+    /// Each fold's MAE against `data`'s outputs (the rows predicted), and each fold's held-out
+    /// values.
+    pub fn fold_maes(&self, data: &Dataset) -> (Vec<f64>, Vec<usize>) {
+        let folds = self.fold_of.iter().max().map_or(0, |f| f + 1);
+        let (mut sum, mut count) = (vec![0.0; folds], vec![0usize; folds]);
+        for (i, y) in data.outputs.iter_rows().enumerate() {
+            let fold = self.fold_of[i];
+            for (j, v) in y.iter().enumerate() {
+                sum[fold] += (v - self.predicted[(i, j)]).abs();
+                count[fold] += 1;
+            }
         }
+        let maes = sum.iter().zip(&count).map(|(s, &c)| s / c.max(1) as f64);
+        (maes.collect(), count)
     }
-    let maes = sum.iter().zip(&count).map(|(s, &c)| s / c.max(1) as f64);
-    (maes.collect(), count)
 }
 
 /// Counters of the work done, for the search report.
@@ -383,11 +391,25 @@ impl Fitness {
 
     /// The held-out predictions of `h` when it is the best tuple scored on every fold so far
     /// (what [`Fitness::held_out_predictions`] would compute, without its fits).
-    pub fn held_out_of(&self, h: &Hyper) -> Option<Mat<f64>> {
+    pub fn held_out_of(&self, h: &Hyper) -> Option<HeldOutRows> {
         let best = self.best.lock().expect("best lock");
         best.as_ref()
             .filter(|b| b.key == key(h))
-            .map(|b| b.predicted.clone())
+            .map(|b| HeldOutRows {
+                predicted: b.predicted.clone(),
+                fold_of: self.fold_of(),
+            })
+    }
+
+    /// Each row's fold.
+    fn fold_of(&self) -> Vec<usize> {
+        let mut fold_of = vec![0; self.rows()];
+        for (k, fold) in self.folds.iter().enumerate() {
+            for &row in &fold.held_out {
+                fold_of[row] = k;
+            }
+        }
+        fold_of
     }
 
     /// Rows over every fold's held-out rows (each row once; with the training fitness, all).
@@ -402,7 +424,7 @@ impl Fitness {
     ///
     /// # Errors
     /// [`MsvrError`]: the tuple's parameters, or a failed solve.
-    pub fn held_out_predictions(&self, h: &Hyper) -> Result<Mat<f64>, MsvrError> {
+    pub fn held_out_predictions(&self, h: &Hyper) -> Result<HeldOutRows, MsvrError> {
         let per_sigma = self.per_sigma(h.sigma);
         let params = self.solver.with_hyper(*h).check()?;
         let mut out = Mat::zeros(self.rows(), self.folds[0].y_held_out.ncols());
@@ -415,7 +437,10 @@ impl Fitness {
                 }
             }
         }
-        Ok(out)
+        Ok(HeldOutRows {
+            predicted: out,
+            fold_of: self.fold_of(),
+        })
     }
 
     /// Fold `k`'s held-out predictions by the model fitted on its training rows, and the bias

@@ -12,7 +12,6 @@
 
 use std::sync::atomic::AtomicBool;
 
-use faer::Mat;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -20,7 +19,7 @@ pub use super::auto_basis::{
     grow_basis, initial_basis, BasisChoice, BasisDecision, BasisError, BasisTrial, AUTO_EXACT_ROWS,
     AUTO_FIRST_CENTRES, AUTO_GAIN, AUTO_MAX_CENTRES,
 };
-use super::fitness::{Counters, Fitness, FitnessError, FitnessKind};
+use super::fitness::{Counters, Fitness, FitnessError, FitnessKind, HeldOutRows};
 use super::folds::{Dealing, FoldChoice, FoldPlan};
 use crate::data::Dataset;
 use crate::model::interval::{Intervals, Widening};
@@ -167,7 +166,7 @@ impl Pinned {
 
 /// What [`run`] returns: the summary, the full result, the work counters and the best tuple's
 /// held-out predictions.
-pub type Ran = (SearchSummary, SearchResult, Counters, Option<Mat<f64>>);
+pub type Ran = (SearchSummary, SearchResult, Counters, Option<HeldOutRows>);
 
 /// Runs `method` on `data` with the given fitness over the box's `axes` (the others held at
 /// `solver`'s values), the [`Pinned`] hyper-parameters held; returns the summary, the full result, the work counters and the best tuple's held-out
@@ -236,7 +235,7 @@ pub fn cross_validate(
     fitness: FitnessKind,
     folds: &FoldPlan,
     params: &MsvrParams,
-) -> Result<(f64, Option<Mat<f64>>), TuneError> {
+) -> Result<(f64, Option<HeldOutRows>), TuneError> {
     let scorer = scorer(data, fitness, folds, params)?;
     let score = scorer.evaluate(&[params.hyper()], f64::INFINITY)[0];
     Ok((score, scorer.held_out_of(&params.hyper())))
@@ -288,7 +287,7 @@ pub fn held_out_predictions(
     folds: &FoldPlan,
     dealing: Dealing,
     params: &MsvrParams,
-) -> Result<Mat<f64>, TuneError> {
+) -> Result<HeldOutRows, TuneError> {
     crate::model::msvr::check_memory(data.rows(), params.basis)?;
     let scorer = Fitness::dealt(
         data,
@@ -301,30 +300,29 @@ pub fn held_out_predictions(
     Ok(scorer.held_out_predictions(&params.hyper())?)
 }
 
-/// Conformal prediction intervals from held-out predictions of `data`'s rows (rows × outputs,
-/// cut by `folds`, their groups dealt as `dealing` says, shuffled with `seed`), widening off
-/// the training rows with the kernel and C of `params`.
+/// Conformal prediction intervals from held-out predictions of `data`'s rows (cut by `folds`,
+/// their groups dealt as `dealing` says), widening off the training rows with the kernel and
+/// C of `params` (its centres chosen with `seed`).
 ///
 /// # Errors
-/// [`TuneError`] when the folds cannot be cut again or give no widening.
+/// [`TuneError`] when the folds give no widening.
 pub fn intervals(
     data: &Dataset,
     folds: &FoldPlan,
     dealing: Dealing,
     seed: u64,
     params: &MsvrParams,
-    predicted: &Mat<f64>,
+    held_out: &HeldOutRows,
 ) -> Result<Intervals, TuneError> {
-    let predicted = crate::model::msvr::to_columns(data.outputs.names.clone(), predicted.as_ref());
+    let predicted =
+        crate::model::msvr::to_columns(data.outputs.names.clone(), held_out.predicted.as_ref());
     let mut choice = folds.choice.clone();
     if dealing == Dealing::Consecutive {
         choice.reason += "; for the intervals, each fold a block of consecutive runs";
     }
     let labels = folds.labels.as_deref();
-    let fold_of =
-        crate::select::folds::assign_folds(data.rows(), folds.folds, seed, labels, dealing)?;
     let h = params.hyper();
-    let widening = Widening::calibrate(&data.inputs, &fold_of, h.sigma, h.c, seed)
+    let widening = Widening::calibrate(&data.inputs, &held_out.fold_of, h.sigma, h.c, seed)
         .map_err(TuneError::Widening)?;
     Ok(Intervals::calibrate(
         &data.outputs,
@@ -365,7 +363,7 @@ pub struct Chosen {
     /// The cross-validated fitness of `params`, when measured.
     pub fitness: Option<f64>,
     /// The held-out predictions of `params` on the scored rows, when the choice made them.
-    pub held_out: Option<Mat<f64>>,
+    pub held_out: Option<HeldOutRows>,
 }
 
 /// What a search did.

@@ -25,9 +25,9 @@ use serde::{Deserialize, Serialize};
 use super::run::{Kept, Run, Scoring};
 use super::SelectError;
 use crate::model::msvr::{Hyper, Loss, MsvrParams};
-use crate::select::fitness::{self, FitnessKind};
-use crate::select::folds::{self, Dealing};
-use crate::select::tune::{self, Chosen, Pinned, TuneError};
+use crate::select::fitness::FitnessKind;
+use crate::select::folds::Dealing;
+use crate::select::tune::{self, Chosen, Pinned};
 
 mod krr;
 mod msvr;
@@ -421,7 +421,7 @@ impl Run<'_> {
         chosen: &Chosen,
         scored: &Scoring,
     ) -> Result<(Vec<f64>, Vec<usize>), SelectError> {
-        let FitnessKind::Cv { folds } = scored.fitness else {
+        let FitnessKind::Cv { .. } = scored.fitness else {
             return Ok((Vec::new(), Vec::new()));
         };
         let seed = self.plan.seed().unwrap_or(crate::DEFAULT_SEED);
@@ -440,10 +440,7 @@ impl Run<'_> {
                 &computed
             }
         };
-        let labels = scored.plan.labels.as_deref();
-        let fold_of = folds::assign_folds(rows.rows(), folds, seed, labels, Dealing::Shuffled)
-            .map_err(TuneError::from)?;
-        Ok(fitness::fold_maes(rows, predicted, &fold_of, folds))
+        Ok(predicted.fold_maes(rows))
     }
 }
 
