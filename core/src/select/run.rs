@@ -590,7 +590,7 @@ impl Run<'_> {
                 c.rows
             ),
             radii => format!(
-                "prediction intervals: {} from {} held-out rows",
+                "prediction intervals: {} from {} held-out rows, wider off the training rows",
                 radii_text(radii),
                 c.rows
             ),
