@@ -5,7 +5,8 @@
 //! on 1000 rows × 6 inputs (two virtual hands in series), at 40 candidates to keep the
 //! benchmark short; the default budget for 1000 rows is 120. The reduced basis: 400 centres at
 //! n = 2000 and 200 centres at n = 20 000; and `--basis auto` on 360 000 rows (its choice of
-//! basis and the fit on every row; target ≤ 60 s in ≤ 2 GB, the peak memory printed).
+//! basis and the fit on every row; target ≤ 60 s in ≤ 2 GB, the peak memory printed). The
+//! intervals' widening: calibrated on 3000 rows of 12 inputs, and the factors of 7,620 rows.
 //!
 //! Run: `cargo bench --bench msvr`.
 
@@ -20,6 +21,7 @@ use rand_distr::{Distribution, Normal};
 use handcap::data::{names, Columns, Dataset, HAND_INPUTS, HAND_OUTPUTS};
 use std::sync::atomic::AtomicBool;
 
+use handcap::model::interval::Widening;
 use handcap::model::msvr::PAPER_TABLE2;
 use handcap::model::msvr::{Basis, Hyper, Loss, MsvrParams, ValidMsvrParams};
 use handcap::model::Predict;
@@ -230,5 +232,46 @@ fn predict(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, fit, fit_reduced, fit_auto_large, search, predict);
+/// The intervals' widening at a search's size: calibrated on 3000 rows of 12 inputs in 5 folds
+/// (1000 centres per fold), then the factors of 7,620 rows (`predict --interval` of a
+/// 30 Hz session).
+fn widening(c: &mut Criterion) {
+    let x = random_six_input_data(3000, 4).inputs;
+    let wide = Columns::new(
+        (0..12).map(|i| format!("u{i}")).collect(),
+        (0..x.rows())
+            .flat_map(|i| [x.row(i), x.row((i * 7) % x.rows())].concat())
+            .collect(),
+    );
+    let fold_of: Vec<usize> = (0..wide.rows()).map(|i| i * 5 / wide.rows()).collect();
+    let mut group = c.benchmark_group("interval_widening");
+    group.sample_size(10);
+    group.bench_function("calibrate_3000x12", |b| {
+        b.iter(|| Widening::calibrate(black_box(&wide), &fold_of, 1.4, 6600.0, 7).unwrap())
+    });
+    let (widening, _) = Widening::calibrate(&wide, &fold_of, 1.4, 6600.0, 7).unwrap();
+    let queries = Columns::new(
+        wide.names.clone(),
+        wide.values
+            .iter()
+            .cycle()
+            .take(7620 * 12)
+            .copied()
+            .collect(),
+    );
+    group.bench_function("factors_7620_rows", |b| {
+        b.iter(|| widening.widener().unwrap().factors(black_box(&queries)))
+    });
+    group.finish();
+}
+
+criterion_group!(
+    benches,
+    fit,
+    fit_reduced,
+    fit_auto_large,
+    search,
+    predict,
+    widening
+);
 criterion_main!(benches);

@@ -365,7 +365,7 @@ fn errors_section(page: &mut Page, r: &Report) {
 fn intervals_section(page: &mut Page, r: &Report) {
     let s = r.s;
     page.section("intervals", "Prediction intervals")
-        .paragraph("Conformal radii of the tip's Euclidean error, from the training rows held out by the cross-validation's folds: the measured tip lies within the radius of the prediction that share of the time. The guarantee is marginal, over rows exchangeable with the held-out grid points, not for each input: the sweeps run along the edges of the pressure box (P1 = 0), where the model has neighbours on one side only, and with 24-26 rows each their coverage moves by about 6 points from chance alone.")
+        .paragraph("Conformal radii of the tip's Euclidean error, from the training rows held out by the cross-validation's folds: the measured tip lies within the radius of the prediction that share of the time. The radii below hold where the pressures are as near the training grid as nine held-out rows in ten were; farther from it each row's radius widens (docs/models.md), and the coverage counts each row within its own. The guarantee is marginal, over rows exchangeable with the held-out grid points, not for each input: the sweeps run along the edges of the pressure box (P1 = 0), where the model has neighbours on one side only, and with 24-26 rows each their coverage moves by about 6 points from chance alone.")
         .table(
             &["trained on", "held-out rows", "90 % radius (mm)", "95 % radius (mm)", "test", "covered at 90 %", "covered at 95 %"],
             &s.intervals.iter().flat_map(|i| {
