@@ -283,6 +283,20 @@ mod tests {
         assert!(widening.validate(2).is_err());
     }
 
+    /// Rows a hair apart (a 30 Hz log's repeated commands) and a C so large that the noise is
+    /// the floor still give a spread: K + λI stays positive definite.
+    #[test]
+    fn near_copies_and_a_huge_c_still_give_a_spread() {
+        let x: Vec<f64> = (0..400)
+            .map(|i| f64::from(i / 2) / 199.0 + 1e-13 * f64::from(i % 2))
+            .collect();
+        let fold_of: Vec<usize> = (0..400).map(|i| i % 5).collect();
+        let (widening, factors) = Widening::calibrate(&line(&x), &fold_of, 0.5, 1e15, 3).unwrap();
+        assert_eq!(widening.ridge, MIN_RIDGE);
+        assert!(factors.iter().all(|d| d.is_finite() && *d >= 1.0));
+        assert!(widening.widener().unwrap().factors(&line(&[5.0]))[0] > 10.0);
+    }
+
     /// Centres are at most [`CENTRES`], and all rows of a smaller set.
     #[test]
     fn larger_sets_are_conditioned_on_a_spread_out_subset() {
