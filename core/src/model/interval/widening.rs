@@ -26,7 +26,7 @@
 //! Measured (`scripts/bench_coverage.py`, docs/benchmarks.md): see "A radius that widens off
 //! the training rows".
 
-use faer::linalg::solvers::Solve;
+use faer::linalg::triangular_solve;
 use faer::{Mat, Side};
 use serde::{Deserialize, Serialize};
 
@@ -85,15 +85,17 @@ impl Spread {
         })
     }
 
-    /// s(x) of every row of `x` (scaled inputs).
+    /// s(x) of every row of `x` (scaled inputs): s² = 1 − ‖L⁻¹ k(x)‖², K + λI = L Lᵀ (one
+    /// triangular solve, not the two of (K + λI)⁻¹ k).
     fn of(&self, x: &Columns) -> Vec<f64> {
-        let k: Mat<f64> = kernel::rbf(&self.centres, x, self.sigma);
-        let solved = self.factor.solve(&k);
+        let mut k: Mat<f64> = kernel::rbf(&self.centres, x, self.sigma);
+        triangular_solve::solve_lower_triangular_in_place(
+            self.factor.L(),
+            k.as_mut(),
+            faer::get_global_parallelism(),
+        );
         (0..x.rows())
-            .map(|i| {
-                let explained: f64 = (0..k.nrows()).map(|c| k[(c, i)] * solved[(c, i)]).sum();
-                (1.0 - explained).max(1e-24).sqrt()
-            })
+            .map(|i| (1.0 - k.col(i).squared_norm_l2()).max(1e-24).sqrt())
             .collect()
     }
 }
