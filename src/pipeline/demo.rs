@@ -22,9 +22,7 @@ use std::time::Instant;
 use nalgebra::Vector3;
 use rand::{Rng, SeedableRng};
 
-use super::demo_checks::{
-    check_calibration, check_tips, feedforward, inverse_stats, planned_radii,
-};
+use super::demo_checks::{check_calibration, check_tips, feedforward, inverse_stats};
 use super::demo_plan::{job, with_defaults, Plan};
 use super::demo_summary::{
     CalibrationCheck, IntervalCheck, InverseCheck, Score, Summary, TipCheck,
@@ -446,7 +444,12 @@ impl<'a> Demo<'a> {
                 plan.grid_step_kpa
             ),
             &planned,
-            planned_radii(&file, &planned),
+            super::inverse::planned_radii(
+                &file,
+                planned.iter().map(|t| &t.solution.inputs[..]),
+                Some(0.9),
+                &mut Vec::new(),
+            ),
         )];
         if let (Some(step), Some(coarse)) = (plan.search_grid_kpa, coarse) {
             // The same check with the same parameters fitted on the coarse grid alone: what the

@@ -9,8 +9,7 @@ use super::demo_summary::{CalibrationCheck, CameraCheck, CamerasCheck, InverseCh
 use super::PipelineError;
 use crate::calib::file::CalibrationFile;
 use crate::calib::StereoCalibration;
-use crate::data::{self, names, Columns};
-use crate::model::file::ModelFile;
+use crate::data::{self, names};
 use crate::model::interval::RowRadii;
 use crate::model::inverse::{self, InverseOptions, PlannedTarget};
 use crate::model::Differentiable;
@@ -29,18 +28,6 @@ pub(super) fn feedforward(
         sources,
         &options,
     )?)
-}
-
-/// The 90 % interval radius of `file`'s model (a static one: its inputs the commands) around
-/// each planned tip; `None` when it has no intervals.
-pub(super) fn planned_radii(file: &ModelFile, rows: &[PlannedTarget]) -> Option<RowRadii> {
-    let inputs = Columns::new(
-        file.model.predictor().inputs().to_vec(),
-        rows.iter()
-            .flat_map(|t| t.solution.inputs.clone())
-            .collect(),
-    );
-    file.interval_radii(0.9, &inputs).ok()
 }
 
 /// `radii`: the model's 90 % interval radius around each planned tip, whose coverage of the

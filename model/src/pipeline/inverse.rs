@@ -11,7 +11,6 @@ use super::PipelineError;
 use crate::data::{self, Columns};
 use crate::hand::MAX_PRESSURE_KPA;
 use crate::model::file::ModelFile;
-use crate::model::history::SteadyState;
 use crate::model::interval::RowRadii;
 use crate::model::inverse::{self, InverseOptions, InverseSolution, PlannedTarget};
 use crate::model::{Differentiable, Predict};
@@ -136,7 +135,8 @@ pub fn plan_targets(job: &Targets) -> Result<PlannedTargets, PipelineError> {
         .map(|t| inverse::solve(model, t, &options))
         .collect::<Result<_, _>>()?;
     let planned = solution_columns(model, &solutions);
-    let interval = interval_radii(&file, &steady, &solutions, job.level, &mut notes)
+    let planned_inputs = solutions.iter().map(|s| &s.inputs[..]);
+    let interval = planned_radii(&file, planned_inputs, job.level, &mut notes)
         .map(|r| Columns::new(vec!["interval_radius".into()], r.radii));
     let mut blocks: Vec<&Columns> = std::iter::once(&targets).chain(&planned).collect();
     blocks.extend(&interval);
@@ -193,14 +193,8 @@ pub fn plan_one(
     let model: &dyn Differentiable = &steady;
     let options = limits.options(model)?;
     let solution = inverse::solve(model, target, &options)?;
-    let interval = interval_radii(
-        &file,
-        &steady,
-        std::slice::from_ref(&solution),
-        level,
-        &mut notes,
-    )
-    .map(|r| (r.level, r.radii[0]));
+    let interval = planned_radii(&file, [&solution.inputs[..]], level, &mut notes)
+        .map(|r| (r.level, r.radii[0]));
     Ok(PlannedOne {
         solution,
         target: target.to_vec(),
@@ -256,19 +250,19 @@ impl fmt::Display for PlannedOne {
     }
 }
 
-/// The model's conformal radius at `level` around the tip of each solution (planned by
-/// `steady`, the file's model at rest); `None` without a level, or with a note saying why
-/// there is none.
-fn interval_radii(
+/// The model's conformal radius at `level` around its tip at rest (a history model's filters
+/// settled) at each row of `planned` present inputs; `None` without a level, or with a note
+/// saying why there is none.
+pub fn planned_radii<'a>(
     file: &ModelFile,
-    steady: &SteadyState,
-    solutions: &[InverseSolution],
+    planned: impl IntoIterator<Item = &'a [f64]>,
     level: Option<f64>,
     notes: &mut Vec<String>,
 ) -> Option<RowRadii> {
+    let steady = file.steady_state();
     let planned = Columns::new(
         steady.inputs().to_vec(),
-        solutions.iter().flat_map(|s| s.inputs.clone()).collect(),
+        planned.into_iter().flatten().copied().collect(),
     );
     match file.interval_radii(level?, &steady.features(&planned)) {
         Ok(r) => Some(r),
