@@ -207,6 +207,14 @@ fn predict_warns_far_outside_the_training_range() {
         "{stderr}"
     );
     assert!(stderr.contains("P1_kpa = 1000"), "{stderr}");
+    // A huge input is said in scientific notation, not in 301 digits.
+    write(d, "huge.csv", "P1_kpa,P2_kpa,P3_kpa\n1e300,0,0\n");
+    let out = handcap(d, &words("predict m.json huge.csv --out h.csv"));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("P1_kpa = 1e300") && !stderr.contains("0000000000"),
+        "{stderr}"
+    );
     // Inside the range: no warning.
     write(d, "near.csv", "P1_kpa,P2_kpa,P3_kpa\n100,100,100\n");
     let out = handcap(d, &words("predict m.json near.csv --out q.csv"));

@@ -146,7 +146,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             })?;
             print!("{planned}");
             if let Some(warning) = planned.warning() {
-                eprintln!("warning: {warning}");
+                super::warn(&warning);
             }
         }
         _ => usage!(

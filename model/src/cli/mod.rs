@@ -132,6 +132,11 @@ pub fn one_line(e: &anyhow::Error) -> String {
     short_numbers(&flags(&line.replace('\n', " ")))
 }
 
+/// Prints `warning: text` on stderr, long numbers shortened as in errors ([`one_line`]).
+pub fn warn(text: &str) {
+    eprintln!("warning: {}", short_numbers(text));
+}
+
 /// `text` with every number longer than [`LONG_NUMBER`] characters written in scientific
 /// notation (Rust writes 1e-300 as 300 digits): σ = 1e-300 is said as `1e-300`.
 fn short_numbers(text: &str) -> String {

@@ -24,7 +24,7 @@ pub struct Args {
 pub fn run(a: Args) -> anyhow::Result<()> {
     let done = predict::run(&a.model, &a.inputs, &a.out, a.interval)?;
     if let Some(warning) = &done.warning {
-        eprintln!("warning: {warning}");
+        super::warn(warning);
     }
     println!("{done}");
     Ok(())
