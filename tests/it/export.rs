@@ -13,7 +13,8 @@ use crate::history::{fit_lagging, lagging_plant, COLUMNS};
 /// Reads `time_s` then the inputs per line, one series: `reset_at` the first row's inputs (as
 /// `handcap predict` starts a group), `step` by each row's time difference; prints the outputs.
 /// With `-s`, the settled map and its Jacobian at each line's inputs instead, and the settled
-/// map's central differences (the Jacobian's check).
+/// map's central differences (the Jacobian's check). With `-r`, each interval's level and
+/// radius, a line each, and nothing else.
 const HARNESS: &str = r#"
 #include <stdio.h>
 #include <string.h>
@@ -22,6 +23,13 @@ int main(int argc, char **argv) {
     double state[HANDCAP_STATE_LEN], u[HANDCAP_N_INPUTS], y[HANDCAP_N_OUTPUTS], t, last = 0;
     double jac[HANDCAP_N_OUTPUTS * HANDCAP_N_INPUTS];
     int first = 1, settled = argc > 1 && strcmp(argv[1], "-s") == 0, i, o;
+    if (argc > 1 && strcmp(argv[1], "-r") == 0) {
+#if HANDCAP_N_INTERVALS > 0
+        for (i = 0; i < HANDCAP_N_INTERVALS; i++)
+            printf("%.17g %.17g\n", handcap_interval_level[i], handcap_interval_radius[i]);
+#endif
+        return 0;
+    }
     while (scanf("%lf", &t) == 1) {
         for (i = 0; i < HANDCAP_N_INPUTS; i++)
             if (scanf("%lf", &u[i]) != 1) return 1;
@@ -76,11 +84,12 @@ fn compile(dir: &Path) -> std::path::PathBuf {
     exe
 }
 
-/// Runs the harness on `rows` (`time inputs…` per row), one line of numbers per row.
-fn run(exe: &Path, settled: bool, rows: &[Vec<f64>]) -> Vec<Vec<f64>> {
+/// Runs the harness with `flag` on `rows` (`time inputs…` per row), one line of numbers per
+/// row.
+fn run(exe: &Path, flag: Option<&str>, rows: &[Vec<f64>]) -> Vec<Vec<f64>> {
     use std::io::Write as _;
     let mut child = Command::new(exe)
-        .args(settled.then_some("-s"))
+        .args(flag)
         .stdin(std::process::Stdio::piped())
         .stdout(std::process::Stdio::piped())
         .spawn()
@@ -142,7 +151,7 @@ fn the_c_header_predicts_what_handcap_predict_does() {
                     .to_vec()
             })
             .collect();
-        let c: Vec<f64> = run(&exe, false, &rows).concat();
+        let c: Vec<f64> = run(&exe, None, &rows).concat();
         let rust: Vec<f64> = csv_rows(&d.join("pred.csv"))
             .iter()
             .flat_map(|r| ["x_mm", "y_mm"].map(|k| r[k].parse::<f64>().unwrap()))
@@ -157,7 +166,7 @@ fn the_c_header_predicts_what_handcap_predict_does() {
         // The settled map and its Jacobian: against the Rust model's (issue 61: they were
         // checked only against the header's own finite differences), and the Jacobian against
         // the map's central differences.
-        let settled = run(&exe, true, &rows);
+        let settled = run(&exe, Some("-s"), &rows);
         let file = ModelFile::load(&d.join(model)).unwrap();
         let steady = file.steady_state();
         for (line, row) in settled.iter().zip(&rows) {
@@ -192,6 +201,35 @@ fn the_c_header_predicts_what_handcap_predict_does() {
                 ) <= 1e-12
             );
         }
+    }
+}
+
+#[test]
+fn the_c_header_carries_the_model_files_interval_radii() {
+    let dir = tempdir();
+    let d = dir.path();
+    write(d, "train.csv", &lagging_plant(1, 4, 80));
+    let mut args = vec!["model", "train.csv"];
+    args.extend(COLUMNS);
+    args.extend(["--c", "100", "--epsilon", "0.01", "--sigma", "2"]);
+    for (intervals, model) in [(true, "with.json"), (false, "without.json")] {
+        let mut args = args.clone();
+        args.extend(intervals.then_some("--intervals"));
+        args.extend(["--out", model]);
+        handcap_ok(d, &args);
+        handcap_ok(d, &["export", model, "--c", "model.h"]);
+        let header = std::fs::read_to_string(d.join("model.h")).unwrap();
+        let printed = run(&compile(d), Some("-r"), &[]);
+        let file = ModelFile::load(&d.join(model)).unwrap();
+        let radii = file.intervals.map(|i| i.held_out.radii).unwrap_or_default();
+        assert_eq!(radii.is_empty(), !intervals, "{model}");
+        assert!(
+            header.contains(&format!("#define HANDCAP_N_INTERVALS {}", radii.len())),
+            "{header}"
+        );
+        // The same numbers, to the bit, at the same levels.
+        let expected: Vec<Vec<f64>> = radii.iter().map(|r| vec![r.level, r.radius]).collect();
+        assert_eq!(printed, expected, "{model}");
     }
 }
 
@@ -311,7 +349,7 @@ fn hostile_c_header_refuses_what_has_no_answer_and_always_compiles() {
     let header = std::fs::read_to_string(d.join("model.h")).unwrap();
     assert!(header.contains("#define HANDCAP_N_CENTRES 0"), "{header}");
     let exe = compile(d);
-    let settled = run(&exe, true, &[vec![0.0, 50.0, 50.0]]);
+    let settled = run(&exe, Some("-s"), &[vec![0.0, 50.0, 50.0]]);
     let file = ModelFile::load(&d.join("runs/*empty.json")).unwrap();
     let mut bias = [0.0; 2];
     file.steady_state()

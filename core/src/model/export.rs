@@ -54,6 +54,11 @@ pub fn c_header(file: &ModelFile, source: &str) -> String {
         ),
     };
 
+    let radii = file
+        .intervals
+        .as_ref()
+        .map_or(&[][..], |i| &i.held_out.radii[..]);
+
     let mut h = String::new();
     let _ = write!(
         h,
@@ -74,6 +79,7 @@ pub fn c_header(file: &ModelFile, source: &str) -> String {
  * (1) where an input lies outside it (the model extrapolates), HANDCAP_REFUSED (-1) for an
  * input that is not finite or a dt_s that is negative or not finite: the outputs are then NaN
  * and the state is left as it was.
+ * {intervals_doc}
  */
 #ifndef HANDCAP_MODEL_H
 #define HANDCAP_MODEL_H
@@ -91,6 +97,7 @@ pub fn c_header(file: &ModelFile, source: &str) -> String {
 #define HANDCAP_N_CENTRES {centres}
 /* The filters' state (a model without history keeps none: one unused slot). */
 #define HANDCAP_STATE_LEN {state_len}
+#define HANDCAP_N_INTERVALS {levels}
 
 static const char *const handcap_input_names[HANDCAP_N_INPUTS] = {{{input_strings}}};
 static const char *const handcap_output_names[HANDCAP_N_OUTPUTS] = {{{output_strings}}};
@@ -104,9 +111,17 @@ static const char *const handcap_output_names[HANDCAP_N_OUTPUTS] = {{{output_str
         memory_doc = comment(&memory_doc),
         command = comment(&portable_command(&file.provenance.command)),
         state_len = (blocks * d).max(1),
+        levels = radii.len(),
+        intervals_doc = wrapped(&comment(&intervals_doc(file)), 92).join("\n * "),
         input_strings = strings(inputs),
         output_strings = strings(&msvr.outputs),
     );
+    if !radii.is_empty() {
+        let levels: Vec<f64> = radii.iter().map(|r| r.level).collect();
+        let radius: Vec<f64> = radii.iter().map(|r| r.radius).collect();
+        array(&mut h, "handcap_interval_level", &levels, levels.len());
+        array(&mut h, "handcap_interval_radius", &radius, radius.len());
+    }
     array(&mut h, "handcap_min_", &msvr.scaler.min, features);
     array(&mut h, "handcap_max_", &msvr.scaler.max, features);
     array(&mut h, "handcap_bias_", &msvr.bias, q);
@@ -129,6 +144,47 @@ static const char *const handcap_output_names[HANDCAP_N_OUTPUTS] = {{{output_str
     h.push_str(STEADY_STATE);
     h.push_str("\n#endif /* HANDCAP_MODEL_H */\n");
     h
+}
+
+/// `text` in lines of at most `width` characters, broken at spaces.
+fn wrapped(text: &str, width: usize) -> Vec<String> {
+    let mut lines = vec![String::new()];
+    for word in text.split_whitespace() {
+        let line = lines.last_mut().expect("one line at least");
+        if !line.is_empty() && line.len() + 1 + word.len() > width {
+            lines.push(word.to_string());
+        } else {
+            if !line.is_empty() {
+                line.push(' ');
+            }
+            line.push_str(word);
+        }
+    }
+    lines
+}
+
+/// What the header's interval arrays hold, or that there are none.
+fn intervals_doc(file: &ModelFile) -> String {
+    match &file.intervals {
+        Some(i) if !i.held_out.radii.is_empty() => {
+            let widens = if i.widening.is_some() {
+                " It holds where the inputs are as near the training rows as nine held-out rows \
+                 in ten were; farther from them the interval is wider, by a factor this header \
+                 does not compute (handcap predict --interval writes each row's radius)."
+            } else {
+                " The same radius for every input."
+            };
+            format!(
+                "Prediction intervals: handcap_interval_radius[k] (output units) is the radius of the sphere around a \
+                 prediction that holds the truth with probability handcap_interval_level[k] \
+                 (conformal, from {} held-out rows).{widens}",
+                i.held_out.rows
+            )
+        }
+        _ => "Prediction intervals: none (the model file has none; handcap model --intervals \
+              makes them)."
+            .into(),
+    }
 }
 
 /// The kernel expansion at the features, and its Jacobian over them: as `Msvr::predict_row`
