@@ -24,8 +24,10 @@ FUNCTION_LINES = 120
 FILE_LINES = 600
 # 1400 until `handcap lab` and `handcap follow`, commands of their own, came (their flags and
 # runs about 100 lines each); 1800 since `handcap monitor` (a command of its own, 80 lines with
-# the session directory it triangulates first) and the faults of synth and lab.
-CLI_LINES = 1800
+# the session directory it triangulates first) and the faults of synth and lab; 1820 since the
+# notes and warnings go through one printer each (numbers shortened, parameters named as flags)
+# and `inverse --interval` tells a level asked from the default (an asked one is refused up front).
+CLI_LINES = 1820
 # The one file allowed over FILE_LINES: the exact solver.
 SOLVER = "core/src/model/msvr/irwls.rs"
 

@@ -316,7 +316,12 @@ fn fit(
         Some(_) => FoldsBy::Column("groups".into()),
         None => FoldsBy::Auto,
     };
-    let pinned = Pinned { c, epsilon, sigma };
+    let pinned = Pinned {
+        c,
+        epsilon,
+        sigma,
+        loss: None,
+    };
     let searched = family.searches(&pinned);
     let selection = if searched {
         Selection::aco_r(seed, budget, folds, folds_by)

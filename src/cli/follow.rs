@@ -88,6 +88,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
             max_rate: a.plan.max_rate,
             smoothness: a.plan.smoothness,
             limits: a.plan.limits(),
+            level: None,
         },
     };
     super::with_session(|s| follow::run(&request, s, &|line| println!("{line}")))?;

@@ -160,6 +160,17 @@ fn outputs_that_cannot_be_written_are_found_before_the_work() {
         msg.contains("short.csv") && msg.contains("no column"),
         "{msg}"
     );
+    // A --test file of only a header: refused before the fit (it panicked after it).
+    write(d, "header.csv", "P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm\n");
+    let msg = handcap_err(
+        d,
+        &words("model data/train.csv --search none --test header.csv --out e.json"),
+    );
+    assert!(
+        msg.contains("header.csv") && msg.contains("no rows") && msg.contains("--test"),
+        "{msg}"
+    );
+    assert!(!d.join("e.json").exists());
 }
 
 #[test]

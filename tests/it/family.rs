@@ -136,6 +136,39 @@ fn auto_keeps_msvr_against_gross_errors_and_the_lower_error_on_plain_noise() {
     }
 }
 
+/// `auto` with an ε or a loss given compares only the families that fit with it: kernel ridge
+/// holds ε at 0 and fits the squared loss, so it is left out (it was kept, and the ε or loss
+/// given silently dropped, when its error was the lower).
+#[test]
+fn auto_leaves_out_a_family_that_cannot_fit_with_what_is_given() {
+    let dir = tempdir();
+    let d = dir.path();
+    write(d, "train.csv", &plant(5, 120, 0.1, 0.0));
+    for given in [["--epsilon", "0.05"], ["--loss", "robust"]] {
+        let more = ["--budget", "24", "--out", "given.json"];
+        handcap_ok(d, &[&MODEL[..], &given, &more].concat());
+        let family = &read_json(&d.join("given.json"))["family"];
+        assert_eq!(family["used"], "msvr", "{given:?}: {family}");
+        let reason = family["reason"].as_str().unwrap();
+        assert!(
+            reason.contains("the only family searched") && reason.contains("is left out"),
+            "{reason}"
+        );
+    }
+    // Given only what kernel ridge can fit with, both are compared.
+    let more = [
+        "--budget",
+        "24",
+        "--loss",
+        "quadratic",
+        "--out",
+        "both.json",
+    ];
+    handcap_ok(d, &[&MODEL[..], &more].concat());
+    let family = &read_json(&d.join("both.json"))["family"];
+    assert_eq!(family["tried"].as_array().unwrap().len(), 2, "{family}");
+}
+
 #[test]
 fn a_family_that_cannot_take_the_request_says_which_option() {
     let dir = tempdir();

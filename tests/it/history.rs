@@ -81,20 +81,17 @@ fn mae_of(predicted: &Path, truth: &Path) -> f64 {
 /// Fits `train.csv` in `d` (a [`lagging_plant`]) with `history` and fixed hyper-parameters
 /// (no search) into `out`.
 pub(crate) fn fit_lagging(d: &Path, history: &str, out: &str) {
+    fit_lagging_with(d, history, out, &[]);
+}
+
+/// [`fit_lagging`] with the options `more` besides.
+pub(crate) fn fit_lagging_with(d: &Path, history: &str, out: &str, more: &[&str]) {
     let mut args = vec!["model", "train.csv"];
     args.extend(COLUMNS);
     args.extend(["--time", "t_s", "--group-by", "trial", "--history", history]);
-    args.extend([
-        "--c",
-        "100",
-        "--epsilon",
-        "0.01",
-        "--sigma",
-        "2",
-        "--out",
-        out,
-    ]);
-    handcap_ok(d, &args);
+    args.extend(["--c", "100", "--epsilon", "0.01", "--sigma", "2"]);
+    args.extend(more);
+    handcap_ok(d, &[&args[..], &["--out", out]].concat());
 }
 
 pub(crate) const COLUMNS: [&str; 4] = ["--inputs", "P1_kpa,P2_kpa", "--outputs", "x_mm,y_mm"];

@@ -6,7 +6,7 @@
 use std::path::Path;
 
 use crate::common::{
-    csv_rows, every_core, handcap_err, handcap_ok, handcap_usage, read_json, tempdir,
+    csv_rows, every_core, handcap_err, handcap_ok, handcap_usage, read_json, tempdir, write,
 };
 
 /// A history model with intervals of three 40 s data-level trials of seed 1, in `d/model.json`
@@ -188,6 +188,41 @@ fn monitor_refuses_a_model_without_intervals_a_session_without_time_and_another_
     );
     assert!(e.contains("--time"), "{e}");
     assert!(!d.join("w/monitor.csv").exists());
+    // Hostile probes (stop 85): refused without leaving an empty folder; a header alone is
+    // refused, not watched as 0 rows.
+    assert!(!d.join("w").exists());
+    let header = std::fs::read_to_string(d.join("s/session.csv")).unwrap();
+    write(
+        d,
+        "header.csv",
+        &format!("{}\n", header.lines().next().unwrap()),
+    );
+    let e = handcap_err(
+        d,
+        &[
+            "monitor",
+            "header.csv",
+            "--model",
+            "with.json",
+            "--out",
+            "w",
+        ],
+    );
+    assert!(e.contains("header.csv: no rows"), "{e}");
+    // A session within the baseline cannot raise an alarm, and says so.
+    let short = [
+        "monitor",
+        "s/session.csv",
+        "--model",
+        "with.json",
+        "--out",
+        "short",
+    ];
+    let said = handcap_ok(d, &[&short[..], &["--baseline-s", "30"]].concat());
+    assert!(
+        said.contains("within the baseline of 30 s: no alarm could be raised"),
+        "{said}"
+    );
     let e = handcap_usage(d, &["synth", "--out", "r", "--fault", "leak@5=0.1"]);
     assert!(e.contains("--dynamic"), "{e}");
     let e = handcap_usage(

@@ -10,7 +10,7 @@ use handcap::session::protocol::{self, DynamicDesign};
 use handcap::synth::dynamics::{Dynamics, Motion};
 use handcap::synth::plant::{Plant, PlantParams, Pressures};
 
-use crate::common::{csv_rows, handcap_err, handcap_ok, tempdir, write};
+use crate::common::{csv_rows, handcap, handcap_err, handcap_ok, tempdir, write};
 
 /// Camera rate of the sessions and the path (Hz).
 const RATE: f64 = 30.0;
@@ -604,6 +604,58 @@ fn bad_trajectories_get_one_line_and_nothing_is_written() {
     assert!(stderr.contains("out of the model's reach"), "{stderr}");
     let rows = csv_rows(&d.join("far_c.csv"));
     assert_eq!(rows[1]["reached"], "0");
+}
+
+/// Hostile probe (stop 85): `--interval` was ignored along a path. The commands file now has
+/// each row's radius where the model has intervals; a level asked of a model without them, or
+/// beyond its held-out rows, is refused before anything is planned; the default level is said
+/// in a note when there is none.
+#[test]
+fn a_planned_path_carries_the_interval_around_each_row() {
+    let dir = tempdir();
+    let d = dir.path();
+    write(d, "train.csv", &crate::history::lagging_plant(1, 4, 60));
+    crate::history::fit_lagging(d, "ema:0.2", "plain.json");
+    crate::history::fit_lagging_with(d, "ema:0.2", "m.json", &["--intervals"]);
+    write(
+        d,
+        "path.csv",
+        "t_s,x_mm,y_mm\n0,1,1\n0.1,1.2,1\n0.2,1.4,1.1\n0.3,1.5,1.2\n",
+    );
+    fn plan<'a>(model: &'a str, more: &[&'a str]) -> Vec<&'a str> {
+        let args = [
+            "inverse",
+            model,
+            "--trajectory",
+            "path.csv",
+            "--out",
+            "c.csv",
+        ];
+        [&args[..], more].concat()
+    }
+    let said = handcap_ok(d, &plan("m.json", &[]));
+    assert!(said.contains("90 % interval radius"), "{said}");
+    let rows = csv_rows(&d.join("c.csv"));
+    assert_eq!(rows.len(), 4);
+    for r in &rows {
+        let radius: f64 = r["interval_radius"].parse().unwrap();
+        assert!(radius.is_finite() && radius > 0.0, "{r:?}");
+    }
+    std::fs::remove_file(d.join("c.csv")).unwrap();
+    let err = handcap_err(d, &plan("m.json", &["--interval", "0.999999"]));
+    assert!(
+        err.contains("--interval 0.999999") && err.contains("99.9999 %"),
+        "{err}"
+    );
+    let err = handcap_err(d, &plan("plain.json", &["--interval", "0.9"]));
+    assert!(err.contains("no prediction intervals"), "{err}");
+    assert!(!d.join("c.csv").exists());
+    // Not asked: planned without the column, and said.
+    let out = handcap(d, &plan("plain.json", &[]));
+    assert!(out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("note: no interval"), "{stderr}");
+    assert!(!csv_rows(&d.join("c.csv"))[0].contains_key("interval_radius"));
 }
 
 #[test]

@@ -44,6 +44,8 @@ pub enum DataError {
         "{path}: file is empty; expected a header row naming the columns, then one row per sample"
     )]
     Empty { path: PathBuf },
+    #[error("{path}: no rows (only a header, or every row flagged); give {what} a file with rows")]
+    NoRows { path: PathBuf, what: String },
     #[error("{path}: line 1: column `{name}` appears twice (columns {first} and {second}); rename one of them")]
     DuplicateHeader {
         path: PathBuf,

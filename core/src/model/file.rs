@@ -26,8 +26,8 @@ use crate::data::{self, Columns, DataError};
 use crate::fsio;
 use crate::model::history::{History, HistoryDecision, Memory, SteadyState};
 use crate::model::interval::{IntervalError, Intervals, RowRadii, Widener};
-use crate::model::Predict;
 pub use crate::model::StoredModel;
+use crate::model::{ModelSpec, Predict};
 use crate::provenance::Provenance;
 use crate::select::family::{Family, FamilyDecision};
 use crate::select::tune::{BasisDecision, SearchSummary};
@@ -287,7 +287,8 @@ impl ModelFile {
             }
         }
         if let Some(intervals) = &self.intervals {
-            intervals.validate(model.inputs().len())?;
+            let ModelSpec::Msvr(params) = self.model.spec();
+            intervals.validate(model.inputs().len(), params.sigma, params.c)?;
         }
         Ok(())
     }

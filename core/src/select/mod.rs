@@ -29,7 +29,7 @@ use crate::model::file::ModelFile;
 use crate::model::history::{
     series_error, Context, History, HistoryChoice, HistoryDecision, HistoryError, Series,
 };
-use crate::model::interval::Intervals;
+use crate::model::interval::{percent, Intervals};
 use crate::model::msvr::{Hyper, MsvrError, MsvrParams};
 use crate::model::{self, ModelSpec, StoredModel};
 use crate::provenance::Provenance;
@@ -531,7 +531,7 @@ impl Observer for Iterations<'_> {
 pub fn radii_text(radii: &[crate::model::interval::Radius]) -> String {
     radii
         .iter()
-        .map(|r| format!("{} %: {:.4}", r.level * 100.0, r.radius))
+        .map(|r| format!("{} %: {:.4}", percent(r.level), r.radius))
         .collect::<Vec<_>>()
         .join(", ")
 }

@@ -146,6 +146,8 @@ pub struct Pinned {
     pub c: Option<f64>,
     pub epsilon: Option<f64>,
     pub sigma: Option<f64>,
+    /// The loss, when it was given (not a default).
+    pub loss: Option<crate::model::msvr::Loss>,
 }
 
 impl Pinned {

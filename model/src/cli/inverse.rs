@@ -48,15 +48,15 @@ pub struct Args {
     #[command(flatten)]
     plan: PlanArgs,
     /// The coverage of the interval reported around each planned tip (conformal: the real
-    /// tip lies within the radius this share of the time); 0 leaves it out
+    /// tip lies within the radius this share of the time); 0 leaves it out. Default 0.9, said
+    /// in a note when the model has no intervals; a level given is refused then
     #[arg(
         long,
         value_name = "LEVEL",
-        default_value_t = 0.9,
         allow_hyphen_values = true,
         value_parser = interval_level
     )]
-    interval: f64,
+    interval: Option<f64>,
 }
 
 /// How commands are planned along a path and learned from a run, and the inverse's limits
@@ -101,8 +101,8 @@ fn interval_level(s: &str) -> Result<f64, String> {
 
 pub fn run(a: Args) -> anyhow::Result<()> {
     let limits = a.plan.limits();
-    let level = (a.interval > 0.0).then_some(a.interval);
-    let notes = |notes: &[String]| notes.iter().for_each(|n| eprintln!("note: {n}"));
+    let level = inverse::asked_level(&a.model, a.interval)?;
+    let notes = |notes: &[String]| notes.iter().for_each(|n| super::note(n));
     match (&a.target, &a.targets, &a.trajectory) {
         (Some(target), None, None) => {
             let planned = inverse::plan_one(&a.model, target, limits, level)?;
@@ -143,7 +143,9 @@ pub fn run(a: Args) -> anyhow::Result<()> {
                 max_rate: a.plan.max_rate,
                 smoothness: a.plan.smoothness,
                 limits,
+                level,
             })?;
+            notes(&planned.notes);
             print!("{planned}");
             if let Some(warning) = planned.warning() {
                 super::warn(&warning);

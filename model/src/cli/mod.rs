@@ -137,6 +137,11 @@ pub fn warn(text: &str) {
     eprintln!("warning: {}", short_numbers(text));
 }
 
+/// Prints `note: text` on stderr, parameters named as flags.
+pub fn note(text: &str) {
+    eprintln!("note: {}", short_numbers(&flags(text)));
+}
+
 /// `text` with every number longer than [`LONG_NUMBER`] characters written in scientific
 /// notation (Rust writes 1e-300 as 300 digits): σ = 1e-300 is said as `1e-300`.
 fn short_numbers(text: &str) -> String {

@@ -205,6 +205,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         c: a.c,
         epsilon: a.epsilon,
         sigma: a.sigma,
+        loss: (a.loss != LossArg::Auto).then_some(loss),
     };
     let method = method.filter(|_| a.model.searches(&pinned));
     if let FamilyChoice::One(family) = a.model {

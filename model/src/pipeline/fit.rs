@@ -89,6 +89,7 @@ impl FitJob {
                 c: Some(h.c),
                 epsilon: Some(h.epsilon),
                 sigma: Some(h.sigma),
+                loss: None,
             },
             search_on: None,
             tests: Vec::new(),
@@ -285,6 +286,13 @@ fn note_flagged(job: &FitJob, session: &Session) -> Result<(), PipelineError> {
 /// by and the rows' weights.
 fn read_table(path: &Path, job: &FitJob, fitted: bool) -> Result<Table, PipelineError> {
     let mut data = data::read_dataset(path, &job.inputs, &job.outputs)?;
+    if !fitted && data.rows() == 0 {
+        return Err(data::DataError::NoRows {
+            path: path.into(),
+            what: "--test".into(),
+        }
+        .into());
+    }
     if let Some(column) = job.weight.as_ref().filter(|_| fitted) {
         data.weights = Some(data::read_weights(path, column)?);
     }

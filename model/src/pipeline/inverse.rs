@@ -11,6 +11,7 @@ use super::PipelineError;
 use crate::data::{self, Columns};
 use crate::hand::MAX_PRESSURE_KPA;
 use crate::model::file::ModelFile;
+use crate::model::interval::percent;
 use crate::model::interval::RowRadii;
 use crate::model::inverse::{self, InverseOptions, InverseSolution, PlannedTarget};
 use crate::model::{Differentiable, Predict};
@@ -130,6 +131,13 @@ pub fn plan_targets(job: &Targets) -> Result<PlannedTargets, PipelineError> {
     let model: &dyn Differentiable = &steady;
     let options = job.limits.options(model)?;
     let targets = data::read_columns(job.targets, model.outputs())?;
+    if targets.rows() == 0 {
+        return Err(data::DataError::NoRows {
+            path: job.targets.into(),
+            what: "--targets".into(),
+        }
+        .into());
+    }
     let solutions: Vec<InverseSolution> = targets
         .iter_rows()
         .map(|t| inverse::solve(model, t, &options))
@@ -243,7 +251,7 @@ impl fmt::Display for PlannedOne {
             writeln!(
                 f,
                 "the real tip lies within {r:.4} of it {} % of the time (conformal interval, marginal over inputs like the held-out ones, wider where the inputs are far from the training rows)",
-                level * 100.0
+                percent(level)
             )?;
         }
         Ok(())
@@ -269,6 +277,30 @@ pub fn planned_radii<'a>(
         Err(e) => {
             notes.push(format!("no interval around the planned tips: {e}"));
             None
+        }
+    }
+}
+
+/// The interval's level when none is given: said in a note when the model has none.
+pub const DEFAULT_LEVEL: f64 = 0.9;
+
+/// The level of the interval around planned outputs for `--interval` `given`: the default when
+/// not given, none for 0; a level given is refused, before anything is planned, where the
+/// model file at `model` has no interval at it (no intervals, too few held-out rows for it).
+///
+/// # Errors
+/// [`PipelineError::Input`] naming the file; as [`ModelFile::load`].
+pub fn asked_level(model: &Path, given: Option<f64>) -> Result<Option<f64>, PipelineError> {
+    match given {
+        None => Ok(Some(DEFAULT_LEVEL)),
+        Some(0.0) => Ok(None),
+        Some(level) => {
+            ModelFile::load(model)?
+                .interval_radius(level)
+                .map_err(|e| {
+                    PipelineError::Input(format!("{}: --interval {level}: {e}", model.display()))
+                })?;
+            Ok(Some(level))
         }
     }
 }

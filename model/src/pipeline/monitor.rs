@@ -11,6 +11,7 @@ use super::outputs::{self, Output};
 use super::PipelineError;
 use crate::data::{self, Columns, Csv};
 use crate::model::file::ModelFile;
+use crate::model::interval::percent;
 use crate::monitor::{self, Channel, Monitored, Settings};
 use crate::plot::{self, LinePlot, Mark, Series};
 use crate::provenance::Provenance;
@@ -44,6 +45,9 @@ pub struct Watched {
     pub model: PathBuf,
     pub settings: Settings,
     pub rows: usize,
+    /// From the first row's time to the last's (s): within `settings.baseline_s`, no alarm
+    /// was armed.
+    pub span_s: f64,
     #[serde(flatten)]
     pub monitored: Monitored,
     /// The rows from the first model alarm's change on, when one was raised.
@@ -125,6 +129,7 @@ pub fn run(watch: &Watch, provenance: Provenance) -> Result<Watched, PipelineErr
         model: watch.model.to_path_buf(),
         settings: watch.settings.clone(),
         rows: replay.times.len(),
+        span_s: span(&replay.times),
         monitored,
         after_change,
         provenance,
@@ -167,7 +172,7 @@ fn section(watched: &Watched) -> String {
         watched.session.display(),
         watched.model.display(),
         watched.rows,
-        100.0 * settings.level,
+        percent(settings.level),
         100.0 * m.coverage,
         m.start_radius,
         settings.look_s,
@@ -261,6 +266,13 @@ impl Replay {
         })?;
         let predictor = file.model.predictor();
         let (_, x) = file.read_inputs(watch.session)?;
+        if x.rows() == 0 {
+            return Err(data::DataError::NoRows {
+                path: watch.session.into(),
+                what: "the monitor".into(),
+            }
+            .into());
+        }
         let predicted = predictor.predict(&x)?;
         let factors = file
             .interval_widener()
@@ -474,7 +486,7 @@ fn write_figure(
             colour: 0,
         },
         Series {
-            label: format!("online band ({} %)", 100.0 * level),
+            label: format!("online band ({} %)", percent(level)),
             points: at(&|i| monitored.rows[i].band * replay.factors[i]),
             mark: Mark::Line,
             colour: 1,
@@ -497,6 +509,14 @@ fn write_figure(
     plot::write_line_plot(stem, &figure).map_err(|e| PipelineError::Report(e.into()))
 }
 
+/// From the first of `times` (rising) to the last, 0 for none.
+pub fn span(times: &[f64]) -> f64 {
+    match (times.first(), times.last()) {
+        (Some(first), Some(last)) => last - first,
+        _ => 0.0,
+    }
+}
+
 impl std::fmt::Display for Watched {
     fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
         let m = &self.monitored;
@@ -504,11 +524,17 @@ impl std::fmt::Display for Watched {
             f,
             "{} rows; the online {} % band held {:.1} % of them (it started at the model's radius {:.4})",
             self.rows,
-            100.0 * self.settings.level,
+            percent(self.settings.level),
             100.0 * m.coverage,
             m.start_radius
         )?;
-        if m.alarms.is_empty() {
+        if self.span_s <= self.settings.baseline_s {
+            writeln!(
+                f,
+                "warning: the session lasts {:.1} s, within the baseline of {} s: no alarm could be raised; give --baseline-s shorter than the session",
+                self.span_s, self.settings.baseline_s
+            )?;
+        } else if m.alarms.is_empty() {
             writeln!(
                 f,
                 "no alarm (at most one false alarm per {} h of looks)",

@@ -89,18 +89,21 @@ pub fn check(inputs: &[&Path], outputs: &[Output]) -> Result<(), PipelineError> 
     Ok(())
 }
 
-/// A directory that takes new files: created when missing, then probed with a temporary file.
+/// A directory that takes new files, or whose nearest existing parent does (where it will be
+/// created when something is written: a run that fails leaves no empty folder), probed with a
+/// temporary file.
 fn writable(dir: &Path) -> Result<(), String> {
-    if let Some(existing) = dir.ancestors().find(|a| a.exists()) {
-        if !existing.is_dir() {
-            return Err(format!("{} is not a directory", existing.display()));
-        }
+    let existing = dir
+        .ancestors()
+        .find(|a| a.as_os_str().is_empty() || a.exists())
+        .filter(|a| !a.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    if !existing.is_dir() {
+        return Err(format!("{} is not a directory", existing.display()));
     }
-    std::fs::create_dir_all(dir)
-        .map_err(|e| format!("cannot create the directory {}: {}", dir.display(), os(&e)))?;
-    crate::fsio::temp_beside(&dir.join("probe"), ".probe")
+    crate::fsio::temp_beside(&existing.join("probe"), ".probe")
         .map(drop)
-        .map_err(|e| format!("{} does not take new files: {}", dir.display(), os(&e)))
+        .map_err(|e| format!("{} does not take new files: {}", existing.display(), os(&e)))
 }
 
 /// An I/O error's text without the "(os error N)" tail.
@@ -173,10 +176,13 @@ mod tests {
             err.contains("written twice") && err.contains("phase `pairs`"),
             "{err}"
         );
-        // A new file in a new directory is fine, and the directory is made.
-        let fine = dir.path().join("new/out.csv");
+        // A new file in new directories is fine; they are made when it is written, not by
+        // the check (a run that fails after it leaves no empty folder).
+        let fine = dir.path().join("new/deeper/out.csv");
         check(&[&input], &[Output::new(&fine, "--out")]).unwrap();
-        assert!(dir.path().join("new").is_dir());
+        assert!(!dir.path().join("new").exists());
+        crate::fsio::write_bytes(&fine, b"x\n").unwrap();
+        assert!(fine.is_file());
     }
 
     #[test]

@@ -11,6 +11,7 @@ use super::outputs::{self, Output};
 use super::PipelineError;
 use crate::data::{self, Columns};
 use crate::model::file::ModelFile;
+use crate::model::interval::RowRadii;
 use crate::model::trajectory::{self, Dynamic, PathPlan, PlanOptions};
 use crate::model::Predict;
 use crate::plot::{self, LinePlot, Mark, Series};
@@ -29,6 +30,8 @@ pub struct Request<'a> {
     /// Weight of the commands' smoothness against the squared output error.
     pub smoothness: f64,
     pub limits: Limits,
+    /// The level of the interval written around each planned output (`interval_radius`).
+    pub level: Option<f64>,
 }
 
 /// What [`run`] planned.
@@ -41,6 +44,10 @@ pub struct Planned {
     pub missed: usize,
     /// The path figure's stem (`.svg`, `.png`).
     pub figure: PathBuf,
+    /// The interval around each planned output, when asked and the model has one.
+    pub interval: Option<RowRadii>,
+    /// Why there is none, when asked.
+    pub notes: Vec<String>,
 }
 
 /// How the commands were planned.
@@ -99,6 +106,9 @@ impl fmt::Display for Planned {
                 measured.display(),
             ),
         }?;
+        if let Some(interval) = &self.interval {
+            writeln!(f, "{interval} (the interval_radius column)")?;
+        }
         writeln!(
             f,
             "wrote {} and {}.svg/.png (the path: target, the model's prediction{})",
@@ -254,7 +264,17 @@ pub fn run(r: &Request) -> Result<Planned, PipelineError> {
             (plan, how, Some(seen))
         }
     };
-    write(r.out, &steady, time_column, &time, &plan)?;
+    let mut notes = Vec::new();
+    let interval = r.level.and_then(|level| {
+        let features = Columns::new(
+            file.model.predictor().inputs().to_vec(),
+            plan.features.clone(),
+        );
+        file.interval_radii(level, &features)
+            .map_err(|e| notes.push(format!("no interval around the planned outputs: {e}")))
+            .ok()
+    });
+    write(r.out, &steady, time_column, &time, &plan, interval.as_ref())?;
     path_figure(
         &figure,
         &names_out,
@@ -268,6 +288,8 @@ pub fn run(r: &Request) -> Result<Planned, PipelineError> {
         how,
         missed: plan.reached.iter().filter(|&&r| !r).count(),
         figure,
+        interval,
+        notes,
     })
 }
 
@@ -391,13 +413,15 @@ fn path_figure(
         .map_err(|e| PipelineError::Place(format!("writing {}.svg: {e}", stem.display())))
 }
 
-/// The commands file: the time, then [`super::inverse::planned_columns`] along the path.
+/// The commands file: the time, then [`super::inverse::planned_columns`] along the path, then
+/// each row's interval radius when there is one.
 fn write(
     out: &Path,
     model: &dyn crate::model::Differentiable,
     time_column: &str,
     time: &[f64],
     plan: &PathPlan,
+    interval: Option<&RowRadii>,
 ) -> Result<(), PipelineError> {
     let time = Columns::new(vec![time_column.to_string()], time.to_vec());
     let planned = planned_columns(
@@ -407,6 +431,10 @@ fn write(
         &plan.error,
         &plan.reached,
     );
-    let blocks: Vec<&Columns> = std::iter::once(&time).chain(&planned).collect();
+    let radius = interval.map(|i| Columns::new(vec!["interval_radius".into()], i.radii.clone()));
+    let blocks: Vec<&Columns> = std::iter::once(&time)
+        .chain(&planned)
+        .chain(radius.as_ref())
+        .collect();
     Ok(data::write_csv(out, &blocks)?)
 }

@@ -279,6 +279,7 @@ impl Trust {
             model: self.watching.path.clone(),
             settings: self.watching.settings.clone(),
             rows: self.replay.times.len(),
+            span_s: crate::pipeline::monitor::span(&self.replay.times),
             monitored,
             after_change,
             provenance,

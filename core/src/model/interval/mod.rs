@@ -39,7 +39,8 @@ pub enum IntervalError {
     Level { level: f64 },
     #[error("a {percent} % interval needs at least {needed} held-out rows, and the model has {rows}; ask a lower level or fit on more rows")]
     TooFewRows {
-        percent: f64,
+        /// The level in per cent, as [`percent`] writes it.
+        percent: String,
         needed: usize,
         rows: usize,
     },
@@ -72,7 +73,7 @@ impl std::fmt::Display for RowRadii {
         write!(
             f,
             "{} % interval radius {:.4}",
-            self.level * 100.0,
+            percent(self.level),
             self.radius
         )?;
         let wider = self.radii.iter().filter(|&&r| r > self.radius).count();
@@ -307,17 +308,18 @@ impl Intervals {
 
     /// Checks what a model file holds: scores finite, non-negative and ascending, as many as
     /// the held-out rows; each radius the scores' radius at its level; coverages shares; the
-    /// widening's numbers and centres of the model's `inputs` inputs.
+    /// widening's numbers and centres of the model's `inputs` inputs, with its σ and `c`.
     ///
     /// # Errors
     /// What is wrong, naming the field.
-    pub fn validate(&self, inputs: usize) -> Result<(), String> {
+    pub fn validate(&self, inputs: usize, sigma: f64, c: f64) -> Result<(), String> {
         if let Some(w) = &self.widening {
-            w.validate(inputs)?;
+            w.validate(inputs, sigma, c)?;
         }
-        if let Some(s) = self.scores.iter().find(|s| !(s.is_finite() && **s >= 0.0)) {
+        let distance = |s: f64| (0.0..=crate::model::msvr::LARGEST_NUMBER).contains(&s);
+        if let Some(s) = self.scores.iter().find(|s| !distance(**s)) {
             return Err(format!(
-                "intervals.scores holds {s}: scores are distances (≥ 0)"
+                "intervals.scores holds {s:e}: scores are distances (between 0 and 1e100)"
             ));
         }
         if self.scores.windows(2).any(|w| w[0] > w[1]) {
@@ -427,12 +429,25 @@ pub fn radius(sorted: &[f64], level: f64) -> Result<f64, IntervalError> {
     let rank = ((n + 1) as f64 * level - 1e-9).ceil() as usize;
     if rank > n || n == 0 {
         return Err(IntervalError::TooFewRows {
-            percent: (level * 1000.0).round() / 10.0,
+            percent: percent(level),
             needed: (level / (1.0 - level) - 1e-9).ceil() as usize,
             rows: n,
         });
     }
     Ok(sorted[rank.max(1) - 1])
+}
+
+/// A level in per cent, with the decimals that show it (0.9 → "90", 0.9999 → "99.99",
+/// 0.0007 → "0.07"), and in scientific notation below a millionth of a per cent.
+pub fn percent(level: f64) -> String {
+    let p = level * 100.0;
+    (0..=6)
+        .map(|decimals| format!("{p:.decimals$}"))
+        .find(|s| {
+            s.parse::<f64>()
+                .is_ok_and(|v| (v - p).abs() <= 1e-9 * p.abs())
+        })
+        .unwrap_or_else(|| format!("{p:.3e}"))
 }
 
 /// Coverage at `radius` of scores, pooled (`group: None`).
@@ -476,12 +491,20 @@ mod tests {
     }
 
     #[test]
+    fn a_level_is_said_in_per_cent_with_the_decimals_that_show_it() {
+        let said: Vec<String> = [0.9, 0.95, 0.9999, 0.999999, 0.0007, 1e-9]
+            .map(percent)
+            .to_vec();
+        assert_eq!(said, ["90", "95", "99.99", "99.9999", "0.07", "1.000e-7"]);
+    }
+
+    #[test]
     fn too_few_rows_or_a_bad_level_is_an_error_never_a_radius_of_zero() {
         let ten: Vec<f64> = (1..=10).map(f64::from).collect();
         assert_eq!(
             radius(&ten, 0.95),
             Err(IntervalError::TooFewRows {
-                percent: 95.0,
+                percent: "95".into(),
                 needed: 19,
                 rows: 10
             })

@@ -170,16 +170,31 @@ impl Widening {
         (s / self.reference).max(1.0)
     }
 
-    /// Checks what a model file holds.
+    /// Checks what a model file holds, for a model of `inputs` inputs, kernel width `sigma` and
+    /// `c`: the widening's σ and noise are the model's (as [`Self::calibrate`] takes them), and
+    /// s_ref is a spread, in [1e-12, 1] (s is floored at 1e-12 and at most 1).
     ///
     /// # Errors
     /// What is wrong, naming the field.
-    pub fn validate(&self, inputs: usize) -> Result<(), String> {
-        let positive = |v: f64| v.is_finite() && v > 0.0;
-        if !(positive(self.sigma) && positive(self.ridge) && positive(self.reference)) {
+    pub fn validate(&self, inputs: usize, sigma: f64, c: f64) -> Result<(), String> {
+        let same = |a: f64, b: f64| (a - b).abs() <= 1e-9 * b.abs();
+        if !same(self.sigma, sigma) {
             return Err(format!(
-                "intervals.widening: sigma {}, ridge {} and reference {} must be positive numbers",
-                self.sigma, self.ridge, self.reference
+                "intervals.widening.sigma is {:e}, the model's σ {sigma:e}: they must be the same",
+                self.sigma
+            ));
+        }
+        let ridge = (0.5 / c).max(MIN_RIDGE);
+        if !same(self.ridge, ridge) {
+            return Err(format!(
+                "intervals.widening.ridge is {:e}, not the model's 1/(2C) = {ridge:e}",
+                self.ridge
+            ));
+        }
+        if !(1e-12..=1.0).contains(&self.reference) {
+            return Err(format!(
+                "intervals.widening.reference is {:e}: a spread, between 1e-12 and 1",
+                self.reference
             ));
         }
         if self.scaler.min.len() != inputs || self.scaler.max.len() != inputs {
@@ -281,8 +296,18 @@ mod tests {
         let far = widening.widener().unwrap().factors(&line(&[0.5, 3.0]));
         assert_eq!(far[0], 1.0);
         assert!((far[1] - 1.0 / widening.reference).abs() < 1e-6 && far[1] > 5.0);
-        assert!(widening.validate(1).is_ok());
-        assert!(widening.validate(2).is_err());
+        assert!(widening.validate(1, 0.1, 100.0).is_ok());
+        assert!(widening.validate(2, 0.1, 100.0).is_err());
+        // Not the model's σ or C, or a reference that is no spread: refused.
+        assert!(widening.validate(1, 0.2, 100.0).is_err());
+        assert!(widening.validate(1, 0.1, 1e308).is_err());
+        for reference in [0.0, 1e-320, 1.5, f64::NAN] {
+            let tampered = Widening {
+                reference,
+                ..widening.clone()
+            };
+            assert!(tampered.validate(1, 0.1, 100.0).is_err(), "{reference}");
+        }
     }
 
     /// Rows a hair apart (a 30 Hz log's repeated commands) and a C so large that the noise is

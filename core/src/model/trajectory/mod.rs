@@ -73,6 +73,9 @@ pub struct PathPlan {
     pub inputs: Vec<f64>,
     /// The model's outputs along the commands (`n × q`).
     pub predicted: Vec<f64>,
+    /// The model's inputs (the commands and their history) each output was predicted at
+    /// (`n × features`): where an interval's radius is taken.
+    pub features: Vec<f64>,
     /// Each row's distance from its target, and whether it is within reach.
     pub error: Vec<f64>,
     pub reached: Vec<bool>,
@@ -186,14 +189,19 @@ impl Along<'_, '_> {
         y
     }
 
-    /// The predicted outputs of commands `u` and their distances from `targets`.
+    /// The predicted outputs of commands `u`, the features they were predicted at, and their
+    /// distances from `targets`.
     fn finish(&self, targets: &[f64], u: Vec<f64>, reach: f64) -> PathPlan {
         let q = self.dynamic.model.outputs().len();
         let predicted = self.predict(&u);
+        let features = (0..self.time.len())
+            .flat_map(|k| self.features(&u, k))
+            .collect();
         let error = distances(&predicted, targets, q);
         PathPlan {
             inputs: u,
             predicted,
+            features,
             reached: error.iter().map(|&e| e <= reach).collect(),
             error,
         }

@@ -113,6 +113,19 @@ impl Family {
         })
     }
 
+    /// Whether it fits with what `pinned` holds: each pinned axis one it moves or holds at the
+    /// value pinned (with `params`), the loss given its own.
+    pub fn honours(self, pinned: &Pinned, params: MsvrParams) -> bool {
+        let axes = pinned
+            .values()
+            .all(|(axis, value)| self.holds(axis, params).is_none_or(|held| held == value));
+        let loss = match (self.fixed_loss(), pinned.loss) {
+            (Some(fixed), Some(given)) => fixed == given,
+            _ => true,
+        };
+        axes && loss
+    }
+
     /// The settings a report shows for it: `settings` without those it fixes (the axes it
     /// does not move, a fixed loss).
     pub fn shown(self, mut settings: Vec<(&'static str, String)>) -> Vec<(&'static str, String)> {
@@ -366,6 +379,11 @@ impl Run<'_> {
             && matches!(present.fitness, FitnessKind::Cv { .. });
         match self.plan.family {
             FamilyChoice::Auto if !compares => vec![Family::MSVR],
+            FamilyChoice::Auto => Family::ALL
+                .iter()
+                .copied()
+                .filter(|f| f.honours(&self.plan.pinned, self.plan.params))
+                .collect(),
             choice => choice.families(),
         }
     }
@@ -374,7 +392,7 @@ impl Run<'_> {
     /// nothing to compare families by, or `auto` stopped before the second.
     pub(super) fn asked(&self, family: Family, planned: usize) -> FamilyDecision {
         let reason = match (self.plan.family, planned) {
-            (FamilyChoice::Auto, 1) => "model=auto: MSVR, the paper's (families are compared by a cross-validated search of their own box; the parameters given, fitness=train and the paper's colony leave none)".to_string(),
+            (FamilyChoice::Auto, 1) => format!("model=auto: {}, the only family searched (families are compared by a cross-validated search of their own box; fitness=train and the paper's colony leave none, and a family that holds a parameter given at another value, or fits with another loss than the one given, is left out)", family.title()),
             (FamilyChoice::Auto, _) => format!(
                 "model=auto: {} (a stop came before the other families were searched)",
                 family.title()
