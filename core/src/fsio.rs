@@ -101,8 +101,7 @@ fn link_target(path: &Path) -> io::Result<PathBuf> {
 }
 
 /// A temporary file in `path`'s directory (so a rename replaces `path` atomically), readable by
-/// all like any file the user writes (tempfile's default is owner-only), named with `suffix`;
-/// the directory is created when missing, so a folder appears only with what is written in it.
+/// all like any file the user writes (tempfile's default is owner-only), named with `suffix`.
 ///
 /// # Errors
 /// When the file cannot be created.
@@ -111,7 +110,6 @@ pub fn temp_beside(path: &Path, suffix: &str) -> io::Result<tempfile::NamedTempF
         Some(p) if !p.as_os_str().is_empty() => p,
         _ => Path::new("."),
     };
-    std::fs::create_dir_all(dir)?;
     let mut builder = tempfile::Builder::new();
     builder.prefix(".handcap-").suffix(suffix);
     #[cfg(unix)]

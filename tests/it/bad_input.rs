@@ -199,6 +199,29 @@ fn a_sigma_that_breaks_the_kernel_or_huge_values_are_refused_not_fitted_to_nan()
     assert!(!d.join("h.json").exists());
 }
 
+/// Hostile probe (stop 85): a file whose rows repeat gave held-out errors of 0 (each copy
+/// predicted from its twin) and so radii of 0.00002 mm far from the data, unsaid.
+#[test]
+fn rows_that_repeat_exactly_are_said_to_understate_the_errors() {
+    let dir = tempdir();
+    let d = dir.path();
+    let mut csv = String::from("P1_kpa,P2_kpa,P3_kpa,x_mm,y_mm,z_mm\n");
+    for k in 0..30 {
+        csv.push_str("50,100,150,0.5,1.0,0.6\n200,180,20,2.0,2.5,0.9\n");
+        csv.push_str(&format!(
+            "{k},{},7,{},0.1,0.2\n",
+            2 * k,
+            0.01 * f64::from(k)
+        ));
+    }
+    write(d, "copies.csv", &csv);
+    let said = handcap_ok(d, &words("model copies.csv --budget 12 --out m.json"));
+    assert!(
+        said.contains("copies.csv: 58 of 90 rows repeat another row exactly"),
+        "{said}"
+    );
+}
+
 #[test]
 fn predict_warns_far_outside_the_training_range() {
     let dir = tempdir();

@@ -129,7 +129,7 @@ pub fn one_line(e: &anyhow::Error) -> String {
             line = format!("{line}: {text}");
         }
     }
-    short_numbers(&flags(&line.replace('\n', " ")))
+    said(&line.replace('\n', " "))
 }
 
 /// Prints `warning: text` on stderr, long numbers shortened as in errors ([`one_line`]).
@@ -137,9 +137,14 @@ pub fn warn(text: &str) {
     eprintln!("warning: {}", short_numbers(text));
 }
 
-/// Prints `note: text` on stderr, parameters named as flags.
+/// Prints `note: text` on stderr, as [`said`].
 pub fn note(text: &str) {
-    eprintln!("note: {}", short_numbers(&flags(text)));
+    eprintln!("note: {}", said(text));
+}
+
+/// `text` as the command line says it: parameters named as flags, long numbers shortened.
+pub fn said(text: &str) -> String {
+    short_numbers(&flags(text))
 }
 
 /// `text` with every number longer than [`LONG_NUMBER`] characters written in scientific
@@ -271,6 +276,7 @@ pub fn finish(outcome: anyhow::Result<()>) -> ExitCode {
     match outcome {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
+            crate::pipeline::outputs::remove_empty_made_folders();
             eprintln!("handcap: {}", one_line(&e));
             ExitCode::from(exit_code(&e))
         }
@@ -354,11 +360,11 @@ impl Ui {
                 }
                 *self.search_logged.lock().expect("search log") = None;
             }
-            Event::Note(line) => println!("{}", flags(&line)),
+            Event::Note(line) => println!("{}", said(&line)),
             Event::Stage { step, of, text } => println!("[{step}/{of}] {text}"),
             Event::StageTime { name, seconds } => println!("      {name} done in {seconds:.1} s"),
-            Event::Fitted(f) => print!("{}", flags(&f.to_string())),
-            Event::Outcome(o) => print!("{}", flags(&o.to_string())),
+            Event::Fitted(f) => print!("{}", said(&f.to_string())),
+            Event::Outcome(o) => print!("{}", said(&o.to_string())),
         }
     }
 }

@@ -79,7 +79,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         settings: a.settings.settings(),
     };
     let watched = super::with_session(|s| monitor::run(&watch, s.provenance(None)))?;
-    println!("{watched}");
+    println!("{}", super::said(&watched.to_string()));
     Ok(())
 }
 

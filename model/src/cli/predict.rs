@@ -26,6 +26,6 @@ pub fn run(a: Args) -> anyhow::Result<()> {
     if let Some(warning) = &done.warning {
         super::warn(warning);
     }
-    println!("{done}");
+    println!("{}", super::said(&done.to_string()));
     Ok(())
 }

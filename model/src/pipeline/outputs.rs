@@ -89,21 +89,37 @@ pub fn check(inputs: &[&Path], outputs: &[Output]) -> Result<(), PipelineError> 
     Ok(())
 }
 
-/// A directory that takes new files, or whose nearest existing parent does (where it will be
-/// created when something is written: a run that fails leaves no empty folder), probed with a
-/// temporary file.
+/// A directory that takes new files: created when missing (each folder made kept in
+/// [`made_folders`]), then probed with a temporary file.
 fn writable(dir: &Path) -> Result<(), String> {
-    let existing = dir
-        .ancestors()
-        .find(|a| a.as_os_str().is_empty() || a.exists())
-        .filter(|a| !a.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    if !existing.is_dir() {
-        return Err(format!("{} is not a directory", existing.display()));
+    if let Some(existing) = dir.ancestors().find(|a| a.exists()) {
+        if !existing.is_dir() {
+            return Err(format!("{} is not a directory", existing.display()));
+        }
     }
-    crate::fsio::temp_beside(&existing.join("probe"), ".probe")
+    let missing: Vec<PathBuf> = dir
+        .ancestors()
+        .take_while(|a| !a.as_os_str().is_empty() && !a.exists())
+        .map(Path::to_path_buf)
+        .collect();
+    std::fs::create_dir_all(dir)
+        .map_err(|e| format!("cannot create the directory {}: {}", dir.display(), os(&e)))?;
+    MADE.lock().expect("made folders").extend(missing);
+    crate::fsio::temp_beside(&dir.join("probe"), ".probe")
         .map(drop)
-        .map_err(|e| format!("{} does not take new files: {}", existing.display(), os(&e)))
+        .map_err(|e| format!("{} does not take new files: {}", dir.display(), os(&e)))
+}
+
+/// The folders [`check`] made for outputs, innermost first.
+static MADE: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
+
+/// Removes the folders [`check`] made that are still empty (a command that failed before it
+/// wrote into them): a failed run leaves no empty folder behind. A folder with anything in it
+/// stays.
+pub fn remove_empty_made_folders() {
+    for dir in MADE.lock().expect("made folders").drain(..) {
+        let _ = std::fs::remove_dir(dir);
+    }
 }
 
 /// An I/O error's text without the "(os error N)" tail.
@@ -176,13 +192,13 @@ mod tests {
             err.contains("written twice") && err.contains("phase `pairs`"),
             "{err}"
         );
-        // A new file in new directories is fine; they are made when it is written, not by
-        // the check (a run that fails after it leaves no empty folder).
+        // A new file in new directories is fine, and the directories are made; a run that
+        // fails before it writes there has them removed.
         let fine = dir.path().join("new/deeper/out.csv");
         check(&[&input], &[Output::new(&fine, "--out")]).unwrap();
+        assert!(dir.path().join("new/deeper").is_dir());
+        remove_empty_made_folders();
         assert!(!dir.path().join("new").exists());
-        crate::fsio::write_bytes(&fine, b"x\n").unwrap();
-        assert!(fine.is_file());
     }
 
     #[test]
