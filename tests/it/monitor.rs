@@ -46,7 +46,17 @@ fn watch(d: &Path, name: &str, fault: Option<&str>) -> serde_json::Value {
         d,
         &["monitor", &session, "--model", "model.json", "--out", &out],
     );
-    read_json(&d.join(&out).join("monitor.json"))
+    let watched = read_json(&d.join(&out).join("monitor.json"));
+    // The files watched, named by their hashes (the summary named none).
+    let inputs = &watched["provenance"]["inputs"];
+    assert_eq!(inputs[0]["path"], session.as_str(), "{inputs}");
+    assert_eq!(inputs[1]["path"], "model.json", "{inputs}");
+    assert_eq!(
+        inputs[1]["sha256"].as_str().map(str::len),
+        Some(64),
+        "{inputs}"
+    );
+    watched
 }
 
 #[test]

@@ -82,6 +82,11 @@ pub fn run(watch: &Watch, provenance: Provenance) -> Result<Watched, PipelineErr
         .collect();
     outputs::check(&[watch.session, watch.model], &files)?;
     let replay = Replay::read(watch)?;
+    // The files watched, by their hashes, as every other output names its inputs.
+    let mut provenance = provenance;
+    for path in [watch.session, watch.model] {
+        provenance = provenance.with_input(path).map_err(super::io_error(path))?;
+    }
     // The band follows the errors over their rows' widening factors, as the radius was
     // calibrated.
     let widened: Vec<f64> = (replay.errors.iter().zip(&replay.factors))

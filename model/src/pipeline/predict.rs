@@ -43,7 +43,7 @@ pub fn run(
     let outside = predictor.outside(&x);
     let warning = match (outside.farthest, predictor.training_range()) {
         (Some((j, v)), Some((min, max))) => Some(format!(
-            "{} of {} rows lie outside the training range (farthest: {} = {v}, trained on {}-{}); far from its data an RBF model flattens to a constant, so those predictions are guesses",
+            "{} of {} rows lie outside the training range (farthest: {} = {v}, trained on {} to {}); far from its data an RBF model flattens to a constant, so those predictions are guesses",
             outside.rows,
             x.rows(),
             predictor.inputs()[j],
