@@ -199,5 +199,13 @@ fn a_family_that_cannot_take_the_request_says_which_option() {
         err.contains("--model krr") && err.contains("--search aco-r"),
         "{err}"
     );
+    // ε = 0 held in a search's log-scaled box: said what to give (it was "the search range of
+    // epsilon is [0, 0]").
+    let zero = ["--epsilon", "0", "--loss", "quadratic"];
+    let err = handcap_usage(d, &[&base[..], &zero].concat());
+    assert!(
+        err.contains("--epsilon 0 with a search") && err.contains("--model krr"),
+        "{err}"
+    );
     assert!(!d.join("model.json").exists());
 }

@@ -257,7 +257,7 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         history: a.history,
     };
     let outcome = super::with_session(|s| fit::run(&job, s))?;
-    print!("{}", super::flags(&outcome.to_string()));
+    print!("{}", super::said(&outcome.to_string()));
     println!("wrote {}", job.out.display());
     if let Some(dir) = &job.report {
         println!("wrote {}/", dir.display());
