@@ -14,3 +14,7 @@ pub const MUSCLE_XY_MM: [[f64; 2]; 3] = [[-1.25, -0.4], [0.0, 0.8], [1.25, -0.4]
 
 /// The safety regulator's cap: no pressure above this is ever applied (kPa).
 pub const MAX_PRESSURE_KPA: f64 = 300.0;
+
+/// The inverse's default upper bound of every `_kpa` input (kPa): the micro-hand's protocol
+/// range, below the regulator's [`MAX_PRESSURE_KPA`].
+pub const DEFAULT_MAX_KPA: f64 = 250.0;

@@ -209,7 +209,7 @@ class MSVRRegressor(RegressorMixin, BaseEstimator):
         groups = _labels(groups, X.shape[0])
         return self.model_.interval_radii(np.ascontiguousarray(X), level, time=time, groups=groups)
 
-    def inverse(self, targets, max_kpa=250.0, reach=0.01):
+    def inverse(self, targets, max_kpa=None, reach=0.01):
         """(inputs, achieved, error, reached) for each target row, as `handcap inverse`."""
         check_is_fitted(self)
         T = np.asarray(targets, dtype=np.float64)

@@ -165,6 +165,31 @@ fn check_width(x: ArrayView2<f64>, names: &[String]) -> PyResult<()> {
     )))
 }
 
+/// Every value of `x` (one column per name) finite, or a `ValueError` names the first that is
+/// not (a NaN row was predicted and blamed on the model's coefficients, an infinite one given
+/// the bias as a tip).
+fn check_finite(x: ArrayView2<f64>, names: &[String]) -> PyResult<()> {
+    match x.indexed_iter().find(|(_, v)| !v.is_finite()) {
+        None => Ok(()),
+        Some(((row, j), v)) => Err(value_error(format!(
+            "X row {row}, column {j} ({}): {v} is not a finite number; remove or repair the row",
+            names[j]
+        ))),
+    }
+}
+
+/// Every value of `values` (the `what` argument) finite, or a `ValueError` names the first
+/// that is not.
+fn check_finite_1d(values: &[f64], what: &str) -> PyResult<()> {
+    match values.iter().position(|v| !v.is_finite()) {
+        None => Ok(()),
+        Some(row) => Err(value_error(format!(
+            "{what} row {row}: {} is not a finite number; give each row's",
+            values[row]
+        ))),
+    }
+}
+
 fn columns(names: &[String], x: ArrayView2<f64>) -> Columns {
     Columns::new(names.to_vec(), x.iter().copied().collect())
 }
@@ -424,13 +449,15 @@ impl Model {
     ) -> PyResult<Bound<'py, PyArray2<f64>>> {
         let (given, series) = self.given(x, time, groups)?;
         let rows = given.rows();
-        let work = || {
-            self.file
-                .model
-                .predictor()
-                .predict(&self.features(given, &series)?)
-                .map_err(|e| e.to_string())
-        };
+        let predictor = self.file.model.predictor();
+        let features = self.features(given, &series).map_err(value_error)?;
+        // Said as `handcap predict` says it on stderr.
+        if let Some(warning) = predictor.range_warning(&features) {
+            let message = std::ffi::CString::new(warning).expect("no NUL in a message");
+            let category = py.get_type::<pyo3::exceptions::PyUserWarning>();
+            PyErr::warn(py, category.as_any(), &message, 1)?;
+        }
+        let work = || predictor.predict(&features).map_err(|e| e.to_string());
         // A few rows (a controller's step) take microseconds: run here, without the thread
         // that lets Ctrl-C through a long prediction.
         let predicted = if rows * self.msvr().support_vector_count() <= INLINE_WORK {
@@ -475,6 +502,7 @@ impl Model {
         let x = array2(x, "X")?;
         let x = x.as_array();
         check_width(x, steady.inputs())?;
+        check_finite(x, steady.inputs())?;
         let n = x.nrows();
         let values: Vec<f64> = x.iter().copied().collect();
         let work = || Ok(steady.jacobians(&values));
@@ -489,15 +517,15 @@ impl Model {
     }
 
     /// The inputs that put the model's outputs at each row of `targets`, within the training
-    /// range and 0-`max_kpa` for `_kpa` inputs (as `handcap inverse`); a history model plans on
-    /// its steady state. Returns (inputs, achieved, error, reached).
-    #[pyo3(signature = (targets, max_kpa=250.0, reach=0.01))]
+    /// range and 0-`max_kpa` (250 when not given) for `_kpa` inputs (as `handcap inverse`); a
+    /// history model plans on its steady state. Returns (inputs, achieved, error, reached).
+    #[pyo3(signature = (targets, max_kpa=None, reach=0.01))]
     #[allow(clippy::type_complexity)]
     fn inverse<'py>(
         &self,
         py: Python<'py>,
         targets: &Bound<'py, PyAny>,
-        max_kpa: f64,
+        max_kpa: Option<f64>,
         reach: f64,
     ) -> PyResult<(
         Bound<'py, PyArray2<f64>>,
@@ -505,6 +533,15 @@ impl Model {
         Bound<'py, PyArray1<f64>>,
         Bound<'py, PyArray1<bool>>,
     )> {
+        let steady = self.file.steady_state();
+        // A cap given for a model with no pressure to cap was ignored, unsaid.
+        if max_kpa.is_some() && !steady.inputs().iter().any(|n| n.ends_with("_kpa")) {
+            return Err(value_error(format!(
+                "max_kpa caps the inputs named *_kpa (pressures); this model's inputs are {}, held within their training range: leave max_kpa out",
+                steady.inputs().join(", ")
+            )));
+        }
+        let max_kpa = max_kpa.unwrap_or(handcap_core::hand::DEFAULT_MAX_KPA);
         if !(max_kpa > 0.0 && max_kpa <= handcap_core::hand::MAX_PRESSURE_KPA) {
             return Err(value_error(format!(
                 "max_kpa {max_kpa} must lie in (0, {}]: the regulator caps the supply",
@@ -514,7 +551,6 @@ impl Model {
         if reach.is_nan() || reach <= 0.0 {
             return Err(value_error("reach must be positive"));
         }
-        let steady = self.file.steady_state();
         let q = steady.outputs().len();
         let targets = array2(targets, "targets")?;
         let targets = targets.as_array();
@@ -676,6 +712,7 @@ impl Model {
         let groups = groups.map(|g| array1(g, "groups")).transpose()?;
         let x = x.as_array();
         check_width(x, &names)?;
+        check_finite(x, &names)?;
         let given = columns(&names, x);
         let series = match (self.file.history(), time) {
             (None, _) => None,
@@ -695,10 +732,15 @@ impl Model {
                         h.group.as_deref().unwrap_or_default()
                     )));
                 }
-                Some(Series {
+                let series = Series {
                     time: t.as_array().to_vec(),
                     group: groups.map(|g| g.as_array().to_vec()),
-                })
+                };
+                check_finite_1d(&series.time, "time")?;
+                if let Some(group) = &series.group {
+                    check_finite_1d(group, "groups")?;
+                }
+                Some(series)
             }
         };
         Ok((given, series))

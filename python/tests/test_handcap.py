@@ -188,6 +188,25 @@ def test_bad_input_raises_value_error():
             handcap.MSVRRegressor(**{**FIXED, **bad}).fit(x, y)
 
 
+def test_a_loaded_model_refuses_what_the_command_line_refuses():
+    """Hostile probe (stop 85): the loaded model's methods took NaN inputs (a NaN row got the
+    in-sample radius, and its prediction was blamed on the model's coefficients), infinite ones
+    (the bias as a tip), NaN groups as a run, a max_kpa its inputs have no pressure for, and
+    said nothing of rows outside the training range."""
+    x, y = smooth(40, 12)
+    model = handcap.MSVRRegressor(**FIXED, intervals=True).fit(x, y).model_
+    for bad in (np.nan, np.inf):
+        row = np.array([[bad, 100.0, 100.0]])
+        for method in (model.predict, model.jacobian, lambda r: model.interval_radii(r, 0.9)):
+            with pytest.raises(ValueError, match="X row 0, column 0 .*not a finite number"):
+                method(row)
+    with pytest.warns(UserWarning, match="1 of 2 rows lie outside the training range"):
+        model.predict(np.array([[100.0, 100.0, 100.0], [1000.0, 0.0, 0.0]]))
+    with pytest.raises(ValueError, match="max_kpa caps the inputs named"):
+        model.inverse(y[:1], max_kpa=50.0)
+    assert model.inverse(y[:1])[3][0]
+
+
 def test_tampered_model_files_and_nan_targets_raise_value_error(tmp_path):
     """Issue 44, items 3-5 and 12: a model file whose history or names disagree with its
     inputs is refused on load (it used to abort the interpreter from `inverse`), an ordinary
@@ -414,6 +433,9 @@ def test_a_history_model_needs_time_and_groups(tmp_path):
         model.predict(x)
     with pytest.raises(ValueError, match="repeats the previous row"):
         model.predict(x[:2], time=np.array([0.0, 0.0]), groups=np.array([1.0, 1.0]))
+    # A NaN group label was one more run (stop 85's probe).
+    with pytest.raises(ValueError, match="groups row 0: NaN is not a finite number"):
+        model.predict(x[:2], time=np.array([0.0, 0.1]), groups=np.array([np.nan, np.nan]))
 
 
 def test_python_fits_history_models_as_the_command_line_does(tmp_path):

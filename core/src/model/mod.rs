@@ -71,6 +71,21 @@ pub trait Predict: Sync {
         out
     }
 
+    /// What to say of rows of `x` (the model's inputs) outside the training range, when there
+    /// are some ([`Self::outside`]).
+    fn range_warning(&self, x: &Columns) -> Option<String> {
+        let outside = self.outside(x);
+        let ((j, v), (min, max)) = outside.farthest.zip(self.training_range())?;
+        Some(format!(
+            "{} of {} rows lie outside the training range (farthest: {} = {v}, trained on {} to {}); far from its data an RBF model flattens to a constant, so those predictions are guesses",
+            outside.rows,
+            x.rows(),
+            self.inputs()[j],
+            min[j],
+            max[j]
+        ))
+    }
+
     /// Predicts every row of `x`, in parallel.
     ///
     /// # Errors

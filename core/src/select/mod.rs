@@ -270,22 +270,9 @@ impl Plan {
                 return refuse(format!("{name}={value} is held by search=aco-r and search=grid; the paper's colony searches all three of its digits"));
             }
         }
-        for (axis, value) in self.pinned.values() {
-            let held = asked.and_then(|f| Some((f, f.holds(axis, self.params)?)));
-            if let Some((family, held)) = held.filter(|(_, held)| *held != value) {
-                return refuse(format!("{axis}={value} with model={family}: {} holds {axis} at {held} (it does not move it); leave it out, or use model={}", family.title(), Family::names_where(|f| f.axes().contains(&axis))));
-            }
-            // A search holds a pinned axis in its box, on a log scale: above 0.
-            let moves = self
-                .family
-                .families()
-                .iter()
-                .any(|f| f.axes().contains(&axis));
-            if value <= 0.0 && moves && self.selection.searched() {
-                let krr = Family::names_where(|f| f.holds(axis, self.params) == Some(value));
-                return refuse(format!("{axis}={value} with a search: the search holds it in its box, on a log scale above 0; give {axis} above 0, search=none to fit with it as given, or model={krr}"));
-            }
-        }
+        self.family
+            .check_pinned(&self.pinned, self.params, self.selection.searched())
+            .map_err(SelectError::Parameter)?;
         if let Selection::Search {
             method,
             budget: Some(budget),

@@ -75,7 +75,7 @@ pub struct PlanArgs {
     pub smoothness: f64,
     /// Upper bound of every `_kpa` input (never above the regulator's 300 kPa); inputs also stay
     /// inside the model's training range
-    #[arg(long, default_value_t = 250.0)]
+    #[arg(long, default_value_t = crate::hand::DEFAULT_MAX_KPA)]
     pub max_kpa: f64,
     /// A target is reached when the model's output is this close (output units)
     #[arg(long, default_value_t = 0.01)]

@@ -40,18 +40,7 @@ pub fn run(
     }
     let predictor = file.model.predictor();
     let (given, x) = file.read_inputs(inputs)?;
-    let outside = predictor.outside(&x);
-    let warning = match (outside.farthest, predictor.training_range()) {
-        (Some((j, v)), Some((min, max))) => Some(format!(
-            "{} of {} rows lie outside the training range (farthest: {} = {v}, trained on {} to {}); far from its data an RBF model flattens to a constant, so those predictions are guesses",
-            outside.rows,
-            x.rows(),
-            predictor.inputs()[j],
-            min[j],
-            max[j]
-        )),
-        _ => None,
-    };
+    let warning = predictor.range_warning(&x);
     let y = predictor.predict(&x)?;
     let interval = level
         .map(|level| file.interval_radii(level, &x))

@@ -226,6 +226,33 @@ impl FamilyChoice {
         }
     }
 
+    /// Refuses a parameter given (`pinned`, with `params`) that the family asked for holds at
+    /// another value, or one of 0 that a search (`searched`) would hold in its box: the box is
+    /// on a log scale, above 0.
+    ///
+    /// # Errors
+    /// What to give instead, naming the parameters as `field=value`.
+    pub fn check_pinned(
+        self,
+        pinned: &Pinned,
+        params: MsvrParams,
+        searched: bool,
+    ) -> Result<(), String> {
+        for (axis, value) in pinned.values() {
+            if let FamilyChoice::One(family) = self {
+                if let Some(held) = family.holds(axis, params).filter(|&held| held != value) {
+                    return Err(format!("{axis}={value} with model={family}: {} holds {axis} at {held} (it does not move it); leave it out, or use model={}", family.title(), Family::names_where(|f| f.axes().contains(&axis))));
+                }
+            }
+            let moves = self.families().iter().any(|f| f.axes().contains(&axis));
+            if value <= 0.0 && moves && searched {
+                let holding = Family::names_where(|f| f.holds(axis, params) == Some(value));
+                return Err(format!("{axis}={value} with a search: the search holds it in its box, on a log scale above 0; give {axis} above 0, search=none to fit with it as given, or model={holding}"));
+            }
+        }
+        Ok(())
+    }
+
     /// Whether the parameters `pinned` holds leave an axis it moves to search.
     pub fn searches(self, pinned: &Pinned) -> bool {
         self.axes()
