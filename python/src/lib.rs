@@ -134,7 +134,11 @@ fn float_array<'py>(x: &Bound<'py, PyAny>, ndim: usize, what: &str) -> PyResult<
     let py = x.py();
     let numpy = py.import("numpy")?;
     let float64 = numpy.getattr("float64")?;
-    let a = numpy.call_method1("asarray", (x, float64))?;
+    let a = numpy.call_method1("asarray", (x, float64)).map_err(|e| {
+        value_error(format!(
+            "{what}: {e}; give numbers (number text labels first)"
+        ))
+    })?;
     let found: usize = a.getattr("ndim")?.extract()?;
     if found != ndim {
         return Err(value_error(format!(

@@ -433,6 +433,8 @@ def test_a_history_model_needs_time_and_groups(tmp_path):
         model.predict(x)
     with pytest.raises(ValueError, match="repeats the previous row"):
         model.predict(x[:2], time=np.array([0.0, 0.0]), groups=np.array([1.0, 1.0]))
+    with pytest.raises(ValueError, match="groups: .*could not convert string to float"):
+        model.predict(x[:2], time=np.array([0.0, 0.1]), groups=np.array(["a", "a"]))
     # A NaN group label was one more run (stop 85's probe).
     with pytest.raises(ValueError, match="groups row 0: NaN is not a finite number"):
         model.predict(x[:2], time=np.array([0.0, 0.1]), groups=np.array([np.nan, np.nan]))
