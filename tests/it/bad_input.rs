@@ -407,6 +407,15 @@ fn flags_are_checked_and_suggest_only_what_the_command_has() {
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("not a finite number"));
     assert_eq!(handcap(d, &["inverse", "m.json"]).status.code(), Some(2));
+    // A target no model gives (it was said to be "inf away"), named by its line; nothing
+    // written.
+    write(d, "far.csv", "x_mm,y_mm,z_mm\n1,1,-1\n\n1e300,0,0\n");
+    let msg = handcap_err(d, &words("inverse m.json --targets far.csv --out f.csv"));
+    assert!(
+        msg.contains("far.csv: line 4: target 1e300 is not a position"),
+        "{msg}"
+    );
+    assert!(!d.join("f.csv").exists());
     // predict on a file without the model's columns: no talk of --inputs, which it has not.
     write(d, "other.csv", "a,b\n1,2\n");
     let msg = handcap_err(d, &words("predict m.json other.csv --out p.csv"));

@@ -80,6 +80,8 @@ pub struct InverseSolution {
 pub enum InverseError {
     #[error("the target has {got} values but the model has {want} outputs")]
     TargetSize { got: usize, want: usize },
+    #[error("target {value:e} is not a position (not finite, or beyond ±1e100, which no model gives): give finite numbers in the outputs' units")]
+    TargetValue { value: f64 },
     #[error("input {name}: empty box [{lower}, {upper}]")]
     EmptyBox {
         name: String,
@@ -96,7 +98,8 @@ pub enum InverseError {
 /// Solves for the inputs that put `model`'s outputs at `target`.
 ///
 /// # Errors
-/// [`InverseError`] for a target of the wrong size or an empty box.
+/// [`InverseError`] for a target of the wrong size, a value no model gives (its distances
+/// would overflow: 1e300 was said to be "inf away"), or an empty box.
 pub fn solve(
     model: &dyn Differentiable,
     target: &[f64],
@@ -108,6 +111,13 @@ pub fn solve(
             got: target.len(),
             want: q,
         });
+    }
+    let largest = super::msvr::LARGEST_NUMBER;
+    if let Some(&value) = target
+        .iter()
+        .find(|v| !(v.is_finite() && v.abs() <= largest))
+    {
+        return Err(InverseError::TargetValue { value });
     }
     for j in 0..d {
         let ordered = options.lower[j] <= options.upper[j];

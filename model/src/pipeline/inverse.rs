@@ -130,7 +130,7 @@ pub fn plan_targets(job: &Targets) -> Result<PlannedTargets, PipelineError> {
     let (steady, mut notes) = steady_state(&file);
     let model: &dyn Differentiable = &steady;
     let options = job.limits.options(model)?;
-    let targets = data::read_columns(job.targets, model.outputs())?;
+    let (targets, lines) = data::read_columns_with_lines(job.targets, model.outputs())?;
     if targets.rows() == 0 {
         return Err(data::DataError::NoRows {
             path: job.targets.into(),
@@ -138,9 +138,15 @@ pub fn plan_targets(job: &Targets) -> Result<PlannedTargets, PipelineError> {
         }
         .into());
     }
+    // A target no model gives is named by its line.
     let solutions: Vec<InverseSolution> = targets
         .iter_rows()
-        .map(|t| inverse::solve(model, t, &options))
+        .zip(&lines)
+        .map(|(t, line)| {
+            inverse::solve(model, t, &options).map_err(|e| {
+                PipelineError::Input(format!("{}: line {line}: {e}", job.targets.display()))
+            })
+        })
         .collect::<Result<_, _>>()?;
     let planned = solution_columns(model, &solutions);
     let planned_inputs = solutions.iter().map(|s| &s.inputs[..]);
