@@ -179,7 +179,8 @@ const FIELDS: &str =
     "c epsilon sigma basis folds folds_by history fitness budget max_rows intervals \
     pressures max_kpa reach gain max_rate smoothness board square_mm marker_mm \
     dictionary fps width height stall_s duration_s pairs settle_s search search_on \
-    hysteresis_kpa baseline_mm distance_mm fov_deg groups time no_images dynamic model weight";
+    hysteresis_kpa baseline_mm distance_mm fov_deg groups time no_images dynamic model weight \
+    loss";
 
 /// The parameters whose flag has another name.
 const RENAMED: [(&str, &str); 1] = [("groups", "--group-by")];

@@ -13,7 +13,7 @@ use crate::search::aco_paper::AcoPaper;
 use crate::search::aco_r::AcoR;
 use crate::search::grid::Grid;
 use crate::search::{Method, SearchStop};
-use crate::select::family::{Family, FamilyChoice};
+use crate::select::family::FamilyChoice;
 use crate::select::fitness::FitnessKind;
 use crate::select::folds::FoldsBy;
 use crate::select::tune::{BasisChoice, Pinned};
@@ -208,12 +208,6 @@ pub fn run(a: Args) -> anyhow::Result<()> {
         loss: (a.loss != LossArg::Auto).then_some(loss),
     };
     let method = method.filter(|_| a.model.searches(&pinned));
-    if let FamilyChoice::One(family) = a.model {
-        let fixed = family.fixed_loss().filter(|fixed| *fixed != loss);
-        if let Some(fixed) = fixed.filter(|_| a.loss != LossArg::Auto) {
-            usage!("--loss {loss} with --model {family}: {} fits with the {fixed} loss; leave --loss out, or use --model {}", family.title(), Family::names_where(|f| f.fixed_loss().is_none()));
-        }
-    }
     let job = FitJob {
         family: a.model,
         data: a.data,

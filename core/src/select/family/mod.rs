@@ -227,8 +227,8 @@ impl FamilyChoice {
     }
 
     /// Refuses a parameter given (`pinned`, with `params`) that the family asked for holds at
-    /// another value, or one of 0 that a search (`searched`) would hold in its box: the box is
-    /// on a log scale, above 0.
+    /// another value, a loss given that it does not fit with, or a parameter of 0 that a search
+    /// (`searched`) would hold in its box: the box is on a log scale, above 0.
     ///
     /// # Errors
     /// What to give instead, naming the parameters as `field=value`.
@@ -238,6 +238,11 @@ impl FamilyChoice {
         params: MsvrParams,
         searched: bool,
     ) -> Result<(), String> {
+        if let (FamilyChoice::One(family), Some(given)) = (self, pinned.loss) {
+            if let Some(fixed) = family.fixed_loss().filter(|&fixed| fixed != given) {
+                return Err(format!("loss={given} with model={family}: {} fits with the {fixed} loss; leave it out, or use model={}", family.title(), Family::names_where(|f| f.fixed_loss().is_none())));
+            }
+        }
         for (axis, value) in pinned.values() {
             if let FamilyChoice::One(family) = self {
                 if let Some(held) = family.holds(axis, params).filter(|&held| held != value) {
