@@ -278,13 +278,20 @@ pub fn planned_radii<'a>(
         steady.inputs().to_vec(),
         planned.into_iter().flatten().copied().collect(),
     );
-    match file.interval_radii(level?, &steady.features(&planned)) {
-        Ok(r) => Some(r),
-        Err(e) => {
-            notes.push(format!("no interval around the planned tips: {e}"));
-            None
-        }
-    }
+    radii_at(file, &steady.features(&planned), level, notes)
+}
+
+/// The model's conformal radius at `level` around its outputs at each row of `features` (the
+/// model's own inputs); `None` without a level, or with a note saying why there is none.
+pub fn radii_at(
+    file: &ModelFile,
+    features: &Columns,
+    level: Option<f64>,
+    notes: &mut Vec<String>,
+) -> Option<RowRadii> {
+    file.interval_radii(level?, features)
+        .map_err(|e| notes.push(format!("no interval around the planned outputs: {e}")))
+        .ok()
 }
 
 /// The interval's level when none is given: said in a note when the model has none.

@@ -265,15 +265,11 @@ pub fn run(r: &Request) -> Result<Planned, PipelineError> {
         }
     };
     let mut notes = Vec::new();
-    let interval = r.level.and_then(|level| {
-        let features = Columns::new(
-            file.model.predictor().inputs().to_vec(),
-            plan.features.clone(),
-        );
-        file.interval_radii(level, &features)
-            .map_err(|e| notes.push(format!("no interval around the planned outputs: {e}")))
-            .ok()
-    });
+    let features = Columns::new(
+        file.model.predictor().inputs().to_vec(),
+        plan.features.clone(),
+    );
+    let interval = super::inverse::radii_at(&file, &features, r.level, &mut notes);
     write(r.out, &steady, time_column, &time, &plan, interval.as_ref())?;
     path_figure(
         &figure,

@@ -103,6 +103,11 @@ impl<'a> Dynamic<'a> {
         self.history.map_or(0, |h| h.memory.blocks())
     }
 
+    /// The model's own inputs per row: the commands, then each memory block's.
+    fn width(&self) -> usize {
+        self.d() * (1 + self.blocks())
+    }
+
     /// The rows memory reaches back (for the windows' length).
     fn memory_rows(&self, time: &[f64]) -> usize {
         let dt = median_step(time);
@@ -166,7 +171,7 @@ impl Along<'_, '_> {
     /// The features at row `k` of the commands `u` (`n × d`).
     fn features(&self, u: &[f64], k: usize) -> Vec<f64> {
         let d = self.dynamic.d();
-        let mut x = vec![0.0; d * (1 + self.dynamic.blocks())];
+        let mut x = vec![0.0; self.dynamic.width()];
         x[..d].copy_from_slice(&u[k * d..(k + 1) * d]);
         for (b, w) in self.weights.iter().enumerate() {
             let block = &mut x[d * (1 + b)..d * (2 + b)];
@@ -179,24 +184,38 @@ impl Along<'_, '_> {
         x
     }
 
+    /// The features of every row of the commands `u` (`n × features`), rows in parallel.
+    fn all_features(&self, u: &[f64]) -> Vec<f64> {
+        let width = self.dynamic.width();
+        let mut x = vec![0.0; self.time.len() * width];
+        x.par_chunks_mut(width)
+            .enumerate()
+            .for_each(|(k, row)| row.copy_from_slice(&self.features(u, k)));
+        x
+    }
+
+    /// The model's outputs at the rows of `features` (`n × q`).
+    fn predict_at(&self, features: &[f64]) -> Vec<f64> {
+        let q = self.dynamic.model.outputs().len();
+        let width = self.dynamic.width();
+        let mut y = vec![0.0; features.len() / width * q];
+        y.par_chunks_mut(q)
+            .zip(features.par_chunks(width))
+            .for_each(|(out, x)| self.dynamic.model.predict_row(x, out));
+        y
+    }
+
     /// The model's outputs along the commands `u` from rest (`n × q`).
     fn predict(&self, u: &[f64]) -> Vec<f64> {
-        let q = self.dynamic.model.outputs().len();
-        let mut y = vec![0.0; self.time.len() * q];
-        y.par_chunks_mut(q).enumerate().for_each(|(k, out)| {
-            self.dynamic.model.predict_row(&self.features(u, k), out);
-        });
-        y
+        self.predict_at(&self.all_features(u))
     }
 
     /// The predicted outputs of commands `u`, the features they were predicted at, and their
     /// distances from `targets`.
     fn finish(&self, targets: &[f64], u: Vec<f64>, reach: f64) -> PathPlan {
         let q = self.dynamic.model.outputs().len();
-        let predicted = self.predict(&u);
-        let features = (0..self.time.len())
-            .flat_map(|k| self.features(&u, k))
-            .collect();
+        let features = self.all_features(&u);
+        let predicted = self.predict_at(&features);
         let error = distances(&predicted, targets, q);
         PathPlan {
             inputs: u,

@@ -74,7 +74,7 @@ impl Window<'_, '_> {
         let (d, q) = (dynamic.d(), dynamic.model.outputs().len());
         let (s, e) = self.rows;
         let m = (e - s) * d;
-        let features = d * (1 + dynamic.blocks());
+        let features = dynamic.width();
         let per_row: Vec<(Vec<f64>, Vec<f64>)> = (s..e)
             .into_par_iter()
             .map(|k| {
